@@ -1,0 +1,1 @@
+"""Device adapters (serial IMU, CAN IMU, Modbus rotary table) and their virtual twins."""

@@ -1,0 +1,38 @@
+"""The unit of data every IMU driver produces: a block of timestamped samples."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """k consecutive samples of m channels, as decoded from the wire.
+
+    counts      : (k, m) int64   raw integer counts, exactly as sent by the device
+    seq         : (k,)   int64   device sequence number, unwrapped (monotonic, gaps = dropped frames)
+    device_time : (k,)   float64 device timestamp in seconds (NaN where the device sends none)
+    host_time   : (k,)   float64 host clock (station.clock) when the bytes were read, seconds
+    """
+
+    counts: np.ndarray
+    seq: np.ndarray
+    device_time: np.ndarray
+    host_time: np.ndarray
+    channels: tuple = field(default=())
+
+    def __len__(self) -> int:
+        return len(self.seq)
+
+    @staticmethod
+    def concat(blocks: list["SampleBlock"]) -> "SampleBlock":
+        """One block holding all samples of `blocks` in order."""
+        if not blocks:
+            raise ValueError("no sample blocks to concatenate")
+        return SampleBlock(
+            counts=np.concatenate([b.counts for b in blocks]),
+            seq=np.concatenate([b.seq for b in blocks]),
+            device_time=np.concatenate([b.device_time for b in blocks]),
+            host_time=np.concatenate([b.host_time for b in blocks]),
+            channels=blocks[0].channels,
+        )
