@@ -1,0 +1,1 @@
+"""Named effects of the simulator, one module each, all off by default (docs/simulator.md)."""

@@ -1,0 +1,34 @@
+"""Effect `rate_error`: the table's true rate differs from the commanded rate.
+
+Parameters
+----------
+scale : float
+    Overall relative error of the table's rate: true = commanded * (1 + scale + delta_j).
+spread : float
+    Standard deviation of the per-position (per run) relative error delta_j.
+
+The distortion multiplies the angular-rate truth by the factor of each position, so |v_j| changes
+while its direction does not.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RateError:
+    """Relative error of the table's true rate: overall `scale` and per-position `spread` (sd)."""
+
+    scale: float = 0.0
+    spread: float = 0.0
+
+    def factors(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n,) true/commanded rate ratios 1 + scale + delta_j, delta_j ~ N(0, spread^2)."""
+        delta = self.spread * rng.standard_normal(n) if self.spread else np.zeros(n)
+        return 1.0 + self.scale + delta
+
+
+def apply(omega: np.ndarray, factors: np.ndarray) -> np.ndarray:
+    """Angular-rate truth (n, k, d) with position j's rate scaled by factors[j]."""
+    return omega * np.asarray(factors, float)[:, None, None]

@@ -1,0 +1,164 @@
+"""Live physics of the rotary table, driven by a shared clock (the Modbus twin's truth).
+
+The table's controller ramps its rate towards the setpoint with bounded acceleration, integrates the
+angle exactly (piecewise linear rate), and raises `at_rate` once the rate has stayed within
+`tolerance` of the setpoint for `settle_time`. `TableState.rate` and `.angle` are what the table
+reports (its own encoder and controller); with the `rate_error` effect the physical motion the IMU
+feels is `true_rate = factor * rate`, where the factor is drawn anew at every `start()`.
+"""
+
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.sim.effects.rate_error import RateError
+
+
+@dataclass(frozen=True)
+class TableState:
+    """Snapshot of the table at `time` (seconds of the shared clock); rates rad/s, angles rad.
+
+    `angle` is unwrapped (cumulative). `true_rate`/`true_angle` are the physical motion, which
+    differs from the reported one only under the `rate_error` effect.
+    """
+
+    time: float
+    rate: float
+    angle: float
+    rate_setpoint: float
+    running: bool
+    moving: bool
+    at_rate: bool
+    fault: bool
+    true_rate: float
+    true_angle: float
+
+
+class RotaryTable:
+    """Rotary table physics advanced to `clock.now()` on every call; thread-safe.
+
+    Parameters
+    ----------
+    clock : object with `now()` (e.g. `station.clock.ScaledClock`), shared with the other twins.
+    max_accel : bound on |d rate / dt|, rad/s^2.
+    rate_noise : standard deviation of the reported rate while moving, rad/s (encoder jitter).
+    max_rate : largest accepted |setpoint|, rad/s.
+    tolerance : |rate - setpoint| below which the table counts as at rate, rad/s.
+    settle_time : how long the rate must stay within tolerance before `at_rate`, s.
+    rate_error : optional `RateError` effect (true rate differs from the command).
+    seed : seed of the numpy Generator for the rate noise and the rate-error draws.
+    """
+
+    def __init__(self, clock, max_accel=2.0, rate_noise=0.0, max_rate=20.0, tolerance=1e-3,
+                 settle_time=0.5, rate_error: RateError | None = None, seed=None):
+        if not max_accel > 0:
+            raise ValueError(f"max_accel must be positive (rad/s^2), got {max_accel!r}")
+        if not (tolerance > 0 and settle_time >= 0 and rate_noise >= 0 and max_rate > 0):
+            raise ValueError("tolerance and max_rate must be positive, settle_time and "
+                             "rate_noise non-negative")
+        self._clock = clock
+        self.max_accel = float(max_accel)
+        self.rate_noise = float(rate_noise)
+        self.max_rate = float(max_rate)
+        self.tolerance = float(tolerance)
+        self.settle_time = float(settle_time)
+        self._rate_error = rate_error or RateError()
+        self._rng = np.random.default_rng(seed)
+        self._lock = threading.Lock()
+        self._t = clock.now()
+        self._rate = 0.0
+        self._angle = 0.0
+        self._true_angle = 0.0
+        self._factor = 1.0
+        self._setpoint = 0.0
+        self._running = False
+        self._fault = False
+        self._in_band_since = None
+
+    def _target(self) -> float:
+        return self._setpoint if self._running and not self._fault else 0.0
+
+    def _advance(self) -> None:
+        """Integrate rate and angle from the last update to clock.now() (ramp, then constant)."""
+        t1 = self._clock.now()
+        dt = t1 - self._t
+        if dt <= 0:
+            return
+        r0, target = self._rate, self._target()
+        t_ramp = abs(target - r0) / self.max_accel
+        if dt < t_ramp:
+            r1 = r0 + math.copysign(self.max_accel * dt, target - r0)
+            dangle = 0.5 * (r0 + r1) * dt
+        else:
+            r1 = target
+            dangle = 0.5 * (r0 + target) * t_ramp + target * (dt - t_ramp)
+        self._track_band(r0, r1, t_ramp)
+        self._rate, self._angle, self._t = r1, self._angle + dangle, t1
+        self._true_angle += self._factor * dangle
+
+    def _track_band(self, r0: float, r1: float, t_ramp: float) -> None:
+        """Remember when the rate entered the tolerance band around the setpoint."""
+        if not (self._running and not self._fault) or abs(r1 - self._setpoint) >= self.tolerance:
+            self._in_band_since = None
+        elif self._in_band_since is None:
+            gap = abs(r0 - self._setpoint)
+            entered = max(0.0, (gap - self.tolerance) / self.max_accel)
+            self._in_band_since = self._t + min(entered, t_ramp)
+
+    def _command(self) -> None:
+        """A command changed the target: restart the settle timer from the present state."""
+        self._in_band_since = None
+        self._track_band(self._rate, self._rate, 0.0)
+
+    def set_rate(self, rate_rad_s: float) -> None:
+        """Set the rate setpoint (rad/s, signed); applied with bounded acceleration while running."""
+        rate = float(rate_rad_s)
+        if not math.isfinite(rate) or abs(rate) > self.max_rate:
+            raise ValueError(f"rate setpoint {rate_rad_s!r} rad/s is outside the table's range "
+                             f"+-{self.max_rate} rad/s; command a smaller rate")
+        with self._lock:
+            self._advance()
+            self._setpoint = rate
+            self._command()
+
+    def start(self) -> bool:
+        """Run towards the setpoint; refused (returns False) while a fault is active."""
+        with self._lock:
+            self._advance()
+            if self._fault:
+                return False
+            self._running = True
+            self._factor = float(self._rate_error.factors(1, self._rng)[0])
+            self._command()
+            return True
+
+    def stop(self) -> None:
+        """Decelerate to rest with the bounded acceleration."""
+        with self._lock:
+            self._advance()
+            self._running = False
+            self._command()
+
+    def fault(self, flag: bool) -> None:
+        """Raise (True) or clear (False) a fault; a fault stops the run and the table decelerates."""
+        with self._lock:
+            self._advance()
+            self._fault = bool(flag)
+            if self._fault:
+                self._running = False
+            self._command()
+
+    def state(self) -> TableState:
+        """Advance to clock.now() and return the reported and true motion."""
+        with self._lock:
+            self._advance()
+            moving = self._rate != 0.0
+            noise = self.rate_noise * self._rng.standard_normal() if moving and self.rate_noise else 0.0
+            at_rate = (self._in_band_since is not None
+                       and self._t - self._in_band_since >= self.settle_time)
+            return TableState(time=self._t, rate=self._rate + noise, angle=self._angle,
+                              rate_setpoint=self._setpoint, running=self._running, moving=moving,
+                              at_rate=at_rate, fault=self._fault,
+                              true_rate=self._factor * self._rate, true_angle=self._true_angle)
