@@ -1,0 +1,98 @@
+"""Uncertainty from the Fisher information, with the rotation gauge handled; the Cramer-Rao bound.
+
+The Fisher information of the readings model (station/ml.py) reduced to the per-sensor parameters
+theta_i = (a_i, b_i) by the Schur complement over the position directions is singular along the
+d(d-1)/2 rotations of Remark 1 (Rupniewski). Its pseudo-inverse over the remaining directions is the
+covariance of every gauge-invariant function of theta: scale factors |a_i|, angles between axes,
+biases, and a expressed in a frame defined by a itself (the canonical frame of Eq. 19).
+"""
+
+import numpy as np
+
+from station.frames import to_canonical
+from station.ml import NormalEquations, normal_equations, reduced_system
+
+
+def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
+    """Inverse of a symmetric PSD matrix over all but its `gauge_dim` smallest eigen-directions."""
+    lam, vec = np.linalg.eigh(fisher)
+    keep = slice(gauge_dim, None)
+    return (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+
+
+def global_covariance(neq: NormalEquations, d: int) -> np.ndarray:
+    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher matrix."""
+    s, _, _ = reduced_system(neq)
+    return gauge_pinv(s, d * (d - 1) // 2)
+
+
+def propagate(cov: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """Covariance of f(theta) given the Jacobian of f (k x len(theta))."""
+    return jac @ cov @ jac.T
+
+
+def scale_factor_jacobian(a: np.ndarray, p: int) -> np.ndarray:
+    """d|a_i| / d theta: (m, m p)."""
+    d, m = a.shape
+    jac = np.zeros((m, m, p))
+    jac[np.arange(m), np.arange(m), :d] = (a / np.linalg.norm(a, axis=0)).T
+    return jac.reshape(m, m * p)
+
+
+def axis_angles(a: np.ndarray) -> np.ndarray:
+    """Angles (rad) between the sensitive axes, (m, m)."""
+    u = a / np.linalg.norm(a, axis=0)
+    return np.arccos(np.clip(u.T @ u, -1.0, 1.0))
+
+
+def axis_angle_jacobian(a: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i < k) and d angle(a_i, a_k) / d theta: (pairs, m p)."""
+    d, m = a.shape
+    norms = np.linalg.norm(a, axis=0)
+    u = a / norms
+    i, k = np.triu_indices(m, 1)
+    cos = np.einsum("dp,dp->p", u[:, i], u[:, k])
+    sin = np.sqrt(np.maximum(1.0 - cos**2, 1e-300))
+    jac = np.zeros((len(i), m, p))
+    rows = np.arange(len(i))
+    jac[rows, i, :d] = (-(u[:, k] - cos * u[:, i]) / (sin * norms[i])).T
+    jac[rows, k, :d] = (-(u[:, i] - cos * u[:, k]) / (sin * norms[k])).T
+    return np.stack([i, k]), jac.reshape(len(i), m * p)
+
+
+def bias_jacobian(m: int, p: int) -> np.ndarray:
+    """d b_i / d theta: (m, m p)."""
+    jac = np.zeros((m, m, p))
+    jac[np.arange(m), np.arange(m), p - 1] = 1.0
+    return jac.reshape(m, m * p)
+
+
+def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7) -> np.ndarray:
+    """d vec(frame(a)) / d theta by central differences, (d m, m p); frame(a) must be gauge-invariant."""
+    d, m = a.shape
+    jac = np.zeros((d * m, m, p))
+    h = step * max(np.abs(a).max(), 1e-300)
+    for i in range(m):
+        for k in range(d):
+            da = np.zeros_like(a)
+            da[k, i] = h
+            jac[:, i, k] = (frame(a + da) - frame(a - da)).ravel() / (2 * h)
+    return jac.reshape(d * m, m * p)
+
+
+def crlb(a, v, sigma, *, estimate_bias: bool = False) -> np.ndarray:
+    """Cramer-Rao bound on a in the canonical frame of Eq. (19): covariance (d m x d m), row-major.
+
+    For readings M = a^T v (+ b) + noise with noise standard deviation `sigma` (scalar, (m,) or
+    (m, n)) and |v_j| = c known, trace(crlb) is the smallest achievable E[eps^2] of Eq. (19).
+    """
+    a = np.asarray(a, float)
+    v = np.asarray(v, float)
+    d, m = a.shape
+    magnitude = float(np.linalg.norm(v[:, 0]))
+    sig = np.broadcast_to(np.asarray(sigma, float).reshape(-1, 1) if np.ndim(sigma) == 1
+                          else np.asarray(sigma, float), (m, v.shape[1]))
+    bias = np.zeros(m) if estimate_bias else None
+    neq, _ = normal_equations(a, v, bias, a.T @ v, 1.0 / sig**2, magnitude)
+    p = d + (1 if estimate_bias else 0)
+    return propagate(global_covariance(neq, d), frame_jacobian(a, p))
