@@ -1,0 +1,53 @@
+"""Reported uncertainties are honest: nominal 95 % intervals cover the truth about 95 % of the time."""
+
+import numpy as np
+from layouts import random_directions, section4_gyros
+
+import station
+
+
+def binomial_band(p, trials, k=3.0):
+    """Acceptance band for a coverage fraction: p +- k binomial standard deviations."""
+    half = k * np.sqrt(p * (1 - p) / trials)
+    return p - half, p + half
+
+
+def test_95_percent_intervals_of_scales_and_angles_cover_the_truth():
+    rng = np.random.default_rng(7)
+    trials = 300
+    cover_s, cover_ang = [], []
+    i, k = np.triu_indices(12, 1)
+    for _ in range(trials):
+        a, v, readings = section4_gyros(rng, 20, 0.01)
+        res = station.calibrate(readings, 1.0)  # sigma estimated from the residuals
+        true_s = np.linalg.norm(a, axis=0)
+        u = a / true_s
+        true_ang = np.arccos(np.clip(u.T @ u, -1, 1))
+        cover_s.append(np.abs(res.scale_factors - true_s) < 1.96 * res.scale_factors_sigma)
+        cover_ang.append(np.abs(res.axis_angles - true_ang)[i, k] < 1.96 * res.axis_angles_sigma[i, k])
+    lo, hi = binomial_band(0.95, trials)  # conservative: one effective sample per trial
+    assert lo < np.mean(cover_s) < hi, np.mean(cover_s)
+    assert lo < np.mean(cover_ang) < hi, np.mean(cover_ang)
+
+
+def test_bias_intervals_cover_the_truth_for_a_triad_with_unknown_biases():
+    rng = np.random.default_rng(8)
+    a = np.array([[9.7, 0.05, -0.1], [0.0, 9.9, 0.08], [0.0, 0.0, 9.8]])
+    trials, cover = 300, []
+    for _ in range(trials):
+        b = rng.normal(0, 0.5, 3)
+        v = random_directions(rng, 3, 24)
+        res = station.calibrate(a.T @ v + b[:, None] + 0.01 * rng.standard_normal((3, 24)), 1.0,
+                                bias="estimate", sigma=0.01)
+        cover.append(np.abs(res.bias - b) < 1.96 * res.bias_sigma)
+    lo, hi = binomial_band(0.95, trials)
+    assert lo < np.mean(cover) < hi, np.mean(cover)
+
+
+def test_crlb_trace_scales_with_sigma_squared_and_inverse_n():
+    rng = np.random.default_rng(9)
+    a, v, _ = section4_gyros(rng, 40, 0.0)
+    t1 = np.trace(station.crlb(a, v, 0.01))
+    np.testing.assert_allclose(np.trace(station.crlb(a, v, 0.02)), 4 * t1, rtol=1e-9)
+    doubled = np.hstack([v, v])  # every position twice: information doubles
+    np.testing.assert_allclose(np.trace(station.crlb(a, doubled, 0.01)), t1 / 2, rtol=1e-6)
