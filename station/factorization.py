@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from station.constraints import Constraints
+from station.constraints import Constraints, magnitude_constraints
 from station.errors import CalibrationInputError
 from station.frames import canonical_rotation
 
@@ -44,12 +44,13 @@ class FactorizationResult:
     bias: np.ndarray
 
 
-def factorize(readings, constraints: Constraints, *, magnitude: float = 1.0, d: int = 3,
+def factorize(readings, constraints: Constraints | None = None, *, magnitude: float = 1.0, d: int = 3,
               bias=None, estimate_bias: bool | None = None,
               reference: int | None = None) -> FactorizationResult:
     """Calibrate m sensors from n averaged readings (m x n) and inner-product constraints.
 
-    constraints : `v_j . v_k = h c^2` with c = `magnitude` (station.constraints).
+    constraints : `v_j . v_k = h c^2` with c = `magnitude` (station.constraints); default: the
+        magnitude constraints |v_j| = c of every position.
     bias : known biases (m,); then the triad case p = d is solved on `M - b 1^T` (Eq. 13).
     estimate_bias : estimate the biases jointly (p = d + 1, Eqs. 16-26; needs m >= d + 1). Default:
         when no bias is given and m >= d + 1; otherwise biases come from opposite pairs (Eq. 14).
@@ -59,6 +60,7 @@ def factorize(readings, constraints: Constraints, *, magnitude: float = 1.0, d: 
     M = _checked_readings(readings, d)
     m, n = M.shape
     c = _checked_magnitude(magnitude)
+    constraints = magnitude_constraints(n) if constraints is None else constraints
     constraints.check_positions(n)
     joint = _estimates_bias(m, d, bias, estimate_bias)
     if joint:
