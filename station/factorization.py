@@ -28,6 +28,9 @@ from station.frames import canonical_rotation
 
 # Relative size below which a singular value or an eigenvalue counts as zero.
 RANK_TOL = 1e-9
+# RMS miss of the constraints (units of c^2) above which they are declared inconsistent: noise of
+# a sensor worth calibrating misses by well under 1 %; a wrong face label misses by about 0.3 or more.
+CONSTRAINT_TOL = 0.1
 
 
 @dataclass(frozen=True)
@@ -223,11 +226,25 @@ def _solve_gram(motion_hat: np.ndarray, constraints: Constraints, joint: bool,
             "unknowns of the metric upgrade: they relate too few or too similar positions.",
             "Add constraints between other positions: more faces, or another mounting in the iron.")
     if orthogonal_only:
-        return _scaled_to_reference(_symmetric(vt[-1], p), motion_hat, reference, n)
-    q = vt[:needed].T @ ((u[:, :needed].T @ h) / s[:needed])  # least squares, rank `needed`
-    if all_equal:
-        return _quartic_root(_symmetric(q, p), _symmetric(vt[-1], p), p - 1)
-    return _symmetric(q, p)
+        Q = _scaled_to_reference(_symmetric(vt[-1], p), motion_hat, reference, n)
+    else:
+        q = vt[:needed].T @ ((u[:, :needed].T @ h) / s[:needed])  # least squares, rank `needed`
+        Q = _symmetric(q, p)
+        if all_equal:
+            Q = _quartic_root(Q, _symmetric(vt[-1], p), p - 1)
+    _check_consistent(L @ Q[np.triu_indices(p)] - h)
+    return Q
+
+
+def _check_consistent(residual: np.ndarray) -> None:
+    """Raise if the constraints miss by more than CONSTRAINT_TOL (in units of c^2) on average."""
+    rms = float(np.sqrt(np.mean(residual**2)))
+    if rms > CONSTRAINT_TOL:
+        raise CalibrationInputError(
+            f"The constraints contradict the readings: v_j . v_k misses h c^2 by {rms:.2f} c^2 "
+            "(RMS), far more than sensor noise explains.",
+            "Check the face and mounting labels of each position, that the unit was still, and "
+            "that every position has the same magnitude.")
 
 
 def _scaled_to_reference(Qn: np.ndarray, motion_hat: np.ndarray, reference: int,
@@ -259,7 +276,8 @@ def _quartic_root(Qp: np.ndarray, Qn: np.ndarray, rank: int) -> np.ndarray:
     if best is None or best_score <= RANK_TOL:
         raise CalibrationInputError(
             "Magnitude constraints alone admit no valid calibration (Eq. 29 has no root with a "
-            "positive semi-definite Q of rank 3): the readings do not have a constant magnitude.",
+            f"positive semi-definite Q of rank {rank}): the readings do not have a constant "
+            "magnitude.",
             "Check that the unit was still and the magnitude is right; add orthogonal or "
             "opposite constraints (right-angle iron faces).")
     return best
