@@ -1,0 +1,381 @@
+"""CAN IMU driver: frames described by a DBC file -> timestamped `SampleBlock`s (python-can, cantools).
+
+One sample of m channels travels as one or more CAN frames that all carry the same sample counter
+(an n-bit integer that wraps). The DBC file describes the frames and their signals; the device
+profile (TOML: `[imu]` and `[can]` sections) says which frames make one sample, which signal is the
+counter and which signal feeds which channel. The raw integer value of a signal is the channel's
+count; the profile's `scale` (counts per SI unit) converts counts to SI units.
+
+Live: `CanImu(bus, profile)` runs one `can.Notifier` on the bus with one listener that never lets an
+exception escape (an escaping exception would kill the notifier thread), decodes frames as they
+arrive and, when asked, writes every raw frame to a `can.Logger` file (`.blf` or `.log`).
+`replay(log_path, profile)` decodes such a file to the same samples.
+
+Frames that the profile does not know, short frames, and samples whose frames are incomplete (a lost
+frame of a multi-frame sample) are counted in `CanStats`, never emitted half-filled.
+"""
+
+import math
+import threading
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import can
+import cantools
+import numpy as np
+
+from drivers.samples import SampleBlock
+from station.clock import WallClock
+
+
+class CanProfileError(ValueError):
+    """The CAN section of a device profile, or its DBC file, cannot describe the device."""
+
+
+@dataclass(frozen=True)
+class CanProfile:
+    """What the driver needs to turn frames into samples.
+
+    channels : channel names, in column order of the samples
+    units    : SI unit of the channels (e.g. "rad/s")
+    scale    : counts per SI unit
+    rate_hz  : nominal sample rate of the device
+    dbc      : path of the DBC file describing the frames
+    frames   : names of the DBC messages that make one sample, in the order the device sends them
+    counter  : name of the sample-counter signal present in every one of those frames
+    signals  : channel name -> "MESSAGE.SIGNAL"
+    """
+
+    channels: tuple
+    units: str
+    scale: float
+    rate_hz: float
+    dbc: Path
+    frames: tuple
+    counter: str
+    signals: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_dict(cls, data: dict, base_dir: Path = Path(".")) -> "CanProfile":
+        """Build from a parsed TOML profile with `[imu]` and `[can]` tables (DBC path relative to
+        `base_dir`, the profile's folder)."""
+        imu, can_section = _table(data, "imu"), _table(data, "can")
+        try:
+            channels = tuple(str(c) for c in imu["channels"])
+            profile = cls(
+                channels=channels,
+                units=str(imu["units"]),
+                scale=float(imu["scale"]),
+                rate_hz=float(imu["rate_hz"]),
+                dbc=Path(base_dir) / str(can_section["dbc"]),
+                frames=tuple(str(f) for f in can_section["frames"]),
+                counter=str(can_section["counter"]),
+                signals={str(k): str(v) for k, v in _table(can_section, "signals").items()},
+            )
+        except KeyError as missing:
+            raise CanProfileError(f"device profile lacks the key {missing}; see the CAN IMU "
+                                  "section of docs/devices.md for the required keys") from None
+        if not (math.isfinite(profile.scale) and profile.scale > 0 and profile.rate_hz > 0):
+            raise CanProfileError("[imu] scale (counts per SI unit) and rate_hz must be positive")
+        if set(profile.signals) != set(channels):
+            raise CanProfileError(
+                f"[can.signals] must map exactly the channels {list(channels)}; it maps "
+                f"{sorted(profile.signals)}")
+        return profile
+
+    @classmethod
+    def load(cls, path) -> "CanProfile":
+        """Read a TOML device profile file."""
+        path = Path(path)
+        with path.open("rb") as f:
+            return cls.from_dict(tomllib.load(f), path.parent)
+
+
+def _table(data: dict, name: str) -> dict:
+    value = data.get(name)
+    if not isinstance(value, dict):
+        raise CanProfileError(f"device profile needs a [{name}] table; see docs/devices.md")
+    return value
+
+
+@dataclass(frozen=True)
+class _Slot:
+    """One frame of a sample: its position in the sample, its DBC message, its channel columns."""
+
+    index: int
+    message: object
+    columns: tuple  # (signal name, column) pairs
+
+
+class FrameLayout:
+    """The DBC messages of a profile, checked against each other, ready to encode and decode."""
+
+    def __init__(self, profile: CanProfile):
+        try:
+            db = cantools.database.load_file(profile.dbc)
+        except FileNotFoundError:
+            raise CanProfileError(f"DBC file {profile.dbc} not found; fix [can] dbc in the "
+                                  "device profile (it is relative to the profile file)") from None
+        except Exception as exc:
+            raise CanProfileError(f"DBC file {profile.dbc} cannot be parsed: {exc}") from None
+        self.profile = profile
+        messages = [_message(db, name, profile.dbc) for name in profile.frames]
+        columns = {name: [] for name in profile.frames}
+        for col, channel in enumerate(profile.channels):
+            msg_name, _, sig_name = profile.signals[channel].partition(".")
+            if msg_name not in columns:
+                raise CanProfileError(f"channel {channel!r} maps to {profile.signals[channel]!r}, "
+                                      f"but {msg_name!r} is not one of [can] frames")
+            _signal(db.get_message_by_name(msg_name), sig_name, profile.dbc)
+            columns[msg_name].append((sig_name, col))
+        widths = {_signal(m, profile.counter, profile.dbc).length for m in messages}
+        if len(widths) != 1:
+            raise CanProfileError(f"counter {profile.counter!r} must have one width in all frames")
+        self.counter_modulus = 1 << widths.pop()
+        self.slots = tuple(_Slot(i, m, tuple(columns[m.name])) for i, m in enumerate(messages))
+        self.by_id = {(m.frame_id, m.is_extended_frame): s for m, s in zip(messages, self.slots)}
+
+    def signal_range(self, column: int) -> tuple:
+        """Smallest and largest raw integer a channel's signal can carry."""
+        channel = self.profile.channels[column]
+        msg_name, _, sig_name = self.profile.signals[channel].partition(".")
+        sig = self.slots[self.profile.frames.index(msg_name)].message.get_signal_by_name(sig_name)
+        if sig.is_signed:
+            return -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+        return 0, (1 << sig.length) - 1
+
+
+def _message(db, name: str, dbc: Path):
+    try:
+        return db.get_message_by_name(name)
+    except KeyError:
+        raise CanProfileError(f"frame {name!r} of [can] frames is not in {dbc}") from None
+
+
+def _signal(message, name: str, dbc: Path):
+    try:
+        sig = message.get_signal_by_name(name)
+    except KeyError:
+        raise CanProfileError(f"signal {name!r} is not in frame {message.name!r} of {dbc}") from None
+    if sig.is_float:
+        raise CanProfileError(f"signal {message.name}.{name} is a float; counts must be integers")
+    return sig
+
+
+@dataclass
+class CanStats:
+    """Counters of what the decoder saw. Every frame lands in exactly one of `used`, `unknown`,
+    `short` (fewer data bytes than the DBC says) and `orphaned` (part of an incomplete sample)."""
+
+    frames: int = 0
+    used: int = 0
+    unknown: int = 0
+    short: int = 0
+    orphaned: int = 0
+    samples: int = 0
+    incomplete: int = 0  # samples dropped because one of their frames never arrived
+    gaps: int = 0  # samples missing between consecutive counters (all their frames lost)
+    errors: int = 0  # exceptions caught in the listener (decoder or logger), see `last_error`
+    last_error: str = ""
+
+
+class SampleAssembler:
+    """Pure decoder: feed frames in bus order, take complete samples. No threads, no I/O.
+
+    A sample is complete when every frame of the profile has arrived with the same counter value;
+    frames are collected until the counter changes. The counter is unwrapped into `seq` assuming
+    fewer than 2**bits consecutive samples are lost (128 ms at 2 kHz for an 8-bit counter).
+    """
+
+    def __init__(self, layout: FrameLayout):
+        self.layout = layout
+        self.stats = CanStats()
+        m = len(layout.profile.channels)
+        self._row = np.zeros(m, dtype=np.int64)
+        self._have = []  # slots filled for the pending counter
+        self._counter = None
+        self._last = None  # (counter, seq) of the last emitted sample
+        self._counts, self._seq, self._host = [], [], []
+
+    def feed(self, msg: can.Message, host_time: float) -> None:
+        """Account for one received frame; completes a sample when its last frame arrives."""
+        self.stats.frames += 1
+        slot = None
+        if not (msg.is_error_frame or msg.is_remote_frame):
+            slot = self.layout.by_id.get((msg.arbitration_id, msg.is_extended_id))
+        if slot is None:
+            self.stats.unknown += 1
+            return
+        data = bytes(msg.data)
+        if len(data) < slot.message.length:
+            self.stats.short += 1
+            return
+        values = slot.message.decode(data[:slot.message.length], decode_choices=False,
+                                     scaling=False)
+        counter = values[self.layout.profile.counter]
+        if counter != self._counter or slot.index in self._have:
+            self._drop_pending()
+            self._counter = counter
+        self._have.append(slot.index)
+        for name, col in slot.columns:
+            self._row[col] = values[name]
+        if len(self._have) == len(self.layout.slots):
+            self._emit(host_time)
+
+    def _drop_pending(self) -> None:
+        if self._have:
+            self.stats.incomplete += 1
+            self.stats.orphaned += len(self._have)
+        self._have = []
+
+    def _emit(self, host_time: float) -> None:
+        counter = self._counter
+        if self._last is None:
+            seq = counter
+        else:
+            last_counter, last_seq = self._last
+            step = (counter - last_counter) % self.layout.counter_modulus
+            seq = last_seq + (step or self.layout.counter_modulus)
+            self.stats.gaps += seq - last_seq - 1
+        self._last = (counter, seq)
+        self._counts.append(self._row.copy())
+        self._seq.append(seq)
+        self._host.append(host_time)
+        self.stats.samples += 1
+        self.stats.used += len(self._have)
+        self._have, self._counter = [], None
+
+    def ready(self) -> bool:
+        """True when completed samples wait to be taken."""
+        return bool(self._seq)
+
+    def finish(self) -> None:
+        """End of stream: a sample still waiting for frames is incomplete."""
+        self._drop_pending()
+        self._counter = None
+
+    def take(self) -> SampleBlock | None:
+        """The samples completed since the last call, or None."""
+        if not self._seq:
+            return None
+        k = len(self._seq)
+        block = SampleBlock(counts=np.array(self._counts, dtype=np.int64).reshape(k, -1),
+                            seq=np.array(self._seq, dtype=np.int64),
+                            device_time=np.full(k, np.nan),
+                            host_time=np.array(self._host, dtype=np.float64),
+                            channels=self.layout.profile.channels)
+        self._counts, self._seq, self._host = [], [], []
+        return block
+
+
+class _Receiver(can.Listener):
+    """The one listener on the bus: decodes and logs each frame; contains every exception."""
+
+    def __init__(self, assembler: SampleAssembler, clock, logger: can.Listener | None):
+        self.assembler = assembler
+        self.clock = clock
+        self.logger = logger
+        self.lock = threading.Lock()
+        self.data_ready = threading.Condition(self.lock)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        now = self.clock.now()
+        with self.lock:
+            try:
+                self.assembler.feed(msg, now)
+            except Exception as exc:  # a decoder bug must not kill the notifier thread
+                self._count(exc)
+            if self.assembler.ready():
+                self.data_ready.notify_all()
+        if self.logger is not None:
+            try:
+                self.logger.on_message_received(msg)
+            except Exception as exc:  # e.g. disk full: keep decoding
+                with self.lock:
+                    self._count(exc)
+
+    def on_error(self, exc: Exception) -> None:
+        """Called by the Notifier when the bus itself raised; counted, the thread lives on."""
+        with self.lock:
+            self._count(exc)
+
+    def _count(self, exc: Exception) -> None:
+        self.assembler.stats.errors += 1
+        self.assembler.stats.last_error = f"{type(exc).__name__}: {exc}"
+
+    def stop(self) -> None:
+        """Called by `Notifier.stop`: close the log (a failure to flush is counted)."""
+        if self.logger is not None:
+            try:
+                self.logger.stop()
+            except Exception as exc:
+                with self.lock:
+                    self._count(exc)
+
+
+class CanImu:
+    """Live CAN IMU on a `can.BusABC` (the caller owns the bus and shuts it down).
+
+    `log_path` (".blf" or ".log") records every raw frame with `can.Logger` for `replay`.
+    Use as a context manager, or call `start()` and `close()`; `read_block(timeout)` returns the
+    samples decoded since the last call.
+    """
+
+    def __init__(self, bus: can.BusABC, profile: CanProfile, clock=None, log_path=None):
+        self.bus = bus
+        self.profile = profile
+        self.log_path = Path(log_path) if log_path is not None else None
+        self._assembler = SampleAssembler(FrameLayout(profile))
+        self._clock = clock or WallClock()
+        self._receiver = None
+        self._notifier = None
+
+    @property
+    def stats(self) -> CanStats:
+        return self._assembler.stats
+
+    def start(self) -> "CanImu":
+        """Start the notifier thread (and the raw log)."""
+        if self._notifier is not None:
+            raise RuntimeError("CanImu already started; call close() first")
+        logger = can.Logger(self.log_path) if self.log_path is not None else None
+        self._receiver = _Receiver(self._assembler, self._clock, logger)
+        self._notifier = can.Notifier(self.bus, [self._receiver], timeout=0.1)
+        return self
+
+    def read_block(self, timeout: float = 0.1) -> SampleBlock | None:
+        """Samples completed since the last call; waits up to `timeout` s (wall) for the first."""
+        if self._receiver is None:
+            raise RuntimeError("CanImu not started; call start() or use it as a context manager")
+        with self._receiver.lock:
+            if not self._assembler.ready():
+                self._receiver.data_ready.wait(timeout)
+            return self._assembler.take()
+
+    def close(self) -> None:
+        """Stop the notifier, close the log; a sample still missing frames counts as incomplete."""
+        if self._notifier is not None:
+            self._notifier.stop()
+            self._notifier = None
+            with self._receiver.lock:
+                self._assembler.finish()
+
+    def __enter__(self) -> "CanImu":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def replay(log_path, profile: CanProfile) -> tuple:
+    """Decode a raw CAN log (.blf, .log, ...) to (SampleBlock or None, CanStats).
+
+    `host_time` of a replayed sample is the logged timestamp of its last frame.
+    """
+    assembler = SampleAssembler(FrameLayout(profile))
+    with can.LogReader(log_path) as reader:
+        for msg in reader:
+            assembler.feed(msg, msg.timestamp)
+    assembler.finish()
+    return assembler.take(), assembler.stats
