@@ -111,7 +111,7 @@ def calibrate(
     start_bias = b0 if estimate_bias else known_bias
     fit = ml.refine(
         readings, a0, v0, bias0=start_bias, estimate_bias=estimate_bias, magnitude=c,
-        sigma=sigma, max_iter=100 if refine else 0,
+        sigma=sigma, constraints=constraints, max_iter=100 if refine else 0,
     )
     return _result(fit, method, refine, c, scale_known, estimate_bias, nominal)
 
@@ -175,9 +175,12 @@ def _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d)
         return a, v, b
     from station.factorization import factorize
 
-    fact = factorize(
-        readings, constraints, magnitude=c, d=d, bias=known_bias, estimate_bias=estimate_bias
-    )
+    m = readings.shape[0]
+    if estimate_bias:  # jointly (p = d + 1) when m > d, else from opposite pairs (Eq. 14)
+        fact = factorize(readings, constraints, magnitude=c, d=d, estimate_bias=m > d or None)
+    else:  # readings unbiased, or biases known
+        given = np.zeros(m) if known_bias is None else known_bias
+        fact = factorize(readings, constraints, magnitude=c, d=d, bias=given, estimate_bias=False)
     return fact.a, fact.v, fact.bias
 
 

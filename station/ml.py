@@ -1,32 +1,34 @@
 """Maximum-likelihood refinement on the reading residuals (Levenberg-Marquardt, Schur complement).
 
 Model (docs/conventions.md): z_ij = a_i . v_j + b_i + noise_ij, noise_ij ~ N(0, sigma_ij^2), with
-|v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and one direction per
-position on the sphere of radius c. This replaces the constraint cost of Hwangbo & Kanade (ill-posed
+|v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and the stimuli v,
+parametrised by station/poses.py (a free direction per position, or one rotation per rigid group of
+positions of a right-angle iron). This replaces the constraint cost of Hwangbo & Kanade (ill-posed
 for m > 3) by the likelihood of the readings themselves.
 
 Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_i) that never couple
-with each other directly, and the local parameters split per position into (d-1) tangent coordinates
-of v_j. The normal equations are solved by eliminating the position blocks (Schur complement), so one
-iteration costs O(m^2 n d^3) instead of a dense solve in m d + n (d - 1) unknowns.
-The rotation gauge (Remark 1 of Rupniewski) leaves d(d-1)/2 flat directions; the Marquardt damping
-keeps the steps finite and the gradient has no component along them.
+with each other directly; the local parameters split per position group. The normal equations are
+solved by eliminating the local blocks (Schur complement), so an iteration costs O(m^2 n d^3)
+instead of a dense solve. The rotation gauge (Remark 1 of Rupniewski) leaves d(d-1)/2 flat
+directions; the Marquardt damping keeps the steps finite and the gradient has no component along them.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
 
+from station.poses import Directions, rigid_groups
+
 
 @dataclass(frozen=True)
 class NormalEquations:
     """Blocks of J^T W J and J^T W r at one point (see `normal_equations`)."""
 
-    h_global: np.ndarray  # (m, p, p)   per-sensor block of the global Hessian, p = d (+1 with bias)
-    h_local: np.ndarray  # (n, d-1, d-1) per-position block
-    h_cross: np.ndarray  # (m, n, p, d-1) sensor-position coupling
+    h_global: np.ndarray  # (m, p, p)   per-sensor block, p = d (+1 with bias)
+    h_local: np.ndarray  # (G, k, k)   per-group block
+    h_cross: np.ndarray  # (m, G, p, k) sensor-group coupling
     g_global: np.ndarray  # (m, p)
-    g_local: np.ndarray  # (n, d-1)
+    g_local: np.ndarray  # (G, k)
 
 
 @dataclass(frozen=True)
@@ -45,42 +47,40 @@ class MLFit:
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
 
 
-def tangent_basis(u: np.ndarray) -> np.ndarray:
-    """Orthonormal bases (n, d, d-1) of the planes perpendicular to unit vectors u (d, n).
-
-    Columns 2..d of the Householder reflection that maps e_1 onto -sign(u_1) u.
-    """
-    d, n = u.shape
-    s = np.where(u[0] >= 0, 1.0, -1.0)
-    w = u.T.copy()
-    w[:, 0] += s
-    house = np.eye(d)[None] - 2 * w[:, :, None] * w[:, None, :] / np.einsum("nk,nk->n", w, w)[:, None, None]
-    return house[:, :, 1:]
+def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
+    """Sum per-position terms over each group along `axis` (identity for one position per group)."""
+    if isinstance(poses, Directions):
+        return x
+    x = np.moveaxis(x, axis, 0)
+    out = np.zeros((poses.count,) + x.shape[1:])
+    np.add.at(out, poses.group, x)
+    return np.moveaxis(out, 0, axis)
 
 
-def design(a, v, magnitude, with_bias):
-    """Jacobian pieces of the prediction a_i . v_j + b_i: global rows x (n, p), local c a_i^T B_j."""
-    n = v.shape[1]
-    x = v.T if not with_bias else np.hstack([v.T, np.ones((n, 1))])  # (n, p)
-    basis = tangent_basis(v / magnitude)  # (n, d, d-1)
-    local = magnitude * np.einsum("di,ndk->ink", a, basis)  # (m, n, d-1)
-    return x, local, basis
-
-
-def normal_equations(a, v, bias, readings, weight, magnitude) -> tuple[NormalEquations, np.ndarray]:
+def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations, np.ndarray]:
     """Blocks of the Gauss-Newton normal equations and the residuals (readings - model)."""
-    with_bias = bias is not None
-    x, local, _ = design(a, v, magnitude, with_bias)
-    resid = readings - a.T @ v - (bias[:, None] if with_bias else 0.0)
+    v = poses.vectors()
+    n = v.shape[1]
+    x = v.T if bias is None else np.hstack([v.T, np.ones((n, 1))])  # d prediction / d theta_i
+    local = np.einsum("di,ndk->ink", a, poses.jacobian())  # d prediction_ij / d local_j
+    resid = readings - a.T @ v - (0.0 if bias is None else bias[:, None])
     wr = weight * resid
+    h_local = _by_group(np.einsum("in,ink,inl->nkl", weight, local, local), poses, 0)
     neq = NormalEquations(
         h_global=np.einsum("in,np,nq->ipq", weight, x, x),
-        h_local=np.einsum("in,ink,inl->nkl", weight, local, local),
-        h_cross=np.einsum("in,np,ink->inpk", weight, x, local),
+        h_local=h_local + _null_identity(poses),
+        h_cross=_by_group(np.einsum("in,np,ink->inpk", weight, x, local), poses, 1),
         g_global=wr @ x,
-        g_local=np.einsum("in,ink->nk", wr, local),
+        g_local=_by_group(np.einsum("in,ink->nk", wr, local), poses, 0),
     )
     return neq, resid
+
+
+def _null_identity(poses) -> np.ndarray:
+    """Unit curvature on local directions that move nothing (rotation of a one-axis group about
+    its axis), so every local block is invertible; they couple to nothing and never move."""
+    null = poses.null.astype(float)
+    return np.einsum("gk,kl->gkl", null, np.eye(null.shape[1]))
 
 
 def reduced_system(neq: NormalEquations, damping: float = 0.0):
@@ -89,50 +89,41 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks.
     """
     m, p = neq.g_global.shape
-    h_local = neq.h_local + damping * _diag_blocks(neq.h_local)
-    h_local_inv = np.linalg.inv(h_local + 1e-300 * np.eye(h_local.shape[-1]))
-    # coupling times inverse local block: (m, n, p, d-1)
-    ch = np.einsum("inpk,nkl->inpl", neq.h_cross, h_local_inv)
-    s = -np.einsum("inpl,jnql->ipjq", ch, neq.h_cross).reshape(m * p, m * p)
-    h_global = neq.h_global + damping * _diag_blocks(neq.h_global)
+    h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
+    ch = np.einsum("igpk,gkl->igpl", neq.h_cross, h_local_inv)  # coupling x inverse local block
+    s = -np.einsum("igpl,jgql->ipjq", ch, neq.h_cross)
     idx = np.arange(m)
-    s4 = s.reshape(m, p, m, p)
-    s4[idx, :, idx, :] += h_global
-    g = neq.g_global - np.einsum("inpl,nl->ip", ch, neq.g_local)
-    return s4.reshape(m * p, m * p), g.reshape(-1), h_local_inv
+    s[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
+    g = neq.g_global - np.einsum("igpl,gl->ip", ch, neq.g_local)
+    return s.reshape(m * p, m * p), g.reshape(-1), h_local_inv
 
 
 def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
-    """Marquardt scaling: the diagonal of each block, as diagonal matrices (plus a floor)."""
+    """Marquardt scaling: the diagonal of each block, as diagonal matrices (with a floor)."""
     diag = np.einsum("...kk->...k", blocks)
     floor = 1e-12 * max(float(diag.max(initial=0.0)), 1e-300)
     return np.einsum("...k,kl->...kl", np.maximum(diag, floor), np.eye(blocks.shape[-1]))
 
 
 def lm_step(neq: NormalEquations, damping: float):
-    """One damped Gauss-Newton step: global step by the Schur complement, then per-position steps."""
+    """One damped Gauss-Newton step: global step by the Schur complement, then the local steps."""
     m, p = neq.g_global.shape
     s, g, h_local_inv = reduced_system(neq, damping)
     step_global = np.linalg.solve(s, g).reshape(m, p)
-    rhs = neq.g_local - np.einsum("inpk,ip->nk", neq.h_cross, step_global)
-    step_local = np.einsum("nkl,nl->nk", h_local_inv, rhs)
-    return step_global, step_local
+    rhs = neq.g_local - np.einsum("igpk,ip->gk", neq.h_cross, step_global)
+    return step_global, np.einsum("gkl,gl->gk", h_local_inv, rhs)
 
 
-def apply_step(a, v, bias, step_global, step_local, magnitude):
-    """New (a, v, b): additive on a and b, along the tangent plane then back to the sphere for v."""
-    d = a.shape[0]
-    basis = tangent_basis(v / magnitude)
-    v_new = v + magnitude * np.einsum("ndk,nk->dn", basis, step_local)
-    v_new *= magnitude / np.linalg.norm(v_new, axis=0)
-    a_new = a + step_global[:, :d].T
-    b_new = None if bias is None else bias + step_global[:, d]
-    return a_new, v_new, b_new
+def free_parameters(m: int, d: int, with_bias: bool, poses) -> int:
+    """Unknowns that the data can determine: a, b, the local pose parameters, minus the gauge."""
+    return d * m + (m if with_bias else 0) + poses.free - d * (d - 1) // 2
 
 
-def free_parameters(m: int, n: int, d: int, with_bias: bool) -> int:
-    """Unknowns that the data can determine: a, b, directions, minus the rotation gauge."""
-    return d * m + (m if with_bias else 0) + n * (d - 1) - d * (d - 1) // 2
+def start_poses(v0, magnitude, constraints=None):
+    """Pose parametrisation: rigid groups when the constraints describe them, else directions."""
+    v0 = np.asarray(v0, float)
+    groups = None if constraints is None else rigid_groups(constraints, v0, magnitude)
+    return Directions.start(v0, magnitude) if groups is None else groups
 
 
 def refine(
@@ -144,6 +135,7 @@ def refine(
     estimate_bias: bool = False,
     magnitude: float = 1.0,
     sigma=None,
+    constraints=None,
     max_iter: int = 100,
     tol: float = 1e-12,
 ) -> MLFit:
@@ -151,31 +143,34 @@ def refine(
 
     sigma: noise standard deviation of the readings - scalar, per sensor (m,), or per entry (m, n).
     When None, all entries get equal weight and one common sigma is estimated from the residuals.
-    A given bias0 with estimate_bias=False is held fixed (subtracted).
+    A given bias0 with estimate_bias=False is held fixed (subtracted). constraints (station.constraints)
+    that fix all inner products within groups of positions (a right-angle iron's mountings) make
+    each group rigid; otherwise each position has its own direction.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
     a = np.array(a0, dtype=float)
     d = a.shape[0]
-    v = np.array(v0, dtype=float)
-    v *= magnitude / np.linalg.norm(v, axis=0)
+    poses = start_poses(v0, magnitude, constraints)
     if bias0 is not None and not estimate_bias:
         readings = readings - np.asarray(bias0, float)[:, None]
     bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
-    sig = np.broadcast_to(_sigma_matrix(sigma, m, n), (m, n))
+    sig = np.broadcast_to(_sigma_matrix(sigma, m), (m, n))
     weight = 1.0 / sig**2
 
-    neq, resid = normal_equations(a, v, bias, readings, weight, magnitude)
+    neq, resid = normal_equations(a, poses, bias, readings, weight)
     cost = float(np.sum(weight * resid**2))
     damping, it = 1e-6, 0
     for it in range(1, max_iter + 1):
         step_g, step_l = lm_step(neq, damping)
-        a_t, v_t, b_t = apply_step(a, v, bias, step_g, step_l, magnitude)
-        neq_t, resid_t = normal_equations(a_t, v_t, b_t, readings, weight, magnitude)
+        a_t = a + step_g[:, :d].T
+        b_t = None if bias is None else bias + step_g[:, d]
+        poses_t = poses.moved(step_l)
+        neq_t, resid_t = normal_equations(a_t, poses_t, b_t, readings, weight)
         cost_t = float(np.sum(weight * resid_t**2))
         if cost_t <= cost:
             converged = cost - cost_t <= tol * max(cost, 1e-300)
-            a, v, bias, neq, resid, cost = a_t, v_t, b_t, neq_t, resid_t, cost_t
+            a, poses, bias, neq, resid, cost = a_t, poses_t, b_t, neq_t, resid_t, cost_t
             damping = max(damping / 10, 1e-12)
             if converged:
                 break
@@ -184,7 +179,7 @@ def refine(
             if damping > 1e12:
                 break
 
-    dof = m * n - free_parameters(m, n, d, estimate_bias)
+    dof = m * n - free_parameters(m, d, estimate_bias, poses)
     estimated = sigma is None
     if estimated:
         scale = np.sqrt(cost / max(dof, 1))
@@ -193,10 +188,10 @@ def refine(
         cost = float(np.sum(resid**2) / scale**2)
     if bias0 is not None and not estimate_bias:
         bias = np.asarray(bias0, float)
-    return MLFit(a, v, bias, resid, np.array(sig), estimated, cost, dof, it, neq)
+    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, cost, dof, it, neq)
 
 
-def _sigma_matrix(sigma, m: int, n: int) -> np.ndarray:
+def _sigma_matrix(sigma, m: int) -> np.ndarray:
     """sigma as an array broadcastable to (m, n); None means unit weights."""
     if sigma is None:
         return np.ones((1, 1))
@@ -212,4 +207,7 @@ def _sigma_matrix(sigma, m: int, n: int) -> np.ndarray:
 
 def _rescale(neq: NormalEquations, factor: float) -> NormalEquations:
     """Normal equations with every weight multiplied by `factor`."""
-    return NormalEquations(*(factor * getattr(neq, f) for f in NormalEquations.__dataclass_fields__))
+    return NormalEquations(
+        neq.h_global * factor, neq.h_local * factor, neq.h_cross * factor,
+        neq.g_global * factor, neq.g_local * factor,
+    )

@@ -11,6 +11,7 @@ import numpy as np
 
 from station.frames import to_canonical
 from station.ml import NormalEquations, normal_equations, reduced_system
+from station.poses import Directions
 
 
 def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
@@ -93,6 +94,6 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False) -> np.ndarray:
     sig = np.broadcast_to(np.asarray(sigma, float).reshape(-1, 1) if np.ndim(sigma) == 1
                           else np.asarray(sigma, float), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
-    neq, _ = normal_equations(a, v, bias, a.T @ v, 1.0 / sig**2, magnitude)
+    neq, _ = normal_equations(a, Directions.start(v, magnitude), bias, a.T @ v, 1.0 / sig**2)
     p = d + (1 if estimate_bias else 0)
     return propagate(global_covariance(neq, d), frame_jacobian(a, p))

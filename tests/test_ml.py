@@ -5,7 +5,8 @@ import numpy as np
 from layouts import A_MODEL, random_directions
 
 import station
-from station.ml import refine, tangent_basis
+from station.ml import refine
+from station.poses import tangent_basis
 
 
 def test_tangent_basis_is_orthonormal_and_perpendicular():
