@@ -121,8 +121,8 @@ def _print(result: dict) -> None:
     print(f"\n{'group':12} {'paper lin':>10} {'lin RMS':>10} {'ML RMS':>10} {'lin/paper':>10} "
           f"{'lin/ML':>8}")
     for name, g in result["groups"].items():
-        print(f"{name:12} {g['paper_linear_rms']:10.5f} {g['linear_rms']:10.5f} {g['ml_rms']:10.5f} "
-              f"{g['linear_over_paper']:10.2f} {g['linear_over_ml']:8.2f}")
+        print(f"{name:12} {g['paper_linear_rms']:10.5f} {g['linear_rms']:10.5f} "
+              f"{g['ml_rms']:10.5f} {g['linear_over_paper']:10.2f} {g['linear_over_ml']:8.2f}")
     ms = result["ms_per_trial"]
     print(f"\ntime per trial: linear {ms['linear']:.3f} ms, ML {ms['ml']:.3f} ms")
     for name, ok in result["acceptance"].items():

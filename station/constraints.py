@@ -1,7 +1,7 @@
 """Inner-product constraints between positions (Hwangbo & Kanade, Eq. 15).
 
-A constraint `(j, k, h)` states `v_j . v_k = h c^2` for the stimuli of positions j and k, c being the
-known magnitude: `j == k, h = 1` is a magnitude constraint, `h = 0` two orthogonal stimuli,
+A constraint `(j, k, h)` states `v_j . v_k = h c^2` for the stimuli of positions j and k, c being
+the known magnitude: `j == k, h = 1` is a magnitude constraint, `h = 0` two orthogonal stimuli,
 `h = -1` two opposite ones (as when a right-angle iron is turned from one face to another).
 """
 
@@ -17,7 +17,7 @@ FACES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 @dataclass(frozen=True)
 class Constraints:
-    """A list of constraints `v_j . v_k = h c^2`; arrays `j`, `k` (int) and `h` (float), one entry each.
+    """Constraints `v_j . v_k = h c^2`: arrays `j`, `k` (int) and `h` (float), one entry each.
 
     The arrays are validated and made read-only on construction: indices are non-negative integers,
     `h` lies in [-1, 1], and a constraint of a position with itself (`j == k`) has `h > 0`.
@@ -75,7 +75,7 @@ class Constraints:
         return np.column_stack([self.j[mask], self.k[mask]])
 
     def orthogonal(self) -> "Constraints":
-        """Only the orthogonality constraints (h = 0), e.g. for gyros whose rotation rate is unknown."""
+        """Only the orthogonality constraints (h = 0), e.g. for gyros of unknown rotation rate."""
         mask = self.h == 0
         return Constraints(self.j[mask], self.k[mask], self.h[mask])
 

@@ -29,7 +29,7 @@ from station.frames import canonical_rotation
 # Relative size below which a singular value or an eigenvalue counts as zero.
 RANK_TOL = 1e-9
 # RMS miss of the constraints (units of c^2) above which they are declared inconsistent: noise of
-# a sensor worth calibrating misses by well under 1 %; a wrong face label misses by about 0.3 or more.
+# a sensor worth calibrating misses by well under 1 %; a wrong face label misses by 0.3 or more.
 CONSTRAINT_TOL = 0.1
 
 
@@ -47,8 +47,8 @@ class FactorizationResult:
     bias: np.ndarray
 
 
-def factorize(readings, constraints: Constraints | None = None, *, magnitude: float = 1.0, d: int = 3,
-              bias=None, estimate_bias: bool | None = None,
+def factorize(readings, constraints: Constraints | None = None, *, magnitude: float = 1.0,
+              d: int = 3, bias=None, estimate_bias: bool | None = None,
               reference: int | None = None) -> FactorizationResult:
     """Calibrate m sensors from n averaged readings (m x n) and inner-product constraints.
 
@@ -67,10 +67,10 @@ def factorize(readings, constraints: Constraints | None = None, *, magnitude: fl
     constraints.check_positions(n)
     joint = _estimates_bias(m, d, bias, estimate_bias)
     if joint:
-        shape_hat, motion_hat = _factor_readings(M, d + 1)
+        shape_hat, motion_hat = _factor_readings(M, d, joint=True)
     else:
         b = _checked_bias(bias, m) if bias is not None else bias_from_opposites(M, constraints)
-        shape_hat, motion_hat = _factor_readings(M - b[:, None], d)
+        shape_hat, motion_hat = _factor_readings(M - b[:, None], d, joint=False)
     G = _gram_factor(_solve_gram(motion_hat, constraints, joint, reference, n), d)
     if joint:
         # last row of [v; 1] = [G; a4^T] motion_hat: a4 = pinv(motion_hat^T) 1 (Eqs. 17-18), and
@@ -91,7 +91,7 @@ def factorize(readings, constraints: Constraints | None = None, *, magnitude: fl
 
 
 def bias_from_opposites(readings: np.ndarray, constraints: Constraints) -> np.ndarray:
-    """Biases from positions declared opposite, b = (z_j + z_k) / 2 averaged over the pairs (Eq. 14).
+    """Biases from opposite positions, b = (z_j + z_k) / 2 averaged over the pairs (Eq. 14).
 
     Assumes both stimuli of a pair have the same magnitude, as on a right-angle iron.
     """
@@ -109,8 +109,9 @@ def _checked_readings(readings, d: int) -> np.ndarray:
     """Readings as a finite float (m x n) array with m >= d sensors."""
     M = np.asarray(readings, dtype=float)
     if M.ndim != 2:
-        raise CalibrationInputError(f"Readings must be a 2-D array (sensors x positions), got "
-                                    f"shape {M.shape}.", "Pass one column of m readings per position.")
+        raise CalibrationInputError(
+            f"Readings must be a 2-D array (sensors x positions), got shape {M.shape}.",
+            "Pass one column of m readings per position.")
     if not np.all(np.isfinite(M)):
         raise CalibrationInputError("Readings contain NaN or infinite values.",
                                     "Drop or re-record the positions with invalid samples.")
@@ -154,26 +155,27 @@ def _estimates_bias(m: int, d: int, bias, estimate_bias: bool | None) -> bool:
     return bool(estimate_bias)
 
 
-def _factor_readings(M: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rank-p factorization M ~ shape_hat (m x p) @ motion_hat (p x n) by SVD (Eqs. 7-9).
+def _factor_readings(M: np.ndarray, d: int, joint: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-p factorization M ~ shape_hat (m x p) @ motion_hat (p x n), p = d + joint (Eqs. 7-9).
 
     motion_hat = V_p^T has orthonormal rows and shape_hat = U_p Sigma_p (the paper splits
     sqrt(Sigma) between both; the difference is absorbed by the unknown upgrade).
     """
-    m, n = M.shape
-    if n < p:
+    p = d + int(joint)
+    if M.shape[1] < p:
         raise CalibrationInputError(
-            f"Need at least {p} positions for this factorization, got n = {n}.",
+            f"Need at least {p} positions for this factorization, got n = {M.shape[1]}.",
             "Record the unit in more orientations (e.g. all six faces of the iron).")
     u, s, vt = np.linalg.svd(M, full_matrices=False)
-    if s[p - 1] <= RANK_TOL * s[0]:
-        if p == M.shape[0] or s[p - 2] <= RANK_TOL * s[0]:
-            raise CalibrationInputError(
-                f"The readings span only {int(np.sum(s > RANK_TOL * s[0]))} of the {p} "
-                "dimensions needed: all positions are parallel or lie in one plane.",
-                "Turn the unit to another face, so that the stimuli point along all three axes.")
+    rank = int(np.sum(s[:p] > RANK_TOL * s[0]))
+    if rank < d:
         raise CalibrationInputError(
-            f"Joint bias estimation needs readings of rank {p}, got rank {p - 1}: either the "
+            f"The readings span only {rank} of the {d} dimensions of the stimulus: all positions "
+            "are parallel or lie in one plane.",
+            "Turn the unit to another face, so that the stimuli point along all three axes.")
+    if rank < p:
+        raise CalibrationInputError(
+            f"Joint bias estimation needs readings of rank {p}, got rank {rank}: either the "
             "positions lie on one plane, or the biases are zero or a combination of the axes.",
             "Add positions on other faces, or give bias=... (zeros if the biases were removed).")
     return u[:, :p] * s[:p], vt[:p]
