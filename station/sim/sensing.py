@@ -1,0 +1,43 @@
+"""The sensor output chain shared by all protocols: sensed signal -> integer counts.
+
+Order: scale_nonlinearity, latency (on the sensed signal a^T v), then biases, bias_drift, bias
+random walk and white noise, then saturation, then quantisation.
+"""
+
+import numpy as np
+
+from station.sim.effects import bias_drift, latency, saturation, scale_nonlinearity
+from station.sim.unit import SensorUnit
+
+SENSOR_EFFECTS = {"scale_nonlinearity", "latency", "bias_drift", "saturation"}
+"""Effects acting on the sensor's output; the others act on the motion (rotary protocol only)."""
+
+
+def sense(unit: SensorUnit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: np.ndarray,
+          effects: dict) -> np.ndarray:
+    """Counts (n, k, m) for the sensed signals s = a^T v (n, k, m) sampled at t (k,) per recording.
+
+    t0 (n,) are the recordings' start times in session time; rate (n, k) is the table rate that
+    heats the unit (zeros when nothing spins).
+    """
+    n, k, m = s.shape
+    if "scale_nonlinearity" in effects:
+        s = scale_nonlinearity.apply(s, effects["scale_nonlinearity"])
+    if "latency" in effects:
+        s = latency.apply(s, t, effects["latency"])
+    z = s + unit.bias + unit.noise((n, k, m))
+    if "bias_drift" in effects:
+        z += bias_drift.apply(t0[:, None] + t, rate, effects["bias_drift"])
+    if np.any(unit.bias_walk):
+        z += unit.walk(n, k, gaps=np.r_[0.0, np.diff(t0) - k / unit.fs])
+    if "saturation" in effects:
+        z = saturation.apply(z, effects["saturation"], unit.output_range)
+    return unit.quantise(z)
+
+
+def refuse_motion_effects(effects: dict, protocol: str) -> None:
+    """Raise for effects that need the rotary table in a protocol without one."""
+    extra = sorted(set(effects) - SENSOR_EFFECTS)
+    if extra:
+        raise ValueError(f"effect(s) {', '.join(extra)} need the rotary table; the {protocol} "
+                         f"protocol supports only {', '.join(sorted(SENSOR_EFFECTS))}")

@@ -1,0 +1,63 @@
+"""Free static poses for multi-position accelerometer calibration (as in Tedaldi et al.).
+
+One continuous recording: the unit rests in a random orientation for `still` seconds, then turns
+smoothly (spherical interpolation with a raised-cosine timing) to the next one in `move` seconds.
+The specific force is gravity, g R(t) up, rotated into the unit frame; the still intervals are not
+in the data file (the station must detect them), only in the truth.
+"""
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from station.sim.earth import normal_gravity
+from station.sim.effects import to_json
+from station.sim.rotary import Simulation
+from station.sim.sensing import refuse_motion_effects, sense
+from station.sim.unit import SensorUnit
+
+
+def attitude_path(rotations: Rotation, still: float, move: float, fs: float):
+    """Sample times (K,), the attitude at each sample and the (P, 2) still intervals in samples."""
+    p = len(rotations)
+    period = still + move
+    k = int(round((p * period - move) * fs))
+    t = np.arange(k) / fs
+    j = np.minimum((t // period).astype(int), p - 1)
+    frac = np.clip((t - j * period - still) / move, 0.0, 1.0)
+    smooth = 0.5 - 0.5 * np.cos(np.pi * frac)
+    out = rotations[j]
+    moving = frac > 0
+    if np.any(moving):
+        jm = j[moving]
+        rel = (rotations[jm].inv() * rotations[np.minimum(jm + 1, p - 1)]).as_rotvec()
+        out_m = rotations[jm] * Rotation.from_rotvec(rel * smooth[moving, None])
+        mats = out.as_matrix()
+        mats[moving] = out_m.as_matrix()
+        out = Rotation.from_matrix(mats)
+    starts = np.arange(p) * period
+    still_idx = np.ceil(np.round(np.stack([starts, starts + still], 1) * fs, 9)).astype(int)
+    return t, out, np.minimum(still_idx, k)
+
+
+def simulate_static(unit: SensorUnit, poses: int = 20, still: float = 4.0, move: float = 2.0,
+                    latitude_deg: float = 52.2, effects: dict | None = None,
+                    a_nominal=None) -> Simulation:
+    """Simulate a free-static accelerometer recording of `poses` random orientations."""
+    effects = effects or {}
+    refuse_motion_effects(effects, "static")
+    rot = Rotation.random(int(poses), random_state=unit.rng)  # local -> unit frame
+    t, att, still_idx = attitude_path(rot, still, move, unit.fs)
+    g = normal_gravity(latitude_deg)
+    v = g * att.apply([0.0, 0.0, 1.0])
+    y = sense(unit, unit.project(v)[None], t, np.zeros(1), np.zeros((1, t.size)), effects)
+    arrays = {"y": y, "lsb": unit.lsb, "fs": np.float64(unit.fs), "t0": np.zeros(1),
+              "c_cmd": np.float64(g)}
+    if a_nominal is not None:
+        arrays["a_nominal"] = np.asarray(a_nominal, float)
+    truth = {
+        "protocol": "static", "units": {"v": "m/s^2", "time": "s"},
+        "a": unit.a, "bias": unit.bias, "noise_density": unit.noise_density, "gravity": g,
+        "still": still_idx, "orientations": rot.as_matrix(),
+        "v": (g * rot.apply([0.0, 0.0, 1.0])).T, "effects": to_json(effects),
+    }
+    return Simulation(arrays, truth)
