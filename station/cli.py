@@ -6,7 +6,7 @@ import importlib
 import sys
 
 # module names under station/commands/, one per subcommand
-COMMANDS = ["demo"]
+COMMANDS = ["demo", "simulate"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,8 @@
-"""Sensor layouts used by the simulator's defaults (nominal sensitivity matrices, d x m)."""
+"""Nominal sensor layouts (d x m) and the default simulated units built on them."""
 
 import numpy as np
+
+from station.sim.unit import SensorUnit
 
 A_MODEL = np.array([
     [1, 0, 0, 0, 1, 0, 0, -1, 0, 1, 0, 0],
@@ -17,3 +19,24 @@ def perturbed(a_nominal: np.ndarray, sd: float, rng: np.random.Generator) -> np.
     """A true layout: a_nominal plus N(0, sd^2) on every entry (as in Section IV, sd = 0.01)."""
     a = np.asarray(a_nominal, float)
     return a + sd * rng.standard_normal(a.shape)
+
+
+def gyro_array(rng: np.random.Generator, a_nominal=A_MODEL, fs: float = 200.0, **kwargs):
+    """A MEMS-grade gyro unit on `a_nominal` (rad/s): 0.01 deg/s/sqrt(Hz) noise, biases of
+    0.005 rad/s, 16.4 counts per deg/s, +-2000 deg/s range; keyword arguments override."""
+    m = np.shape(a_nominal)[1]
+    params = dict(bias=0.005 * rng.standard_normal(m), noise_density=np.radians(0.01),
+                  counts_per_unit=16.4 / np.radians(1.0), output_range=np.radians(2000.0))
+    params.update(kwargs)
+    return SensorUnit(perturbed(a_nominal, 0.01, rng), fs=fs, rng=rng, **params)
+
+
+def accelerometer_triad(rng: np.random.Generator, a_nominal=TRIAD, fs: float = 200.0, **kwargs):
+    """A MEMS-grade accelerometer unit on `a_nominal` (m/s^2): 100 ug/sqrt(Hz) noise, biases of
+    0.05 m/s^2, 4096 counts per g, +-8 g range; keyword arguments override."""
+    g0 = 9.80665
+    m = np.shape(a_nominal)[1]
+    params = dict(bias=0.05 * rng.standard_normal(m), noise_density=100e-6 * g0,
+                  counts_per_unit=4096 / g0, output_range=8 * g0)
+    params.update(kwargs)
+    return SensorUnit(perturbed(a_nominal, 0.01, rng), fs=fs, rng=rng, **params)

@@ -4,6 +4,8 @@ Order: scale_nonlinearity, latency (on the sensed signal a^T v), then biases, bi
 random walk and white noise, then saturation, then quantisation.
 """
 
+import dataclasses
+
 import numpy as np
 
 from station.sim.effects import bias_drift, latency, saturation, scale_nonlinearity
@@ -21,6 +23,7 @@ def sense(unit: SensorUnit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: 
     heats the unit (zeros when nothing spins).
     """
     n, k, m = s.shape
+    check_per_sensor(effects, m)
     if "scale_nonlinearity" in effects:
         s = scale_nonlinearity.apply(s, effects["scale_nonlinearity"])
     if "latency" in effects:
@@ -41,3 +44,13 @@ def refuse_motion_effects(effects: dict, protocol: str) -> None:
     if extra:
         raise ValueError(f"effect(s) {', '.join(extra)} need the rotary table; the {protocol} "
                          f"protocol supports only {', '.join(sorted(SENSOR_EFFECTS))}")
+
+
+def check_per_sensor(effects: dict, m: int) -> None:
+    """Raise unless every per-sensor parameter (a tuple) has one value per sensor."""
+    for name, params in effects.items():
+        for field in dataclasses.fields(params):
+            value = getattr(params, field.name)
+            if isinstance(value, tuple) and len(value) != m:
+                raise ValueError(f"effect {name}: {field.name} has {len(value)} values but the "
+                                 f"unit has {m} sensors; give one value or {m}")
