@@ -1,0 +1,487 @@
+"""Wire formats of serial IMUs: binary frames and ASCII lines, parsed in bulk.
+
+Binary frame (layout from the device profile, `[serial.binary]`):
+
+    sync word | sequence number | device time (optional) | m channel counts | CRC
+
+The field order between sync and CRC is the profile's `layout`. Parsing is vectorised with numpy:
+every position where the sync word occurs is a candidate, all candidates' CRCs are computed at once,
+and the frames are decoded through a structured dtype.
+
+CRC-16 alone accepts about one corrupted candidate in 65 536. A CRC-valid candidate is therefore
+accepted only if its sequence number is also consistent with a neighbour: the previous or the next
+CRC-valid candidate that does not overlap it must be 1..max_gap sequence numbers away (modulo the
+counter width). A false lock (a sync word inside the payload or in garbage whose CRC happens to
+match) then also needs a sequence field within max_gap of a neighbour's, a further factor
+max_gap / 2**bits. The decision depends only on the byte stream, not on how it was cut into reads.
+
+A candidate whose header (sync, sequence) survived but whose payload was corrupted so that CRC-16
+still matches cannot be told from an intact frame by any check on this format; a profile may choose
+`crc32` to make that 2**16 times rarer.
+
+ASCII lines: comma-, semicolon-, tab- or space-separated values, one sample per line, with an
+optional timestamp column. The first line after opening is discarded (it is usually partial).
+"""
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from drivers.samples import SampleBlock
+
+
+# --------------------------------------------------------------------------------------------------
+# CRC
+
+
+@dataclass(frozen=True)
+class Crc:
+    """A CRC in the Rocksoft/Williams parametrisation (width, poly, init, reflected, xorout)."""
+
+    width: int
+    poly: int
+    init: int
+    reflected: bool
+    xorout: int
+
+    @property
+    def size(self) -> int:
+        """Bytes the CRC occupies in a frame."""
+        return self.width // 8
+
+    @cached_property
+    def table(self) -> np.ndarray:
+        """The 256-entry byte table of the table-driven algorithm."""
+        mask = (1 << self.width) - 1
+        table = np.zeros(256, dtype=np.uint32)
+        if self.reflected:
+            poly = int(f"{self.poly:0{self.width}b}"[::-1], 2)
+            for byte in range(256):
+                c = byte
+                for _ in range(8):
+                    c = (c >> 1) ^ poly if c & 1 else c >> 1
+                table[byte] = c
+        else:
+            top = 1 << (self.width - 1)
+            for byte in range(256):
+                c = byte << (self.width - 8)
+                for _ in range(8):
+                    c = ((c << 1) ^ self.poly) if c & top else (c << 1)
+                table[byte] = c & mask
+        return table
+
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """CRC of every row of `data` (N, n) uint8, computed for all rows at once -> (N,) uint32."""
+        table, mask, shift = self.table, np.uint32((1 << self.width) - 1), self.width - 8
+        crc = np.full(data.shape[0], self.init, dtype=np.uint32)
+        for column in np.ascontiguousarray(data.T):
+            if self.reflected:
+                crc = (crc >> 8) ^ table[(crc ^ column) & 0xFF]
+            else:
+                crc = ((crc << 8) & mask) ^ table[((crc >> shift) ^ column) & 0xFF]
+        return crc ^ np.uint32(self.xorout)
+
+    def of(self, data: bytes) -> int:
+        """CRC of one byte string."""
+        return int(self.rows(np.frombuffer(data, dtype=np.uint8)[None, :])[0])
+
+
+CRCS = {
+    "crc16-ccitt-false": Crc(16, 0x1021, 0xFFFF, False, 0x0000),
+    "crc16-xmodem": Crc(16, 0x1021, 0x0000, False, 0x0000),
+    "crc16-modbus": Crc(16, 0x8005, 0xFFFF, True, 0x0000),
+    "crc32": Crc(32, 0x04C11DB7, 0xFFFFFFFF, True, 0xFFFFFFFF),
+}
+
+INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4", "int8": "i1", "int16": "i2", "int32": "i4"}
+
+
+# --------------------------------------------------------------------------------------------------
+# Counters
+
+
+@dataclass
+class LinkStats:
+    """Counters of one link, cumulative over reconnects.
+
+    bytes         : bytes received
+    frames        : frames (binary) or lines (ASCII) accepted
+    crc_failures  : sync candidates outside accepted frames whose CRC did not match
+    bad_lines     : complete ASCII lines that did not parse
+    gaps          : places where the sequence number jumped (one or more frames missing)
+    dropped       : sequence numbers missing in those gaps (frames dropped or destroyed)
+    resyncs       : times alignment was lost and found again (bytes skipped between two frames)
+    skipped_bytes : bytes that belong to no accepted frame (garbage, partial and corrupted frames)
+    """
+
+    bytes: int = 0
+    frames: int = 0
+    crc_failures: int = 0
+    bad_lines: int = 0
+    gaps: int = 0
+    dropped: int = 0
+    resyncs: int = 0
+    skipped_bytes: int = 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Binary frames
+
+
+def frame_dtype(fmt, n_channels: int) -> np.dtype:
+    """Packed structured dtype of one frame of `fmt` (a profile's BinaryFormat)."""
+    order = "<" if fmt.byte_order == "little" else ">"
+    crc = CRCS[fmt.crc]
+    kinds = {
+        "sync": (f"V{len(fmt.sync)}",),
+        "seq": (order + INT_TYPES[fmt.seq_type],),
+        "time": (order + INT_TYPES[fmt.time_type],) if fmt.time_type else None,
+        "counts": (order + INT_TYPES[fmt.count_type], (n_channels,)),
+        "crc": (f"{order}u{crc.size}",),
+    }
+    return np.dtype([(name, *kinds[name]) for name in fmt.layout])
+
+
+def encode_frames(fmt, seq, ticks, counts) -> bytes:
+    """Bytes of consecutive frames: raw sequence numbers, raw device-time ticks, counts (k, m).
+
+    Values are wrapped to the field widths for seq and ticks; counts must fit the count type.
+    """
+    counts = np.asarray(counts)
+    dtype = frame_dtype(fmt, counts.shape[1])
+    info = np.iinfo(dtype["counts"].base)
+    if counts.size and (counts.min() < info.min or counts.max() > info.max):
+        raise ValueError(f"counts outside the {fmt.count_type} range [{info.min}, {info.max}]; "
+                         "scale the source or choose a wider count_type in the profile")
+    frames = np.zeros(len(counts), dtype=dtype)
+    frames["sync"] = np.frombuffer(fmt.sync, dtype=f"V{len(fmt.sync)}")[0]
+    frames["seq"] = np.asarray(seq, dtype=np.int64) % (1 << 8 * dtype["seq"].itemsize)
+    if "time" in fmt.layout:
+        frames["time"] = np.asarray(ticks, dtype=np.int64) % (1 << 8 * dtype["time"].itemsize)
+    frames["counts"] = counts
+    raw = frames.view(np.uint8).reshape(len(frames), dtype.itemsize)
+    crc = CRCS[fmt.crc]
+    frames["crc"] = crc.rows(raw[:, _crc_start(fmt):dtype.itemsize - crc.size])
+    return frames.tobytes()
+
+
+def _crc_start(fmt) -> int:
+    """First byte of a frame covered by the CRC."""
+    return 0 if fmt.crc_covers_sync else len(fmt.sync)
+
+
+def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
+    """Steps from counter value a forward to b, modulo the counter width (0 becomes `modulus`)."""
+    d = (b.astype(np.int64) - a.astype(np.int64)) % modulus
+    return np.where(d == 0, modulus, d)
+
+
+class _HostTimes:
+    """Host time of each received chunk, to stamp a frame with the read that completed it."""
+
+    def __init__(self):
+        self._ends = np.zeros(0, dtype=np.int64)  # absolute end offset of each chunk
+        self._times = np.zeros(0)
+
+    def add(self, end: int, host_time: float) -> None:
+        self._ends = np.append(self._ends, end)
+        self._times = np.append(self._times, host_time)
+
+    def at(self, ends: np.ndarray) -> np.ndarray:
+        """Host time of the chunk holding byte `end - 1` for each absolute end offset."""
+        return self._times[np.searchsorted(self._ends, ends, side="left")]
+
+    def drop_before(self, offset: int) -> None:
+        keep = self._ends > offset
+        self._ends, self._times = self._ends[keep], self._times[keep]
+
+
+class BinaryFrameParser:
+    """Incremental bulk parser of a binary frame stream (rules in the module docstring).
+
+    `feed(data, host_time)` returns the frames accepted so far as a SampleBlock. A CRC-valid
+    candidate whose previous neighbour does not vouch for it waits until the next CRC-valid
+    candidate starting within `horizon` bytes has arrived (or cannot arrive any more); its bytes
+    stay buffered meanwhile.
+    """
+
+    def __init__(self, fmt, channels):
+        self.fmt = fmt
+        self.channels = tuple(channels)
+        self.dtype = frame_dtype(fmt, len(self.channels))
+        self.size = self.dtype.itemsize
+        self.horizon = 16 * self.size
+        self.crc = CRCS[fmt.crc]
+        self.sync = np.frombuffer(fmt.sync, dtype=np.uint8)
+        self.seq_modulus = 1 << 8 * self.dtype["seq"].itemsize
+        self.time_modulus = 1 << 8 * self.dtype["time"].itemsize if "time" in fmt.layout else 0
+        self.stats = LinkStats()
+        self._base = 0  # absolute stream offset of the first buffered byte
+        self._buf = b""
+        self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget buffered bytes (a new connection); counters and sequence unwrapping go on."""
+        self._base += len(self._buf)
+        self._buf = b""
+        self._connection_start = self._base
+        self._context = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
+        self._host = _HostTimes()
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """Add received bytes; return the frames accepted by this call (possibly none)."""
+        self.stats.bytes += len(data)
+        self._host.add(self._base + len(self._buf) + len(data), host_time)
+        buf = np.frombuffer(self._buf + bytes(data), dtype=np.uint8)
+        n, size = len(buf), self.size
+
+        starts = self._sync_positions(buf)
+        complete = starts[starts + size <= n]
+        rows = sliding_window_view(buf, size)[complete] if n >= size else np.zeros((0, size), np.uint8)
+        records = rows.view(self.dtype).reshape(-1)
+        crc_ok = self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size]) == records["crc"]
+        valid, valid_records = complete[crc_ok], records[crc_ok]
+
+        ctx_pos, ctx_seq, ctx_acc = self._context
+        n_ctx = len(ctx_pos)
+        pos = np.concatenate([ctx_pos - self._base, valid])
+        seq = np.concatenate([ctx_seq, valid_records["seq"].astype(np.int64)])
+        links = self._links(pos, seq)
+        cut = self._cut(pos, links, n_ctx, n, starts)
+        decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
+        accept = np.concatenate([ctx_acc, links[n_ctx:] & (valid < cut)])
+        accept = self._without_overlaps(pos, accept, n_ctx)
+
+        taken = accept[n_ctx:]
+        block = self._emit(valid[taken], valid_records[taken])
+        failed = complete[~crc_ok]
+        self._count_crc_failures(failed[failed < cut], pos[accept])
+        self._keep(pos, seq, accept, decided, cut, buf)
+        return block
+
+    def _sync_positions(self, buf: np.ndarray) -> np.ndarray:
+        """Every offset where the whole sync word starts."""
+        k = len(self.sync)
+        if len(buf) < k:
+            return np.zeros(0, dtype=np.int64)
+        hit = buf[: len(buf) - k + 1] == self.sync[0]
+        for i in range(1, k):
+            hit &= buf[i : len(buf) - k + 1 + i] == self.sync[i]
+        return np.flatnonzero(hit)
+
+    def _links(self, pos: np.ndarray, seq: np.ndarray) -> np.ndarray:
+        """Whether each CRC-valid candidate's sequence number is consistent with a neighbour.
+
+        Neighbours: the nearest CRC-valid candidates ending before it starts (previous) and
+        starting after it ends, within `horizon` bytes (next); consistent = 1..max_gap steps.
+        """
+        if len(pos) == 0:
+            return np.zeros(0, bool)
+        size, gap, last = self.size, self.fmt.max_gap, len(pos) - 1
+        prev = np.searchsorted(pos, pos - size, side="right") - 1
+        nxt = np.searchsorted(pos, pos + size, side="left")
+        back = (prev >= 0) & (_forward(seq[prev], seq, self.seq_modulus) <= gap)
+        near = (nxt <= last) & (pos[np.minimum(nxt, last)] < pos + self.horizon)
+        fwd = near & (_forward(seq, seq[np.minimum(nxt, last)], self.seq_modulus) <= gap)
+        return back | fwd
+
+    def _cut(self, pos, links, n_ctx, n, starts) -> int:
+        """First buffer offset not yet decided: a candidate still waiting for its next neighbour,
+        an incomplete candidate, or a possible partial sync word at the end."""
+        new_pos = pos[n_ctx:]
+        waiting = ~links[n_ctx:] & (n < new_pos + self.horizon + self.size - 1)
+        incomplete = starts[starts + self.size > n]
+        return max(0, min([n - len(self.sync) + 1, *new_pos[waiting][:1], *incomplete[:1]]))
+
+    def _without_overlaps(self, pos, accept, n_ctx) -> np.ndarray:
+        """Reject accepted candidates overlapping an earlier accepted frame (earlier ones are final).
+
+        Only a false lock can overlap a true frame, so this loop almost never runs.
+        """
+        accepted = np.flatnonzero(accept)
+        if np.all(np.diff(pos[accepted]) >= self.size):
+            return accept
+        accept = accept.copy()
+        end = -np.inf
+        for i in accepted:
+            if i >= n_ctx and pos[i] < end:
+                accept[i] = False
+            else:
+                end = pos[i] + self.size
+        return accept
+
+    def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
+        """SampleBlock of newly accepted frames; updates unwrapping state and counters."""
+        k = len(rel_pos)
+        stats = self.stats
+        ends = self._base + rel_pos + self.size
+        seq_raw = records["seq"].astype(np.int64)
+        ticks_raw = records["time"].astype(np.int64) if self.time_modulus else np.zeros(k, np.int64)
+        if k == 0:
+            seq, device_time = np.zeros(0, np.int64), np.zeros(0)
+        else:
+            if self._last is None:  # the very first frame: sequence 1 step after a virtual one
+                before = (seq_raw[0] - 1) % self.seq_modulus
+                self._last = (self._connection_start, before, seq_raw[0] - 1, ticks_raw[0], ticks_raw[0])
+            last_end, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
+            steps = _forward(np.concatenate([[last_seq_raw], seq_raw[:-1]]), seq_raw, self.seq_modulus)
+            seq = last_seq + np.cumsum(steps)
+            stats.gaps += int(np.count_nonzero(steps > 1))
+            stats.dropped += int(np.sum(steps - 1))
+            starts = ends - self.size
+            previous_ends = np.concatenate([[max(last_end, self._connection_start)], ends[:-1]])
+            skipped = starts - previous_ends
+            stats.skipped_bytes += int(np.sum(np.maximum(skipped, 0)))
+            resynced = skipped != 0
+            if last_end <= self._connection_start:
+                resynced[0] = False  # first frame of a new connection
+            stats.resyncs += int(np.count_nonzero(resynced))
+            if self.time_modulus:
+                dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) % self.time_modulus
+                ticks = last_ticks + np.cumsum(dt)
+                device_time = ticks * self.fmt.time_tick
+            else:
+                ticks = np.zeros(k, np.int64)
+                device_time = np.full(k, np.nan)
+            self._last = (int(ends[-1]), int(seq_raw[-1]), int(seq[-1]), int(ticks_raw[-1]), int(ticks[-1]))
+            stats.frames += k
+        return SampleBlock(
+            counts=records["counts"].astype(np.int64).reshape(k, len(self.channels)),
+            seq=seq,
+            device_time=device_time,
+            host_time=self._host.at(ends),
+            channels=self.channels,
+        )
+
+    def _count_crc_failures(self, failed: np.ndarray, accepted: np.ndarray) -> None:
+        """Count CRC-failing candidates that do not lie inside an accepted frame."""
+        if len(accepted):
+            i = np.searchsorted(accepted, failed, side="right") - 1
+            failed = failed[(i < 0) | (failed >= accepted[np.maximum(i, 0)] + self.size)]
+        self.stats.crc_failures += len(failed)
+
+    def _keep(self, pos, seq, accept, decided, cut, buf) -> None:
+        """Buffer the undecided bytes and remember the decided candidates later ones may neighbour:
+        the last one ending before the cut and all that overlap it."""
+        tail = decided & (pos > cut - self.size)
+        before = np.flatnonzero(decided & (pos <= cut - self.size))
+        if len(before):
+            tail[before[-1]] = True
+        self._context = (pos[tail] + self._base, seq[tail], accept[tail])
+        self._buf = bytes(buf[cut:])
+        self._base += cut
+        self._host.drop_before(self._base)
+
+
+# --------------------------------------------------------------------------------------------------
+# ASCII lines
+
+
+def encode_lines(fmt, times, counts) -> bytes:
+    """Text lines of samples: optional timestamp (in the profile's time unit) and the counts,
+    written with `fmt.decimals` decimals (counts / 10**decimals)."""
+    sep = fmt.delimiter
+    lines = []
+    for t, row in zip(np.asarray(times, float), np.asarray(counts, np.int64)):
+        values = [_fixed(int(c), fmt.decimals) for c in row]
+        if fmt.timestamp == "first":
+            values.insert(0, repr(float(t) / fmt.time_scale))
+        elif fmt.timestamp == "last":
+            values.append(repr(float(t) / fmt.time_scale))
+        lines.append(sep.join(values) + "\r\n")
+    return "".join(lines).encode("ascii")
+
+
+def _fixed(count: int, decimals: int) -> str:
+    """count / 10**decimals written exactly."""
+    if decimals == 0:
+        return str(count)
+    sign, digits = ("-" if count < 0 else ""), str(abs(count)).rjust(decimals + 1, "0")
+    return f"{sign}{digits[:-decimals]}.{digits[-decimals:]}"
+
+
+def _parse_fixed(token: str, decimals: int) -> int:
+    """Exact count from a decimal token with at most `decimals` decimals; ValueError otherwise."""
+    sign = -1 if token[:1] == "-" else 1
+    body = token[1:] if token[:1] in "+-" else token
+    whole, dot, frac = body.partition(".")
+    if not (whole + frac).isdigit() or not (whole + frac).isascii() or len(frac) > decimals:
+        raise ValueError(f"not a number with at most {decimals} decimals: {token!r}")
+    return sign * int(whole + frac.ljust(decimals, "0"))
+
+
+class AsciiLineParser:
+    """Incremental parser of one-sample-per-line text streams.
+
+    Lines whose field count or values are wrong are counted in `bad_lines` and skipped; a line
+    longer than `max_line` bytes is discarded (a resync). The sequence number is the host's count
+    of accepted lines: text protocols carry none, so gaps cannot be detected.
+    """
+
+    max_line = 4096
+
+    def __init__(self, fmt, channels):
+        self.fmt = fmt
+        self.channels = tuple(channels)
+        self.fields = len(self.channels) + (fmt.timestamp != "none")
+        self.stats = LinkStats()
+        self._next_seq = 0
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget buffered bytes; the next line is discarded as probably partial."""
+        self._buf = b""
+        self._partial = True
+
+    def feed(self, data: bytes, host_time: float) -> SampleBlock:
+        """Add received bytes; return the samples of the lines completed by them."""
+        self.stats.bytes += len(data)
+        *lines, self._buf = (self._buf + bytes(data)).split(b"\n")
+        if self._partial and lines:
+            self.stats.skipped_bytes += len(lines[0]) + 1
+            lines, self._partial = lines[1:], False
+        if len(self._buf) > self.max_line:
+            self.stats.skipped_bytes += len(self._buf)
+            self.stats.resyncs += 1
+            self._buf, self._partial = b"", True
+        rows = [row for row in map(self._parse, lines) if row is not None]
+        k = len(rows)
+        values = np.array([r[0] for r in rows], dtype=np.int64).reshape(k, len(self.channels))
+        seq = self._next_seq + np.arange(k, dtype=np.int64)
+        self._next_seq += k
+        self.stats.frames += k
+        return SampleBlock(
+            counts=values,
+            seq=seq,
+            device_time=np.array([r[1] for r in rows], dtype=float),
+            host_time=np.full(k, float(host_time)),
+            channels=self.channels,
+        )
+
+    def _parse(self, line: bytes):
+        """(counts, device time) of one line, or None (counted) if the line is not a sample."""
+        if not line.strip():
+            return None
+        try:
+            text = line.decode("ascii")
+            tokens = text.split() if self.fmt.delimiter.isspace() else text.split(self.fmt.delimiter)
+            tokens = [t.strip() for t in tokens]
+            if len(tokens) != self.fields:
+                raise ValueError(f"{len(tokens)} fields, expected {self.fields}")
+            time = np.nan
+            if self.fmt.timestamp == "first":
+                time, tokens = float(tokens[0]) * self.fmt.time_scale, tokens[1:]
+            elif self.fmt.timestamp == "last":
+                time, tokens = float(tokens[-1]) * self.fmt.time_scale, tokens[:-1]
+            if self.fmt.timestamp != "none" and not np.isfinite(time):
+                raise ValueError("timestamp is not finite")
+            counts = [_parse_fixed(t, self.fmt.decimals) for t in tokens]
+            if any(abs(c) >= 2**63 for c in counts):
+                raise ValueError("count does not fit 64 bits")
+        except (UnicodeDecodeError, ValueError):
+            self.stats.bad_lines += 1
+            return None
+        return counts, time
