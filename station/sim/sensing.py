@@ -28,7 +28,9 @@ def sense(unit: SensorUnit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: 
         s = scale_nonlinearity.apply(s, effects["scale_nonlinearity"])
     if "latency" in effects:
         s = latency.apply(s, t, effects["latency"])
-    z = s + unit.bias + unit.noise((n, k, m))
+    z = unit.noise((n, k, m))
+    z += s
+    z += unit.bias
     if "bias_drift" in effects:
         z += bias_drift.apply(t0[:, None] + t, rate, effects["bias_drift"])
     if np.any(unit.bias_walk):

@@ -87,7 +87,9 @@ class SensorUnit:
 
     def noise(self, shape: tuple) -> np.ndarray:
         """White noise of shape (..., m) with the unit's per-sample standard deviation."""
-        return self.rng.standard_normal(shape) * self.sigma
+        out = self.rng.standard_normal(shape)
+        out *= self.sigma
+        return out
 
     def walk(self, n: int, k: int, gaps=None) -> np.ndarray:
         """(n, k, m) bias random walk over n recordings of k samples, continuing from the last call.
@@ -108,9 +110,11 @@ class SensorUnit:
 
     def quantise(self, z: np.ndarray) -> np.ndarray:
         """Integer counts round(z * counts_per_unit) as int32 (saturating at the int32 limits)."""
-        c = np.rint(z * self.counts_per_unit)
         info = np.iinfo(np.int32)
-        return np.clip(c, info.min, info.max).astype(np.int32)
+        c = np.multiply(z, self.counts_per_unit)
+        np.rint(c, out=c)
+        np.clip(c, info.min, info.max, out=c)
+        return c.astype(np.int32)
 
     def sample(self, v_si: np.ndarray) -> np.ndarray:
         """Counts (k, m) for k consecutive samples (at fs) of the stimulus v_si (k, d), in SI units.
