@@ -1,0 +1,284 @@
+"""Rotary table driver over Modbus TCP (pymodbus synchronous client).
+
+The table is a set of holding registers described by the device profile's `[table]` section
+(`TableRegisterMap`): a status bit field (ready, moving, at rate, fault), a run/stop command, the
+rate setpoint, the measured rate and the cumulative angle, the last three as signed 32-bit fixed
+point numbers (register integer = SI value * scale) with a configurable word order.
+
+`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop` and `state()`. Modbus
+exception codes and timeouts become `TableError`s that say what happened and what to do: `TableBusy`
+(code 6, retried a bounded number of times first), `TableTimeout` (no reply, also retried),
+`TableFault` (code 4, device failure), `TableError` for the rest (e.g. code 2: the register map
+does not match the table). After any failure the driver tries to stop the table; as a context
+manager it stops the table on exit, whatever happened.
+"""
+
+import math
+import time
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusIOException
+
+from station.clock import WallClock
+
+EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
+                   4: "device failure", 5: "acknowledge", 6: "device busy",
+                   8: "memory parity error", 10: "gateway path unavailable",
+                   11: "gateway target failed to respond"}
+BUSY, DEVICE_FAILURE = 6, 4
+INT32 = ModbusTcpClient.DATATYPE.INT32
+STATUS_BITS = ("ready", "moving", "at_rate", "fault")
+WORD_REGISTERS = ("status", "command")  # one 16-bit register each
+FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
+
+
+class TableError(RuntimeError):
+    """The rotary table did not do what was asked; the message says what to check."""
+
+
+class TableTimeout(TableError):
+    """No reply from the table within the timeout, after the bounded retries."""
+
+
+class TableBusy(TableError):
+    """The table kept answering 'device busy' (Modbus exception 6) after the bounded retries."""
+
+
+class TableFault(TableError):
+    """The table reported a device failure (Modbus exception 4): it needs the operator."""
+
+
+@dataclass(frozen=True)
+class TableRegisterMap:
+    """Holding-register layout of a rotary table (addresses 0-based, as on the wire).
+
+    registers   : name -> address for `status`, `command` (16 bit) and `rate_setpoint`, `rate`,
+                  `angle` (int32 fixed point, two registers)
+    status_bits : `ready`, `moving`, `at_rate`, `fault` -> bit number in the status register
+    run, stop   : values written to the command register
+    rate_scale  : register counts per rad/s; angle_scale: counts per rad
+    word_order  : "big" (high word at the lower address) or "little"
+    """
+
+    registers: dict
+    status_bits: dict
+    rate_scale: float
+    angle_scale: float
+    device_id: int = 1
+    run: int = 1
+    stop: int = 0
+    word_order: str = "big"
+    span: tuple = field(init=False)  # (first address, count) of one read covering every register
+
+    def __post_init__(self):
+        missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
+        missing += [f"status_bits.{n}" for n in STATUS_BITS if n not in self.status_bits]
+        if missing:
+            raise ValueError(f"table register map lacks {missing}; see docs/devices.md")
+        used = sorted(a for n in WORD_REGISTERS + FIXED_REGISTERS for a in self.addresses(n))
+        if len(set(used)) != len(used) or used[0] < 0 or used[-1] > 0xFFFF:
+            raise ValueError(f"table registers overlap or leave 0..65535: {self.registers}")
+        if used[-1] - used[0] + 1 > 125:
+            raise ValueError("table registers must fit in one read of 125 registers")
+        if self.word_order not in ("big", "little"):
+            raise ValueError(f"word_order must be 'big' or 'little', got {self.word_order!r}")
+        if not (self.rate_scale > 0 and self.angle_scale > 0):
+            raise ValueError("table scales (counts per rad/s, counts per rad) must be positive")
+        if not all(0 <= b < 16 for b in self.status_bits.values()):
+            raise ValueError(f"status bits must be numbers 0..15, got {self.status_bits}")
+        object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
+
+    @classmethod
+    def from_dict(cls, table: dict) -> "TableRegisterMap":
+        """Build from the `[table]` section of a device profile."""
+        try:
+            return cls(registers={k: int(v) for k, v in table["registers"].items()},
+                       status_bits={k: int(v) for k, v in table["status_bits"].items()},
+                       rate_scale=float(table["scale"]["rate"]),
+                       angle_scale=float(table["scale"]["angle"]),
+                       device_id=int(table.get("device_id", 1)),
+                       run=int(table.get("command_values", {}).get("run", 1)),
+                       stop=int(table.get("command_values", {}).get("stop", 0)),
+                       word_order=str(table.get("word_order", "big")))
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"[table] section of the device profile is incomplete ({exc!r}); "
+                             "see the rotary table section of docs/devices.md") from None
+
+    @classmethod
+    def load(cls, path) -> "TableRegisterMap":
+        """Read the `[table]` section of a TOML device profile."""
+        with Path(path).open("rb") as f:
+            data = tomllib.load(f)
+        if not isinstance(data.get("table"), dict):
+            raise ValueError(f"{path} has no [table] section")
+        return cls.from_dict(data["table"])
+
+    def addresses(self, name: str) -> range:
+        """Register addresses a named quantity occupies."""
+        width = 2 if name in FIXED_REGISTERS else 1
+        return range(self.registers[name], self.registers[name] + width)
+
+    def encode(self, value: float, scale: float) -> list:
+        """SI value -> two registers of a signed 32-bit fixed-point number."""
+        counts = round(value * scale)
+        if not -(2**31) <= counts < 2**31:
+            raise ValueError(f"{value!r} does not fit the table's 32-bit fixed point at scale "
+                             f"{scale}; command a smaller value")
+        return ModbusTcpClient.convert_to_registers(counts, INT32, word_order=self.word_order)
+
+    def decode(self, words, scale: float) -> float:
+        """Two registers of a signed 32-bit fixed-point number -> SI value."""
+        return ModbusTcpClient.convert_from_registers(list(words), INT32,
+                                                      word_order=self.word_order) / scale
+
+
+@dataclass(frozen=True)
+class TableReading:
+    """What the table reports, read at host `time` (clock seconds); rad/s and rad (cumulative,
+    wrapping at 2**31 counts)."""
+
+    time: float
+    rate: float
+    angle: float
+    rate_setpoint: float
+    running: bool
+    ready: bool
+    moving: bool
+    at_rate: bool
+    fault: bool
+
+
+class RotaryTable:
+    """Synchronous rotary-table client; one Modbus transaction per call, bounded retries.
+
+    timeout       : seconds to wait for each reply
+    retries       : extra tries after a timeout or a busy answer (busy ones `busy_backoff` s apart)
+    stop_patience : seconds the driver keeps trying to stop the table after a failure
+    clock         : stamps `TableReading.time` (share the recorder's clock)
+    """
+
+    def __init__(self, host: str, port: int, register_map: TableRegisterMap, timeout=0.5,
+                 retries=2, busy_backoff=0.05, stop_patience=2.0, clock=None):
+        self.host, self.port, self.map = host, port, register_map
+        self.timeout, self.retries, self.busy_backoff = timeout, int(retries), busy_backoff
+        self.stop_patience = stop_patience
+        self.clock = clock or WallClock()
+        self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
+
+    def __enter__(self) -> "RotaryTable":
+        self.connect()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.stop()
+        except TableError as stop_error:
+            if exc is None:
+                raise
+            exc.add_note(f"and the table could not be stopped: {stop_error}; stop it by hand")
+        finally:
+            self.close()
+
+    def connect(self) -> None:
+        """Open the TCP connection, or raise TableError naming the address."""
+        if not self._client.connect():
+            raise TableError(f"cannot connect to the rotary table at {self.host}:{self.port}; "
+                             "check its power, cable and IP address")
+
+    def close(self) -> None:
+        self._client.close()
+
+    def set_rate(self, rate_rad_s: float) -> None:
+        """Write the rate setpoint (rad/s, signed)."""
+        if not math.isfinite(rate_rad_s):
+            raise ValueError(f"rate setpoint must be a finite number of rad/s, got {rate_rad_s!r}")
+        words = self.map.encode(rate_rad_s, self.map.rate_scale)
+        self._operate("set rate", lambda: self._client.write_registers(
+            self.map.registers["rate_setpoint"], words, device_id=self.map.device_id))
+
+    def start(self) -> None:
+        """Command the table to run towards the setpoint."""
+        self._operate("start", lambda: self._write_command(self.map.run))
+
+    def stop(self) -> None:
+        """Command the table to decelerate to rest."""
+        self._request("stop", lambda: self._write_command(self.map.stop))
+
+    def state(self) -> TableReading:
+        """Read every register in one transaction."""
+        first, count = self.map.span
+        now = self.clock.now()
+        regs = self._operate("read state", lambda: self._client.read_holding_registers(
+            first, count=count, device_id=self.map.device_id)).registers
+
+        def words(name):
+            return [regs[a - first] for a in self.map.addresses(name)]
+
+        status = regs[self.map.registers["status"] - first]
+        bits = {n: bool(status >> b & 1) for n, b in self.map.status_bits.items()}
+        return TableReading(
+            time=now,
+            rate=self.map.decode(words("rate"), self.map.rate_scale),
+            angle=self.map.decode(words("angle"), self.map.angle_scale),
+            rate_setpoint=self.map.decode(words("rate_setpoint"), self.map.rate_scale),
+            running=regs[self.map.registers["command"] - first] == self.map.run,
+            **{n: bits[n] for n in STATUS_BITS})
+
+    def _write_command(self, value: int):
+        return self._client.write_register(self.map.registers["command"], value,
+                                           device_id=self.map.device_id)
+
+    def _operate(self, what: str, call):
+        """`_request`, and on failure try to stop the table before raising."""
+        try:
+            return self._request(what, call)
+        except TableError as error:
+            self._emergency_stop(error)
+            raise
+
+    def _emergency_stop(self, error: TableError) -> None:
+        """Keep commanding stop for up to `stop_patience` seconds (a stalled controller may still
+        be working through the requests that timed out); note on `error` if it never succeeded."""
+        deadline = time.monotonic() + self.stop_patience
+        while True:
+            try:
+                return self.stop()
+            except TableError as stop_error:
+                if time.monotonic() >= deadline:
+                    error.add_note(f"and the table could not be stopped: {stop_error}; "
+                                   "stop it by hand")
+                    return
+
+    def _request(self, what: str, call):
+        """One transaction; busy answers and timeouts are retried `retries` times."""
+        where = f"rotary table at {self.host}:{self.port}"
+        for attempt in range(self.retries + 1):
+            try:
+                response = call()
+            except ModbusIOException:
+                error = TableTimeout(f"{what}: no reply from the {where} within {self.timeout} s "
+                                     f"({attempt + 1} tries); check the cable and the device id "
+                                     f"{self.map.device_id}")
+                continue
+            except ConnectionException as exc:
+                error = TableError(f"{what}: lost the connection to the {where} ({exc}); "
+                                   "check its power and network")
+                continue
+            if not response.isError():
+                return response
+            code = response.exception_code
+            name = EXCEPTION_CODES.get(code, "unknown exception")
+            if code == BUSY:
+                error = TableBusy(f"{what}: the {where} stayed busy (Modbus exception 6) after "
+                                  f"{attempt + 1} tries; wait for it to finish and retry")
+                time.sleep(self.busy_backoff)
+                continue
+            if code == DEVICE_FAILURE:
+                raise TableFault(f"{what}: the {where} reports a device failure (Modbus "
+                                 "exception 4); check the table's fault display and reset it")
+            raise TableError(f"{what}: the {where} answered Modbus exception {code} ({name}); "
+                             "check the register map and device id in the device profile")
+        raise error

@@ -1,0 +1,185 @@
+"""Rotary-table driver against its Modbus twin (a real pymodbus server on 127.0.0.1)."""
+
+import logging
+import time
+from pathlib import Path
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from drivers.rotary_table import (RotaryTable, TableBusy, TableError, TableFault, TableRegisterMap,
+                                  TableTimeout)
+from drivers.twin_table import TableTwin
+from station.clock import ScaledClock
+from station.sim.table import RotaryTable as TablePhysics
+
+MAP = TableRegisterMap.load(Path(__file__).parents[1] / "drivers/profiles/table_modbus.toml")
+TIMEOUT, RETRIES = 0.1, 1
+
+
+@pytest.fixture(autouse=True)
+def quiet_pymodbus():
+    """Timeouts make pymodbus log errors; the tests check them through the driver instead."""
+    logger = logging.getLogger("pymodbus")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    yield
+    logger.setLevel(level)
+
+
+@pytest.fixture
+def bench():
+    """(physics, twin, clock): a table physics at 20x speed served on an ephemeral port."""
+    clock = ScaledClock(speed=20.0)
+    physics = TablePhysics(clock, max_accel=4.0, settle_time=0.5)
+    with TableTwin(physics, MAP, lifetime=30.0) as twin:
+        yield physics, twin, clock
+
+
+def driver(twin, clock, register_map=MAP) -> RotaryTable:
+    return RotaryTable("127.0.0.1", twin.port, register_map, timeout=TIMEOUT, retries=RETRIES,
+                       clock=clock)
+
+
+def wait_for(predicate, table: RotaryTable, timeout: float = 5.0):
+    """Poll `table.state()` until `predicate(reading)`; returns that reading."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        reading = table.state()
+        if predicate(reading):
+            return reading
+        time.sleep(0.005)
+    raise AssertionError(f"table never reached the awaited state; last: {reading}")
+
+
+def test_set_start_steady_stop_cycle(bench):
+    physics, twin, clock = bench
+    with driver(twin, clock) as table:
+        rest = table.state()
+        assert (rest.ready, rest.moving, rest.running, rest.fault) == (True, False, False, False)
+        table.set_rate(-2.5)
+        table.start()
+        steady = wait_for(lambda r: r.at_rate, table)
+        assert steady.rate == pytest.approx(-2.5, abs=1e-5)  # fixed point: 1e-5 rad/s per count
+        assert (steady.rate_setpoint, steady.running, steady.moving) == (-2.5, True, True)
+        before = physics.state().angle
+        reading = table.state()
+        after = physics.state().angle
+        assert after - 1e-4 <= reading.angle <= before + 1e-4  # angle decreases: negative rate
+        table.stop()
+        rest = wait_for(lambda r: not r.moving, table)
+        assert (rest.rate, rest.running, rest.at_rate) == (0.0, False, False)
+    assert physics.state().rate == 0.0
+
+
+def test_context_manager_stops_the_table_on_an_exception(bench):
+    physics, twin, clock = bench
+    with pytest.raises(KeyError):
+        with driver(twin, clock) as table:
+            table.set_rate(1.0)
+            table.start()
+            wait_for(lambda r: r.moving, table)
+            raise KeyError("operator pressed Ctrl-C")
+    assert not physics.state().running
+
+
+def spinning(twin, clock) -> RotaryTable:
+    table = driver(twin, clock)
+    table.connect()
+    table.set_rate(3.0)
+    table.start()
+    wait_for(lambda r: r.moving, table)
+    return table
+
+
+@pytest.mark.parametrize("fault, expected, message, setpoint", [
+    (dict(kind="busy", count=RETRIES + 1), TableBusy, "busy", 3.0),
+    # a slow controller still executes the command, only its reply is too late
+    (dict(kind="slow", count=RETRIES + 1, delay=2.5 * TIMEOUT), TableTimeout, "no reply", 1.0),
+    (dict(kind="drop", count=RETRIES + 1), TableTimeout, "no reply", 3.0),
+    (dict(kind="exception", code=4), TableFault, "device failure", 3.0),
+    (dict(kind="exception", code=2), TableError, "exception 2 .illegal data address", 3.0),
+])
+def test_each_fault_gives_its_error_and_the_table_is_stopped(bench, fault, expected, message,
+                                                             setpoint):
+    physics, twin, clock = bench
+    table = spinning(twin, clock)
+    try:
+        twin.inject(**fault)
+        with pytest.raises(TableError, match=message) as caught:
+            table.set_rate(1.0)
+        assert type(caught.value) is expected
+        assert not physics.state().running
+        assert physics.state().rate_setpoint == setpoint
+    finally:
+        table.close()
+
+
+def test_retries_are_bounded_and_a_short_busy_spell_is_absorbed(bench):
+    physics, twin, clock = bench
+    table = spinning(twin, clock)
+    try:
+        twin.inject("busy", count=RETRIES)
+        table.set_rate(1.0)  # the last try gets through
+        assert physics.state().rate_setpoint == 1.0 and physics.state().running
+        twin.inject("busy", count=RETRIES + 1)
+        requests = twin.requests
+        with pytest.raises(TableBusy):
+            table.set_rate(2.0)
+        assert twin.requests - requests == RETRIES + 1 + 1  # the tries, then one stop
+    finally:
+        table.close()
+
+
+def test_start_refused_during_a_fault(bench):
+    physics, twin, clock = bench
+    physics.fault(True)
+    with driver(twin, clock) as table:
+        reading = table.state()
+        assert (reading.fault, reading.ready) == (True, False)
+        table.set_rate(1.0)
+        with pytest.raises(TableFault):
+            table.start()
+    assert not physics.state().running
+
+
+def test_little_endian_word_order_round_trips_through_the_twin():
+    data = {"registers": dict(MAP.registers), "status_bits": dict(MAP.status_bits),
+            "scale": {"rate": MAP.rate_scale, "angle": MAP.angle_scale}, "word_order": "little"}
+    little = TableRegisterMap.from_dict(data)
+    clock = ScaledClock(speed=20.0)
+    physics = TablePhysics(clock)
+    with TableTwin(physics, little) as twin, driver(twin, clock, little) as table:
+        table.set_rate(-1.25)
+        assert physics.state().rate_setpoint == -1.25
+        assert table.state().rate_setpoint == -1.25
+        raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=TIMEOUT)
+        try:
+            words = raw.read_holding_registers(MAP.registers["rate_setpoint"], count=2).registers
+        finally:
+            raw.close()
+    assert words == [(-125000) & 0xFFFF, ((-125000) >> 16) & 0xFFFF]  # low word first
+
+
+def test_twin_answers_bad_writes_like_a_controller(bench):
+    physics, twin, clock = bench
+    raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=TIMEOUT, retries=0)
+    try:
+        assert raw.write_register(MAP.registers["rate"], 5).exception_code == 2  # read-only
+        assert raw.write_register(MAP.registers["rate_setpoint"], 5).exception_code == 2  # half
+        assert raw.write_register(MAP.registers["command"], 7).exception_code == 3  # no such cmd
+        big = MAP.encode(1000.0, MAP.rate_scale)  # beyond the physics' max rate
+        assert raw.write_registers(MAP.registers["rate_setpoint"], big).exception_code == 3
+        assert raw.read_holding_registers(200, count=1).exception_code == 2
+    finally:
+        raw.close()
+    assert not physics.state().running and physics.state().rate_setpoint == 0.0
+
+
+def test_unreachable_table_names_its_address():
+    clock = ScaledClock()
+    with TableTwin(TablePhysics(clock), MAP) as twin:
+        port = twin.port
+    table = RotaryTable("127.0.0.1", port, MAP, timeout=TIMEOUT)
+    with pytest.raises(TableError, match=f"127.0.0.1:{port}"):
+        table.connect()
