@@ -1,0 +1,68 @@
+"""Sensor unit, Earth model and rate profile against closed forms."""
+
+import numpy as np
+import pytest
+
+from station.sim.earth import OMEGA_EARTH, earth_rate_enu, earth_rate_table, normal_gravity
+from station.sim.profile import Profile, RotaryTiming
+from station.sim.unit import SensorUnit
+
+
+def test_sample_is_a_transpose_v_plus_bias_in_counts():
+    a = np.array([[1.0, 0.0, 0.5], [0.0, 2.0, 0.5], [0.0, 0.0, 0.7]])
+    unit = SensorUnit(a, bias=[0.1, -0.2, 0.0], counts_per_unit=100.0, rng=0)
+    counts = unit.sample(np.array([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0]]))
+    assert counts.dtype == np.int32
+    assert counts.tolist() == [[110, 380, 360], [10, -20, 0]]
+
+
+def test_white_noise_has_density_times_sqrt_fs_plus_quantisation():
+    unit = SensorUnit(np.eye(3), noise_density=0.01, fs=400.0, counts_per_unit=50.0, rng=1)
+    x = unit.sample(np.zeros((20000, 3))) * unit.lsb
+    expected = np.sqrt((0.01 * np.sqrt(400.0)) ** 2 + unit.lsb**2 / 12)
+    assert np.allclose(x.std(0), expected, rtol=5 * np.sqrt(0.5 / 20000))
+    assert np.allclose(unit.mean_sigma(20000), expected / np.sqrt(20000))
+
+
+def test_bias_walk_variance_grows_linearly_and_continues_across_calls():
+    unit = SensorUnit(np.eye(1), bias_walk=0.02, fs=100.0, rng=2)
+    w = unit.walk(400, 500)[..., 0]  # 400 recordings of 5 s, chained
+    steps = w[:, -1] - w[:, 0]
+    expected = 0.02**2 * 499 / 100.0
+    assert abs(steps.var() / expected - 1) < 5 * np.sqrt(2 / 400)
+    again = unit.walk(1, 2)[0, 0, 0]
+    assert abs(again - w[-1, -1]) < 10 * 0.02 / np.sqrt(100.0)  # starts where it stopped
+
+
+def test_bad_unit_parameters_are_refused_with_the_problem_named():
+    with pytest.raises(ValueError, match="one value per sensor"):
+        SensorUnit(np.eye(3), bias=[0.0, 1.0])
+    with pytest.raises(ValueError, match="sample rate"):
+        SensorUnit(np.eye(3), fs=0)
+    with pytest.raises(ValueError, match=r"shape \(k, 3\)"):
+        SensorUnit(np.eye(3)).sample(np.zeros((4, 2)))
+
+
+def test_earth_rate_and_gravity_at_known_latitudes():
+    assert np.allclose(earth_rate_enu(90.0), [0, 0, OMEGA_EARTH], atol=1e-20)
+    assert normal_gravity(0.0) == pytest.approx(9.7803253359)
+    assert normal_gravity(90.0) == pytest.approx(9.8321849378, abs=1e-7)
+    # heading 90 deg: table x points east, table y points north
+    assert np.allclose(earth_rate_table(0.0, np.pi / 2), [0, OMEGA_EARTH, 0], atol=1e-18)
+
+
+def test_profile_angle_is_the_exact_integral_of_the_rate():
+    p = Profile((0.0, 1.0, 3.0, 4.0), (0.0, 2.0, 2.0, -1.0))
+    assert p.angle(np.array([0.5, 1.0, 2.0, 4.0, 5.0])) == pytest.approx(
+        [0.25, 1.0, 3.0, 5.0 + 0.5, 5.5 - 1.0])
+
+
+def test_rotary_timing_segments_and_refusal_of_impossible_timing():
+    timing = RotaryTiming(rate=np.pi / 2, max_accel=1.0, static=10.0, moving=25.0, settle=1.0)
+    seg = timing.segments(200.0)
+    assert seg["static"] == (0, 2000) and seg["spinup"] == (2000, 2315)
+    assert seg["spindown"][1] == timing.samples(200.0) == 7000
+    rate = timing.profile().rate(np.arange(7000) / 200.0)
+    assert np.all(rate[seg["settle"][0]:seg["rotating"][1]] == np.pi / 2)
+    with pytest.raises(ValueError, match="no steady rotation"):
+        RotaryTiming(rate=10.0, max_accel=1.0, moving=20.0)
