@@ -1,4 +1,4 @@
-"""CAN IMU driver: frames described by a DBC file -> timestamped `SampleBlock`s (python-can, cantools).
+"""CAN IMU driver: DBC-described frames -> timestamped `SampleBlock`s (python-can, cantools).
 
 One sample of m channels travels as one or more CAN frames that all carry the same sample counter
 (an n-bit integer that wraps). The DBC file describes the frames and their signals; the device
@@ -15,88 +15,66 @@ Frames that the profile does not know, short frames, and samples whose frames ar
 frame of a multi-frame sample) are counted in `CanStats`, never emitted half-filled.
 """
 
-import math
 import threading
-import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import can
 import cantools
 import numpy as np
 
+from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
 from drivers.samples import SampleBlock
 from station.clock import WallClock
 
 
-class CanProfileError(ValueError):
-    """The CAN section of a device profile, or its DBC file, cannot describe the device."""
+@dataclass(frozen=True)
+class CanSection:
+    """`[can]`: how samples travel as frames.
+
+    dbc     : DBC file describing the frames (path relative to the profile file)
+    frames  : names of the DBC messages that make one sample, in the order the device sends them
+    counter : name of the sample-counter signal present in every one of those frames
+    signals : `[can.signals]`, channel name -> "MESSAGE.SIGNAL"
+    """
+
+    dbc: Path
+    frames: tuple
+    counter: str
+    signals: dict
+
+    @classmethod
+    def parse(cls, s: Section) -> "CanSection":
+        dbc = Path(s.source).parent / s.get("dbc", str)
+        frames = s.get_list("frames", str)
+        counter = s.get("counter", str)
+        sub = s.sub("signals")
+        signals = {channel: sub.get(channel, str) for channel in list(sub.table)}
+        s.finish()
+        return cls(dbc, frames, counter, signals)
 
 
 @dataclass(frozen=True)
 class CanProfile:
-    """What the driver needs to turn frames into samples.
+    """A CAN IMU profile: `[imu]` (channels, units, scale, rate) and `[can]`."""
 
-    channels : channel names, in column order of the samples
-    units    : SI unit of the channels (e.g. "rad/s")
-    scale    : counts per SI unit
-    rate_hz  : nominal sample rate of the device
-    dbc      : path of the DBC file describing the frames
-    frames   : names of the DBC messages that make one sample, in the order the device sends them
-    counter  : name of the sample-counter signal present in every one of those frames
-    signals  : channel name -> "MESSAGE.SIGNAL"
-    """
-
-    channels: tuple
-    units: str
-    scale: float
-    rate_hz: float
-    dbc: Path
-    frames: tuple
-    counter: str
-    signals: dict = field(default_factory=dict)
+    source: str
+    imu: ImuSection
+    can: CanSection
 
     @classmethod
-    def from_dict(cls, data: dict, base_dir: Path = Path(".")) -> "CanProfile":
-        """Build from a parsed TOML profile with `[imu]` and `[can]` tables (DBC path relative to
-        `base_dir`, the profile's folder)."""
-        imu, can_section = _table(data, "imu"), _table(data, "can")
-        try:
-            channels = tuple(str(c) for c in imu["channels"])
-            profile = cls(
-                channels=channels,
-                units=str(imu["units"]),
-                scale=float(imu["scale"]),
-                rate_hz=float(imu["rate_hz"]),
-                dbc=Path(base_dir) / str(can_section["dbc"]),
-                frames=tuple(str(f) for f in can_section["frames"]),
-                counter=str(can_section["counter"]),
-                signals={str(k): str(v) for k, v in _table(can_section, "signals").items()},
-            )
-        except KeyError as missing:
-            raise CanProfileError(f"device profile lacks the key {missing}; see the CAN IMU "
-                                  "section of docs/devices.md for the required keys") from None
-        if not (math.isfinite(profile.scale) and profile.scale > 0 and profile.rate_hz > 0):
-            raise CanProfileError("[imu] scale (counts per SI unit) and rate_hz must be positive")
-        if set(profile.signals) != set(channels):
-            raise CanProfileError(
-                f"[can.signals] must map exactly the channels {list(channels)}; it maps "
-                f"{sorted(profile.signals)}")
-        return profile
+    def from_profile(cls, profile: Profile) -> "CanProfile":
+        imu = profile.section("imu", ImuSection.parse)
+        can_section = profile.section("can", CanSection.parse)
+        if set(can_section.signals) != set(imu.channels):
+            raise ProfileError(f"{profile.source}: [can.signals] must map exactly the channels "
+                               f"{list(imu.channels)}; it maps {sorted(can_section.signals)}")
+        return cls(profile.source, imu, can_section)
 
     @classmethod
-    def load(cls, path) -> "CanProfile":
-        """Read a TOML device profile file."""
-        path = Path(path)
-        with path.open("rb") as f:
-            return cls.from_dict(tomllib.load(f), path.parent)
-
-
-def _table(data: dict, name: str) -> dict:
-    value = data.get(name)
-    if not isinstance(value, dict):
-        raise CanProfileError(f"device profile needs a [{name}] table; see docs/devices.md")
-    return value
+    def load(cls, path_or_name) -> "CanProfile":
+        """Read a CAN IMU profile (file path or bundled name, e.g. "imu12_can")."""
+        return cls.from_profile(load_profile(path_or_name))
 
 
 @dataclass(frozen=True)
@@ -109,57 +87,64 @@ class _Slot:
 
 
 class FrameLayout:
-    """The DBC messages of a profile, checked against each other, ready to encode and decode."""
+    """The DBC messages of a profile, checked against each other, ready to encode and decode.
+
+    slots           : one `_Slot` per frame of a sample, in sending order
+    by_id           : (frame id, extended?) -> slot
+    counter         : name of the counter signal; counter_modulus: 2**its width
+    channels        : channel names; lo, hi: (m,) raw range of each channel's signal
+    """
 
     def __init__(self, profile: CanProfile):
+        can_section, dbc = profile.can, profile.can.dbc
         try:
-            db = cantools.database.load_file(profile.dbc)
+            db = cantools.database.load_file(dbc)
         except FileNotFoundError:
-            raise CanProfileError(f"DBC file {profile.dbc} not found; fix [can] dbc in the "
-                                  "device profile (it is relative to the profile file)") from None
-        except Exception as exc:
-            raise CanProfileError(f"DBC file {profile.dbc} cannot be parsed: {exc}") from None
-        self.profile = profile
-        messages = [_message(db, name, profile.dbc) for name in profile.frames]
-        columns = {name: [] for name in profile.frames}
-        for col, channel in enumerate(profile.channels):
-            msg_name, _, sig_name = profile.signals[channel].partition(".")
+            raise ProfileError(f"DBC file {dbc} not found; fix [can] dbc in {profile.source} "
+                               "(it is relative to the profile file)") from None
+        except Exception as exc:  # noqa: BLE001 - cantools raises many types
+            raise ProfileError(f"DBC file {dbc} cannot be parsed: {exc}") from None
+        self.channels, self.counter = profile.imu.channels, can_section.counter
+        messages = [_message(db, name, dbc) for name in can_section.frames]
+        columns = {name: [] for name in can_section.frames}
+        ranges = []
+        for col, channel in enumerate(self.channels):
+            msg_name, _, sig_name = can_section.signals[channel].partition(".")
             if msg_name not in columns:
-                raise CanProfileError(f"channel {channel!r} maps to {profile.signals[channel]!r}, "
-                                      f"but {msg_name!r} is not one of [can] frames")
-            _signal(db.get_message_by_name(msg_name), sig_name, profile.dbc)
+                raise ProfileError(f"channel {channel!r} maps to {can_section.signals[channel]!r}, "
+                                   f"but {msg_name!r} is not one of [can] frames")
+            ranges.append(_raw_range(_signal(db.get_message_by_name(msg_name), sig_name, dbc)))
             columns[msg_name].append((sig_name, col))
-        widths = {_signal(m, profile.counter, profile.dbc).length for m in messages}
+        widths = {_signal(m, self.counter, dbc).length for m in messages}
         if len(widths) != 1:
-            raise CanProfileError(f"counter {profile.counter!r} must have one width in all frames")
+            raise ProfileError(f"counter {self.counter!r} must have one width in all frames")
         self.counter_modulus = 1 << widths.pop()
+        self.lo, self.hi = (np.array(r, dtype=np.int64) for r in zip(*ranges))
         self.slots = tuple(_Slot(i, m, tuple(columns[m.name])) for i, m in enumerate(messages))
         self.by_id = {(m.frame_id, m.is_extended_frame): s for m, s in zip(messages, self.slots)}
 
-    def signal_range(self, column: int) -> tuple:
-        """Smallest and largest raw integer a channel's signal can carry."""
-        channel = self.profile.channels[column]
-        msg_name, _, sig_name = self.profile.signals[channel].partition(".")
-        sig = self.slots[self.profile.frames.index(msg_name)].message.get_signal_by_name(sig_name)
-        if sig.is_signed:
-            return -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
-        return 0, (1 << sig.length) - 1
+
+def _raw_range(sig) -> tuple:
+    """Smallest and largest raw integer a DBC signal can carry."""
+    if sig.is_signed:
+        return -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+    return 0, (1 << sig.length) - 1
 
 
 def _message(db, name: str, dbc: Path):
     try:
         return db.get_message_by_name(name)
     except KeyError:
-        raise CanProfileError(f"frame {name!r} of [can] frames is not in {dbc}") from None
+        raise ProfileError(f"frame {name!r} of [can] frames is not in {dbc}") from None
 
 
 def _signal(message, name: str, dbc: Path):
     try:
         sig = message.get_signal_by_name(name)
     except KeyError:
-        raise CanProfileError(f"signal {name!r} is not in frame {message.name!r} of {dbc}") from None
+        raise ProfileError(f"signal {name!r} is not in frame {message.name!r} of {dbc}") from None
     if sig.is_float:
-        raise CanProfileError(f"signal {message.name}.{name} is a float; counts must be integers")
+        raise ProfileError(f"signal {message.name}.{name} is a float; counts must be integers")
     return sig
 
 
@@ -191,7 +176,7 @@ class SampleAssembler:
     def __init__(self, layout: FrameLayout):
         self.layout = layout
         self.stats = CanStats()
-        m = len(layout.profile.channels)
+        m = len(layout.channels)
         self._row = np.zeros(m, dtype=np.int64)
         self._have = []  # slots filled for the pending counter
         self._counter = None
@@ -213,7 +198,7 @@ class SampleAssembler:
             return
         values = slot.message.decode(data[:slot.message.length], decode_choices=False,
                                      scaling=False)
-        counter = values[self.layout.profile.counter]
+        counter = values[self.layout.counter]
         if counter != self._counter or slot.index in self._have:
             self._drop_pending()
             self._counter = counter
@@ -264,7 +249,7 @@ class SampleAssembler:
                             seq=np.array(self._seq, dtype=np.int64),
                             device_time=np.full(k, np.nan),
                             host_time=np.array(self._host, dtype=np.float64),
-                            channels=self.layout.profile.channels)
+                            channels=self.layout.channels)
         self._counts, self._seq, self._host = [], [], []
         return block
 
@@ -284,14 +269,14 @@ class _Receiver(can.Listener):
         with self.lock:
             try:
                 self.assembler.feed(msg, now)
-            except Exception as exc:  # a decoder bug must not kill the notifier thread
+            except Exception as exc:  # noqa: BLE001 - a decoder bug must not kill the notifier
                 self._count(exc)
             if self.assembler.ready():
                 self.data_ready.notify_all()
         if self.logger is not None:
             try:
                 self.logger.on_message_received(msg)
-            except Exception as exc:  # e.g. disk full: keep decoding
+            except Exception as exc:  # noqa: BLE001 - e.g. disk full: keep decoding
                 with self.lock:
                     self._count(exc)
 
@@ -309,7 +294,7 @@ class _Receiver(can.Listener):
         if self.logger is not None:
             try:
                 self.logger.stop()
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001 - a failed flush must not stop the close
                 with self.lock:
                     self._count(exc)
 

@@ -15,13 +15,12 @@ manager it stops the table on exit, whatever happened.
 
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
+from drivers.profile import ProfileError, Section, load_profile
 from station.clock import WallClock
 
 EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
@@ -92,29 +91,32 @@ class TableRegisterMap:
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
 
     @classmethod
-    def from_dict(cls, table: dict) -> "TableRegisterMap":
-        """Build from the `[table]` section of a device profile."""
+    def parse(cls, s: Section) -> "TableRegisterMap":
+        """Build from the `[table]` section of a device profile (see drivers.profile)."""
+        s.get("name", str, default="rotary table")
+        registers, bits, scale = s.sub("registers"), s.sub("status_bits"), s.sub("scale")
+        commands = s.sub("command_values") if s.has("command_values") else None
         try:
-            return cls(registers={k: int(v) for k, v in table["registers"].items()},
-                       status_bits={k: int(v) for k, v in table["status_bits"].items()},
-                       rate_scale=float(table["scale"]["rate"]),
-                       angle_scale=float(table["scale"]["angle"]),
-                       device_id=int(table.get("device_id", 1)),
-                       run=int(table.get("command_values", {}).get("run", 1)),
-                       stop=int(table.get("command_values", {}).get("stop", 0)),
-                       word_order=str(table.get("word_order", "big")))
-        except (KeyError, TypeError, AttributeError) as exc:
-            raise ValueError(f"[table] section of the device profile is incomplete ({exc!r}); "
-                             "see the rotary table section of docs/devices.md") from None
+            table = cls(
+                registers={n: registers.get(n, int) for n in WORD_REGISTERS + FIXED_REGISTERS},
+                status_bits={n: bits.get(n, int) for n in STATUS_BITS},
+                rate_scale=scale.get("rate", float), angle_scale=scale.get("angle", float),
+                device_id=s.get("device_id", int, default=1),
+                run=commands.get("run", int, default=1) if commands else 1,
+                stop=commands.get("stop", int, default=0) if commands else 0,
+                word_order=s.get("word_order", str, default="big", choices=("big", "little")))
+        except ProfileError:
+            raise
+        except ValueError as exc:
+            raise ProfileError(f"{s.source}: [table] {exc}") from None
+        for section in (s, registers, bits, scale) + ((commands,) if commands else ()):
+            section.finish()
+        return table
 
     @classmethod
-    def load(cls, path) -> "TableRegisterMap":
-        """Read the `[table]` section of a TOML device profile."""
-        with Path(path).open("rb") as f:
-            data = tomllib.load(f)
-        if not isinstance(data.get("table"), dict):
-            raise ValueError(f"{path} has no [table] section")
-        return cls.from_dict(data["table"])
+    def load(cls, path_or_name) -> "TableRegisterMap":
+        """Read the `[table]` section of a device profile (path or bundled name)."""
+        return load_profile(path_or_name).section("table", cls.parse)
 
     def addresses(self, name: str) -> range:
         """Register addresses a named quantity occupies."""

@@ -30,15 +30,13 @@ class CanImuTwin:
     def __init__(self, channel: str, profile: CanProfile, source, clock=None, samples=None,
                  first_seq=0, drop=()):
         self.layout = FrameLayout(profile)
-        self.rate_hz = profile.rate_hz
+        self.rate_hz = profile.imu.rate_hz
         self.source = source
         self.clock = clock or WallClock()
         self.samples = samples
         self.first_seq = int(first_seq)
         self.drop = set(drop)
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        lo, hi = zip(*(self.layout.signal_range(c) for c in range(len(profile.channels))))
-        self._lo, self._hi = np.array(lo), np.array(hi)
         self.sent_seq, self.sent_counts = [], []
         self.error = None
         self._stop = threading.Event()
@@ -76,16 +74,17 @@ class CanImuTwin:
                     self._send(t0, np.arange(sent, due))
                     sent = due
                 time.sleep(_POLL_S)
-        except Exception as exc:  # reported to the test or bench through `error`
+        except Exception as exc:  # noqa: BLE001 - reported to the caller through `error`
             self.error = exc
 
     def _send(self, t0: float, index: np.ndarray) -> None:
         """Sample the source at the due times and put their frames on the bus."""
         counts = np.asarray(self.source(t0 + index / self.rate_hz))
-        if counts.shape != (len(index), len(self._lo)) or counts.dtype.kind not in "iu":
-            raise ValueError(f"source must return integer counts of shape {(len(index), len(self._lo))},"
-                             f" got {counts.dtype} {counts.shape}")
-        counts = np.clip(counts, self._lo, self._hi).astype(np.int64)
+        if counts.shape != (len(index), len(self.layout.channels)) or counts.dtype.kind not in "iu":
+            shape = (len(index), len(self.layout.channels))
+            raise ValueError(f"source must return integer counts of shape {shape}, "
+                             f"got {counts.dtype} {counts.shape}")
+        counts = np.clip(counts, self.layout.lo, self.layout.hi).astype(np.int64)
         for seq, row in zip(index + self.first_seq, counts):
             if self._send_sample(int(seq), row):
                 self.sent_seq.append(int(seq))
@@ -93,7 +92,7 @@ class CanImuTwin:
 
     def _send_sample(self, seq: int, row: np.ndarray) -> bool:
         """Send the frames of one sample; True if none was dropped."""
-        counter = {self.layout.profile.counter: seq % self.layout.counter_modulus}
+        counter = {self.layout.counter: seq % self.layout.counter_modulus}
         complete = True
         for slot in self.layout.slots:
             if (seq, slot.index) in self.drop:

@@ -80,7 +80,7 @@ class TableTwin:
         asyncio.set_event_loop(self._loop)
         try:
             self._loop.run_until_complete(self._main())
-        except Exception as exc:  # reported by start()
+        except Exception as exc:  # noqa: BLE001 - reported by start()
             self._error = exc
             self._ready.set()
         finally:
@@ -121,7 +121,7 @@ class TableTwin:
                 return ExcCodes(code)
             if kind == "drop":
                 raise asyncio.CancelledError  # the request task ends without a reply
-            time.sleep(delay)  # "slow": stall the controller, then answer
+            time.sleep(delay)  # noqa: ASYNC251 - "slow": the whole controller stalls
         if values:
             return self._write(address, values)
         self._refresh(start, registers)

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.can_imu import CanProfile, CanProfileError, FrameLayout, SampleAssembler
+from drivers.can_imu import CanProfile, FrameLayout, SampleAssembler
+from drivers.profile import Profile, ProfileError
 
 PROFILE_PATH = Path(__file__).parents[1] / "drivers/profiles/imu12_can.toml"
 PROFILE = CanProfile.load(PROFILE_PATH)
@@ -33,7 +34,7 @@ def test_hand_packed_frames_decode_to_their_values():
     for i in range(3):
         asm.feed(frame(i, 42, values[i]), host_time=1.5)
     block = asm.take()
-    np.testing.assert_array_equal(block.counts, [sum(map(list, values), [])])
+    np.testing.assert_array_equal(block.counts, [np.concatenate(values)])
     assert block.seq.tolist() == [42] and block.host_time.tolist() == [1.5]
 
 
@@ -99,10 +100,10 @@ def profile_dict() -> dict:
 
 
 @pytest.mark.parametrize("edit, message", [
-    (lambda d: d.pop("can"), r"\[can\] table"),
-    (lambda d: d["can"].pop("counter"), "lacks the key 'counter'"),
+    (lambda d: d.pop("can"), r"no \[can\] section"),
+    (lambda d: d["can"].pop("counter"), r"\[can\] counter: missing"),
     (lambda d: d["can"]["signals"].pop("g12"), "must map exactly the channels"),
-    (lambda d: d["imu"].update(scale=-1.0), "must be positive"),
+    (lambda d: d["can"].update(bitrate=500000), r"unknown keys \['bitrate'\]"),
     (lambda d: d["can"].update(dbc="missing.dbc"), "not found"),
     (lambda d: d["can"].update(frames=["IMU_GYRO_A", "NOPE"]), "'NOPE' .* is not in"),
     (lambda d: d["can"]["signals"].update(g1="IMU_GYRO_A.G9"), "'G9' is not in frame"),
@@ -111,5 +112,5 @@ def profile_dict() -> dict:
 def test_bad_profiles_are_refused_with_a_clear_message(edit, message):
     data = profile_dict()
     edit(data)
-    with pytest.raises(CanProfileError, match=message):
-        FrameLayout(CanProfile.from_dict(data, PROFILE_PATH.parent))
+    with pytest.raises(ProfileError, match=message):
+        FrameLayout(CanProfile.from_profile(Profile(str(PROFILE_PATH), data)))

@@ -1,19 +1,25 @@
 """Rotary-table driver against its Modbus twin (a real pymodbus server on 127.0.0.1)."""
 
+import dataclasses
 import logging
 import time
-from pathlib import Path
 
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from drivers.rotary_table import (RotaryTable, TableBusy, TableError, TableFault, TableRegisterMap,
-                                  TableTimeout)
+from drivers.rotary_table import (
+    RotaryTable,
+    TableBusy,
+    TableError,
+    TableFault,
+    TableRegisterMap,
+    TableTimeout,
+)
 from drivers.twin_table import TableTwin
 from station.clock import ScaledClock
 from station.sim.table import RotaryTable as TablePhysics
 
-MAP = TableRegisterMap.load(Path(__file__).parents[1] / "drivers/profiles/table_modbus.toml")
+MAP = TableRegisterMap.load("table_modbus")
 TIMEOUT, RETRIES = 0.1, 1
 
 
@@ -74,12 +80,11 @@ def test_set_start_steady_stop_cycle(bench):
 
 def test_context_manager_stops_the_table_on_an_exception(bench):
     physics, twin, clock = bench
-    with pytest.raises(KeyError):
-        with driver(twin, clock) as table:
-            table.set_rate(1.0)
-            table.start()
-            wait_for(lambda r: r.moving, table)
-            raise KeyError("operator pressed Ctrl-C")
+    with pytest.raises(KeyError), driver(twin, clock) as table:
+        table.set_rate(1.0)
+        table.start()
+        wait_for(lambda r: r.moving, table)
+        raise KeyError("operator pressed Ctrl-C")
     assert not physics.state().running
 
 
@@ -93,12 +98,12 @@ def spinning(twin, clock) -> RotaryTable:
 
 
 @pytest.mark.parametrize("fault, expected, message, setpoint", [
-    (dict(kind="busy", count=RETRIES + 1), TableBusy, "busy", 3.0),
+    ({"kind": "busy", "count": RETRIES + 1}, TableBusy, "busy", 3.0),
     # a slow controller still executes the command, only its reply is too late
-    (dict(kind="slow", count=RETRIES + 1, delay=2.5 * TIMEOUT), TableTimeout, "no reply", 1.0),
-    (dict(kind="drop", count=RETRIES + 1), TableTimeout, "no reply", 3.0),
-    (dict(kind="exception", code=4), TableFault, "device failure", 3.0),
-    (dict(kind="exception", code=2), TableError, "exception 2 .illegal data address", 3.0),
+    ({"kind": "slow", "count": RETRIES + 1, "delay": 2.5 * TIMEOUT}, TableTimeout, "no reply", 1.0),
+    ({"kind": "drop", "count": RETRIES + 1}, TableTimeout, "no reply", 3.0),
+    ({"kind": "exception", "code": 4}, TableFault, "device failure", 3.0),
+    ({"kind": "exception", "code": 2}, TableError, "exception 2 .illegal data address", 3.0),
 ])
 def test_each_fault_gives_its_error_and_the_table_is_stopped(bench, fault, expected, message,
                                                              setpoint):
@@ -144,9 +149,7 @@ def test_start_refused_during_a_fault(bench):
 
 
 def test_little_endian_word_order_round_trips_through_the_twin():
-    data = {"registers": dict(MAP.registers), "status_bits": dict(MAP.status_bits),
-            "scale": {"rate": MAP.rate_scale, "angle": MAP.angle_scale}, "word_order": "little"}
-    little = TableRegisterMap.from_dict(data)
+    little = dataclasses.replace(MAP, word_order="little")
     clock = ScaledClock(speed=20.0)
     physics = TablePhysics(clock)
     with TableTwin(physics, little) as twin, driver(twin, clock, little) as table:
@@ -162,7 +165,7 @@ def test_little_endian_word_order_round_trips_through_the_twin():
 
 
 def test_twin_answers_bad_writes_like_a_controller(bench):
-    physics, twin, clock = bench
+    physics, twin, _ = bench
     raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=TIMEOUT, retries=0)
     try:
         assert raw.write_register(MAP.registers["rate"], 5).exception_code == 2  # read-only
