@@ -18,6 +18,7 @@ frame of a multi-frame sample) are counted in `CanStats`, never emitted half-fil
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Self
 
 import can
 import cantools
@@ -346,7 +347,7 @@ class CanImu:
             with self._receiver.lock:
                 self._assembler.finish()
 
-    def __enter__(self) -> "CanImu":
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc) -> None:

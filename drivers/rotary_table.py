@@ -16,6 +16,7 @@ manager it stops the table on exit, whatever happened.
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Self
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
@@ -170,7 +171,7 @@ class RotaryTable:
         self.clock = clock or WallClock()
         self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
 
-    def __enter__(self) -> "RotaryTable":
+    def __enter__(self) -> Self:
         self.connect()
         return self
 

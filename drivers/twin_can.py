@@ -10,6 +10,7 @@ the range of each signal like a saturating ADC, and split into the profile's fra
 
 import threading
 import time
+from typing import Self
 
 import can
 import numpy as np
@@ -58,7 +59,7 @@ class CanImuTwin:
             self._thread.join()
         self.bus.shutdown()
 
-    def __enter__(self) -> "CanImuTwin":
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc) -> None:

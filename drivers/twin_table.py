@@ -18,6 +18,7 @@ import asyncio
 import collections
 import threading
 import time
+from typing import Self
 
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
@@ -59,7 +60,7 @@ class TableTwin:
             self._loop.call_soon_threadsafe(self._stopping.set)
             self._thread.join(10)
 
-    def __enter__(self) -> "TableTwin":
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc) -> None:
