@@ -23,8 +23,14 @@ from station.sim.unit import SensorUnit
 def unit_for(seed: int) -> SensorUnit:
     """The 12-gyro unit of the acceptance test: a_model + N(0, 0.01^2), noisy enough to matter."""
     rng = np.random.default_rng(seed)
-    return SensorUnit(perturbed(A_MODEL, 0.01, rng), bias=0.01 * rng.standard_normal(12),
-                      noise_density=0.005, counts_per_unit=1000.0, fs=200.0, rng=rng)
+    return SensorUnit(
+        perturbed(A_MODEL, 0.01, rng),
+        bias=0.01 * rng.standard_normal(12),
+        noise_density=0.005,
+        counts_per_unit=1000.0,
+        fs=200.0,
+        rng=rng,
+    )
 
 
 def timings(repeats: int) -> dict:
@@ -38,8 +44,12 @@ def timings(repeats: int) -> dict:
         reduce_arrays(sim.arrays)
         red_s.append(time.perf_counter() - t1)
         sim_s.append(t1 - t0)
-    return {"simulate_s": min(sim_s), "simulate_median_s": float(np.median(sim_s)),
-            "reduce_s": min(red_s), "samples": int(sim.arrays["y"].size)}
+    return {
+        "simulate_s": min(sim_s),
+        "simulate_median_s": float(np.median(sim_s)),
+        "reduce_s": min(red_s),
+        "samples": int(sim.arrays["y"].size),
+    }
 
 
 def efficiency(seeds: int) -> dict:
@@ -49,13 +59,18 @@ def efficiency(seeds: int) -> dict:
         unit = unit_for(seed)
         sim = simulate_rotary(unit, 20)
         red = reduce_arrays(sim.arrays)
-        sigma = np.sqrt((unit.sigma[0] ** 2 + unit.lsb[0] ** 2 / 12)
-                        * (1 / red.n_static[0] + 1 / red.n_rotating[0]))
+        sigma = np.sqrt(
+            (unit.sigma[0] ** 2 + unit.lsb[0] ** 2 / 12)
+            * (1 / red.n_static[0] + 1 / red.n_rotating[0])
+        )
         result = station.calibrate(red.M, magnitude=float(sim.arrays["c_cmd"]), d=3, sigma=sigma)
         bound = np.trace(station.crlb(unit.a, sim.truth["v"], sigma))
         ratios.append(station.eps(unit.a, result.a) ** 2 / bound)
-    return {"seeds": seeds, "eps2_over_crlb": float(np.mean(ratios)),
-            "eps2_over_crlb_se": float(np.std(ratios) / np.sqrt(seeds))}
+    return {
+        "seeds": seeds,
+        "eps2_over_crlb": float(np.mean(ratios)),
+        "eps2_over_crlb_se": float(np.std(ratios) / np.sqrt(seeds)),
+    }
 
 
 def main(argv=None) -> int:

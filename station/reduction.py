@@ -45,11 +45,15 @@ def _windows(window, n: int, k: int, name: str) -> np.ndarray:
     if w.shape == (2,):
         w = np.broadcast_to(w, (n, 2))
     if w.shape != (n, 2) or not np.issubdtype(w.dtype, np.integer):
-        raise CalibrationInputError(f"{name} window has shape {w.shape} / dtype {w.dtype}.",
-                                    f"Give integer [start, stop) sample indices, (2,) or ({n}, 2).")
+        raise CalibrationInputError(
+            f"{name} window has shape {w.shape} / dtype {w.dtype}.",
+            f"Give integer [start, stop) sample indices, (2,) or ({n}, 2).",
+        )
     if np.any(w[:, 0] < 0) or np.any(w[:, 1] > k) or np.any(w[:, 1] - w[:, 0] < 2):
-        raise CalibrationInputError(f"{name} window {w.tolist()} lies outside 0..{k} or holds "
-                                    "fewer than 2 samples.", "Check the segment indices.")
+        raise CalibrationInputError(
+            f"{name} window {w.tolist()} lies outside 0..{k} or holds fewer than 2 samples.",
+            "Check the segment indices.",
+        )
     return w
 
 
@@ -64,9 +68,12 @@ def whole_revolutions(angle: np.ndarray, start: int, stop: int) -> tuple[int, in
     if turns == 0:
         raise CalibrationInputError(
             f"the rotating window [{start}, {stop}) turns the table by only {swept[-1]:.3f} rad.",
-            "Record at least one full revolution, or reduce without the angle.")
+            "Record at least one full revolution, or reduce without the angle.",
+        )
     i = int(np.searchsorted(swept, 2 * np.pi * turns))
-    if i == swept.size or (i > 0 and abs(swept[i - 1] - 2 * np.pi * turns) <= abs(swept[i] - 2 * np.pi * turns)):
+    if i == swept.size or (
+        i > 0 and abs(swept[i - 1] - 2 * np.pi * turns) <= abs(swept[i] - 2 * np.pi * turns)
+    ):
         i -= 1
     return start + i, turns
 
@@ -80,8 +87,9 @@ def reduce_rotary(y, lsb, segments: dict, angle=None) -> Reduced:
     """
     y = np.asarray(y)
     if y.ndim != 3:
-        raise CalibrationInputError(f"recordings have shape {y.shape}.",
-                                    "Give y as (positions, samples, sensors).")
+        raise CalibrationInputError(
+            f"recordings have shape {y.shape}.", "Give y as (positions, samples, sensors)."
+        )
     n, k, m = y.shape
     scale = np.broadcast_to(np.asarray(lsb, float), (m,))
     static = _windows(segments["static"], n, k, "static")
@@ -99,9 +107,16 @@ def reduce_rotary(y, lsb, segments: dict, angle=None) -> Reduced:
             x = y[j, a:b].astype(float)
             stats[w, j], stats[2 + w, j], counts[w, j] = x.mean(0), x.std(0, ddof=1), b - a
     s_mean, r_mean, s_sd, r_sd = (scale * s for s in stats)
-    return Reduced(M=(r_mean - s_mean).T, static_mean=s_mean.T, rotating_mean=r_mean.T,
-                   static_sd=s_sd.T, rotating_sd=r_sd.T, n_static=counts[0], n_rotating=counts[1],
-                   revolutions=revs)
+    return Reduced(
+        M=(r_mean - s_mean).T,
+        static_mean=s_mean.T,
+        rotating_mean=r_mean.T,
+        static_sd=s_sd.T,
+        rotating_sd=r_sd.T,
+        n_static=counts[0],
+        n_rotating=counts[1],
+        revolutions=revs,
+    )
 
 
 def reduce_arrays(arrays) -> Reduced:
@@ -109,9 +124,11 @@ def reduce_arrays(arrays) -> Reduced:
 
     Uses the stored table `angle` when present, otherwise the integral of `rate_cmd`.
     """
-    angle = arrays["angle"] if "angle" in arrays else None
+    angle = arrays.get("angle")
     if angle is None and "rate_cmd" in arrays:
         rate = np.asarray(arrays["rate_cmd"], float)
-        angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]))]) / float(arrays["fs"])
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]))]) / float(
+            arrays["fs"]
+        )
     segments = {"static": arrays["seg_static"], "rotating": arrays["seg_rotating"]}
     return reduce_rotary(arrays["y"], arrays["lsb"], segments, angle=angle)

@@ -48,15 +48,22 @@ def test_bad_windows_and_short_rotation_are_refused_with_advice():
     with pytest.raises(CalibrationInputError, match="integer"):
         reduce_rotary(y, 1.0, {"static": [0.0, 10.0], "rotating": [50, 100]})
     with pytest.raises(CalibrationInputError, match="full revolution"):
-        reduce_rotary(y, 1.0, {"static": [0, 10], "rotating": [50, 100]}, angle=np.arange(100) * 0.01)
+        reduce_rotary(
+            y, 1.0, {"static": [0, 10], "rotating": [50, 100]}, angle=np.arange(100) * 0.01
+        )
     with pytest.raises(CalibrationInputError, match="positions, samples, sensors"):
         reduce_rotary(np.zeros((100, 3)), 1.0, {"static": [0, 10], "rotating": [50, 100]})
 
 
 def test_window_scatter_matches_the_unit_noise():
     rng = np.random.default_rng(2)
-    unit = SensorUnit(perturbed(A_MODEL, 0.01, rng), noise_density=0.002, counts_per_unit=2000.0,
-                      fs=200.0, rng=rng)
+    unit = SensorUnit(
+        perturbed(A_MODEL, 0.01, rng),
+        noise_density=0.002,
+        counts_per_unit=2000.0,
+        fs=200.0,
+        rng=rng,
+    )
     red = reduce_arrays(simulate_rotary(unit, 8).arrays)
     sd = np.sqrt(unit.sigma**2 + unit.lsb**2 / 12)[:, None]  # per sample, with quantisation
     assert np.allclose(red.static_sd, sd, rtol=5 * np.sqrt(0.5 / 2000))
@@ -75,12 +82,20 @@ def test_reduced_20_position_12_gyro_sessions_reach_the_cramer_rao_bound():
     for seed in range(200):
         rng = np.random.default_rng(seed)
         a = perturbed(A_MODEL, 0.01, rng)
-        unit = SensorUnit(a, bias=0.01 * rng.standard_normal(12), noise_density=0.005,
-                          counts_per_unit=1000.0, fs=200.0, rng=rng)
+        unit = SensorUnit(
+            a,
+            bias=0.01 * rng.standard_normal(12),
+            noise_density=0.005,
+            counts_per_unit=1000.0,
+            fs=200.0,
+            rng=rng,
+        )
         sim = simulate_rotary(unit, 20)
         red = reduce_arrays(sim.arrays)
-        sigma = np.sqrt((unit.sigma[0] ** 2 + unit.lsb[0] ** 2 / 12)
-                        * (1 / red.n_static[0] + 1 / red.n_rotating[0]))
+        sigma = np.sqrt(
+            (unit.sigma[0] ** 2 + unit.lsb[0] ** 2 / 12)
+            * (1 / red.n_static[0] + 1 / red.n_rotating[0])
+        )
         result = station.calibrate(red.M, magnitude=float(sim.arrays["c_cmd"]), d=3, sigma=sigma)
         bound = np.trace(station.crlb(a, sim.truth["v"], sigma))
         ratios.append(station.eps(a, result.a) ** 2 / bound)

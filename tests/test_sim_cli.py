@@ -10,8 +10,21 @@ from station.commands import simulate
 from station.reduction import reduce_arrays
 from station.sim import npz
 
-ROTARY_KEYS = {"y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "angle", "a_nominal", "seg_static",
-               "seg_spinup", "seg_settle", "seg_rotating", "seg_spindown"}
+ROTARY_KEYS = {
+    "y",
+    "lsb",
+    "fs",
+    "t0",
+    "rate_cmd",
+    "c_cmd",
+    "angle",
+    "a_nominal",
+    "seg_static",
+    "seg_spinup",
+    "seg_settle",
+    "seg_rotating",
+    "seg_spindown",
+}
 
 
 def station(*argv):
@@ -24,7 +37,9 @@ def station(*argv):
 
 def test_rotary_file_has_the_import_keys_and_no_truth(tmp_path):
     out = tmp_path / "x.npz"
-    assert station("--protocol", "rotary", "--positions", "6", "--seed", "4", "--out", str(out)) == 0
+    assert (
+        station("--protocol", "rotary", "--positions", "6", "--seed", "4", "--out", str(out)) == 0
+    )
     arrays = npz.read(out)
     assert set(arrays) == ROTARY_KEYS
     n, k, m = arrays["y"].shape
@@ -39,17 +54,28 @@ def test_rotary_file_has_the_import_keys_and_no_truth(tmp_path):
 
 def test_same_seed_same_file_other_seed_other_data(tmp_path):
     for name, seed in (("a", "1"), ("b", "1"), ("c", "2")):
-        station("--positions", "3", "--seed", seed, "--effect", "latency=delay=0.001",
-                "--out", str(tmp_path / f"{name}.npz"))
+        station(
+            "--positions",
+            "3",
+            "--seed",
+            seed,
+            "--effect",
+            "latency=delay=0.001",
+            "--out",
+            str(tmp_path / f"{name}.npz"),
+        )
     ya, yb, yc = (npz.read(tmp_path / f"{x}.npz")["y"] for x in "abc")
     assert np.array_equal(ya, yb) and not np.array_equal(ya, yc)
     assert npz.read_truth(tmp_path / "a.npz")["effects"] == {"latency": {"delay": 0.001}}
 
 
-@pytest.mark.parametrize("protocol, keys", [
-    ("iron", {"y", "lsb", "fs", "t0", "c_cmd", "mounting", "seg_still", "a_nominal"}),
-    ("static", {"y", "lsb", "fs", "t0", "c_cmd", "a_nominal"}),
-])
+@pytest.mark.parametrize(
+    "protocol, keys",
+    [
+        ("iron", {"y", "lsb", "fs", "t0", "c_cmd", "mounting", "seg_still", "a_nominal"}),
+        ("static", {"y", "lsb", "fs", "t0", "c_cmd", "a_nominal"}),
+    ],
+)
 def test_iron_and_static_files(tmp_path, protocol, keys):
     out = tmp_path / "s.npz"
     assert station("--protocol", protocol, "--out", str(out)) == 0

@@ -25,7 +25,7 @@ def setup():
 def run(setup, effects=(), seed=0, **unit_kw):
     """Noise-free session (quantised at 1e-6) with the given effect specs; (arrays, truth, unit)."""
     a, c = setup
-    params = dict(bias=0.02, counts_per_unit=1 / LSB, fs=100.0)
+    params = {"bias": 0.02, "counts_per_unit": 1 / LSB, "fs": 100.0}
     params.update(unit_kw)
     unit = SensorUnit(a, rng=seed, **params)
     sim = simulate_rotary(unit, c, TIMING, effects=parse_all(effects))
@@ -83,11 +83,15 @@ def test_axis_wobble_adds_a_tone_and_changes_the_mean_at_second_order(setup):
     assert np.abs(m1 - m0).max() > 10 * 2e-5  # the second-order change is visible
     i0, i1 = arrays["seg_rotating"]
     theta = arrays["angle"][0, i0:i1]
-    revs = int((theta[-1] - theta[0]) // (2 * np.pi))
+    revs = (theta[-1] - theta[0]) // (2 * np.pi)
     stop = np.searchsorted(theta - theta[0], 2 * np.pi * revs)
-    x = si(arrays)[:, i0:i0 + stop] - si(arrays)[:, i0:i0 + stop].mean(1, keepdims=True)
+    x = si(arrays)[:, i0 : i0 + stop] - si(arrays)[:, i0 : i0 + stop].mean(1, keepdims=True)
     th = theta[:stop]
-    amp = 2 * np.hypot(np.einsum("nkm,k->nm", x, np.cos(th)), np.einsum("nkm,k->nm", x, np.sin(th))) / stop
+    amp = (
+        2
+        * np.hypot(np.einsum("nkm,k->nm", x, np.cos(th)), np.einsum("nkm,k->nm", x, np.sin(th)))
+        / stop
+    )
     pq = np.einsum("dm,ndj->nmj", a, c[:, :, :2])  # a_i . p, a_i . q per position
     expected = TIMING.rate * np.sin(beta) * np.linalg.norm(pq, axis=2)
     assert np.allclose(amp, expected, rtol=1e-3, atol=1e-5)
@@ -103,17 +107,17 @@ def test_latency_shows_antisymmetric_residuals_on_spin_up_and_down(setup):
     expected = TIMING.max_accel * delay * (c[:, :, 2] @ a)  # alpha * delay_i * (a_i . u_j)
     for name, sign in (("seg_spinup", -1), ("seg_spindown", +1)):
         i0, i1 = arrays[name]
-        window = res[:, i0 + lag:i1 - 2]
+        window = res[:, i0 + lag : i1 - 2]
         assert np.abs(window - sign * expected[:, None, :]).max() < 3 * LSB
     for name in ("seg_static", "seg_rotating"):
         i0, i1 = arrays[name]
-        assert np.abs(res[:, i0 + lag:i1]).max() < 2 * LSB
+        assert np.abs(res[:, i0 + lag : i1]).max() < 2 * LSB
 
 
 def test_saturation_piles_samples_on_the_rail(setup):
     free = run(setup, output_range=1.0, noise_density=1e-3)[0]["y"]
     y = run(setup, ["saturation"], output_range=1.0, noise_density=1e-3)[0]["y"]
-    rail = int(round(1.0 / LSB))
+    rail = round(1.0 / LSB)
     assert y.max() == rail and y.min() == -rail
     at_rail = np.sum(np.abs(y) == rail)
     near = np.sum((np.abs(y) < rail) & (np.abs(y) >= rail - 100))  # the 100 counts below
@@ -122,7 +126,7 @@ def test_saturation_piles_samples_on_the_rail(setup):
 
 
 def test_scale_nonlinearity_adds_the_quadratic_term(setup):
-    a, c = setup
+    a, _ = setup
     base, truth, _ = run(setup)
     arrays, _, _ = run(setup, ["scale_nonlinearity=k2=0.01"])
     s = a.T @ np.array(truth["v"])
@@ -149,25 +153,36 @@ def test_bias_drift_heating_rises_while_spinning_and_cools_at_rest(setup):
     d = si(arrays) - si(base)
     i0, i1 = arrays["seg_static"]
     assert np.abs(d[0, i0:i1]).max() < 2 * LSB  # nothing has spun yet
-    r0, r1 = arrays["seg_rotating"]
+    r1 = arrays["seg_rotating"][1]
     assert np.allclose(d[:, r1 - 1], 0.01 * TIMING.rate, atol=0.01 * TIMING.rate * 1e-3)
     assert np.abs(d[1:, i0:i1]).max() < 0.01 * TIMING.rate * np.exp(-20)  # 30 s gap cooled it
 
 
 def test_effects_compose_and_are_deterministic_from_the_seed(setup):
-    specs = ["bias_drift=warmup=0.01", "scale_nonlinearity=k2=0.001", "rate_error=spread=0.001",
-             "earth_rate", "axis_wobble=angle_deg=0.5,freq=0.3", "latency=delay=0.002",
-             "saturation"]
+    specs = [
+        "bias_drift=warmup=0.01",
+        "scale_nonlinearity=k2=0.001",
+        "rate_error=spread=0.001",
+        "earth_rate",
+        "axis_wobble=angle_deg=0.5,freq=0.3",
+        "latency=delay=0.002",
+        "saturation",
+    ]
     one = run(setup, specs, seed=5, noise_density=1e-3, output_range=30.0)[0]["y"]
     two = run(setup, specs, seed=5, noise_density=1e-3, output_range=30.0)[0]["y"]
     other = run(setup, specs, seed=6, noise_density=1e-3, output_range=30.0)[0]["y"]
     assert np.array_equal(one, two) and not np.array_equal(one, other)
 
 
-@pytest.mark.parametrize("spec, message", [
-    ("wobble", "unknown effect"), ("latency=lag=1", "bad parameter"),
-    ("latency=delay=x", "not a number"), ("bias_drift=warmup_tau=0", "must be positive"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("wobble", "unknown effect"),
+        ("latency=lag=1", "bad parameter"),
+        ("latency=delay=x", "not a number"),
+        ("bias_drift=warmup_tau=0", "must be positive"),
+    ],
+)
 def test_bad_effect_specs_are_refused_with_advice(spec, message):
     with pytest.raises(ValueError, match=message):
         parse(spec)

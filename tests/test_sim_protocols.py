@@ -1,4 +1,4 @@
-"""Right-angle-iron and free-static simulations: geometry of the poses, known turns, still intervals."""
+"""Right-angle iron and free static simulations: pose geometry, known turns, still intervals."""
 
 import numpy as np
 import pytest
@@ -26,9 +26,13 @@ def test_iron_faces_see_gravity_along_their_normals():
     gram = v @ v.T / g**2
     faces, mount = np.array(sim.truth["face"]), sim.arrays["mounting"]
     same = mount[:, None] == mount[None, :]
-    opposite = same & (faces[:, None] // 2 == faces[None, :] // 2) & (faces[:, None] != faces[None, :])
+    opposite = (
+        same & (faces[:, None] // 2 == faces[None, :] // 2) & (faces[:, None] != faces[None, :])
+    )
     perpendicular = same & (faces[:, None] // 2 != faces[None, :] // 2)
-    assert np.allclose(gram[opposite], -1, atol=1e-6) and np.allclose(gram[perpendicular], 0, atol=1e-6)
+    assert np.allclose(gram[opposite], -1, atol=1e-6) and np.allclose(
+        gram[perpendicular], 0, atol=1e-6
+    )
 
 
 def test_iron_placement_error_has_its_standard_deviation():
@@ -46,7 +50,7 @@ def test_iron_turn_integrates_to_the_known_angle_about_the_vertical():
     s0, s1 = sim.arrays["seg_turn"]
     turned = y[:, s0:s1].sum(1) / 100.0  # integral of the rate, rad
     assert np.allclose(turned, np.radians(90.0) * np.array(sim.truth["up"]), atol=1e-4)
-    assert np.abs(y[:, :sim.arrays["seg_static"][1]]).max() < LSB
+    assert np.abs(y[:, : sim.arrays["seg_static"][1]]).max() < LSB
 
 
 def test_static_poses_keep_gravity_magnitude_and_rest_during_still_intervals():

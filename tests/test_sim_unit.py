@@ -54,7 +54,8 @@ def test_earth_rate_and_gravity_at_known_latitudes():
 def test_profile_angle_is_the_exact_integral_of_the_rate():
     p = Profile((0.0, 1.0, 3.0, 4.0), (0.0, 2.0, 2.0, -1.0))
     assert p.angle(np.array([0.5, 1.0, 2.0, 4.0, 5.0])) == pytest.approx(
-        [0.25, 1.0, 3.0, 5.0 + 0.5, 5.5 - 1.0])
+        [0.25, 1.0, 3.0, 5.0 + 0.5, 5.5 - 1.0]
+    )
 
 
 def test_rotary_timing_segments_and_refusal_of_impossible_timing():
@@ -63,6 +64,6 @@ def test_rotary_timing_segments_and_refusal_of_impossible_timing():
     assert seg["static"] == (0, 2000) and seg["spinup"] == (2000, 2315)
     assert seg["spindown"][1] == timing.samples(200.0) == 7000
     rate = timing.profile().rate(np.arange(7000) / 200.0)
-    assert np.all(rate[seg["settle"][0]:seg["rotating"][1]] == np.pi / 2)
+    assert np.all(rate[seg["settle"][0] : seg["rotating"][1]] == np.pi / 2)
     with pytest.raises(ValueError, match="no steady rotation"):
         RotaryTiming(rate=10.0, max_accel=1.0, moving=20.0)

@@ -11,12 +11,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from station.sim.earth import normal_gravity
-from station.sim.rotary import Simulation, random_orientations
 from station.sim.effects import to_json
+from station.sim.rotary import Simulation, random_orientations
 from station.sim.sensing import refuse_motion_effects, sense
 from station.sim.unit import SensorUnit
 
-FACE_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
+FACE_NORMALS = np.array(
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float
+)
 """Outward normals of the iron's faces, in the iron frame; face 2i and 2i+1 are opposite."""
 
 
@@ -37,9 +39,18 @@ def turn_rate(t: np.ndarray, start: float, duration: float, angle: float) -> np.
     return np.where(inside, angle / duration * (1 - np.cos(2 * np.pi * x)), 0.0)
 
 
-def simulate_iron(unit: SensorUnit, mountings=3, still: float = 5.0, gap: float = 10.0,
-                  placement_deg: float = 0.1, latitude_deg: float = 52.2, turn_deg=None,
-                  turn_time: float = 4.0, effects: dict | None = None, a_nominal=None) -> Simulation:
+def simulate_iron(
+    unit: SensorUnit,
+    mountings=3,
+    still: float = 5.0,
+    gap: float = 10.0,
+    placement_deg: float = 0.1,
+    latitude_deg: float = 52.2,
+    turn_deg=None,
+    turn_time: float = 4.0,
+    effects: dict | None = None,
+    a_nominal=None,
+) -> Simulation:
     """Simulate 6 faces x mountings poses of an accelerometer unit (or, with turn_deg, a gyro unit).
 
     mountings : count of random mountings or (K, 3, 3) iron -> unit rotations.
@@ -48,35 +59,56 @@ def simulate_iron(unit: SensorUnit, mountings=3, still: float = 5.0, gap: float 
     effects = effects or {}
     refuse_motion_effects(effects, "iron")
     rng = unit.rng
-    b = random_orientations(int(mountings), rng) if np.ndim(mountings) == 0 else np.asarray(mountings, float)
+    b = (
+        random_orientations(int(mountings), rng)
+        if np.ndim(mountings) == 0
+        else np.asarray(mountings, float)
+    )
     up, face = pose_up(b, placement_deg, rng)
     fs, p = unit.fs, up.shape[0]
     g = normal_gravity(latitude_deg)
     duration = still if turn_deg is None else 2 * still + turn_time
-    k = int(round(duration * fs))
+    k = round(duration * fs)
     t = np.arange(k) / fs
     t0 = np.arange(p) * (duration + gap)
     if turn_deg is None:
         profile, magnitude = np.zeros(k), g
         v = np.broadcast_to(g * up[:, None, :], (p, k, 3))
     else:
-        profile, magnitude = turn_rate(t, still, turn_time, np.radians(turn_deg)), np.radians(turn_deg)
+        profile, magnitude = (
+            turn_rate(t, still, turn_time, np.radians(turn_deg)),
+            np.radians(turn_deg),
+        )
         v = profile[None, :, None] * up[:, None, :]
     y = sense(unit, unit.project(v), t, t0, np.zeros((p, k)), effects)
-    arrays = {"y": y, "lsb": unit.lsb, "fs": np.float64(fs), "t0": t0,
-              "c_cmd": np.float64(magnitude), "mounting": np.repeat(np.arange(len(b)), 6)}
+    arrays = {
+        "y": y,
+        "lsb": unit.lsb,
+        "fs": np.float64(fs),
+        "t0": t0,
+        "c_cmd": np.float64(magnitude),
+        "mounting": np.repeat(np.arange(len(b)), 6),
+    }
     if turn_deg is None:
         arrays["seg_still"] = np.array([0, k])
     else:
-        edges = np.ceil(np.round(np.array([0, still, still + turn_time, duration]) * fs, 9)).astype(int)
+        edges = np.ceil(np.round(np.array([0, still, still + turn_time, duration]) * fs, 9)).astype(
+            int
+        )
         arrays.update(seg_static=edges[:2], seg_turn=edges[1:3], seg_static_after=edges[2:])
     if a_nominal is not None:
         arrays["a_nominal"] = np.asarray(a_nominal, float)
     truth = {
-        "protocol": "iron", "stimulus": "rate" if turn_deg else "specific force",
+        "protocol": "iron",
+        "stimulus": "rate" if turn_deg else "specific force",
         "units": {"v": "m/s^2" if turn_deg is None else "rad (turn angle)", "time": "s"},
-        "a": unit.a, "bias": unit.bias, "noise_density": unit.noise_density,
-        "mountings": b, "face": face, "up": up, "gravity": g,
+        "a": unit.a,
+        "bias": unit.bias,
+        "noise_density": unit.noise_density,
+        "mountings": b,
+        "face": face,
+        "up": up,
+        "gravity": g,
         "v": (g * up).T if turn_deg is None else (np.radians(turn_deg) * up).T,
         "effects": to_json(effects),
     }

@@ -4,11 +4,14 @@ import numpy as np
 
 from station.sim.unit import SensorUnit
 
-A_MODEL = np.array([
-    [1, 0, 0, 0, 1, 0, 0, -1, 0, 1, 0, 0],
-    [0, 1, 0, -1, 0, 0, 1, 0, 0, 0, 0, -1],
-    [0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 1, 0],
-], dtype=float)
+A_MODEL = np.array(
+    [
+        [1, 0, 0, 0, 1, 0, 0, -1, 0, 1, 0, 0],
+        [0, 1, 0, -1, 0, 0, 1, 0, 0, 0, 0, -1],
+        [0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 1, 0],
+    ],
+    dtype=float,
+)
 """Four gyro triads of Rupniewski, Section IV (paper 001, a_model)."""
 
 TRIAD = np.eye(3)
@@ -25,8 +28,12 @@ def gyro_array(rng: np.random.Generator, a_nominal=A_MODEL, fs: float = 200.0, *
     """A MEMS-grade gyro unit on `a_nominal` (rad/s): 0.01 deg/s/sqrt(Hz) noise, biases of
     0.005 rad/s, 16.4 counts per deg/s, +-2000 deg/s range; keyword arguments override."""
     m = np.shape(a_nominal)[1]
-    params = dict(bias=0.005 * rng.standard_normal(m), noise_density=np.radians(0.01),
-                  counts_per_unit=16.4 / np.radians(1.0), output_range=np.radians(2000.0))
+    params = {
+        "bias": 0.005 * rng.standard_normal(m),
+        "noise_density": np.radians(0.01),
+        "counts_per_unit": 16.4 / np.radians(1.0),
+        "output_range": np.radians(2000.0),
+    }
     params.update(kwargs)
     return SensorUnit(perturbed(a_nominal, 0.01, rng), fs=fs, rng=rng, **params)
 
@@ -36,7 +43,11 @@ def accelerometer_triad(rng: np.random.Generator, a_nominal=TRIAD, fs: float = 2
     0.05 m/s^2, 4096 counts per g, +-8 g range; keyword arguments override."""
     g0 = 9.80665
     m = np.shape(a_nominal)[1]
-    params = dict(bias=0.05 * rng.standard_normal(m), noise_density=100e-6 * g0,
-                  counts_per_unit=4096 / g0, output_range=8 * g0)
+    params = {
+        "bias": 0.05 * rng.standard_normal(m),
+        "noise_density": 100e-6 * g0,
+        "counts_per_unit": 4096 / g0,
+        "output_range": 8 * g0,
+    }
     params.update(kwargs)
     return SensorUnit(perturbed(a_nominal, 0.01, rng), fs=fs, rng=rng, **params)

@@ -32,7 +32,9 @@ def write(path, simulation) -> tuple[Path, Path]:
     """Write `simulation.arrays` to `path` (.npz) and `simulation.truth` to the truth file."""
     p = Path(path)
     if p.suffix != ".npz":
-        raise ValueError(f"output file {str(p)!r} must end with .npz (the truth goes to .truth.json)")
+        raise ValueError(
+            f"output file {str(p)!r} must end with .npz (the truth goes to .truth.json)"
+        )
     np.savez_compressed(p, **simulation.arrays)
     t = truth_path(p)
     t.write_text(json.dumps(_plain(simulation.truth), indent=1) + "\n")

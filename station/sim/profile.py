@@ -50,12 +50,16 @@ class RotaryTiming:
 
     def __post_init__(self):
         if not (self.rate != 0 and self.max_accel > 0 and self.static > 0 and self.settle >= 0):
-            raise ValueError("rotary timing needs a non-zero rate, positive max_accel and static "
-                             "time, non-negative settle time")
+            raise ValueError(
+                "rotary timing needs a non-zero rate, positive max_accel and static "
+                "time, non-negative settle time"
+            )
         if self.steady <= 0:
-            raise ValueError(f"moving time {self.moving} s leaves no steady rotation after spin-up, "
-                             f"settle and spin-down ({self.moving - self.steady:.3f} s); "
-                             "lengthen it or raise max_accel")
+            raise ValueError(
+                f"moving time {self.moving} s leaves no steady rotation after spin-up, "
+                f"settle and spin-down ({self.moving - self.steady:.3f} s); "
+                "lengthen it or raise max_accel"
+            )
 
     @property
     def ramp(self) -> float:
@@ -71,8 +75,10 @@ class RotaryTiming:
         """The commanded trapezoid: rest, ramp up, constant rate, ramp down to rest."""
         t_up = self.static + self.ramp
         t_down = self.static + self.moving - self.ramp
-        return Profile((0.0, self.static, t_up, t_down, self.static + self.moving),
-                       (0.0, 0.0, self.rate, self.rate, 0.0))
+        return Profile(
+            (0.0, self.static, t_up, t_down, self.static + self.moving),
+            (0.0, 0.0, self.rate, self.rate, 0.0),
+        )
 
     def segments(self, fs: float) -> dict:
         """[start, stop) sample indices of each phase for samples at i / fs."""
@@ -83,4 +89,4 @@ class RotaryTiming:
 
     def samples(self, fs: float) -> int:
         """Number of samples of one position."""
-        return int(round((self.static + self.moving) * fs))
+        return round((self.static + self.moving) * fs)

@@ -43,7 +43,13 @@ def table_motion(timing: RotaryTiming, fs: float, factors: np.ndarray):
     rate_cmd, angle_cmd = profile.rate(t), profile.angle(t)
     per_position = factors * profile.angle(timing.static + timing.moving)
     start = np.concatenate([[0.0], np.cumsum(per_position)[:-1]])
-    return t, rate_cmd, angle_cmd, factors[:, None] * rate_cmd, start[:, None] + factors[:, None] * angle_cmd
+    return (
+        t,
+        rate_cmd,
+        angle_cmd,
+        factors[:, None] * rate_cmd,
+        start[:, None] + factors[:, None] * angle_cmd,
+    )
 
 
 def angular_rate(rate, angle, t, orientation, effects: dict) -> np.ndarray:
@@ -57,17 +63,24 @@ def angular_rate(rate, angle, t, orientation, effects: dict) -> np.ndarray:
     return omega
 
 
-def simulate_rotary(unit: SensorUnit, orientations, timing: RotaryTiming = RotaryTiming(),
-                    effects: dict | None = None, gap: float = 30.0,
-                    a_nominal=None) -> Simulation:
+def simulate_rotary(
+    unit: SensorUnit,
+    orientations,
+    timing: RotaryTiming | None = None,
+    effects: dict | None = None,
+    gap: float = 30.0,
+    a_nominal=None,
+) -> Simulation:
     """Simulate the rotary protocol for `orientations` ((n, 3, 3) or a count of random ones).
 
     unit : the gyro unit (its rng drives everything, so a seeded unit makes the session
         deterministic).
+    timing : durations and commanded rate of a position (default `RotaryTiming()`).
     gap : seconds between the end of one position and the start of the next (re-mounting).
     effects : {name: parameters} from `station.sim.effects.parse_all`; empty = ideal.
     """
     effects = effects or {}
+    timing = timing or RotaryTiming()
     rng = unit.rng
     if np.ndim(orientations) == 0:
         orientations = random_orientations(int(orientations), rng)
@@ -84,8 +97,12 @@ def simulate_rotary(unit: SensorUnit, orientations, timing: RotaryTiming = Rotar
     y = sense(unit, s, t, t0, rate, effects)
     segments = timing.segments(fs)
     arrays = {
-        "y": y, "lsb": unit.lsb, "fs": np.float64(fs), "t0": t0,
-        "rate_cmd": rate_cmd, "c_cmd": np.float64(timing.rate),
+        "y": y,
+        "lsb": unit.lsb,
+        "fs": np.float64(fs),
+        "t0": t0,
+        "rate_cmd": rate_cmd,
+        "c_cmd": np.float64(timing.rate),
         "angle": np.broadcast_to(angle_cmd, (n, k)).copy(),
         **{f"seg_{name}": np.array(seg) for name, seg in segments.items()},
     }
@@ -95,12 +112,23 @@ def simulate_rotary(unit: SensorUnit, orientations, timing: RotaryTiming = Rotar
     truth = {
         "protocol": "rotary",
         "units": {"v": "rad/s", "a": "output rad/s per rad/s", "bias": "rad/s", "time": "s"},
-        "a": unit.a, "bias": unit.bias, "noise_density": unit.noise_density,
-        "bias_walk": unit.bias_walk, "output_range": unit.output_range,
-        "orientations": orientation, "axis": axis, "rate_factors": factors,
+        "a": unit.a,
+        "bias": unit.bias,
+        "noise_density": unit.noise_density,
+        "bias_walk": unit.bias_walk,
+        "output_range": unit.output_range,
+        "orientations": orientation,
+        "axis": axis,
+        "rate_factors": factors,
         "v": (timing.rate * factors[:, None] * axis).T,
-        "timing": {"rate": timing.rate, "max_accel": timing.max_accel, "static": timing.static,
-                   "moving": timing.moving, "settle": timing.settle, "gap": gap},
+        "timing": {
+            "rate": timing.rate,
+            "max_accel": timing.max_accel,
+            "static": timing.static,
+            "moving": timing.moving,
+            "settle": timing.settle,
+            "gap": gap,
+        },
         "effects": to_json(effects),
     }
     return Simulation(arrays, truth)

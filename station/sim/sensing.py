@@ -15,8 +15,9 @@ SENSOR_EFFECTS = {"scale_nonlinearity", "latency", "bias_drift", "saturation"}
 """Effects acting on the sensor's output; the others act on the motion (rotary protocol only)."""
 
 
-def sense(unit: SensorUnit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: np.ndarray,
-          effects: dict) -> np.ndarray:
+def sense(
+    unit: SensorUnit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: np.ndarray, effects: dict
+) -> np.ndarray:
     """Counts (n, k, m) for the sensed signals s = a^T v (n, k, m) sampled at t (k,) per recording.
 
     t0 (n,) are the recordings' start times in session time; rate (n, k) is the table rate that
@@ -44,8 +45,10 @@ def refuse_motion_effects(effects: dict, protocol: str) -> None:
     """Raise for effects that need the rotary table in a protocol without one."""
     extra = sorted(set(effects) - SENSOR_EFFECTS)
     if extra:
-        raise ValueError(f"effect(s) {', '.join(extra)} need the rotary table; the {protocol} "
-                         f"protocol supports only {', '.join(sorted(SENSOR_EFFECTS))}")
+        raise ValueError(
+            f"effect(s) {', '.join(extra)} need the rotary table; the {protocol} "
+            f"protocol supports only {', '.join(sorted(SENSOR_EFFECTS))}"
+        )
 
 
 def check_per_sensor(effects: dict, m: int) -> None:
@@ -54,5 +57,7 @@ def check_per_sensor(effects: dict, m: int) -> None:
         for field in dataclasses.fields(params):
             value = getattr(params, field.name)
             if isinstance(value, tuple) and len(value) != m:
-                raise ValueError(f"effect {name}: {field.name} has {len(value)} values but the "
-                                 f"unit has {m} sensors; give one value or {m}")
+                raise ValueError(
+                    f"effect {name}: {field.name} has {len(value)} values but the "
+                    f"unit has {m} sensors; give one value or {m}"
+                )

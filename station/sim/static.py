@@ -7,7 +7,7 @@ in the data file (the station must detect them), only in the truth.
 """
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from station.sim.earth import normal_gravity
 from station.sim.effects import to_json
@@ -20,7 +20,7 @@ def attitude_path(rotations: Rotation, still: float, move: float, fs: float):
     """Sample times (K,), the attitude at each sample and the (P, 2) still intervals in samples."""
     p = len(rotations)
     period = still + move
-    k = int(round((p * period - move) * fs))
+    k = round((p * period - move) * fs)
     t = np.arange(k) / fs
     j = np.minimum((t // period).astype(int), p - 1)
     frac = np.clip((t - j * period - still) / move, 0.0, 1.0)
@@ -39,9 +39,15 @@ def attitude_path(rotations: Rotation, still: float, move: float, fs: float):
     return t, out, np.minimum(still_idx, k)
 
 
-def simulate_static(unit: SensorUnit, poses: int = 20, still: float = 4.0, move: float = 2.0,
-                    latitude_deg: float = 52.2, effects: dict | None = None,
-                    a_nominal=None) -> Simulation:
+def simulate_static(
+    unit: SensorUnit,
+    poses: int = 20,
+    still: float = 4.0,
+    move: float = 2.0,
+    latitude_deg: float = 52.2,
+    effects: dict | None = None,
+    a_nominal=None,
+) -> Simulation:
     """Simulate a free-static accelerometer recording of `poses` random orientations."""
     effects = effects or {}
     refuse_motion_effects(effects, "static")
@@ -50,14 +56,25 @@ def simulate_static(unit: SensorUnit, poses: int = 20, still: float = 4.0, move:
     g = normal_gravity(latitude_deg)
     v = g * att.apply([0.0, 0.0, 1.0])
     y = sense(unit, unit.project(v)[None], t, np.zeros(1), np.zeros((1, t.size)), effects)
-    arrays = {"y": y, "lsb": unit.lsb, "fs": np.float64(unit.fs), "t0": np.zeros(1),
-              "c_cmd": np.float64(g)}
+    arrays = {
+        "y": y,
+        "lsb": unit.lsb,
+        "fs": np.float64(unit.fs),
+        "t0": np.zeros(1),
+        "c_cmd": np.float64(g),
+    }
     if a_nominal is not None:
         arrays["a_nominal"] = np.asarray(a_nominal, float)
     truth = {
-        "protocol": "static", "units": {"v": "m/s^2", "time": "s"},
-        "a": unit.a, "bias": unit.bias, "noise_density": unit.noise_density, "gravity": g,
-        "still": still_idx, "orientations": rot.as_matrix(),
-        "v": (g * rot.apply([0.0, 0.0, 1.0])).T, "effects": to_json(effects),
+        "protocol": "static",
+        "units": {"v": "m/s^2", "time": "s"},
+        "a": unit.a,
+        "bias": unit.bias,
+        "noise_density": unit.noise_density,
+        "gravity": g,
+        "still": still_idx,
+        "orientations": rot.as_matrix(),
+        "v": (g * rot.apply([0.0, 0.0, 1.0])).T,
+        "effects": to_json(effects),
     }
     return Simulation(arrays, truth)

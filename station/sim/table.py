@@ -51,13 +51,23 @@ class RotaryTable:
     seed : seed of the numpy Generator for the rate noise and the rate-error draws.
     """
 
-    def __init__(self, clock, max_accel=2.0, rate_noise=0.0, max_rate=20.0, tolerance=1e-3,
-                 settle_time=0.5, rate_error: RateError | None = None, seed=None):
+    def __init__(
+        self,
+        clock,
+        max_accel=2.0,
+        rate_noise=0.0,
+        max_rate=20.0,
+        tolerance=1e-3,
+        settle_time=0.5,
+        rate_error: RateError | None = None,
+        seed=None,
+    ):
         if not max_accel > 0:
             raise ValueError(f"max_accel must be positive (rad/s^2), got {max_accel!r}")
         if not (tolerance > 0 and settle_time >= 0 and rate_noise >= 0 and max_rate > 0):
-            raise ValueError("tolerance and max_rate must be positive, settle_time and "
-                             "rate_noise non-negative")
+            raise ValueError(
+                "tolerance and max_rate must be positive, settle_time and rate_noise non-negative"
+            )
         self._clock = clock
         self.max_accel = float(max_accel)
         self.rate_noise = float(rate_noise)
@@ -113,11 +123,13 @@ class RotaryTable:
         self._track_band(self._rate, self._rate, 0.0)
 
     def set_rate(self, rate_rad_s: float) -> None:
-        """Set the rate setpoint (rad/s, signed); applied with bounded acceleration while running."""
+        """Set the rate setpoint (rad/s, signed), reached with bounded acceleration."""
         rate = float(rate_rad_s)
         if not math.isfinite(rate) or abs(rate) > self.max_rate:
-            raise ValueError(f"rate setpoint {rate_rad_s!r} rad/s is outside the table's range "
-                             f"+-{self.max_rate} rad/s; command a smaller rate")
+            raise ValueError(
+                f"rate setpoint {rate_rad_s!r} rad/s is outside the table's range "
+                f"+-{self.max_rate} rad/s; command a smaller rate"
+            )
         with self._lock:
             self._advance()
             self._setpoint = rate
@@ -142,7 +154,7 @@ class RotaryTable:
             self._command()
 
     def fault(self, flag: bool) -> None:
-        """Raise (True) or clear (False) a fault; a fault stops the run and the table decelerates."""
+        """Raise (True) or clear (False) a fault; a fault stops the run, the table decelerates."""
         with self._lock:
             self._advance()
             self._fault = bool(flag)
@@ -155,10 +167,22 @@ class RotaryTable:
         with self._lock:
             self._advance()
             moving = self._rate != 0.0
-            noise = self.rate_noise * self._rng.standard_normal() if moving and self.rate_noise else 0.0
-            at_rate = (self._in_band_since is not None
-                       and self._t - self._in_band_since >= self.settle_time)
-            return TableState(time=self._t, rate=self._rate + noise, angle=self._angle,
-                              rate_setpoint=self._setpoint, running=self._running, moving=moving,
-                              at_rate=at_rate, fault=self._fault,
-                              true_rate=self._factor * self._rate, true_angle=self._true_angle)
+            noise = (
+                self.rate_noise * self._rng.standard_normal() if moving and self.rate_noise else 0.0
+            )
+            at_rate = (
+                self._in_band_since is not None
+                and self._t - self._in_band_since >= self.settle_time
+            )
+            return TableState(
+                time=self._t,
+                rate=self._rate + noise,
+                angle=self._angle,
+                rate_setpoint=self._setpoint,
+                running=self._running,
+                moving=moving,
+                at_rate=at_rate,
+                fault=self._fault,
+                true_rate=self._factor * self._rate,
+                true_angle=self._true_angle,
+            )

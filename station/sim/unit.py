@@ -16,8 +16,9 @@ def _per_sensor(value, m: int, name: str) -> np.ndarray:
     if arr.ndim == 0:
         return np.full(m, float(arr))
     if arr.shape != (m,):
-        raise ValueError(f"{name} must be a scalar or have one value per sensor ({m}), "
-                         f"got shape {arr.shape}")
+        raise ValueError(
+            f"{name} must be a scalar or have one value per sensor ({m}), got shape {arr.shape}"
+        )
     return arr
 
 
@@ -36,11 +37,22 @@ class SensorUnit:
     rng : numpy Generator (or seed) for the noise.
     """
 
-    def __init__(self, a, bias=0.0, noise_density=0.0, fs=200.0, counts_per_unit=1e4,
-                 output_range=np.inf, bias_walk=0.0, rng=None):
+    def __init__(
+        self,
+        a,
+        bias=0.0,
+        noise_density=0.0,
+        fs=200.0,
+        counts_per_unit=1e4,
+        output_range=np.inf,
+        bias_walk=0.0,
+        rng=None,
+    ):
         self.a = np.array(a, dtype=float, ndmin=2)
         if self.a.ndim != 2 or not np.all(np.isfinite(self.a)):
-            raise ValueError(f"sensitivity a must be a finite d x m matrix, got shape {self.a.shape}")
+            raise ValueError(
+                f"sensitivity a must be a finite d x m matrix, got shape {self.a.shape}"
+            )
         if not fs > 0:
             raise ValueError(f"sample rate fs must be positive (Hz), got {fs!r}")
         m = self.m
@@ -102,8 +114,11 @@ class SensorUnit:
         step = self.bias_walk / np.sqrt(self.fs)
         inc = self.rng.standard_normal((n, k, self.m)) * step
         if gaps is not None:
-            inc[:, 0, :] = self.rng.standard_normal((n, self.m)) * self.bias_walk * np.sqrt(
-                np.maximum(np.asarray(gaps, float), 0.0))[:, None]
+            inc[:, 0, :] = (
+                self.rng.standard_normal((n, self.m))
+                * self.bias_walk
+                * np.sqrt(np.maximum(np.asarray(gaps, float), 0.0))[:, None]
+            )
         out = self._walk + np.cumsum(inc.reshape(n * k, self.m), axis=0).reshape(n, k, self.m)
         self._walk = out[-1, -1].copy()
         return out

@@ -36,8 +36,10 @@ def _value(text: str):
     try:
         values = tuple(float(x) for x in parts)
     except ValueError:
-        raise ValueError(f"effect parameter value {text!r} is not a number (use e.g. 0.01 or "
-                         "0.01:0.02 for per-sensor values)") from None
+        raise ValueError(
+            f"effect parameter value {text!r} is not a number (use e.g. 0.01 or "
+            "0.01:0.02 for per-sensor values)"
+        ) from None
     return values[0] if len(values) == 1 else values
 
 
@@ -55,8 +57,10 @@ def parse(spec: str) -> tuple[str, object | None]:
     for item in filter(None, rest.split(",")):
         key, eq, text = item.partition("=")
         if not eq or key not in fields:
-            raise ValueError(f"effect {name}: bad parameter {item!r}; expected key=value with key "
-                             f"in {', '.join(sorted(fields))}")
+            raise ValueError(
+                f"effect {name}: bad parameter {item!r}; expected key=value with key "
+                f"in {', '.join(sorted(fields))}"
+            )
         kwargs[key] = _value(text)
     return name, cls(**kwargs)
 

@@ -30,15 +30,27 @@ class AxisWobble:
     phase_deg: float = 0.0
 
 
-def apply(rate: np.ndarray, angle: np.ndarray, t: np.ndarray, orientation: np.ndarray,
-          p: AxisWobble) -> np.ndarray:
+def apply(
+    rate: np.ndarray, angle: np.ndarray, t: np.ndarray, orientation: np.ndarray, p: AxisWobble
+) -> np.ndarray:
     """Angular rate (n, k, 3) in the unit frame for the table rate and angle (n, k), times t (k,).
 
     orientation (n, 3, 3) maps table-frame vectors to the unit frame (columns p, q, u).
     """
     beta = np.radians(p.angle_deg)
     phase = np.radians(p.phase_deg)
-    phi = (angle if p.freq is None else 2 * np.pi * p.freq * np.broadcast_to(t, angle.shape)) + phase
-    coef = np.stack([np.sin(beta) * np.cos(phi), np.sin(beta) * np.sin(phi),
-                     np.full_like(phi, np.cos(beta))], axis=-1) * rate[..., None]
+    phi = (
+        angle if p.freq is None else 2 * np.pi * p.freq * np.broadcast_to(t, angle.shape)
+    ) + phase
+    coef = (
+        np.stack(
+            [
+                np.sin(beta) * np.cos(phi),
+                np.sin(beta) * np.sin(phi),
+                np.full_like(phi, np.cos(beta)),
+            ],
+            axis=-1,
+        )
+        * rate[..., None]
+    )
     return np.einsum("nij,nkj->nki", orientation, coef)

@@ -1,4 +1,4 @@
-"""Effect `bias_drift`: the biases drift with warm-up in session time and heat while the table spins.
+"""Effect `bias_drift`: biases drift with warm-up (session time) and heat while the table spins.
 
 Parameters
 ----------
@@ -32,7 +32,9 @@ class BiasDrift:
 
     def __post_init__(self):
         if not (self.warmup_tau > 0 and self.heating_tau > 0):
-            raise ValueError("bias_drift time constants warmup_tau and heating_tau must be positive")
+            raise ValueError(
+                "bias_drift time constants warmup_tau and heating_tau must be positive"
+            )
 
 
 def heat(t_session: np.ndarray, rate: np.ndarray, tau: float) -> np.ndarray:
@@ -49,7 +51,7 @@ def heat(t_session: np.ndarray, rate: np.ndarray, tau: float) -> np.ndarray:
         alpha = np.exp(-dt / tau)
         if j:
             h *= np.exp(-max(t[j, 0] - t[j - 1, -1] - dt, 0.0) / tau)
-        out[j], zf = lfilter([1 - alpha], [1, -alpha], np.abs(rate[j]), zi=[alpha * h])
+        out[j], _ = lfilter([1 - alpha], [1, -alpha], np.abs(rate[j]), zi=[alpha * h])
         h = out[j, -1]
     return out
 

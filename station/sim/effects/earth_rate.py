@@ -31,8 +31,9 @@ class EarthRate:
     rate: float = OMEGA_EARTH
 
 
-def apply(omega: np.ndarray, orientation: np.ndarray, angle: np.ndarray,
-          p: EarthRate) -> np.ndarray:
+def apply(
+    omega: np.ndarray, orientation: np.ndarray, angle: np.ndarray, p: EarthRate
+) -> np.ndarray:
     """Angular rate (n, k, d) in the unit frame plus the Earth rate.
 
     orientation (n, 3, 3) maps table-frame vectors to the unit frame per position; angle (n, k) is

@@ -27,7 +27,7 @@ def apply(s: np.ndarray, t: np.ndarray, p: Latency) -> np.ndarray:
 
     Linear interpolation between samples; before the first sample the first value is held.
     """
-    n, k, m = s.shape
+    n, _, m = s.shape
     delay = np.broadcast_to(np.asarray(p.delay, float), (m,))
     out = np.empty_like(s)
     for i in range(m):

@@ -25,6 +25,8 @@ def apply(z: np.ndarray, p: Saturation, unit_range: np.ndarray) -> np.ndarray:
     """Outputs z (..., m) clipped to +-range."""
     r = np.asarray(unit_range if p.range is None else p.range, float)
     if not np.all(np.isfinite(r)):
-        raise ValueError("saturation needs a finite range: give the unit an output_range "
-                         "or the effect a range= parameter")
+        raise ValueError(
+            "saturation needs a finite range: give the unit an output_range "
+            "or the effect a range= parameter"
+        )
     return np.clip(z, -r, r)
