@@ -67,3 +67,36 @@ def test_rotary_timing_segments_and_refusal_of_impossible_timing():
     assert np.all(rate[seg["settle"][0] : seg["rotating"][1]] == np.pi / 2)
     with pytest.raises(ValueError, match="no steady rotation"):
         RotaryTiming(rate=10.0, max_accel=1.0, moving=20.0)
+
+
+def test_live_walk_steps_with_the_actual_sample_times():
+    unit = SensorUnit(np.eye(1), bias_walk=0.1, counts_per_unit=1e6, rng=4)
+    ends = []
+    for _ in range(400):
+        unit._walk[:] = 0.0
+        unit._last_time = None
+        ends.append(unit.sample(np.zeros((3, 1)), times=[0.0, 2.0, 4.0])[-1, 0] * 1e-6)
+    expected = 0.1**2 * (4.0 + 1.0 / unit.fs)  # the first sample steps by 1 / fs
+    assert abs(np.var(ends) / expected - 1) < 5 * np.sqrt(2 / 400)
+
+
+def test_mounted_unit_streams_the_table_rate_along_its_axis():
+    from station.sim.live import MountedUnit
+    from station.sim.table import RotaryTable
+
+    class Stopped:
+        t = 100.0
+
+        def now(self):
+            return self.t
+
+    clock = Stopped()
+    table = RotaryTable(clock, max_accel=10.0)
+    table.set_rate(2.0)
+    table.start()
+    clock.t = 200.0
+    a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]])
+    source = MountedUnit(SensorUnit(a, counts_per_unit=1000.0, rng=0), table)
+    assert source(np.arange(4) * 0.005).tolist() == [[0, 0, 1000]] * 4
+    source.orientation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    assert source([200.0]).tolist() == [[2000, 0, 0]]

@@ -66,6 +66,7 @@ class SensorUnit:
         self.fs = float(fs)
         self.rng = np.random.default_rng(rng)
         self._walk = np.zeros(m)
+        self._last_time = None
 
     @property
     def d(self) -> int:
@@ -131,15 +132,32 @@ class SensorUnit:
         np.clip(c, info.min, info.max, out=c)
         return c.astype(np.int32)
 
-    def sample(self, v_si: np.ndarray) -> np.ndarray:
-        """Counts (k, m) for k consecutive samples (at fs) of the stimulus v_si (k, d), in SI units.
+    def sample(self, v_si: np.ndarray, times=None) -> np.ndarray:
+        """Counts (k, m) for the stimulus v_si (k, d) in SI units, for the live serial/CAN twins.
 
-        For the live serial/CAN twins: noise, bias and bias walk included, the walk continuing
-        from call to call.
+        `times` (k,) are the sample times in seconds (default: consecutive samples at fs); noise,
+        bias and bias walk are included, the walk stepping by the actual time between samples and
+        continuing from call to call.
         """
         v = np.asarray(v_si, float)
         if v.ndim != 2 or v.shape[1] != self.d:
             raise ValueError(f"stimulus must have shape (k, {self.d}), got {v.shape}")
         k = v.shape[0]
-        z = self.project(v) + self.bias + self.walk(1, k)[0] + self.noise((k, self.m))
+        z = self.project(v) + self.bias + self.noise((k, self.m))
+        if np.any(self.bias_walk):
+            z += self._live_walk(k, times)
         return self.quantise(z)
+
+    def _live_walk(self, k: int, times) -> np.ndarray:
+        """(k, m) bias walk at the sample times, continuing from the previous call."""
+        if times is None:
+            dt = np.full(k, 1.0 / self.fs)
+        else:
+            t = np.asarray(times, float)
+            prev = t[0] - 1.0 / self.fs if self._last_time is None else self._last_time
+            dt = np.maximum(np.diff(t, prepend=prev), 0.0)
+            self._last_time = t[-1]
+        inc = self.rng.standard_normal((k, self.m)) * self.bias_walk * np.sqrt(dt)[:, None]
+        out = self._walk + np.cumsum(inc, axis=0)
+        self._walk = out[-1].copy()
+        return out
