@@ -249,8 +249,8 @@ class BinaryFrameParser:
         n_ctx = len(ctx_pos)
         pos = np.concatenate([ctx_pos - self._base, valid])
         seq = np.concatenate([ctx_seq, valid_records["seq"].astype(np.int64)])
-        links = self._links(pos, seq)
-        cut = self._cut(pos, links, n_ctx, n, starts)
+        links, near = self._links(pos, seq)
+        cut = self._cut(pos, links, near, n_ctx, n, starts)
         decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
         accept = np.concatenate([ctx_acc, links[n_ctx:] & (valid < cut)])
         accept = self._without_overlaps(pos, accept, n_ctx)
@@ -272,27 +272,28 @@ class BinaryFrameParser:
             hit &= buf[i : len(buf) - k + 1 + i] == self.sync[i]
         return np.flatnonzero(hit)
 
-    def _links(self, pos: np.ndarray, seq: np.ndarray) -> np.ndarray:
-        """Whether each CRC-valid candidate's sequence number is consistent with a neighbour.
+    def _links(self, pos: np.ndarray, seq: np.ndarray) -> tuple:
+        """Whether each CRC-valid candidate's sequence number is consistent with a neighbour, and
+        whether its next neighbour is known.
 
         Neighbours: the nearest CRC-valid candidates ending before it starts (previous) and
         starting after it ends, within `horizon` bytes (next); consistent = 1..max_gap steps.
         """
         if len(pos) == 0:
-            return np.zeros(0, bool)
+            return np.zeros(0, bool), np.zeros(0, bool)
         size, gap, last = self.size, self.fmt.max_gap, len(pos) - 1
         prev = np.searchsorted(pos, pos - size, side="right") - 1
         nxt = np.searchsorted(pos, pos + size, side="left")
         back = (prev >= 0) & (_forward(seq[prev], seq, self.seq_modulus) <= gap)
         near = (nxt <= last) & (pos[np.minimum(nxt, last)] < pos + self.horizon)
         fwd = near & (_forward(seq, seq[np.minimum(nxt, last)], self.seq_modulus) <= gap)
-        return back | fwd
+        return back | fwd, near
 
-    def _cut(self, pos, links, n_ctx, n, starts) -> int:
+    def _cut(self, pos, links, near, n_ctx, n, starts) -> int:
         """First buffer offset not yet decided: a candidate still waiting for its next neighbour,
         an incomplete candidate, or a possible partial sync word at the end."""
         new_pos = pos[n_ctx:]
-        waiting = ~links[n_ctx:] & (n < new_pos + self.horizon + self.size - 1)
+        waiting = ~links[n_ctx:] & ~near[n_ctx:] & (n < new_pos + self.horizon + self.size - 1)
         incomplete = starts[starts + self.size > n]
         return max(0, min([n - len(self.sync) + 1, *new_pos[waiting][:1], *incomplete[:1]]))
 
@@ -408,7 +409,8 @@ def _parse_fixed(token: str, decimals: int) -> int:
     sign = -1 if token[:1] == "-" else 1
     body = token[1:] if token[:1] in "+-" else token
     whole, dot, frac = body.partition(".")
-    if not (whole + frac).isdigit() or not (whole + frac).isascii() or len(frac) > decimals:
+    digits = whole.isascii() and whole.isdigit() and (not dot or frac.isascii() and frac.isdigit())
+    if not digits or len(frac) > decimals:
         raise ValueError(f"not a number with at most {decimals} decimals: {token!r}")
     return sign * int(whole + frac.ljust(decimals, "0"))
 
