@@ -725,10 +725,11 @@ def _check_format(path, attrs) -> int:
         raise SessionFormatError(f"{path} is not an IMU station session file (format attribute "
                                  f"{fmt!r}, expected {FORMAT!r})")
     version = attrs.get("format_version")
-    if not (isinstance(version, np.integer | int) and int(version) in SUPPORTED_VERSIONS):
+    version = version.item() if isinstance(version, np.generic) else version
+    if isinstance(version, bool) or not (isinstance(version, int) and version in SUPPORTED_VERSIONS):
         raise SessionFormatError(
             f"{path} has session format_version {version!r}; this software reads versions "
-            f"{', '.join(map(str, SUPPORTED_VERSIONS))}: upgrade the station software")
+            f"{', '.join(map(str, SUPPORTED_VERSIONS))} (a newer file needs newer station software)")
     return int(version)
 
 
