@@ -22,7 +22,7 @@ import re
 import struct
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import h5py
 import numpy as np
@@ -37,8 +37,9 @@ SUPPORTED_VERSIONS = (1,)
 LIBVER = ("v110", "v110")
 STREAM_COLUMNS = ("counts", "seq", "device_time", "host_time")
 TABLE_COLUMNS = ("time", "rate", "angle", "rate_setpoint", "status")
-TABLE_UNITS = {"time": "s", "rate": "rad/s", "angle": "rad", "rate_setpoint": "rad/s", "status": "1"}
-TABLE_STATUS_BITS = ("running", "ready", "moving", "at_rate", "fault")  # bit i = TABLE_STATUS_BITS[i]
+TABLE_UNITS = {"time": "s", "rate": "rad/s", "angle": "rad", "rate_setpoint": "rad/s",
+               "status": "1"}
+TABLE_STATUS_BITS = ("running", "ready", "moving", "at_rate", "fault")  # bit i = name i
 EVENT_COLUMNS = ("time", "position", "kind", "detail_end")
 EVENT_KINDS = ("session_start", "session_resumed", "position_start", "static_start", "static_end",
                "rotate_start", "rotate_end", "position_done", "pause", "resume", "fault", "note",
@@ -86,7 +87,7 @@ class StreamSpec:
         units = (self.units,) * m if isinstance(self.units, str) else tuple(self.units)
         scale = np.broadcast_to(np.asarray(self.counts_per_unit, dtype=float), (m,))
         if len(units) != m:
-            raise ValueError(f"stream has {m} channels but {len(units)} units; give one per channel")
+            raise ValueError(f"stream has {m} channels but {len(units)} units; give one each")
         if not (np.all(np.isfinite(scale)) and np.all(scale > 0)):
             raise ValueError("counts_per_unit must be finite and positive (counts per SI unit)")
         if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
@@ -188,7 +189,8 @@ class SessionWriter:
         self.flush_interval = float(flush_interval)
         self._file = h5file
         self._lock_fd = lock_fd
-        self.specs = {name: _read_spec(g) for name, g in h5file["streams"].items() if name != "table"}
+        self.specs = {name: _read_spec(g) for name, g in h5file["streams"].items()
+                      if name != "table"}
         self._pending = {name: [] for name in [*self.specs, "table", "events"]}
         self._last_flush = time.monotonic()
         self.last_completed_position = last_completed_position(_read_events(h5file["events"]))
@@ -206,9 +208,9 @@ class SessionWriter:
         metadata_json = _metadata_json(metadata)
         for name, spec in streams.items():
             if not NAME.match(str(name)) or name == "table":
-                raise ValueError(f"stream name {name!r} must be a lower-case identifier, not 'table'")
+                raise ValueError(f"stream name {name!r}: use a lower-case identifier, not 'table'")
             if not isinstance(spec, StreamSpec):
-                raise TypeError(f"stream {name!r}: expected a StreamSpec, got {type(spec).__name__}")
+                raise TypeError(f"stream {name!r} needs a StreamSpec, got {type(spec).__name__}")
         if not streams:
             raise ValueError("a session needs at least one sample stream")
         if os.path.exists(path) and not overwrite:
@@ -305,7 +307,8 @@ class SessionWriter:
         text = _json(detail or {}, "event detail").encode()
         t = self.clock.now() if time is None else float(time)
         self._check_open()
-        self._pending["events"].append(([t], [-1 if position is None else position], [kind], [text]))
+        stored = -1 if position is None else position
+        self._pending["events"].append(([t], [stored], [kind], [text]))
         if kind == "position_done":
             self.last_completed_position = position
         self.flush()
@@ -371,7 +374,7 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
     if not RESULT_NAME.match(str(name)):
         raise ValueError(f"results name {name!r}: use letters, digits, '_', '-', '.' (max 64)")
     if calibration is not None and not isinstance(calibration, CalibrationResult):
-        raise TypeError(f"calibration must be a CalibrationResult, got {type(calibration).__name__}")
+        raise TypeError(f"calibration: need a CalibrationResult, not {type(calibration).__name__}")
     with Session.open(path) as s:  # refuses foreign files and unknown versions
         spec = s.stream(stream).spec
         clean = s.closed_cleanly
@@ -415,7 +418,7 @@ def _json(value, what: str) -> str:
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
+    return datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
 
 
 def _software_version() -> str:
@@ -726,10 +729,10 @@ def _check_format(path, attrs) -> int:
                                  f"{fmt!r}, expected {FORMAT!r})")
     version = attrs.get("format_version")
     version = version.item() if isinstance(version, np.generic) else version
-    if isinstance(version, bool) or not (isinstance(version, int) and version in SUPPORTED_VERSIONS):
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
         raise SessionFormatError(
             f"{path} has session format_version {version!r}; this software reads versions "
-            f"{', '.join(map(str, SUPPORTED_VERSIONS))} (a newer file needs newer station software)")
+            f"{', '.join(map(str, SUPPORTED_VERSIONS))} (newer files need newer station software)")
     return int(version)
 
 

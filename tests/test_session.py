@@ -1,4 +1,5 @@
-"""The HDF5 session file: round trips, live reading, refusal of foreign or damaged files, bad input."""
+"""The HDF5 session file: round trips, live reading, refusal of foreign or damaged files and of
+bad input."""
 
 import dataclasses
 import json
@@ -71,8 +72,10 @@ def test_round_trip_is_exact(tmp_path):
         assert d.spec == SPEC and np.array_equal(d.to_si(), every.counts / 1.0e6)
         assert np.array_equal(d.to_block().counts, every.counts)
         t = s.table()
-        assert np.array_equal(t.time, [0.5, 1.0, 2.0]) and np.array_equal(t.angle, [0.0125, 0.05, 0.2])
-        assert np.array_equal(t.rate, [0.05, 0.1, 0.2]) and np.array_equal(t.rate_setpoint, [1.5] * 3)
+        assert np.array_equal(t.time, [0.5, 1.0, 2.0])
+        assert np.array_equal(t.angle, [0.0125, 0.05, 0.2])
+        assert np.array_equal(t.rate, [0.05, 0.1, 0.2])
+        assert np.array_equal(t.rate_setpoint, [1.5] * 3)
         assert t.flag("running").tolist() == [False, True, True]
         assert t.flag("at_rate").tolist() == [False, False, True]
         assert t.status.tolist() == [0, 0b101, 0b11111]  # bit i = TABLE_STATUS_BITS[i]
@@ -144,7 +147,7 @@ def test_reader_sees_flushed_rows_while_the_writer_is_live(tmp_path):
 
 
 def readings_and_calibration():
-    a, v, readings = section4_gyros(np.random.default_rng(5), 20, 0.01)
+    _, _, readings = section4_gyros(np.random.default_rng(5), 20, 0.01)
     return readings, calibrate(readings, 1.0, sigma=0.01)
 
 
@@ -289,9 +292,8 @@ def test_damaged_or_hostile_files_are_refused_with_the_reason(tmp_path, edit, me
         with Session.open(path) as s:
             assert len(s.stream("imu").seq) == 20 and len(s.events()) == 2
         return
-    with pytest.raises(SessionFormatError, match=message):
-        with Session.open(path) as s:
-            s.stream("imu"), s.events()
+    with pytest.raises(SessionFormatError, match=message), Session.open(path) as s:
+        s.stream("imu"), s.events()
 
 
 def test_hostile_results_are_refused(tmp_path):

@@ -1,5 +1,5 @@
-"""kill -9 of a process writing a session: every sample it reported flushed survives, the file opens,
-and `SessionWriter.resume` continues it; ten kills at random moments on one file."""
+"""kill -9 of a process writing a session: every sample it reported flushed survives, the file
+opens, and `SessionWriter.resume` continues it; ten kills at random moments on one file."""
 
 import random
 import signal
