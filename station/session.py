@@ -17,9 +17,11 @@ import fcntl
 import importlib.metadata
 import json
 import math
+import numbers
 import os
 import re
 import struct
+import threading
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -179,7 +181,8 @@ class SessionWriter:
 
     Samples and table states are buffered and written together once `flush_interval` seconds (wall
     time) have passed since the last flush; events are flushed at once. `flushed` says how many rows
-    of each stream are durable: they survive a kill of this process at any later moment.
+    of each stream are durable: they survive a kill of this process at any later moment. The methods
+    may be called from several threads (e.g. a CAN notifier and a table poller).
     """
 
     def __init__(self, path, h5file, lock_fd, clock, flush_interval):
@@ -189,6 +192,7 @@ class SessionWriter:
         self.flush_interval = float(flush_interval)
         self._file = h5file
         self._lock_fd = lock_fd
+        self._mutex = threading.RLock()
         self.specs = {name: _read_spec(g) for name, g in h5file["streams"].items()
                       if name != "table"}
         self._pending = {name: [] for name in [*self.specs, "table", "events"]}
@@ -254,7 +258,10 @@ class SessionWriter:
     @property
     def flushed(self) -> dict:
         """Durable rows per stream name, "table" and "events"."""
-        return {name: len(self._file[_group(name)][_first_column(name)]) for name in self._pending}
+        with self._mutex:
+            self._check_open()
+            return {name: len(self._file[_group(name)][_first_column(name)])
+                    for name in self._pending}
 
     def append(self, stream: str, block: SampleBlock) -> None:
         """Buffer a `SampleBlock` of `stream`; flushes when `flush_interval` has passed."""
@@ -264,8 +271,9 @@ class SessionWriter:
         if counts.ndim != 2 or counts.shape != (k, len(spec.channels)):
             raise ValueError(f"stream {stream!r}: counts of shape {counts.shape} do not match "
                              f"{k} samples x {len(spec.channels)} channels")
-        if counts.dtype.kind not in "iu":
-            raise ValueError(f"stream {stream!r}: counts must be integers, got {counts.dtype}")
+        if counts.dtype.kind not in "iu" or np.asarray(block.seq).dtype.kind not in "iu":
+            raise ValueError(f"stream {stream!r}: counts and seq must be integers, got "
+                             f"{counts.dtype} and {np.asarray(block.seq).dtype}")
         if block.channels and tuple(block.channels) != spec.channels:
             raise ValueError(f"stream {stream!r}: block channels {tuple(block.channels)} differ "
                              f"from the stream's {spec.channels}")
@@ -301,27 +309,32 @@ class SessionWriter:
         """
         if kind not in EVENT_KINDS:
             raise ValueError(f"unknown event kind {kind!r}; use one of {', '.join(EVENT_KINDS)}")
-        if position is not None and (isinstance(position, bool) or not isinstance(position, int)
-                                     or position < 0):
-            raise ValueError(f"event position must be a non-negative int or None, got {position!r}")
-        text = _json(detail or {}, "event detail").encode()
+        if position is not None:
+            if isinstance(position, bool) or not isinstance(position, numbers.Integral) \
+                    or position < 0:
+                raise ValueError(f"event position must be a non-negative int or None, got "
+                                 f"{position!r}")
+            position = int(position)
+        text = np.frombuffer(_json(detail or {}, "event detail").encode(), dtype=np.uint8)
         t = self.clock.now() if time is None else float(time)
-        self._check_open()
         stored = -1 if position is None else position
-        self._pending["events"].append(([t], [stored], [kind], [text]))
-        if kind == "position_done":
-            self.last_completed_position = position
-        self.flush()
+        with self._mutex:
+            self._check_open()
+            self._pending["events"].append(([t], [stored], [kind], [len(text)], text))
+            if kind == "position_done":
+                self.last_completed_position = position
+            self.flush()
 
     def flush(self) -> None:
         """Write every buffered row and flush the file: what was appended so far is durable."""
-        self._check_open()
-        for name, chunks in self._pending.items():
-            if chunks:
-                self._pending[name] = []
-                _append_rows(self._file[_group(name)], name, chunks)
-        self._file.flush()
-        self._last_flush = time.monotonic()
+        with self._mutex:
+            self._check_open()
+            for name, chunks in self._pending.items():
+                if chunks:
+                    self._pending[name] = []
+                    _append_rows(self._file[_group(name)], name, chunks)
+            self._file.flush()
+            self._last_flush = time.monotonic()
 
     def write_results(self, name: str, stream: str, readings, calibration=None,
                       readings_sigma=None) -> None:
@@ -331,14 +344,15 @@ class SessionWriter:
 
     def close(self) -> None:
         """Flush and close the file (a second call does nothing)."""
-        if self._file is None:
-            return
-        try:
-            self.flush()
-        finally:
-            self._file.close()
-            self._file = None
-            os.close(self._lock_fd)
+        with self._mutex:
+            if self._file is None:
+                return
+            try:
+                self.flush()
+            finally:
+                self._file.close()
+                self._file = None
+                os.close(self._lock_fd)
 
     def __enter__(self):
         return self
@@ -356,10 +370,11 @@ class SessionWriter:
             raise ValueError(f"session {self.path} is closed; use SessionWriter.resume to append")
 
     def _buffer(self, name: str, columns) -> None:
-        self._check_open()
-        self._pending[name].append(columns)
-        if time.monotonic() - self._last_flush >= self.flush_interval:
-            self.flush()
+        with self._mutex:
+            self._check_open()
+            self._pending[name].append(columns)
+            if time.monotonic() - self._last_flush >= self.flush_interval:
+                self.flush()
 
 
 def write_results(path, name: str, stream: str, readings, calibration=None,
@@ -376,7 +391,9 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
     if calibration is not None and not isinstance(calibration, CalibrationResult):
         raise TypeError(f"calibration: need a CalibrationResult, not {type(calibration).__name__}")
     with Session.open(path) as s:  # refuses foreign files and unknown versions
-        spec = s.stream(stream).spec
+        if stream not in s.specs:
+            raise ValueError(f"no stream {stream!r} in {path}; it has {sorted(s.specs)}")
+        spec = s.specs[stream]
         clean = s.closed_cleanly
     if not clean:
         raise SessionLockedError(f"{path} was not closed (a writer is live or was killed): close "
@@ -476,19 +493,19 @@ def _first_column(name: str) -> str:
 
 
 def _append_rows(group, name, chunks) -> None:
-    """Append buffered column tuples to a group's datasets (events: detail bytes first)."""
-    columns = [np.concatenate(parts) for parts in zip(*chunks)]
+    """Append buffered column tuples to a group's datasets (events: detail bytes first, then the
+    end offset of each event's text in them)."""
+    columns = [np.concatenate(parts) for parts in zip(*chunks, strict=True)]
     if name == "events":
-        texts = columns.pop()
-        detail = group["detail"]
-        start = detail.shape[0]
-        ends = start + np.cumsum([len(t) for t in texts])
-        _extend(detail, np.frombuffer(b"".join(texts), dtype=np.uint8))
+        text = columns.pop()
+        lengths = columns.pop()
+        ends = group["detail"].shape[0] + np.cumsum(lengths)
+        _extend(group["detail"], text)
         columns.append(ends)
         names = EVENT_COLUMNS
     else:
         names = TABLE_COLUMNS if name == "table" else STREAM_COLUMNS
-    for column, values in zip(names, columns):
+    for column, values in zip(names, columns, strict=True):
         _extend(group[column], values)
 
 
@@ -637,9 +654,8 @@ class Session:
         self.unit_serial = _attr(attrs, "unit_serial", str, self.path)
         self.metadata = _read_metadata(h5file, self.path)
         streams = _child(h5file, "streams", h5py.Group, self.path)
-        self.stream_names = tuple(n for n in streams if n != "table")
-        self._specs = {n: _read_spec(_child(streams, n, h5py.Group, self.path), self.path)
-                       for n in self.stream_names}
+        self.specs = {n: _read_spec(_child(streams, n, h5py.Group, self.path), self.path)
+                      for n in streams if n != "table"}
 
     @classmethod
     def open(cls, path) -> "Session":
@@ -664,9 +680,9 @@ class Session:
 
     def stream(self, name: str) -> StreamData:
         """All samples of a stream flushed so far (the common length of its columns)."""
-        if name not in self._specs:
-            raise ValueError(f"no stream {name!r} in {self.path}; it has {self.stream_names}")
-        spec = self._specs[name]
+        if name not in self.specs:
+            raise ValueError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
+        spec = self.specs[name]
         g = self._file["streams"][name]
         counts, seq, device_time, host_time = _columns(g, STREAM_COLUMNS, self.path, {
             "counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
@@ -700,7 +716,7 @@ class Session:
                    self.path)
         where = f"{self.path}:results/{name}"
         stream = _attr(g.attrs, "stream", str, where)
-        spec = self._specs.get(stream)
+        spec = self.specs.get(stream)
         if spec is None:
             raise SessionFormatError(f"{where} names stream {stream!r}, which the file lacks")
         m = len(spec.channels)

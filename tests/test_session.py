@@ -3,6 +3,7 @@ bad input."""
 
 import dataclasses
 import json
+import threading
 from types import SimpleNamespace
 
 import h5py
@@ -60,7 +61,7 @@ def test_round_trip_is_exact(tmp_path):
         w.append_table(states[0])
         w.append_table(states[1:])
         w.event("static_start", 0, {"window_s": 10.0, "label": "face +z ü"}, time=101.0)
-        w.event("position_done", 0, time=102.0)
+        w.event("position_done", np.int64(0), time=102.0)  # numpy integers are positions too
         w.event("fault", None, {"text": "table slipped"}, time=103.0)
     every = SampleBlock.concat(blocks)
     with Session.open(path) as s:
@@ -144,6 +145,26 @@ def test_reader_sees_flushed_rows_while_the_writer_is_live(tmp_path):
         assert len(s.stream("imu").seq) == 500  # refreshed on each call
         assert s.last_completed_position() == 0
     w.close()
+
+
+def test_threads_may_share_a_writer(tmp_path):
+    rng = np.random.default_rng(10)
+    parts = [block(rng, 1000 * i, 1000) for i in range(4)]
+    with new_session(tmp_path / "s.h5", flush_interval=0.0) as w:  # flush on every append
+        def feed(b):
+            for i in range(0, 1000, 10):
+                w.append("imu", SampleBlock(b.counts[i:i + 10], b.seq[i:i + 10],
+                                            b.device_time[i:i + 10], b.host_time[i:i + 10]))
+        threads = [threading.Thread(target=feed, args=(b,)) for b in parts]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    with Session.open(tmp_path / "s.h5") as s:
+        d = s.stream("imu")
+    order = np.argsort(d.seq)
+    assert np.array_equal(d.seq[order], np.arange(4000))
+    assert np.array_equal(d.counts[order], SampleBlock.concat(parts).counts)
 
 
 def readings_and_calibration():
