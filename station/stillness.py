@@ -6,9 +6,10 @@ that channel's noise variance measured on a rest period and averaged over the ch
     s(t) = (1/c) sum_k var_w(x_k)(t) / sigma_k^2        (about 1 at rest, >> 1 in motion)
 
 so every threshold is a multiple of the measured noise, never a value in counts. Hysteresis: the unit
-becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`. Still
-stretches shorter than `min_still` are dropped, and motions longer than `timeout` (the operator took
-too long to put the unit down) are reported. See docs/stillness.md.
+becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`; each still
+stretch is then cut to the samples whose whole window stayed below `enter`. Still intervals shorter
+than `min_still` are dropped, and motions longer than `timeout` (the operator took too long to put
+the unit down) are reported. See docs/stillness.md.
 """
 
 from dataclasses import dataclass
@@ -80,7 +81,7 @@ def detect_still(
             "Drop constant channels, or give a rest period where the sensor noise is visible.",
         )
     s = (mv / noise_var).mean(axis=1)
-    intervals = _runs(hysteresis(s, enter, leave))
+    intervals = _quiet_core(_runs(hysteresis(s, enter, leave)), s < enter, w // 2)
     intervals = intervals[intervals[:, 1] - intervals[:, 0] >= round(min_still * fs)]
     mean, stderr = _interval_stats(x, intervals)
     return StillIntervals(
@@ -126,6 +127,18 @@ def _runs(mask: np.ndarray) -> np.ndarray:
     """(P, 2) [start, stop) of the runs of True in a boolean array."""
     edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
     return np.stack([np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)], axis=1)
+
+
+def _quiet_core(runs: np.ndarray, quiet: np.ndarray, h: int) -> np.ndarray:
+    """Shrink each still run to the samples whose whole window (+-h) lies in its quiet span.
+
+    A run starts at a quiet sample (s < enter) but may end up to `leave` in a slowly starting
+    motion; cutting it at its last quiet sample and then h samples on each side keeps every window
+    that saw the motion out, so the interval means are not biased by the motion's onset.
+    """
+    last_quiet = np.maximum.accumulate(np.where(quiet, np.arange(quiet.size), -1))
+    core = np.stack([runs[:, 0] + h, last_quiet[runs[:, 1] - 1] + 1 - h], axis=1)
+    return core[core[:, 1] > core[:, 0]].reshape(-1, 2)
 
 
 def _rest_window(mv: np.ndarray, rest, rest_length: float, fs: float, w: int) -> np.ndarray:
