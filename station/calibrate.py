@@ -106,6 +106,8 @@ def calibrate(
         raise CalibrationInputError(f"bias={bias!r} is not understood.", 'Use None, an array or "estimate".')
     known_bias = None if bias is None or estimate_bias else _as_bias(bias, m)
     method = _choose_method(method, m, d, estimate_bias, constraints)
+    if constraints is not None:
+        _check_magnitudes(constraints, n)
 
     a0, v0, b0 = _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d)
     start_bias = b0 if estimate_bias else known_bias
@@ -148,6 +150,20 @@ def _choose_method(method: str, m: int, d: int, estimate_bias: bool, constraints
     if estimate_bias:
         return "ellipsoid" if m == d else "factorization"
     return "pca"
+
+
+def _check_magnitudes(constraints, n: int) -> None:
+    """The likelihood model needs |v_j| = c at every position: a unit magnitude constraint each."""
+    unit = np.zeros(n, bool)
+    own = (constraints.j == constraints.k) & (constraints.j < n)
+    unit[constraints.j[own & np.isclose(constraints.h, 1.0)]] = True
+    if not unit.all():
+        raise CalibrationInputError(
+            f"{int(np.sum(~unit))} position(s) have no magnitude constraint |v_j| = c, which the "
+            "maximum-likelihood refinement and the uncertainties need.",
+            "Add magnitude constraints (station.constraints.magnitude_constraints), or call "
+            "station.factorization.factorize directly for orthogonality-only constraints (Eq. 30).",
+        )
 
 
 def _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d):

@@ -78,3 +78,13 @@ def test_ellipsoid_needs_enough_and_diverse_orientations():
     v = np.stack([np.cos(phi), np.sin(phi), np.zeros(20)])
     raises_with_advice("do not determine an ellipsoid", "tilt the unit", a.T @ v + 0.2, 1.0,
                        bias="estimate")
+
+
+def test_constraints_without_magnitudes_are_refused_with_advice():
+    from station.constraints import Constraints
+
+    rng = np.random.default_rng(7)
+    readings = readings_for(random_directions(rng, 3, 10))
+    orthogonal_only = Constraints(np.arange(9), np.arange(1, 10), np.zeros(9))
+    raises_with_advice("no magnitude constraint", "magnitude constraints", readings, 1.0,
+                       constraints=orthogonal_only)
