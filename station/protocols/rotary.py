@@ -1,0 +1,334 @@
+"""The rotary-table protocol for gyros (Rupniewski Section IV) and its Eq. (18) reduction.
+
+Per position j the technician mounts the unit so that a suggested unit-frame direction u_j points
+up the table axis; then the station, through the table driver and the recorder:
+
+    mount -> still -> static -> spin_up -> settle -> rotating -> stop -> rest -> mount (j + 1) ...
+
+- still:    the table must stand still for `rest` s;
+- static:   the static window (`static` s) gives the bias b'_j; then `guard` s of margin;
+- spin_up:  command the rate c and start;
+- settle:   wait until the table says "at rate" and the measured rate stays within `tolerance`
+            for `steady` s;
+- rotating: the rotating window, until the table angle has swept `revolutions` whole turns (plus
+            one poll's worth of margin: the reduction cuts it to whole turns); the measured rate
+            must stay within `tolerance` all along; then `guard` s of margin;
+- stop, rest: stop the table and wait until it stands still.
+
+Every state change happens in one place (`RotaryProtocol.run`). Any exception - a table error, a
+lost or silent IMU, the operator aborting, Ctrl-C - stops the table at once and records an
+`abort` event, so the session file stays consistent (complete positions end with
+`position_done`; `run(first=...)` continues after the last one).
+
+`reduce_session` turns the recorded session into M (m x n), Eq. (18): m_j = mean(rotating) -
+mean(static), the rotating window cut to whole revolutions by the table's recorded angle.
+"""
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+from station.operator import Instruction
+from station.reduction import Reduced, reduce_rotary
+
+
+class ProtocolError(RuntimeError):
+    """The bench did not behave as the protocol needs; the message says what and what to do."""
+
+
+@dataclass(frozen=True)
+class RotarySettings:
+    """Rates in rad/s, durations in seconds of the session clock.
+
+    rate        : commanded table rate c (the magnitude of the stimulus)
+    revolutions : whole table turns in each rotating window
+    static      : length of the static window
+    rest        : how long the table must stand still before the static window
+    guard       : margin between the end of a window and the next table command
+    steady      : how long the measured rate must stay within `tolerance` before recording
+    tolerance   : accepted |measured rate - c| while rotating
+    poll        : time between two table reads
+    timeout     : longest wait for the table to reach rest or the rate
+    stale       : longest silence of the IMU before the session is aborted
+    """
+
+    rate: float = 1.0
+    revolutions: int = 2
+    static: float = 10.0
+    rest: float = 1.0
+    guard: float = 1.0
+    steady: float = 1.0
+    tolerance: float = 0.005
+    poll: float = 0.25
+    timeout: float = 60.0
+    stale: float = 10.0
+
+    def __post_init__(self):
+        if not (math.isfinite(self.rate) and self.rate != 0):
+            raise ValueError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
+        if not (isinstance(self.revolutions, int) and self.revolutions >= 1):
+            raise ValueError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
+        durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
+        bad = [n for n in durations if not getattr(self, n) > 0]
+        if bad:
+            raise ValueError(f"rotary settings {bad} must be positive")
+
+
+def suggested_axes(n: int) -> np.ndarray:
+    """(n, 3) well-spread unit directions (Fibonacci sphere): the table axis in the unit frame.
+
+    Directions spread evenly over the sphere keep the readings matrix well conditioned for any
+    sensor layout (the PCA of Algorithm 2 needs v_j spanning R^3 in all directions).
+    """
+    if n < 1:
+        raise ValueError(f"number of positions must be positive, got {n}")
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + np.sqrt(5)) * i
+    r = np.sqrt(1 - z**2)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def mounting(axis) -> np.ndarray:
+    """A rotation table frame -> unit frame whose third column (the table axis) is `axis`."""
+    z = np.asarray(axis, float)
+    z = z / np.linalg.norm(z)
+    helper = np.eye(3)[0] if abs(z[0]) < 0.9 else np.eye(3)[1]
+    x = helper - (helper @ z) * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def instruction(position: int, n: int, axis) -> Instruction:
+    """The technician's instruction for mounting position `position` (0-based) of n."""
+    words = ", ".join(f"{name} {value:+.3f}" for name, value in zip("xyz", axis))
+    return Instruction(f"position {position + 1}/{n}: mount the unit so that its direction "
+                       f"({words}) points up the table axis", mounting(axis))
+
+
+class RotaryProtocol:
+    """Runs the rotary protocol with a table driver and an operator into a running Recorder.
+
+    table    : `drivers.rotary_table.RotaryTable` (connected) or anything with its methods
+    operator : `station.operator` ConsoleOperator or SimulatedTechnician
+    clock    : the session clock (shared with the devices)
+    axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
+    """
+
+    def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None):
+        self.table = table
+        self.recorder = None
+        self.operator = operator
+        self.clock = clock
+        self.settings = settings or RotarySettings()
+        self.axes = suggested_axes(20) if axes is None else np.asarray(axes, float)
+        if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
+            raise ValueError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
+        self.position = 0
+        self.state = "mount"
+        self._handlers = {"mount": self._mount, "still": self._still, "static": self._static,
+                          "spin_up": self._spin_up, "settle": self._settle,
+                          "rotating": self._rotating, "stop": self._stop, "rest": self._rest}
+
+    def metadata(self) -> dict:
+        """What a session file should record about this protocol run."""
+        return {"protocol": "rotary", "settings": asdict(self.settings),
+                "axes": self.axes.tolist()}
+
+    def run(self, recorder, first: int = 0) -> None:
+        """Run positions first..n-1 into `recorder` (a started `station.recorder.Recorder`); the
+        table is stopped whatever happens."""
+        if not 0 <= first < len(self.axes):
+            raise ValueError(f"first position {first} is outside 0..{len(self.axes) - 1}")
+        self.recorder, self.position, self.state = recorder, first, "mount"
+        try:
+            while self.state != "done":
+                self.state = self._handlers[self.state]()  # the one place where the state changes
+        except BaseException as exc:
+            self._abort(exc)
+            raise
+
+    # -- states: each does its work and returns the next state -----------------------------------
+
+    def _mount(self) -> str:
+        j = self.position
+        self.operator.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist()})
+        return "still"
+
+    def _still(self) -> str:
+        self._until(lambda r: not r.moving, self.settings.rest, "the table to stand still")
+        return "static"
+
+    def _static(self) -> str:
+        s, j = self.settings, self.position
+        self.operator.prompt(f"position {j + 1}: static window ({s.static:g} s)")
+        self.recorder.event("static_start", j)
+        self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
+        self.recorder.event("static_end", j)
+        self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
+        return "spin_up"
+
+    def _spin_up(self) -> str:
+        self.table.set_rate(self.settings.rate)
+        self.table.start()
+        return "settle"
+
+    def _settle(self) -> str:
+        s = self.settings
+        self._until(lambda r: r.at_rate and self._on_rate(r), s.steady,
+                    f"the table to reach {s.rate:g} rad/s")
+        return "rotating"
+
+    def _rotating(self) -> str:
+        s, j = self.settings, self.position
+        self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
+        start = self._poll()
+        self.recorder.event("rotate_start", j, {"angle": start.angle})
+        sweep = 2 * np.pi * s.revolutions + abs(s.rate) * s.poll
+        deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
+        reading = start
+        while abs(reading.angle - start.angle) < sweep:
+            self.clock.sleep(s.poll)
+            reading = self._poll()
+            if not self._on_rate(reading):
+                raise ProtocolError(f"the table's rate {reading.rate:.4f} rad/s left "
+                                    f"{s.rate:g} +- {s.tolerance:g} rad/s while recording position "
+                                    f"{j + 1}; check the table and record this position again")
+            if self.clock.now() > deadline:
+                raise ProtocolError(f"the table angle did not advance as commanded (swept "
+                                    f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
+                                    "window); check the table's encoder")
+        self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
+        return "stop"
+
+    def _stop(self) -> str:
+        self.table.stop()
+        return "rest"
+
+    def _rest(self) -> str:
+        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
+        self.recorder.event("position_done", self.position)
+        self.position += 1
+        return "mount" if self.position < len(self.axes) else "done"
+
+    # -- helpers ---------------------------------------------------------------------------------
+
+    def _on_rate(self, reading) -> bool:
+        return abs(reading.rate - self.settings.rate) < self.settings.tolerance
+
+    def _poll(self):
+        """Check the IMU stream, read the table and keep its state."""
+        self.recorder.check(self.settings.stale)
+        reading = self.table.state()
+        self.recorder.table(reading)
+        if reading.fault:
+            raise ProtocolError("the table reports a fault; clear it on the table's controller "
+                                "and record the position again")
+        return reading
+
+    def _until(self, condition, hold: float, what: str) -> None:
+        """Poll until `condition(reading)` has held for `hold` s; ProtocolError after `timeout`."""
+        s = self.settings
+        deadline = self.clock.now() + s.timeout
+        since = None
+        while True:
+            reading = self._poll()
+            now = self.clock.now()
+            since = (since or now) if condition(reading) else None
+            if since is not None and now - since >= hold:
+                return
+            if now > deadline:
+                raise ProtocolError(f"timed out after {s.timeout:g} s waiting for {what} "
+                                    f"(last state: rate {reading.rate:.4f} rad/s, moving "
+                                    f"{reading.moving}, at rate {reading.at_rate})")
+            self.clock.sleep(s.poll)
+
+    def _hold(self, duration: float, condition, problem: str) -> None:
+        """Poll for `duration` s; ProtocolError(problem) if `condition(reading)` fails once."""
+        end = self.clock.now() + duration
+        while True:
+            if not condition(self._poll()):
+                raise ProtocolError(f"{problem} (position {self.position + 1}); record it again")
+            if self.clock.now() >= end:
+                return
+            self.clock.sleep(min(self.settings.poll, max(0.0, end - self.clock.now())))
+
+    def _abort(self, exc: BaseException) -> None:
+        """Stop the table first, then record why the session ended; failures become notes."""
+        try:
+            self.table.stop()
+        except Exception as stop_error:  # noqa: BLE001 - the original error goes on
+            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+        try:
+            self.recorder.event("abort", self.position, {
+                "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
+        except Exception as record_error:  # noqa: BLE001
+            exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
+
+
+# ------------------------------------------------------------------------------------ reduction
+
+
+def position_windows(events) -> dict:
+    """{position: {"span": (t0, t1), "static": (t0, t1), "rotating": (t0, t1)}} in clock seconds
+    for every completed position; a position recorded again after an abort keeps its last run."""
+    pairs = {"span": ("position_start", "position_done"), "static": ("static_start", "static_end"),
+             "rotating": ("rotate_start", "rotate_end")}
+    times = {}
+    for e in events:
+        if e.position is not None:
+            if e.kind == "position_start":
+                times[e.position] = {}
+            times.setdefault(e.position, {})[e.kind] = e.time
+    return {j: {name: (t[a], t[b]) for name, (a, b) in pairs.items()}
+            for j, t in sorted(times.items()) if all(k in t for pair in pairs.values() for k in pair)}
+
+
+def sample_times(seq, host_time, rate_hz: float) -> np.ndarray:
+    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
+
+    host_time is the arrival time, later than the sampling by a varying latency, and samples read
+    together share one host time; seq / rate_hz is exact up to a constant. The constant is the
+    smallest host_time - seq / rate_hz: the least delayed sample.
+    """
+    offset = np.asarray(seq, float) / rate_hz
+    return offset + np.min(np.asarray(host_time, float) - offset)
+
+
+def reduce_session(session, stream: str = "imu") -> Reduced:
+    """Eq. (18) readings of a recorded rotary session (`station.session.Session`), SI units.
+
+    Per completed position: the samples whose sampling instant lies in the static window and in
+    the rotating window, the latter cut to whole revolutions by the recorded table angle
+    (interpolated at the sampling instants).
+    """
+    data, table = session.stream(stream), session.table()
+    windows = position_windows(session.events())
+    if not windows:
+        raise CalibrationInputError(f"the session {session.path} has no completed position.",
+                                    "Record at least as many positions as the solver asks for.")
+    if len(table.time) < 2:
+        raise CalibrationInputError(f"the session {session.path} holds no table states.",
+                                    "Record the session with the rotary table connected.")
+    lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
+    parts = []
+    for j, w in windows.items():
+        inside = (data.host_time >= w["span"][0]) & (data.host_time <= w["span"][1])
+        t = sample_times(data.seq[inside], data.host_time[inside], data.spec.rate_hz)
+        counts = data.counts[inside]
+        static = (t >= w["static"][0]) & (t <= w["static"][1])
+        rotating = (t >= w["rotating"][0]) & (t <= w["rotating"][1])
+        ns, nr = int(static.sum()), int(rotating.sum())
+        y = np.concatenate([counts[static], counts[rotating]])[None]
+        angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
+        try:
+            parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
+                                                "rotating": np.array([ns, ns + nr])}, angle=angle))
+        except CalibrationInputError as exc:
+            raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
+    return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
+                      for name in Reduced.__dataclass_fields__})

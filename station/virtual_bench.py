@@ -1,0 +1,138 @@
+"""The virtual bench: every device of a calibration bench, simulated, behind its real wire protocol.
+
+    with VirtualBench(imu="serial", seed=1, speed=40) as bench, bench.drivers() as (imu, table):
+        ...  # imu: drivers.serial_imu.SerialImu (or drivers.can_imu.CanImu), table: RotaryTable
+        bench.technician  # the simulated technician (station.operator.SimulatedTechnician)
+        bench.truth()     # what the station should find
+
+One `ScaledClock` drives everything: the rotary table physics (`station.sim.table`) served over
+Modbus TCP on 127.0.0.1 (`drivers.twin_table.TableTwin`), a 12-gyro unit (`station.sim.layouts.
+gyro_array`, Rupniewski Section IV) mounted on that table (`station.sim.live.MountedUnit`) and
+streaming through a pseudo-terminal (`drivers.twin_serial.SerialTwin`) or a python-can virtual bus
+(`drivers.twin_can.CanImuTwin`), and the technician who re-mounts the unit between positions.
+The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
+"""
+
+import contextlib
+import dataclasses
+import itertools
+import os
+from dataclasses import dataclass
+
+import can
+import numpy as np
+
+from drivers.can_imu import CanImu, CanProfile
+from drivers.profile import SerialImuProfile
+from drivers.rotary_table import RotaryTable as TableDriver
+from drivers.rotary_table import TableRegisterMap
+from drivers.serial_imu import SerialImu
+from drivers.twin_can import CanImuTwin
+from drivers.twin_serial import SerialTwin
+from drivers.twin_table import TableTwin
+from station.clock import ScaledClock
+from station.operator import SimulatedTechnician
+from station.session import StreamSpec
+from station.sim.layouts import A_MODEL, gyro_array
+from station.sim.live import MountedUnit
+from station.sim.table import RotaryTable
+
+IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
+_channels = itertools.count()
+
+
+@dataclass(frozen=True)
+class BenchTruth:
+    """What the simulated unit really is, and the stimulus it really felt.
+
+    a            : (3, m) true sensitivity matrix (dimensionless: readings are in SI units)
+    bias         : (m,) true biases, rad/s
+    orientations : (n, 3, 3) the mountings the technician really made (table -> unit frame)
+    a_nominal    : (3, m) the nominal layout
+    """
+
+    a: np.ndarray
+    bias: np.ndarray
+    orientations: np.ndarray
+    a_nominal: np.ndarray
+
+    def v(self, rate: float) -> np.ndarray:
+        """(3, n) true stimuli of the positions at table rate `rate`: rate times the table axis."""
+        return rate * self.orientations[:, :, 2].T
+
+
+class VirtualBench:
+    """Starts the simulated devices; `close()` (or leaving the `with`) stops them all.
+
+    imu           : "serial" (binary frames over a pty) or "can" (python-can virtual bus)
+    seed          : seed of the unit, the table and the technician
+    speed         : clock speed, simulated seconds per wall second
+    rate_hz       : IMU sample rate (the profiles' 2 kHz is more than a demo needs)
+    remount_time  : simulated seconds the technician takes to re-mount the unit
+    placement_deg : the technician's placement error (standard deviation per axis), degrees
+    lifetime      : wall seconds after which the Modbus server stops by itself
+    """
+
+    def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
+                 rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
+                 lifetime: float = 600.0):
+        if imu not in IMU_KINDS:
+            raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
+        self.kind = imu
+        self.clock = ScaledClock(speed)
+        loader = SerialImuProfile if imu == "serial" else CanProfile
+        profile = loader.load(IMU_KINDS[imu])
+        self.profile = dataclasses.replace(
+            profile, imu=dataclasses.replace(profile.imu, rate_hz=float(rate_hz)))
+        self.stream_spec = StreamSpec.from_profile(self.profile.imu)
+        self.table = RotaryTable(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed)
+        self.table_map = TableRegisterMap.load("table_modbus")
+        self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
+        self.mounted = MountedUnit(self.unit, self.table)
+        self.technician = SimulatedTechnician(self.mounted, self.clock, remount_time, placement_deg,
+                                              np.random.default_rng([seed, 1]))
+        self.table_twin = TableTwin(self.table, self.table_map, lifetime)
+        self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
+        self.imu_twin = None
+
+    def start(self) -> "VirtualBench":
+        """Start the Modbus server and the IMU stream."""
+        self.table_twin.start()
+        if self.kind == "serial":
+            self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock, max_lag=10.0).start()
+        else:
+            self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
+                                       self.clock).start()
+        return self
+
+    def close(self) -> None:
+        """Stop the IMU stream and the Modbus server (idempotent)."""
+        if self.imu_twin is not None:
+            twin, self.imu_twin = self.imu_twin, None
+            twin.stop()
+        self.table_twin.close()
+
+    def __enter__(self) -> "VirtualBench":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @contextlib.contextmanager
+    def drivers(self):
+        """(imu, table): the station's real drivers connected to the twins, closed on exit; the
+        table driver stops the table on exit whatever happened."""
+        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock)
+        with contextlib.ExitStack() as stack:
+            if self.kind == "serial":
+                imu = stack.enter_context(SerialImu(self.imu_twin.port, self.profile, self.clock))
+            else:
+                bus = can.Bus(interface="virtual", channel=self.can_channel)
+                stack.callback(bus.shutdown)
+                imu = stack.enter_context(CanImu(bus, self.profile, self.clock))
+            yield imu, stack.enter_context(table)
+
+    def truth(self) -> BenchTruth:
+        """The true unit and the mountings made so far."""
+        return BenchTruth(self.unit.a.copy(), self.unit.bias.copy(),
+                          np.array(self.technician.orientations).reshape(-1, 3, 3), A_MODEL)
