@@ -6,10 +6,9 @@ that channel's noise variance measured on a rest period and averaged over the ch
     s(t) = (1/c) sum_k var_w(x_k)(t) / sigma_k^2        (about 1 at rest, >> 1 in motion)
 
 so every threshold is a multiple of the measured noise, never a value in counts. Hysteresis: the unit
-becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`; each still
-stretch is then cut to the samples whose whole window stayed below `enter`. Still intervals shorter
-than `min_still` are dropped, and motions longer than `timeout` (the operator took too long to put
-the unit down) are reported. See docs/stillness.md.
+becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`. Still
+intervals shorter than `min_still` are dropped, and motions longer than `timeout` (the operator took
+too long to put the unit down) are reported. See docs/stillness.md.
 """
 
 from dataclasses import dataclass
@@ -51,7 +50,7 @@ def detect_still(
     fs: float,
     *,
     rest=None,
-    rest_length: float = 5.0,
+    rest_length: float = 2.0,
     window: float = 1.0,
     enter: float = 4.0,
     leave: float = 8.0,
@@ -73,7 +72,7 @@ def detect_still(
     _check_thresholds(enter, leave, min_still, timeout)
     mv = moving_variance(x - np.median(x, axis=0), w)
     rest = _rest_window(mv, rest, rest_length, fs, w)
-    noise_var = mv[rest[0] : rest[1]].mean(axis=0)
+    noise_var = mv[rest[0] + w // 2 : rest[1] - w // 2].mean(axis=0)  # windows inside the rest
     if np.any(~(noise_var > 0)):
         raise CalibrationInputError(
             f"channels {np.flatnonzero(~(noise_var > 0)).tolist()} do not vary at all on the rest "
@@ -81,7 +80,7 @@ def detect_still(
             "Drop constant channels, or give a rest period where the sensor noise is visible.",
         )
     s = (mv / noise_var).mean(axis=1)
-    intervals = _quiet_core(_runs(hysteresis(s, enter, leave)), s < enter, w // 2)
+    intervals = _runs(hysteresis(s, enter, leave))
     intervals = intervals[intervals[:, 1] - intervals[:, 0] >= round(min_still * fs)]
     mean, stderr = _interval_stats(x, intervals)
     return StillIntervals(
@@ -129,22 +128,11 @@ def _runs(mask: np.ndarray) -> np.ndarray:
     return np.stack([np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)], axis=1)
 
 
-def _quiet_core(runs: np.ndarray, quiet: np.ndarray, h: int) -> np.ndarray:
-    """Shrink each still run to the samples whose whole window (+-h) lies in its quiet span.
-
-    A run starts at a quiet sample (s < enter) but may end up to `leave` in a slowly starting
-    motion; cutting it at its last quiet sample and then h samples on each side keeps every window
-    that saw the motion out, so the interval means are not biased by the motion's onset.
-    """
-    last_quiet = np.maximum.accumulate(np.where(quiet, np.arange(quiet.size), -1))
-    core = np.stack([runs[:, 0] + h, last_quiet[runs[:, 1] - 1] + 1 - h], axis=1)
-    return core[core[:, 1] > core[:, 0]].reshape(-1, 2)
-
-
 def _rest_window(mv: np.ndarray, rest, rest_length: float, fs: float, w: int) -> np.ndarray:
-    """The given rest period, checked, or the quietest stretch of rest_length seconds.
+    """The given rest period [start, stop), checked, or the quietest stretch of rest_length seconds.
 
-    Quietest = smallest sum over channels of log(mean moving variance): invariant to channel units.
+    Quietest = smallest sum over channels of log(mean moving variance) over the windows that lie
+    inside the stretch: invariant to the channels' units.
     """
     k = mv.shape[0]
     h = w // 2
@@ -154,27 +142,27 @@ def _rest_window(mv: np.ndarray, rest, rest_length: float, fs: float, w: int) ->
             raise CalibrationInputError(
                 f"rest period {rest!r} is not a pair of sample indices.", "Give (start, stop) integers."
             )
-        r = np.clip(r, h, k - h)
+        r = np.clip(r, 0, k)
         if r[1] - r[0] < w:
             raise CalibrationInputError(
-                f"rest period {rest!r} holds fewer than one window ({w} samples) away from the "
-                f"recording's ends ({k} samples).",
+                f"rest period {rest!r} holds fewer than one window ({w} samples) of the recording "
+                f"({k} samples).",
                 "Give a longer rest period, or a shorter window.",
             )
         return r
     n = round(rest_length * fs)
-    if n < w or n > k - 2 * h:
+    if n < w or n > k:
         raise CalibrationInputError(
             f"rest_length {rest_length} s ({n} samples) must span at least one window ({w}) and fit "
             f"in the recording ({k} samples).",
             "Adjust rest_length or window, or give the rest period explicitly.",
         )
+    centres = n - 2 * h  # windows inside one stretch
     inner = mv[h : k - h]
-    zero = np.zeros((1, inner.shape[1]))
-    run = np.concatenate([zero, np.cumsum(inner, axis=0)])
+    run = np.concatenate([np.zeros((1, inner.shape[1])), np.cumsum(inner, axis=0)])
     with np.errstate(divide="ignore"):
-        score = np.log((run[n:] - run[:-n]) / n).sum(axis=1)
-    start = h + int(np.argmin(score))
+        score = np.log((run[centres:] - run[:-centres]) / centres).sum(axis=1)
+    start = int(np.argmin(score))  # first window centre h + start, so the stretch starts at start
     return np.array([start, start + n])
 
 
