@@ -50,7 +50,7 @@ class Section:
             return default
         value = self.table[key]
         if not _is(value, kind):
-            raise self.error(key, f"must be a {kind.__name__}, got {value!r}")
+            raise self.error(key, f"must be {kind.__name__}, got {value!r}")
         if choices is not None and value not in choices:
             raise self.error(key, f"must be one of {', '.join(map(repr, choices))}; got {value!r}")
         return float(value) if kind is float else value

@@ -77,7 +77,7 @@ class SerialTwin:
         self.error = None
         self._rng = np.random.default_rng(seed)
         self._log = []
-        self._pause_until = -np.inf
+        self._pause = (np.inf, np.inf)  # clock-time window of silence
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = None
@@ -113,7 +113,8 @@ class SerialTwin:
 
     def pause(self, seconds: float) -> None:
         """Go silent for `seconds` of clock time; the frames due meanwhile are lost."""
-        self._pause_until = self.clock.now() + seconds
+        now = self.clock.now()
+        self._pause = (now, now + seconds)
 
     def start(self, start_time=None) -> "SerialTwin":
         """Start streaming; frame 0 is at `start_time` (default: now)."""
@@ -184,7 +185,7 @@ class SerialTwin:
         fate = np.full(len(seq), SENT, np.int8)
         fate[self._rng.random(len(seq)) < self.corrupt] = CORRUPTED
         fate[self._rng.random(len(seq)) < self.drop] = DROPPED
-        fate[times < self._pause_until] = PAUSED
+        fate[(times >= self._pause[0]) & (times < self._pause[1])] = PAUSED
         frames = self._encode(seq[fate <= CORRUPTED], times[fate <= CORRUPTED])
         for i in np.flatnonzero(fate[fate <= CORRUPTED] == CORRUPTED):
             frames[i] = corrupt_frame(frames[i], self._rng)
@@ -196,6 +197,8 @@ class SerialTwin:
 
     def _encode(self, seq: np.ndarray, times: np.ndarray) -> list:
         """The wire bytes of frames `seq` sampled at `times`, one list item per frame."""
+        if len(seq) == 0:
+            return []
         counts = np.asarray(self.source(times))
         m = len(self.profile.imu.channels)
         if counts.shape != (len(times), m) or not np.issubdtype(counts.dtype, np.integer):
@@ -206,7 +209,7 @@ class SerialTwin:
             return encode_lines(fmt, times, counts).splitlines(keepends=True)
         ticks = np.round(times / fmt.time_tick).astype(np.int64) if "time" in fmt.layout else seq
         data = encode_frames(fmt, seq, ticks, counts)
-        size = len(data) // len(times) if len(times) else 0
+        size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
 
     def _write(self, data: bytes) -> int:

@@ -1,0 +1,159 @@
+"""The serial driver against its pseudo-terminal twin: exact samples, faults, unplug, reconnect.
+
+The twin streams at 2 kHz of simulated time on a ScaledClock, so each test lasts a fraction of a
+second of wall time."""
+
+import threading
+
+import numpy as np
+import pytest
+
+from drivers.profile import SerialImuProfile
+from drivers.samples import SampleBlock
+from drivers.serial_imu import DeviceLostError, SerialImu, SerialPortError
+from drivers.twin_serial import DROPPED, PAUSED, SENT, SerialTwin
+from station.clock import ScaledClock
+
+BINARY = SerialImuProfile.load("imu12_serial")
+ASCII = SerialImuProfile.load("imu_ascii")
+
+
+def source(times):
+    """Deterministic full-range counts, a known function of time (microsecond resolution)."""
+    n = np.round(np.asarray(times) * 1e6).astype(np.int64)
+    return (n[:, None] * 2654435761 + np.arange(12) * 40503) % 2**32 - 2**31
+
+
+def small_source(times):
+    """Six channels of small counts for the ASCII twin."""
+    n = np.round(np.asarray(times) * 1e3).astype(np.int64)
+    return (n[:, None] * 37 + np.arange(6) * 1001) % 40000 - 20000
+
+
+def read_until(imu, last_seq, limit=5.0):
+    """Blocks until a sample with seq >= last_seq arrived (or `limit` clock seconds of no data)."""
+    blocks = []
+    while not blocks or blocks[-1].seq[-1] < last_seq:
+        block = imu.read_block(timeout=limit)
+        assert block is not None, "the twin stopped streaming"
+        blocks.append(block)
+    return SampleBlock.concat(blocks)
+
+
+def intact_between(twin, first, last):
+    seq, fate = twin.log()
+    return seq[(fate == SENT) & (seq >= first) & (seq <= last)]
+
+
+def test_stream_with_faults_every_intact_frame_exact():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, corrupt=0.02, drop=0.01, seed=1)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        got = read_until(imu, 6000)
+    assert np.array_equal(got.counts, source(twin.time_of(got.seq)))  # no false accept
+    assert np.all(np.diff(got.seq) > 0)
+    intact = intact_between(twin, got.seq[0], got.seq[-1])
+    assert np.setdiff1d(intact, got.seq).size == 0  # every intact frame recovered
+    assert imu.stats.dropped == got.seq[-1] - got.seq[0] + 1 - len(got)
+    assert imu.stats.crc_failures > 50 and imu.stats.gaps > 50
+    device_steps = np.diff(got.device_time) * BINARY.imu.rate_hz
+    assert np.allclose(device_steps, np.diff(got.seq), atol=0.01)
+
+
+def test_pause_loses_the_frames_due_and_the_stream_resumes():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=2)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        read_until(imu, 200)
+        twin.pause(0.1)
+        got = read_until(imu, 1200)
+    seq, fate = twin.log()
+    paused = seq[fate == PAUSED]
+    assert len(paused) == pytest.approx(200, abs=1)  # 0.1 s at 2 kHz
+    assert np.intersect1d(paused, got.seq).size == 0
+    assert np.setdiff1d(intact_between(twin, got.seq[0], got.seq[-1]), got.seq).size == 0
+    assert imu.stats.dropped >= len(paused)
+
+
+def test_unplug_names_the_port_keeps_samples_and_reconnects():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=3)
+    imu = SerialImu(twin.port, BINARY, clock=clock)
+    blocks = []
+    with twin:
+        imu.open()
+        blocks.append(read_until(imu, 500))
+        twin.unplug()  # mid-stream
+        with pytest.raises(DeviceLostError) as info:
+            while True:
+                block = imu.read_block(timeout=1.0)
+                if block is not None:
+                    blocks.append(block)
+        assert twin.port in str(info.value) and info.value.port == twin.port
+        before = SampleBlock.concat(blocks)
+        # every sample before the unplug: consecutive, exact, up to the last frame fully written
+        seq, fate = twin.log()
+        last_written = seq[fate == SENT].max()
+        assert np.setdiff1d(intact_between(twin, before.seq[0], before.seq[-1]), before.seq).size == 0
+        assert np.array_equal(before.counts, source(twin.time_of(before.seq)))
+        assert before.seq[-1] <= last_written
+        with pytest.raises(SerialPortError, match="not open"):
+            imu.read_block()
+        twin.plug()
+        imu.open()
+        after = read_until(imu, last_written + 400)
+        imu.close()
+    assert after.seq[0] > before.seq[-1]
+    assert np.array_equal(after.counts, source(twin.time_of(after.seq)))
+    assert imu.connections == 2
+
+
+def test_background_reader_delivers_blocks_and_reports_the_unplug():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=4)
+    blocks, lost = [], threading.Event()
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        imu.start(blocks.append, on_error=lambda exc: lost.set())
+        while sum(map(len, blocks)) < 1000:
+            assert imu.error is None
+            lost.wait(0.01)
+        twin.unplug()
+        assert lost.wait(5.0)
+        imu.stop()
+    assert isinstance(imu.error, DeviceLostError)
+    got = SampleBlock.concat(blocks)
+    assert np.setdiff1d(intact_between(twin, got.seq[0], got.seq[-1]), got.seq).size == 0
+    assert np.array_equal(got.counts, source(twin.time_of(got.seq)))
+
+
+def test_ascii_device_through_the_pty():
+    clock = ScaledClock(speed=5)
+    twin = SerialTwin(ASCII, small_source, clock=clock, seed=5)
+    with twin, SerialImu(twin.port, ASCII, clock=clock) as imu:
+        got = SampleBlock.concat([imu.read_block(timeout=1.0) for _ in range(5)])
+    # ASCII carries no sequence number: match samples to frames by their timestamp (ms column)
+    frame = np.round((got.device_time - twin.start_time) * twin.rate_hz).astype(np.int64)
+    assert np.array_equal(got.counts, small_source(twin.time_of(frame)))
+    assert np.array_equal(frame, np.arange(frame[0], frame[0] + len(frame)))
+
+
+def test_open_errors_name_the_port(tmp_path):
+    missing = str(tmp_path / "ttyUSB9")
+    with pytest.raises(SerialPortError, match="ttyUSB9.*plugged in"):
+        SerialImu(missing, BINARY).open()
+    twin = SerialTwin(BINARY, source)
+    try:
+        with SerialImu(twin.port, BINARY):
+            with pytest.raises(SerialPortError, match="no other program holds the port"):
+                SerialImu(twin.port, BINARY).open()  # exclusive=True
+    finally:
+        twin.stop()
+
+
+def test_twin_refuses_a_source_of_the_wrong_shape():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, lambda t: np.zeros((len(t), 3), np.int64), clock=clock)
+    twin.start()
+    clock.sleep(0.05)
+    with pytest.raises(ValueError, match=r"shape \(\d+, 12\)"):
+        twin.stop()
