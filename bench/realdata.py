@@ -1,0 +1,197 @@
+"""Free-static calibration on real recordings (issue 8): the Xsens MTi of imu_tk and five MPU-9150s.
+
+Data: ../shared/data/real/ (read each PROVENANCE.md; the data are never copied into the project).
+Prints the detector's interval counts (and their robustness to the threshold factor), held-out
+|a| - g of our calibration next to the manufacturer's printed one, the result in SI units compared
+with the manufacturer's, and the MPU-9150 unit-to-unit spread.
+
+    .venv/bin/python bench/realdata.py [--json] [--data DIR]
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from station.free_static import calibrate_free_static, leave_one_out, read_table
+from station.stillness import detect_still
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+FS = 100.0  # both data sets, PROVENANCE.md
+XSENS_G = 9.81744  # local gravity used by the imu_tk authors (Padova), PROVENANCE.md
+XSENS_REST = 50.0  # s, the initial rest of the imu_tk protocol (setInitStaticIntervalDuration(50))
+# Manufacturer calibration of this unit (PROVENANCE.md): raw = K T a + offset, counts
+XSENS_GAIN = np.array([415.0, 413.0, 415.0])  # counts per m/s^2
+XSENS_MISALIGNMENT = np.array([[1.00, 0.00, -0.01], [0.01, 1.00, 0.01], [0.02, 0.01, 1.00]])
+XSENS_OFFSET = np.array([33123.0, 33276.0, 32360.0])  # counts
+XSENS_GYRO_GAIN = np.array([4778.0, 4758.0, 4766.0])  # counts per rad/s
+XSENS_GYRO_OFFSET = np.array([32768.0, 32466.0, 32485.0])  # counts
+MPU_G = 9.80665  # standard gravity: the MPU-9150 recordings do not state their location
+THRESHOLD_SWEEP = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0)  # enter factors, leave = 2 x enter
+
+
+def manufacturer_magnitudes(readings: np.ndarray) -> np.ndarray:
+    """|a_j| of the still means (3, P) under the printed calibration a = (K T)^-1 (raw - offset)."""
+    kt = np.diag(XSENS_GAIN) @ XSENS_MISALIGNMENT
+    return np.linalg.norm(np.linalg.solve(kt, readings - XSENS_OFFSET[:, None]), axis=0)
+
+
+def off_diagonal_deg(angles: np.ndarray) -> list:
+    """Misalignments (deg): angle(x,y), angle(x,z), angle(y,z) minus 90 degrees."""
+    i, k = np.triu_indices(3, 1)
+    return (np.degrees(angles[i, k]) - 90.0).tolist()
+
+
+def rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def xsens(root: Path) -> dict:
+    """Every Xsens figure: detection, held-out accuracy, SI result vs the manufacturer's."""
+    acc = read_table(root / "xsens_acc.mat", 4)
+    gyro = read_table(root / "xsens_gyro.mat", 4)
+    if not np.array_equal(acc[:, 0], gyro[:, 0]):
+        raise SystemExit("xsens_acc.mat and xsens_gyro.mat do not share their time stamps")
+    acc, gyro = acc[:, 1:], gyro[:, 1:]
+    rest = (0, round(XSENS_REST * FS))
+
+    t0 = time.perf_counter()
+    fit = calibrate_free_static(acc, FS, XSENS_G, gyro=gyro, rest=rest)
+    t_path = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    held_out = leave_one_out(fit.readings, XSENS_G)
+    t_loo = time.perf_counter() - t0
+
+    both = np.hstack([acc, gyro])
+    sweep = {
+        str(f): len(detect_still(both, FS, rest=rest, enter=f, leave=2 * f).intervals)
+        for f in THRESHOLD_SWEEP
+    }
+    quietest = len(detect_still(both, FS).intervals)
+    acc_only = len(detect_still(acc, FS, rest=rest).intervals)
+
+    a = fit.accel
+    kt = np.diag(XSENS_GAIN) @ XSENS_MISALIGNMENT
+    mfr_angles = np.arccos(np.clip((kt @ kt.T) / np.outer(*2 * [np.linalg.norm(kt, axis=1)]), -1, 1))
+    lengths = fit.still.lengths / FS
+    return {
+        "samples": int(acc.shape[0]),
+        "intervals": len(fit.still.intervals),
+        "intervals_quietest_rest": quietest,
+        "intervals_accelerometer_only": acc_only,
+        "intervals_vs_enter_factor": sweep,
+        "first_interval_s": (fit.still.intervals[0] / FS).tolist(),
+        "interval_length_s": {"min": lengths.min(), "median": float(np.median(lengths))},
+        "overdue_motions": len(fit.still.overdue),
+        "noise_counts": fit.still.noise.tolist(),
+        "g_local": XSENS_G,
+        "heldout_rms_ms2": rms(held_out),
+        "heldout_max_ms2": float(np.abs(held_out).max()),
+        "fit_rms_ms2": rms(np.linalg.norm(a.apply(fit.readings), axis=0) - XSENS_G),
+        "manufacturer_rms_ms2": rms(manufacturer_magnitudes(fit.readings) - XSENS_G),
+        "residual_over_white_stderr": rms(a.residuals) / rms(fit.readings_stderr),
+        "accel": {
+            "scale_counts_per_ms2": a.scale_factors.tolist(),
+            "scale_sigma": a.scale_factors_sigma.tolist(),
+            "scale_manufacturer": np.linalg.norm(kt, axis=1).tolist(),
+            "misalignment_deg_xy_xz_yz": off_diagonal_deg(a.axis_angles),
+            "misalignment_sigma_deg": np.degrees(a.axis_angles_sigma[np.triu_indices(3, 1)]).tolist(),
+            "misalignment_manufacturer_deg": off_diagonal_deg(mfr_angles),
+            "bias_counts": a.bias.tolist(),
+            "bias_sigma_counts": a.bias_sigma.tolist(),
+            "bias_manufacturer_counts": XSENS_OFFSET.tolist(),
+            "bias_minus_manufacturer_ms2": ((a.bias - XSENS_OFFSET) / a.scale_factors).tolist(),
+        },
+        "gyro": {
+            "bias_counts": fit.gyro_bias.tolist(),
+            "bias_sigma_counts": fit.gyro_bias_sigma.tolist(),
+            "bias_manufacturer_counts": XSENS_GYRO_OFFSET.tolist(),
+            "bias_minus_manufacturer_rads": (
+                (fit.gyro_bias - XSENS_GYRO_OFFSET) / XSENS_GYRO_GAIN
+            ).tolist(),
+            "rest_interval_s": (fit.still.intervals[fit.rest_index] / FS).tolist(),
+        },
+        "time_ms": {"detect_and_calibrate": 1e3 * t_path, "leave_one_out_38_fits": 1e3 * t_loo},
+    }
+
+
+def mpu(root: Path) -> dict:
+    """Each MPU-9150's accelerometer by the same path (quietest rest), and the unit-to-unit spread."""
+    units = []
+    for path in sorted(root.glob("imu*.log")):
+        x = read_table(path, 6)
+        fit = calibrate_free_static(x[:, :3], FS, MPU_G, gyro=x[:, 3:])
+        units.append(
+            {
+                "unit": path.stem,
+                "intervals": len(fit.still.intervals),
+                "heldout_rms_ms2": rms(leave_one_out(fit.readings, MPU_G)),
+                "scale": fit.accel.scale_factors.tolist(),
+                "misalignment_deg": off_diagonal_deg(fit.accel.axis_angles),
+                "bias_ms2": (fit.accel.bias / fit.accel.scale_factors).tolist(),
+                "gyro_bias_rads": fit.gyro_bias.tolist(),
+            }
+        )
+    spread = {
+        key: np.std([u[key] for u in units], axis=0, ddof=1).tolist()
+        for key in ("scale", "misalignment_deg", "bias_ms2", "gyro_bias_rads")
+    }
+    return {"g_assumed": MPU_G, "units": units, "unit_to_unit_sd": spread}
+
+
+def show(report: dict) -> None:
+    """Human-readable summary of the figures."""
+    x = report.get("xsens")
+    if x:
+        print(f"Xsens MTi ({x['samples']} samples at {FS:g} Hz)")
+        print(f"  still intervals: {x['intervals']} (quietest-window rest: "
+              f"{x['intervals_quietest_rest']}, accelerometer only: {x['intervals_accelerometer_only']})")
+        print(f"  vs enter factor: {x['intervals_vs_enter_factor']}")
+        print(f"  held-out RMS |a|-g: ours {x['heldout_rms_ms2']:.4f} m/s^2, "
+              f"manufacturer {x['manufacturer_rms_ms2']:.4f} m/s^2 (fit {x['fit_rms_ms2']:.4f})")
+        a = x["accel"]
+        for name, ours, sig, mfr in (
+            ("scale [counts/(m/s^2)]", a["scale_counts_per_ms2"], a["scale_sigma"], a["scale_manufacturer"]),
+            ("misalignment [deg]", a["misalignment_deg_xy_xz_yz"], a["misalignment_sigma_deg"],
+             a["misalignment_manufacturer_deg"]),
+            ("accel bias [counts]", a["bias_counts"], a["bias_sigma_counts"], a["bias_manufacturer_counts"]),
+            ("gyro bias [counts]", x["gyro"]["bias_counts"], x["gyro"]["bias_sigma_counts"],
+             x["gyro"]["bias_manufacturer_counts"]),
+        ):
+            pairs = ", ".join(f"{o:.3f}+-{s:.3f} ({m:.3f})" for o, s, m in zip(ours, sig, mfr))
+            print(f"  {name}: {pairs}   (manufacturer in brackets)")
+        print(f"  time: {x['time_ms']}")
+    m = report.get("mpu9150")
+    if m:
+        print(f"MPU-9150 x{len(m['units'])} (g assumed {m['g_assumed']})")
+        for u in m["units"]:
+            print(f"  {u['unit']}: {u['intervals']} intervals, held-out RMS {u['heldout_rms_ms2']:.4f}, "
+                  f"scale {np.round(u['scale'], 4).tolist()}, bias {np.round(u['bias_ms2'], 3).tolist()}")
+        print(f"  unit-to-unit sd: { {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument("--data", type=Path, default=DATA, help="folder of the real data sets")
+    args = parser.parse_args(argv)
+    report = {}
+    if (args.data / "imutk-xsens").is_dir():
+        report["xsens"] = xsens(args.data / "imutk-xsens")
+    if (args.data / "imucalib-mpu9150x5").is_dir():
+        report["mpu9150"] = mpu(args.data / "imucalib-mpu9150x5")
+    if not report:
+        print(f"no real data under {args.data}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(report, indent=1, default=float))
+    else:
+        show(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
