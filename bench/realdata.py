@@ -18,6 +18,7 @@ import numpy as np
 
 from station.free_static import calibrate_free_static, leave_one_out, read_table
 from station.stillness import detect_still
+from station.uncertainty import axis_angles
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 FS = 100.0  # both data sets, PROVENANCE.md
@@ -75,7 +76,7 @@ def xsens(root: Path) -> dict:
 
     a = fit.accel
     kt = np.diag(XSENS_GAIN) @ XSENS_MISALIGNMENT
-    mfr_angles = np.arccos(np.clip((kt @ kt.T) / np.outer(*2 * [np.linalg.norm(kt, axis=1)]), -1, 1))
+    mfr_angles = axis_angles(kt.T)  # sensor axes are the rows of K T (z = a^T v + b)
     lengths = fit.still.lengths / FS
     return {
         "samples": int(acc.shape[0]),
@@ -98,7 +99,9 @@ def xsens(root: Path) -> dict:
             "scale_sigma": a.scale_factors_sigma.tolist(),
             "scale_manufacturer": np.linalg.norm(kt, axis=1).tolist(),
             "misalignment_deg_xy_xz_yz": off_diagonal_deg(a.axis_angles),
-            "misalignment_sigma_deg": np.degrees(a.axis_angles_sigma[np.triu_indices(3, 1)]).tolist(),
+            "misalignment_sigma_deg": np.degrees(
+                a.axis_angles_sigma[np.triu_indices(3, 1)]
+            ).tolist(),
             "misalignment_manufacturer_deg": off_diagonal_deg(mfr_angles),
             "bias_counts": a.bias.tolist(),
             "bias_sigma_counts": a.bias_sigma.tolist(),
@@ -147,19 +150,41 @@ def show(report: dict) -> None:
     x = report.get("xsens")
     if x:
         print(f"Xsens MTi ({x['samples']} samples at {FS:g} Hz)")
-        print(f"  still intervals: {x['intervals']} (quietest-window rest: "
-              f"{x['intervals_quietest_rest']}, accelerometer only: {x['intervals_accelerometer_only']})")
+        print(
+            f"  still intervals: {x['intervals']} (quietest-window rest: "
+            f"{x['intervals_quietest_rest']}, accelerometer only: {x['intervals_accelerometer_only']})"
+        )
         print(f"  vs enter factor: {x['intervals_vs_enter_factor']}")
-        print(f"  held-out RMS |a|-g: ours {x['heldout_rms_ms2']:.4f} m/s^2, "
-              f"manufacturer {x['manufacturer_rms_ms2']:.4f} m/s^2 (fit {x['fit_rms_ms2']:.4f})")
+        print(
+            f"  held-out RMS |a|-g: ours {x['heldout_rms_ms2']:.4f} m/s^2, "
+            f"manufacturer {x['manufacturer_rms_ms2']:.4f} m/s^2 (fit {x['fit_rms_ms2']:.4f})"
+        )
         a = x["accel"]
         for name, ours, sig, mfr in (
-            ("scale [counts/(m/s^2)]", a["scale_counts_per_ms2"], a["scale_sigma"], a["scale_manufacturer"]),
-            ("misalignment [deg]", a["misalignment_deg_xy_xz_yz"], a["misalignment_sigma_deg"],
-             a["misalignment_manufacturer_deg"]),
-            ("accel bias [counts]", a["bias_counts"], a["bias_sigma_counts"], a["bias_manufacturer_counts"]),
-            ("gyro bias [counts]", x["gyro"]["bias_counts"], x["gyro"]["bias_sigma_counts"],
-             x["gyro"]["bias_manufacturer_counts"]),
+            (
+                "scale [counts/(m/s^2)]",
+                a["scale_counts_per_ms2"],
+                a["scale_sigma"],
+                a["scale_manufacturer"],
+            ),
+            (
+                "misalignment [deg]",
+                a["misalignment_deg_xy_xz_yz"],
+                a["misalignment_sigma_deg"],
+                a["misalignment_manufacturer_deg"],
+            ),
+            (
+                "accel bias [counts]",
+                a["bias_counts"],
+                a["bias_sigma_counts"],
+                a["bias_manufacturer_counts"],
+            ),
+            (
+                "gyro bias [counts]",
+                x["gyro"]["bias_counts"],
+                x["gyro"]["bias_sigma_counts"],
+                x["gyro"]["bias_manufacturer_counts"],
+            ),
         ):
             pairs = ", ".join(f"{o:.3f}+-{s:.3f} ({m:.3f})" for o, s, m in zip(ours, sig, mfr))
             print(f"  {name}: {pairs}   (manufacturer in brackets)")
@@ -168,9 +193,13 @@ def show(report: dict) -> None:
     if m:
         print(f"MPU-9150 x{len(m['units'])} (g assumed {m['g_assumed']})")
         for u in m["units"]:
-            print(f"  {u['unit']}: {u['intervals']} intervals, held-out RMS {u['heldout_rms_ms2']:.4f}, "
-                  f"scale {np.round(u['scale'], 4).tolist()}, bias {np.round(u['bias_ms2'], 3).tolist()}")
-        print(f"  unit-to-unit sd: { {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }")
+            print(
+                f"  {u['unit']}: {u['intervals']} intervals, held-out RMS {u['heldout_rms_ms2']:.4f}, "
+                f"scale {np.round(u['scale'], 4).tolist()}, bias {np.round(u['bias_ms2'], 3).tolist()}"
+            )
+        print(
+            f"  unit-to-unit sd: { {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }"
+        )
 
 
 def main(argv=None) -> int:

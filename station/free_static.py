@@ -123,7 +123,8 @@ def _single_mat_array(path: Path) -> np.ndarray:
     (table,) = variables.values()
     if table.dtype.kind not in "iuf":
         raise CalibrationInputError(
-            f"{path} holds a {table.dtype} array.", "Save a plain numeric matrix (no cells/structs)."
+            f"{path} holds a {table.dtype} array.",
+            "Save a plain numeric matrix (no cells/structs).",
         )
     return table.astype(float)
 

@@ -140,7 +140,8 @@ def _rest_window(mv: np.ndarray, rest, rest_length: float, fs: float, w: int) ->
         r = np.asarray(rest)
         if r.shape != (2,) or not np.issubdtype(r.dtype, np.integer):
             raise CalibrationInputError(
-                f"rest period {rest!r} is not a pair of sample indices.", "Give (start, stop) integers."
+                f"rest period {rest!r} is not a pair of sample indices.",
+                "Give (start, stop) integers.",
             )
         r = np.clip(r, 0, k)
         if r[1] - r[0] < w:
@@ -199,7 +200,7 @@ def _window_samples(window: float, fs: float, k: int) -> int:
     """Odd number of samples in the moving window, checked against the recording length."""
     if not (np.isfinite(fs) and fs > 0):
         raise CalibrationInputError(f"sample rate {fs!r} is not positive.", "Give fs in Hz.")
-    w = 2 * int(round(window * fs / 2)) + 1
+    w = 2 * round(window * fs / 2) + 1
     if w < 3 or w > k:
         raise CalibrationInputError(
             f"window {window} s is {w} samples for a recording of {k} samples.",

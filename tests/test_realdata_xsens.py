@@ -63,7 +63,10 @@ def test_si_result_agrees_with_the_manufacturer(report):
 def test_bench_script_prints_json():
     out = subprocess.run(
         [sys.executable, str(ROOT / "bench" / "realdata.py"), "--json"],
-        capture_output=True, text=True, check=True, timeout=120,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
     )
     figures = json.loads(out.stdout)
     assert figures["xsens"]["heldout_rms_ms2"] < figures["xsens"]["manufacturer_rms_ms2"]

@@ -64,7 +64,9 @@ def test_finds_every_simulated_pose_inside_its_true_interval():
     assert len(found.intervals) == len(truth)
     for (a, b), (ta, tb) in zip(found.intervals, truth):
         overlap = min(b, tb) - max(a, ta)
-        assert overlap >= 0.95 * (b - a)  # inside the truth (a few samples of a gentle onset at most)
+        assert overlap >= 0.95 * (
+            b - a
+        )  # inside the truth (a few samples of a gentle onset at most)
         assert b - a >= (tb - ta) - 2 * w  # loses at most a window at each end
     assert found.overdue.shape == (0, 2)
 
@@ -133,7 +135,7 @@ def test_timeout_reports_a_long_motion():
     x = segments([(8, "still")] + [(3, "move")] * 25 + [(6, "still")])  # 75 s of motion
     found = detect_still(x, FS, timeout=60.0)
     assert len(found.intervals) == 2
-    (a, b), = found.overdue
+    ((a, b),) = found.overdue
     assert a == found.intervals[0, 1] and b == found.intervals[1, 0]
     assert 75 * FS <= b - a <= 77 * FS  # the motion plus up to one window at each side
     assert detect_still(x, FS, timeout=100.0).overdue.shape == (0, 2)
