@@ -9,10 +9,16 @@ thread-safe.
 The reader never dies silently: a lost device or a writer failure ends the thread and is kept in
 `error`; `check()` re-raises it in the protocol's thread, and also raises when no sample has
 arrived for too long (a silent device).
+
+Samples arrive late when the host is busy (a CAN notifier can lag by a second of wall time):
+`drain(t)` waits until every sample taken up to clock time t has arrived, so that a protocol can
+make sure a window is complete before it moves the table.
 """
 
 import threading
 import time
+
+import numpy as np
 
 
 class RecordingError(RuntimeError):
@@ -24,17 +30,23 @@ class Recorder:
 
     clock    : the session's clock (the writer's, shared with the devices)
     interval : wall seconds between two reads, so that each block holds several samples
+    drain_timeout : wall seconds `drain` waits for the samples in flight
     """
 
-    def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.005):
+    def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.005,
+                 drain_timeout: float = 30.0):
         self.writer = writer
         self.imu = imu
         self.stream = stream
         self.clock = clock or writer.clock
         self.interval = interval
+        self.drain_timeout = drain_timeout
+        self.rate_hz = writer.specs[stream].rate_hz
         self.samples = 0
         self.error = None
         self._last_arrival = None
+        self._offset = np.inf  # smallest host_time - seq / rate_hz (see protocols.rotary)
+        self._last_seq = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = None
@@ -48,7 +60,7 @@ class Recorder:
         return self
 
     def stop(self) -> None:
-        """End the reader thread (the devices and the writer stay open)."""
+        """End the reader thread now (the devices and the writer stay open)."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
@@ -59,6 +71,24 @@ class Recorder:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def sampled_until(self) -> float:
+        """Sampling instant (clock s) of the newest sample received; -inf before the first."""
+        if self._last_seq is None:
+            return -np.inf
+        return self._last_seq / self.rate_hz + self._offset
+
+    def drain(self, until: float) -> None:
+        """Wait until the samples taken up to clock time `until` have arrived; RecordingError
+        after `drain_timeout` wall seconds."""
+        deadline = time.monotonic() + self.drain_timeout
+        while self.sampled_until() < until:
+            self.check(np.inf)
+            if time.monotonic() > deadline:
+                raise RecordingError(
+                    f"the IMU samples lag {until - self.sampled_until():.1f} s behind after "
+                    f"waiting {self.drain_timeout} s; the host is too busy for this link's rate")
+            time.sleep(self.interval)
 
     def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> None:
         """Record a protocol event now (see `station.session.EVENT_KINDS`)."""
@@ -88,6 +118,9 @@ class Recorder:
                         self.writer.append(self.stream, block)
                     self.samples += len(block)
                     self._last_arrival = self.clock.now()
+                    lag = block.host_time - block.seq / self.rate_hz
+                    self._offset = min(self._offset, float(lag.min()))
+                    self._last_seq = int(block.seq[-1])
                 time.sleep(self.interval)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc

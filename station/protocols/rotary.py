@@ -10,10 +10,16 @@ up the table axis; then the station, through the table driver and the recorder:
 - spin_up:  command the rate c and start;
 - settle:   wait until the table says "at rate" and the measured rate stays within `tolerance`
             for `steady` s;
-- rotating: the rotating window, until the table angle has swept `revolutions` whole turns (plus
-            one poll's worth of margin: the reduction cuts it to whole turns); the measured rate
-            must stay within `tolerance` all along; then `guard` s of margin;
+- rotating: the rotating window, until the table angle has swept `revolutions` whole turns plus a
+            quarter turn of margin (the reduction cuts it to whole turns, and the time of each
+            table reading is uncertain by the Modbus latency); the measured rate must stay within
+            `tolerance` all along; then `guard` s of margin;
 - stop, rest: stop the table and wait until it stands still.
+
+Before each table command that ends a window (spin-up after the static window, stop after the
+rotating one) the protocol waits until the recorder holds every sample taken up to then
+(`Recorder.drain`): a busy host delays samples, and a sample taken after the command must never be
+counted in the window before it.
 
 Every state change happens in one place (`RotaryProtocol.run`). Any exception - a table error, a
 lost or silent IMU, the operator aborting, Ctrl-C - stops the table at once and records an
@@ -24,6 +30,7 @@ lost or silent IMU, the operator aborting, Ctrl-C - stops the table at once and 
 mean(static), the rotating window cut to whole revolutions by the table's recorded angle.
 """
 
+import dataclasses
 import math
 from dataclasses import asdict, dataclass
 
@@ -169,6 +176,7 @@ class RotaryProtocol:
         self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
         self.recorder.event("static_end", j)
         self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
+        self.recorder.drain(self.clock.now())
         return "spin_up"
 
     def _spin_up(self) -> str:
@@ -187,7 +195,7 @@ class RotaryProtocol:
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._poll()
         self.recorder.event("rotate_start", j, {"angle": start.angle})
-        sweep = 2 * np.pi * s.revolutions + abs(s.rate) * s.poll
+        sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
         while abs(reading.angle - start.angle) < sweep:
@@ -203,6 +211,7 @@ class RotaryProtocol:
                                     "window); check the table's encoder")
         self.recorder.event("rotate_end", j, {"angle": reading.angle})
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
+        self.recorder.drain(self.clock.now())
         return "stop"
 
     def _stop(self) -> str:
@@ -221,9 +230,12 @@ class RotaryProtocol:
         return abs(reading.rate - self.settings.rate) < self.settings.tolerance
 
     def _poll(self):
-        """Check the IMU stream, read the table and keep its state."""
+        """Check the IMU stream, read the table and keep its state, stamped at the middle of the
+        request (the table answered somewhere in between)."""
         self.recorder.check(self.settings.stale)
+        before = self.clock.now()
         reading = self.table.state()
+        reading = dataclasses.replace(reading, time=0.5 * (before + self.clock.now()))
         self.recorder.table(reading)
         if reading.fault:
             raise ProtocolError("the table reports a fault; clear it on the table's controller "
@@ -274,10 +286,10 @@ class RotaryProtocol:
 
 
 def position_windows(events) -> dict:
-    """{position: {"span": (t0, t1), "static": (t0, t1), "rotating": (t0, t1)}} in clock seconds
-    for every completed position; a position recorded again after an abort keeps its last run."""
-    pairs = {"span": ("position_start", "position_done"), "static": ("static_start", "static_end"),
-             "rotating": ("rotate_start", "rotate_end")}
+    """{position: {"static": (t0, t1), "rotating": (t0, t1)}} in clock seconds for every completed
+    position (one with `position_done`); a position recorded again after an abort keeps its last
+    run."""
+    pairs = {"static": ("static_start", "static_end"), "rotating": ("rotate_start", "rotate_end")}
     times = {}
     for e in events:
         if e.position is not None:
@@ -285,26 +297,29 @@ def position_windows(events) -> dict:
                 times[e.position] = {}
             times.setdefault(e.position, {})[e.kind] = e.time
     return {j: {name: (t[a], t[b]) for name, (a, b) in pairs.items()}
-            for j, t in sorted(times.items()) if all(k in t for pair in pairs.values() for k in pair)}
+            for j, t in sorted(times.items())
+            if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
 
 
 def sample_times(seq, host_time, rate_hz: float) -> np.ndarray:
     """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
 
-    host_time is the arrival time, later than the sampling by a varying latency, and samples read
-    together share one host time; seq / rate_hz is exact up to a constant. The constant is the
-    smallest host_time - seq / rate_hz: the least delayed sample.
+    host_time is the arrival time: later than the sampling by a latency that grows when the host
+    is busy, and one time for all samples read together. seq / rate_hz is exact up to a constant
+    (and the device's clock error: 50 ppm is 35 ms over a 700 s session, well inside the protocol's
+    guard times). The constant is the smallest host_time - seq / rate_hz: the least delayed sample.
     """
     offset = np.asarray(seq, float) / rate_hz
     return offset + np.min(np.asarray(host_time, float) - offset)
 
 
-def reduce_session(session, stream: str = "imu") -> Reduced:
+def reduce_session(session, stream: str = "imu", coverage: float = 0.9) -> Reduced:
     """Eq. (18) readings of a recorded rotary session (`station.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle
-    (interpolated at the sampling instants).
+    (interpolated at the sampling instants). A window holding less than `coverage` of the samples
+    due in it (a lossy link) is refused.
     """
     data, table = session.stream(stream), session.table()
     windows = position_windows(session.events())
@@ -314,16 +329,21 @@ def reduce_session(session, stream: str = "imu") -> Reduced:
     if len(table.time) < 2:
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
+    rate = data.spec.rate_hz
+    t = sample_times(data.seq, data.host_time, rate)
     lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
     parts = []
     for j, w in windows.items():
-        inside = (data.host_time >= w["span"][0]) & (data.host_time <= w["span"][1])
-        t = sample_times(data.seq[inside], data.host_time[inside], data.spec.rate_hz)
-        counts = data.counts[inside]
-        static = (t >= w["static"][0]) & (t <= w["static"][1])
-        rotating = (t >= w["rotating"][0]) & (t <= w["rotating"][1])
+        chosen = {name: (t >= t0) & (t <= t1) for name, (t0, t1) in w.items()}
+        for name, (t0, t1) in w.items():
+            due, got = (t1 - t0) * rate, int(chosen[name].sum())
+            if got < coverage * due:
+                raise CalibrationInputError(
+                    f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} "
+                    "were due.", "The IMU link lost data: check it and record the position again.")
+        static, rotating = chosen["static"], chosen["rotating"]
         ns, nr = int(static.sum()), int(rotating.sum())
-        y = np.concatenate([counts[static], counts[rotating]])[None]
+        y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
         angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
         try:
             parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
