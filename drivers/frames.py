@@ -249,8 +249,9 @@ class BinaryFrameParser:
         self._context = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
         self._host = _HostTimes()
 
-    def feed(self, data: bytes, host_time: float) -> SampleBlock:
-        """Add received bytes; return the frames accepted by this call (possibly none)."""
+    def feed(self, data: bytes, host_time: float, final: bool = False) -> SampleBlock:
+        """Add received bytes; return the frames accepted by this call (possibly none).
+        `final`: no more bytes will come (device lost): decide everything now."""
         self.stats.bytes += len(data)
         self._host.add(self._base + len(self._buf) + len(data), host_time)
         buf = np.frombuffer(self._buf + bytes(data), dtype=np.uint8)
@@ -268,10 +269,10 @@ class BinaryFrameParser:
         pos = np.concatenate([ctx_pos - self._base, valid])
         seq = np.concatenate([ctx_seq, valid_records["seq"].astype(np.int64)])
         links, near = self._links(pos, seq)
-        cut = self._cut(pos, links, near, n_ctx, n, starts)
+        accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
+        cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
         decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
-        accept = np.concatenate([ctx_acc, links[n_ctx:] & (valid < cut)])
-        accept = self._without_overlaps(pos, accept, n_ctx)
+        accept &= decided
 
         taken = accept[n_ctx:]
         block = self._emit(valid[taken], valid_records[taken])
@@ -308,28 +309,39 @@ class BinaryFrameParser:
         return back | fwd, near
 
     def _cut(self, pos, links, near, n_ctx, n, starts) -> int:
-        """First buffer offset not yet decided: a candidate still waiting for its next neighbour,
-        an incomplete candidate, or a possible partial sync word at the end."""
-        new_pos = pos[n_ctx:]
-        waiting = ~links[n_ctx:] & ~near[n_ctx:] & (n < new_pos + self.horizon + self.size - 1)
-        incomplete = starts[starts + self.size > n]
-        return max(0, min([n - len(self.sync) + 1, *new_pos[waiting][:1], *incomplete[:1]]))
+        """First buffer offset not yet decided: a possible partial sync word at the end, an
+        incomplete candidate, a candidate some overlapping candidate could still come for, or one
+        overlapping a candidate still waiting for its next neighbour."""
+        size, new_pos = self.size, pos[n_ctx:]
+        waiting = ~links[n_ctx:] & ~near[n_ctx:] & (n < new_pos + self.horizon + size - 1)
+        unsettled = new_pos + 2 * size - 1 > n
+        overlapping_waiting = new_pos[new_pos > new_pos[waiting][0] - size][:1] if waiting.any() else []
+        incomplete = starts[starts + size > n]
+        return max(0, min([n - len(self.sync) + 1, *incomplete[:1], *new_pos[unsettled][:1],
+                           *overlapping_waiting]))
 
-    def _without_overlaps(self, pos, accept, n_ctx) -> np.ndarray:
-        """Reject accepted candidates overlapping an earlier accepted frame (earlier ones are final).
+    def _without_overlaps(self, pos, seq, accept, n_ctx) -> np.ndarray:
+        """Resolve accepted candidates that overlap (context ones are final).
 
-        Only a false lock can overlap a true frame, so this loop almost never runs.
+        If the later one's sequence number follows the earlier one's, the earlier frame lost bytes
+        and its CRC matched by chance: drop it. Otherwise the later one is a false lock inside the
+        earlier frame: drop it. Only damage or false locks overlap, so this loop rarely runs.
         """
         accepted = np.flatnonzero(accept)
         if np.all(np.diff(pos[accepted]) >= self.size):
             return accept
-        accept = accept.copy()
-        end = -np.inf
+        accept, kept = accept.copy(), []
         for i in accepted:
-            if i >= n_ctx and pos[i] < end:
-                accept[i] = False
+            while kept and pos[i] < pos[kept[-1]] + self.size:
+                j = kept[-1]
+                if j >= n_ctx and _forward(seq[j : j + 1], seq[i : i + 1], self.seq_modulus)[0] <= self.fmt.max_gap:
+                    accept[j] = False
+                    kept.pop()
+                else:
+                    accept[i] = False
+                    break
             else:
-                end = pos[i] + self.size
+                kept.append(i)
         return accept
 
     def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
@@ -456,10 +468,14 @@ class AsciiLineParser:
         self._buf = b""
         self._partial = True
 
-    def feed(self, data: bytes, host_time: float) -> SampleBlock:
-        """Add received bytes; return the samples of the lines completed by them."""
+    def feed(self, data: bytes, host_time: float, final: bool = False) -> SampleBlock:
+        """Add received bytes; return the samples of the lines completed by them. `final`: no more
+        bytes will come; an unterminated last line is dropped."""
         self.stats.bytes += len(data)
         *lines, self._buf = (self._buf + bytes(data)).split(b"\n")
+        if final:
+            self.stats.skipped_bytes += len(self._buf)
+            self._buf = b""
         if self._partial and lines:
             self.stats.skipped_bytes += len(lines[0]) + 1
             lines, self._partial = lines[1:], False

@@ -50,6 +50,7 @@ class SerialImu:
         self.connections = 0
         self.error = None
         self._serial = None
+        self._lost = None  # DeviceLostError to raise once the last samples are handed out
         self._thread = None
         self._stop = threading.Event()
 
@@ -92,11 +93,20 @@ class SerialImu:
     def read_block(self, timeout: float = 0.1):
         """The samples completed within `timeout` clock seconds: a SampleBlock as soon as one sample
         is decoded, None if none came. Raises DeviceLostError if the device is lost."""
-        if self._serial is None:
+        if self._serial is None and self._lost is None:
             raise SerialPortError(self.port, f"serial port {self.port} is not open; call open() first")
+        if self._lost is not None:
+            error, self._lost = self._lost, None
+            raise error
         deadline = self.clock.now() + timeout
         while True:
             data = self._read()
+            if data is None:  # lost: hand out the last decodable frames first
+                block = self.parser.feed(b"", self.clock.now(), final=True)
+                if len(block):
+                    return block
+                error, self._lost = self._lost, None
+                raise error
             if data:
                 block = self.parser.feed(data, self.clock.now())
                 if len(block):
@@ -104,15 +114,18 @@ class SerialImu:
             if self.clock.now() >= deadline:
                 return None
 
-    def _read(self) -> bytes:
-        """What the port has now, or the first byte within `read_timeout`."""
+    def _read(self):
+        """What the port has now, or the first byte within `read_timeout`; None if the device was
+        lost (the error is kept in `_lost`)."""
         try:
             return self._serial.read(self._serial.in_waiting or 1)
         except (serial.SerialException, OSError) as exc:
             self._close_port()
-            raise DeviceLostError(
+            self._lost = DeviceLostError(
                 self.port, f"serial IMU on {self.port} was lost ({exc}). The samples read so far are "
-                "kept; reconnect the device and call open() to continue.") from exc
+                "kept; reconnect the device and call open() to continue.")
+            self._lost.__cause__ = exc
+            return None
 
     def _close_port(self) -> None:
         if self._serial is not None:

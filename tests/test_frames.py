@@ -38,7 +38,8 @@ def parse(data: bytes, fmt=FMT, chunk=None) -> tuple:
     parser = BinaryFrameParser(fmt, CHANNELS)
     step = chunk or max(len(data), 1)
     blocks = [parser.feed(data[i : i + step], float(i)) for i in range(0, len(data), step)]
-    return SampleBlock.concat(blocks or [parser.feed(b"", 0.0)]), parser.stats
+    blocks.append(parser.feed(b"", float(len(data)), final=True))  # end of stream
+    return SampleBlock.concat(blocks), parser.stats
 
 
 def manual_frame(seq: int, ticks: int, counts) -> bytes:
@@ -85,11 +86,12 @@ def test_clean_stream_decodes_exactly_in_any_chunking():
 def test_host_time_is_the_read_that_completed_the_frame():
     data = stream(np.arange(4))
     parser = BinaryFrameParser(FMT, CHANNELS)
-    # frame 0 is complete but, having no predecessor, waits for frame 1 to vouch for it
+    # a complete frame waits until every frame that could overlap it is complete (and frame 0,
+    # having no predecessor, until frame 1 vouches for it)
     assert len(parser.feed(data[: SIZE + 10], 1.0)) == 0
     b = parser.feed(data[SIZE + 10 : 3 * SIZE], 2.0)
-    c = parser.feed(data[3 * SIZE :], 3.0)
-    assert list(b.host_time) == [1.0, 2.0, 2.0] and list(c.host_time) == [3.0]
+    c = parser.feed(data[3 * SIZE :], 3.0, final=True)
+    assert list(b.host_time) == [1.0, 2.0] and list(c.host_time) == [2.0, 3.0]
 
 
 def test_resync_after_garbage_and_partial_first_frame():
@@ -116,7 +118,7 @@ def test_sequence_and_time_unwrap_past_the_counter_width():
     seq = np.arange(1000)
     data = encode_frames(fmt, seq, seq * 500, pattern(seq))
     parser = BinaryFrameParser(fmt, CHANNELS)
-    block = parser.feed(data, 0.0)
+    block = parser.feed(data, 0.0, final=True)
     assert np.array_equal(block.seq, seq)  # the uint8 counter wrapped 3 times
     assert np.allclose(block.device_time, seq * 500e-6)  # the uint16 tick counter wrapped 7 times
 
@@ -131,7 +133,7 @@ def test_other_layouts_big_endian_crc32_over_sync_without_time():
     one = data[: len(data) // 100]
     assert one[:3] == b"\xaa\x55\x01" and one[3:5] == struct.pack(">h", counts[0, 0])
     assert one[-4:] == struct.pack(">I", zlib.crc32(one[:-4]))
-    block = BinaryFrameParser(fmt, CHANNELS).feed(data, 0.0)
+    block = BinaryFrameParser(fmt, CHANNELS).feed(data, 0.0, final=True)
     assert np.array_equal(block.counts, counts) and np.all(np.isnan(block.device_time))
 
 
@@ -218,3 +220,18 @@ def test_ascii_overlong_line_is_dropped_and_parsing_resumes():
     # the overlong line is discarded, then the rest of it (up to its newline) as a partial line
     assert block.counts.tolist() == [[1, 2, 3, 4, 5, 6]] * 2
     assert stats.resyncs == 1
+
+
+def test_truncated_frame_whose_crc_matches_by_chance_yields_to_the_next_frame():
+    # frame 10 lost its last byte; with the next frame's first sync byte (A5) its 58-byte window
+    # still has a valid CRC (searched for below), but its data is wrong. Frame 11 overlaps it and
+    # follows it in sequence, so frame 10 must be dropped and frame 11 kept.
+    for k in range(4096):
+        window = manual_frame(10, 5000, [k] * 12)
+        if window[-1] == 0xA5:
+            break
+    data = stream(np.arange(10)) + window[:-1] + stream(np.arange(11, 20))
+    block, stats = parse(data, chunk=100)
+    assert np.array_equal(block.seq, np.concatenate([np.arange(10), np.arange(11, 20)]))
+    assert np.array_equal(block.counts, pattern(block.seq))
+    assert (stats.gaps, stats.dropped) == (1, 1)
