@@ -78,12 +78,12 @@ class Recorder:
             return -np.inf
         return self._last_seq / self.rate_hz + self._offset
 
-    def drain(self, until: float) -> None:
+    def drain(self, until: float, stale: float) -> None:
         """Wait until the samples taken up to clock time `until` have arrived; RecordingError
-        after `drain_timeout` wall seconds."""
+        when none comes for `stale` clock seconds or after `drain_timeout` wall seconds."""
         deadline = time.monotonic() + self.drain_timeout
         while self.sampled_until() < until:
-            self.check(np.inf)
+            self.check(stale)
             if time.monotonic() > deadline:
                 raise RecordingError(
                     f"the IMU samples lag {until - self.sampled_until():.1f} s behind after "

@@ -176,7 +176,7 @@ class RotaryProtocol:
         self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
         self.recorder.event("static_end", j)
         self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
-        self.recorder.drain(self.clock.now())
+        self.recorder.drain(self.clock.now(), s.stale)
         return "spin_up"
 
     def _spin_up(self) -> str:
@@ -211,7 +211,7 @@ class RotaryProtocol:
                                     "window); check the table's encoder")
         self.recorder.event("rotate_end", j, {"angle": reading.angle})
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
-        self.recorder.drain(self.clock.now())
+        self.recorder.drain(self.clock.now(), s.stale)
         return "stop"
 
     def _stop(self) -> str:
