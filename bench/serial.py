@@ -20,18 +20,18 @@ from pathlib import Path
 # run as a script, this file's folder is sys.path[0] and its name would shadow pyserial's `serial`
 sys.path[0] = str(Path(__file__).resolve().parents[1])
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import time  # noqa: E402
+import argparse
+import json
+import time
 
-import numpy as np  # noqa: E402
-from numpy.lib.stride_tricks import sliding_window_view  # noqa: E402
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
-from drivers.frames import CRCS, BinaryFrameParser, encode_frames  # noqa: E402
-from drivers.profile import SerialImuProfile  # noqa: E402
-from drivers.serial_imu import SerialImu  # noqa: E402
-from drivers.twin_serial import OVERFLOW, SENT, SerialTwin, corrupt_frame  # noqa: E402
-from station.clock import ScaledClock  # noqa: E402
+from drivers.frames import CRCS, BinaryFrameParser, encode_frames
+from drivers.profile import SerialImuProfile
+from drivers.serial_imu import SerialImu
+from drivers.twin_serial import OVERFLOW, SENT, SerialTwin, corrupt_frame
+from station.clock import ScaledClock
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels
@@ -63,6 +63,7 @@ def parse_all(data: bytes):
     parser = BinaryFrameParser(FMT, CHANNELS)
     t = time.perf_counter()
     blocks = [parser.feed(data[i : i + 65536], 0.0) for i in range(0, len(data), 65536)]
+    blocks.append(parser.feed(b"", 0.0, final=True))
     return blocks, time.perf_counter() - t, parser.stats
 
 
@@ -98,7 +99,7 @@ def bench_offline(n: int, rng) -> dict:
     truth = source(records["seq"][ok] / 2000.0)  # a CRC-valid candidate is true only if it is
     crc_alone_false = int(np.count_nonzero(np.any(records["counts"][ok] != truth, axis=1)))
     blocks, _, stats = parse_all(data.tobytes())
-    return {"corrupted_frames": n, "sync_candidates": int(len(starts)),
+    return {"corrupted_frames": n, "sync_candidates": len(starts),
             "crc16_alone_false_accepts": crc_alone_false,
             "parser_accepted": int(sum(map(len, blocks))), "parser_false_accepts": false_accepts(blocks),
             "crc_failures": stats.crc_failures}
@@ -125,8 +126,8 @@ def bench_live(n: int, speed: float, corrupt: float, seed: int) -> dict:
     intact = sent[span & (fate == SENT)]
     return {
         "frames": int(seq[-1] - seq[0] + 1), "rate_hz": PROFILE.imu.rate_hz, "clock_speed": speed,
-        "corrupted_fraction": corrupt, "intact_sent": int(len(intact)),
-        "intact_recovered": int(np.isin(intact, seq).sum()), "decoded": int(len(seq)),
+        "corrupted_fraction": corrupt, "intact_sent": len(intact),
+        "intact_recovered": int(np.isin(intact, seq).sum()), "decoded": len(seq),
         "false_accepts": bad, "twin_overflow_frames": int(np.count_nonzero(fate[span] == OVERFLOW)),
         "wall_s": wall, "frames_per_s": len(seq) / wall, "reader_cpu_s": cpu,
         "reader_cpu_fraction": cpu / wall, "reader_cpu_us_per_frame": 1e6 * cpu / len(seq),

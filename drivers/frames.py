@@ -31,7 +31,6 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from drivers.samples import SampleBlock
 
-
 # --------------------------------------------------------------------------------------------------
 # CRC
 

@@ -7,7 +7,6 @@ import struct
 import zlib
 
 import numpy as np
-import pytest
 
 from drivers.frames import CRCS, AsciiLineParser, BinaryFrameParser, encode_frames, encode_lines
 from drivers.profile import SerialImuProfile

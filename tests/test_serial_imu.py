@@ -11,7 +11,7 @@ import pytest
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
 from drivers.serial_imu import DeviceLostError, SerialImu, SerialPortError
-from drivers.twin_serial import DROPPED, PAUSED, SENT, SerialTwin
+from drivers.twin_serial import PAUSED, SENT, SerialTwin
 from station.clock import ScaledClock
 
 BINARY = SerialImuProfile.load("imu12_serial")
