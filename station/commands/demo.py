@@ -45,6 +45,7 @@ def run(args) -> int:
         with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
             summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
                                args.speed)
+        summary["session"] = None  # deleted with the temporary directory
     else:
         summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed)
     if args.json:
@@ -99,7 +100,7 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
              "sigma": np.degrees(result.axis_angles_sigma[i, k]),
              "true": np.degrees(true_angles[i, k])} for i, k in TRIAD_PAIRS],
         "readings_sigma_median": float(np.median(reduced.sigma)),
-        "chi2_per_dof": result.chi2 / result.dof,
+        "chi2_per_dof": result.chi2 / result.dof, "dof": result.dof,
         "eps": eps, "sqrt_trace_crlb": bound, "eps_over_sqrt_crlb": eps / bound,
         "record_seconds": recorded, "wall_seconds": time.perf_counter() - start,
     }

@@ -1,0 +1,57 @@
+"""Acceptance of the demo (issues 5 and 6): 20 positions of a 12-gyro unit recorded through the real
+drivers on the virtual bench, eps within 1.5 sqrt(trace(CRLB)), over the serial and the CAN link."""
+
+import json
+
+import numpy as np
+import pytest
+
+from station import cli
+from station.commands.demo import run_demo
+from station.session import Session
+
+
+def check_summary(s: dict, positions: int) -> None:
+    """What any demo run must show, with bounds from theory, not from the code."""
+    assert s["positions"] == positions
+    # efficiency: E[eps^2] = trace(CRLB); 1.5x the root is far in the tail for ~33 parameters
+    assert s["eps_over_sqrt_crlb"] <= 1.5
+    # the model explains the data: chi2/dof = 1 +- sqrt(2/dof), 5 standard deviations allowed
+    assert abs(s["chi2_per_dof"] - 1) < 5 * np.sqrt(2 / s["dof"])
+    k, sd, true = (np.array(s[key]) for key in
+                   ("scale_factors", "scale_factors_sigma", "scale_factors_true"))
+    assert np.all(np.abs(k - true) < 5 * sd)
+    # Eq. (18) noise: per-sample sigma N sqrt(fs), ~10 s static and >= 2 turns of 2 pi / 1 rad/s
+    n_sigma = np.radians(0.01) * np.sqrt(200)
+    theory = n_sigma * np.sqrt(1 / (10 * 200) + 1 / (4 * np.pi * 200))
+    assert s["readings_sigma_median"] == pytest.approx(theory, rel=0.15)
+    for pair in s["axis_angles_deg"]:
+        assert abs(pair["angle"] - pair["true"]) < 5 * pair["sigma"]
+
+
+def test_station_demo_json_meets_the_acceptance(tmp_path, capsys):
+    out = tmp_path / "demo.h5"
+    assert cli.main(["demo", "--json", "--out", str(out)]) == 0
+    s = json.loads(capsys.readouterr().out)
+    check_summary(s, 20)
+    assert s["imu"] == "serial" and s["wall_seconds"] < 60
+    assert s["link"]["crc_failures"] == 0
+    with Session.open(out) as f:
+        assert f.protocol == "rotary" and f.closed_cleanly
+        results = f.results("rotary")
+        assert results.readings.shape == (12, 20) and results.calibration is not None
+        assert np.allclose(results.calibration.scale_factors, s["scale_factors"])
+
+
+def test_demo_over_the_can_link_meets_the_acceptance(tmp_path):
+    s = run_demo(tmp_path / "can.h5", imu="can", seed=2, positions=20)
+    check_summary(s, 20)
+    assert s["link"]["incomplete"] == 0 and s["link"]["errors"] == 0
+
+
+def test_demo_refuses_to_overwrite_a_session(tmp_path):
+    out = tmp_path / "kept.h5"
+    out.write_bytes(b"precious")
+    with pytest.raises(SystemExit, match="exists; choose another --out"):
+        cli.main(["demo", "--out", str(out)])
+    assert out.read_bytes() == b"precious"
