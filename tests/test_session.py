@@ -376,3 +376,34 @@ def test_bad_stream_specs_are_refused(kwargs, message):
     fields = {"channels": ("a", "b"), "units": "rad/s", "counts_per_unit": 1.0, "rate_hz": 100.0}
     with pytest.raises(ValueError, match=message):
         StreamSpec(**{**fields, **kwargs})
+
+
+def test_rows_of_a_cut_flush_are_ignored_and_dropped_on_resume(tmp_path):
+    path = tmp_path / "s.h5"
+    finished_session(path)  # 20 samples, events session_start and position_done
+    with h5py.File(path, "r+") as f:  # what a flush cut by a kill can leave
+        f["streams/imu/counts"].resize(25, axis=0)
+        f["streams/imu/seq"].resize(23, axis=0)
+        for column in ("time", "position", "kind", "detail_end"):
+            f["events"][column].resize(3, axis=0)
+        f["events/detail_end"][2] = f["events/detail"].shape[0] + 10  # text not written
+    with Session.open(path) as s:
+        assert len(s.stream("imu").counts) == 20 and len(s.events()) == 2
+    with SessionWriter.resume(path) as w:
+        assert w.flushed["imu"] == 20 and w.last_completed_position == 0
+    with Session.open(path) as s:
+        resumed = s.events()[-1]
+        assert resumed.kind == "session_resumed"
+        assert resumed.detail == {"dropped_rows": {"imu": 5, "events": 1}}
+        with h5py.File(path, "r") as f:
+            assert f["streams/imu/counts"].shape == (20, 12)
+
+
+def test_a_damaged_superblock_is_refused(tmp_path):
+    path = tmp_path / "s.h5"
+    finished_session(path)
+    with open(path, "r+b") as fh:
+        fh.seek(44)
+        fh.write(b"\0\0\0\0")  # the superblock checksum
+    with pytest.raises(SessionFormatError):
+        SessionWriter.resume(path)
