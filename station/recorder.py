@@ -17,6 +17,7 @@ make sure a window is complete before it moves the table.
 
 import threading
 import time
+from typing import Self
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class Recorder:
             self._thread.join()
             self._thread = None
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc) -> None:

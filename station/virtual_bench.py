@@ -18,6 +18,7 @@ import dataclasses
 import itertools
 import os
 from dataclasses import dataclass
+from typing import Self
 
 import can
 import numpy as np
@@ -112,7 +113,7 @@ class VirtualBench:
             twin.stop()
         self.table_twin.close()
 
-    def __enter__(self) -> "VirtualBench":
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc) -> None:

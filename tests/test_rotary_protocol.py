@@ -7,6 +7,7 @@ import logging
 import numpy as np
 import pytest
 
+from drivers.rotary_table import TableFault
 from station.errors import CalibrationInputError
 from station.operator import ConsoleOperator, Instruction, OperatorAbort, SimulatedTechnician
 from station.protocols.rotary import (
@@ -22,7 +23,6 @@ from station.protocols.rotary import (
 from station.recorder import Recorder, RecordingError
 from station.session import Event, Session, SessionWriter
 from station.virtual_bench import VirtualBench
-from drivers.rotary_table import TableFault
 
 # short windows: one position is about 20 s of clock, half a second of wall time at 40x
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
@@ -113,7 +113,7 @@ def test_protocol_records_each_position_in_order_with_windows_the_table_confirms
         reduced = reduce_session(f)
     assert [(e.position, e.kind) for e in events] == [(j, k) for j in range(3) for k in KINDS]
     windows = position_windows(events)
-    for j, w in windows.items():
+    for w in windows.values():
         static = (table.time > w["static"][0]) & (table.time < w["static"][1])
         rotating = (table.time > w["rotating"][0]) & (table.time < w["rotating"][1])
         assert static.sum() >= 5 and not table.flag("moving")[static].any()

@@ -59,8 +59,12 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
              settings=None) -> dict:
     """Record, reduce and calibrate one session on the virtual bench; the summary as a dict."""
     import station
-    from station.protocols.rotary import RotaryProtocol, RotarySettings, reduce_session, \
-        suggested_axes
+    from station.protocols.rotary import (
+        RotaryProtocol,
+        RotarySettings,
+        reduce_session,
+        suggested_axes,
+    )
     from station.recorder import Recorder
     from station.session import Session, SessionWriter, write_results
     from station.virtual_bench import VirtualBench
@@ -72,10 +76,10 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
                                   suggested_axes(positions))
         metadata = {**protocol.metadata(), "unit_serial": f"SIM-{seed}",
                     "bench": {"imu": imu, "seed": seed, "speed": speed}}
-        with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
-                                  clock=bench.clock) as writer:
-            with Recorder(writer, driver, clock=bench.clock) as recorder:
-                protocol.run(recorder)
+        writer = SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
+                                      clock=bench.clock)
+        with writer, Recorder(writer, driver, clock=bench.clock) as recorder:
+            protocol.run(recorder)
         truth = bench.truth()
         link = dict(vars(driver.stats))
     recorded = time.perf_counter() - start
