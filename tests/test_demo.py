@@ -55,3 +55,9 @@ def test_demo_refuses_to_overwrite_a_session(tmp_path):
     with pytest.raises(SystemExit, match="exists; choose another --out"):
         cli.main(["demo", "--out", str(out)])
     assert out.read_bytes() == b"precious"
+
+
+def test_demo_refuses_too_few_positions_before_recording(capsys):
+    assert cli.main(["demo", "--positions", "4"]) == 1
+    err = capsys.readouterr().err
+    assert "4 position(s) are too few" in err and "Record 2 more position(s)" in err

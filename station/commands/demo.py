@@ -8,6 +8,7 @@ the Cramer-Rao bound sqrt(trace(CRLB)).
 """
 
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -37,17 +38,31 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    if args.positions < 1 or not args.speed > 0:
-        raise SystemExit("station demo: --positions must be >= 1 and --speed positive")
+    from drivers.rotary_table import TableError
+    from station.errors import CalibrationInputError
+    from station.identifiability import check_positions
+    from station.protocols.rotary import ProtocolError
+    from station.recorder import RecordingError
+
+    if not args.speed > 0:
+        raise SystemExit("station demo: --speed must be positive (simulated s per wall s)")
     if args.out is not None and args.out.exists():
         raise SystemExit(f"station demo: {args.out} exists; choose another --out")
-    if args.out is None:
-        with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
-            summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
-                               args.speed)
-        summary["session"] = None  # deleted with the temporary directory
-    else:
-        summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed)
+    try:
+        check_positions((12, args.positions), 3)  # before recording, not after
+        if args.out is None:
+            with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
+                summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
+                                   args.speed)
+            summary["session"] = None  # deleted with the temporary directory
+        else:
+            summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed)
+    except KeyboardInterrupt:
+        print("station demo: interrupted; the table was stopped", file=sys.stderr)
+        return 130
+    except (CalibrationInputError, ProtocolError, RecordingError, TableError) as exc:
+        print(f"station demo: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
