@@ -22,6 +22,22 @@ from typing import Self
 import numpy as np
 
 
+def arrival_offset(seq, host_time, rate_hz: float) -> float:
+    """The smallest host_time - seq / rate_hz: sampling instant of sample 0 on the host clock.
+
+    host_time is the arrival time: later than the sampling by a latency that grows when the host
+    is busy, and one time for all samples read together. seq / rate_hz is exact up to a constant
+    (and the device's clock error: 50 ppm is 35 ms over a 700 s session, well inside a protocol's
+    guard times); the least delayed sample gives the constant.
+    """
+    return float(np.min(np.asarray(host_time, float) - np.asarray(seq, float) / rate_hz))
+
+
+def sample_times(seq, host_time, rate_hz: float) -> np.ndarray:
+    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`."""
+    return np.asarray(seq, float) / rate_hz + arrival_offset(seq, host_time, rate_hz)
+
+
 class RecordingError(RuntimeError):
     """The IMU stream stopped: the device went silent or the reader failed."""
 
@@ -46,7 +62,7 @@ class Recorder:
         self.samples = 0
         self.error = None
         self._last_arrival = None
-        self._offset = np.inf  # smallest host_time - seq / rate_hz (see protocols.rotary)
+        self._offset = np.inf  # arrival_offset of the samples so far
         self._last_seq = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -119,8 +135,8 @@ class Recorder:
                         self.writer.append(self.stream, block)
                     self.samples += len(block)
                     self._last_arrival = self.clock.now()
-                    lag = block.host_time - block.seq / self.rate_hz
-                    self._offset = min(self._offset, float(lag.min()))
+                    self._offset = min(self._offset, arrival_offset(block.seq, block.host_time,
+                                                                    self.rate_hz))
                     self._last_seq = int(block.seq[-1])
                 time.sleep(self.interval)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()

@@ -17,10 +17,9 @@ from station.protocols.rotary import (
     mounting,
     position_windows,
     reduce_session,
-    sample_times,
     suggested_axes,
 )
-from station.recorder import Recorder, RecordingError
+from station.recorder import Recorder, RecordingError, sample_times
 from station.session import Event, Session, SessionWriter
 from station.virtual_bench import VirtualBench
 

@@ -38,6 +38,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.operator import Instruction
+from station.recorder import sample_times
 from station.reduction import Reduced, reduce_rotary
 
 
@@ -250,7 +251,7 @@ class RotaryProtocol:
         while True:
             reading = self._poll()
             now = self.clock.now()
-            since = (since or now) if condition(reading) else None
+            since = (now if since is None else since) if condition(reading) else None
             if since is not None and now - since >= hold:
                 return
             if now > deadline:
@@ -299,18 +300,6 @@ def position_windows(events) -> dict:
     return {j: {name: (t[a], t[b]) for name, (a, b) in pairs.items()}
             for j, t in sorted(times.items())
             if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
-
-
-def sample_times(seq, host_time, rate_hz: float) -> np.ndarray:
-    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
-
-    host_time is the arrival time: later than the sampling by a latency that grows when the host
-    is busy, and one time for all samples read together. seq / rate_hz is exact up to a constant
-    (and the device's clock error: 50 ppm is 35 ms over a 700 s session, well inside the protocol's
-    guard times). The constant is the smallest host_time - seq / rate_hz: the least delayed sample.
-    """
-    offset = np.asarray(seq, float) / rate_hz
-    return offset + np.min(np.asarray(host_time, float) - offset)
 
 
 def reduce_session(session, stream: str = "imu", coverage: float = 0.9) -> Reduced:
