@@ -244,7 +244,7 @@ class SessionWriter:
             pass
         os.close(_lock(path, fcntl.LOCK_EX))  # no live writer
         _clear_open_flags(path)
-        f = h5py.File(path, "r+", libver=LIBVER)
+        f = _reopen(path)
         try:
             dropped = _truncate_to_common_length(f)
             f.swmr_mode = True
@@ -402,7 +402,7 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
     readings = _float_matrix(readings, "readings", rows=m)
     if readings_sigma is not None:
         readings_sigma = _float_matrix(readings_sigma, "readings_sigma", shape=readings.shape)
-    with h5py.File(path, "r+", libver=LIBVER) as f:
+    with _reopen(path) as f:
         if name in f["results"]:
             raise ValueError(f"results/{name} exists in {path}; write under a new name")
         g = f["results"].create_group(name)
@@ -568,6 +568,15 @@ def _float_matrix(values, what, rows=None, shape=None) -> np.ndarray:
 # ----------------------------------------------------------------- locks and the HDF5 superblock
 
 
+def _reopen(path) -> h5py.File:
+    """A closed session file opened for writing, outside SWMR mode."""
+    try:
+        return h5py.File(path, "r+", libver=LIBVER)
+    except OSError as e:
+        raise SessionLockedError(f"{path} cannot be opened for writing ({e}); close the programs "
+                                 "that have it open") from None
+
+
 def _lock(path, how) -> int:
     """A descriptor of `path` holding an flock: shared while a writer is live, exclusive to check
     that none is. The kernel releases it when the writer dies, even by kill -9."""
@@ -576,29 +585,51 @@ def _lock(path, how) -> int:
         fcntl.flock(fd, how | fcntl.LOCK_NB)
     except BlockingIOError:
         os.close(fd)
-        raise SessionLockedError(f"{path} is being written by a live process; stop that recorder "
-                                 "first (or read the file with Session.open)") from None
+        raise SessionLockedError(f"{path} is open in another process (a live writer, or a reader "
+                                 "of the closed file); close it there first") from None
     return fd
+
+
+def _superblock(path) -> tuple[bytearray, int]:
+    """The first 48 bytes of the file and its HDF5 superblock version, signature checked, and for
+    versions 2-3 the checksum (HDF5 file format specification, section II.A: signature, version,
+    offset size, length size, file consistency flags at byte 11, four addresses, then a Jenkins
+    lookup3 checksum of the preceding bytes). Checked here because HDF5's SWMR reader retries
+    checksum failures for minutes instead of failing."""
+    with open(path, "rb") as fh:
+        head = bytearray(fh.read(48))
+    if head[:8] != b"\x89HDF\r\n\x1a\n":
+        raise SessionFormatError(f"{path} is not an HDF5 file (no HDF5 signature at offset 0); "
+                                 "not a session file")
+    version = head[8]
+    if version >= 2 and (len(head) < 48 or head[9] != 8):
+        raise SessionFormatError(f"{path}: unexpected HDF5 superblock (version {version}, offset "
+                                 f"size {head[9]}); not a session file written by this software")
+    if version >= 2 and struct.unpack_from("<I", head, 44)[0] != _lookup3(bytes(head[:44])):
+        raise SessionFormatError(f"{path}: the HDF5 superblock checksum is wrong; the file is "
+                                 "damaged")
+    return head, version
+
+
+def _open_flags(path) -> int:
+    """The superblock's file consistency flags: non-zero while a writer has the file open, or
+    after it was killed. Superblocks before version 2 have none."""
+    head, version = _superblock(path)
+    return head[11] if version >= 2 else 0
 
 
 def _clear_open_flags(path) -> None:
     """Clear the 'open for (SWMR) write' flags a killed writer leaves in the superblock, as the
-    HDF5 tool `h5clear -s` does. Superblock version 3 (HDF5 file format specification, section
-    II.A): signature, version, offset size, length size, consistency flags at byte 11, four
-    addresses, then a Jenkins lookup3 checksum of the preceding bytes."""
+    HDF5 tool `h5clear -s` does, and rewrite the superblock checksum."""
+    head, version = _superblock(path)
+    if version != 3:
+        raise SessionFormatError(f"{path}: HDF5 superblock version {version}, sessions are "
+                                 "written with version 3 (libver v110)")
+    if head[11] == 0:
+        return
+    head[11] = 0
+    struct.pack_into("<I", head, 44, _lookup3(bytes(head[:44])))
     with open(path, "r+b") as fh:
-        head = bytearray(fh.read(48))
-        if head[:8] != b"\x89HDF\r\n\x1a\n" or head[8] != 3 or head[9] != 8:
-            raise SessionFormatError(f"{path}: no version-3 HDF5 superblock at offset 0; not a "
-                                     "session file written by this software")
-        if struct.unpack_from("<I", head, 44)[0] != _lookup3(bytes(head[:44])):
-            raise SessionFormatError(f"{path}: the HDF5 superblock checksum is wrong; the file is "
-                                     "damaged, recover the samples with Session.open")
-        if head[11] == 0:
-            return
-        head[11] = 0
-        struct.pack_into("<I", head, 44, _lookup3(bytes(head[:44])))
-        fh.seek(0)
         fh.write(head)
         fh.flush()
         os.fsync(fh.fileno())
@@ -659,9 +690,13 @@ class Session:
 
     @classmethod
     def open(cls, path) -> "Session":
-        """Open a session file; `SessionFormatError` if it is not one this software reads."""
+        """Open a session file; `SessionFormatError` if it is not one this software reads.
+
+        A file a writer has open (or left open when killed) is read in SWMR mode, a closed one
+        in plain read-only mode."""
+        live = _open_flags(path) != 0
         try:
-            f = h5py.File(path, "r", swmr=True, libver=LIBVER)
+            f = h5py.File(path, "r", swmr=live, libver=LIBVER)
         except FileNotFoundError:
             raise
         except OSError as e:
@@ -675,8 +710,7 @@ class Session:
     @property
     def closed_cleanly(self) -> bool:
         """False while a writer is live or after it was killed (superblock flags still set)."""
-        with open(self.path, "rb") as fh:
-            return fh.read(12)[11:12] == b"\0"
+        return _open_flags(self.path) == 0
 
     def stream(self, name: str) -> StreamData:
         """All samples of a stream flushed so far (the common length of its columns)."""
