@@ -5,6 +5,7 @@ import random
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -60,7 +61,10 @@ def run_and_kill(path, mode, rng):
     row counts it reported (imu, table, events)."""
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), mode],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    watchdog = threading.Timer(60.0, proc.kill)  # a writer that never flushes fails, not hangs
+    watchdog.start()
     first = proc.stdout.readline()
+    watchdog.cancel()
     assert first.startswith("flushed"), proc.stderr.read()
     time.sleep(rng.uniform(0.0, 0.4))
     proc.send_signal(signal.SIGKILL)
