@@ -667,7 +667,7 @@ def _lookup3(data: bytes, initval: int = 0) -> int:
 
 
 class Session:
-    """A session file opened for reading (SWMR read: works while a writer appends).
+    """A session file opened for reading, also while a writer appends to it (SWMR read).
 
     Every accessor refreshes its datasets first, so repeated calls see the rows flushed since.
     Results groups added after opening are seen only after reopening.
@@ -697,8 +697,6 @@ class Session:
         live = _open_flags(path) != 0
         try:
             f = h5py.File(path, "r", swmr=live, libver=LIBVER)
-        except FileNotFoundError:
-            raise
         except OSError as e:
             raise SessionFormatError(f"{path} is not a readable HDF5 file ({e})") from None
         try:
