@@ -46,11 +46,12 @@ class Recorder:
     """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
 
     clock    : the session's clock (the writer's, shared with the devices)
-    interval : wall seconds between two reads, so that each block holds several samples
+    interval : wall seconds between two reads, so that each block holds several samples (a pty
+               holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
     drain_timeout : wall seconds `drain` waits for the samples in flight
     """
 
-    def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.005,
+    def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.003,
                  drain_timeout: float = 30.0):
         self.writer = writer
         self.imu = imu

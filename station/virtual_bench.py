@@ -100,7 +100,8 @@ class VirtualBench:
         """Start the Modbus server and the IMU stream."""
         self.table_twin.start()
         if self.kind == "serial":
-            self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock, max_lag=10.0).start()
+            self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
+                                       max_lag=np.inf).start()  # flow control, never skip
         else:
             self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
                                        self.clock).start()
