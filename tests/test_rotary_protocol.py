@@ -29,7 +29,7 @@ KINDS = ["position_start", "static_start", "static_end", "rotate_start", "rotate
          "position_done"]
 
 
-class Session_:
+class BenchSession:
     """A bench, its drivers, a session writer and a running recorder, for one test."""
 
     def __init__(self, path, imu="serial", technician=None, settings=FAST, axes=None):
@@ -44,8 +44,13 @@ class Session_:
             path, {**self.protocol.metadata(), "unit_serial": "TEST"},
             {"imu": self.bench.stream_spec}, clock=self.bench.clock)
         self.recorder = Recorder(self.writer, self.imu, clock=self.bench.clock).start()
+        self.closed = False
 
     def close(self):
+        """Stop everything (a second call does nothing)."""
+        if self.closed:
+            return
+        self.closed = True
         self.recorder.stop()
         self.writer.close()
         self._drivers.__exit__(None, None, None)
@@ -57,7 +62,7 @@ def session(tmp_path):
     opened = []
 
     def open_(**kwargs):
-        s = Session_(tmp_path / f"s{len(opened)}.h5", **kwargs)
+        s = BenchSession(tmp_path / f"s{len(opened)}.h5", **kwargs)
         opened.append(s)
         return s
 
@@ -306,3 +311,28 @@ def test_console_operator_reads_the_technicians_answers():
     assert "turn the unit" in out.getvalue() and "please answer y or n" in out.getvalue()
     with pytest.raises(OperatorAbort):
         op.wait(Instruction("one more"))
+
+
+def test_recorded_sample_times_match_the_instants_the_twin_sampled(session):
+    s = session()
+    twin = s.bench.imu_twin
+    s.bench.clock.sleep(20.0)  # half a second of wall time
+    s.recorder.drain(s.bench.clock.now(), stale=5.0)
+    s.close()
+    with Session.open(s.path) as f:
+        stream = f.stream("imu")
+    assert len(stream.seq) > 0.9 * 20 * 200
+    t = sample_times(stream.seq, stream.host_time, 200.0)
+    # the least delayed of thousands of samples arrives within a few ms of wall time (0.2 s clock)
+    late = t - twin.time_of(stream.seq)
+    assert np.ptp(late) < 1e-9 and 0 <= late[0] < 0.2
+
+
+def test_drain_gives_up_when_samples_stop_coming(session):
+    s = session()
+    s.recorder.drain_timeout = 0.3
+    s.bench.imu_twin.pause(1e6)
+    with pytest.raises(RecordingError, match="lag"):
+        s.recorder.drain(s.bench.clock.now() + 1e5, stale=np.inf)
+    with pytest.raises(RecordingError, match="no IMU sample for"):
+        s.recorder.drain(s.bench.clock.now() + 1e5, stale=5.0)
