@@ -74,27 +74,23 @@ class SimulatedTechnician:
     clock         : shared clock; re-mounting takes `remount_time` seconds of it
     placement_deg : standard deviation of the placement error about each axis, degrees
     rng           : numpy Generator (or seed) of the placement errors
-    verbose       : print the prompts (the demo keeps them in `messages` only)
 
     `orientations` lists the orientations really set, one per mounting: the truth of the stimulus
     direction (third column) at each position.
     """
 
     def __init__(self, mounted, clock, remount_time: float = 20.0, placement_deg: float = 0.5,
-                 rng=None, verbose: bool = False):
+                 rng=None):
         self.mounted = mounted
         self.clock = clock
         self.remount_time = float(remount_time)
         self.placement_deg = float(placement_deg)
         self.rng = np.random.default_rng(rng)
-        self.verbose = verbose
         self.messages = []
         self.orientations = []
 
     def prompt(self, text: str) -> None:
         self.messages.append(text)
-        if self.verbose:
-            print(text, flush=True)
 
     def wait(self, instruction: Instruction) -> None:
         """Take `remount_time`, then set the asked orientation times a small random rotation."""

@@ -2,6 +2,7 @@
 drivers on the virtual bench, eps within 1.5 sqrt(trace(CRLB)), over the serial and the CAN link."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -61,3 +62,11 @@ def test_demo_refuses_too_few_positions_before_recording(capsys):
     assert cli.main(["demo", "--positions", "4"]) == 1
     err = capsys.readouterr().err
     assert "4 position(s) are too few" in err and "Record 2 more position(s)" in err
+
+
+def test_station_demo_prints_a_readable_summary(capsys):
+    assert cli.main(["demo", "--positions", "8", "--speed", "80", "--seed", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "8 positions, serial IMU" in out and "angles between the axes" in out
+    ratio = float(re.search(r"ratio (\d+\.\d+)", out).group(1))
+    assert ratio <= 1.5
