@@ -49,20 +49,23 @@ class Recorder:
     interval : wall seconds between two reads, so that each block holds several samples (a pty
                holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
     drain_timeout : wall seconds `drain` waits for the samples in flight
+    busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
+                    processes) can hold the reader that long, which is many seconds of a fast clock
     """
 
     def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.003,
-                 drain_timeout: float = 30.0):
+                 drain_timeout: float = 30.0, busy_grace: float = 2.0):
         self.writer = writer
         self.imu = imu
         self.stream = stream
         self.clock = clock or writer.clock
         self.interval = interval
         self.drain_timeout = drain_timeout
+        self.busy_grace = busy_grace
         self.rate_hz = writer.specs[stream].rate_hz
         self.samples = 0
         self.error = None
-        self._last_arrival = None
+        self._last_arrival = None  # (clock, wall) time of the last block
         self._offset = np.inf  # arrival_offset of the samples so far
         self._last_seq = None
         self._lock = threading.Lock()
@@ -71,7 +74,7 @@ class Recorder:
 
     def start(self) -> "Recorder":
         """Start the reader thread."""
-        self._last_arrival = self.clock.now()
+        self._last_arrival = (self.clock.now(), time.monotonic())
         self._stop.clear()
         self._thread = threading.Thread(target=self._read, name="recorder", daemon=True)
         self._thread.start()
@@ -119,11 +122,13 @@ class Recorder:
             self.writer.append_table(reading)
 
     def check(self, stale: float) -> None:
-        """Raise RecordingError if the reader failed or no sample came for `stale` clock seconds."""
+        """Raise RecordingError if the reader failed or no sample came for `stale` clock seconds
+        (and at least `busy_grace` wall seconds)."""
         if self.error is not None:
             raise RecordingError(f"recording of the IMU stopped: {self.error}") from self.error
-        silent = self.clock.now() - self._last_arrival
-        if silent > stale:
+        clock, wall = self._last_arrival
+        silent = self.clock.now() - clock
+        if silent > stale and time.monotonic() - wall > self.busy_grace:
             raise RecordingError(f"no IMU sample for {silent:.1f} s (limit {stale} s); check the "
                                  "IMU's power and cable, then record the session again")
 
@@ -132,10 +137,10 @@ class Recorder:
             while not self._stop.is_set():
                 block = self.imu.read_block(timeout=0.0)
                 if block is not None and len(block):
+                    self._last_arrival = (self.clock.now(), time.monotonic())
                     with self._lock:
                         self.writer.append(self.stream, block)
                     self.samples += len(block)
-                    self._last_arrival = self.clock.now()
                     self._offset = min(self._offset, arrival_offset(block.seq, block.host_time,
                                                                     self.rate_hz))
                     self._last_seq = int(block.seq[-1])

@@ -76,7 +76,7 @@ class VirtualBench:
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
-                 lifetime: float = 600.0):
+                 lifetime: float = 3600.0):
         if imu not in IMU_KINDS:
             raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -96,15 +96,20 @@ class VirtualBench:
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.imu_twin = None
 
-    def start(self) -> "VirtualBench":
-        """Start the Modbus server and the IMU stream."""
-        self.table_twin.start()
-        if self.kind == "serial":
-            self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
-                                       max_lag=np.inf).start()  # flow control, never skip
-        else:
-            self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
-                                       self.clock).start()
+    def start(self) -> Self:
+        """Start the Modbus server and the IMU stream (or stop what started and raise)."""
+        try:
+            self.table_twin.start()
+            if self.kind == "serial":
+                self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
+                                           max_lag=np.inf)  # flow control: never skip frames
+            else:
+                self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
+                                           self.clock)
+            self.imu_twin.start()
+        except BaseException:
+            self.close()
+            raise
         return self
 
     def close(self) -> None:

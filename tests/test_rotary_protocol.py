@@ -232,6 +232,7 @@ def test_samples_lost_in_a_window_are_refused_at_reduction(session):
 
 def test_a_silent_imu_aborts_the_session(session):
     s = session()
+    s.recorder.busy_grace = 0.2  # wall seconds: 10 s of silence on the clock is 0.25 s at 40x
     s.protocol.operator = PausingTechnician(s.bench, 60.0)
     with pytest.raises(RecordingError, match="no IMU sample"):
         s.protocol.run(s.recorder)
@@ -331,6 +332,7 @@ def test_recorded_sample_times_match_the_instants_the_twin_sampled(session):
 def test_drain_gives_up_when_samples_stop_coming(session):
     s = session()
     s.recorder.drain_timeout = 0.3
+    s.recorder.busy_grace = 0.2
     s.bench.imu_twin.pause(1e6)
     with pytest.raises(RecordingError, match="lag"):
         s.recorder.drain(s.bench.clock.now() + 1e5, stale=np.inf)
