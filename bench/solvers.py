@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from factorization import table1  # noqa: E402
-from layouts import A_MODEL, random_directions, section4_gyros  # noqa: E402
+from layouts import random_directions, section4_gyros  # noqa: E402
 
 import station  # noqa: E402
 from station.constraints import from_faces  # noqa: E402

@@ -1,7 +1,6 @@
 """The conventions of docs/conventions.md, checked on the code."""
 
 import numpy as np
-import pytest
 from layouts import A_MODEL, random_directions
 
 import station
