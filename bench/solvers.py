@@ -182,7 +182,7 @@ def speed(seed: int) -> dict:
     """Median solve times; the dense scipy least_squares ML is the baseline in the same run."""
     rng = np.random.default_rng(seed)
     _, _, r20 = section4_gyros(rng, 20, 0.01)
-    a, v, r200 = section4_gyros(rng, 200, 0.01)
+    _, _, r200 = section4_gyros(rng, 200, 0.01)
     a0, v0 = pca_calibration(r200, 1.0, 3)
 
     def median_time(fn, repeats):

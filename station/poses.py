@@ -25,7 +25,7 @@ def tangent_basis(u: np.ndarray) -> np.ndarray:
 
     Columns 2..d of the Householder reflection that maps e_1 onto -sign(u_1) u.
     """
-    d, n = u.shape
+    d = u.shape[0]
     s = np.where(u[0] >= 0, 1.0, -1.0)
     w = u.T.copy()
     w[:, 0] += s
