@@ -15,7 +15,9 @@ from station.session import Session
 def check_summary(s: dict, positions: int) -> None:
     """What any demo run must show, with bounds from theory, not from the code."""
     assert s["positions"] == positions
-    # efficiency: E[eps^2] = trace(CRLB); 1.5x the root is far in the tail for ~33 parameters
+    # the acceptance of issue 5. For an efficient solver eps^2 is sum_i lambda_i chi2_1 over the
+    # CRLB's 33 eigenvalues (effective dof (sum lambda)^2 / sum lambda^2 = 12 on this layout), so
+    # even a perfect run exceeds 1.5 with probability 0.012 (Monte Carlo of that sum)
     assert s["eps_over_sqrt_crlb"] <= 1.5
     # the model explains the data: chi2/dof = 1 +- sqrt(2/dof), 5 standard deviations allowed
     assert abs(s["chi2_per_dof"] - 1) < 5 * np.sqrt(2 / s["dof"])
