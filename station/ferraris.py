@@ -89,7 +89,9 @@ def read_recording(path) -> Recording:
     try:
         x = np.array([[float(r[header.index(c)]) for c in COLUMNS] for r in body], dtype=float)
     except (ValueError, IndexError) as exc:
-        raise CalibrationInputError(f"{path}: a row is not numeric ({exc}).", "Fix or drop it.") from None
+        raise CalibrationInputError(
+            f"{path}: a row is not numeric ({exc}).", "Fix or drop it."
+        ) from None
     if len(x) < 3 or not np.all(np.isfinite(x)):
         raise CalibrationInputError(
             f"{path} holds {len(x)} rows (finite: {bool(np.all(np.isfinite(x)))}).",
@@ -162,9 +164,9 @@ def find_sections(acc, gyro, fs: float, gyro_per_rad: float, angle: float = 2 * 
     for i in range(len(iv) - 1):
         if faces[i] != faces[i + 1] or faces[i][0] != "+":
             continue
-        bias = (still.mean[i, 3:] * still.lengths[i] + still.mean[i + 1, 3:] * still.lengths[i + 1]) / (
-            still.lengths[i] + still.lengths[i + 1]
-        )
+        bias = (
+            still.mean[i, 3:] * still.lengths[i] + still.mean[i + 1, 3:] * still.lengths[i + 1]
+        ) / (still.lengths[i] + still.lengths[i + 1])
         turned = np.linalg.norm(integrate(gyro[iv[i, 1] : iv[i + 1, 0]], fs, bias)) / gyro_per_rad
         name = f"{faces[i][1]}_rot"
         if turned > angle / 2 and name not in sections:
@@ -210,15 +212,22 @@ def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: fl
     _check_sections(sections, len(acc))
     face_rows = {name: slice(*sections[name]) for name in FACE_SECTIONS}
     readings = np.array([acc[face_rows[name]].mean(axis=0) for name in FACE_SECTIONS]).T
-    fit = calibrate(readings, g, d=3, bias="estimate", constraints=from_faces(list(FACE_SECTIONS.values())))
+    fit = calibrate(
+        readings, g, d=3, bias="estimate", constraints=from_faces(list(FACE_SECTIONS.values()))
+    )
     directions = np.array([[1, -1, 0, 0, 0, 0], [0, 0, 1, -1, 0, 0], [0, 0, 0, 0, 1, -1]]) * g
     a_acc = align_to(fit.v, directions) @ fit.a
 
     still = np.vstack([gyro[rows] for rows in face_rows.values()])
-    noise = np.vstack([gyro[rows] - gyro[rows].mean(axis=0) for rows in face_rows.values()]).std(axis=0)
+    noise = np.vstack([gyro[rows] - gyro[rows].mean(axis=0) for rows in face_rows.values()]).std(
+        axis=0
+    )
     turns = [slice(*sections[name]) for name in TURN_SECTIONS]
     w = np.array(
-        [integrate(gyro[t], fs, gyro[face_rows[f]].mean(axis=0)) for t, f in zip(turns, TURN_SECTIONS.values())]
+        [
+            integrate(gyro[t], fs, gyro[face_rows[f]].mean(axis=0))
+            for t, f in zip(turns, TURN_SECTIONS.values())
+        ]
     ).T
     sigma = noise[:, None] * np.sqrt([t.stop - t.start for t in turns])[None, :] / fs
     senses = turn_senses(w, ["+x", "+y", "+z"])

@@ -18,6 +18,7 @@ Checks that the gyro frame is the accelerometer's:
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -58,7 +59,8 @@ def integrate(gyro, fs: float, bias) -> np.ndarray:
     gyro = np.asarray(gyro, float)
     if gyro.ndim != 2 or gyro.shape[1] != 3 or len(gyro) < 2:
         raise CalibrationInputError(
-            f"gyro samples of a turn have shape {gyro.shape}.", "Give a (samples, 3) array per turn."
+            f"gyro samples of a turn have shape {gyro.shape}.",
+            "Give a (samples, 3) array per turn.",
         )
     return (gyro - np.asarray(bias, float)).sum(axis=0) / fs
 
@@ -74,7 +76,9 @@ def turn_senses(integrals, faces: Sequence[str]) -> tuple[str, ...]:
     senses = []
     for j, face in enumerate(faces):
         if face not in FACES:
-            raise CalibrationInputError(f"unknown face {face!r} of turn {j}.", f"Use one of {FACES}.")
+            raise CalibrationInputError(
+                f"unknown face {face!r} of turn {j}.", f"Use one of {FACES}."
+            )
         axis = AXES.index(face[1])
         senses.append(("+" if w[axis, j] > 0 else "-") + face[1])
     return tuple(senses)
@@ -148,7 +152,9 @@ def carry_gravity(rates, fs: float, f_start) -> np.ndarray:
     return c.T @ np.asarray(f_start, float)
 
 
-def gravity_carry_errors(acc, rates, fs: float, intervals, min_turn_deg: float = 30.0) -> np.ndarray:
+def gravity_carry_errors(
+    acc, rates, fs: float, intervals, min_turn_deg: float = 30.0
+) -> np.ndarray:
     """Out-of-sample gyro check over the face-to-face turns of a continuous recording.
 
     acc (K, 3) calibrated specific force and rates (K, 3) calibrated angular rate (rad/s), in one
@@ -160,9 +166,9 @@ def gravity_carry_errors(acc, rates, fs: float, intervals, min_turn_deg: float =
     """
     acc, rates = np.asarray(acc, float), np.asarray(rates, float)
     rows = []
-    for i, ((_, stop), (start, _)) in enumerate(zip(intervals[:-1], intervals[1:])):
-        before = acc[intervals[i, 0] : stop].mean(axis=0)
-        after = acc[start : intervals[i + 1, 1]].mean(axis=0)
+    for i, ((first, stop), (start, last)) in enumerate(pairwise(np.asarray(intervals))):
+        before = acc[first:stop].mean(axis=0)
+        after = acc[start:last].mean(axis=0)
         turned = angle_deg(before, after)
         if turned > min_turn_deg:
             rows.append((i, turned, angle_deg(carry_gravity(rates[stop:start], fs, before), after)))
