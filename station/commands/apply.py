@@ -1,0 +1,186 @@
+"""`station apply`: readings -> calibrated vectors, by least-squares fusion of the m sensors.
+
+For each instant, v = (a a^T)^-1 a (z - b) (docs/conventions.md) with a and b from the calibration
+file. DATA is either
+- a session file (.h5): the stream's raw counts, converted with the stream's own counts per SI unit;
+  the session's unit serial, sensors and units must be the calibration's; time = sampling instants;
+- a CSV file: a header row naming the columns, then numbers. One column per calibrated sensor
+  (any order), named by its id, optionally with its unit: `g1` or `g1 [rad/s]` (`[counts]` with
+  --counts); an optional `time` column is copied through. SI readings unless --counts, which
+  divides by the calibration's counts per unit.
+
+The output (CSV, or HDF5 when OUT ends in .h5) has columns time [s] and v_x, v_y (, v_z) in the
+readings' unit, in the calibration's frame.
+"""
+
+import argparse
+import csv
+import io
+import json
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+AXES = ("v_x", "v_y", "v_z")
+HDF5_SUFFIXES = (".h5", ".hdf5")
+_HEADER = re.compile(r"\s*([^\[\]]+?)\s*(?:\[\s*([^\[\]]+?)\s*\])?\s*\Z")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "apply", help="apply a calibration file to readings (CSV or session) -> calibrated vectors",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  station apply SN42.cal.json sessions/SN42.h5 --out rates.csv\n"
+               "  station apply SN42.cal.json readings.csv > rates.csv\n"
+               "  station apply SN42.cal.json counts.csv --counts --out rates.h5 --json")
+    p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
+    p.add_argument("data", type=Path, help="readings: a session file (.h5) or a CSV file")
+    p.add_argument("--out", type=Path, help="output .csv or .h5 (default: CSV on stdout)")
+    p.add_argument("--stream", default="imu", help="stream of a session file (default imu)")
+    p.add_argument("--counts", action="store_true",
+                   help="CSV readings are raw counts (divided by the calibration's counts per "
+                        "unit)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--json", action="store_true", help="print a machine-readable summary")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from station.calfile import CalibrationFileError, load
+    from station.session import SessionFormatError
+
+    if args.json and args.out is None:
+        print("station apply: --json prints a summary; give --out for the vectors",
+              file=sys.stderr)
+        return 2
+    if args.out is not None and args.out.exists() and not args.force:
+        print(f"station apply: {args.out} exists; choose another --out or add --force",
+              file=sys.stderr)
+        return 1
+    try:
+        cal = load(args.calibration)
+        if args.data.suffix.lower() in HDF5_SUFFIXES:
+            time, z = read_session(args.data, args.stream, cal)
+        else:
+            time, z = read_csv(args.data, cal, args.counts)
+        v = cal.apply(z)
+        if args.out is None:
+            sys.stdout.write(csv_text(time, v, cal.units[0]))
+        elif args.out.suffix.lower() in HDF5_SUFFIXES:
+            write_hdf5(args.out, time, v, cal, args.data)
+        else:
+            args.out.write_text(csv_text(time, v, cal.units[0]))
+    except (CalibrationFileError, SessionFormatError, OSError) as exc:
+        print(f"station apply: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        norm = np.linalg.norm(v, axis=1)
+        print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],
+                          "units": cal.units[0], "frame": cal.frame,
+                          "unit_serial": cal.unit_serial,
+                          "norm_mean": float(norm.mean()) if len(v) else None}, indent=2))
+    return 0
+
+
+def read_session(path, stream: str, cal) -> tuple:
+    """(time (k,), SI readings (k, m)) of a session's stream, checked against the calibration."""
+    from station.calfile import CalibrationFileError
+    from station.recorder import sample_times
+    from station.session import Session
+
+    with Session.open(path) as session:
+        if stream not in session.specs:
+            raise CalibrationFileError(f"{path} has no stream {stream!r}; choose one of "
+                                       f"{sorted(session.specs)} with --stream")
+        spec = session.specs[stream]
+        cal.check_unit(session.unit_serial, spec.channels, spec.units, where=str(path))
+        data = session.stream(stream)
+    time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
+    return time, data.to_si()
+
+
+def read_csv(path, cal, counts: bool = False) -> tuple:
+    """(time (k,) or None, SI readings (k, m) in the calibration's sensor order) from a CSV file
+    with a header row (see the module docstring)."""
+    from station.calfile import CalibrationFileError
+
+    def fail(problem):
+        return CalibrationFileError(f"{path}: {problem}")
+
+    if counts and cal.counts_per_unit is None:
+        raise fail("--counts needs the counts per unit, which this calibration file lacks; give "
+                   "SI readings")
+    with open(path, newline="", encoding="utf-8") as f:
+        header = next(csv.reader(f), None)
+        if header is None:
+            raise fail("empty file; the first row must name the columns")
+        names, units = _parse_header(header, fail)
+        body = f.read()
+    expected_unit = "counts" if counts else cal.units[0]
+    wrong = {n: u for n, u in zip(names, units) if u is not None and n != "time"
+             and u != expected_unit}
+    if wrong:
+        raise fail(f"columns {wrong} are not in {expected_unit}; convert them (or use --counts "
+                   "for raw counts)")
+    extra = sorted(set(names) - set(cal.sensors) - {"time"})
+    missing = [s for s in cal.sensors if s not in names]
+    if extra or missing:
+        raise fail(f"the calibration's sensors {list(cal.sensors)} lack columns {missing}, and "
+                   f"columns {extra} are unknown; name one column per sensor (plus 'time')")
+    try:
+        values = np.loadtxt(io.StringIO(body), delimiter=",", ndmin=2, comments=None)
+    except ValueError as exc:
+        raise fail(f"not a table of numbers ({exc})") from None
+    if values.size == 0:
+        values = np.zeros((0, len(names)))
+    if values.shape[1] != len(names) or not np.all(np.isfinite(values)):
+        raise fail(f"rows must hold {len(names)} finite numbers each")
+    z = values[:, [names.index(s) for s in cal.sensors]]
+    if counts:
+        z = z / cal.counts_per_unit
+    time = values[:, names.index("time")] if "time" in names else None
+    return time, z
+
+
+def _parse_header(header, fail) -> tuple:
+    names, units = [], []
+    for cell in header:
+        match = _HEADER.match(cell)
+        if not match:
+            raise fail(f"header cell {cell!r}: write `name` or `name [unit]`")
+        names.append(match[1])
+        units.append(match[2])
+    if len(set(names)) != len(names):
+        raise fail(f"header {names} repeats a column name")
+    return names, units
+
+
+def csv_text(time, v, unit: str) -> str:
+    """CSV of the calibrated vectors (with a time column when time is given)."""
+    d = v.shape[1]
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow((["time [s]"] if time is not None else [])
+                    + [f"{axis} [{unit}]" for axis in AXES[:d]])
+    rows = v if time is None else np.column_stack([time, v])
+    writer.writerows(rows.tolist())
+    return out.getvalue()
+
+
+def write_hdf5(path, time, v, cal, source) -> None:
+    """An HDF5 file: datasets `v` (k, d) and `time` (k,) (when known), with units and origin."""
+    import h5py
+
+    tmp = f"{path}.tmp{os.getpid()}"
+    with h5py.File(tmp, "w", libver=("v110", "v110")) as f:
+        f.attrs.update(format="imu-station-calibrated", format_version=1,
+                       unit_serial=cal.unit_serial, frame=cal.frame, source=str(source),
+                       calibration_checksum=cal.to_document()["checksum"])
+        ds = f.create_dataset("v", data=v)
+        ds.attrs.update(units=cal.units[0], columns=list(AXES[:v.shape[1]]))
+        if time is not None:
+            f.create_dataset("time", data=time).attrs["units"] = "s"
+    os.replace(tmp, path)

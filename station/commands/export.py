@@ -1,0 +1,54 @@
+"""`station export`: a calibration file -> a C header for firmware (`station.export_c`).
+
+The header holds the least-squares fusion matrix (a a^T)^-1 a, the biases and the counts per SI
+unit as `static const float` (or double) arrays with their units in comments, so that the firmware
+computes v = FUSION (counts / COUNTS_PER_UNIT - BIAS).
+"""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "export", help="export a calibration file as a C header for firmware",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  station export SN42.cal.json --c-header imu_cal.h\n"
+               "  station export SN42.cal.json --c-header imu_cal.h --type double "
+               "--prefix GYRO_CAL --unit-serial SN42 --json")
+    p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
+    p.add_argument("--c-header", type=Path, required=True, metavar="OUT.h",
+                   help="C header file to write")
+    p.add_argument("--type", choices=("float", "double"), default="float",
+                   help="C type of the arrays (default float)")
+    p.add_argument("--prefix", default="IMU_CAL",
+                   help="prefix of the macro and array names (default IMU_CAL)")
+    p.add_argument("--unit-serial", help="refuse the calibration unless it is for this unit")
+    p.add_argument("--force", action="store_true", help="overwrite an existing header")
+    p.add_argument("--json", action="store_true", help="machine-readable summary")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from station.calfile import CalibrationFileError, load
+    from station.export_c import c_header
+
+    out = args.c_header
+    if out.exists() and not args.force:
+        print(f"station export: {out} exists; choose another name or add --force",
+              file=sys.stderr)
+        return 1
+    try:
+        cal = load(args.calibration, unit_serial=args.unit_serial)
+        out.write_text(c_header(cal, args.prefix, args.type))
+    except (CalibrationFileError, ValueError, OSError) as exc:
+        print(f"station export: {exc}", file=sys.stderr)
+        return 1
+    summary = {"header": str(out), "unit_serial": cal.unit_serial, "d": cal.d, "m": cal.m,
+               "type": args.type, "prefix": args.prefix, "units": cal.units[0]}
+    print(json.dumps(summary, indent=2) if args.json else
+          f"wrote {out}: {args.prefix}_FUSION[{cal.d}][{cal.m}] and {args.prefix}_BIAS "
+          f"({args.type}, {cal.units[0]}) for unit {cal.unit_serial}")
+    return 0

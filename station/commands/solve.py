@@ -1,0 +1,141 @@
+"""`station solve`: a recorded rotary session -> a calibration file.
+
+Reduces the session's raw stream to the readings matrix M (Eq. 18 of Rupniewski: rotating minus
+static mean per position, whole revolutions by the table angle), calibrates it (closed form, then
+maximum likelihood, weighted by each entry's standard error) with the table rate as the magnitude,
+and writes the calibration file (`station.calfile`). Eq. (18) readings carry no bias, so the biases
+come from the static windows: b_i = mean over positions of the static means, 1-sigma = their
+scatter / sqrt(n) (which also holds whatever varies between positions, e.g. the Earth's rate).
+"""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "solve", help="solve a recorded rotary session into a calibration file",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  station solve sessions/SN42.h5\n"
+               "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json")
+    p.add_argument("session", type=Path, help="session file (.h5) recorded by `station record`")
+    p.add_argument("--out", type=Path,
+                   help="calibration file to write (default: SESSION with suffix .cal.json)")
+    p.add_argument("--stream", default="imu", help="sample stream to calibrate (default imu)")
+    p.add_argument("--nominal", type=Path,
+                   help="CSV of the nominal layout (d rows x m columns): report a aligned to it "
+                        "(physical frame) instead of the canonical frame of Eq. (19)")
+    p.add_argument("--magnitude", type=float,
+                   help="stimulus magnitude |v| (default: the session's table rate, rad/s)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--json", action="store_true", help="machine-readable summary")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from station.calfile import CalibrationFileError
+    from station.errors import CalibrationInputError
+    from station.session import SessionFormatError
+
+    out = args.out or args.session.with_suffix(".cal.json")
+    if out.exists() and not args.force:
+        print(f"station solve: {out} exists; choose another --out or add --force", file=sys.stderr)
+        return 1
+    try:
+        nominal = None if args.nominal is None else read_nominal(args.nominal)
+        cal = solve_session(args.session, args.stream, nominal, args.magnitude)
+        cal.save(out, overwrite=args.force)
+    except (CalibrationInputError, CalibrationFileError, SessionFormatError, OSError) as exc:
+        print(f"station solve: {exc}", file=sys.stderr)
+        return 1
+    summary = summarise(cal, out)
+    print(json.dumps(summary, indent=2) if args.json else _text(summary))
+    return 0
+
+
+def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None):
+    """The `station.calfile.Calibration` of a recorded rotary session file."""
+    import station
+    from station.calfile import Calibration
+    from station.errors import CalibrationInputError
+    from station.protocols.rotary import reduce_session
+    from station.session import Session
+
+    with Session.open(path) as session:
+        if session.protocol != "rotary":
+            raise CalibrationInputError(
+                f"{path} records a {session.protocol!r} session; `station solve` solves rotary "
+                "sessions.", "Use the calibration workflow of that protocol.")
+        if stream not in session.specs:
+            raise CalibrationInputError(f"{path} has no stream {stream!r}.",
+                                        f"Choose one of {sorted(session.specs)} with --stream.")
+        reduced = reduce_session(session, stream)
+        spec = session.specs[stream]
+        c = table_rate(session.metadata, path) if magnitude is None else magnitude
+        info = {"path": str(Path(path).resolve()), "stream": stream, "protocol": "rotary",
+                "created": session.created, "software_version": session.software_version}
+        serial = session.unit_serial
+    result = station.calibrate(reduced.M, c, sigma=reduced.sigma, nominal=nominal)
+    n = reduced.M.shape[1]
+    if n < 2:
+        raise CalibrationInputError("one position cannot give the biases' uncertainty.",
+                                    "Record more positions.")
+    bias = reduced.static_mean.mean(axis=1)
+    bias_sigma = reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n)
+    return Calibration.from_result(
+        result, serial, spec.channels, spec.units, bias=bias, bias_sigma=bias_sigma,
+        bias_source="static windows of the rotary protocol (mean over positions)",
+        counts_per_unit=spec.counts_per_unit, session=info)
+
+
+def table_rate(metadata: dict, path) -> float:
+    """|rate| of the rotary settings recorded in the session's metadata (untrusted)."""
+    from station.errors import CalibrationInputError
+
+    settings = metadata.get("settings") if isinstance(metadata, dict) else None
+    rate = settings.get("rate") if isinstance(settings, dict) else None
+    if type(rate) not in (int, float) or not np.isfinite(rate) or rate == 0:
+        raise CalibrationInputError(f"{path} records no usable table rate ({rate!r}).",
+                                    "Give the stimulus magnitude with --magnitude.")
+    return abs(float(rate))
+
+
+def read_nominal(path) -> np.ndarray:
+    """A nominal layout (d x m) from a CSV file of numbers."""
+    from station.errors import CalibrationInputError
+
+    try:
+        a = np.loadtxt(path, delimiter=",", ndmin=2)
+    except (OSError, ValueError) as exc:
+        raise CalibrationInputError(f"cannot read the nominal layout {path} ({exc}).",
+                                    "Give a CSV file of d rows and m columns of numbers.") from None
+    if not (np.all(np.isfinite(a)) and a.shape[0] in (2, 3)):
+        raise CalibrationInputError(f"nominal layout {path} has shape {a.shape}.",
+                                    "Give d = 3 (or 2) rows, one column per sensor.")
+    return a
+
+
+def summarise(cal, out) -> dict:
+    """What the command reports about a calibration file."""
+    return {
+        "calibration": str(out), "unit_serial": cal.unit_serial, "sensors": list(cal.sensors),
+        "units": cal.units[0], "frame": cal.frame, "method": cal.fit["method"],
+        "positions": cal.fit["positions"], "chi2_per_dof": cal.fit["chi2"] / cal.fit["dof"],
+        "scale_factors": cal.scale_factors.tolist(),
+        "scale_factors_sigma": cal.scale_factors_sigma.tolist(),
+        "bias": cal.bias.tolist(), "bias_sigma": cal.bias_sigma.tolist(),
+    }
+
+
+def _text(s: dict) -> str:
+    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'bias':>12} {'1 sigma':>10}"]
+    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {b:12.4g} {sb:10.2g}" for name, k, sk, b, sb in
+             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], s["bias"],
+                 s["bias_sigma"])]
+    return "\n".join([f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
+                      f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in "
+                      f"{s['units']})", *rows, f"written to {s['calibration']}"])
