@@ -1,4 +1,5 @@
-"""Free-static calibration on real recordings (issue 8): the Xsens MTi of imu_tk and five MPU-9150s.
+"""Free-static calibration on real recordings (issue 8): the Xsens MTi of imu_tk and five MPU-9150s;
+and the iron path on imucal's Ferraris recording (six faces, three turns; bench/peers.py adds imucal).
 
 Data: ../shared/data/real/ (read each PROVENANCE.md; the data are never copied into the project).
 Prints the detector's interval counts (and their robustness to the threshold factor), held-out
@@ -16,7 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from station.ferraris import (
+    calibrate_ferraris,
+    find_sections,
+    read_recording,
+    read_section_list,
+    section_overlap,
+)
 from station.free_static import calibrate_free_static, leave_one_out, read_table
+from station.gyro_turns import gravity_carry_errors
 from station.stillness import detect_still
 from station.uncertainty import axis_angles
 
@@ -145,6 +154,27 @@ def mpu(root: Path) -> dict:
     return {"g_assumed": MPU_G, "units": units, "unit_to_unit_sd": spread}
 
 
+def imucal_ferraris(root: Path) -> dict:
+    """imucal's continuous Ferraris recording: automatic sections and the gravity-carry gyro check."""
+    fs, g = 102.4, 9.81  # PROVENANCE.md; imucal's default gravity
+    rec = read_recording(root / "example_ferraris_session.csv")
+    t0 = time.perf_counter()
+    found = find_sections(rec.acc, rec.gyro, fs, gyro_per_rad=180 / np.pi)
+    cal = calibrate_ferraris(rec.acc, rec.gyro, fs, found.sections, g)
+    t_path = time.perf_counter() - t0
+    overlap = section_overlap(found.sections, read_section_list(root / "example_ferraris_session_list.json"))
+    carry = gravity_carry_errors(cal.apply_acc(rec.acc), cal.gyro.apply(rec.gyro), fs, found.still.intervals)
+    return {
+        "min_coverage_of_hand_made_sections": min(c for c, _ in overlap.values()),
+        "accel_scale": cal.accel.scale_factors.tolist(),
+        "gyro_scale_per_rads": cal.gyro.fit.scale_factors.tolist(),
+        "turn_senses": list(cal.gyro.senses),
+        "gyro_carry_rms_deg": rms(carry[:, 2]),
+        "gyro_carry_max_deg": float(carry[:, 2].max()),
+        "time_ms": 1e3 * t_path,
+    }
+
+
 def show(report: dict) -> None:
     """Human-readable summary of the figures."""
     x = report.get("xsens")
@@ -200,6 +230,13 @@ def show(report: dict) -> None:
         print(
             f"  unit-to-unit sd: { {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }"
         )
+    f = report.get("imucal_ferraris")
+    if f:
+        print(
+            f"imucal Ferraris: sections cover >= {f['min_coverage_of_hand_made_sections']:.3f} of the "
+            f"hand-made ones, gyro carry RMS {f['gyro_carry_rms_deg']:.2f} deg "
+            f"(max {f['gyro_carry_max_deg']:.2f}), {f['time_ms']:.0f} ms"
+        )
 
 
 def main(argv=None) -> int:
@@ -212,6 +249,8 @@ def main(argv=None) -> int:
         report["xsens"] = xsens(args.data / "imutk-xsens")
     if (args.data / "imucalib-mpu9150x5").is_dir():
         report["mpu9150"] = mpu(args.data / "imucalib-mpu9150x5")
+    if (args.data / "imucal-ferraris").is_dir():
+        report["imucal_ferraris"] = imucal_ferraris(args.data / "imucal-ferraris")
     if not report:
         print(f"no real data under {args.data}", file=sys.stderr)
         return 1
