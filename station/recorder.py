@@ -13,6 +13,11 @@ arrived for too long (a silent device).
 Samples arrive late when the host is busy (a CAN notifier can lag by a second of wall time):
 `drain(t)` waits until every sample taken up to clock time t has arrived, so that a protocol can
 make sure a window is complete before it moves the table.
+
+A lost device (`reconnect()` after the cable is back) or a resumed session starts a new segment of
+the stream: the sequence numbers may jump or restart, so sample times are worked out per segment
+(`sample_times(..., breaks)`, the breaks being the times of the `resume` and `session_resumed`
+events).
 """
 
 import threading
@@ -33,9 +38,23 @@ def arrival_offset(seq, host_time, rate_hz: float) -> float:
     return float(np.min(np.asarray(host_time, float) - np.asarray(seq, float) / rate_hz))
 
 
-def sample_times(seq, host_time, rate_hz: float) -> np.ndarray:
-    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`."""
-    return np.asarray(seq, float) / rate_hz + arrival_offset(seq, host_time, rate_hz)
+def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
+    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
+
+    The stream is cut into segments, each with its own `arrival_offset`: before each clock time
+    in `breaks` (a reconnection, a resumed session) and wherever `seq` does not increase (a device
+    that restarted its numbering).
+    """
+    seq, host_time = np.asarray(seq), np.asarray(host_time, float)
+    if seq.size == 0:
+        return np.zeros(0)
+    segment = np.searchsorted(np.sort(np.asarray(breaks, float)), host_time, side="right")
+    segment = segment + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
+    times = np.empty(len(seq))
+    for k in np.unique(segment):
+        part = segment == k
+        times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
+    return times
 
 
 class RecordingError(RuntimeError):
@@ -92,6 +111,16 @@ class Recorder:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def reconnect(self) -> None:
+        """Reopen a lost IMU (`imu.open()`, e.g. `SerialImu`) and read on, as a new segment of the
+        stream; record the `resume` event before calling it. Raises the driver's error while the
+        device is still missing (then call it again later)."""
+        self.stop()
+        self.imu.open()
+        self.error = None
+        self._offset, self._last_seq = np.inf, None
+        self.start()
 
     def sampled_until(self) -> float:
         """Sampling instant (clock s) of the newest sample received; -inf before the first."""

@@ -11,6 +11,10 @@ gyro_array`, Rupniewski Section IV) mounted on that table (`station.sim.live.Mou
 streaming through a pseudo-terminal (`drivers.twin_serial.SerialTwin`) or a python-can virtual bus
 (`drivers.twin_can.CanImuTwin`), and the technician who re-mounts the unit between positions.
 The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
+
+`record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
+left by a killed or paused run on a new bench built from the file's `bench` metadata, its clock
+starting after the last recorded instant (the recorded times stay in order).
 """
 
 import contextlib
@@ -33,7 +37,8 @@ from drivers.twin_serial import SerialTwin
 from drivers.twin_table import TableTwin
 from station.clock import ScaledClock
 from station.operator import SimulatedTechnician
-from station.session import StreamSpec
+from station.protocols.rotary import RotaryProtocol, continue_session
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
 from station.sim.table import RotaryTable
@@ -62,6 +67,23 @@ class BenchTruth:
         return rate * self.orientations[:, :, 2].T
 
 
+class BenchTechnician(SimulatedTechnician):
+    """The simulated technician, who also plugs the IMU's cable back in when asked to do
+    something that is not a mounting (`fixes_cables = False` models one who does not)."""
+
+    def __init__(self, bench, *args):
+        super().__init__(bench.mounted, bench.clock, *args)
+        self.bench = bench
+        self.fixes_cables = True
+
+    def wait(self, instruction) -> None:
+        super().wait(instruction)
+        twin = self.bench.imu_twin
+        if instruction.orientation is None and self.fixes_cables and hasattr(twin, "plug"):
+            self.clock.sleep(self.remount_time)
+            twin.plug()
+
+
 class VirtualBench:
     """Starts the simulated devices; `close()` (or leaving the `with`) stops them all.
 
@@ -72,15 +94,18 @@ class VirtualBench:
     remount_time  : simulated seconds the technician takes to re-mount the unit
     placement_deg : the technician's placement error (standard deviation per axis), degrees
     lifetime      : wall seconds after which the Modbus server stops by itself
+    clock_start   : clock time at start (a resumed session continues after its last instant)
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
-                 lifetime: float = 3600.0):
+                 lifetime: float = 3600.0, clock_start: float = 0.0):
         if imu not in IMU_KINDS:
             raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
-        self.clock = ScaledClock(speed)
+        self.seed, self.rate_hz = int(seed), float(rate_hz)
+        self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
+        self.clock = ScaledClock(speed, clock_start)
         loader = SerialImuProfile if imu == "serial" else CanProfile
         profile = loader.load(IMU_KINDS[imu])
         self.profile = dataclasses.replace(
@@ -90,11 +115,27 @@ class VirtualBench:
         self.table_map = TableRegisterMap.load("table_modbus")
         self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
         self.mounted = MountedUnit(self.unit, self.table)
-        self.technician = SimulatedTechnician(self.mounted, self.clock, remount_time, placement_deg,
-                                              np.random.default_rng([seed, 1]))
+        self.technician = BenchTechnician(self, remount_time, placement_deg,
+                                          np.random.default_rng([seed, 1]))
         self.table_twin = TableTwin(self.table, self.table_map, lifetime)
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.imu_twin = None
+
+    def metadata(self) -> dict:
+        """What a session records about the bench: enough to build it again (`from_metadata`)."""
+        return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
+                "rate_hz": self.rate_hz, "remount_time": self.remount_time,
+                "placement_deg": self.placement_deg}
+
+    @classmethod
+    def from_metadata(cls, bench: dict, **overrides) -> "VirtualBench":
+        """The bench described by a session's `bench` metadata (`metadata()`), with `overrides`
+        (e.g. clock_start, speed)."""
+        known = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg"}
+        if not isinstance(bench, dict) or not set(bench) <= known:
+            raise ValueError(f"the session's bench description {bench!r} is not one of this "
+                             f"station's virtual benches (keys {sorted(known)})")
+        return cls(**{**bench, **overrides})
 
     def start(self) -> Self:
         """Start the Modbus server and the IMU stream (or stop what started and raise)."""
@@ -143,3 +184,46 @@ class VirtualBench:
         """The true unit and the mountings made so far."""
         return BenchTruth(self.unit.a.copy(), self.unit.bias.copy(),
                           np.array(self.technician.orientations).reshape(-1, 3, 3), A_MODEL)
+
+
+def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
+                  watch=None) -> None:
+    """Record a new rotary session file at `path` on the started `bench`.
+
+    settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
+    watch          : optional callable(writer), called once the session file exists
+    """
+    with bench.drivers() as (imu, table):
+        protocol = RotaryProtocol(table, bench.technician, bench.clock, settings, axes)
+        metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
+                    "bench": bench.metadata()}
+        with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
+                                  clock=bench.clock) as writer:
+            if watch is not None:
+                watch(writer)
+            continue_session(writer, metadata, imu, table, bench.technician, bench.clock)
+
+
+def resume_rotary(path, watch=None, **overrides) -> int:
+    """Continue the rotary session at `path` (killed, paused or aborted) on a new virtual bench
+    built from its `bench` metadata; returns the first position recorded now (the number of
+    positions when none was left). overrides: VirtualBench arguments, e.g. speed."""
+    with Session.open(path) as session:
+        metadata = session.metadata
+        if "bench" not in metadata:
+            raise ValueError(f"{path} was not recorded on the virtual bench; resume it with its "
+                             "real devices")
+        end = last_instant(session)
+    with VirtualBench.from_metadata(metadata["bench"], clock_start=end + 1.0, **overrides) as bench, \
+            bench.drivers() as (imu, table), \
+            SessionWriter.resume(path, clock=bench.clock) as writer:
+        if watch is not None:
+            watch(writer)
+        return continue_session(writer, metadata, imu, table, bench.technician, bench.clock)
+
+
+def last_instant(session) -> float:
+    """The latest clock time recorded in a session (events, table states, sample arrivals)."""
+    times = [e.time for e in session.events()] + [session.table().time.max(initial=-np.inf)]
+    times += [session.stream(name).host_time.max(initial=-np.inf) for name in session.specs]
+    return float(max(times))

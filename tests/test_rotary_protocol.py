@@ -144,7 +144,7 @@ def test_the_technician_mounts_the_suggested_axes(session):
     assert len(s.bench.technician.messages) >= 3
 
 
-@pytest.mark.parametrize("failure", ["interrupt", "unplug", "table_fault"])
+@pytest.mark.parametrize("failure", ["interrupt", "table_fault"])  # unplug: tests/test_faults.py
 def test_any_failure_mid_rotation_stops_the_table_and_leaves_a_consistent_session(session, failure):
     s = session(axes=suggested_axes(3))
     physics = s.bench.table
@@ -157,14 +157,10 @@ def test_any_failure_mid_rotation_stops_the_table_and_leaves_a_consistent_sessio
         fired.append(reading)
         if failure == "interrupt":
             raise KeyboardInterrupt
-        if failure == "unplug":
-            s.bench.imu_twin.unplug()
-        else:
-            s.bench.table_twin.inject("exception", count=1, code=4)
+        s.bench.table_twin.inject("exception", count=1, code=4)
 
     s.protocol.table = Interrupting(s.table, act, run=2)  # position 1 completes first
-    expected = {"interrupt": KeyboardInterrupt, "unplug": RecordingError,
-                "table_fault": TableFault}[failure]
+    expected = {"interrupt": KeyboardInterrupt, "table_fault": TableFault}[failure]
     with pytest.raises(expected):
         s.protocol.run(s.recorder)
     assert fired and fired[0].running

@@ -21,10 +21,18 @@ rotating one) the protocol waits until the recorder holds every sample taken up 
 (`Recorder.drain`): a busy host delays samples, and a sample taken after the command must never be
 counted in the window before it.
 
-Every state change happens in one place (`RotaryProtocol.run`). Any exception - a table error, a
-lost or silent IMU, the operator aborting, Ctrl-C - stops the table at once and records an
-`abort` event, so the session file stays consistent (complete positions end with
-`position_done`; `run(first=...)` continues after the last one).
+Every state change happens in one place (`RotaryProtocol.run`). Two faults are recovered from, at
+most `retries` times per position, and the position is recorded again without re-mounting the unit
+(`restart`: a new `position_start`, so the windows recorded before the fault are discarded):
+- the IMU is lost (unplugged): `fault` event, table stopped, the operator is asked to reconnect
+  the cable, `resume` event, the recorder reopens the port;
+- the table does not answer (Modbus timeout): the driver and the protocol command a stop, a
+  `pause` event is recorded and the operator is asked whether to go on; 'yes' records `resume`
+  and goes on, 'no' ends the run with `SessionPaused` (the file is complete up to the last
+  `position_done`; `station resume` continues it).
+Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C - stops the
+table at once and records an `abort` event, so the session file stays consistent (complete
+positions end with `position_done`; `run(first=...)` continues after the last one).
 
 `reduce_session` turns the recorded session into M (m x n), Eq. (18): m_j = mean(rotating) -
 mean(static), the rotating window cut to whole revolutions by the table's recorded angle.
@@ -36,14 +44,22 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from drivers.rotary_table import TableTimeout
 from station.errors import CalibrationInputError
 from station.operator import Instruction
-from station.recorder import sample_times
+from station.recorder import Recorder, RecordingError, sample_times
 from station.reduction import Reduced, reduce_rotary
+
+SEGMENT_EVENTS = ("resume", "session_resumed")
+"""Events after which the IMU stream is a new segment (see `station.recorder.sample_times`)."""
 
 
 class ProtocolError(RuntimeError):
     """The bench did not behave as the protocol needs; the message says what and what to do."""
+
+
+class SessionPaused(ProtocolError):
+    """The table stopped answering and the operator chose to stop; the session can be resumed."""
 
 
 @dataclass(frozen=True)
@@ -60,6 +76,7 @@ class RotarySettings:
     poll        : time between two table reads
     timeout     : longest wait for the table to reach rest or the rate
     stale       : longest silence of the IMU before the session is aborted
+    retries     : how often one position may be recorded again after a lost IMU or table
     """
 
     rate: float = 1.0
@@ -72,12 +89,15 @@ class RotarySettings:
     poll: float = 0.25
     timeout: float = 60.0
     stale: float = 10.0
+    retries: int = 3
 
     def __post_init__(self):
         if not (math.isfinite(self.rate) and self.rate != 0):
             raise ValueError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
         if not (isinstance(self.revolutions, int) and self.revolutions >= 1):
             raise ValueError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
+        if not (isinstance(self.retries, int) and self.retries >= 0):
+            raise ValueError(f"retries must be a whole number >= 0, got {self.retries!r}")
         durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
         bad = [n for n in durations if not getattr(self, n) > 0]
         if bad:
@@ -138,12 +158,28 @@ class RotaryProtocol:
         self.state = "mount"
         self._handlers = {"mount": self._mount, "still": self._still, "static": self._static,
                           "spin_up": self._spin_up, "settle": self._settle,
-                          "rotating": self._rotating, "stop": self._stop, "rest": self._rest}
+                          "rotating": self._rotating, "stop": self._stop, "rest": self._rest,
+                          "restart": self._restart}
+        self._again = {}  # position -> times recorded again after a fault
 
     def metadata(self) -> dict:
         """What a session file should record about this protocol run."""
         return {"protocol": "rotary", "settings": asdict(self.settings),
                 "axes": self.axes.tolist()}
+
+    @classmethod
+    def from_metadata(cls, metadata: dict, table, operator, clock) -> "RotaryProtocol":
+        """The protocol a session file recorded (`metadata()` of the original run)."""
+        if metadata.get("protocol") != "rotary":
+            raise ValueError(f"the session was recorded with protocol "
+                             f"{metadata.get('protocol')!r}, not 'rotary'")
+        try:
+            settings = RotarySettings(**metadata["settings"])
+            axes = np.asarray(metadata["axes"], float)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"the session's rotary settings or axes are unusable ({exc}); "
+                             "it was not written by this station") from None
+        return cls(table, operator, clock, settings, axes)
 
     def run(self, recorder, first: int = 0) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.recorder.Recorder`); the
@@ -153,7 +189,16 @@ class RotaryProtocol:
         self.recorder, self.position, self.state = recorder, first, "mount"
         try:
             while self.state != "done":
-                self.state = self._handlers[self.state]()  # the one place where the state changes
+                try:  # the one place where the state changes
+                    self.state = self._handlers[self.state]()
+                except RecordingError as exc:
+                    if not isinstance(exc.__cause__, ConnectionError):
+                        raise
+                    self.state = self._reconnect(exc)
+                except TableTimeout as exc:
+                    self.state = self._pause(exc)
+        except SessionPaused:
+            raise  # table stopped and `pause` recorded already
         except BaseException as exc:
             self._abort(exc)
             raise
@@ -225,6 +270,70 @@ class RotaryProtocol:
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
+    def _restart(self) -> str:
+        j = self.position
+        self.operator.prompt(f"position {j + 1}: recording it again (leave the unit mounted)")
+        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist(), "again": True})
+        return "still"
+
+    # -- faults: each returns the state to go on with ----------------------------------------------
+
+    def _reconnect(self, exc: RecordingError) -> str:
+        """The IMU was lost: stop the table, have the cable reconnected, record the position
+        again (its windows so far are discarded; every sample recorded stays in the file)."""
+        j = self.position
+        self._stop_table(exc)
+        self.recorder.event("fault", j, {"device": "imu", "state": self.state,
+                                         "error": f"{type(exc).__name__}: {exc}"})
+        self._count_again(exc)
+        for attempt in range(1, self.settings.retries + 2):
+            self.operator.wait(Instruction(
+                f"the IMU was lost during position {j + 1} ({exc.__cause__}); the table was "
+                "stopped. Reconnect the IMU's cable without moving the unit, then confirm"))
+            self.recorder.event("resume", j, {"after": "imu lost", "attempt": attempt})
+            try:
+                self.recorder.reconnect()
+                return "restart"
+            except ConnectionError as again:
+                self.operator.prompt(f"the IMU is still missing: {again}")
+        raise ProtocolError(f"the IMU did not come back after {self.settings.retries + 1} "
+                            "reconnections; check its power and cable, then resume the "
+                            "session") from exc
+
+    def _pause(self, exc: TableTimeout) -> str:
+        """The table does not answer: stop it, pause, and go on only if the operator says so."""
+        j = self.position
+        stopped = self._stop_table(exc)
+        self.recorder.event("pause", j, {"state": self.state, "table_stopped": stopped,
+                                         "error": f"{type(exc).__name__}: {exc}"})
+        message = (f"the rotary table stopped answering during position {j + 1} ({exc}). "
+                   + ("It was commanded to stop" if stopped else
+                      "It could not be commanded to stop: STOP IT BY HAND") +
+                   "; the session is paused and everything recorded so far is kept.")
+        if not self.operator.confirm(f"{message} Go on once the table answers again?"):
+            raise SessionPaused(f"{message} Check the table's cable and power, then run "
+                                "`station resume SESSION` to continue.") from exc
+        self._count_again(exc)
+        self.recorder.event("resume", j, {"after": "table timeout"})
+        return "restart"
+
+    def _count_again(self, exc: BaseException) -> None:
+        """ProtocolError once position j has been recorded again `retries` times."""
+        j = self.position
+        self._again[j] = self._again.get(j, 0) + 1
+        if self._again[j] > self.settings.retries:
+            raise ProtocolError(f"position {j + 1} failed {self._again[j]} times (last: {exc}); "
+                                "fix the bench, then resume the session") from exc
+
+    def _stop_table(self, exc: BaseException) -> bool:
+        """Command the table to stop; False (and a note on `exc`) if it does not answer."""
+        try:
+            self.table.stop()
+            return True
+        except Exception as stop_error:  # noqa: BLE001 - the original error goes on
+            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+            return False
+
     # -- helpers ---------------------------------------------------------------------------------
 
     def _on_rate(self, reading) -> bool:
@@ -272,15 +381,25 @@ class RotaryProtocol:
 
     def _abort(self, exc: BaseException) -> None:
         """Stop the table first, then record why the session ended; failures become notes."""
-        try:
-            self.table.stop()
-        except Exception as stop_error:  # noqa: BLE001 - the original error goes on
-            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+        self._stop_table(exc)
         try:
             self.recorder.event("abort", self.position, {
                 "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
         except Exception as record_error:  # noqa: BLE001
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
+
+
+def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+    """Run the rotary protocol recorded in `metadata` into `writer` (`SessionWriter.create`d or
+    `.resume`d), from the position after the last completed one; returns that first position
+    (len(axes) when nothing was left to record)."""
+    protocol = RotaryProtocol.from_metadata(metadata, table, operator, clock)
+    last = writer.last_completed_position
+    first = 0 if last is None else last + 1
+    if first < len(protocol.axes):
+        with Recorder(writer, imu, clock=clock) as recorder:
+            protocol.run(recorder, first)
+    return first
 
 
 # ------------------------------------------------------------------------------------ reduction
@@ -310,8 +429,8 @@ def reduce_session(session, stream: str = "imu", coverage: float = 0.9) -> Reduc
     (interpolated at the sampling instants). A window holding less than `coverage` of the samples
     due in it (a lossy link) is refused.
     """
-    data, table = session.stream(stream), session.table()
-    windows = position_windows(session.events())
+    data, table, events = session.stream(stream), session.table(), session.events()
+    windows = position_windows(events)
     if not windows:
         raise CalibrationInputError(f"the session {session.path} has no completed position.",
                                     "Record at least as many positions as the solver asks for.")
@@ -319,7 +438,8 @@ def reduce_session(session, stream: str = "imu", coverage: float = 0.9) -> Reduc
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate)
+    t = sample_times(data.seq, data.host_time, rate,
+                     [e.time for e in events if e.kind in SEGMENT_EVENTS])
     lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
     parts = []
     for j, w in windows.items():

@@ -1,0 +1,156 @@
+"""Faults during a rotary session on the virtual bench: an IMU unplugged in the middle of a window
+(the window is discarded and recorded again after the reconnection), a Modbus timeout (table
+stopped, session paused, going on or ending as the operator says). Nothing already recorded is lost
+and the twin's table is stopped after every fault."""
+
+import logging
+
+import numpy as np
+import pytest
+from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fixture
+
+from station.operator import SimulatedTechnician
+from station.protocols.rotary import (
+    ProtocolError,
+    RotarySettings,
+    SessionPaused,
+    position_windows,
+    reduce_session,
+)
+from station.session import Session
+
+
+@pytest.fixture(autouse=True)
+def quiet_pymodbus():
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+def once(action):
+    """An `Interrupting` action that runs `action()` the first time only."""
+    fired = []
+
+    def act(reading):
+        if not fired:
+            fired.append(reading)
+            action()
+    act.fired = fired
+    return act
+
+
+def recorded(path):
+    with Session.open(path) as f:
+        return f.events(), f.table(), f.stream("imu"), reduce_session(f), f.closed_cleanly
+
+
+def table_after(table, t):
+    """The first recorded table state after clock time t."""
+    return np.flatnonzero(table.time > t)[0]
+
+
+def check_readings(s, events, reduced):
+    """Eq. (18) readings of every position within 6 sigma of the truth a^T (c u_j), u_j the
+    table axis of the position's last mounting (restarts do not re-mount)."""
+    mounts = [e.position for e in events if e.kind == "position_start" and not e.detail.get("again")]
+    last = [max(i for i, j in enumerate(mounts) if j == p) for p in range(max(mounts) + 1)]
+    mounted = np.array(s.protocol.operator.orientations)[last]  # what the technician really did
+    expected = s.bench.truth().a.T @ mounted[:, :, 2].T
+    assert reduced.M.shape == expected.shape
+    assert np.all(np.abs(reduced.M - expected) < 6 * reduced.sigma)
+
+
+@pytest.mark.parametrize("window", ["static", "rotating"])
+def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, window):
+    s = session()
+    act = once(s.bench.imu_twin.unplug)
+    if window == "rotating":
+        s.protocol.table = Interrupting(s.table, act, run=2)
+    else:
+        technician = s.bench.technician
+        prompt = technician.prompt
+
+        def unplug_in_static(text):
+            prompt(text)
+            if text.startswith("position 2: static"):
+                s.bench.clock.sleep(1.5)  # half of the 3 s window
+                act(None)
+        technician.prompt = unplug_in_static
+    s.protocol.run(s.recorder)
+    physics = s.bench.table
+    assert act.fired and not physics.state().running
+    s.close()
+    events, table, stream, reduced, clean = recorded(s.path)
+    assert clean
+    kinds = [(e.position, e.kind) for e in events if e.position == 1]
+    fault = next(e for e in events if e.kind == "fault")
+    assert fault.position == 1 and fault.detail["device"] == "imu"
+    assert fault.detail["state"] == ("rotating" if window == "rotating" else "static")
+    assert kinds.count((1, "position_start")) == 2 and kinds.count((1, "position_done")) == 1
+    assert kinds.index((1, "fault")) < kinds.index((1, "resume")) < len(kinds) - 6
+    # the table was stopped at once (the first state read after the fault) and the discarded
+    # window is not used: both windows of position 1 start after the reconnection
+    assert not table.flag("running")[table_after(table, fault.time)]
+    resume = next(e for e in events if e.kind == "resume")
+    w = position_windows(events)[1]
+    assert w["static"][0] > resume.time and w["rotating"][0] > resume.time
+    # every sample received before the unplug is in the file, and the session goes on after it
+    assert np.all(np.diff(stream.seq) > 0)
+    before = stream.host_time <= fault.time
+    assert before.sum() > 0.9 * 200 * (fault.time - stream.host_time[0])
+    assert (stream.host_time > resume.time).sum() > 0.9 * 200 * 2 * (FAST.static + 2 * np.pi)
+    check_readings(s, events, reduced)
+
+
+def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(session):
+    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}))
+    s.bench.technician.fixes_cables = False
+    s.protocol.table = Interrupting(s.table, once(s.bench.imu_twin.unplug), run=1)
+    with pytest.raises(ProtocolError, match="the IMU did not come back after 2 reconnections"):
+        s.protocol.run(s.recorder)
+    assert not s.bench.table.state().running
+    assert sum("Reconnect the IMU" in m for m in s.bench.technician.messages) == 2
+    s.close()
+    with Session.open(s.path) as f:
+        kinds = [e.kind for e in f.events()]
+        assert f.last_completed_position() is None and f.closed_cleanly
+    assert kinds[-4:] == ["fault", "resume", "resume", "abort"]
+
+
+class Declining(SimulatedTechnician):
+    """A technician who answers 'no' to every question."""
+
+    def confirm(self, question):
+        self.prompt(question)
+        return False
+
+
+@pytest.mark.parametrize("answer", ["go on", "stop"])
+def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):
+    s = session()
+    if answer == "stop":
+        b = s.bench
+        s.protocol.operator = Declining(b.mounted, b.clock, 1.0, 0.5, 0)
+    # the driver tries 3 times (retries=2): 3 unanswered requests are a timeout, the 4th answers
+    act = once(lambda: s.bench.table_twin.inject("drop", count=3))
+    s.protocol.table = Interrupting(s.table, act, run=2)
+    if answer == "stop":
+        with pytest.raises(SessionPaused, match="paused.*station resume SESSION"):
+            s.protocol.run(s.recorder)
+        assert not s.bench.table.state().running
+        s.protocol.table = s.table  # the operator fixed the table and resumes the session
+        s.protocol.run(s.recorder, first=s.writer.last_completed_position + 1)
+    else:
+        s.protocol.run(s.recorder)
+    assert act.fired and not s.bench.table.state().running
+    s.close()
+    events, table, stream, reduced, clean = recorded(s.path)
+    assert clean
+    pause = next(e for e in events if e.kind == "pause")
+    assert pause.position == 1 and pause.detail["table_stopped"] is True
+    assert "no reply from the rotary table" in pause.detail["error"]
+    assert not table.flag("running")[table_after(table, pause.time)]
+    kinds = [e.kind for e in events]
+    assert "abort" not in kinds and kinds.count("position_done") == 3
+    assert kinds.count("resume") == (1 if answer == "go on" else 0)
+    # the IMU went on streaming through the pause: not one sample missing
+    assert np.all(np.diff(stream.seq) == 1)
+    check_readings(s, events, reduced)
