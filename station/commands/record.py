@@ -119,9 +119,8 @@ class BenchProfile:
         table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
         table_map = table_profile.section("table", TableRegisterMap.parse)
         positions = proto.get("positions", int)
-        fields = {f.name: f.type for f in dataclasses.fields(RotarySettings)}
-        given = {k: proto.get(k, int if k == "revolutions" else float)
-                 for k in fields if proto.has(k)}
+        kinds = {f.name: type(f.default) for f in dataclasses.fields(RotarySettings)}
+        given = {k: proto.get(k, kind) for k, kind in kinds.items() if proto.has(k)}
         try:
             settings = RotarySettings(**given)
         except ValueError as exc:
