@@ -12,8 +12,10 @@ minimum still time, a timeout), then recognises the face from the data.
           iron frame, third column up);
 - settle: wait for a still interval that started after the request (an open interval of at
           least the detector's `min_still`); `timeout` s without one is a ProtocolError;
-- hold:   record `hold` s of stillness (`static_start` .. `static_end`); a motion meanwhile sends
-          the protocol back to settle; then the face is recognised and `position_done` recorded.
+- hold:   wait until the first `hold` s of the still interval are recorded and still (a motion
+          sends the protocol back to settle); `static_end` records that window (detail `window`,
+          clock seconds: the averaging window does not depend on when the host got round to
+          polling); then the face is recognised and `position_done` recorded.
 
 Face recognition (`recognise_faces`): the averaged reading z_j gives the up direction in the unit
 frame through the nominal layout, u_j ~ (A A^T)^-1 A (z_j - b_guess); within a mounting the first
@@ -225,22 +227,22 @@ class IronProtocol:
                                     f"asking for pose {self.position + 1}; stand the iron on a "
                                     "face, let go and record the session again")
             self.clock.sleep(self.settings.poll)
-        self._start = max(start, self.clock.now())
+        self._start = start
         self.recorder.event("static_start", self.position, {"still_since": start})
         return "hold"
 
     def _hold(self) -> str:
         s, j = self.settings, self.position
-        self.clock.sleep(self._start + s.hold - self.clock.now())
-        self.recorder.event("static_end", j)
-        end = self.clock.now()
-        self.recorder.drain(end, s.stale)
+        end = self._start + s.hold
+        self.clock.sleep(end - self.clock.now())
+        self.recorder.drain(end + s.window, s.stale)  # the detector sees up to w/2 before the last
         since = self._still_since()
         if since is None or since > self._start:
             self.operator.prompt(f"pose {j + 1}: the iron moved; let it rest")
             self.recorder.event("note", j, {"text": "moved during the still window"})
             self._since = self.clock.now()
             return "settle"
+        self.recorder.event("static_end", j, {"window": [self._start, end]})
         t, z = self.tap.samples(self._start)
         z = z[t <= end].mean(axis=0)
         u = up_direction(z[:, None], self.a_nominal, self.bias_guess)[0]
@@ -320,11 +322,24 @@ def pose_windows(events) -> tuple[np.ndarray, np.ndarray]:
             continue
         if e.kind == "position_start":
             poses[e.position] = {"mounting": e.detail.get("mounting", 0)}
-        poses.setdefault(e.position, {})[e.kind] = e.time
+        pose = poses.setdefault(e.position, {})
+        pose[e.kind] = e.time
+        if e.kind == "static_end":
+            pose["window"] = _window(e.detail.get("window", [pose.get("static_start"), e.time]))
     done = [p for _, p in sorted(poses.items())
-            if all(k in p for k in ("static_start", "static_end", "position_done"))]
-    windows = np.array([[p["static_start"], p["static_end"]] for p in done]).reshape(-1, 2)
+            if all(k in p for k in ("static_start", "window", "position_done"))]
+    windows = np.array([p["window"] for p in done]).reshape(-1, 2)
     return windows, np.array([int(p.get("mounting", 0)) for p in done], dtype=np.int64)
+
+
+def _window(value) -> list:
+    """A [start, stop] pair of finite clock seconds from an (untrusted) event detail."""
+    w = np.asarray(value, dtype=object)
+    if w.shape != (2,) or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in w) \
+            or not w[0] < w[1]:
+        raise CalibrationInputError(f"a static_end event holds the window {value!r}.",
+                                    "The session file is damaged or not from the iron protocol.")
+    return [float(w[0]), float(w[1])]
 
 
 def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
