@@ -168,7 +168,7 @@ class Calibration:
         doc = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
-            "conventions": CONVENTIONS,
+            "conventions": dict(CONVENTIONS),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
             "units": {"readings": list(self.units), "stimulus": self.units[0],
                       "sensitivity": "1 (reading unit per stimulus unit)",

@@ -1,0 +1,189 @@
+"""The calibration file (station.calfile): exact round trip, refusals of tampered, foreign and
+malformed files, and the least-squares fusion it applies (docs/conventions.md)."""
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import station
+from station.calfile import (
+    FORMAT_VERSION,
+    Calibration,
+    CalibrationFileError,
+    checksum,
+    load,
+    loads,
+)
+
+SENSORS = ("g1", "g2", "g3", "g4")
+
+
+def make(a=None, bias=None, **kw) -> Calibration:
+    """A 4-sensor calibration with hand-made numbers (not computed by the code under test)."""
+    a = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.8]]) \
+        if a is None else a
+    m = a.shape[1]
+    fields = dict(
+        unit_serial="SN42", sensors=SENSORS[:m], units=("rad/s",) * m, a=a,
+        a_sigma=np.full(a.shape, 1e-4), bias=np.array([0.01, -0.02, 0.003, 0.5])[:m]
+        if bias is None else bias, bias_sigma=np.full(m, 1e-5),
+        scale_factors=np.linalg.norm(a, axis=0), scale_factors_sigma=np.full(m, 2e-4),
+        axis_angles=np.zeros((m, m)), axis_angles_sigma=np.zeros((m, m)), frame="nominal",
+        magnitude=1.0, scale_known=True, fit={"method": "pca", "chi2": 80.5, "dof": 81},
+        counts_per_unit=np.full(m, 1e6), session={"path": "/sessions/SN42.h5"},
+        created="2026-05-09T07:35:25Z", software_version="0.1.0")
+    fields.update(kw)
+    return Calibration(**fields)
+
+
+def edited(cal: Calibration, change, fix_checksum: bool = False) -> str:
+    """The file text of `cal` after `change(doc)` (optionally with a recomputed checksum)."""
+    doc = cal.to_document()
+    change(doc)
+    if fix_checksum:
+        doc["checksum"] = checksum(doc)
+    return json.dumps(doc)
+
+
+def test_save_and_load_round_trip_exactly(tmp_path):
+    cal = make()
+    path = tmp_path / "SN42.cal.json"
+    cal.save(path)
+    back = load(path, unit_serial="SN42", sensors=SENSORS, units="rad/s")
+    for name in ("a", "a_sigma", "bias", "bias_sigma", "scale_factors", "counts_per_unit"):
+        assert getattr(back, name).tobytes() == np.asarray(getattr(cal, name), float).tobytes()
+    assert (back.unit_serial, back.sensors, back.units, back.frame, back.session, back.created) \
+        == (cal.unit_serial, cal.sensors, cal.units, cal.frame, cal.session, cal.created)
+    assert back.dumps() == path.read_text()
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)  # subnormals and extremes included
+moderate = st.floats(-1e3, 1e3, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(scale=st.floats(1e-150, 1e150), column=arrays(np.float64, (3,), elements=moderate),
+       bias=arrays(np.float64, (4,), elements=finite))
+def test_any_finite_float_survives_the_file_bit_for_bit(scale, column, bias):
+    a = scale * np.column_stack([np.diag([1.0, 0.5, 0.25]), column])  # rank 3, no overflow
+    cal = make(a=a, bias=bias, scale_factors=np.ones(4))
+    back = loads(cal.dumps())
+    assert back.a.tobytes() == a.tobytes() and back.bias.tobytes() == bias.tobytes()
+
+
+def test_files_are_written_once_unless_overwrite(tmp_path):
+    path = tmp_path / "c.json"
+    path.write_text("precious")
+    with pytest.raises(FileExistsError, match="exists"):
+        make().save(path)
+    assert path.read_text() == "precious"
+    make().save(path, overwrite=True)
+    assert load(path).unit_serial == "SN42"
+
+
+def test_an_unknown_version_is_refused_naming_the_versions():
+    text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
+    with pytest.raises(CalibrationFileError, match=r"format_version 2 .*reads \(1\).*newer"):
+        loads(text)
+    for bad in ("1", 1.0, True, None):
+        with pytest.raises(CalibrationFileError, match="format_version"):
+            loads(edited(make(), lambda d, v=bad: d.update(format_version=v), True))
+
+
+def test_a_tampered_unit_serial_is_refused():
+    text = edited(make(), lambda d: d["unit"].update(serial="SN43"))
+    with pytest.raises(CalibrationFileError, match="checksum does not match"):
+        loads(text)
+
+
+def test_a_tampered_number_is_refused():
+    text = edited(make(), lambda d: d["bias"]["b"].__setitem__(0, 0.011))
+    with pytest.raises(CalibrationFileError, match="checksum"):
+        loads(text)
+
+
+def test_another_units_calibration_is_refused(tmp_path):
+    path = tmp_path / "c.json"
+    make().save(path)
+    with pytest.raises(CalibrationFileError, match="unit 'SN42' but the data comes from unit "
+                                                   "'SN7'; use that unit's calibration file"):
+        load(path, unit_serial="SN7")
+    with pytest.raises(CalibrationFileError, match="sensors"):
+        load(path, sensors=("g1", "g2", "g4", "g3"))
+    with pytest.raises(CalibrationFileError, match="convert the readings to SI"):
+        load(path, units="deg/s")
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d["units"].update(readings=["deg/s"] * 4, stimulus="deg/s"), "SI unit"),
+    (lambda d: d["units"].update(stimulus="m/s^2"), "stimulus"),
+    (lambda d: d["sensitivity"].update(a=[[1, 0, 0, 0], [0, 1, 0, 0]] + [[0, 0, 1]]),
+     "ragged|shape"),
+    (lambda d: d["sensitivity"].update(a=[[1, 0, 0, 0]] * 3), "rank"),
+    (lambda d: d["bias"].update(sigma=[-1e-5, 0, 0, 0]), "non-negative"),
+    (lambda d: d["bias"].update(b=[True, 0, 0, 0]), "list of numbers"),
+    (lambda d: d.update(frame="world"), "frame"),
+    (lambda d: d.update(magnitude=-1.0), "magnitude"),
+    (lambda d: d.update(extra=1), "unknown keys"),
+    (lambda d: d.pop("session"), "missing keys"),
+    (lambda d: d["unit"].update(sensors=["g1", "g1", "g2", "g3"]), "distinct"),
+    (lambda d: d["conventions"].update(bias="before the projection"), "conventions"),
+])
+def test_malformed_content_is_refused_even_with_a_valid_checksum(change, message):
+    with pytest.raises(CalibrationFileError, match=message):
+        loads(edited(make(), change, fix_checksum=True))
+
+
+def test_non_json_and_foreign_files_are_refused(tmp_path):
+    text = make().dumps()
+    with pytest.raises(CalibrationFileError, match="not a number"):
+        loads(text.replace("1e-05", "NaN", 1))
+    with pytest.raises(CalibrationFileError, match="duplicate keys"):
+        loads('{"format": 1, "format": 2}')
+    with pytest.raises(CalibrationFileError, match="not valid calibration JSON"):
+        loads(text[:-10])
+    with pytest.raises(CalibrationFileError, match="not an IMU station calibration file"):
+        loads('{"format": "imu-station-session"}')
+    with pytest.raises(CalibrationFileError, match="not an IMU station calibration file"):
+        loads("[1, 2]")
+    big = tmp_path / "big.json"
+    big.write_bytes(b" " * (5 << 20))
+    with pytest.raises(CalibrationFileError, match="at most"):
+        load(big)
+    with pytest.raises(CalibrationFileError, match="cannot read"):
+        load(tmp_path / "missing.json")
+
+
+def test_apply_is_least_squares_fusion_of_the_conventions():
+    cal = make()
+    rng = np.random.default_rng(5)
+    v = rng.standard_normal((10, 3))
+    z = v @ cal.a + cal.bias  # z_i = a_i . v + b_i, exactly
+    assert np.allclose(cal.apply(z), v, atol=1e-12)
+    assert np.allclose(cal.apply(z[0]), v[0], atol=1e-12)
+    # fusion weighs all sensors: noise on one redundant sensor moves v less than on a lone one
+    noisy = z.copy()
+    noisy[:, 3] += 0.1
+    assert np.all(np.linalg.norm(cal.apply(noisy) - v, axis=1) < 0.1)
+    with pytest.raises(CalibrationFileError, match="4 readings per instant"):
+        cal.apply(np.zeros((2, 3)))
+
+
+def test_from_result_keeps_the_solver_output_and_needs_biases():
+    rng = np.random.default_rng(3)
+    a = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.8]])
+    v = rng.standard_normal((3, 12))
+    v /= np.linalg.norm(v, axis=0)
+    result = station.calibrate(a.T @ v + 1e-3 * rng.standard_normal((4, 12)), 1.0, sigma=1e-3)
+    with pytest.raises(CalibrationFileError, match="no estimated bias"):
+        Calibration.from_result(result, "SN1", SENSORS, "rad/s")
+    cal = Calibration.from_result(result, "SN1", SENSORS, "rad/s", bias=np.zeros(4),
+                                  bias_sigma=np.ones(4), session={"path": "x.h5"})
+    back = loads(cal.dumps())
+    assert back.a.tobytes() == result.a.tobytes()
+    assert back.fit["dof"] == result.dof and back.frame == result.frame == "canonical"
+    assert back.axis_angles_sigma.tobytes() == result.axis_angles_sigma.tobytes()
