@@ -13,8 +13,9 @@ streaming through a pseudo-terminal (`drivers.twin_serial.SerialTwin`) or a pyth
 The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
 
 `record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
-left by a killed or paused run on a new bench built from the file's `bench` metadata, its clock
-starting after the last recorded instant (the recorded times stay in order).
+left by a killed or paused run on a new bench built from the file's `virtual_bench` metadata (or
+the `bench` of `station demo`), its clock starting after the last recorded instant (the recorded
+times stay in order).
 """
 
 import contextlib
@@ -45,6 +46,8 @@ from station.sim.table import RotaryTable
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
+BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg"}
+"""The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
 
 
 @dataclass(frozen=True)
@@ -131,10 +134,9 @@ class VirtualBench:
     def from_metadata(cls, bench: dict, **overrides) -> "VirtualBench":
         """The bench described by a session's `bench` metadata (`metadata()`), with `overrides`
         (e.g. clock_start, speed)."""
-        known = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg"}
-        if not isinstance(bench, dict) or not set(bench) <= known:
+        if not isinstance(bench, dict) or not set(bench) <= BENCH_KEYS:
             raise ValueError(f"the session's bench description {bench!r} is not one of this "
-                             f"station's virtual benches (keys {sorted(known)})")
+                             f"station's virtual benches (keys {sorted(BENCH_KEYS)})")
         return cls(**{**bench, **overrides})
 
     def start(self) -> Self:
@@ -196,7 +198,7 @@ def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_seri
     with bench.drivers() as (imu, table):
         protocol = RotaryProtocol(table, bench.technician, bench.clock, settings, axes)
         metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
-                    "bench": bench.metadata()}
+                    "virtual_bench": bench.metadata()}
         with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
                                   clock=bench.clock) as writer:
             if watch is not None:
@@ -210,11 +212,12 @@ def resume_rotary(path, watch=None, **overrides) -> int:
     positions when none was left). overrides: VirtualBench arguments, e.g. speed."""
     with Session.open(path) as session:
         metadata = session.metadata
-        if "bench" not in metadata:
-            raise ValueError(f"{path} was not recorded on the virtual bench; resume it with its "
-                             "real devices")
         end = last_instant(session)
-    with VirtualBench.from_metadata(metadata["bench"], clock_start=end + 1.0, **overrides) as bench, \
+    described = metadata.get("virtual_bench", metadata.get("bench"))
+    if not (isinstance(described, dict) and set(described) <= BENCH_KEYS):
+        raise ValueError(f"{path} was not recorded on the virtual bench; resume it with its "
+                         "real devices")
+    with VirtualBench.from_metadata(described, clock_start=end + 1.0, **overrides) as bench, \
             bench.drivers() as (imu, table), \
             SessionWriter.resume(path, clock=bench.clock) as writer:
         if watch is not None:

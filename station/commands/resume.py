@@ -1,0 +1,58 @@
+"""`station resume SESSION`: continue a rotary session that a kill, a pause or an abort ended.
+
+The session file is reopened (rows cut by a kill are dropped), the positions after the last
+completed one are recorded, and the file is closed cleanly. Sessions recorded on the virtual bench
+(`bench` in their metadata) resume on a new virtual bench built from it.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("resume", help="continue a rotary session after a kill, pause or abort",
+                       description=__doc__,
+                       epilog="examples:\n  station resume unit7.h5\n"
+                              "  station resume demo.h5 --speed 80 --json")
+    p.add_argument("session", type=Path, help="the session file (.h5)")
+    p.add_argument("--speed", type=float,
+                   help="virtual bench: clock speed, simulated s per wall s (default: as recorded)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from drivers.rotary_table import TableError
+    from station.protocols.rotary import ProtocolError
+    from station.recorder import RecordingError
+    from station.session import Session, SessionFormatError, SessionLockedError
+    from station.virtual_bench import resume_rotary
+
+    if not args.session.is_file():
+        print(f"station resume: no session file {args.session}", file=sys.stderr)
+        return 2
+    overrides = {} if args.speed is None else {"speed": args.speed}
+    try:
+        first = resume_rotary(args.session, **overrides)
+    except KeyboardInterrupt:
+        print("station resume: interrupted; the table was stopped; resume again to go on",
+              file=sys.stderr)
+        return 130
+    except (SessionFormatError, SessionLockedError, ValueError, ProtocolError, RecordingError,
+            TableError) as exc:
+        print(f"station resume: {exc}", file=sys.stderr)
+        return 1
+    with Session.open(args.session) as session:
+        last = session.last_completed_position()
+        n = len(session.metadata["axes"])
+    summary = {"session": str(args.session), "resumed_at": first, "positions": n,
+               "completed": 0 if last is None else last + 1}
+    if args.json:
+        print(json.dumps(summary))
+    elif first >= n:
+        print(f"{args.session}: all {n} positions were already recorded")
+    else:
+        print(f"{args.session}: recorded positions {first + 1}..{n} of {n}; the session is "
+              "complete")
+    return 0
