@@ -1,0 +1,119 @@
+"""`station record` with a bench profile pointing at `station twin`'s devices (issue 6): the same
+rotary session as the demo, each prompt answered by a scripted operator (lines on stdin), and the
+result checked against the twin's truth with bounds from theory."""
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import station
+from station.calfile import load
+from station.commands.record import BenchProfile, record
+from station.commands.twin import BenchTwin
+from station.operator import ConsoleOperator, OperatorAbort
+from station.protocols.rotary import reduce_session
+from station.session import Session
+
+POSITIONS = 8
+STATION = [sys.executable, "-m", "station.cli"]
+
+
+def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) -> None:
+    """eps (Eq. 19) against the Cramer-Rao bound, chi2, scale factors and biases."""
+    cal = load(cal_path)
+    a = np.array(truth["a"])
+    with Session.open(session_path) as s:
+        sigma = reduce_session(s).sigma
+    v = rate * np.array(truth["orientations"])[:POSITIONS, :, 2].T
+    bound = np.sqrt(np.trace(station.crlb(a, v, sigma)))
+    # as tests/test_demo.py: an efficient solver exceeds 1.5 with probability 0.012; 2.0 is rarer
+    assert station.eps(a, cal.a) <= 2.0 * bound
+    dof = cal.fit["dof"]
+    assert abs(cal.fit["chi2"] / dof - 1) < 5 * np.sqrt(2 / dof)
+    assert np.all(np.abs(cal.scale_factors - np.linalg.norm(a, axis=0))
+                  < 5 * cal.scale_factors_sigma)
+    # biases: mean of n static means, sigma from their scatter -> Student t with n - 1 dof;
+    # a false failure over 12 sensors has probability 1e-3
+    limit = stats.t.ppf(1 - 1e-3 / 24, POSITIONS - 1)
+    assert np.all(np.abs(cal.bias - np.array(truth["bias"])) < limit * cal.bias_sigma)
+
+
+def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
+    profile, session = tmp_path / "twin.toml", tmp_path / "session.h5"
+    twin = subprocess.Popen(
+        [*STATION, "twin", "--speed", "40", "--positions", str(POSITIONS), "--seed", "3",
+         "--profile-out", str(profile), "--lifetime", "300", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        started = json.loads(twin.stdout.readline())
+        assert started["profile"] == str(profile) and started["clock_speed"] == 40.0
+        assert os.path.exists(started["imu"]["port"])
+        # the technician: one Enter per mounting prompt
+        rec = subprocess.run([*STATION, "record", "--profile", str(profile), "--out", str(session),
+                              "--solve", "--json"], input="\n" * POSITIONS, text=True,
+                             capture_output=True, timeout=240)
+        assert rec.returncode == 0, rec.stderr
+        summary = json.loads(rec.stdout)
+        assert summary["positions_done"] == POSITIONS and summary["unit_serial"] == "SIM-3"
+        assert rec.stderr.count("press Enter when done") == POSITIONS
+    finally:
+        twin.send_signal(signal.SIGINT)
+        out, err = twin.communicate(timeout=30)
+    assert twin.returncode == 0, err
+    truth = json.loads(out.splitlines()[-1])["truth"]
+    assert truth["mounted"] == POSITIONS + 1  # the first mounting, then one per table stop
+    with Session.open(session) as s:
+        kinds = [e.kind for e in s.events()]
+        assert kinds.count("position_done") == POSITIONS and "abort" not in kinds
+        assert s.unit_serial == "SIM-3" and s.metadata["bench"]["tables"]["protocol"] == {
+            "positions": POSITIONS}
+    check_against_truth(session, summary["calibration"]["calibration"], truth)
+
+
+def test_end_of_input_aborts_and_stops_the_table(tmp_path):
+    with BenchTwin(seed=5, speed=40, positions=POSITIONS) as twin:
+        (tmp_path / "b.toml").write_text(twin.profile_text())
+        bench = BenchProfile.load(tmp_path / "b.toml")
+        operator = ConsoleOperator(stdin=io.StringIO("\n"), stdout=io.StringIO())
+        with pytest.raises(OperatorAbort):
+            record(bench, tmp_path / "s.h5", operator)
+        assert not twin.bench.table.state().running
+    with Session.open(tmp_path / "s.h5") as s:
+        events = s.events()
+        assert [e.kind for e in events if e.kind == "position_done"] == ["position_done"]
+        assert events[-1].kind == "abort" and "OperatorAbort" in events[-1].detail["error"]
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda t: t.replace("[protocol]", "[protocol]\nstatic = -1.0"), "must be positive"),
+    (lambda t: t.replace("[protocol]", "[protocol]\nstatik = 5.0"), "unknown keys"),
+    (lambda t: t.replace('link = "serial"', 'link = "usb"'), "link: must be one of"),
+    (lambda t: t + "\n[extra]\n", "unknown sections"),
+    (lambda t: t.replace("[table]", "[tabel]"), "unknown sections"),
+    (lambda t: t.replace('unit_serial = "SIM-1"', ""), "unit_serial: missing"),
+])
+def test_bad_bench_profiles_are_refused_with_the_fix(tmp_path, capsys, edit, message):
+    from station import cli
+
+    text = ('[bench]\nunit_serial = "SIM-1"\n\n[imu]\nlink = "serial"\nprofile = "imu12_serial"\n'
+            'port = "/dev/null"\n\n[table]\nhost = "127.0.0.1"\nport = 5020\n\n'
+            "[protocol]\npositions = 8\n")
+    path = tmp_path / "bench.toml"
+    path.write_text(edit(text))
+    assert cli.main(["record", "--profile", str(path), "--out", str(tmp_path / "s.h5")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_the_example_bench_profiles_load():
+    serial, can = BenchProfile.load("bench_serial"), BenchProfile.load("bench_can")
+    assert serial.imu_address == {"port": "/dev/ttyUSB0"} and serial.positions == 20
+    assert can.link == "can" and can.imu_address["interface"] == "socketcan"
+    assert serial.imu.imu.channels == can.imu.imu.channels
