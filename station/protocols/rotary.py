@@ -421,16 +421,21 @@ def position_windows(events) -> dict:
             if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
 
 
-def reduce_session(session, stream: str = "imu", coverage: float = 0.9) -> Reduced:
+def reduce_session(session, stream: str = "imu", coverage: float = 0.9,
+                   trim: float = 0.0) -> Reduced:
     """Eq. (18) readings of a recorded rotary session (`station.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle
     (interpolated at the sampling instants). A window holding less than `coverage` of the samples
-    due in it (a lossy link) is refused.
+    due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
+    (e.g. to test whether the table's start or stop leaks into the windows).
     """
     data, table, events = session.stream(stream), session.table(), session.events()
-    windows = position_windows(events)
+    if not (math.isfinite(trim) and trim >= 0):
+        raise ValueError(f"window trim must be >= 0 seconds, got {trim!r}")
+    windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
+               for j, w in position_windows(events).items()}
     if not windows:
         raise CalibrationInputError(f"the session {session.path} has no completed position.",
                                     "Record at least as many positions as the solver asks for.")

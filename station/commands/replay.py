@@ -1,0 +1,96 @@
+"""`station replay SESSION`: reduce and solve a recorded rotary session again from its raw stream.
+
+Settings may differ from the recording's (trimmed windows, a subset of positions, another solver
+method); the result is stored in the session under a new results name (never overwriting one).
+The same settings give bit-identical numbers: a replay with the defaults reproduces the results
+`station solve`-style solving stored. `--raw OUT` instead sends the recorded IMU stream again over
+the serial wire protocol (a pty twin) and records it into the new session file OUT.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("replay", help="re-reduce and re-solve a recorded rotary session",
+                       description=__doc__,
+                       epilog="examples:\n  station replay sessions/rotary-12gyro.h5\n"
+                              "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
+                              "  station replay unit.h5 --positions 1-6,9 --json\n"
+                              "  station replay unit.h5 --raw again.h5")
+    p.add_argument("session", type=Path, help="the session file (.h5)")
+    p.add_argument("--name", help="results name to store under (default: replay-<k>)")
+    p.add_argument("--trim", type=float, default=0.0,
+                   help="seconds left out at both ends of every window (default 0)")
+    p.add_argument("--positions", help="1-based positions to use, e.g. 1-6,9 (default: all)")
+    p.add_argument("--method", default="auto",
+                   help="closed-form method: auto, pca, ellipsoid, factorization")
+    p.add_argument("--no-refine", action="store_true", help="skip the maximum-likelihood step")
+    p.add_argument("--magnitude", type=float, help="stimulus magnitude (default: table rate)")
+    p.add_argument("--dry-run", action="store_true", help="print the result, store nothing")
+    p.add_argument("--raw", type=Path, metavar="OUT",
+                   help="replay the raw stream through the serial twin into new session OUT")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    from station.errors import CalibrationInputError
+    from station.replay import ReplaySettings, free_name, replay, replay_into, replay_raw
+    from station.session import SessionFormatError, SessionLockedError
+
+    if not args.session.is_file():
+        print(f"station replay: no session file {args.session}", file=sys.stderr)
+        return 2
+    try:
+        if args.raw is not None:
+            if args.raw.exists():
+                raise ValueError(f"{args.raw} exists; choose another file for the raw replay")
+            replay_raw(args.session, args.raw)
+            summary = {"session": str(args.session), "raw_replay": str(args.raw)}
+        else:
+            settings = ReplaySettings(trim=args.trim, positions=_positions(args.positions),
+                                      method=args.method, refine=not args.no_refine,
+                                      magnitude=args.magnitude)
+            if args.dry_run:
+                name = None
+                reduced, result = replay(args.session, settings)
+            else:
+                name = args.name or free_name(args.session)
+                reduced, result = replay_into(args.session, name, settings)
+            summary = {"session": str(args.session), "results": name,
+                       "positions": int(reduced.M.shape[1]), "method": result.method,
+                       "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
+                       "scale_factors": result.scale_factors.tolist(),
+                       "scale_factors_sigma": result.scale_factors_sigma.tolist()}
+    except (CalibrationInputError, SessionFormatError, SessionLockedError, ValueError,
+            TimeoutError) as exc:
+        print(f"station replay: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(summary))
+    elif args.raw is not None:
+        print(f"{args.session}: raw stream replayed through the serial twin into {args.raw}")
+    else:
+        where = "not stored (--dry-run)" if summary["results"] is None else \
+            f"stored as results/{summary['results']}"
+        print(f"{args.session}: {summary['positions']} positions, {summary['method']} "
+              f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
+        print("scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"]))
+    return 0
+
+
+def _positions(text):
+    """0-based positions from a 1-based list like "1-6,9"; None for None."""
+    if text is None:
+        return None
+    positions = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            positions += range(int(first) - 1, int(last or first))
+    except ValueError:
+        raise ValueError(f"--positions {text!r}: give 1-based numbers and ranges, e.g. 1-6,9") \
+            from None
+    return tuple(positions)
