@@ -1,0 +1,118 @@
+"""Replay of recorded rotary sessions: the committed example sessions reproduce their stored results
+exactly, other settings give other results under new names, the CLI, and the raw stream sent again
+through the serial pty twin reduces to the same readings as the original recording."""
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from station.calibrate import CalibrationResult
+from station.cli import main
+from station.protocols.rotary import reduce_session
+from station.replay import ReplaySettings, replay, replay_into, replay_raw
+from station.session import Session
+
+SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
+EXAMPLES = sorted(SESSIONS.glob("*.h5"))
+
+
+def stored(path, name="rotary"):
+    with Session.open(path) as f:
+        return f.results(name)
+
+
+def assert_same(result, calibration):
+    """Every field of two CalibrationResults bit-identical."""
+    for field in dataclasses.fields(CalibrationResult):
+        a, b = getattr(result, field.name), getattr(calibration, field.name)
+        if isinstance(a, np.ndarray):
+            assert np.array_equal(a, b), field.name
+        else:
+            assert a == b, field.name
+
+
+@pytest.fixture
+def copy(tmp_path):
+    """A writable copy of the first example session."""
+    target = tmp_path / "copy.h5"
+    shutil.copy(EXAMPLES[0], target)
+    return target
+
+
+def test_there_are_small_committed_example_sessions():
+    assert EXAMPLES
+    for path in EXAMPLES:
+        assert path.stat().st_size < 2e6
+        with Session.open(path) as f:
+            assert f.closed_cleanly and f.protocol == "rotary" and "rotary" in f.result_names
+
+
+@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.name)
+def test_replay_of_an_example_session_reproduces_its_stored_results_exactly(path):
+    reduced, result = replay(path)
+    s = stored(path)
+    assert np.array_equal(reduced.M, s.readings)
+    assert np.array_equal(reduced.sigma, s.readings_sigma)
+    assert_same(result, s.calibration)
+
+
+def test_other_settings_give_other_numbers_under_a_new_name(copy):
+    original = stored(copy)
+    settings = ReplaySettings(trim=0.5, positions=tuple(range(10)), refine=False)
+    reduced, result = replay_into(copy, "trimmed", settings)
+    again, again_result = replay(copy, settings)  # identical settings, identical numbers
+    assert np.array_equal(reduced.M, again.M) and np.array_equal(result.a, again_result.a)
+    with Session.open(copy) as f:
+        assert set(f.result_names) == {"rotary", "trimmed"}
+        kept, new = f.results("rotary"), f.results("trimmed")
+    assert np.array_equal(kept.readings, original.readings)  # stored results never change
+    assert new.readings.shape == (12, 10) and new.calibration.method == "pca"
+    # trimming 0.5 s of each window keeps the readings within their standard error
+    assert np.all(np.abs(new.readings - original.readings[:, :10]) < 4 * original.readings_sigma[:, :10])
+    assert not np.array_equal(new.readings, original.readings[:, :10])
+    with pytest.raises(ValueError, match="exists"):
+        replay_into(copy, "trimmed", settings)
+
+
+def test_replay_refuses_bad_settings(copy):
+    with pytest.raises(ValueError, match="unknown solver method"):
+        ReplaySettings(method="magic")
+    with pytest.raises(ValueError, match="positions \\[13\\] were not completed"):
+        replay(copy, ReplaySettings(positions=(0, 12)))
+    with pytest.raises(ValueError, match="trim"):
+        ReplaySettings(trim=-1.0)
+
+
+def test_station_replay_command(copy, capsys):
+    assert main(["replay", str(copy), "--positions", "1-8,11", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["results"] == "replay-1" and summary["positions"] == 9
+    assert main(["replay", str(copy), "--dry-run"]) == 0
+    assert "not stored" in capsys.readouterr().out
+    assert main(["replay", str(copy), "--method", "ellipsoid"]) == 1
+    assert "ellipsoid fit is for a triad" in capsys.readouterr().err
+    with Session.open(copy) as f:
+        assert set(f.result_names) == {"rotary", "replay-1"}
+        assert np.array_equal(f.results("replay-1").readings,
+                              f.results("rotary").readings[:, [*range(8), 10]])
+
+
+def test_raw_replay_through_the_serial_twin_gives_the_same_readings(tmp_path):
+    out = tmp_path / "again.h5"
+    replay_raw(EXAMPLES[0], out, speed=200.0)
+    with Session.open(EXAMPLES[0]) as a, Session.open(out) as b:
+        first, again = a.stream("imu"), b.stream("imu")
+        reduced, reduced_again = reduce_session(a), reduce_session(b)
+        assert b.closed_cleanly and b.metadata["replay_of"] == str(EXAMPLES[0])
+    k = len(first.seq)
+    assert len(again.seq) >= k and np.all(np.diff(again.seq) == 1)
+    assert np.array_equal(again.counts[:k], first.counts)  # lossless over the wire
+    assert np.allclose(np.diff(again.device_time[:k]), np.diff(first.device_time), atol=2e-6)
+    assert np.array_equal(reduced_again.M, reduced.M)
+    assert np.array_equal(reduced_again.sigma, reduced.sigma)
+    with pytest.raises(FileExistsError, match="exists"):
+        replay_raw(EXAMPLES[0], out)
