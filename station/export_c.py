@@ -31,10 +31,10 @@ def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") ->
     unit = cal.units[0]
     guard = f"{prefix.upper()}_H"
     lines = [
-        f"/* Calibration of IMU unit {_comment(cal.unit_serial)}, written by imu-station "
-        f"{_comment(cal.software_version)}.",
-        f" * Calibrated {_comment(cal.created)}; calibration file checksum "
-        f"{_comment(_checksum(cal))}.",
+        (f"/* Calibration of IMU unit {_comment(cal.unit_serial)}, written by imu-station "
+         f"{_comment(cal.software_version)}."),
+        (f" * Calibrated {_comment(cal.created)}; calibration file checksum "
+         f"{_comment(_checksum(cal))}."),
         f" * Sensors (index i): {_comment(', '.join(cal.sensors))}.",
         f" * Frame of v: {cal.frame} (docs/conventions.md); fit: {_comment(cal.fit.get('method'))}.",
         " *",
@@ -57,8 +57,8 @@ def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") ->
     ]
     if cal.counts_per_unit is not None:
         lines += ["", f"/* raw counts per {unit} of each sensor */",
-                  f"static const {ctype} {prefix}_COUNTS_PER_UNIT[{m}] = "
-                  f"{{{_row(cal.counts_per_unit, ctype)}}};"]
+                  (f"static const {ctype} {prefix}_COUNTS_PER_UNIT[{m}] = "
+                   f"{{{_row(cal.counts_per_unit, ctype)}}};")]
     lines += ["", f"#endif /* {guard} */", ""]
     return "\n".join(lines)
 
@@ -67,7 +67,7 @@ def _row(values, ctype: str) -> str:
     """C literals: the shortest text that round-trips the float32 (with an f suffix) or the
     float64 value."""
     if ctype == "float":
-        return ", ".join(f"{str(np.float32(x))}f" for x in values)
+        return ", ".join(f"{np.float32(x)!s}f" for x in values)
     return ", ".join(repr(float(x)) for x in values)
 
 

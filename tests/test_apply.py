@@ -9,13 +9,13 @@ import subprocess
 import h5py
 import numpy as np
 import pytest
+from test_calfile import SENSORS, make
 
 from drivers.samples import SampleBlock
 from station import cli
 from station.calfile import load
 from station.export_c import c_header
 from station.session import SessionWriter, StreamSpec
-from test_calfile import SENSORS, make
 
 RATE = 100.0
 CPU = 1e6  # counts per rad/s

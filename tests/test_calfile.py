@@ -27,15 +27,15 @@ def make(a=None, bias=None, **kw) -> Calibration:
     a = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 2.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.8]]) \
         if a is None else a
     m = a.shape[1]
-    fields = dict(
-        unit_serial="SN42", sensors=SENSORS[:m], units=("rad/s",) * m, a=a,
-        a_sigma=np.full(a.shape, 1e-4), bias=np.array([0.01, -0.02, 0.003, 0.5])[:m]
-        if bias is None else bias, bias_sigma=np.full(m, 1e-5),
-        scale_factors=np.linalg.norm(a, axis=0), scale_factors_sigma=np.full(m, 2e-4),
-        axis_angles=np.zeros((m, m)), axis_angles_sigma=np.zeros((m, m)), frame="nominal",
-        magnitude=1.0, scale_known=True, fit={"method": "pca", "chi2": 80.5, "dof": 81},
-        counts_per_unit=np.full(m, 1e6), session={"path": "/sessions/SN42.h5"},
-        created="2026-05-09T07:35:25Z", software_version="0.1.0")
+    fields = {
+        "unit_serial": "SN42", "sensors": SENSORS[:m], "units": ("rad/s",) * m, "a": a,
+        "a_sigma": np.full(a.shape, 1e-4), "bias": np.array([0.01, -0.02, 0.003, 0.5])[:m]
+        if bias is None else bias, "bias_sigma": np.full(m, 1e-5),
+        "scale_factors": np.linalg.norm(a, axis=0), "scale_factors_sigma": np.full(m, 2e-4),
+        "axis_angles": np.zeros((m, m)), "axis_angles_sigma": np.zeros((m, m)), "frame": "nominal",
+        "magnitude": 1.0, "scale_known": True, "fit": {"method": "pca", "chi2": 80.5, "dof": 81},
+        "counts_per_unit": np.full(m, 1e6), "session": {"path": "/sessions/SN42.h5"},
+        "created": "2026-05-09T07:35:25Z", "software_version": "0.1.0"}
     fields.update(kw)
     return Calibration(**fields)
 

@@ -74,7 +74,7 @@ def test_solve_writes_a_calibration_file_matching_the_truth(recorded, tmp_path, 
 
 
 def test_apply_to_the_recorded_session_gives_the_table_rate(recorded, tmp_path, capsys):
-    session, truth = recorded
+    session, _ = recorded
     cal_path = tmp_path / "cal.json"
     assert cli.main(["solve", str(session), "--out", str(cal_path)]) == 0
     out = tmp_path / "v.csv"
