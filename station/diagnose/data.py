@@ -1,0 +1,148 @@
+"""A rotary session as the diagnose workflow sees it: SI samples, timeline, windows and bins.
+
+Loaded from the array format of `station import` / `station simulate` (docs/simulator.md). The
+table angle is made cumulative over the session (the table is not reset between positions), so
+that effects tied to the table's heading (Earth rate, axis wobble) see the same angle as the twin.
+"""
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+from station.reduction import reduce_rotary, whole_revolutions
+from station.sim import npz
+
+REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
+            "seg_rotating", "seg_spindown")
+
+
+@dataclass(frozen=True)
+class RotaryData:
+    """One rotary session; arrays (n, k, m) unless noted, SI units.
+
+    counts : raw integer samples (for the rail pile-up); y = counts * lsb.
+    t : (k,) sample times within a position; t0 (n,) position starts (session time).
+    rate : (k,) commanded rate; c the steady commanded rate; angle (n, k) cumulative table angle.
+    windows : name -> (2,) [start, stop) of static, spinup, rotating, spindown; the rotating
+        window is cut per position to whole revolutions (rot_stop, (n,)).
+    bin : samples per bin of the binned residuals.
+    """
+
+    counts: np.ndarray
+    lsb: np.ndarray
+    fs: float
+    t0: np.ndarray
+    rate: np.ndarray
+    c: float
+    angle: np.ndarray
+    windows: dict
+    rot_stop: np.ndarray
+    a_nominal: np.ndarray | None
+    bin: int
+
+    @property
+    def shape(self) -> tuple:
+        return self.counts.shape
+
+    @cached_property
+    def y(self) -> np.ndarray:
+        return self.counts * self.lsb
+
+    @cached_property
+    def t(self) -> np.ndarray:
+        return np.arange(self.shape[1]) / self.fs
+
+    @cached_property
+    def reduced(self):
+        """Eq. (18) reduction of the measured samples."""
+        return self.reduce(self.y)
+
+    @cached_property
+    def sigma(self) -> np.ndarray:
+        """(m,) per-sample noise: the pooled standard deviation within the static windows."""
+        s0, s1 = self.windows["static"]
+        return np.sqrt(self.y[:, s0:s1].var(1, ddof=1).mean(0))
+
+    @property
+    def sigma_m(self) -> np.ndarray:
+        """(m, n) standard error of M for white noise of `sigma` per sample."""
+        r = self.reduced
+        return self.sigma[:, None] * np.sqrt(1 / r.n_static + 1 / r.n_rotating)
+
+    @property
+    def t_session(self) -> np.ndarray:
+        """(n, k) session times of the samples."""
+        return self.t0[:, None] + self.t
+
+    def reduce(self, x: np.ndarray):
+        """Eq. (18) reduction of a series x (n, k, m) in SI units over this session's windows."""
+        rot = np.stack([np.full_like(self.rot_stop, self.windows["rotating"][0]), self.rot_stop], 1)
+        return reduce_rotary(x, 1.0, {"static": self.windows["static"], "rotating": rot})
+
+    def bins(self, x: np.ndarray) -> np.ndarray:
+        """Means of x (n, k, m) over consecutive bins of `bin` samples: (n, K, m)."""
+        n, k, m = x.shape
+        kb = k // self.bin
+        return x[:, : kb * self.bin].reshape(n, kb, self.bin, m).mean(2)
+
+    def window_mask(self, name: str) -> np.ndarray:
+        """(n, K) bins lying wholly inside window `name` (rotating: the whole-revolution cut)."""
+        n, k, _ = self.shape
+        kb = k // self.bin
+        first = np.arange(kb) * self.bin
+        start, stop = self.windows[name]
+        stops = self.rot_stop if name == "rotating" else np.full(n, stop)
+        return (first >= start)[None, :] & (first[None, :] + self.bin <= stops[:, None])
+
+
+def load(path, bin_seconds: float = 0.1) -> RotaryData:
+    """A RotaryData from a rotary `.npz` data file (never unpickles)."""
+    return from_arrays(npz.read(path), bin_seconds)
+
+
+def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
+    """A RotaryData from the arrays of a rotary data file, checked."""
+    missing = [key for key in REQUIRED if key not in arrays]
+    if missing:
+        raise CalibrationInputError(
+            f"the data file lacks {', '.join(missing)}, which the rotary diagnosis needs.",
+            "Give a rotary session (station simulate --protocol rotary, or station import).",
+        )
+    counts = np.asarray(arrays["y"])
+    if counts.ndim != 3 or not np.issubdtype(counts.dtype, np.integer):
+        raise CalibrationInputError(
+            f"y has shape {counts.shape} and dtype {counts.dtype}.",
+            "y must hold integer counts, (positions, samples, sensors).",
+        )
+    n, k, m = counts.shape
+    fs = float(arrays["fs"])
+    rate = np.asarray(arrays["rate_cmd"], float)
+    if rate.shape != (k,):
+        raise CalibrationInputError(
+            f"rate_cmd has shape {rate.shape}, expected ({k},).", "Give one rate per sample."
+        )
+    angle = arrays.get("angle")
+    if angle is None:
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]))]) / fs
+    angle = np.broadcast_to(np.asarray(angle, float), (n, k))
+    start = np.concatenate([[0.0], np.cumsum(angle[:-1, -1] - angle[:-1, 0])])
+    windows = {name: np.asarray(arrays[f"seg_{name}"], int)
+               for name in ("static", "spinup", "rotating", "spindown")}
+    r0, r1 = windows["rotating"]
+    rot_stop = np.array([whole_revolutions(angle[j], r0, r1)[0] for j in range(n)])
+    nominal = arrays.get("a_nominal")
+    return RotaryData(
+        counts=counts,
+        lsb=np.broadcast_to(np.asarray(arrays["lsb"], float), (m,)).copy(),
+        fs=fs,
+        t0=np.asarray(arrays["t0"], float),
+        rate=rate,
+        c=float(arrays["c_cmd"]),
+        angle=start[:, None] + angle - angle[:, :1],
+        windows=windows,
+        rot_stop=rot_stop,
+        a_nominal=None if nominal is None else np.asarray(nominal, float),
+        bin=max(1, round(bin_seconds * fs)),
+    )

@@ -1,0 +1,77 @@
+"""Extension `earth_rate`: the Earth's rotation adds to the table's rate.
+
+Signature: the horizontal Earth rate N turns with the table angle theta in the table frame, so
+each position shows a tone a_i . C_j (N cos(h_j - theta), N sin(h_j - theta), 0), turning in the
+opposite sense to the table (axis_wobble turns with it). The heading h_j of each position in the
+unit frame depends on how the unit was mounted, which the data do not say, so each position has
+its own heading: n + 1 parameters (N and the h_j). The vertical part U only shifts each
+position's bias by U a_i . u_j; it is estimated afterwards from the position biases against
+orientation with one bias per sensor, and gives the latitude atan2(U, N).
+"""
+
+import numpy as np
+
+from station.diagnose import linear
+from station.diagnose.effects import Fitted, tone_null
+from station.sim.effects import earth_rate
+from station.sim.effects.earth_rate import EarthRate
+
+STAGE = "motion"
+
+
+def _tone(ctx, heading_deg: float) -> np.ndarray:
+    """(n, k, m) sensed signal of a unit horizontal Earth rate at the given heading."""
+    d = ctx.data
+    zero = np.zeros(d.angle.shape + (3,))
+    omega = earth_rate.apply(zero, ctx.orientation, d.angle, EarthRate(0.0, heading_deg, 1.0))
+    return omega @ ctx.a
+
+
+def fit(ctx, prediction, r) -> Fitted:
+    """N (horizontal rate), the headings h_j and U; see the module docstring."""
+    s0, s90 = _tone(ctx, 0.0), _tone(ctx, 90.0)
+    free = linear.fit(ctx.data, r, [s0, s90], ctx.sigma, "position")
+    heading = np.arctan2(free.theta[:, 1], free.theta[:, 0])
+    tone = np.cos(heading)[:, None, None] * s0 + np.sin(heading)[:, None, None] * s90
+    lf = linear.fit(ctx.data, r, [tone], ctx.sigma, "global")
+    horizontal = float(lf.theta[0, 0])
+    vertical, vertical_sigma = _vertical(ctx, prediction, horizontal * tone)
+    n = heading.size
+    return Fitted(
+        "earth_rate",
+        {"horizontal_rate": horizontal, "vertical_rate": vertical,
+         "latitude_deg": float(np.degrees(np.arctan2(vertical, horizontal))),
+         "rate": float(np.hypot(horizontal, vertical)), "heading_deg": np.degrees(heading)},
+        {"horizontal_rate": float(np.sqrt(lf.cov[0, 0, 0])), "vertical_rate": vertical_sigma,
+         "latitude_deg": np.nan, "rate": np.nan, "heading_deg": np.full(n, np.nan)},
+        dof=n + 1,
+        reduction=lf.reduction(),
+        null=tone_null(free.h),
+        notes="per-position headings are nuisance (unknown mounting azimuth); the vertical "
+        "rate comes from the static means and assumes constant biases",
+    )
+
+
+def _vertical(ctx, prediction, horizontal: np.ndarray) -> tuple[float, float]:
+    """U and its sigma from the position biases b_ij = b_i + a_i . (U u_j + horizontal part)."""
+    k = ctx.data.shape[1]
+    b = prediction.b - horizontal.mean(1)  # (n, m)
+    n, m = b.shape
+    proj = (ctx.orientation[:, :, 2] @ ctx.a)  # (n, m): a_i . u_j
+    x = np.zeros((n * m, m + 1))
+    x[np.arange(n * m), np.tile(np.arange(m), n)] = 1.0
+    x[:, m] = proj.ravel()
+    w = np.tile(k / ctx.sigma**2, n)
+    h = x.T @ (w[:, None] * x)
+    theta = np.linalg.solve(h, x.T @ (w * b.ravel()))
+    return float(theta[m]), float(np.sqrt(np.linalg.inv(h)[m, m]))
+
+
+def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Angular rate plus the Earth rate, per position at its heading (station.sim.effects)."""
+    out = np.empty_like(omega)
+    lat, mag = float(fitted.values["latitude_deg"]), float(fitted.values["rate"])
+    for j, h in enumerate(fitted.value("heading_deg")):
+        out[j:j + 1] = earth_rate.apply(omega[j:j + 1], ctx.orientation[j:j + 1],
+                                        ctx.data.angle[j:j + 1], EarthRate(lat, h, mag))
+    return out

@@ -1,0 +1,35 @@
+"""Extension `latency`: channel i reports the signal of t - delay_i.
+
+Signature per sensor: -delay_i ds_i/dt, nonzero only while the table accelerates (negative on
+spin-up, positive on spin-down for a positive projection). The unit signature is the simulator's
+delay of one sample period, divided by that period.
+"""
+
+import numpy as np
+
+from station.diagnose import linear
+from station.diagnose.effects import Fitted
+from station.sim.effects import latency
+from station.sim.effects.latency import Latency
+
+STAGE = "sensed"
+
+
+def fit(ctx, prediction, r) -> Fitted:
+    """delay (m,) in seconds by least squares per sensor."""
+    data, s = ctx.data, prediction.s
+    step = 1.0 / data.fs
+    unit = (latency.apply(s, data.t, Latency(step)) - s) / step
+    lf = linear.fit(data, r, [unit], ctx.sigma, "sensor")
+    return Fitted(
+        "latency",
+        {"delay": lf.theta[:, 0]},
+        {"delay": np.sqrt(lf.cov[:, 0, 0])},
+        dof=lf.theta.shape[0],
+        reduction=lf.reduction(),
+    )
+
+
+def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
+    """Sensed signals delayed per channel (station.sim.effects.latency)."""
+    return latency.apply(s, ctx.data.t, Latency(tuple(fitted.value("delay"))))

@@ -1,0 +1,33 @@
+"""Extension `scale_nonlinearity`: sensor i outputs s_i + k2_i s_i^2.
+
+Signature per sensor: s_i(t)^2 (the rotating window moves by k2_i (a_i . v_j)^2, the static
+window not at all); linear in k2, fitted per sensor.
+"""
+
+import numpy as np
+
+from station.diagnose import linear
+from station.diagnose.effects import Fitted
+from station.sim.effects import scale_nonlinearity
+from station.sim.effects.scale_nonlinearity import ScaleNonlinearity
+
+STAGE = "sensed"
+
+
+def fit(ctx, prediction, r) -> Fitted:
+    """k2 (m,) by least squares per sensor on the signature of unit k2."""
+    s = prediction.s
+    unit = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0)) - s
+    lf = linear.fit(ctx.data, r, [unit], ctx.sigma, "sensor")
+    return Fitted(
+        "scale_nonlinearity",
+        {"k2": lf.theta[:, 0]},
+        {"k2": np.sqrt(lf.cov[:, 0, 0])},
+        dof=lf.theta.shape[0],
+        reduction=lf.reduction(),
+    )
+
+
+def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
+    """Sensed signals with the quadratic term (station.sim.effects.scale_nonlinearity)."""
+    return scale_nonlinearity.apply(s, ScaleNonlinearity(tuple(fitted.value("k2"))))

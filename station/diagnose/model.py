@@ -1,0 +1,87 @@
+"""A model of a rotary session: the nominal calibration plus a set of extensions, fitted jointly.
+
+The joint fit alternates (block coordinate descent on the likelihood):
+1. each extension is fitted to the residuals of the twin without it (station.diagnose.effects);
+2. the measured series is corrected by what the extensions add to the nominal twin, reduced with
+   Eq. (18) and calibrated again (`station.calibrate`: closed form + maximum likelihood, weighted by
+   the noise from the static windows).
+The deviance of a model is the chi2 of its binned residuals plus the rail pile-up deviance
+(station.diagnose.rails); the difference between two nested models is their likelihood ratio.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.calibrate import CalibrationResult, calibrate
+from station.diagnose import linear, rails, twin
+from station.diagnose.effects import EXTENSIONS, Fitted
+
+
+@dataclass(frozen=True)
+class Model:
+    """A fitted model: calibration, extensions {name: Fitted} in the order added, twin output."""
+
+    calibration: CalibrationResult
+    fitted: dict
+    ctx: twin.Context
+    prediction: twin.Prediction
+    chi2: float
+    rails: float
+
+    @property
+    def names(self) -> tuple:
+        return tuple(self.fitted)
+
+    @property
+    def deviance(self) -> float:
+        return self.chi2 + self.rails
+
+    @property
+    def dof(self) -> int:
+        """Parameters of the extensions."""
+        return sum(f.dof for f in self.fitted.values())
+
+
+def _calibrate(data, readings) -> CalibrationResult:
+    return calibrate(readings, data.c, sigma=data.sigma_m)
+
+
+def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
+    """The Model of a calibration and fitted extensions: twin output and deviance."""
+    ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
+    pred = twin.predict(ctx, fitted, EXTENSIONS)
+    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
+    exp = rails.expected(data, pred.z, data.sigma, clipped="saturation" in fitted)
+    return Model(calibration, dict(fitted), ctx, pred, chi2,
+                 rails.deviance(rails.observed(data), exp))
+
+
+def nominal(data) -> Model:
+    """The nominal model: Eq. (18) readings calibrated, no extension."""
+    return evaluate(data, _calibrate(data, data.reduced.M), {})
+
+
+def fit(data, names, start: Model, iterations: int = 3) -> Model:
+    """Jointly fit the extensions `names` (in that order) with the calibration, from `start`."""
+    cal, fitted = start.calibration, dict(start.fitted)
+    for _ in range(iterations):
+        ctx = twin.context(data, cal.a, cal.v, data.sigma)
+        for name in names:
+            others = {k: f for k, f in fitted.items() if k != name}
+            pred = twin.predict(ctx, others, EXTENSIONS)
+            fitted[name] = EXTENSIONS[name].fit(ctx, pred, twin.residual(ctx, pred))
+        fitted = {name: fitted[name] for name in names}
+        added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, {}, EXTENSIONS).z
+        cal = _calibrate(data, data.reduced.M - data.reduce(added).M)
+    return evaluate(data, cal, fitted)
+
+
+def parameters(f: Fitted) -> dict:
+    """JSON-ready {parameter: {"value", "sigma"}} of a fitted extension."""
+    def plain(x):
+        x = np.asarray(x, float)
+        return None if x.ndim == 0 and not np.isfinite(x) else (
+            x.tolist() if x.ndim else float(x))
+    return {k: {"value": plain(v), "sigma": plain(f.sigma.get(k, np.nan))}
+            for k, v in f.values.items()}

@@ -1,0 +1,91 @@
+"""The digital twin replaying a measured rotary session with fitted parameters.
+
+Same timeline, table profile and cumulative table angle as the data; the unit's orientation on
+the table is the fitted axis u_j = v_j / |v_j| completed by an arbitrary azimuth (effects tied to
+the table's heading carry their own per-position heading or phase). The noise-free expected
+series is built in the simulator's order (docs/simulator.md) with each model extension's `apply`,
+which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
+projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift; the
+per-position bias, the mean of the data minus the rest) -> output (saturation, as an expectation).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+ORDER = ("rate_error", "axis_wobble", "earth_rate", "scale_nonlinearity", "latency",
+         "bias_drift", "saturation")
+"""Names of the model extensions in the order the twin applies them."""
+
+
+@dataclass(frozen=True)
+class Context:
+    """What a model extension needs: data, the nominal calibration (a, v), noise and geometry."""
+
+    data: object
+    a: np.ndarray  # (d, m)
+    v: np.ndarray  # (d, n)
+    sigma: np.ndarray  # (m,) per-sample noise
+    orientation: np.ndarray  # (n, 3, 3): columns p, q, u (table frame -> unit frame)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """The twin's noise-free series: rate (n, k) true table rate, omega (n, k, d), s = a^T omega
+    (n, k, m), z (n, k, m) the expected output, b (n, m) the per-position biases."""
+
+    rate: np.ndarray
+    omega: np.ndarray
+    s: np.ndarray
+    z: np.ndarray
+    b: np.ndarray
+
+
+def completion(u: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) right-handed frames [p, q, u] with the given unit third columns u (n, 3)."""
+    ref = np.where(np.abs(u[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    p = ref - np.sum(ref * u, 1, keepdims=True) * u
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    return np.stack([p, np.cross(u, p), u], axis=2)
+
+
+def context(data, a, v, sigma) -> Context:
+    """The Context of a calibration (a, v) of `data`."""
+    u = (v / np.linalg.norm(v, axis=0)).T
+    return Context(data, np.asarray(a, float), np.asarray(v, float), np.asarray(sigma, float),
+                   completion(u))
+
+
+def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
+    """The expected series of the model: nominal plus the `fitted` extensions ({name: Fitted}),
+    each applied by extensions[name].apply at its stage."""
+    data = ctx.data
+    active = [name for name in ORDER if name in fitted]
+    stage = {name: extensions[name].STAGE for name in active}
+    rate = np.broadcast_to(data.rate, data.angle.shape)
+    for name in active:
+        if stage[name] == "rate":
+            rate = extensions[name].apply(ctx, fitted[name], rate)
+    omega = rate[..., None] * ctx.orientation[:, None, :, 2]
+    for name in active:
+        if stage[name] == "motion":
+            omega = extensions[name].apply(ctx, fitted[name], omega, rate)
+    s = omega @ ctx.a
+    z = s
+    for name in active:
+        if stage[name] == "sensed":
+            z = extensions[name].apply(ctx, fitted[name], z)
+    for name in active:
+        if stage[name] == "offset":
+            z = z + extensions[name].apply(ctx, fitted[name], rate)
+    b = (data.y - z).mean(1)
+    z = z + b[:, None, :]
+    for name in active:
+        if stage[name] == "output":
+            z = extensions[name].apply(ctx, fitted[name], z)
+    return Prediction(rate, omega, s, z, b)
+
+
+def residual(ctx: Context, prediction: Prediction) -> np.ndarray:
+    """Measured minus expected series (n, k, m)."""
+    return ctx.data.y - prediction.z
