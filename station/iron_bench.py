@@ -62,6 +62,7 @@ class IronRig:
     """
 
     def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0):
+        self.next_turn = None  # clock time the next turn starts at (None: when it is asked for)
         self.unit = unit
         self.clock = clock
         self.gravity = float(gravity)
@@ -105,10 +106,10 @@ class IronRig:
         return self.unit.sample(v, times)
 
     def _turn(self) -> None:
-        now = self.clock.now()
+        start = max(self.clock.now(), self.next_turn or -np.inf)
         target = self.mounting @ self._iron
-        current = Rotation.from_matrix(self.attitude(now)[0])
-        self._turns.append((now, current, Rotation.from_matrix(target)))
+        current = Rotation.from_matrix(self.attitude(start)[0])
+        self._turns.append((start, current, Rotation.from_matrix(target)))
         self.poses.append(target)
 
 
@@ -118,20 +119,31 @@ class IronTechnician(SimulatedTechnician):
     An instruction with an orientation (the iron's attitude, world -> iron) stands the iron on a
     face, with the iron's squareness error; one without an orientation is a re-mounting of the unit
     in the iron (the iron protocol's only such instruction): the next of `mountings`.
+
+    With a `period`, the technician works to a metronome: each turn starts at the first multiple of
+    `period` clock seconds at least `handling_time` after the request (the answer comes
+    before it; two seconds early). The recording then does not depend on when a loaded host got round to each step,
+    and a seeded session replays the same samples.
     """
 
-    def __init__(self, rig: IronRig, clock, mountings, remount_time: float = 5.0,
-                 squareness_deg: float = 0.0002, rng=None):
-        super().__init__(rig, clock, remount_time, squareness_deg, rng)
+    def __init__(self, rig: IronRig, clock, mountings, handling_time: float = 3.0,
+                 squareness_deg: float = 0.0002, rng=None, period: float | None = None):
+        super().__init__(rig, clock, 0.0, squareness_deg, rng)
         self.mountings = np.asarray(mountings, float)
+        self.handling_time = float(handling_time)
+        self.period = period
         self.remounts = 0
 
     def wait(self, instruction) -> None:
+        start = self.clock.now() + self.handling_time
+        if self.period:
+            start = self.period * np.ceil(start / self.period)
+        self.clock.sleep(start - 2.0 - self.clock.now())
+        self.mounted.next_turn = start
         if instruction.orientation is not None:
             super().wait(instruction)
             return
         self.prompt(instruction.text)
-        self.clock.sleep(self.remount_time)
         self.mounted.remount(self.mountings[self.remounts % len(self.mountings)])
         self.remounts += 1
 
@@ -159,14 +171,15 @@ class IronBench:
     speed         : clock speed, simulated seconds per wall second
     rate_hz       : IMU sample rate
     mountings     : (K, 3, 3) iron -> unit rotations used in turn, or a count of random ones
-    remount_time  : simulated seconds the technician takes before each turn
+    handling_time : simulated seconds the technician takes before each turn
+    period        : the technician's metronome (see IronTechnician), None: none
     turn_time     : seconds each turn of the iron lasts
     squareness_deg: the iron's squareness error (standard deviation per axis), degrees
     latitude_deg  : site latitude (normal gravity)
     """
 
     def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, mountings=3,
-                 remount_time: float = 3.0, turn_time: float = 2.0,
+                 handling_time: float = 3.0, period: float | None = None, turn_time: float = 2.0,
                  squareness_deg: float = 0.0002, latitude_deg: float = 52.2):
         rng = np.random.default_rng(seed)
         self.clock = ScaledClock(speed)
@@ -178,13 +191,15 @@ class IronBench:
         if np.ndim(mountings) == 0:
             mountings = Rotation.random(int(mountings), random_state=rng).as_matrix()
         self.rig = IronRig(self.unit, self.clock, self.gravity, turn_time)
-        self.technician = IronTechnician(self.rig, self.clock, mountings, remount_time,
-                                         squareness_deg, np.random.default_rng([seed, 1]))
+        self.technician = IronTechnician(self.rig, self.clock, mountings, handling_time,
+                                         squareness_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
 
     def start(self) -> Self:
         """Start the IMU stream."""
-        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf).start()
+        # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
+        # samples whatever the host's load (frames before the driver opens the port are lost)
+        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf).start(0.0)
         return self
 
     def close(self) -> None:
@@ -212,7 +227,8 @@ class IronBench:
 
 
 def record_session(path, seed: int = 1, speed: float = 40.0, mountings: int = 2,
-                   rate_hz: float = 200.0, settings=None, unit_serial: str | None = None):
+                   rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
+                   period: float | None = 20.0):
     """Record an iron session on a new bench into `path` (a new .h5), solve it and keep the result
     as `results/live`; returns (IronTruth, IronReadings, CalibrationResult)."""
     from station.protocols.iron import (
@@ -225,7 +241,8 @@ def record_session(path, seed: int = 1, speed: float = 40.0, mountings: int = 2,
     from station.recorder import Recorder
     from station.session import Session, SessionWriter, write_results
 
-    with IronBench(seed=seed, speed=speed, rate_hz=rate_hz) as bench, bench.driver() as imu:
+    with IronBench(seed=seed, speed=speed, rate_hz=rate_hz, period=period) as bench, \
+            bench.driver() as imu:
         settings = settings or IronSettings(gravity=bench.gravity, mountings=mountings)
         protocol = IronProtocol(bench.technician, bench.clock, ACC4, settings)
         tap = StreamTap(imu, bench.stream_spec.rate_hz, bench.stream_spec.counts_per_unit)

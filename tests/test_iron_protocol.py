@@ -78,6 +78,7 @@ def test_windows_are_still_and_events_in_order(recorded):
     assert kinds == ["position_start", "static_start", "static_end", "position_done"]
     windows, _ = pose_windows(events)
     np.testing.assert_allclose(np.diff(windows, axis=1), 5.0)  # hold = 5 s
+    np.testing.assert_allclose(np.diff(readings.windows, axis=1), 5.0 - 1 / 200)
     # the readings are the truth a^T (g up) + b within 5 sigma of their standard errors
     up = np.delete(truth.up, [0, 7], axis=0)
     expected = truth.a.T @ (truth.gravity * up.T) + truth.bias[:, None]
@@ -142,7 +143,7 @@ def test_a_technician_who_does_not_move_the_iron_times_out(tmp_path):
         writer = SessionWriter.create(path, {**protocol.metadata(), "unit_serial": "T"},
                                       {"imu": bench.stream_spec}, clock=bench.clock)
         with writer, Recorder(writer, tap, clock=bench.clock) as recorder, \
-                pytest.raises(ProtocolError, match="no still pose within 8 s"):
+                pytest.raises(ProtocolError, match="no still pose within 8 s after re-mounting 1"):
             protocol.run(recorder, tap)
     with Session.open(path) as s:
         assert s.events()[-1].kind == "abort"

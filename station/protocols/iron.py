@@ -7,7 +7,8 @@ minimum still time, a timeout), then recognises the face from the data.
 
     mount (new mounting) -> face -> settle -> hold -> face (next) ... -> mount ... -> done
 
-- mount:  ask the technician to fix the unit in the iron in a new way (every `faces` poses);
+- mount:  ask the technician to fix the unit in the iron in a new way (every `faces` poses) and
+          wait until it is still again: that pose is not a requested face;
 - face:   ask for the next face (the instruction's orientation is the iron's attitude, world ->
           iron frame, third column up);
 - settle: wait for a still interval that started after the request (an open interval of at
@@ -207,8 +208,10 @@ class IronProtocol:
 
     def _mount(self) -> str:
         k = self._mounting()
+        self._since = self.clock.now()
         self.operator.wait(Instruction(f"mounting {k + 1}/{self.settings.mountings}: fix the unit "
-                                       "in the iron in a way not used before"))
+                                       "in the iron in a way not used before and put it down"))
+        self._await_still(f"re-mounting {k + 1}")  # the pose after it is not a requested face
         return "face"
 
     def _face(self) -> str:
@@ -220,15 +223,8 @@ class IronProtocol:
         return "settle"
 
     def _settle(self) -> str:
-        deadline = self.clock.now() + self.settings.timeout
-        while (start := self._still_since()) is None:
-            if self.clock.now() > deadline:
-                raise ProtocolError(f"no still pose within {self.settings.timeout:g} s after "
-                                    f"asking for pose {self.position + 1}; stand the iron on a "
-                                    "face, let go and record the session again")
-            self.clock.sleep(self.settings.poll)
-        self._start = start
-        self.recorder.event("static_start", self.position, {"still_since": start})
+        self._start = self._await_still(f"asking for pose {self.position + 1}")
+        self.recorder.event("static_start", self.position, {"still_since": self._start})
         return "hold"
 
     def _hold(self) -> str:
@@ -237,10 +233,10 @@ class IronProtocol:
         self.clock.sleep(end - self.clock.now())
         self.recorder.drain(end + s.window, s.stale)  # the detector sees up to w/2 before the last
         since = self._still_since()
-        if since is None or since > self._start:
+        if since is None or since > self._start + s.window:  # a start jitters by a few samples
             self.operator.prompt(f"pose {j + 1}: the iron moved; let it rest")
             self.recorder.event("note", j, {"text": "moved during the still window"})
-            self._since = self.clock.now()
+            self._since = self._start + s.window  # the next still interval begins after the motion
             return "settle"
         self.recorder.event("static_end", j, {"window": [self._start, end]})
         t, z = self.tap.samples(self._start)
@@ -271,6 +267,17 @@ class IronProtocol:
         j = self.position if position is None else position
         return j // len(self.settings.faces)
 
+    def _await_still(self, after: str) -> float:
+        """Start time of the first still interval that begins after `_since`."""
+        deadline = self.clock.now() + self.settings.timeout
+        while (start := self._still_since()) is None:
+            if self.clock.now() > deadline:
+                raise ProtocolError(f"no still pose within {self.settings.timeout:g} s after "
+                                    f"{after}; put the iron down, let go and record the session "
+                                    "again")
+            self.clock.sleep(self.settings.poll)
+        return start
+
     def _still_since(self) -> float | None:
         """Start time of the still interval going on now, if it began after the last request."""
         s = self.settings
@@ -284,9 +291,9 @@ class IronProtocol:
         if not len(still.intervals):
             return None
         start, stop = still.intervals[-1]
-        w = 2 * round(s.window * self.tap.rate_hz / 2) + 1
-        if stop < len(t) - w // 2 - 1 or t[start] < self._since:
-            return None  # over, or the pose before the request
+        h = round(s.window * self.tap.rate_hz / 2)  # half the detector's window
+        if stop < len(t) - h - 1 or start <= h or t[start] < self._since:
+            return None  # over, begun before the samples looked at, or before the request
         return float(t[start])
 
 
@@ -297,7 +304,8 @@ class IronProtocol:
 class IronReadings:
     """Averaged readings of the still poses of an iron session (SI units).
 
-    M, sigma : (m, P) means and their standard errors; windows : (P, 2) clock seconds;
+    M, sigma : (m, P) means and their standard errors; windows : (P, 2) clock seconds of the
+    first and last sample averaged;
     mountings : (P,) mounting index; faces : P face labels (recognised from the data).
     """
 
@@ -346,36 +354,48 @@ def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
                   tolerance_deg: float = 20.0, **detector) -> IronReadings:
     """The still poses of an iron session (`station.session.Session`) and their faces.
 
-    Windows come from the protocol's events; a session without them (an imported recording) has
-    its still intervals detected (`detector`: options of `station.stillness.detect_still`), all in
-    one mounting. `a_nominal` defaults to the session metadata's (or the identity for a triad).
+    The still intervals are detected once on the whole recording (`station.stillness.
+    detect_still`, one noise level for the session; options: `detector`, default the protocol's
+    settings in the metadata), so the result does not depend on when the live protocol polled.
+    With the protocol's events, each completed pose averages the first `hold` seconds of the
+    interval that overlaps its recorded window most; without them (an imported recording) every
+    interval is a pose, all in one mounting. `a_nominal` defaults to the metadata's (or the
+    identity for a triad).
     """
     data = session.stream(stream)
     rate = data.spec.rate_hz
     t = sample_times(data.seq, data.host_time, rate)
     z = data.to_si()
+    settings = session.metadata.get("settings", {})
+    options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
+               if isinstance(settings.get(k), (int, float))}
+    still = detect_still(z, rate, **{**options, **detector})
     windows, mountings = pose_windows(session.events())
+    spans = still.intervals
     if len(windows):
-        chosen = [(t >= t0) & (t <= t1) for t0, t1 in windows]
+        first, last = t[spans[:, 0]], t[spans[:, 1] - 1]
+        overlap = (np.minimum(last[None], windows[:, 1:]) - np.maximum(first[None], windows[:, :1]))
+        best = np.argmax(overlap, axis=1)
+        lost = np.flatnonzero(overlap[np.arange(len(windows)), best] <= 0)
+        if len(lost):
+            raise CalibrationInputError(
+                f"pose(s) {(lost + 1).tolist()} of {session.path} are not still in the whole "
+                "recording.", "Check the detector settings, or record those poses again.")
+        hold = np.round((windows[:, 1] - windows[:, 0]) * rate).astype(np.int64)
+        spans = np.column_stack([spans[best, 0], np.minimum(spans[best, 1],
+                                                            spans[best, 0] + hold)])
     else:
-        still = detect_still(z, rate, **detector)
-        chosen = [(np.arange(len(t)) >= a) & (np.arange(len(t)) < b) for a, b in still.intervals]
-        windows = np.array([[t[a], t[b - 1]] for a, b in still.intervals]).reshape(-1, 2)
-        mountings = np.zeros(len(windows), np.int64)
-    if not chosen:
+        mountings = np.zeros(len(spans), np.int64)
+    if not len(spans):
         raise CalibrationInputError(f"the session {session.path} has no still pose.",
                                     "Record the iron on its faces, each pose still for seconds.")
-    counts = np.array([c.sum() for c in chosen])
-    if np.any(counts < 2):
-        raise CalibrationInputError(
-            f"pose(s) {(np.flatnonzero(counts < 2) + 1).tolist()} hold fewer than 2 samples.",
-            "The IMU link lost data: check it and record the session again.")
-    M = np.array([z[c].mean(axis=0) for c in chosen]).T
-    sigma = np.array([z[c].std(axis=0, ddof=1) / np.sqrt(c.sum()) for c in chosen]).T
+    M = np.array([z[a:b].mean(axis=0) for a, b in spans]).T
+    sigma = np.array([z[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b in spans]).T
     if a_nominal is None:
         a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : M.shape[0]].tolist())
     faces = recognise_faces(up_direction(M, a_nominal, bias_guess), mountings, tolerance_deg)
-    return IronReadings(M, sigma, windows, mountings, faces)
+    return IronReadings(M, sigma, np.column_stack([t[spans[:, 0]], t[spans[:, 1] - 1]]),
+                        mountings, faces)
 
 
 def calibrate_iron(readings: IronReadings, gravity: float, nominal=None):
