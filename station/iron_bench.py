@@ -121,9 +121,9 @@ class IronTechnician(SimulatedTechnician):
     in the iron (the iron protocol's only such instruction): the next of `mountings`.
 
     With a `period`, the technician works to a metronome: each turn starts at the first multiple of
-    `period` clock seconds at least `handling_time` after the request (the answer comes
-    before it; two seconds early). The recording then does not depend on when a loaded host got round to each step,
-    and a seeded session replays the same samples.
+    `period` clock seconds at least `handling_time` after the request (the answer comes two
+    seconds before it). The recording then does not depend on when a loaded host got round to each
+    step (unless it is late by more than the slack), and a seeded session replays the same samples.
     """
 
     def __init__(self, rig: IronRig, clock, mountings, handling_time: float = 3.0,
