@@ -34,7 +34,7 @@ from scipy import stats
 
 from station.calibrate import calibrate
 from station.errors import CalibrationInputError
-from station.protocols.rotary import position_windows, reduce_session
+from station.protocols.rotary import SEGMENT_EVENTS, position_windows, reduce_session
 from station.recorder import sample_times
 from station.session import Session
 
@@ -461,11 +461,13 @@ def _stream_health(report, name, data, events) -> None:
     if k < 2:
         report.warnings.append(f"Stream {name!r} holds {k} sample(s): nothing to analyse.")
         return
+    breaks = np.sort([e.time for e in events if e.kind in SEGMENT_EVENTS])
+    same_segment = np.diff(np.searchsorted(breaks, data.host_time, side="right")) == 0
     step = np.diff(data.seq)
-    gaps = step > 1
+    gaps = (step > 1) & same_segment  # a resumed recording may number its samples anew
     missing = int(np.sum(step[gaps] - 1))
-    backwards = int(np.sum(step <= 0))
-    t = sample_times(data.seq, data.host_time, rate)
+    backwards = int(np.sum((step <= 0) & same_segment))
+    t = sample_times(data.seq, data.host_time, rate, breaks)
     latency = data.host_time - t
     span = float(t[-1] - t[0])
     health.update(duration_s=span, gaps=int(gaps.sum()), missing=missing,

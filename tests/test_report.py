@@ -1,9 +1,11 @@
 """The session report (issue 6): rendered from a session recorded on the virtual bench through the
 real drivers, opened in headless Chromium (every image loads, no page error, a screenshot), its
-warnings triggered by sessions made to need them; `station report`."""
+warnings triggered by sessions made to need them; `station report`. The live view that watched
+that recording, and fed by hand."""
 
 import base64
 import html
+import io
 import json
 import os
 import re
@@ -14,10 +16,15 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from rich.console import Console
 
+from drivers.samples import SampleBlock
 from station import calibrate, cli, report
-from station.commands.demo import run_demo
+from station.live_view import LiveView
+from station.protocols.rotary import RotaryProtocol, reduce_session, suggested_axes
+from station.recorder import Recorder
 from station.session import Session, SessionWriter, write_results
+from station.virtual_bench import VirtualBench
 
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -54,10 +61,27 @@ def chromium():
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """A session of 8 positions recorded on the virtual bench (80x clock), with its results."""
+    """A session of 8 positions recorded on the virtual bench (40x clock) under the live view,
+    reduced and solved (results/rotary): (path, the view, what the view printed)."""
     path = tmp_path_factory.mktemp("bench") / "bench.h5"
-    summary = run_demo(path, positions=POSITIONS, speed=80.0, seed=3)
-    return path, summary
+    screen = Console(file=io.StringIO(), force_terminal=True, width=130, record=True)
+    with VirtualBench("serial", seed=3, speed=40.0) as bench, \
+            bench.drivers() as (imu, table):
+        view = LiveView(bench.clock)
+        protocol = view.follow(RotaryProtocol(table, view.observe_operator(bench.technician),
+                                              bench.clock, axes=suggested_axes(POSITIONS)))
+        metadata = {**protocol.metadata(), "unit_serial": "SIM-3"}
+        with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
+                                  clock=bench.clock) as writer, \
+                Recorder(writer, view.observe_imu(imu), clock=bench.clock) as recorder, \
+                view.show(screen):
+            protocol.run(view.observe_recorder(recorder))
+        a_nominal = bench.truth().a_nominal
+    with Session.open(path) as session:
+        reduced = reduce_session(session)
+    result = calibrate(reduced.M, 1.0, sigma=reduced.sigma, nominal=a_nominal)
+    write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)
+    return path, view, screen.export_text()
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +144,7 @@ def test_figures_next_to_the_report_are_the_embedded_ones(clean):
 
 
 def test_clean_session_report_states_the_recording_and_warns_of_nothing(recorded, clean):
-    path, demo = recorded
+    path = recorded[0]
     built = clean[0]
     s = built.summary
     with Session.open(path) as session:
@@ -128,7 +152,7 @@ def test_clean_session_report_states_the_recording_and_warns_of_nothing(recorded
         stored = session.results("rotary").calibration
     assert s["positions"] == s["positions_planned"] == POSITIONS
     assert s["samples"] == samples and s["sensors"] == 12 and s["rate_hz"] == 200
-    assert s["chi2_per_dof"] == pytest.approx(demo["chi2_per_dof"])
+    assert s["chi2_per_dof"] == pytest.approx(stored.chi2 / stored.dof)
     assert s["noise_median"] == pytest.approx(np.median(stored.sigma))
     assert s["closed_cleanly"] and s["outliers"] == 0
     assert built.warnings == [], built.warnings
@@ -241,3 +265,98 @@ def test_station_report_names_the_results_it_has(recorded, tmp_path, capsys):
     assert cli.main(["report", str(recorded[0]), "--out", str(tmp_path / "r.html"),
                      "--result", "nope"]) == 1
     assert "no results named 'nope'; it has rotary" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------- live view
+
+
+def test_live_view_followed_the_whole_recording(recorded):
+    path, view, printed = recorded
+    with Session.open(path) as session:
+        samples = len(session.stream("imu").seq)
+    # the view saw every block the recorder stored, and no sequence gap
+    assert view.samples == samples and view.seq_gaps == 0
+    final = printed[printed.rindex("calibration session"):]
+    assert "all positions recorded" in final and f"{POSITIONS} of {POSITIONS}" in final
+    assert "crc failures 0" in final and "standing still" in final
+    # the last windows: the whole static window and at least the 2 turns asked
+    static = float(re.search(r"static window\s+(\d+\.\d) of 10 s", final).group(1))
+    turns = float(re.search(r"rotating window\s+(\d+\.\d+) of 2 turns", final).group(1))
+    assert 10.0 <= static < 11.0 and 2.0 <= turns < 2.5
+    assert view.display_error is None
+    # the signal was seen still (most of the time: static windows, steady rotation); the brief
+    # motions (spin-up, stop) may fall between two refreshes: see the test fed by hand
+    assert "still (dispersion" in printed
+    assert "position 2/8: mount the unit" in printed  # the next instruction, while at 1
+    assert "position 8: rotating window (2 turns)" in final  # the last prompt
+
+
+class StepClock:
+    """A session clock moved by hand."""
+
+    def __init__(self):
+        self.t = 100.0
+
+    def now(self) -> float:
+        return self.t
+
+
+def test_live_view_windows_stillness_and_instructions():
+    clock = StepClock()
+    view = LiveView(clock, rate_hz=200.0)
+    protocol = view.follow(RotaryProtocol(table=None, operator=None, clock=clock,
+                                          axes=suggested_axes(8)))
+    protocol.position, protocol.state = 2, "static"
+    view.on_event("position_start", 2, {})
+    view.on_event("static_start", 2)
+    rng = np.random.default_rng(4)
+
+    def feed(seconds, signal):
+        for k in range(int(seconds * 10)):  # blocks of 20 samples at 200 Hz
+            start = view.samples
+            x = signal(np.arange(start, start + 20) / 200.0)
+            counts = np.round(1000 * (x[:, None] + rng.standard_normal((20, 3)))).astype(int)
+            view.on_samples(SampleBlock(counts, np.arange(start, start + 20),
+                                        np.full(20, np.nan), np.full(20, clock.t), ("x", "y", "z")),
+                            counts_per_unit=1000.0)
+            clock.t += 0.1
+
+    feed(2.5, lambda t: 0 * t)  # noise only: the quietest window is the reference
+    assert view.still and view.dispersion < 4
+    text = render_text(view)
+    assert "recording the static window" in text and "3 of 8" in text
+    assert "2.5 of 10 s" in text  # the static window started 2.5 s of clock ago
+    assert "position 4/8: mount the unit" in text  # the next instruction
+    feed(1.0, lambda t: 10 * np.sin(2 * np.pi * 2 * t))  # variance 50 x the noise: moving
+    assert not view.still and view.dispersion > 8
+    assert "moving" in render_text(view)
+    feed(1.0, lambda t: 0 * t)
+    assert view.still
+    view.on_event("static_end", 2)
+    clock.t += 30.0  # the static window stays as it ended
+    protocol.state = "rotating"
+    view.on_event("rotate_start", 2, {"angle": 1.0})
+    view.on_table(SimpleNamespace(time=clock.t, rate=1.0, angle=1.0 + 1.5 * np.pi,
+                                  rate_setpoint=1.0, running=True, moving=True, at_rate=True,
+                                  fault=False))
+    view.on_message("position 3: rotating window (2 turns)")
+    text = render_text(view)
+    assert "4.5 of 10 s" in text and "0.75 of 2 turns" in text and "turning" in text
+    assert "position 3: rotating window" in text and "recording the rotating window" in text
+
+
+def test_live_view_survives_a_failing_callback():
+    clock = StepClock()
+    view = LiveView(clock, rate_hz=200.0)
+    events = []
+    recorder = view.observe_recorder(SimpleNamespace(event=lambda *a: events.append(a),
+                                                     rate_hz=200.0))
+    recorder.event("rotate_start", 0, {"angle": "not a number"})  # the view cannot parse it
+    assert events == [("rotate_start", 0, {"angle": "not a number"})]  # still recorded
+    assert isinstance(view.display_error, ValueError)
+
+
+def render_text(view) -> str:
+    console = Console(file=io.StringIO(), width=130, record=True)
+    console.print(view.render())
+    return console.export_text()
