@@ -48,14 +48,16 @@ POSITIONS = 8
 def chromium():
     """Path of Chromium; installed with apt-get when absent and possible, else a skip."""
     found = shutil.which("chromium") or shutil.which("chromium-browser")
+    why = "needs root and apt-get"
     if found is None and os.geteuid() == 0 and shutil.which("apt-get"):
         for cmd in (["apt-get", "update"], ["apt-get", "install", "-y", "chromium"]):
-            subprocess.run(cmd, capture_output=True, timeout=900,
-                           env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+            done = subprocess.run(cmd, check=False, capture_output=True, text=True, timeout=900,
+                                  env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
+            why = f"{' '.join(cmd)} exited {done.returncode}: {done.stderr.strip()[-300:]}"
         found = shutil.which("chromium")
     if found is None:
-        pytest.skip("chromium is absent and could not be installed (needs root and apt-get: "
-                    "apt-get install -y chromium)")
+        pytest.skip(f"chromium is absent and could not be installed ({why}); install it with "
+                    "apt-get install -y chromium")
     return found
 
 
