@@ -6,7 +6,7 @@ import importlib
 import sys
 
 # module names under station/commands/, one per subcommand
-COMMANDS = ["demo", "simulate", "report", "solve", "apply", "export", "devices", "twin", "record", "resume", "replay", "import_"]
+COMMANDS = ["demo", "simulate", "report", "solve", "apply", "export", "devices", "twin", "record", "resume", "replay", "import_", "diagnose"]
 
 
 def build_parser() -> argparse.ArgumentParser:

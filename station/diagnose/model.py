@@ -43,8 +43,16 @@ class Model:
         return sum(f.dof for f in self.fitted.values())
 
 
-def _calibrate(data, readings) -> CalibrationResult:
-    return calibrate(readings, data.c, sigma=data.sigma_m)
+def _calibrate(data, readings, clipped: bool = False) -> CalibrationResult:
+    """Calibrate readings M weighted by their noise; with a clipped output, an entry whose
+    rotating window sat on the rail a fraction f of the time has 1 - f of the information."""
+    sigma = data.sigma_m
+    if clipped:
+        r0 = data.windows["rotating"][0]
+        on_rail = np.abs(data.counts) == rails.rail(data)
+        f = np.array([on_rail[j, r0:stop].mean(0) for j, stop in enumerate(data.rot_stop)]).T
+        sigma = sigma / np.sqrt(np.maximum(1 - f, 1e-6))
+    return calibrate(readings, data.c, sigma=sigma)
 
 
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
@@ -73,7 +81,7 @@ def fit(data, names, start: Model, iterations: int = 3) -> Model:
             fitted[name] = EXTENSIONS[name].fit(ctx, pred, twin.residual(ctx, pred))
         fitted = {name: fitted[name] for name in names}
         added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, {}, EXTENSIONS).z
-        cal = _calibrate(data, data.reduced.M - data.reduce(added).M)
+        cal = _calibrate(data, data.reduced.M - data.reduce(added).M, "saturation" in fitted)
     return evaluate(data, cal, fitted)
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2 as chi2_law
-from scipy.stats import norm
+from scipy.special import gammaln
 
 from station.diagnose import gap, model
 from station.diagnose.effects import EXTENSIONS
@@ -44,13 +44,12 @@ class Diagnosis:
 
 
 def log_sf(x: float, nu: float) -> float:
-    """log P(chi2(nu) > x); beyond double precision, the Wilson-Hilferty normal approximation
-    (so that overwhelming evidence still ranks)."""
+    """log P(chi2(nu) > x); beyond double precision, the leading term of the incomplete gamma
+    function's asymptotic series (so that overwhelming evidence still ranks)."""
     out = float(chi2_law.logsf(x, nu))
     if np.isfinite(out):
         return out
-    z = ((x / nu) ** (1 / 3) - (1 - 2 / (9 * nu))) / np.sqrt(2 / (9 * nu))
-    return float(norm.logsf(z))
+    return float((nu / 2 - 1) * np.log(x / 2) - x / 2 - gammaln(nu / 2))
 
 
 def evidence(current: model.Model, extended: model.Model, name: str, tests: int, alpha):
