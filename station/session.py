@@ -554,7 +554,7 @@ def _write_calibration(group, result: CalibrationResult) -> None:
             group.create_dataset(field.name, data=np.asarray(value, dtype=np.float64))
         else:
             group.attrs[field.name] = value
-    group.attrs["none_fields"] = none
+    group.attrs["none_fields"] = np.array(none, dtype=h5py.string_dtype())
 
 
 def _float_matrix(values, what, rows=None, shape=None) -> np.ndarray:
@@ -787,7 +787,10 @@ def _check_format(path, attrs) -> int:
 def _attr(attrs, key, kind, where):
     """An attribute of the expected Python type (str, float or list of str)."""
     value = attrs.get(key)
-    if kind is list and isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype == object:
+    # an empty list written as a plain array comes back as float64 (files of early version-1 writers)
+    if kind is list and isinstance(value, np.ndarray) and value.ndim == 1 and (
+        value.dtype == object or value.size == 0
+    ):
         value = list(value)
         if all(isinstance(v, str) for v in value):
             return value

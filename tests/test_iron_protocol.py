@@ -85,8 +85,6 @@ def test_windows_are_still_and_events_in_order(recorded):
     assert np.all(np.abs(readings.M - expected) < 5 * readings.sigma + 1e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="station/session.py writes an empty `none_fields` "
-                   "(no None field: biases estimated) that its reader refuses")
 def test_live_results_read_back(recorded):
     path, _, readings, result = recorded
     with Session.open(path) as s:

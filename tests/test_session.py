@@ -409,3 +409,19 @@ def test_a_damaged_superblock_is_refused(tmp_path, offset, data):
     for call in (Session.open, SessionWriter.resume):  # at once, not after HDF5's SWMR retries
         with pytest.raises(SessionFormatError, match="checksum is wrong"):
             call(path)
+
+
+def test_results_with_no_empty_field_read_back(tmp_path):
+    """A calibration with every field set (biases estimated) stores an empty `none_fields` list."""
+    rng = np.random.default_rng(11)
+    a, _, readings = section4_gyros(rng, 30, 1e-3)
+    readings = readings + rng.normal(0, 0.1, (12, 1))
+    cal = calibrate(readings, 1.0, bias="estimate")
+    assert all(getattr(cal, f.name) is not None for f in dataclasses.fields(cal))
+    path = tmp_path / "s.h5"
+    w = new_session(path)
+    w.append("imu", block(rng, 0, 10))
+    w.write_results("live", "imu", readings, cal)
+    with Session.open(path) as s:
+        back = s.results("live").calibration
+    assert np.array_equal(back.bias, cal.bias) and np.array_equal(back.a, cal.a)
