@@ -24,10 +24,10 @@ class FreeStaticCalibration:
     """Result of the free-static path; units are those of the input (e.g. raw counts).
 
     still : the detected still intervals over the accelerometer (and gyro) channels.
-    readings, readings_stderr : (3, P) accelerometer means per interval and their standard errors.
+    readings, readings_stderr : (m, P) accelerometer means per interval and their standard errors.
     accel : the accelerometer calibration (a in input units per m/s^2, canonical frame).
     rest_index : index of the still interval holding the rest period.
-    gyro_bias, gyro_bias_sigma : (3,) gyro means over that interval and their standard errors,
+    gyro_bias, gyro_bias_sigma : gyro means over that interval and their standard errors,
                                  or None without a gyro.
     """
 
@@ -41,27 +41,31 @@ class FreeStaticCalibration:
 
 
 def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **detector):
-    """Calibrate a triad accelerometer from a free-static recording accel (K, 3), fs in Hz.
+    """Calibrate m >= 3 accelerometers from a free-static recording accel (K, m), fs in Hz.
 
-    gyro     optional (K, 3) gyro samples: used for stillness detection too, biases from the rest.
+    A triad goes through the ellipsoid closed form, more sensors through the joint-bias factorization
+    (Hwangbo & Kanade p = 4); both are refined by maximum likelihood.
+    gyro     optional (K, k) gyro samples: used for stillness detection too, biases from the rest.
     detector options of `station.stillness.detect_still` (rest, window, enter, leave, ...).
     """
     acc = np.asarray(accel, dtype=float)
-    if acc.ndim != 2 or acc.shape[1] != 3:
+    if acc.ndim != 2 or acc.shape[1] < 3:
         raise CalibrationInputError(
-            f"accelerometer samples have shape {acc.shape}.", "Give a (samples, 3) array."
+            f"accelerometer samples have shape {acc.shape}.",
+            "Give a (samples, m) array with m >= 3 accelerometer channels.",
         )
+    m = acc.shape[1]
     channels = acc
     if gyro is not None:
         gyro = np.asarray(gyro, dtype=float)
-        if gyro.shape != acc.shape:
+        if gyro.ndim != 2 or gyro.shape[0] != acc.shape[0]:
             raise CalibrationInputError(
                 f"gyro samples have shape {gyro.shape}, accelerometer {acc.shape}.",
                 "Give both streams on the same time base, one row per sample.",
             )
         channels = np.hstack([acc, gyro])
     still = detect_still(channels, fs, **detector)
-    readings, stderr = still.mean[:, :3].T, still.stderr[:, :3].T
+    readings, stderr = still.mean[:, :m].T, still.stderr[:, :m].T
     fit = calibrate(readings, g_local, d=3, bias="estimate")  # refuses too few poses, with advice
     rest_index = _interval_holding(still.intervals, still.rest)
     return FreeStaticCalibration(
@@ -70,8 +74,8 @@ def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **dete
         readings_stderr=stderr,
         accel=fit,
         rest_index=rest_index,
-        gyro_bias=None if gyro is None else still.mean[rest_index, 3:],
-        gyro_bias_sigma=None if gyro is None else still.stderr[rest_index, 3:],
+        gyro_bias=None if gyro is None else still.mean[rest_index, m:],
+        gyro_bias_sigma=None if gyro is None else still.stderr[rest_index, m:],
     )
 
 

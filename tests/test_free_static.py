@@ -61,8 +61,21 @@ def test_shape_mismatch_is_refused():
     y, gyro = with_gyro(seed=9)
     with pytest.raises(CalibrationInputError, match="same time base"):
         calibrate_free_static(y, FS, G, gyro=gyro[:-1])
-    with pytest.raises(CalibrationInputError, match=r"\(samples, 3\)"):
+    with pytest.raises(CalibrationInputError, match=r"m >= 3 accelerometer"):
         calibrate_free_static(y[:, :2], FS, G)
+
+
+def test_four_accelerometers_go_through_the_joint_bias_factorization():
+    # a fourth sensor along (1, 1, 1)/sqrt(3) of the triad: axis a w, bias b . w + 500 counts (a bias
+    # in the span of the axes would be unidentifiable: the factorization refuses that case)
+    y, _, _, _ = simulated(seed=12)
+    w = np.ones(3) / np.sqrt(3)
+    fit = calibrate_free_static(np.hstack([y, (y @ w + 500.0)[:, None]]), FS, G)
+    assert fit.readings.shape == (4, 15) and fit.accel.method == "factorization"
+    true_scale = COUNTS * np.linalg.norm(A_TRUE, axis=0)
+    assert np.all(np.abs(fit.accel.scale_factors[:3] - true_scale) < 4 * fit.accel.scale_factors_sigma[:3])
+    expected_fourth = COUNTS * np.linalg.norm(A_TRUE @ w)
+    assert abs(fit.accel.scale_factors[3] - expected_fourth) < 4 * fit.accel.scale_factors_sigma[3]
 
 
 def test_too_few_poses_are_refused_with_advice():
