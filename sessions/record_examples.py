@@ -14,14 +14,14 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from station.protocols.rotary import RotarySettings, suggested_axes  # noqa: E402
-from station.replay import replay_into  # noqa: E402
-from station.virtual_bench import VirtualBench, record_rotary  # noqa: E402
+from station.protocols.rotary import RotarySettings, suggested_axes
+from station.replay import replay_into
+from station.virtual_bench import VirtualBench, record_rotary
 
 # 12 positions of a 12-gyro unit, 25 Hz, one revolution per position: about 1.2 MB (0.65 MB of it
 # is the fixed 64 KB chunks of the session format)
 EXAMPLES = {
-    "rotary-12gyro.h5": dict(seed=7, positions=12, rate_hz=25.0),
+    "rotary-12gyro.h5": {"seed": 7, "positions": 12, "rate_hz": 25.0},
 }
 SETTINGS = RotarySettings(rate=1.0, revolutions=1, static=4.0, rest=0.5, guard=0.5, steady=0.5)
 

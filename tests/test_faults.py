@@ -59,7 +59,7 @@ def check_readings(s, events, reduced):
 
 
 @pytest.mark.parametrize("window", ["static", "rotating"])
-def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, window):
+def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, window):  # noqa: F811 - the fixture
     s = session()
     act = once(s.bench.imu_twin.unplug)
     if window == "rotating":
@@ -100,7 +100,7 @@ def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, 
     check_readings(s, events, reduced)
 
 
-def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(session):
+def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(session):  # noqa: F811 - the fixture
     s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}))
     s.bench.technician.fixes_cables = False
     s.protocol.table = Interrupting(s.table, once(s.bench.imu_twin.unplug), run=1)
@@ -124,7 +124,7 @@ class Declining(SimulatedTechnician):
 
 
 @pytest.mark.parametrize("answer", ["go on", "stop"])
-def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):
+def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):  # noqa: F811 - the fixture
     s = session()
     if answer == "stop":
         b = s.bench

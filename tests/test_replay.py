@@ -17,7 +17,14 @@ from station.replay import ReplaySettings, replay, replay_into, replay_raw
 from station.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
-EXAMPLES = sorted(SESSIONS.glob("*.h5"))
+
+
+def _protocol(path) -> str:
+    with Session.open(path) as f:
+        return f.protocol
+
+
+EXAMPLES = sorted(p for p in SESSIONS.glob("*.h5") if _protocol(p) == "rotary")
 
 
 def stored(path, name="rotary"):
