@@ -34,7 +34,7 @@ def statistics(data, model) -> dict:
     out = {"averaged": float(model.calibration.chi2 / max(model.calibration.dof, 1))}
 
     s0, s1 = data.windows["static"]
-    b = model.prediction.b + r[:, s0:s1].mean(1)  # (n, m) static means net of the model
+    b = r[:, s0:s1].mean(1)  # (n, m) static means net of the model
     w = (s1 - s0) / sig**2
     out["static"] = float(np.sum((b - b.mean(0)) ** 2 * w) / (b.size - b.shape[1]))
 

@@ -3,8 +3,9 @@
 An effect's signature is the change it makes to the twin's noise-free series per unit of a
 parameter. Series are averaged over bins of `RotaryData.bin` samples (white noise of standard
 deviation sigma_i per sample leaves sigma_i / sqrt(bin) per bin). The nominal model gives every
-position and sensor its own bias (Eq. 18 subtracts it), a nuisance parameter that least squares
-eliminates by centring residuals and signatures on their mean over the position's bins. Parameters are separate per sensor, per position or global, which keeps each
+sensor one bias, a nuisance parameter that least squares eliminates by centring residuals and
+signatures on their mean over the session's bins: the chi2 is then the within-position part
+(trends, tones, transients, the rotating level) plus the position means against orientation. Parameters are separate per sensor, per position or global, which keeps each
 normal-equation block small.
 """
 
@@ -16,14 +17,13 @@ BLOCKS = {"sensor": "m", "position": "n", "global": ""}
 
 
 def centred_bins(data, x: np.ndarray) -> np.ndarray:
-    """Bin means of x (n, k, m) minus their mean over each position: (n, K, m)."""
+    """Bin means of x (n, k, m) minus their mean over the session per sensor: (n, K, m)."""
     b = data.bins(x)
-    return b - b.mean(1, keepdims=True)
+    return b - b.mean((0, 1), keepdims=True)
 
 
 def chi2(data, r: np.ndarray, sigma: np.ndarray) -> float:
-    """Sum of squared binned residuals r (n, k, m) in units of their noise, per-position biases
-    eliminated."""
+    """Sum of squared binned residuals r (n, k, m) in units of their noise, biases eliminated."""
     return float(np.sum(centred_bins(data, r) ** 2 * (data.bin / sigma**2)))
 
 

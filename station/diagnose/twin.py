@@ -5,8 +5,8 @@ the table is the fitted axis u_j = v_j / |v_j| completed by an arbitrary azimuth
 the table's heading carry their own per-position heading or phase). The noise-free expected
 series is built in the simulator's order (docs/simulator.md) with each model extension's `apply`,
 which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
-projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift; the
-per-position bias, the mean of the data minus the rest) -> output (saturation, as an expectation).
+projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift; one
+bias per sensor, the mean of the data minus the rest) -> output (saturation, as an expectation).
 """
 
 from dataclasses import dataclass
@@ -32,7 +32,7 @@ class Context:
 @dataclass(frozen=True)
 class Prediction:
     """The twin's noise-free series: rate (n, k) true table rate, omega (n, k, d), s = a^T omega
-    (n, k, m), z (n, k, m) the expected output, b (n, m) the per-position biases."""
+    (n, k, m), z (n, k, m) the expected output, b (m,) the biases."""
 
     rate: np.ndarray
     omega: np.ndarray
@@ -78,8 +78,8 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
     for name in active:
         if stage[name] == "offset":
             z = z + extensions[name].apply(ctx, fitted[name], rate)
-    b = (data.y - z).mean(1)
-    z = z + b[:, None, :]
+    b = (data.y - z).mean((0, 1))
+    z = z + b
     for name in active:
         if stage[name] == "output":
             z = extensions[name].apply(ctx, fitted[name], z)

@@ -35,8 +35,9 @@ def fit(ctx, prediction, r) -> Fitted:
     tone = np.cos(heading)[:, None, None] * s0 + np.sin(heading)[:, None, None] * s90
     lf = linear.fit(ctx.data, r, [tone], ctx.sigma, "global")
     horizontal = float(lf.theta[0, 0])
-    vertical, vertical_sigma = _vertical(ctx, prediction, horizontal * tone)
+    vertical, vertical_sigma = _vertical(ctx, prediction.b + r.mean(1), horizontal * tone)
     n = heading.size
+    vertical_gain = vertical**2 / vertical_sigma**2
     return Fitted(
         "earth_rate",
         {"horizontal_rate": horizontal, "vertical_rate": vertical,
@@ -44,18 +45,19 @@ def fit(ctx, prediction, r) -> Fitted:
          "rate": float(np.hypot(horizontal, vertical)), "heading_deg": np.degrees(heading)},
         {"horizontal_rate": float(np.sqrt(lf.cov[0, 0, 0])), "vertical_rate": vertical_sigma,
          "latitude_deg": np.nan, "rate": np.nan, "heading_deg": np.full(n, np.nan)},
-        dof=n + 1,
-        reduction=lf.reduction(),
-        null=tone_null(free.h),
+        dof=n + 2,
+        reduction=lf.reduction() + vertical_gain,
+        null=_shift(tone_null(free.h)),
         notes="per-position headings are nuisance (unknown mounting azimuth); the vertical "
-        "rate comes from the static means and assumes constant biases",
+        "rate comes from the position means and assumes constant biases",
     )
 
 
-def _vertical(ctx, prediction, horizontal: np.ndarray) -> tuple[float, float]:
-    """U and its sigma from the position biases b_ij = b_i + a_i . (U u_j + horizontal part)."""
+def _vertical(ctx, means: np.ndarray, horizontal: np.ndarray) -> tuple[float, float]:
+    """U and its sigma from the position means (n, m) of the data minus the twin without the
+    Earth rate, b_i + a_i . (U u_j + horizontal part)."""
     k = ctx.data.shape[1]
-    b = prediction.b - horizontal.mean(1)  # (n, m)
+    b = means - horizontal.mean(1)  # (n, m)
     n, m = b.shape
     proj = (ctx.orientation[:, :, 2] @ ctx.a)  # (n, m): a_i . u_j
     x = np.zeros((n * m, m + 1))
@@ -65,6 +67,13 @@ def _vertical(ctx, prediction, horizontal: np.ndarray) -> tuple[float, float]:
     h = x.T @ (w[:, None] * x)
     theta = np.linalg.solve(h, x.T @ (w * b.ravel()))
     return float(theta[m]), float(np.sqrt(np.linalg.inv(h)[m, m]))
+
+
+def _shift(law: tuple) -> tuple:
+    """The tone fit's law (scale, nu) plus one chi2(1) for the vertical rate, moment-matched."""
+    scale, nu = law
+    mean, var = scale * nu + 1, 2 * scale**2 * nu + 2
+    return var / (2 * mean), 2 * mean**2 / var
 
 
 def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:

@@ -1,0 +1,123 @@
+"""Acceptance statistics of `station diagnose` on simulated rotary sessions (issue 7).
+
+Sessions hide one effect each (or none), with magnitudes of a few noise sigma in the effect's own
+signature, m in {3, 6, 12}, n = 20. Prints, per effect, how often the right effect (or `none`)
+is named, the gap before and after, and for rate_error, scale_nonlinearity and bias_drift the
+eps of the calibration before and after against sqrt(trace(CRLB)); then the time of one full
+20-position, 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]`.
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from station.diagnose import data as session_data  # noqa: E402
+from station.diagnose import diagnose  # noqa: E402
+from station.frames import eps  # noqa: E402
+from station.sim.effects import parse  # noqa: E402
+from station.sim.layouts import A_MODEL, TRIAD, gyro_array  # noqa: E402
+from station.sim.profile import RotaryTiming  # noqa: E402
+from station.sim.rotary import simulate_rotary  # noqa: E402
+from station.uncertainty import crlb  # noqa: E402
+
+SHORT = RotaryTiming(static=4.0, moving=10.0)
+"""A short position (4 s static, 10 s moving) for the acceptance suite, at 100 Hz."""
+
+CASES = {
+    "none": "none",
+    "bias_drift": "bias_drift=warmup=0.004,heating=0.0006",
+    "scale_nonlinearity": "scale_nonlinearity=k2=2e-4",
+    "rate_error": "rate_error=spread=1.5e-4",
+    "earth_rate": "earth_rate=rate=2e-4",
+    "axis_wobble": "axis_wobble=angle_deg=0.004",
+    "latency": "latency=delay=3e-4",
+    "saturation": "saturation=range=1.56",
+}
+"""Effect -> simulator spec of the hidden effect for the short sessions."""
+
+LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
+
+
+def session(effect: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
+    """(RotaryData, truth) of one simulated session hiding `effect`."""
+    rng = np.random.default_rng(seed)
+    name, params = parse(CASES[effect])
+    effects = {} if params is None else {name: params}
+    unit = gyro_array(rng, LAYOUTS[m], fs=fs)
+    sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
+    return session_data.from_arrays(sim.arrays), sim.truth
+
+
+def run_case(effect: str, m: int, seed: int, **kwargs) -> dict:
+    """Diagnose one session; the named effects, gaps and calibration errors."""
+    d, truth = session(effect, m, seed, **kwargs)
+    result = diagnose(d)
+    a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
+    bound = float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m))))
+    return {
+        "effect": effect,
+        "m": m,
+        "seed": seed,
+        "named": result.effects,
+        "first": result.effects[0] if result.effects else "none",
+        "gap": [step.gap for step in result.steps],
+        "eps_before": eps(a_true, result.steps[0].model.calibration.a),
+        "eps_after": eps(a_true, result.final.calibration.a),
+        "crlb": bound,
+    }
+
+
+def acceptance(seeds: int) -> dict:
+    """Per effect: rate of the right call, gaps and eps over m in {3, 6, 12} and `seeds` seeds."""
+    out = {}
+    for effect in CASES:
+        runs = [run_case(effect, m, 1000 * m + s) for m in LAYOUTS for s in range(seeds)]
+        right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none") for r in runs]
+        out[effect] = {
+            "sessions": len(runs),
+            "right_rate": float(np.mean(right)),
+            "named": [r["named"] for r in runs],
+            "gap_before_max": {k: float(np.median([r["gap"][0][k] for r in runs]))
+                               for k in runs[0]["gap"][0]},
+            "gap_after_max": {k: float(max(r["gap"][-1][k] for r in runs))
+                              for k in runs[0]["gap"][-1]},
+            "eps_before_over_bound_rms": float(np.sqrt(np.mean(
+                [(r["eps_before"] / r["crlb"]) ** 2 for r in runs]))),
+            "eps_after_over_bound_rms": float(np.sqrt(np.mean(
+                [(r["eps_after"] / r["crlb"]) ** 2 for r in runs]))),
+        }
+    return out
+
+
+def timing() -> dict:
+    """Wall time of one 20-position, 12-channel, 200 Hz session (10 s static, 25 s moving)."""
+    d, _ = session("earth_rate", 12, 7, timing=RotaryTiming(), fs=200.0)
+    start = time.perf_counter()
+    result = diagnose(d)
+    return {"seconds": time.perf_counter() - start, "named": result.effects,
+            "samples": int(np.prod(d.shape))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--seeds", type=int, default=4, help="sessions per effect and m")
+    args = parser.parse_args()
+    out = {"timing_full_session": timing(), "acceptance": acceptance(args.seeds)}
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return
+    print(f"full session: {out['timing_full_session']['seconds']:.1f} s")
+    for effect, r in out["acceptance"].items():
+        print(f"{effect:19s} right {r['right_rate']:.2f} of {r['sessions']}  eps/bound "
+              f"{r['eps_before_over_bound_rms']:.2f} -> {r['eps_after_over_bound_rms']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
