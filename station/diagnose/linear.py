@@ -2,10 +2,13 @@
 
 An effect's signature is the change it makes to the twin's noise-free series per unit of a
 parameter. Series are averaged over bins of `RotaryData.bin` samples (white noise of standard
-deviation sigma_i per sample leaves sigma_i / sqrt(bin) per bin). The nominal model gives every
-sensor one bias, a nuisance parameter that least squares eliminates by centring residuals and
-signatures on their mean over the session's bins: the chi2 is then the within-position part
-(trends, tones, transients, the rotating level) plus the position means against orientation. Parameters are separate per sensor, per position or global, which keeps each
+deviation sigma_i per sample leaves sigma_i / sqrt(bin) per bin). Two parts enter the chi2:
+- within positions: bins centred on their position's mean (Eq. 18 gives each position its own
+  bias): trends, tones, transients, the rotating level against the static one;
+- across positions: the static-window means centred on one bias per sensor (static means
+  against orientation: warm-up, Earth rate), weighted by their own noise sigma_i / sqrt(N_s).
+The static means share their noise with the first part's static bins, a small double count
+that the selection's significance level absorbs. Parameters are separate per sensor, per position or global, which keeps each
 normal-equation block small.
 """
 
@@ -17,14 +20,29 @@ BLOCKS = {"sensor": "m", "position": "n", "global": ""}
 
 
 def centred_bins(data, x: np.ndarray) -> np.ndarray:
-    """Bin means of x (n, k, m) minus their mean over the session per sensor: (n, K, m)."""
+    """Bin means of x (n, k, m) minus their mean over each position: (n, K, m)."""
     b = data.bins(x)
-    return b - b.mean((0, 1), keepdims=True)
+    return b - b.mean(1, keepdims=True)
+
+
+def centred_static(data, x: np.ndarray) -> np.ndarray:
+    """Static-window means of x (n, k, m) minus their mean over the positions: (n, m)."""
+    s0, s1 = data.windows["static"]
+    b = x[:, s0:s1].mean(1)
+    return b - b.mean(0)
+
+
+def weights(data, sigma: np.ndarray) -> tuple:
+    """(m,) weights of a bin and of a static mean."""
+    s0, s1 = data.windows["static"]
+    return data.bin / sigma**2, (s1 - s0) / sigma**2
 
 
 def chi2(data, r: np.ndarray, sigma: np.ndarray) -> float:
-    """Sum of squared binned residuals r (n, k, m) in units of their noise, biases eliminated."""
-    return float(np.sum(centred_bins(data, r) ** 2 * (data.bin / sigma**2)))
+    """chi2 of the residuals r (n, k, m): within positions plus static means across positions."""
+    w, ws = weights(data, sigma)
+    return float(np.sum(centred_bins(data, r) ** 2 * w)
+                 + np.sum(centred_static(data, r) ** 2 * ws))
 
 
 @dataclass(frozen=True)
@@ -45,15 +63,25 @@ class LinearFit:
 def fit(data, r: np.ndarray, basis: list, sigma: np.ndarray, by: str) -> LinearFit:
     """Least-squares coefficients of the signatures `basis` (each (n, k, m) or (n, k, 1))
     explaining the residuals r, one coefficient set per sensor, per position or global (`by`)."""
-    rb = centred_bins(data, r)
-    return fit_binned(rb, [centred_bins(data, b) for b in basis], data.bin / sigma**2, by)
+    return fit_binned(centred(data, r), [centred(data, b) for b in basis],
+                      weights(data, sigma), by)
 
 
-def fit_binned(rb: np.ndarray, basis: list, w: np.ndarray, by: str) -> LinearFit:
-    """`fit` on centred bins: residuals rb (n, K, m), signatures (n, K, m or 1), weights w (m,)."""
-    x = np.stack([np.broadcast_to(b, rb.shape) for b in basis], -1)
+def centred(data, x: np.ndarray) -> tuple:
+    """(centred_bins, centred_static) of x."""
+    return centred_bins(data, x), centred_static(data, x)
+
+
+def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
+    """`fit` on centred parts: r = (bins (n, K, m), static (n, m)), each signature the same with
+    m or 1 sensors, w = (bin weights, static weights) (m,)."""
     out = BLOCKS[by]
-    h = np.einsum(f"nkmp,nkmq,m->{out}pq", x, x, w).reshape(-1, len(basis), len(basis))
-    g = np.einsum(f"nkmp,nkm,m->{out}p", x, rb, w).reshape(-1, len(basis))
+    p = len(basis)
+    h, g = 0.0, 0.0
+    for part, sub in ((0, "nk"), (1, "n")):
+        rp = r[part]
+        x = np.stack([np.broadcast_to(b[part], rp.shape) for b in basis], -1)
+        h = h + np.einsum(f"{sub}mp,{sub}mq,m->{out}pq", x, x, w[part]).reshape(-1, p, p)
+        g = g + np.einsum(f"{sub}mp,{sub}m,m->{out}p", x, rp, w[part]).reshape(-1, p)
     cov = np.linalg.pinv(h)
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)

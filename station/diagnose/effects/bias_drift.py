@@ -29,11 +29,11 @@ def _unit(ctx, rate, warmup_tau, heating_tau, which):
 def fit(ctx, prediction, r) -> Fitted:
     """warmup, heating (m,) and the time constants from the grid; see the module docstring."""
     data, rate = ctx.data, prediction.rate
-    warm = {tau: linear.centred_bins(data, _unit(ctx, rate, tau, 1.0, "warmup"))
+    warm = {tau: linear.centred(data, _unit(ctx, rate, tau, 1.0, "warmup"))
             for tau in WARMUP_TAUS}
-    heat = {tau: linear.centred_bins(data, _unit(ctx, rate, 1.0, tau, "heating"))
+    heat = {tau: linear.centred(data, _unit(ctx, rate, 1.0, tau, "heating"))
             for tau in HEATING_TAUS}
-    rb, w = linear.centred_bins(data, r), data.bin / ctx.sigma**2
+    rb, w = linear.centred(data, r), linear.weights(data, ctx.sigma)
     grid = {
         (tw, th): linear.fit_binned(rb, [warm[tw], heat[th]], w, "sensor")
         for tw in WARMUP_TAUS for th in HEATING_TAUS

@@ -35,7 +35,8 @@ def fit(ctx, prediction, r) -> Fitted:
     tone = np.cos(heading)[:, None, None] * s0 + np.sin(heading)[:, None, None] * s90
     lf = linear.fit(ctx.data, r, [tone], ctx.sigma, "global")
     horizontal = float(lf.theta[0, 0])
-    vertical, vertical_sigma = _vertical(ctx, prediction.b + r.mean(1), horizontal * tone)
+    s0, s1 = ctx.data.windows["static"]
+    vertical, vertical_sigma = _vertical(ctx, r[:, s0:s1].mean(1), horizontal * tone)
     n = heading.size
     vertical_gain = vertical**2 / vertical_sigma**2
     return Fitted(
@@ -49,15 +50,16 @@ def fit(ctx, prediction, r) -> Fitted:
         reduction=lf.reduction() + vertical_gain,
         null=_shift(tone_null(free.h)),
         notes="per-position headings are nuisance (unknown mounting azimuth); the vertical "
-        "rate comes from the position means and assumes constant biases",
+        "rate comes from the static means and assumes constant biases",
     )
 
 
 def _vertical(ctx, means: np.ndarray, horizontal: np.ndarray) -> tuple[float, float]:
-    """U and its sigma from the position means (n, m) of the data minus the twin without the
+    """U and its sigma from the static means (n, m) of the data minus the twin without the
     Earth rate, b_i + a_i . (U u_j + horizontal part)."""
-    k = ctx.data.shape[1]
-    b = means - horizontal.mean(1)  # (n, m)
+    s0, s1 = ctx.data.windows["static"]
+    k = s1 - s0
+    b = means - horizontal[:, s0:s1].mean(1)  # (n, m)
     n, m = b.shape
     proj = (ctx.orientation[:, :, 2] @ ctx.a)  # (n, m): a_i . u_j
     x = np.zeros((n * m, m + 1))
