@@ -21,6 +21,7 @@ from station.diagnose import data as session_data  # noqa: E402
 from station.diagnose import diagnose  # noqa: E402
 from station.frames import eps  # noqa: E402
 from station.sim.effects import parse  # noqa: E402
+from station.sim.effects.saturation import Saturation  # noqa: E402
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array  # noqa: E402
 from station.sim.profile import RotaryTiming  # noqa: E402
 from station.sim.rotary import simulate_rotary  # noqa: E402
@@ -37,21 +38,33 @@ CASES = {
     "earth_rate": "earth_rate=rate=2e-4",
     "axis_wobble": "axis_wobble=angle_deg=0.004",
     "latency": "latency=delay=3e-4",
-    "saturation": "saturation=range=1.56",
+    "saturation": "saturation",
 }
-"""Effect -> simulator spec of the hidden effect for the short sessions."""
+"""Effect -> simulator spec of the hidden effect for the short sessions. The saturation range is
+set per session 2 noise sigma below the largest steady output (`rail_below_peak`)."""
 
 LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
 
 
 def session(effect: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
     """(RotaryData, truth) of one simulated session hiding `effect`."""
-    rng = np.random.default_rng(seed)
     name, params = parse(CASES[effect])
     effects = {} if params is None else {name: params}
+    if effect == "saturation":
+        effects = {name: Saturation(rail_below_peak(m, seed, timing, fs, n))}
+    rng = np.random.default_rng(seed)
     unit = gyro_array(rng, LAYOUTS[m], fs=fs)
     sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
     return session_data.from_arrays(sim.arrays), sim.truth
+
+
+def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
+    """A range `sigmas` sample sigma below the largest steady |output| of the same session
+    without the effect (the saturation draws nothing from the generator)."""
+    unit = gyro_array(np.random.default_rng(seed), LAYOUTS[m], fs=fs)
+    truth = simulate_rotary(unit, n, timing, a_nominal=LAYOUTS[m]).truth
+    steady = np.asarray(truth["a"]).T @ np.asarray(truth["v"]) + unit.bias[:, None]
+    return float(np.abs(steady).max() - sigmas * unit.sigma.max())
 
 
 def run_case(effect: str, m: int, seed: int, **kwargs) -> dict:

@@ -55,7 +55,7 @@ def statistics(data, model) -> dict:
     out["transients"] = float(np.mean(np.square(trans)))
 
     n_obs = rails.observed(data)
-    n_exp = rails.expected(data, model.prediction.z, sig, clipped="saturation" in model.fitted)
+    n_exp = rails.expected(data, model.prediction.mu, sig, clipped="saturation" in model.fitted)
     held = max(int(np.sum(n_obs > 0)), 1)
     out["rails"] = rails.deviance(n_obs, n_exp) / held
     return out

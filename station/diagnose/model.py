@@ -60,7 +60,7 @@ def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
     ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
     pred = twin.predict(ctx, fitted, EXTENSIONS)
     chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
-    exp = rails.expected(data, pred.z, data.sigma, clipped="saturation" in fitted)
+    exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
     return Model(calibration, dict(fitted), ctx, pred, chi2,
                  rails.deviance(rails.observed(data), exp))
 

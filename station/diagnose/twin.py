@@ -32,11 +32,13 @@ class Context:
 @dataclass(frozen=True)
 class Prediction:
     """The twin's noise-free series: rate (n, k) true table rate, omega (n, k, d), s = a^T omega
-    (n, k, m), z (n, k, m) the expected output, b (m,) the biases."""
+    (n, k, m), mu (n, k, m) the output before clipping, z (n, k, m) the expected output, b (m,)
+    the biases."""
 
     rate: np.ndarray
     omega: np.ndarray
     s: np.ndarray
+    mu: np.ndarray
     z: np.ndarray
     b: np.ndarray
 
@@ -79,11 +81,11 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
         if stage[name] == "offset":
             z = z + extensions[name].apply(ctx, fitted[name], rate)
     b = (data.y - z).mean((0, 1))
-    z = z + b
+    z = mu = z + b
     for name in active:
         if stage[name] == "output":
             z = extensions[name].apply(ctx, fitted[name], z)
-    return Prediction(rate, omega, s, z, b)
+    return Prediction(rate, omega, s, mu, z, b)
 
 
 def residual(ctx: Context, prediction: Prediction) -> np.ndarray:
