@@ -1,7 +1,11 @@
 """Faults during a rotary session on the virtual bench: an IMU unplugged in the middle of a window
 (the window is discarded and recorded again after the reconnection), a Modbus timeout (table
 stopped, session paused, going on or ending as the operator says). Nothing already recorded is lost
-and the twin's table is stopped after every fault."""
+and the twin's table is stopped after every fault.
+
+The bench runs at 20x here: the serial twin computes a frame's data when it sends it, with the
+table's state of that moment, so a twin lagging behind on a loaded host (0.1 s of wall time is 4 s
+of a 40x clock) puts rotation into samples taken before the table started."""
 
 import logging
 
@@ -60,7 +64,7 @@ def check_readings(s, events, reduced):
 
 @pytest.mark.parametrize("window", ["static", "rotating"])
 def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, window):  # noqa: F811 - the fixture
-    s = session()
+    s = session(speed=20.0)
     act = once(s.bench.imu_twin.unplug)
     if window == "rotating":
         s.protocol.table = Interrupting(s.table, act, run=2)
@@ -101,7 +105,7 @@ def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, 
 
 
 def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(session):  # noqa: F811 - the fixture
-    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}))
+    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}), speed=20.0)
     s.bench.technician.fixes_cables = False
     s.protocol.table = Interrupting(s.table, once(s.bench.imu_twin.unplug), run=1)
     with pytest.raises(ProtocolError, match="the IMU did not come back after 2 reconnections"):
@@ -125,7 +129,7 @@ class Declining(SimulatedTechnician):
 
 @pytest.mark.parametrize("answer", ["go on", "stop"])
 def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):  # noqa: F811 - the fixture
-    s = session()
+    s = session(speed=20.0)
     if answer == "stop":
         b = s.bench
         s.protocol.operator = Declining(b.mounted, b.clock, 1.0, 0.5, 0)

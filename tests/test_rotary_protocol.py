@@ -32,8 +32,8 @@ KINDS = ["position_start", "static_start", "static_end", "rotate_start", "rotate
 class BenchSession:
     """A bench, its drivers, a session writer and a running recorder, for one test."""
 
-    def __init__(self, path, imu="serial", technician=None, settings=FAST, axes=None):
-        self.bench = VirtualBench(imu, seed=3, speed=40.0, remount_time=1.0).start()
+    def __init__(self, path, imu="serial", technician=None, settings=FAST, axes=None, speed=40.0):
+        self.bench = VirtualBench(imu, seed=3, speed=speed, remount_time=1.0).start()
         self.path = path
         self._drivers = self.bench.drivers()
         self.imu, self.table = self._drivers.__enter__()
