@@ -15,17 +15,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from station.diagnose import data as session_data  # noqa: E402
-from station.diagnose import diagnose  # noqa: E402
-from station.frames import eps  # noqa: E402
-from station.sim.effects import parse  # noqa: E402
-from station.sim.effects.saturation import Saturation  # noqa: E402
-from station.sim.layouts import A_MODEL, TRIAD, gyro_array  # noqa: E402
-from station.sim.profile import RotaryTiming  # noqa: E402
-from station.sim.rotary import simulate_rotary  # noqa: E402
-from station.uncertainty import crlb  # noqa: E402
+from station.diagnose import data as session_data
+from station.diagnose import diagnose
+from station.frames import eps
+from station.sim.effects import parse
+from station.sim.effects.saturation import Saturation
+from station.sim.layouts import A_MODEL, TRIAD, gyro_array
+from station.sim.profile import RotaryTiming
+from station.sim.rotary import simulate_rotary
+from station.uncertainty import crlb
 
 SHORT = RotaryTiming(static=4.0, moving=10.0)
 """A short position (4 s static, 10 s moving) for the acceptance suite, at 100 Hz."""

@@ -11,8 +11,8 @@ for the tone fits); a candidate is significant when p < alpha / (candidates test
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2 as chi2_law
 from scipy.special import gammaln
+from scipy.stats import chi2 as chi2_law
 
 from station.diagnose import gap, model
 from station.diagnose.effects import EXTENSIONS
