@@ -118,3 +118,21 @@ def test_concurrent_callers_on_a_fast_clock_see_monotonic_time_and_angle():
     final = table.state()
     assert all(s.time <= final.time and s.angle <= final.angle for s in seen)
     assert all(0.0 <= s.rate <= 3.0 for s in seen)
+
+
+def test_true_rates_at_past_times_follow_the_command_history():
+    """A late twin asks for the motion at its samples' own (past) times: the answer must be the
+    state the table had then, not the present one (closed form: ramps of 2 rad/s^2)."""
+    clock = SteppedClock()
+    table = RotaryTable(clock, max_accel=2.0, rate_error=RateError(scale=0.01), seed=3)
+    table.set_rate(1.0)
+    clock.t = 1.0
+    table.start()  # ramp 1.0 .. 1.5 s, then 1 rad/s
+    clock.t = 4.0
+    factor = table.state().true_rate  # the rate_error factor drawn at start (rate is 1 rad/s)
+    assert factor != 1.0
+    table.stop()  # ramp down 4.0 .. 4.5 s
+    clock.t = 10.0  # everything below is asked afterwards, as a lagging twin would
+    times = [0.5, 1.25, 2.0, 4.25, 6.0]
+    expected = [0.0, 0.5 * factor, factor, 0.5 * factor, 0.0]
+    assert table.true_rates(times) == pytest.approx(expected)

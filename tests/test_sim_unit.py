@@ -97,6 +97,7 @@ def test_mounted_unit_streams_the_table_rate_along_its_axis():
     clock.t = 200.0
     a = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]])
     source = MountedUnit(SensorUnit(a, counts_per_unit=1000.0, rng=0), table)
-    assert source(np.arange(4) * 0.005).tolist() == [[0, 0, 1000]] * 4
+    assert source(200.0 + np.arange(4) * 0.005).tolist() == [[0, 0, 1000]] * 4
+    assert source([99.0]).tolist() == [[0, 0, 0]]  # a sample from before the start: at rest
     source.orientation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     assert source([200.0]).tolist() == [[2000, 0, 0]]

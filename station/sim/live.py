@@ -10,8 +10,8 @@ class MountedUnit:
     """`times -> counts (k, m)` for `unit` on `table`, for `drivers.twin_can`/serial twins.
 
     `orientation` (3 x 3, table frame -> unit frame) is what the technician changes between
-    positions; the angular rate is the table's true rate along the table axis, read from the
-    table's state at each call (bursts are short compared with the table's dynamics).
+    positions; the angular rate is the table's true rate along the table axis at each sample's
+    own time (`RotaryTable.true_rates`), so a twin that falls behind still sends the right motion.
     """
 
     def __init__(self, unit: SensorUnit, table: RotaryTable, orientation=None):
@@ -21,6 +21,5 @@ class MountedUnit:
 
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
-        rate = self.table.state().true_rate
-        omega = np.outer(np.full(times.size, rate), self.orientation[:, 2])
+        omega = np.outer(self.table.true_rates(times), self.orientation[:, 2])
         return self.unit.sample(omega, times)

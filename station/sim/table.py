@@ -7,6 +7,7 @@ reports (its own encoder and controller); with the `rate_error` effect the physi
 feels is `true_rate = factor * rate`, where the factor is drawn anew at every `start()`.
 """
 
+import collections
 import math
 import threading
 from dataclasses import dataclass
@@ -14,6 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.sim.effects.rate_error import RateError
+
+
+HISTORY = 10_000  # commands remembered for `true_rates` (a session issues a few per position)
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,8 @@ class RotaryTable:
         self._running = False
         self._fault = False
         self._in_band_since = None
+        # command history (time, rate then, target, true-rate factor): the motion at any past time
+        self._history = collections.deque([(self._t, 0.0, 0.0, 1.0)], maxlen=HISTORY)
 
     def _target(self) -> float:
         return self._setpoint if self._running and not self._fault else 0.0
@@ -118,9 +124,28 @@ class RotaryTable:
             self._in_band_since = self._t + min(entered, t_ramp)
 
     def _command(self) -> None:
-        """A command changed the target: restart the settle timer from the present state."""
+        """A command changed the target: restart the settle timer from the present state and
+        remember the command, so that the motion at past times stays known (`true_rates`)."""
         self._in_band_since = None
         self._track_band(self._rate, self._rate, 0.0)
+        self._history.append((self._t, self._rate, self._target(), self._factor))
+
+    def true_rates(self, times) -> np.ndarray:
+        """Physical rate (rad/s) at each of `times` (clock seconds), past or present.
+
+        A twin that computes its samples late (a loaded host) must not give a sample the motion of
+        the moment it is computed: the rate at the sample's own time follows from the commands
+        (ramp with bounded acceleration from the rate at the command, then constant).
+        """
+        times = np.asarray(times, dtype=float)
+        with self._lock:
+            hist = np.array(self._history)
+        t_cmd, r0, target, factor = hist.T
+        i = np.clip(np.searchsorted(t_cmd, times, side="right") - 1, 0, len(hist) - 1)
+        dt = np.maximum(times - t_cmd[i], 0.0)
+        ramp = r0[i] + np.sign(target[i] - r0[i]) * self.max_accel * dt
+        done = dt >= np.abs(target[i] - r0[i]) / self.max_accel
+        return factor[i] * np.where(done, target[i], ramp)
 
     def set_rate(self, rate_rad_s: float) -> None:
         """Set the rate setpoint (rad/s, signed), reached with bounded acceleration."""
