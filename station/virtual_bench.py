@@ -189,11 +189,12 @@ class VirtualBench:
 
 
 def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
-                  watch=None) -> None:
+                  watch=None, view=None) -> None:
     """Record a new rotary session file at `path` on the started `bench`.
 
     settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
     watch          : optional callable(writer), called once the session file exists
+    view           : optional `station.live_view.LiveView` shown while recording
     """
     with bench.drivers() as (imu, table):
         protocol = RotaryProtocol(table, bench.technician, bench.clock, settings, axes)
@@ -203,7 +204,7 @@ def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_seri
                                   clock=bench.clock) as writer:
             if watch is not None:
                 watch(writer)
-            continue_session(writer, metadata, imu, table, bench.technician, bench.clock)
+            continue_session(writer, metadata, imu, table, bench.technician, bench.clock, view)
 
 
 def resume_rotary(path, watch=None, **overrides) -> int:

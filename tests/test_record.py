@@ -88,7 +88,10 @@ def test_end_of_input_aborts_and_stops_the_table(tmp_path):
     with Session.open(tmp_path / "s.h5") as s:
         events = s.events()
         assert [e.kind for e in events if e.kind == "position_done"] == ["position_done"]
-        assert events[-1].kind == "abort" and "OperatorAbort" in events[-1].detail["error"]
+        aborts = [e for e in events if e.kind == "abort"]
+        assert len(aborts) == 1 and "OperatorAbort" in aborts[0].detail["error"]
+        # after the abort, the link counters are still recorded for the report
+        assert events[-1].kind == "note" and events[-1].detail["link"]["frames"] > 0
 
 
 @pytest.mark.parametrize("edit, message", [

@@ -33,6 +33,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
     p.add_argument("--out", type=Path,
                    help="keep the session file here (.h5; default: a temporary file, deleted)")
+    p.add_argument("--live", action="store_true",
+                   help="show the live view of the recording (phase, windows, table, link)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
@@ -53,10 +55,11 @@ def run(args) -> int:
         if args.out is None:
             with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
                 summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
-                                   args.speed)
+                                   args.speed, live=args.live)
             summary["session"] = None  # deleted with the temporary directory
         else:
-            summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed)
+            summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed,
+                               live=args.live)
     except KeyboardInterrupt:
         print("station demo: interrupted; the table was stopped", file=sys.stderr)
         return 130
@@ -71,35 +74,25 @@ def run(args) -> int:
 
 
 def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, speed: float = 40.0,
-             settings=None) -> dict:
-    """Record, reduce and calibrate one session on the virtual bench; the summary as a dict."""
+             settings=None, live: bool = False) -> dict:
+    """Record, reduce and calibrate one session on the virtual bench; the summary as a dict.
+    live: show the live view (station.live_view) while recording."""
     import station
-    from station.protocols.rotary import (
-        RotaryProtocol,
-        RotarySettings,
-        reduce_session,
-        suggested_axes,
-    )
-    from station.recorder import Recorder
-    from station.session import Session, SessionWriter, write_results
-    from station.virtual_bench import VirtualBench
+    from station.live_view import LiveView
+    from station.protocols.rotary import RotarySettings, reduce_session, suggested_axes
+    from station.session import Session, write_results
+    from station.virtual_bench import VirtualBench, record_rotary
 
     start = time.perf_counter()
     settings = settings or RotarySettings()
-    with VirtualBench(imu, seed=seed, speed=speed) as bench, bench.drivers() as (driver, table):
-        protocol = RotaryProtocol(table, bench.technician, bench.clock, settings,
-                                  suggested_axes(positions))
-        metadata = {**protocol.metadata(), "unit_serial": f"SIM-{seed}",
-                    "bench": {"imu": imu, "seed": seed, "speed": speed}}
-        writer = SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
-                                      clock=bench.clock)
-        with writer, Recorder(writer, driver, clock=bench.clock) as recorder:
-            protocol.run(recorder)
+    with VirtualBench(imu, seed=seed, speed=speed) as bench:
+        view = LiveView(bench.clock) if live else None
+        record_rotary(bench, path, settings, suggested_axes(positions), view=view)
         truth = bench.truth()
-        link = dict(vars(driver.stats))
     recorded = time.perf_counter() - start
     with Session.open(path) as session:
         reduced = reduce_session(session)
+        link = next((e.detail["link"] for e in reversed(session.events()) if "link" in e.detail), {})
     c = abs(settings.rate)
     result = station.calibrate(reduced.M, c, sigma=reduced.sigma, nominal=truth.a_nominal)
     write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)

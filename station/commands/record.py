@@ -51,6 +51,8 @@ def register(sub) -> None:
                    "sessions/<unit serial>-<date>.h5)")
     p.add_argument("--solve", action="store_true",
                    help="solve the session afterwards into <session>.cal.json")
+    p.add_argument("--live", action="store_true",
+                   help="show the live view (phase, windows, table, link) while recording")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -154,7 +156,7 @@ def run(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
     try:
-        summary = record(bench, out, operator)
+        summary = record(bench, out, operator, live=args.live)
         if args.solve:
             summary["calibration"] = solve(out)
     except KeyboardInterrupt:
@@ -179,13 +181,14 @@ def run(args) -> int:
     return 0
 
 
-def record(bench: BenchProfile, out, operator) -> dict:
-    """Run the rotary protocol with the bench's devices and `operator` into the session `out`."""
+def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
+    """Run the rotary protocol with the bench's devices and `operator` into the session `out`.
+    live: show the live view (station.live_view) while recording."""
     from drivers.profile import load_profile
     from station.clock import ScaledClock, WallClock
-    from station.protocols.rotary import RotaryProtocol, suggested_axes
-    from station.recorder import Recorder
-    from station.session import SessionWriter, StreamSpec
+    from station.live_view import LiveView
+    from station.protocols.rotary import RotaryProtocol, continue_session, suggested_axes
+    from station.session import Session, SessionWriter, StreamSpec
 
     start = time.perf_counter()
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
@@ -197,12 +200,14 @@ def record(bench: BenchProfile, out, operator) -> dict:
                     "profiles": {"imu": load_profile(bench.imu.source).tables,
                                  "table": load_profile(bench.table_source).tables}}
         spec = StreamSpec.from_profile(bench.imu.imu)
-        writer = SessionWriter.create(out, metadata, {"imu": spec}, clock=clock)
-        with writer, Recorder(writer, imu, clock=clock) as recorder:
-            protocol.run(recorder)
-        samples = recorder.samples
+        with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
+            continue_session(writer, metadata, imu, table, operator, clock,
+                             LiveView(clock) if live else None)
+    with Session.open(out) as session:
+        done = session.last_completed_position()
+        samples = len(session.stream("imu").seq)
     return {"session": str(out), "unit_serial": bench.unit_serial,
-            "positions_done": protocol.position, "samples": samples,
+            "positions_done": 0 if done is None else done + 1, "samples": samples,
             "wall_seconds": time.perf_counter() - start}
 
 

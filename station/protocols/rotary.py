@@ -38,6 +38,7 @@ positions end with `position_done`; `run(first=...)` continues after the last on
 mean(static), the rotating window cut to whole revolutions by the table's recorded angle.
 """
 
+import contextlib
 import dataclasses
 import math
 from dataclasses import asdict, dataclass
@@ -389,17 +390,53 @@ class RotaryProtocol:
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
 
 
-def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+class Unwatched:
+    """No live view: the observer interface of `station.live_view.LiveView`, passing through."""
+
+    def follow(self, protocol):
+        return protocol
+
+    def observe_imu(self, imu):
+        return imu
+
+    def observe_operator(self, operator):
+        return operator
+
+    def observe_recorder(self, recorder):
+        return recorder
+
+    def show(self):
+        return contextlib.nullcontext(self)
+
+
+def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
     """Run the rotary protocol recorded in `metadata` into `writer` (`SessionWriter.create`d or
     `.resume`d), from the position after the last completed one; returns that first position
-    (len(axes) when nothing was left to record)."""
-    protocol = RotaryProtocol.from_metadata(metadata, table, operator, clock)
+    (len(axes) when nothing was left to record). `view`: a `station.live_view.LiveView` to show.
+
+    The IMU link's counters (CRC failures, gaps, ...) are recorded at the end as a `note` event
+    with a `link` detail, for the report."""
+    view = view or Unwatched()
+    protocol = view.follow(
+        RotaryProtocol.from_metadata(metadata, table, view.observe_operator(operator), clock))
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        with Recorder(writer, imu, clock=clock) as recorder:
-            protocol.run(recorder, first)
+        with Recorder(writer, view.observe_imu(imu), clock=clock) as recorder, view.show():
+            try:
+                protocol.run(view.observe_recorder(recorder), first)
+            finally:
+                stats = getattr(imu, "stats", None)
+                if stats is not None:
+                    recorder.event("note", None, {"text": "link statistics",
+                                                  "link": _plain(vars(stats))})
     return first
+
+
+def _plain(values: dict) -> dict:
+    """Counters as JSON numbers."""
+    return {k: (v.item() if hasattr(v, "item") else v) for k, v in values.items()
+            if isinstance(v, int | float | np.integer | np.floating)}
 
 
 # ------------------------------------------------------------------------------------ reduction
