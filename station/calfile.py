@@ -23,13 +23,13 @@ and what to do.
 """
 
 import hashlib
-import importlib.metadata
 import json
 import os
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 
 import numpy as np
+
+from station.provenance import software_version, utc_now
 
 FORMAT = "imu-station-calibration"
 FORMAT_VERSION = 1
@@ -88,8 +88,8 @@ class Calibration:
     fit: dict
     counts_per_unit: np.ndarray | None = None
     session: dict | None = None
-    created: str = field(default_factory=lambda: _now())
-    software_version: str = field(default_factory=lambda: _software_version())
+    created: str = field(default_factory=lambda: utc_now())
+    software_version: str = field(default_factory=lambda: software_version())
 
     @property
     def d(self) -> int:
@@ -388,12 +388,3 @@ def _list(x):
     return None if x is None else np.asarray(x, dtype=np.float64).tolist()
 
 
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
-
-
-def _software_version() -> str:
-    try:
-        return importlib.metadata.version("imu-station")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
 from station.free_static import read_table
@@ -356,24 +357,9 @@ def _table_states(t, arrays, angle) -> list:
     """One table state per sample of a position: the commanded rate and the table's angle."""
     rate, c = arrays["rate_cmd"], float(arrays["c_cmd"])
     settle, rotating = arrays["seg_settle"], arrays["seg_rotating"]
-    return [_State(t[i], rate[i], angle[i], c if rate[i] else 0.0, bool(rate[i]), True,
-                   bool(rate[i]), bool(settle[0] <= i < rotating[1]), False)
+    return [TableReading(t[i], rate[i], angle[i], c if rate[i] else 0.0, bool(rate[i]), True,
+                         bool(rate[i]), bool(settle[0] <= i < rotating[1]), False)
             for i in range(len(t))]
-
-
-@dataclass(frozen=True)
-class _State:
-    """One table state, with the attributes `SessionWriter.append_table` reads."""
-
-    time: float
-    rate: float
-    angle: float
-    rate_setpoint: float
-    running: bool
-    ready: bool
-    moving: bool
-    at_rate: bool
-    fault: bool
 
 
 def _rotary_events(w, j, start, fs, arrays, angle) -> None:

@@ -14,7 +14,6 @@ unpickled, JSON is the only text decoded.
 
 import dataclasses
 import fcntl
-import importlib.metadata
 import json
 import math
 import numbers
@@ -24,7 +23,6 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from datetime import UTC, datetime
 
 import h5py
 import numpy as np
@@ -32,6 +30,7 @@ import numpy as np
 from drivers.samples import SampleBlock
 from station.calibrate import CalibrationResult
 from station.clock import WallClock
+from station.provenance import software_version, utc_now
 
 FORMAT = "imu-station-session"
 FORMAT_VERSION = 1
@@ -406,7 +405,7 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
         if name in f["results"]:
             raise ValueError(f"results/{name} exists in {path}; write under a new name")
         g = f["results"].create_group(name)
-        g.attrs.update(stream=stream, units=list(spec.units), created=_now())
+        g.attrs.update(stream=stream, units=list(spec.units), created=utc_now())
         g.create_dataset("readings", data=readings)
         if readings_sigma is not None:
             g.create_dataset("readings_sigma", data=readings_sigma)
@@ -434,15 +433,6 @@ def _json(value, what: str) -> str:
     return text
 
 
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z")
-
-
-def _software_version() -> str:
-    try:
-        return importlib.metadata.version("imu-station")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def _write_layout(f, metadata, metadata_json, streams) -> None:
@@ -450,7 +440,7 @@ def _write_layout(f, metadata, metadata_json, streams) -> None:
     units = {name: list(spec.units) for name, spec in streams.items()}
     units["table"] = TABLE_UNITS
     f.attrs.update(format=FORMAT, format_version=np.int64(FORMAT_VERSION),
-                   software_version=_software_version(), created=_now(),
+                   software_version=software_version(), created=utc_now(),
                    protocol=metadata["protocol"], unit_serial=metadata["unit_serial"],
                    units=json.dumps(units, sort_keys=True))
     f.create_dataset("metadata", data=metadata_json, dtype=h5py.string_dtype())
