@@ -47,7 +47,9 @@ def test_station_demo_json_meets_the_acceptance(tmp_path, capsys):
 
 
 def test_demo_over_the_can_link_meets_the_acceptance(tmp_path):
-    s = run_demo(tmp_path / "can.h5", imu="can", seed=2, positions=20)
+    # python-can's virtual bus costs about a core at 40x (3 frames per sample in Python threads):
+    # run at 20x so a slower CI host keeps up with the link
+    s = run_demo(tmp_path / "can.h5", imu="can", seed=2, positions=20, speed=20.0)
     check_summary(s, 20)
     assert s["link"]["incomplete"] == 0 and s["link"]["errors"] == 0
 

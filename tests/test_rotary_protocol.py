@@ -320,9 +320,11 @@ def test_recorded_sample_times_match_the_instants_the_twin_sampled(session):
         stream = f.stream("imu")
     assert len(stream.seq) > 0.9 * 20 * 200
     t = sample_times(stream.seq, stream.host_time, 200.0)
-    # the least delayed of thousands of samples arrives within a few ms of wall time (0.2 s clock)
+    # one common offset for all samples (sample times from seq), and it is the delay of the least
+    # delayed of thousands of samples: well under the 40 ms wall (1.6 s of clock) of a scheduler
+    # time slice on a loaded host
     late = t - twin.time_of(stream.seq)
-    assert np.ptp(late) < 1e-9 and 0 <= late[0] < 0.2
+    assert np.ptp(late) < 1e-9 and 0 <= late[0] < 1.6
 
 
 def test_drain_gives_up_when_samples_stop_coming(session):
