@@ -97,3 +97,17 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False) -> np.ndarray:
     neq, _ = normal_equations(a, Directions.start(v, magnitude), bias, a.T @ v, 1.0 / sig**2)
     p = d + (1 if estimate_bias else 0)
     return propagate(global_covariance(neq, d), frame_jacobian(a, p))
+
+
+def eps_tail_probability(eps: float, bound: np.ndarray, samples: int = 200_000) -> float:
+    """Probability that an efficient estimator's error exceeds `eps` (Eq. 19), given `bound` = crlb(...).
+
+    In the small-noise limit an efficient estimate of the canonical a is Gaussian with covariance
+    `bound`, so eps^2 is distributed as sum_k lambda_k chi2_1 over the bound's eigenvalues (a
+    generalised chi-square); its tail is evaluated by Monte Carlo with a fixed seed (deterministic,
+    resolution 1 / samples). A small value says the calibration is worse than the noise explains.
+    """
+    lam = np.linalg.eigvalsh(np.asarray(bound, float))
+    lam = lam[lam > 1e-12 * lam.max()]
+    z = np.random.default_rng(0).standard_normal((samples, lam.size))
+    return float(np.mean((z**2) @ lam >= eps**2))

