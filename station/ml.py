@@ -155,7 +155,7 @@ def refine(
     if bias0 is not None and not estimate_bias:
         readings = readings - np.asarray(bias0, float)[:, None]
     bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
-    sig = np.broadcast_to(_sigma_matrix(sigma, m), (m, n))
+    sig = np.broadcast_to(sigma_matrix(sigma, m), (m, n))
     weight = 1.0 / sig**2
 
     neq, resid = normal_equations(a, poses, bias, readings, weight)
@@ -191,7 +191,7 @@ def refine(
     return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, cost, dof, it, neq)
 
 
-def _sigma_matrix(sigma, m: int) -> np.ndarray:
+def sigma_matrix(sigma, m: int) -> np.ndarray:
     """sigma as an array broadcastable to (m, n); None means unit weights."""
     if sigma is None:
         return np.ones((1, 1))

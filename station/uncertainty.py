@@ -10,7 +10,7 @@ biases, and a expressed in a frame defined by a itself (the canonical frame of E
 import numpy as np
 
 from station.frames import to_canonical
-from station.ml import NormalEquations, normal_equations, reduced_system
+from station.ml import NormalEquations, normal_equations, reduced_system, sigma_matrix
 from station.poses import Directions
 
 
@@ -91,8 +91,7 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False) -> np.ndarray:
     v = np.asarray(v, float)
     d, m = a.shape
     magnitude = float(np.linalg.norm(v[:, 0]))
-    sig = np.broadcast_to(np.asarray(sigma, float).reshape(-1, 1) if np.ndim(sigma) == 1
-                          else np.asarray(sigma, float), (m, v.shape[1]))
+    sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
     neq, _ = normal_equations(a, Directions.start(v, magnitude), bias, a.T @ v, 1.0 / sig**2)
     p = d + (1 if estimate_bias else 0)
