@@ -90,9 +90,12 @@ class LiveView:
 
     # -- observer interface ----------------------------------------------------------------------
 
-    def on_event(self, kind: str, position=None, detail: dict | None = None) -> None:
-        """A protocol event was recorded (`station.session.EVENT_KINDS`)."""
-        now, detail = self.clock.now(), detail or {}
+    def on_event(self, kind: str, position=None, detail: dict | None = None,
+                 time: float | None = None) -> None:
+        """A protocol event was recorded (`station.session.EVENT_KINDS`) at clock `time` (default
+        now)."""
+        now = self.clock.now() if time is None else time
+        detail = detail or {}
         with self._lock:
             if kind == "position_start":
                 self._windows = {}
@@ -165,7 +168,7 @@ class LiveView:
         """A proxy of the recorder for the protocol: events and table states feed the view."""
         if self.rate_hz is None:
             self.rate_hz = getattr(recorder, "rate_hz", None)
-        return _Observed(recorder, self, {"event": self.on_event, "table": self.on_table})
+        return _ObservedRecorder(recorder, self)
 
     @contextlib.contextmanager
     def show(self, console: Console | None = None, refresh_per_second: float = 4):
@@ -305,3 +308,15 @@ class _ObservedImu(_Observed):
         if block is not None and len(block):
             self._view.guarded(self._view.on_samples, block, self._counts_per_unit)
         return block
+
+
+class _ObservedRecorder(_Observed):
+    """The recorder: each event reaches the view with the clock time the session stored for it."""
+
+    def __init__(self, recorder, view):
+        super().__init__(recorder, view, {"table": view.on_table})
+
+    def event(self, kind, position=None, detail=None):
+        time = self._target.event(kind, position, detail)
+        self._view.guarded(self._view.on_event, kind, position, detail, time=time)
+        return time

@@ -140,10 +140,13 @@ class Recorder:
                     f"waiting {self.drain_timeout} s; the host is too busy for this link's rate")
             time.sleep(self.interval)
 
-    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> None:
-        """Record a protocol event now (see `station.session.EVENT_KINDS`)."""
+    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
+        """Record a protocol event now (see `station.session.EVENT_KINDS`); returns the clock time
+        stored with it (stamped before waiting for the writer, which a block may be holding)."""
+        time = self.clock.now()
         with self._lock:
-            self.writer.event(kind, position, detail)
+            self.writer.event(kind, position, detail, time=time)
+        return time
 
     def table(self, reading) -> None:
         """Keep one table state (`drivers.rotary_table.TableReading`)."""
