@@ -4,7 +4,9 @@ Setup (paper Section V): single-axis accelerometers s1, s2, s3 orthogonal and s4
 between s1 and s3; gains 1 V/g, biases 2.5 V; 20 random orientations x 10 samples; 10-bit style ADC
 of 5 V / 2048 counts, Gaussian noise of 0.7 counts per sample, quantised to counts, averaged per
 orientation. The linear factorization (quartic case, Eq. 29) and the maximum-likelihood refinement
-(station.ml.refine, started from it) are compared over many trials with the paper's columns.
+(station.ml.refine, started from it) are compared over many trials with the paper's columns and
+with the Cramer-Rao bound of each invariant (the 1-sigma of `station.calibrate` on the noiseless
+readings of the same orientations, noise = per-sample sigma with quantisation, over sqrt(samples)).
 Errors are gauge invariant: biases, gains |a_i| and angles between sensor axes.
 
 Usage: .venv/bin/python bench/factorization.py [--trials 1000] [--seed 0] [--json]
@@ -18,6 +20,7 @@ import time
 
 import numpy as np
 
+from station.calibrate import calibrate
 from station.factorization import factorize
 from station.ml import refine
 
@@ -46,14 +49,27 @@ def true_layout() -> tuple[np.ndarray, np.ndarray]:
     return a, np.full(4, BIAS_VOLTS)
 
 
-def simulate(rng: np.random.Generator, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Averaged readings (4 x 20, volts) of random orientations, noisy and quantised per sample."""
+SIGMA_AVERAGED = np.sqrt(SIGMA_COUNTS**2 + 1 / 12) / np.sqrt(SAMPLES) * VOLTS_PER_COUNT
+"""Noise of an averaged reading (V): Gaussian plus uniform quantisation, over 10 samples."""
+
+
+def simulate(rng: np.random.Generator, a: np.ndarray, b: np.ndarray) -> tuple:
+    """Averaged readings (4 x 20, volts) of random orientations, noisy and quantised per sample,
+    and the noiseless readings of the same orientations."""
     g = rng.normal(size=(3, ORIENTATIONS))
     g /= np.linalg.norm(g, axis=0)  # gravity direction uniform on the sphere, 1 g
-    volts = (a.T @ g + b[:, None])[:, :, None]
+    volts = a.T @ g + b[:, None]
     noise = SIGMA_COUNTS * rng.normal(size=(a.shape[1], ORIENTATIONS, SAMPLES))
-    counts = np.clip(np.round(volts / VOLTS_PER_COUNT + noise), 0, 2047)
-    return counts.mean(axis=2) * VOLTS_PER_COUNT
+    counts = np.clip(np.round(volts[:, :, None] / VOLTS_PER_COUNT + noise), 0, 2047)
+    return counts.mean(axis=2) * VOLTS_PER_COUNT, volts
+
+
+def bound(noiseless: np.ndarray) -> np.ndarray:
+    """Cramer-Rao 1-sigma of biases, gains and angles (degrees), order of PAPER."""
+    fit = calibrate(noiseless, 1.0, bias="estimate", sigma=SIGMA_AVERAGED)
+    i, k = np.array(PAIRS).T
+    return np.concatenate([fit.bias_sigma, fit.scale_factors_sigma,
+                           np.degrees(fit.axis_angles_sigma[i, k])])
 
 
 def invariants(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -70,9 +86,11 @@ def table1(trials: int, seed: int) -> dict:
     truth = invariants(a, b)
     rng = np.random.default_rng(seed)
     lin, ml = np.empty((trials, len(truth))), np.empty((trials, len(truth)))
+    crlb = np.empty((trials, len(truth)))
     t_lin = t_ml = 0.0
     for t in range(trials):
-        readings = simulate(rng, a, b)
+        readings, noiseless = simulate(rng, a, b)
+        crlb[t] = bound(noiseless)
         t0 = time.perf_counter()
         fact = factorize(readings, magnitude=1.0)  # magnitude constraints only: quartic, Eq. 29
         t1 = time.perf_counter()
@@ -82,18 +100,23 @@ def table1(trials: int, seed: int) -> dict:
         lin[t] = invariants(fact.a, fact.bias) - truth
         ml[t] = invariants(fit.a, fit.bias) - truth
     rms_lin, rms_ml = np.sqrt(np.mean(lin**2, axis=0)), np.sqrt(np.mean(ml**2, axis=0))
+    rms_crlb = np.sqrt(np.mean(crlb**2, axis=0))
     rows = [{"name": name, "truth": float(truth[i]),
              "paper_linear": PAPER[name][0], "paper_nonlinear": PAPER[name][1],
              "linear_rms": float(rms_lin[i]), "linear_mean": float(lin[:, i].mean()),
-             "ml_rms": float(rms_ml[i]), "ml_mean": float(ml[:, i].mean())}
+             "ml_rms": float(rms_ml[i]), "ml_mean": float(ml[:, i].mean()),
+             "crlb_rms": float(rms_crlb[i])}
             for i, name in enumerate(PAPER)]
     groups = {}
     for group, names in GROUPS.items():
         idx = [list(PAPER).index(n) for n in names]
         paper = float(np.sqrt(np.mean([PAPER[n][0] ** 2 for n in names])))
-        linear, refined = (float(np.sqrt(np.mean(r[idx] ** 2))) for r in (rms_lin, rms_ml))
+        linear, refined, best = (float(np.sqrt(np.mean(r[idx] ** 2)))
+                                 for r in (rms_lin, rms_ml, rms_crlb))
         groups[group] = {"paper_linear_rms": paper, "linear_rms": linear, "ml_rms": refined,
-                         "linear_over_paper": linear / paper, "linear_over_ml": linear / refined}
+                         "crlb_rms": best, "linear_over_paper": linear / paper,
+                         "linear_over_ml": linear / refined, "ml_over_crlb": refined / best,
+                         "paper_linear_over_ml": paper / refined}
     return {
         "trials": trials, "seed": seed,
         "setup": {"orientations": ORIENTATIONS, "samples": SAMPLES, "sigma_counts": SIGMA_COUNTS,
@@ -118,11 +141,12 @@ def _print(result: dict) -> None:
         print(f"{r['name']:6} {r['truth']:7.3f} {r['paper_linear']:10.5f} {r['linear_rms']:10.5f} "
               f"{r['linear_mean']:10.5f} {r['paper_nonlinear']:10.5f} {r['ml_rms']:10.5f} "
               f"{r['ml_mean']:10.5f}")
-    print(f"\n{'group':12} {'paper lin':>10} {'lin RMS':>10} {'ML RMS':>10} {'lin/paper':>10} "
-          f"{'lin/ML':>8}")
+    print(f"\n{'group':12} {'paper lin':>10} {'lin RMS':>10} {'ML RMS':>10} {'CRLB':>10} "
+          f"{'lin/paper':>10} {'lin/ML':>8} {'ML/CRLB':>8}")
     for name, g in result["groups"].items():
         print(f"{name:12} {g['paper_linear_rms']:10.5f} {g['linear_rms']:10.5f} "
-              f"{g['ml_rms']:10.5f} {g['linear_over_paper']:10.2f} {g['linear_over_ml']:8.2f}")
+              f"{g['ml_rms']:10.5f} {g['crlb_rms']:10.5f} {g['linear_over_paper']:10.2f} "
+              f"{g['linear_over_ml']:8.2f} {g['ml_over_crlb']:8.2f}")
     ms = result["ms_per_trial"]
     print(f"\ntime per trial: linear {ms['linear']:.3f} ms, ML {ms['ml']:.3f} ms")
     for name, ok in result["acceptance"].items():

@@ -1,7 +1,10 @@
 """Solver benchmark: every figure of the calibration core's acceptance, printed (or --json).
 
 - noiseless exactness (PCA for d = 2, 3, 4; Hwangbo & Kanade p = 3, p = 4, p = 4 quartic)
-- Monte Carlo on Rupniewski's Section IV setup: median eps, mean(eps^2) / trace(CRLB) per n,
+- Monte Carlo on Rupniewski's Section IV setup: median eps, efficiency eps^2 / trace(CRLB) per n
+  (the bound is conditional on the trial's directions, so the ratio is taken per trial and then
+  averaged; the ratio of the means is printed too: at n = 8 a few near-degenerate designs with a
+  bound 40-160x the median dominate it, and there the estimator is far from its asymptotic regime),
   log-log slopes of the median eps against sigma and n; Figs. 2-4 of the paper as PNG files
 - triad with scale factors (1, 0.3, 3): closed form against ML, relative to the bound
 - coverage of the nominal 95 % intervals of scale factors and axis angles
@@ -79,13 +82,9 @@ def section4(trials: int, seed: int) -> dict:
             e_ml[t] = station.eps(a, refine(readings, a_cf, v_cf, sigma=0.01).a)
             bound[t] = np.trace(station.crlb(a, v, 0.01))
         eps_by_n[n] = e_cf
-        per_n[n] = {
-            "median_eps_closed_form": float(np.median(e_cf)),
-            "ratio_closed_form": float(np.mean(e_cf**2) / bound.mean()),
-            "ratio_ml": float(np.mean(e_ml**2) / bound.mean()),
-            "ratio_ml_se": float(np.std(e_ml**2) / np.sqrt(trials) / bound.mean()),
-            "sqrt_mean_crlb": float(np.sqrt(bound.mean())),
-        }
+        per_n[n] = {"median_eps_closed_form": float(np.median(e_cf)),
+                    **efficiency(e_cf**2, e_ml**2, bound),
+                    "sqrt_mean_crlb": float(np.sqrt(bound.mean()))}
     eps_by_sigma = {}
     for sigma in SIGMAS:
         eps_by_sigma[sigma] = np.array([
@@ -158,9 +157,18 @@ def unequal_triad(trials: int, seed: int) -> dict:
         e_cf[t] = station.eps(a, a_cf) ** 2
         e_ml[t] = station.eps(a, refine(readings, a_cf, v_cf, sigma=0.01).a) ** 2
         bound[t] = np.trace(station.crlb(a, v, 0.01))
-    return {"ratio_closed_form": float(e_cf.mean() / bound.mean()),
-            "ratio_ml": float(e_ml.mean() / bound.mean()),
-            "ratio_ml_se": float(e_ml.std() / np.sqrt(trials) / bound.mean())}
+    return efficiency(e_cf, e_ml, bound)
+
+
+def efficiency(eps2_cf: np.ndarray, eps2_ml: np.ndarray, bound: np.ndarray) -> dict:
+    """eps^2 / trace(CRLB) of the closed form and of ML, per trial (each against the bound of its
+    own directions) averaged, with its standard error; and the ratio of the means."""
+    out = {}
+    for name, e2 in (("closed_form", eps2_cf), ("ml", eps2_ml)):
+        out[f"ratio_{name}"] = float(np.mean(e2 / bound))
+        out[f"ratio_{name}_se"] = float(np.std(e2 / bound) / np.sqrt(len(bound)))
+        out[f"ratio_of_means_{name}"] = float(e2.mean() / bound.mean())
+    return out
 
 
 def coverage(trials: int, seed: int) -> dict:
