@@ -32,8 +32,8 @@ samples with 0.1 < f < 0.9 gives the ramp's start and slope (likewise down from 
 spin-down). A latency common to all sensors is absorbed there (it is not identifiable against
 the table's timing); latencies differing between sensors remain. The rate profile is the
 commanded rate c (the table's recorded set point) times that trapezoid; the table angle is the
-recorded angle at rest before the spin-up plus the recorded sweep (rest after minus rest before:
-exact, not affected by the stamps) distributed along the trapezoid's integral.
+recorded angle at rest before the spin-up (exact: a still table's angle does not depend on the
+reading's stamp) plus the integral of that rate profile.
 
 Sample instants come from the sequence numbers at the nominal rate (`station.recorder.
 sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
@@ -84,7 +84,7 @@ def arrays(session, stream: str = "imu") -> dict:
     times = t[index]
     c = _commanded(session.path, table, pos.values())
     rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values())])
-    angle = np.stack([_angle(session.path, table, tj, p, j)
+    angle = np.stack([_angle(session.path, table, tj, p, j, c)
                       for tj, (j, p) in zip(times, pos.items())])
     return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
@@ -225,19 +225,15 @@ def _commanded(path, table, pos) -> float:
     return float(values[0])
 
 
-def _angle(path, table, t, p, j) -> np.ndarray:
-    """Cumulative table angle at times t: the angle at rest before the spin-up plus the recorded
-    sweep distributed along the trapezoid's integral."""
-    still = ~table.flag("moving")
-    before = still & (table.time >= p["s0"]) & (table.time <= p["s1"])
-    after = still & (table.time > p["te"]) & (table.time <= p["done"])
-    if not (before.any() and after.any()):
+def _angle(path, table, t, p, j, c) -> np.ndarray:
+    """Cumulative table angle at times t: the recorded angle at rest before the spin-up (exact:
+    not affected by the reading's time stamp) plus c times the trapezoid's integral."""
+    before = ~table.flag("moving") & (table.time >= p["s0"]) & (table.time <= p["s1"])
+    if not before.any():
         raise CalibrationInputError(
-            f"the session {path} holds no table reading at rest before and after position "
-            f"{j + 1}'s rotation.", "Record the session with the rotary table connected.")
-    a0, a1 = np.median(table.angle[before]), np.median(table.angle[after])
-    total = _swept(np.array(p["te"] + 1 / p["down"]), p)
-    return a0 + (a1 - a0) * _swept(t, p) / total
+            f"the session {path} holds no table reading at rest in position {j + 1}'s static "
+            "window.", "Record the session with the rotary table connected.")
+    return np.median(table.angle[before]) + c * _swept(t, p)
 
 
 def _nominal(metadata: dict, m: int):
