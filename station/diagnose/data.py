@@ -8,7 +8,6 @@ the table's heading (Earth rate, axis wobble) see the same angle as the twin.
 """
 
 import os
-
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -127,8 +126,8 @@ def from_session(session_or_path, stream: str = "imu", bin_seconds: float = 0.1)
     in the shortest position, the rest after the stop beyond the shortest. Spin-up and stop are
     timed by the IMU samples (the table readings' host stamps scatter by the Modbus latency), the
     rate profile is the table's set point times that trapezoid, the angle the table's recorded
-    angle at rest before the spin-up plus its integral. Windows with lost samples are refused. Details:
-    `station.diagnose.recorded`.
+    angle at rest before the spin-up plus its integral. Windows with lost samples are refused.
+    Details: `station.diagnose.recorded`.
     """
     if isinstance(session_or_path, str | os.PathLike):
         with Session.open(session_or_path) as session:
