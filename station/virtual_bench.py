@@ -40,13 +40,14 @@ from station.clock import ScaledClock
 from station.operator import SimulatedTechnician
 from station.protocols.rotary import RotaryProtocol, continue_session
 from station.session import Session, SessionWriter, StreamSpec
+from station.sim.effects.rate_error import RateError
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
 from station.sim.table import RotaryTable
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
-BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg"}
+BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
 
 
@@ -98,11 +99,14 @@ class VirtualBench:
     placement_deg : the technician's placement error (standard deviation per axis), degrees
     lifetime      : wall seconds after which the Modbus server stops by itself
     clock_start   : clock time at start (a resumed session continues after its last instant)
+    rate_error    : optional {"scale": ..., "spread": ...}: the table's hidden rate error
+                    (`station.sim.effects.rate_error`), drawn anew at every start
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
-                 lifetime: float = 3600.0, clock_start: float = 0.0):
+                 lifetime: float = 3600.0, clock_start: float = 0.0,
+                 rate_error: dict | None = None):
         if imu not in IMU_KINDS:
             raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -114,7 +118,9 @@ class VirtualBench:
         self.profile = dataclasses.replace(
             profile, imu=dataclasses.replace(profile.imu, rate_hz=float(rate_hz)))
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
-        self.table = RotaryTable(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed)
+        self.rate_error = dict(rate_error) if rate_error else None
+        self.table = RotaryTable(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed,
+                                 rate_error=RateError(**self.rate_error) if rate_error else None)
         self.table_map = TableRegisterMap.load("table_modbus")
         self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
         self.mounted = MountedUnit(self.unit, self.table)
@@ -126,9 +132,10 @@ class VirtualBench:
 
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
+        hidden = {"rate_error": self.rate_error} if self.rate_error else {}
         return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
                 "rate_hz": self.rate_hz, "remount_time": self.remount_time,
-                "placement_deg": self.placement_deg}
+                "placement_deg": self.placement_deg, **hidden}
 
     @classmethod
     def from_metadata(cls, bench: dict, **overrides) -> "VirtualBench":

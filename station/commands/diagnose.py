@@ -5,6 +5,7 @@ from pathlib import Path
 
 from station.diagnose import data, diagnose, report
 from station.errors import CalibrationInputError
+from station.session import Session
 
 
 def register(subparsers) -> None:
@@ -16,7 +17,7 @@ def register(subparsers) -> None:
         "every named effect by its likelihood ratio, add the strongest significant one and "
         "repeat (docs/diagnose.md).",
     )
-    p.add_argument("session", metavar="SESSION", help="rotary data file (.npz)")
+    p.add_argument("session", metavar="SESSION", help="rotary session (.h5) or data file (.npz)")
     p.add_argument("--json", action="store_true", help="print the diagnosis as JSON")
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
@@ -27,15 +28,24 @@ def register(subparsers) -> None:
 def run(args) -> int:
     """Diagnose, print, optionally write the report; bad input is reported, not raised."""
     path = Path(args.session)
-    if path.suffix != ".npz" or not path.is_file():
-        print(f"station diagnose: {path} is not a rotary .npz data file; record or simulate one "
+    if path.suffix not in (".npz", ".h5") or not path.is_file():
+        print(f"station diagnose: {path} is not a rotary session (.h5 recorded by the station, "
+              "or a .npz data file); record or simulate one "
               "(station simulate --protocol rotary --out x.npz)")
         return 2
     if not 0 < args.alpha < 1:
         print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
         return 2
     try:
-        session = data.load(path)
+        if path.suffix == ".npz":
+            session = data.load(path)
+        else:
+            with Session.open(path) as recorded:
+                if not data.is_rotary(recorded):  # the one dispatch point for other protocols
+                    print(f"station diagnose: {path} holds no rotary protocol events (protocol "
+                          f"{recorded.protocol!r}); only rotary sessions are diagnosed so far")
+                    return 2
+                session = data.from_session(recorded)
         result = diagnose(session, alpha=args.alpha, max_effects=args.max_effects)
     except (CalibrationInputError, ValueError, OSError) as err:
         print(f"station diagnose: {err}")

@@ -1,17 +1,22 @@
 """A rotary session as the diagnose workflow sees it: SI samples, timeline, windows and bins.
 
-Loaded from the array format of `station import` / `station simulate` (docs/simulator.md). The
-table angle is made cumulative over the session (the table is not reset between positions), so
-that effects tied to the table's heading (Earth rate, axis wobble) see the same angle as the twin.
+Loaded from the array format of `station import` / `station simulate` (docs/simulator.md), or
+from a recorded HDF5 session (`from_session`: the positions cut onto a common grid by
+`station.diagnose.recorded`, whose docstring says what is cut and why). The table angle is
+cumulative over the session (the table is not reset between positions), so that effects tied to
+the table's heading (Earth rate, axis wobble) see the same angle as the twin.
 """
 
+import os
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
+from station.diagnose import recorded
 from station.errors import CalibrationInputError
 from station.reduction import reduce_rotary, whole_revolutions
+from station.session import Session
 from station.sim import npz
 
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
@@ -24,7 +29,10 @@ class RotaryData:
 
     counts : raw integer samples (for the rail pile-up); y = counts * lsb.
     t : (k,) sample times within a position; t0 (n,) position starts (session time).
-    rate : (k,) commanded rate; c the steady commanded rate; angle (n, k) cumulative table angle.
+    times : (n, k) session times of the samples when the grid is not one contiguous stretch
+        per position (a recorded session), else None (t0 + t).
+    rate : (k,) or (n, k) commanded rate; c the steady commanded rate; angle (n, k) cumulative
+        table angle.
     windows : name -> (2,) [start, stop) of static, spinup, rotating, spindown; the rotating
         window is cut per position to whole revolutions (rot_stop, (n,)).
     bin : samples per bin of the binned residuals.
@@ -41,6 +49,7 @@ class RotaryData:
     rot_stop: np.ndarray
     a_nominal: np.ndarray | None
     bin: int
+    times: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -74,7 +83,7 @@ class RotaryData:
     @property
     def t_session(self) -> np.ndarray:
         """(n, k) session times of the samples."""
-        return self.t0[:, None] + self.t
+        return self.t0[:, None] + self.t if self.times is None else self.times
 
     def reduce(self, x: np.ndarray):
         """Eq. (18) reduction of a series x (n, k, m) in SI units over this session's windows."""
@@ -100,6 +109,37 @@ class RotaryData:
 def load(path, bin_seconds: float = 0.1) -> RotaryData:
     """A RotaryData from a rotary `.npz` data file (never unpickles)."""
     return from_arrays(npz.read(path), bin_seconds)
+
+
+def is_rotary(session) -> bool:
+    """True when a recorded session (`station.session.Session`) holds rotary protocol events."""
+    return recorded.is_rotary(session.events())
+
+
+def from_session(session_or_path, stream: str = "imu", bin_seconds: float = 0.1) -> RotaryData:
+    """A RotaryData from a recorded rotary HDF5 session (a `Session` or a path).
+
+    Per completed position: the static window from its start, the moving part aligned at the
+    spin start (guard, spin-up, settling, rotating window, steady guard) and the spin-down
+    aligned at the stop, each cut to the shortest length over the positions; the samples keep
+    their session times. Cut away: the mounting and the wait for stillness, what is longer than
+    in the shortest position, the rest after the stop beyond the shortest. Spin-up and stop are
+    timed by the IMU samples (the table readings' host stamps scatter by the Modbus latency), the
+    rate profile is the table's set point times that trapezoid, the angle the table's recorded
+    angle at rest before the spin-up plus its integral. Windows with lost samples are refused.
+    Details: `station.diagnose.recorded`.
+    """
+    if isinstance(session_or_path, str | os.PathLike):
+        with Session.open(session_or_path) as session:
+            return from_session(session, stream, bin_seconds)
+    if not is_rotary(session_or_path):
+        raise CalibrationInputError(
+            f"the session {session_or_path.path} holds no rotary protocol events.",
+            "Give a session recorded with the rotary protocol.")
+    grid = recorded.arrays(session_or_path, stream)
+    return _rotary_data(grid["counts"], grid["lsb"], grid["fs"], grid["rate"], grid["c"],
+                        grid["angle"], grid["windows"], grid["a_nominal"], bin_seconds,
+                        grid["times"][:, 0], grid["times"])
 
 
 def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
@@ -130,19 +170,18 @@ def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
     start = np.concatenate([[0.0], np.cumsum(angle[:-1, -1] - angle[:-1, 0])])
     windows = {name: np.asarray(arrays[f"seg_{name}"], int)
                for name in ("static", "spinup", "rotating", "spindown")}
-    r0, r1 = windows["rotating"]
-    rot_stop = np.array([whole_revolutions(angle[j], r0, r1)[0] for j in range(n)])
     nominal = arrays.get("a_nominal")
-    return RotaryData(
-        counts=counts,
-        lsb=np.broadcast_to(np.asarray(arrays["lsb"], float), (m,)).copy(),
-        fs=fs,
-        t0=np.asarray(arrays["t0"], float),
-        rate=rate,
-        c=float(arrays["c_cmd"]),
-        angle=start[:, None] + angle - angle[:, :1],
-        windows=windows,
-        rot_stop=rot_stop,
-        a_nominal=None if nominal is None else np.asarray(nominal, float),
-        bin=max(1, round(bin_seconds * fs)),
-    )
+    return _rotary_data(counts, np.broadcast_to(np.asarray(arrays["lsb"], float), (m,)), fs,
+                        rate, float(arrays["c_cmd"]), start[:, None] + angle - angle[:, :1],
+                        windows, None if nominal is None else np.asarray(nominal, float),
+                        bin_seconds, np.asarray(arrays["t0"], float))
+
+
+def _rotary_data(counts, lsb, fs, rate, c, angle, windows, a_nominal, bin_seconds, t0,
+                 times=None) -> RotaryData:
+    """The RotaryData of checked arrays; the rotating window cut to whole turns per position."""
+    r0, r1 = windows["rotating"]
+    rot_stop = np.array([whole_revolutions(a, r0, r1)[0] for a in angle])
+    return RotaryData(counts=counts, lsb=np.array(lsb, float), fs=fs, t0=t0, rate=rate, c=c,
+                      angle=angle, windows=windows, rot_stop=rot_stop, a_nominal=a_nominal,
+                      bin=max(1, round(bin_seconds * fs)), times=times)

@@ -19,7 +19,9 @@ up the table axis; then the station, through the table driver and the recorder:
 Before each table command that ends a window (spin-up after the static window, stop after the
 rotating one) the protocol waits until the recorder holds every sample taken up to then
 (`Recorder.drain`): a busy host delays samples, and a sample taken after the command must never be
-counted in the window before it.
+counted in the window before it. It waits again before `position_done`, so that a completed
+position's spin-down and rest are in the file too (the diagnosis compares them; without it the
+last position's tail was lost when the recorder stopped).
 
 Every state change happens in one place (`RotaryProtocol.run`). Two faults are recovered from, at
 most `retries` times per position, and the position is recorded again without re-mounting the unit
@@ -267,6 +269,7 @@ class RotaryProtocol:
 
     def _rest(self) -> str:
         self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
+        self.recorder.drain(self.clock.now(), self.settings.stale)  # spin-down and rest in file
         self.recorder.event("position_done", self.position)
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"

@@ -1,0 +1,245 @@
+"""A recorded rotary session (HDF5, docs/session-format.md) cut onto the diagnosis' common grid.
+
+The diagnosis compares positions sample by sample against one shared set of windows, as in the
+array format (docs/simulator.md). A recorded session has no such grid: the protocol waits on
+table polls (`station.protocols.rotary`), so the time from the static window to the spin-up, the
+settling time and the stop differ between positions by a few poll intervals. Per completed
+position (one with `position_done`; a position recorded again keeps its last run) three
+contiguous stretches of the IMU stream are taken, each aligned and cut to the shortest length
+over the positions:
+
+1. static   : from `static_start`, the shortest static window;
+2. moving   : the spin start t_s aligned, from the shortest lead between `static_end` and t_s
+              (the guard) up to the shortest t_s -> t_e (t_e: the stop command); it holds the
+              spin-up, the settling, the rotating window (the positions' common part of
+              `rotate_start`..`rotate_end`, cut to whole turns later) and the steady guard after it;
+3. spindown : from t_e, the shortest stretch up to `position_done`.
+
+Cut away, and why: the mounting and the wait for a still table before the static window (the
+unit is handled there); the part of the guard, the settling and the steady rotation longer than
+in the shortest position (a common grid); the rest after the table stopped beyond the shortest
+(the recorder stops without waiting for the last position's tail, so it is usually short there).
+The stretches keep their recorded session times (`times`), so time-dependent effects (warm-up,
+heating) see the real timeline.
+
+Timing. Spin-up and stop are table commands, not events, and the table's readings are stamped
+on the host when the Modbus answer arrives: their times scatter by the request latency (on the
+virtual bench at 40x, tens of ms of simulated time), while a 0.3 ms error in the ramp's timing
+already shows as a latency. The ramps are therefore timed by the IMU itself: the samples
+projected on the position's Eq. (18) reading, f(t) = (y - static mean) . D / |D|^2 with D the
+rotating minus the static mean, run from 0 to 1 on the spin-up; a straight line through the
+samples with 0.1 < f < 0.9 gives the ramp's start and slope (likewise down from 1 on the
+spin-down). A latency common to all sensors is absorbed there (it is not identifiable against
+the table's timing); latencies differing between sensors remain. The rate profile is the
+commanded rate c (the table's recorded set point) times that trapezoid; the table angle is the
+recorded angle at rest before the spin-up (exact: a still table's angle does not depend on the
+reading's stamp) plus the integral of that rate profile.
+
+Sample instants come from the sequence numbers at the nominal rate (`station.recorder.
+sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
+times), and a window with a gap in the sequence numbers (a lossy link) is refused.
+"""
+
+import math
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+from station.protocols.rotary import SEGMENT_EVENTS, position_windows
+from station.recorder import sample_times
+
+RAMP_BAND = (0.1, 0.9)
+"""Fractions of the steady rate between which ramp samples are fitted by a line."""
+
+MIN_RAMP_SAMPLES = 3
+
+
+def is_rotary(events) -> bool:
+    """True when the events hold a rotating window (the rotary protocol's `rotate_start`)."""
+    return any(e.kind == "rotate_start" for e in events)
+
+
+def arrays(session, stream: str = "imu") -> dict:
+    """The grid of a recorded rotary session: counts (n, k, m), lsb (m,), fs, times (n, k),
+    rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None; see the module
+    docstring for what is cut."""
+    events, table = session.events(), session.table()
+    data = session.stream(stream)
+    fs = data.spec.rate_hz
+    t = sample_times(data.seq, data.host_time, fs,
+                     [e.time for e in events if e.kind in SEGMENT_EVENTS])
+    y = data.to_si()
+    pos = {}
+    for j, p in _spans(session.path, events).items():
+        _complete(t, data.seq, fs, p["s0"], p["r1"], j)
+        p.update(_ramps(t, y, p, j))
+        _complete(t, data.seq, fs, p["s0"], p["te"], j)
+        pos[j] = p
+    _check_rate(data, t, fs, pos)
+    index, windows = _grid(t, fs, list(pos.values()))
+    for j, idx in zip(pos, index):  # within each stretch, seq steps as the stream index
+        lost = int(np.sum(np.diff(data.seq[idx]) - np.diff(idx)))
+        if lost:
+            raise _lossy(j, t[idx[0]], t[idx[-1]], lost)
+    times = t[index]
+    c = _commanded(session.path, table, pos.values())
+    rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values())])
+    angle = np.stack([_angle(session.path, table, tj, p, j, c)
+                      for tj, (j, p) in zip(times, pos.items())])
+    return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
+            "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
+            "a_nominal": _nominal(session.metadata, len(data.spec.channels))}
+
+
+def _spans(path, events) -> dict:
+    """{position: {s0, s1 (static), r0, r1 (rotating), done}} event times of the completed
+    positions."""
+    windows = position_windows(events)
+    if not windows:
+        raise CalibrationInputError(f"the session {path} has no completed position.",
+                                    "Record at least one position to the end (position_done).")
+    done = {e.position: e.time for e in events if e.kind == "position_done"}
+    return {j: {"s0": w["static"][0], "s1": w["static"][1], "r0": w["rotating"][0],
+                "r1": w["rotating"][1], "done": done[j]} for j, w in windows.items()}
+
+
+def _lossy(j, t0, t1, lost) -> CalibrationInputError:
+    return CalibrationInputError(
+        f"position {j + 1}: the IMU link lost {lost} samples between {t0:.2f} s and {t1:.2f} s "
+        "(session clock) of the stretch the diagnosis compares.",
+        "Record the position again, or solve without it (station replay --positions).")
+
+
+def _complete(t, seq, fs, t0, t1, j) -> None:
+    """Refuse when samples due in [t0, t1] are missing: fewer than due - 1, or a sequence gap."""
+    inside = np.flatnonzero((t >= t0) & (t <= t1))
+    due = (t1 - t0) * fs
+    lost = int(np.sum(np.diff(seq[inside]) - 1)) if inside.size > 1 else 0
+    if inside.size < due - 1 or lost:
+        raise _lossy(j, t0, t1, max(lost, round(due - inside.size)))
+
+
+def _ramps(t, y, p, j) -> dict:
+    """Spin start ts, spin-up slope up (1/s), stop te, spin-down slope down, from the IMU."""
+    base = y[(t >= p["s0"]) & (t <= p["s1"])].mean(0)
+    d = y[(t >= p["r0"]) & (t <= p["r1"])].mean(0) - base
+    f = (y - base) @ d / (d @ d)
+    ts, up = _line(t, f, p["s1"], p["r0"], j, "spin-up")
+    te, down = _line(t, 1 - f, p["r1"], p["done"], j, "spin-down")
+    return {"ts": ts, "up": up, "te": te, "down": down}
+
+
+def _line(t, f, t0, t1, j, what) -> tuple:
+    """(zero crossing, slope) of the straight line through the samples of [t0, t1] whose f lies
+    in RAMP_BAND (f rising from 0 to 1)."""
+    on = (t >= t0) & (t <= t1) & (f > RAMP_BAND[0]) & (f < RAMP_BAND[1])
+    if on.sum() < MIN_RAMP_SAMPLES:
+        raise CalibrationInputError(
+            f"position {j + 1}: the {what} is not seen in the IMU stream ({int(on.sum())} "
+            f"samples on the ramp between {t0:.2f} s and {t1:.2f} s).",
+            "Check that the IMU was recording while the table moved; record the position again.")
+    slope, intercept = np.polyfit(t[on], f[on], 1)
+    if not slope > 0:
+        raise CalibrationInputError(
+            f"position {j + 1}: the {what} does not ramp in the IMU stream.",
+            "Check the unit's mounting and the table; record the position again.")
+    return -intercept / slope, slope
+
+
+def _check_rate(data, t, fs, pos) -> None:
+    """Refuse a nominal rate that misplaces a position's samples by half a sample.
+
+    With device time stamps: the slope of device time - seq / fs over each position's stretch.
+    Without: the arrival times' lower envelope (least delayed tenth at each end of the stream),
+    which resolves the drift only to within the arrival delays (their median is allowed)."""
+    seq = data.seq.astype(float)
+    if np.all(np.isfinite(data.device_time)):
+        for j, p in pos.items():
+            on = (t >= p["s0"]) & (t <= p["te"])
+            slope = np.polyfit(seq[on] / fs, data.device_time[on] - seq[on] / fs, 1)[0]
+            span = p["te"] - p["s0"]
+            if abs(slope) * span * fs > 0.5:
+                raise _off_rate(fs, slope, f"the device time stamps of position {j + 1}", span)
+        return
+    offset = data.host_time - seq / fs
+    tenth = max(len(seq) // 10, 1)
+    drift = offset[-tenth:].min() - offset[:tenth].min()
+    if abs(drift) > 0.5 / fs + np.median(offset - offset.min()):
+        raise _off_rate(fs, drift / (np.ptp(seq) / fs), "the arrival times", np.ptp(seq) / fs)
+
+
+def _off_rate(fs, slope, source, span) -> CalibrationInputError:
+    return CalibrationInputError(
+        f"the stream's nominal rate {fs:g} Hz is off by {slope * 1e6:.0f} ppm against {source}: "
+        f"over {span:.1f} s the sample times drift by {abs(slope) * span * fs:.2f} samples.",
+        "Fix rate_hz in the device profile the session was recorded with, and record again.")
+
+
+def _grid(t, fs, pos) -> tuple:
+    """(n, k) stream indices of the three aligned stretches, and the windows on the grid."""
+    def samples(a, b, pick):
+        return pick([np.sum((t >= p[a]) & (t < p[b])) for p in pos])
+
+    ns, lead = samples("s0", "s1", min), samples("s1", "ts", min)
+    moving, down = samples("ts", "te", min), samples("te", "done", min)
+    rot0, rot1 = samples("ts", "r0", max), samples("ts", "r1", min)
+    if rot1 <= rot0:
+        raise CalibrationInputError("the positions' rotating windows have no common part once "
+                                    "their spin-ups are aligned.",
+                                    "Record with more revolutions per position.")
+    index = np.stack([np.concatenate([
+        np.arange(s, s + ns), np.arange(m - lead, m + moving), np.arange(e, e + down)])
+        for s, m, e in (np.searchsorted(t, [p["s0"], p["ts"], p["te"]]) for p in pos)])
+    up, dn = (math.ceil(fs * max(1 / p[key] for p in pos)) for key in ("up", "down"))
+    m0 = ns + lead
+    windows = {"static": (0, ns), "spinup": (m0, m0 + min(up, moving)),
+               "rotating": (m0 + rot0, m0 + rot1),
+               "spindown": (m0 + moving, m0 + moving + min(dn, down))}
+    return index, {name: np.array(w) for name, w in windows.items()}
+
+
+def _fraction(t, p) -> np.ndarray:
+    """The trapezoid: rate / c at times t (spin-up from ts at slope up, spin-down from te)."""
+    return np.clip(p["up"] * (t - p["ts"]), 0, 1) - np.clip(p["down"] * (t - p["te"]), 0, 1)
+
+
+def _swept(t, p) -> np.ndarray:
+    """Integral of `_fraction` from before ts to t (s)."""
+    def ramp(x, slope):
+        return np.where(x <= 0, 0.0, np.where(x < 1 / slope, 0.5 * slope * x**2,
+                                              x - 0.5 / slope))
+    return ramp(t - p["ts"], p["up"]) - ramp(t - p["te"], p["down"])
+
+
+def _commanded(path, table, pos) -> float:
+    """c: the table's recorded set point during the rotating windows (one for all positions)."""
+    inside = np.zeros(len(table.time), bool)
+    for p in pos:
+        inside |= (table.time >= p["r0"]) & (table.time <= p["r1"])
+    values = np.unique(table.rate_setpoint[inside])
+    if values.size != 1 or values[0] == 0:
+        raise CalibrationInputError(
+            f"the session {path} holds the table set points {values.tolist()} in its rotating "
+            "windows (one non-zero rate expected).",
+            "Diagnose sessions recorded with the table connected, at one rate.")
+    return float(values[0])
+
+
+def _angle(path, table, t, p, j, c) -> np.ndarray:
+    """Cumulative table angle at times t: the recorded angle at rest before the spin-up (exact:
+    not affected by the reading's time stamp) plus c times the trapezoid's integral."""
+    before = ~table.flag("moving") & (table.time >= p["s0"]) & (table.time <= p["s1"])
+    if not before.any():
+        raise CalibrationInputError(
+            f"the session {path} holds no table reading at rest in position {j + 1}'s static "
+            "window.", "Record the session with the rotary table connected.")
+    return np.median(table.angle[before]) + c * _swept(t, p)
+
+
+def _nominal(metadata: dict, m: int):
+    """The session's nominal layout (3, m) when its metadata hold one, else None."""
+    try:
+        a = np.asarray(metadata.get("a_nominal"), float)
+    except (TypeError, ValueError):
+        return None
+    return a if a.shape == (3, m) and np.all(np.isfinite(a)) else None
