@@ -98,9 +98,9 @@ def calibrate(
     magnitude_spread
                 s > 0: |v_j| is not exactly c but c (1 + delta_j), delta_j ~ N(0, s^2) independent
                 per position (a random effect, e.g. a rotary table whose rate scatters from run to
-                run; the common part stays in c). The refinement then fits each v_j as a free vector
-                with that prior (docs/conventions.md, "Magnitude"), and the uncertainties include the
-                spread. Needs sigma and no constraints; None or 0: |v_j| = c exactly.
+                run; the common part stays in c). The refinement then fits each v_j as a free
+                vector with that prior (docs/conventions.md, "Magnitude"), and the uncertainties
+                include the spread. Needs sigma and no constraints; None or 0: |v_j| = c exactly.
     """
     readings = _as_readings(readings)
     m, n = readings.shape

@@ -4,9 +4,10 @@ Model (docs/conventions.md): z_ij = a_i . v_j + b_i + noise_ij, noise_ij ~ N(0, 
 |v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and the stimuli v,
 parametrised by station/poses.py (a free direction per position, or one rotation per rigid group of
 positions of a right-angle iron, or a free vector per position whose magnitude is a random effect
-|v_j| = c (1 + delta_j), delta_j ~ N(0, s^2): one extra residual row (|v_j| - c) / (c s) per position,
-the h-likelihood, whose maximum over a is the marginal-likelihood estimate for the linearised model). This replaces the constraint cost of Hwangbo & Kanade (ill-posed
-for m > 3) by the likelihood of the readings themselves.
+|v_j| = c (1 + delta_j), delta_j ~ N(0, s^2), with one extra residual row (|v_j| - c) / (c s) per
+position: the h-likelihood, whose maximum over a is the marginal-likelihood estimate of the
+linearised model). This replaces the constraint cost of Hwangbo & Kanade (ill-posed for m > 3) by
+the likelihood of the readings themselves.
 
 Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_i) that never couple
 with each other directly; the local parameters split per position group. The normal equations are
@@ -90,7 +91,7 @@ def prior_rows(poses) -> np.ndarray:
 
 
 def cost(poses, weight, resid) -> float:
-    """The minimised objective: weighted squared residuals plus the prior rows (-2 log h-likelihood)."""
+    """The minimised objective: weighted squared residuals plus prior rows (-2 log h-likelihood)."""
     return float(np.sum(weight * resid**2) + np.sum(prior_rows(poses) ** 2))
 
 
@@ -173,8 +174,8 @@ def refine(
     A given bias0 with estimate_bias=False is held fixed (subtracted). constraints (station.constraints)
     that fix all inner products within groups of positions (a right-angle iron's mountings) make
     each group rigid; otherwise each position has its own direction. magnitude_spread s > 0: the
-    magnitudes are a random effect, |v_j| = c (1 + delta_j) with delta_j ~ N(0, s^2) (each v_j a free
-    vector with that prior); it needs sigma, since it weighs the readings against the prior.
+    magnitudes are a random effect, |v_j| = c (1 + delta_j) with delta_j ~ N(0, s^2) (each v_j a
+    free vector with that prior); it needs sigma, since it weighs the readings against the prior.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
@@ -228,7 +229,7 @@ def check_spread(spread, sigma) -> None:
     if not (np.isfinite(spread) and spread > 0):
         raise CalibrationInputError(
             f"magnitude_spread {spread!r} is not a non-negative number.",
-            "Give the relative standard deviation of |v_j| (e.g. 1.5e-4), or 0 / None for |v_j| = c.",
+            "Give the relative standard deviation of |v_j| (e.g. 1.5e-4); 0 or None: |v_j| = c.",
         )
     if sigma is None:
         raise CalibrationInputError(

@@ -96,7 +96,7 @@ class Directions:
 
 @dataclass(frozen=True)
 class SoftMagnitudes:
-    """One free vector per position with the prior |v_j| = c (1 + delta_j), delta_j ~ N(0, spread^2)."""
+    """A free vector per position, prior |v_j| = c (1 + delta_j), delta_j ~ N(0, spread^2)."""
 
     v: np.ndarray  # (d, n)
     magnitude: float

@@ -64,8 +64,9 @@ def test_soft_magnitudes_are_exact_without_noise_and_keep_the_dof():
     rng = np.random.default_rng(4)
     a = A_MODEL + 0.01 * rng.standard_normal(A_MODEL.shape)
     v = random_directions(rng, 3, 30, 2.0)
-    fit = refine(a.T @ v, a + 0.05 * rng.standard_normal(a.shape), v + 0.1 * rng.standard_normal(v.shape),
-                 magnitude=2.0, sigma=0.01, magnitude_spread=1e-3)
+    start_a = a + 0.05 * rng.standard_normal(a.shape)
+    fit = refine(a.T @ v, start_a, v + 0.1 * rng.standard_normal(v.shape), magnitude=2.0,
+                 sigma=0.01, magnitude_spread=1e-3)
     assert station.eps(a, fit.a) < 1e-9
     assert fit.dof == 12 * 30 - (3 * 12 + 30 * 2 - 3)  # n more unknowns, n more (prior) rows
 
@@ -74,7 +75,8 @@ def _spread_trials(rng, trials, spread, sigma):
     """eps^2 of the soft- and the hard-magnitude ML and the random-effects bound, per trial."""
     out = []
     for _ in range(trials):
-        v = random_directions(rng, 3, sigma.shape[1]) * (1 + spread * rng.standard_normal(sigma.shape[1]))
+        n = sigma.shape[1]
+        v = random_directions(rng, 3, n) * (1 + spread * rng.standard_normal(n))
         readings = A_MODEL.T @ v + sigma * rng.standard_normal(sigma.shape)
         soft = station.calibrate(readings, 1.0, sigma=sigma, magnitude_spread=spread)
         hard = station.calibrate(readings, 1.0, sigma=sigma)

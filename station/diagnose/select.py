@@ -4,8 +4,9 @@ strongest significant one, refit, repeat until no candidate is significant.
 Evidence of a candidate = the decrease of the model deviance (binned chi2 + rail deviance,
 station.diagnose.model) when it is added and everything is refitted jointly: a likelihood ratio.
 Its p-value comes from the candidate's null law (chi2(dof) for linear parameters, moment-matched
-for the tone fits, 1/2 chi2_0 + 1/2 chi2_1 for a random effect's variance); a candidate is significant when p < alpha / (candidates tested in the step)
-(Bonferroni). Also reported: the AIC change, LR - 2 dof.
+for the tone fits, 1/2 chi2_0 + 1/2 chi2_1 for a random effect's variance); a candidate is
+significant when p < alpha / (candidates tested in the step) (Bonferroni). Also reported: the AIC
+change, LR - 2 dof.
 """
 
 from dataclasses import dataclass
