@@ -46,7 +46,7 @@ class MLFit:
     sigma: np.ndarray  # (m, n) noise standard deviation used as weight (estimated when not given)
     sigma_estimated: bool
     chi2: float  # sum of squared normalised residuals (and prior rows, with a magnitude spread)
-    dof: int  # m n - number of free parameters (gauge removed)
+    dof: int  # m n (+ prior rows) - number of free parameters (gauge removed)
     iterations: int
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
 
