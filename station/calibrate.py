@@ -82,6 +82,7 @@ def calibrate(
     refine: bool = True,
     sigma=None,
     nominal=None,
+    magnitude_spread: float | None = None,
 ) -> CalibrationResult:
     """Calibrate m sensors from readings M (m x n) of a stimulus of magnitude `magnitude`.
 
@@ -94,6 +95,12 @@ def calibrate(
     sigma       noise standard deviation of the readings: scalar, (m,) or (m, n); estimated if None.
     nominal     nominal layout (d x m): report a in the frame aligned to it instead of Eq. (19)'s.
     magnitude   |v_j|; None means unknown: c = 1, scale factors up to a common factor (Remark 2).
+    magnitude_spread
+                s > 0: |v_j| is not exactly c but c (1 + delta_j), delta_j ~ N(0, s^2) independent
+                per position (a random effect, e.g. a rotary table whose rate scatters from run to
+                run; the common part stays in c). The refinement then fits each v_j as a free
+                vector with that prior (docs/conventions.md, "Magnitude"), and the uncertainties
+                include the spread. Needs sigma and no constraints; None or 0: |v_j| = c exactly.
     """
     readings = _as_readings(readings)
     m, n = readings.shape
@@ -113,7 +120,8 @@ def calibrate(
     start_bias = b0 if estimate_bias else known_bias
     fit = ml.refine(
         readings, a0, v0, bias0=start_bias, estimate_bias=estimate_bias, magnitude=c,
-        sigma=sigma, constraints=constraints, max_iter=100 if refine else 0,
+        sigma=sigma, constraints=constraints, magnitude_spread=magnitude_spread,
+        max_iter=100 if refine else 0,
     )
     return _result(fit, method, refine, c, scale_known, estimate_bias, nominal)
 

@@ -3,8 +3,11 @@
 Model (docs/conventions.md): z_ij = a_i . v_j + b_i + noise_ij, noise_ij ~ N(0, sigma_ij^2), with
 |v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and the stimuli v,
 parametrised by station/poses.py (a free direction per position, or one rotation per rigid group of
-positions of a right-angle iron). This replaces the constraint cost of Hwangbo & Kanade (ill-posed
-for m > 3) by the likelihood of the readings themselves.
+positions of a right-angle iron, or a free vector per position whose magnitude is a random effect
+|v_j| = c (1 + delta_j), delta_j ~ N(0, s^2), with one extra residual row (|v_j| - c) / (c s) per
+position: the h-likelihood, whose maximum over a is the marginal-likelihood estimate of the
+linearised model). This replaces the constraint cost of Hwangbo & Kanade (ill-posed for m > 3) by
+the likelihood of the readings themselves.
 
 Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_i) that never couple
 with each other directly; the local parameters split per position group. The normal equations are
@@ -17,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.poses import Directions, rigid_groups
+from station.errors import CalibrationInputError
+from station.poses import Directions, SoftMagnitudes, rigid_groups
 
 
 @dataclass(frozen=True)
@@ -36,20 +40,20 @@ class MLFit:
     """Result of `refine`: the estimate, its residuals and the noise level."""
 
     a: np.ndarray  # (d, m)
-    v: np.ndarray  # (d, n), |v_j| = magnitude
+    v: np.ndarray  # (d, n), |v_j| = magnitude (about it, with a magnitude spread)
     bias: np.ndarray | None  # (m,) when estimated or given
     residuals: np.ndarray  # (m, n) readings - model, output units
     sigma: np.ndarray  # (m, n) noise standard deviation used as weight (estimated when not given)
     sigma_estimated: bool
-    chi2: float  # sum of squared normalised residuals
-    dof: int  # m n - number of free parameters (gauge removed)
+    chi2: float  # sum of squared normalised residuals (and prior rows, with a magnitude spread)
+    dof: int  # m n (+ prior rows) - number of free parameters (gauge removed)
     iterations: int
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
 
 
 def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
     """Sum per-position terms over each group along `axis` (identity for one position per group)."""
-    if isinstance(poses, Directions):
+    if isinstance(poses, (Directions, SoftMagnitudes)):
         return x
     x = np.moveaxis(x, axis, 0)
     out = np.zeros((poses.count,) + x.shape[1:])
@@ -66,14 +70,29 @@ def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations,
     resid = readings - a.T @ v - (0.0 if bias is None else bias[:, None])
     wr = weight * resid
     h_local = _by_group(np.einsum("in,ink,inl->nkl", weight, local, local), poses, 0)
+    g_local = _by_group(np.einsum("in,ink->nk", wr, local), poses, 0)
+    if isinstance(poses, SoftMagnitudes):
+        prior, jac = poses.prior()
+        h_local = h_local + np.einsum("nk,nl->nkl", jac, jac)
+        g_local = g_local + prior[:, None] * jac
     neq = NormalEquations(
         h_global=np.einsum("in,np,nq->ipq", weight, x, x),
         h_local=h_local + _null_identity(poses),
         h_cross=_by_group(np.einsum("in,np,ink->inpk", weight, x, local), poses, 1),
         g_global=wr @ x,
-        g_local=_by_group(np.einsum("in,ink->nk", wr, local), poses, 0),
+        g_local=g_local,
     )
     return neq, resid
+
+
+def prior_rows(poses) -> np.ndarray:
+    """Residuals of the pose prior, (n,) for soft magnitudes, none for hard constraints."""
+    return poses.prior()[0] if isinstance(poses, SoftMagnitudes) else np.zeros(0)
+
+
+def cost(poses, weight, resid) -> float:
+    """The minimised objective: weighted squared residuals plus prior rows (-2 log h-likelihood)."""
+    return float(np.sum(weight * resid**2) + np.sum(prior_rows(poses) ** 2))
 
 
 def _null_identity(poses) -> np.ndarray:
@@ -119,9 +138,17 @@ def free_parameters(m: int, d: int, with_bias: bool, poses) -> int:
     return d * m + (m if with_bias else 0) + poses.free - d * (d - 1) // 2
 
 
-def start_poses(v0, magnitude, constraints=None):
-    """Pose parametrisation: rigid groups when the constraints describe them, else directions."""
+def start_poses(v0, magnitude, constraints=None, spread=None):
+    """Pose parametrisation: soft magnitudes when a spread > 0 is given, rigid groups when the
+    constraints describe them, else directions."""
     v0 = np.asarray(v0, float)
+    if spread:
+        if constraints is not None:
+            raise CalibrationInputError(
+                "a magnitude spread (random table rate) cannot be combined with constraints.",
+                "Give either the constraints of a right-angle iron or magnitude_spread, not both.",
+            )
+        return SoftMagnitudes.start(v0, magnitude, spread)
     groups = None if constraints is None else rigid_groups(constraints, v0, magnitude)
     return Directions.start(v0, magnitude) if groups is None else groups
 
@@ -136,6 +163,7 @@ def refine(
     magnitude: float = 1.0,
     sigma=None,
     constraints=None,
+    magnitude_spread: float | None = None,
     max_iter: int = 100,
     tol: float = 1e-12,
 ) -> MLFit:
@@ -145,13 +173,16 @@ def refine(
     When None, all entries get equal weight and one common sigma is estimated from the residuals.
     A given bias0 with estimate_bias=False is held fixed (subtracted). constraints (station.constraints)
     that fix all inner products within groups of positions (a right-angle iron's mountings) make
-    each group rigid; otherwise each position has its own direction.
+    each group rigid; otherwise each position has its own direction. magnitude_spread s > 0: the
+    magnitudes are a random effect, |v_j| = c (1 + delta_j) with delta_j ~ N(0, s^2) (each v_j a
+    free vector with that prior); it needs sigma, since it weighs the readings against the prior.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
     a = np.array(a0, dtype=float)
     d = a.shape[0]
-    poses = start_poses(v0, magnitude, constraints)
+    check_spread(magnitude_spread, sigma)
+    poses = start_poses(v0, magnitude, constraints, magnitude_spread)
     if bias0 is not None and not estimate_bias:
         readings = readings - np.asarray(bias0, float)[:, None]
     bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
@@ -159,7 +190,7 @@ def refine(
     weight = 1.0 / sig**2
 
     neq, resid = normal_equations(a, poses, bias, readings, weight)
-    cost = float(np.sum(weight * resid**2))
+    objective = cost(poses, weight, resid)
     damping, it = 1e-6, 0
     for it in range(1, max_iter + 1):
         step_g, step_l = lm_step(neq, damping)
@@ -167,10 +198,10 @@ def refine(
         b_t = None if bias is None else bias + step_g[:, d]
         poses_t = poses.moved(step_l)
         neq_t, resid_t = normal_equations(a_t, poses_t, b_t, readings, weight)
-        cost_t = float(np.sum(weight * resid_t**2))
-        if cost_t <= cost:
-            converged = cost - cost_t <= tol * max(cost, 1e-300)
-            a, poses, bias, neq, resid, cost = a_t, poses_t, b_t, neq_t, resid_t, cost_t
+        cost_t = cost(poses_t, weight, resid_t)
+        if cost_t <= objective:
+            converged = objective - cost_t <= tol * max(objective, 1e-300)
+            a, poses, bias, neq, resid, objective = a_t, poses_t, b_t, neq_t, resid_t, cost_t
             damping = max(damping / 10, 1e-12)
             if converged:
                 break
@@ -179,16 +210,33 @@ def refine(
             if damping > 1e12:
                 break
 
-    dof = m * n - free_parameters(m, d, estimate_bias, poses)
+    dof = m * n + prior_rows(poses).size - free_parameters(m, d, estimate_bias, poses)
     estimated = sigma is None
     if estimated:
-        scale = np.sqrt(cost / max(dof, 1))
+        scale = np.sqrt(objective / max(dof, 1))
         sig = np.full((m, n), scale)
         neq = _rescale(neq, 1.0 / scale**2)
-        cost = float(np.sum(resid**2) / scale**2)
+        objective = float(np.sum(resid**2) / scale**2)
     if bias0 is not None and not estimate_bias:
         bias = np.asarray(bias0, float)
-    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, cost, dof, it, neq)
+    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq)
+
+
+def check_spread(spread, sigma) -> None:
+    """A magnitude spread must be >= 0 and finite, and comes with the readings' noise level."""
+    if spread is None or spread == 0:
+        return
+    if not (np.isfinite(spread) and spread > 0):
+        raise CalibrationInputError(
+            f"magnitude_spread {spread!r} is not a non-negative number.",
+            "Give the relative standard deviation of |v_j| (e.g. 1.5e-4); 0 or None: |v_j| = c.",
+        )
+    if sigma is None:
+        raise CalibrationInputError(
+            "magnitude_spread weighs the readings against the magnitudes' prior, so the readings' "
+            "noise level is needed.",
+            "Pass sigma (e.g. the standard error of M from the static windows).",
+        )
 
 
 def sigma_matrix(sigma, m: int) -> np.ndarray:

@@ -2,13 +2,17 @@
 
 - `Directions`: every position its own direction on the sphere of radius c (magnitude constraints
   only, any d): d - 1 tangent coordinates per position.
+- `SoftMagnitudes`: every position a free vector v_j (d coordinates) whose magnitude has a Gaussian
+  prior |v_j| = c (1 + delta_j), delta_j ~ N(0, spread^2): a random effect, e.g. the rate of a
+  rotary table that is not exactly the commanded one. The prior adds one residual row
+  (|v_j| - c) / (c spread) per position (`prior`); spread -> 0 is the sphere of `Directions`.
 - `RigidGroups` (d = 3): positions whose mutual inner products are all known (one mounting of a
   right-angle iron, Hwangbo & Kanade Eq. 15) share one rotation: v_j = c R_g s_j, with s_j fixed unit
   vectors from the constraint Gram matrix. Three rotation coordinates per group.
 
 Both expose the same small interface: `vectors()`, `jacobian()` (dv_j / d local, (n, d, k)), `group`
 (group of each position), `count`, `null` (local directions with no effect, (count, k) bools),
-`free` (local degrees of freedom) and `moved(step)`.
+`free` (local degrees of freedom) and `moved(step)`; `SoftMagnitudes` adds `prior()`.
 """
 
 from dataclasses import dataclass
@@ -88,6 +92,53 @@ class Directions:
     def moved(self, step):
         v = self.v + np.einsum("ndk,nk->dn", self.jacobian(), step)
         return Directions.start(v, self.magnitude)
+
+
+@dataclass(frozen=True)
+class SoftMagnitudes:
+    """A free vector per position, prior |v_j| = c (1 + delta_j), delta_j ~ N(0, spread^2)."""
+
+    v: np.ndarray  # (d, n)
+    magnitude: float
+    spread: float
+
+    @classmethod
+    def start(cls, v0, magnitude, spread):
+        """From start vectors v0, put on the sphere of radius `magnitude` (the prior's mean)."""
+        return cls(Directions.start(v0, magnitude).v, float(magnitude), float(spread))
+
+    @property
+    def group(self):
+        return np.arange(self.v.shape[1])
+
+    @property
+    def count(self):
+        return self.v.shape[1]
+
+    @property
+    def null(self):
+        return np.zeros(self.v.shape[::-1], bool)
+
+    @property
+    def free(self):
+        return self.v.size
+
+    def vectors(self):
+        return self.v
+
+    def jacobian(self):
+        d, n = self.v.shape
+        return np.broadcast_to(np.eye(d), (n, d, d))
+
+    def moved(self, step):
+        return SoftMagnitudes(self.v + step.T, self.magnitude, self.spread)
+
+    def prior(self) -> tuple[np.ndarray, np.ndarray]:
+        """Prior rows as (residual (n,), Jacobian of the model side (n, d)), in the sign convention
+        of station/ml.py (residual = observed - model): (c - |v_j|) / (c s) and u_j / (c s)."""
+        norm = np.linalg.norm(self.v, axis=0)
+        scale = self.magnitude * self.spread
+        return (self.magnitude - norm) / scale, (self.v / norm).T / scale
 
 
 @dataclass(frozen=True)

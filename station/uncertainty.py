@@ -10,8 +10,8 @@ biases, and a expressed in a frame defined by a itself (the canonical frame of E
 import numpy as np
 
 from station.frames import to_canonical
-from station.ml import NormalEquations, normal_equations, reduced_system, sigma_matrix
-from station.poses import Directions
+from station.ml import NormalEquations, check_spread, normal_equations, reduced_system, sigma_matrix
+from station.poses import Directions, SoftMagnitudes
 
 
 def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
@@ -81,19 +81,27 @@ def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7
     return jac.reshape(d * m, m * p)
 
 
-def crlb(a, v, sigma, *, estimate_bias: bool = False) -> np.ndarray:
+def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = None) -> np.ndarray:
     """Cramer-Rao bound on a in the canonical frame of Eq. (19): covariance (d m x d m), row-major.
 
     For readings M = a^T v (+ b) + noise with noise standard deviation `sigma` (scalar, (m,) or
     (m, n)) and |v_j| = c known, trace(crlb) is the smallest achievable E[eps^2] of Eq. (19).
+    spread s > 0: the bound of the random-effects model |v_j| = c (1 + delta_j), delta_j ~ N(0, s^2)
+    (calibrate(..., magnitude_spread=s)), c = the mean |v_j|: the Fisher information of the readings
+    and of the prior on the magnitudes, with each v_j a free vector, reduced to a (the hybrid bound;
+    for the linearised model the covariance of the marginal-likelihood estimate). It is larger than
+    the bound with known magnitudes, which it approaches as s -> 0.
     """
+    check_spread(spread, sigma)
     a = np.asarray(a, float)
     v = np.asarray(v, float)
     d, m = a.shape
-    magnitude = float(np.linalg.norm(v[:, 0]))
+    norms = np.linalg.norm(v, axis=0)
+    poses = (SoftMagnitudes(v, float(norms.mean()), float(spread)) if spread
+             else Directions.start(v, float(norms[0])))
     sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
-    neq, _ = normal_equations(a, Directions.start(v, magnitude), bias, a.T @ v, 1.0 / sig**2)
+    neq, _ = normal_equations(a, poses, bias, a.T @ v, 1.0 / sig**2)
     p = d + (1 if estimate_bias else 0)
     return propagate(global_covariance(neq, d), frame_jacobian(a, p))
 

@@ -107,3 +107,39 @@ def test_missing_keys_name_the_problem():
 
 def test_diagnose_is_exported():
     assert callable(diagnose)
+
+
+def test_rate_error_spread_and_calibration_are_those_of_the_random_effects_model(runs):
+    from station.uncertainty import crlb, eps_tail_probability
+
+    r = runs["rate_error"]
+    spread, spread_sigma = r["spread_fitted"]
+    assert abs(spread - r["spread_true"]) < 3 * spread_sigma, (spread, spread_sigma)
+    d, truth = bench.session("rate_error", 6, 6000)
+    bound = crlb(np.asarray(truth["a"]), np.asarray(truth["v"]), d.sigma_m, spread=r["spread_true"])
+    assert eps_tail_probability(r["eps_after"], bound) > 1e-4, r["eps_after"] / r["crlb_random"]
+    assert r["eps_after"] < r["eps_before"]
+
+
+def _mixed_model_draws(rng, n, spread, draws):
+    """REML fits of delta = X e + N(0, s^2 + w_j) for random unit directions (station's design)."""
+    from station.diagnose.effects.rate_error import quadratic_design, reml_spread
+
+    out = []
+    for _ in range(draws):
+        u = rng.standard_normal((3, n))
+        x = quadratic_design(u / np.linalg.norm(u, axis=0))
+        w = rng.uniform(0.5, 2.0, n)
+        delta = x @ rng.standard_normal(6) + np.sqrt(spread**2 + w) * rng.standard_normal(n)
+        out.append(reml_spread(delta, w, x))
+    return np.array(out)
+
+
+def test_reml_spread_is_unbiased_and_sits_on_the_boundary_half_the_time_without_effect():
+    rng = np.random.default_rng(77)
+    t, t_sigma = _mixed_model_draws(rng, 200, 1.0, 100).T
+    # mean of 100 estimates of s^2 = 1 against their own Fisher standard deviation
+    assert abs(t.mean() - 1.0) < 4 * t_sigma.mean() / np.sqrt(t.size), (t.mean(), t_sigma.mean())
+    t0, _ = _mixed_model_draws(rng, 200, 0.0, 200).T
+    lo, hi = 0.5 - 3 * np.sqrt(0.25 / 200), 0.5 + 3 * np.sqrt(0.25 / 200)
+    assert lo < np.mean(t0 == 0) < hi, np.mean(t0 == 0)

@@ -2,6 +2,7 @@
 form is not (a triad with very unequal scale factors)."""
 
 import numpy as np
+import pytest
 from layouts import A_MODEL, random_directions
 
 import station
@@ -57,3 +58,51 @@ def test_estimated_sigma_matches_the_noise():
     # s^2 (dof) / sigma^2 ~ chi2(dof): relative sd of s is 1 / sqrt(2 dof)
     assert abs(res.sigma[0, 0] / 0.02 - 1) < 4 / np.sqrt(2 * res.dof)
     assert res.sigma_estimated
+
+
+def test_soft_magnitudes_are_exact_without_noise_and_keep_the_dof():
+    rng = np.random.default_rng(4)
+    a = A_MODEL + 0.01 * rng.standard_normal(A_MODEL.shape)
+    v = random_directions(rng, 3, 30, 2.0)
+    start_a = a + 0.05 * rng.standard_normal(a.shape)
+    fit = refine(a.T @ v, start_a, v + 0.1 * rng.standard_normal(v.shape), magnitude=2.0,
+                 sigma=0.01, magnitude_spread=1e-3)
+    assert station.eps(a, fit.a) < 1e-9
+    assert fit.dof == 12 * 30 - (3 * 12 + 30 * 2 - 3)  # n more unknowns, n more (prior) rows
+
+
+def _spread_trials(rng, trials, spread, sigma):
+    """eps^2 of the soft- and the hard-magnitude ML and the random-effects bound, per trial."""
+    out = []
+    for _ in range(trials):
+        n = sigma.shape[1]
+        v = random_directions(rng, 3, n) * (1 + spread * rng.standard_normal(n))
+        readings = A_MODEL.T @ v + sigma * rng.standard_normal(sigma.shape)
+        soft = station.calibrate(readings, 1.0, sigma=sigma, magnitude_spread=spread)
+        hard = station.calibrate(readings, 1.0, sigma=sigma)
+        out.append((station.eps(A_MODEL, soft.a) ** 2, station.eps(A_MODEL, hard.a) ** 2,
+                    np.trace(station.crlb(A_MODEL, v, sigma, spread=spread))))
+    return np.array(out).T
+
+
+def test_soft_magnitudes_reach_the_random_effects_bound_where_the_sphere_does_not():
+    # |v_j| = 1 + delta_j, delta_j ~ N(0, 0.01^2); half the positions 10x noisier than the others,
+    # so the sphere's weights (noise only) trust the precise positions' magnitudes far too much
+    rng = np.random.default_rng(5)
+    sigma = np.repeat(np.where(np.arange(20) < 10, 0.001, 0.01)[None, :], 12, 0)
+    e2_soft, e2_hard, bound = _spread_trials(rng, 150, 0.01, sigma)
+    se = np.std(e2_soft) / np.sqrt(e2_soft.size) / bound.mean()
+    assert abs(e2_soft.mean() / bound.mean() - 1) < 4 * se, (e2_soft.mean() / bound.mean(), se)
+    diff = e2_hard - e2_soft
+    assert diff.mean() > 4 * np.std(diff) / np.sqrt(diff.size), (e2_hard.mean() / bound.mean())
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"magnitude_spread": -1e-3, "sigma": 0.01}, "non-negative"),
+    ({"magnitude_spread": 1e-3}, "noise level"),
+])
+def test_a_magnitude_spread_needs_a_valid_value_and_sigma(kwargs, match):
+    rng = np.random.default_rng(6)
+    v = random_directions(rng, 3, 20)
+    with pytest.raises(station.CalibrationInputError, match=match):
+        station.calibrate(A_MODEL.T @ v, 1.0, **kwargs)

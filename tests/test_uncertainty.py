@@ -70,3 +70,12 @@ def test_eps_tail_probability_matches_the_monte_carlo_of_an_efficient_estimator(
         assert abs(p - (1 - q)) < 4 * np.sqrt(q * (1 - q) / 400), (q, p)
     assert eps_tail_probability(0.0, bound) == 1.0
     assert eps_tail_probability(10 * np.sqrt(np.trace(bound)), bound) == 0.0
+
+
+def test_the_random_effects_bound_grows_with_the_spread_and_tends_to_the_sphere():
+    rng = np.random.default_rng(10)
+    a, v, _ = section4_gyros(rng, 20, 0.0)
+    hard = np.trace(station.crlb(a, v, 0.01))
+    traces = [np.trace(station.crlb(a, v, 0.01, spread=s)) for s in (1e-7, 1e-3, 1e-2)]
+    np.testing.assert_allclose(traces[0], hard, rtol=1e-4)
+    assert hard < traces[1] < traces[2]

@@ -4,9 +4,12 @@ The joint fit alternates (block coordinate descent on the likelihood):
 1. each extension is fitted to the residuals of the twin without it (station.diagnose.effects);
 2. the measured series is corrected by what the extensions add to the nominal twin, reduced with
    Eq. (18) and calibrated again (`station.calibrate`: closed form + maximum likelihood, weighted by
-   the noise from the static windows).
+   the noise from the static windows). Extensions that are part of the calibration's own model
+   (`calibration_options`: rate_error, the random magnitudes) are not corrected for; their options
+   go to `station.calibrate` instead.
 The deviance of a model is the chi2 of its binned residuals plus the rail pile-up deviance
-(station.diagnose.rails); the difference between two nested models is their likelihood ratio.
+(station.diagnose.rails) plus the extensions' random-effect terms (`Fitted.penalty`); the
+difference between two nested models is their likelihood ratio.
 """
 
 from dataclasses import dataclass
@@ -35,7 +38,7 @@ class Model:
 
     @property
     def deviance(self) -> float:
-        return self.chi2 + self.rails
+        return self.chi2 + self.rails + sum(f.penalty for f in self.fitted.values())
 
     @property
     def dof(self) -> int:
@@ -43,16 +46,17 @@ class Model:
         return sum(f.dof for f in self.fitted.values())
 
 
-def _calibrate(data, readings, clipped: bool = False) -> CalibrationResult:
+def _calibrate(data, readings, clipped: bool = False, **options) -> CalibrationResult:
     """Calibrate readings M weighted by their noise; with a clipped output, an entry whose
-    rotating window sat on the rail a fraction f of the time has 1 - f of the information."""
+    rotating window sat on the rail a fraction f of the time has 1 - f of the information.
+    `options` go to station.calibrate (e.g. magnitude_spread)."""
     sigma = data.sigma_m
     if clipped:
         r0 = data.windows["rotating"][0]
         on_rail = np.abs(data.counts) == rails.rail(data)
         f = np.array([on_rail[j, r0:stop].mean(0) for j, stop in enumerate(data.rot_stop)]).T
         sigma = sigma / np.sqrt(np.maximum(1 - f, 1e-6))
-    return calibrate(readings, data.c, sigma=sigma)
+    return calibrate(readings, data.c, sigma=sigma, **options)
 
 
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
@@ -80,9 +84,23 @@ def fit(data, names, start: Model, iterations: int = 3) -> Model:
             pred = twin.predict(ctx, others, EXTENSIONS)
             fitted[name] = EXTENSIONS[name].fit(ctx, pred, twin.residual(ctx, pred))
         fitted = {name: fitted[name] for name in names}
-        added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, {}, EXTENSIONS).z
-        cal = _calibrate(data, data.reduced.M - data.reduce(added).M, "saturation" in fitted)
+        inside, options = _in_calibration(fitted)
+        added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, inside, EXTENSIONS).z
+        cal = _calibrate(data, data.reduced.M - data.reduce(added).M, "saturation" in fitted,
+                         **options)
     return evaluate(data, cal, fitted)
+
+
+def _in_calibration(fitted: dict) -> tuple[dict, dict]:
+    """The extensions that the calibration models itself ({name: Fitted}) and their options for
+    station.calibrate; the readings are corrected for the other extensions only."""
+    inside, options = {}, {}
+    for name, f in fitted.items():
+        own = getattr(EXTENSIONS[name], "calibration_options", None)
+        if own is not None:
+            inside[name] = f
+            options.update(own(f))
+    return inside, options
 
 
 def parameters(f: Fitted) -> dict:

@@ -4,8 +4,9 @@ strongest significant one, refit, repeat until no candidate is significant.
 Evidence of a candidate = the decrease of the model deviance (binned chi2 + rail deviance,
 station.diagnose.model) when it is added and everything is refitted jointly: a likelihood ratio.
 Its p-value comes from the candidate's null law (chi2(dof) for linear parameters, moment-matched
-for the tone fits); a candidate is significant when p < alpha / (candidates tested in the step)
-(Bonferroni). Also reported: the AIC change, LR - 2 dof.
+for the tone fits, 1/2 chi2_0 + 1/2 chi2_1 for a random effect's variance); a candidate is
+significant when p < alpha / (candidates tested in the step) (Bonferroni). Also reported: the AIC
+change, LR - 2 dof.
 """
 
 from dataclasses import dataclass
@@ -55,17 +56,19 @@ def log_sf(x: float, nu: float) -> float:
 def evidence(current: model.Model, extended: model.Model, name: str, tests: int, alpha):
     """The likelihood-ratio evidence for `name` (extended = current + name)."""
     lr = max(current.deviance - extended.deviance, 0.0)
-    scale, nu = extended.fitted[name].null_law
-    log_p = log_sf(lr / scale, nu)
+    fitted = extended.fitted[name]
+    scale, nu = fitted.null_law
+    log_p = np.log(fitted.null_mass) + log_sf(lr / scale, nu) if lr > 0 else 0.0
     return {
         "lr": lr,
-        "dof": extended.fitted[name].dof,
+        "dof": fitted.dof,
         "null_scale": scale,
         "null_dof": nu,
+        "null_mass": fitted.null_mass,
         "p": float(np.exp(log_p)),
         "log10_p": log_p / np.log(10),
         "significant": bool(log_p < np.log(alpha / tests)),
-        "delta_aic": lr - 2 * extended.fitted[name].dof,
+        "delta_aic": lr - 2 * fitted.dof,
     }
 
 

@@ -5,7 +5,10 @@ Each module exposes
 - `fit(ctx, prediction, r) -> Fitted`: its parameters from the residuals r (n, k, m) of the twin
   without it (`prediction`), by weighted least squares on the binned residuals;
 - `apply(ctx, fitted, x, ...)`: its distortion at its stage, through the simulator's own effect
-  function (imported, never copied).
+  function (imported, never copied);
+- optionally `calibration_options(fitted) -> dict`: keyword arguments of `station.calibrate` when
+  the extension enters the calibration's own model (rate_error: the magnitudes' spread) instead
+  of a correction of the readings M.
 """
 
 from dataclasses import dataclass
@@ -24,6 +27,10 @@ class Fitted:
     notes : what the estimate can and cannot say.
     null : (scale, nu): without the effect the likelihood ratio is about scale * chi2(nu);
         (1, dof) for parameters entering linearly, moment-matched otherwise (`tone_null`).
+    null_mass : probability that the likelihood ratio is positive without the effect: 1, or 1/2
+        for a variance on the boundary s = 0 of its range (law 1/2 chi2_0 + 1/2 chi2_1).
+    penalty : random-effect terms of the model deviance (-2 log marginal likelihood) beyond the
+        residual chi2; 0 for fixed effects.
     """
 
     name: str
@@ -33,6 +40,8 @@ class Fitted:
     reduction: float = 0.0
     notes: str = ""
     null: tuple = ()
+    null_mass: float = 1.0
+    penalty: float = 0.0
 
     def value(self, key):
         return np.asarray(self.values[key], float)

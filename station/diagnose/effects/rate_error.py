@@ -1,12 +1,31 @@
-"""Extension `rate_error`: the table's true rate is the command times 1 + delta_j per position.
+"""Extension `rate_error`: the table's true rate is the command times 1 + delta_j per position,
+delta_j ~ N(0, spread^2) a random effect (one parameter, the spread s).
 
-Signature: position j's whole rotation signal scales by delta_j, so the residual is delta_j times
-the twin's sensed signal s_j(t). The common part of the delta_j (the simulator's `scale`) is
-indistinguishable from a common scale factor of all sensors (Remark 2 of Rupniewski), so the
-fit keeps sum(delta_j) = 0 and reports `spread` (the standard deviation of the delta_j).
+Why random: the table reports the commanded angle, so nothing but the readings tells delta_j, and
+with one free factor per position the magnitudes |v_j| = c (1 + delta_j) leave a only determined
+up to GL(3) (the magnitude constraint is what fixes g = a a^T). With the prior on delta_j, a is
+identifiable again. The common part of the delta_j (the simulator's `scale`) is a common scale
+factor of all sensors (Remark 2 of Rupniewski): the prior's mean is 0, and it is not estimated.
+
+Fit, given the twin without the extension:
+1. per position, the least-squares factor delta_hat_j on the signature s_j(t) (the twin's sensed
+   signal) and its variance w_j (`linear.fit`);
+2. delta_hat = delta - X e + noise, where X e (X: (n, d(d+1)/2), the quadratic forms u_j^T E u_j
+   over symmetric E) is the part of the delta_j a calibration absorbs by changing g = a a^T: a
+   linear mixed model with fixed effects X and the random effect delta. s^2 maximises its
+   restricted (REML) likelihood, which accounts for what the calibration absorbs (unbiased where
+   a plain moment estimate over n positions is biased low by the d(d+1)/2 absorbed directions);
+3. the twin's factors are the BLUPs 1 + s^2 / (s^2 + w_j) (delta_hat_j - (X e_gls)_j);
+4. the calibration step (station.diagnose.model) calibrates the uncorrected Eq. (18) readings with
+   magnitude_spread = s (`calibration_options`), i.e. the soft-magnitude maximum likelihood.
+
+Likelihood ratio: the model's deviance gains the random-effect terms of -2 log marginal likelihood,
+sum_j delta_j^2 / s^2 + log(1 + s^2 / w_j) (`Fitted.penalty`), so the LR against the nested s = 0
+model is that of one variance on the boundary of its range: 1/2 chi2_0 + 1/2 chi2_1 (null mass 1/2).
 """
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
@@ -15,20 +34,66 @@ from station.sim.effects import rate_error
 STAGE = "rate"
 
 
+def quadratic_design(u: np.ndarray) -> np.ndarray:
+    """(n, d(d+1)/2) regressors u_j^T E u_j for the symmetric basis matrices E (u: (d, n) unit)."""
+    i, k = np.triu_indices(u.shape[0])
+    return np.where(i == k, 1.0, 2.0) * u[i].T * u[k].T
+
+
+def _projector(t: float, w: np.ndarray, x: np.ndarray):
+    """REML pieces at s^2 = t: V^-1 (diagonal), the projector P = V^-1 - V^-1 X (X^T V^-1 X)^-1
+    X^T V^-1, and log det(X^T V^-1 X)."""
+    vinv = 1.0 / (t + w)
+    xtx = x.T @ (vinv[:, None] * x)
+    h = (vinv[:, None] * x) @ np.linalg.solve(xtx, (vinv[:, None] * x).T)
+    return vinv, np.diag(vinv) - h, np.linalg.slogdet(xtx)[1]
+
+
+def reml_spread(delta: np.ndarray, w: np.ndarray, x: np.ndarray) -> tuple[float, float]:
+    """(s^2, its standard deviation) maximising the restricted likelihood of delta ~ N(X e,
+    diag(s^2 + w)); s^2 >= 0, on the boundary when the data call for none."""
+    def minus2_loglik(t):
+        vinv, p, logdet_x = _projector(t, w, x)
+        return float(-np.sum(np.log(vinv)) + logdet_x + delta @ p @ delta)
+
+    hi = 10.0 * (np.var(delta) + w.max())
+    best = minimize_scalar(minus2_loglik, bounds=(0.0, hi), method="bounded",
+                           options={"xatol": 1e-6 * hi})
+    t = float(best.x) if best.fun < minus2_loglik(0.0) else 0.0
+    _, p, _ = _projector(t, w, x)
+    return t, float(np.sqrt(2.0 / np.sum(p * p)))  # Fisher information of s^2: tr(P P) / 2
+
+
 def fit(ctx, prediction, r) -> Fitted:
-    """delta_j (n,) by least squares per position on the signature s_j(t), centred to sum 0."""
+    """The spread s, the factors 1 + delta_j (BLUP) and the deviance terms; see the module
+    docstring."""
     lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
-    delta = lf.theta[:, 0] - lf.theta[:, 0].mean()
-    n = delta.size
-    spread = float(np.std(delta, ddof=1))
+    delta_hat, w = lf.theta[:, 0], lf.cov[:, 0, 0]
+    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
+    t, t_sigma = reml_spread(delta_hat, w, x)
+    vinv, p, _ = _projector(t, w, x)
+    shrink = t * vinv
+    delta = t * (p @ delta_hat)  # s^2 V^-1 (delta_hat - X e_gls)
+    penalty = float(np.sum(delta**2) / t + np.sum(np.log1p(t / w))) if t > 0 else 0.0
+    spread = float(np.sqrt(t))
     return Fitted(
         "rate_error",
         {"factors": 1.0 + delta, "spread": spread},
-        {"factors": np.sqrt(lf.cov[:, 0, 0]), "spread": spread / np.sqrt(2 * (n - 1))},
-        dof=n - 1,
+        {"factors": np.sqrt(shrink * w), "spread": float(np.sqrt(t + t_sigma)) - spread},
+        dof=1,
         reduction=lf.reduction(delta[:, None]),
-        notes="the common rate error (scale) is not separable from a common scale factor",
+        notes="random effect: factors are BLUPs; the common rate error (scale) is not separable "
+        "from a common scale factor; the sigma of the spread is the 1-sigma step of s^2 (REML "
+        "Fisher information) upward, expressed in s",
+        null_mass=0.5,
+        penalty=penalty,
     )
+
+
+def calibration_options(fitted: Fitted) -> dict:
+    """Keyword arguments of station.calibrate for the uncorrected Eq. (18) readings: the
+    soft-magnitude maximum likelihood at the fitted spread."""
+    return {"magnitude_spread": float(fitted.values["spread"])}
 
 
 def apply(ctx, fitted: Fitted, rate: np.ndarray) -> np.ndarray:
