@@ -1,9 +1,10 @@
-"""`station diagnose SESSION`: name the effects that separate a rotary session from its twin."""
+"""`station diagnose SESSION`: name the effects that separate a rotary or free-static session from
+its twin."""
 
 import json
 from pathlib import Path
 
-from station.diagnose import data, diagnose, report
+from station.diagnose import data, diagnose, report, static_report
 from station.errors import CalibrationInputError
 
 
@@ -16,7 +17,8 @@ def register(subparsers) -> None:
         "every named effect by its likelihood ratio, add the strongest significant one and "
         "repeat (docs/diagnose.md).",
     )
-    p.add_argument("session", metavar="SESSION", help="rotary data file (.npz)")
+    p.add_argument("session", metavar="SESSION",
+                   help="rotary data file (.npz) or free-static session (.h5 of station import)")
     p.add_argument("--json", action="store_true", help="print the diagnosis as JSON")
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
@@ -27,6 +29,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     """Diagnose, print, optionally write the report; bad input is reported, not raised."""
     path = Path(args.session)
+    if static_report.is_static_session(path):
+        return static_report.command(args)
     if path.suffix != ".npz" or not path.is_file():
         print(f"station diagnose: {path} is not a rotary .npz data file; record or simulate one "
               "(station simulate --protocol rotary --out x.npz)")

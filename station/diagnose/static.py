@@ -172,7 +172,10 @@ def _lsb(x: np.ndarray) -> np.ndarray:
 class Base:
     """What every model of a session starts from: the nominal calibration and fixed geometry.
 
-    cal : the nominal calibration (station.calibrate, canonical frame).
+    cal : the nominal calibration (station.calibrate, canonical frame), or None when the poses
+          do not determine the ellipsoid (e.g. six faces, each visited by hand several times):
+          the accelerometer's nominal model is then one free mean per interval (`pose`: (P,)
+          the mean each interval uses).
     tangents : (P, 3, 2) orthonormal tangents of the nominal v_j (the v_j are moved in them).
     up : (P, 3) gravity direction of each interval in the accelerometer's own axes (the frame
          nearest the nominal layout: a gyro triad on the same board shares it to ~1 deg).
@@ -181,6 +184,7 @@ class Base:
     """
 
     cal: object
+    pose: np.ndarray
     tangents: np.ndarray
     up: np.ndarray
     horizontal: np.ndarray
@@ -198,16 +202,18 @@ def base(data: StaticData) -> Base:
     means, n = data.interval_means
     m = data.m
     sigma = data.sigma[:m, None] / np.sqrt(n)[None]
-    cal = calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate", sigma=sigma)
-    if m == 3:
-        v = calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate", sigma=sigma,
-                      nominal=np.eye(3)).v
-    else:
-        v = cal.v
+    pose = np.arange(len(means))
+    rail = np.stack([data.x[data.still].min(0), data.x[data.still].max(0)])
+    try:
+        cal = calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate", sigma=sigma)
+    except CalibrationInputError:
+        up = means[:, :3] / np.linalg.norm(means[:, :3], axis=1, keepdims=True)
+        return Base(None, pose, None, up, _perp(up), rail)
+    v = cal.v if m != 3 else calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate",
+                                       sigma=sigma, nominal=np.eye(3)).v
     up = (v / np.linalg.norm(v, axis=0)).T
     vc = (cal.v / np.linalg.norm(cal.v, axis=0)).T
-    still = data.x[data.still]
-    return Base(cal, _perp(vc), up, _perp(up), np.stack([still.min(0), still.max(0)]))
+    return Base(cal, pose, _perp(vc), up, _perp(up), rail)
 
 
 @dataclass(frozen=True)
@@ -217,15 +223,18 @@ class Layout:
     slices: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, data: StaticData, names) -> "Layout":
+    def of(cls, data: StaticData, b0: Base, names) -> "Layout":
         m, p, q = data.m, len(data.intervals), data.c - data.m
-        sizes = {"a": 3 * m - 3, "b": data.c, "v": 2 * p}
+        if b0.cal is None:
+            sizes = {"mu": m * (b0.pose.max() + 1), "b": data.c}
+        else:
+            sizes = {"a": 3 * m - 3, "b": data.c, "v": 2 * p}
         if "scale_nonlinearity" in names:
             sizes["k2"] = m
         if "bias_drift" in names:
             sizes["warmup"] = sizes["slope"] = data.c
         if "earth_rate" in names and q:
-            sizes["earth"] = 2 + p
+            sizes["earth"] = 2
         out, i = {}, 0
         for k, s in sizes.items():
             out[k] = slice(i, i + s)
@@ -254,25 +263,45 @@ def _a_values(a: np.ndarray) -> np.ndarray:
 def predict(data: StaticData, b0: Base, names, p: dict, basis=None) -> np.ndarray:
     """(B, c) bin means the model predicts (the twin), for parameters p (Layout.unpack) and the
     drift basis of bias_drift's time constant (`drift_basis`)."""
-    a = _a_matrix(p["a"], data.m)
-    v = b0.cal.v / np.linalg.norm(b0.cal.v, axis=0)
-    v = v + np.einsum("pik,pk->ip", b0.tangents, p["v"].reshape(-1, 2))
-    v = data.gravity * v / np.linalg.norm(v, axis=0)
-    s = (a.T @ v).T[data.bin_interval]
     out = np.zeros(data.z.shape)
-    out[:, :data.m] = s + p["k2"] * s**2 if "k2" in p else s
-    if "earth" in p:
-        e = p["earth"]
-        hor = np.stack([np.cos(e[2:]), np.sin(e[2:])], 1)
-        rate = e[0] * b0.up + e[1] * np.einsum("pik,pk->pi", b0.horizontal, hor)
-        out[:, data.m:] = rate[data.bin_interval]
+    if "mu" in p:
+        out[:, :data.m] = p["mu"].reshape(-1, data.m)[b0.pose][data.bin_interval]
+        s = None
+    else:
+        a = _a_matrix(p["a"], data.m)
+        v = b0.cal.v / np.linalg.norm(b0.cal.v, axis=0)
+        v = v + np.einsum("pik,pk->ip", b0.tangents, p["v"].reshape(-1, 2))
+        v = data.gravity * v / np.linalg.norm(v, axis=0)
+        s = (a.T @ v).T[data.bin_interval]
+    if s is not None:
+        out[:, :data.m] = s + p["k2"] * s**2 if "k2" in p else s
     out += p["b"]
     if "warmup" in p:
         warm, slope = basis
         out += warm[:, None] * p["warmup"] + slope[:, None] * p["slope"]
+    if "earth" in p:
+        u, north = p["earth"]
+        hor = np.stack([np.cos(h := headings(data, b0, u, out)), np.sin(h)], 1)
+        rate = u * b0.up + north * np.einsum("pik,pk->pi", b0.horizontal, hor)
+        out[:, data.m:] += rate[data.bin_interval]
     if "saturation" in names:
         out = clipped(out, b0.rails, data.sigma)
     return out
+
+
+def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarray:
+    """(P,) heading of the Earth rate's horizontal part in each interval, profiled out: the
+    direction of the free 2-D weighted fit of the horizontal gyro residual net of the vertical
+    part u and the rest of the model `rest` (B, c) (station.diagnose.effects.tone_null's phase)."""
+    w = data.lengths[:, None] / data.sigma[data.m:] ** 2
+    r = (data.z - rest)[:, data.m:] - u * b0.up[data.bin_interval]
+    g = np.stack([np.bincount(data.bin_interval, (w * r)[:, i], len(data.intervals))
+                  for i in range(data.c - data.m)], 1)
+    wp = np.stack([np.bincount(data.bin_interval, w[:, i], len(data.intervals))
+                   for i in range(data.c - data.m)], 1)
+    h = np.einsum("pik,pi,pil->pkl", b0.horizontal, wp, b0.horizontal)
+    theta = np.linalg.solve(h, np.einsum("pik,pi->pk", b0.horizontal, g)[..., None])[..., 0]
+    return np.arctan2(theta[:, 1], theta[:, 0])
 
 
 def drift_basis(data: StaticData, tau: float):
@@ -310,6 +339,7 @@ class Model:
     chi2: float
     rails: float
     calibration: object  # accelerometer calibration of the interval means net of the extensions
+    base: Base
 
     @property
     def names(self) -> tuple:
@@ -346,32 +376,88 @@ def _start(data: StaticData, b0: Base, layout: Layout, start) -> np.ndarray:
         if not ("earth" in p and "earth" not in start.params):
             return theta
     else:
-        p["a"][:] = _a_values(b0.cal.a)
         means, n = data.interval_means
-        p["b"][:] = np.concatenate([b0.cal.bias, means[:, data.m:].T @ n / n.sum()])
-    if "earth" in p:  # headings from the horizontal residual of the gyro interval means
+        p["b"][data.m:] = means[:, data.m:].T @ n / n.sum()
+        if b0.cal is None:
+            p["mu"][:] = np.concatenate([means[b0.pose == k, :data.m].T @ n[b0.pose == k]
+                                         / n[b0.pose == k].sum()
+                                         for k in range(b0.pose.max() + 1)])
+        else:
+            p["a"][:] = _a_values(b0.cal.a)
+            p["b"][:data.m] = b0.cal.bias
+    if "earth" in p:  # from the gyro interval means net of the bias
         r = data.interval_means[0][:, data.m:] - p["b"][data.m:]
-        h = np.einsum("pik,pi->pk", b0.horizontal, r)
         p["earth"][0] = np.mean(np.einsum("pi,pi->p", b0.up, r))
-        p["earth"][1] = np.mean(np.linalg.norm(h, axis=1))
-        p["earth"][2:] = np.arctan2(h[:, 1], h[:, 0])
+        p["earth"][1] = np.mean(np.linalg.norm(np.einsum("pik,pi->pk", b0.horizontal, r), 1))
     return theta
 
 
 def _solve(data: StaticData, b0: Base, names, start, basis):
     """Weighted least squares of the bin means on the model with extensions `names`."""
-    layout = Layout.of(data, names)
+    layout = Layout.of(data, b0, names)
 
     def residual(theta):
         return ((data.z - predict(data, b0, names, layout.unpack(theta), basis))
                 * data.weights).ravel()
 
     sol = least_squares(residual, _start(data, b0, layout, start), method="trf",
-                        x_scale="jac",
+                        jac=_jacobian(residual, _touched(data, b0, layout)), x_scale="jac",
                         xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=200)
-    jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else sol.jac
-    cov = np.linalg.pinv(jac.T @ jac)
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac)
     return layout, sol.x, cov, float(2 * sol.cost)
+
+
+def _touched(data: StaticData, b0: Base, layout: Layout) -> list:
+    """For each parameter, the residuals (bin x channel, row-major) it moves."""
+    m, c = data.m, data.c
+    idx = np.arange(len(data.bins) * c).reshape(-1, c)
+    mine = [np.flatnonzero(data.bin_interval == j) for j in range(len(data.intervals))]
+    cols = []
+    for name, sl in layout.slices.items():
+        n = sl.stop - sl.start
+        if name == "a":
+            cols += [idx[:, i] for i in np.triu_indices(3, 0, m)[1]]
+        elif name == "v":
+            cols += [idx[mine[k // 2], :m].ravel() for k in range(n)]
+        elif name == "mu":
+            cols += [idx[np.isin(data.bin_interval, np.flatnonzero(b0.pose == k // m)), k % m]
+                     for k in range(n)]
+        elif name == "earth":
+            cols += [idx[:, m:].ravel()] * 2
+        else:  # one per channel: b, k2, warmup, slope
+            cols += [idx[:, i] for i in range(n)]
+    return cols
+
+
+def _jacobian(fun, cols: list):
+    """Forward-difference Jacobian of fun, perturbing together the parameters that move
+    disjoint residuals (the pose and heading parameters of different intervals)."""
+    groups, used = [], []
+    size = 1 + max(int(r.max()) for r in cols)
+    for k, rows in enumerate(cols):
+        for g, u in zip(groups, used):
+            if not u[rows].any():
+                g.append(k)
+                u[rows] = True
+                break
+        else:
+            groups.append([k])
+            used.append(np.zeros(size, bool))
+            used[-1][rows] = True
+
+    def jac(theta):
+        f0 = fun(theta)
+        out = np.zeros((f0.size, theta.size))
+        for g in groups:
+            step = 1.49e-8 * np.maximum(1.0, np.abs(theta[g]))
+            t = theta.copy()
+            t[g] += step
+            df = fun(t) - f0
+            for k, h in zip(g, step):
+                out[cols[k], k] = df[cols[k]] / h
+        return out
+
+    return jac
 
 
 def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
@@ -390,13 +476,13 @@ def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
     p = {k: v.copy() for k, v in layout.unpack(theta).items()}
     sig = {k: np.sqrt(np.maximum(np.diag(cov)[s], 0)) for k, s in layout.slices.items()}
     fitted = {name: _fitted(name, data, b0, p, sig, tau, taus) for name in names}
-    return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis))
+    return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis), b0)
 
 
 def _calibration(data: StaticData, b0: Base, names, p: dict, basis):
     """The accelerometer calibration of the interval means once the extensions' part of the
     twin is taken off (before the extensions: the nominal calibration)."""
-    if not names:
+    if not names or b0.cal is None:
         return b0.cal
     bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
     added = predict(data, b0, names, p, basis) - predict(data, b0, (), bare, basis)
@@ -447,21 +533,26 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
     return Fitted(
         "earth_rate",
         {"vertical": u, "horizontal": north, "rate": np.hypot(u, north),
-         "latitude_deg": np.degrees(np.arctan2(u, north)),
-         "heading_deg": np.degrees(e[2:] + np.pi * (e[1] < 0)) % 360},
+         "latitude_deg": np.degrees(np.arctan2(u, north))},
         {"vertical": s[0], "horizontal": s[1], "rate": np.hypot(u * s[0], north * s[1])
-         / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan,
-         "heading_deg": np.degrees(s[2:])},
+         / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan},
         dof=len(data.intervals) + 2,
         null=(var / (2 * mean), 2 * mean**2 / var),
         notes=f"gyro output units (Earth: {OMEGA_EARTH:.4e} rad/s); heading per interval is "
-        "nuisance (the unit is turned by hand); latitude = atan2(vertical, horizontal)",
+        "nuisance, profiled out (the unit is turned by hand); latitude = atan2(vertical, "
+        "horizontal); an orientation-dependent gyro bias (g-sensitivity) has the same signature",
     )
 
 
-def testable(data: StaticData) -> tuple:
-    """The candidates this session can show (earth_rate needs a gyro stream)."""
-    return tuple(c for c in CANDIDATES if c != "earth_rate" or data.gyro)
+def untestable(data: StaticData, b0: Base) -> dict:
+    """{effect: why this session cannot show it}."""
+    out = dict(NOT_TESTABLE)
+    if not data.gyro:
+        out["earth_rate"] = "needs a gyro stream"
+    if b0.cal is None:
+        out["scale_nonlinearity"] = ("the poses do not determine the ellipsoid (too few distinct "
+                                     "orientations), so the accelerometer has no shape to test")
+    return out
 
 
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
@@ -471,7 +562,8 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
 
     b0 = base(data)
     current = fit(data, b0)
-    candidates = testable(data) if candidates is None else tuple(candidates)
+    if candidates is None:
+        candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
     steps = []
     while True:
         remaining = [c for c in candidates if c not in current.fitted]

@@ -2,7 +2,8 @@
 text / HTML form shared with the rotary path (station.diagnose.report).
 
 Gap statistics (1 = explained by white noise of the sigma measured within the bins):
-- `between`: accelerometer interval means against the model, chi2 / dof of the calibration;
+- `between`: accelerometer interval means against the model, chi2 / dof of the calibration
+  (absent when the poses do not determine the calibration);
 - `gyro`: gyro interval means against the model (one bias, plus the Earth rate when fitted);
 - `within`: bin means around their interval's mean (the scatter of sub-interval means);
 - `trend`: slopes of the bin residuals within each interval, in units of their standard error;
@@ -19,20 +20,23 @@ import numpy as np
 from station.diagnose import report
 from station.diagnose.model import parameters
 from station.diagnose.select import log_sf
-from station.diagnose.static import (NOT_TESTABLE, SCALES_S, STANDARD_GRAVITY, StaticData,
-                                     diagnose_static, from_arrays)
+from station.diagnose.static import (SCALES_S, STANDARD_GRAVITY, StaticData, diagnose_static,
+                                     from_arrays, untestable)
 from station.errors import CalibrationInputError
 
 
 def statistics(data: StaticData, model) -> dict:
     """{statistic: normalised gap} of a fitted model (station.diagnose.static.Model)."""
     m, c, p, nb = data.m, data.c, len(data.intervals), len(data.bins)
+    free = model.base.cal is None  # one mean per distinct pose
     r = (data.z - model.prediction) * data.weights  # whitened bin residuals
     _, n = data.interval_means
     root = np.sqrt(data.lengths)
     big = np.stack([np.bincount(data.bin_interval, root * r[:, i], p) for i in range(c)], 1)
     big /= np.sqrt(n)[:, None]  # whitened interval-mean residuals
-    out = {"between": float(np.sum(big[:, :m] ** 2) / max(p * m - (3 * m - 3 + m + 2 * p), 1))}
+    nominal = m * (model.base.pose.max() + 1) if free else 3 * m - 3 + m + 2 * p
+    dof = p * m - nominal  # none when every interval has its own mean
+    out = {"between": float(np.sum(big[:, :m] ** 2) / dof)} if dof > 0 else {}
     if data.gyro:
         out["gyro"] = float(np.sum(big[:, m:] ** 2) / max(p * (c - m) - (c - m), 1))
     out["within"] = float((np.sum(r**2) - np.sum(big**2)) / max((nb - p) * c, 1))
@@ -124,9 +128,7 @@ def to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
     } for step in diagnosis.steps]
     white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
     lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
-    not_testable = dict(NOT_TESTABLE)
-    if not data.gyro:
-        not_testable["earth_rate"] = "needs a gyro stream"
+    not_testable = untestable(data, diagnosis.steps[0].model.base)
     remarks = [white["message"], *data.notes] + [
         f"not testable in a static session: {k} ({v})" for k, v in not_testable.items()]
     return report.jsonable({
@@ -147,10 +149,15 @@ def to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
         "not_testable": not_testable,
         "white_noise": white,
         "steps": steps,
-        "calibration_before": report.calibration_summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": report.calibration_summary(diagnosis.final.calibration),
+        "calibration_before": _summary(diagnosis.steps[0].model.calibration),
+        "calibration_after": _summary(diagnosis.final.calibration),
         "remarks": remarks,
     })
+
+
+def _summary(cal):
+    """report.calibration_summary, or None without a calibration (poses not spread enough)."""
+    return None if cal is None else report.calibration_summary(cal)
 
 
 def whiteness_png(doc: dict) -> bytes:
@@ -234,6 +241,9 @@ def load(path, **detector) -> StaticData:
 
 def command(args) -> int:
     """`station diagnose SESSION.h5` for a free-static session: diagnose, print, report."""
+    if not 0 < args.alpha < 1:
+        print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
+        return 2
     try:
         data = load(args.session)
         result = diagnose_static(data, alpha=args.alpha, max_effects=args.max_effects)
