@@ -169,8 +169,8 @@ def test_real_mpu9150(tmp_path, capsys):
     t = np.arange(len(x)) / 100.0
     for name, cols in (("acc", x[:, :3]), ("gyr", x[:, 3:])):
         np.savetxt(tmp_path / f"{name}.txt", np.column_stack([t, cols]), fmt="%.8g")
-    h5 = import_text(tmp_path / "mpu.h5", {"acc": tmp_path / "acc.txt", "gyr": tmp_path / "gyr.txt"},
-                     {"acc": "m/s^2", "gyr": "rad/s"}, fs=100.0)
+    streams = {"acc": tmp_path / "acc.txt", "gyr": tmp_path / "gyr.txt"}
+    h5 = import_text(tmp_path / "mpu.h5", streams, {"acc": "m/s^2", "gyr": "rad/s"}, fs=100.0)
     doc = diagnose_file(h5, tmp_path, capsys)
     assert doc["intervals"] >= 15
 
