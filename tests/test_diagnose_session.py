@@ -36,6 +36,9 @@ POSITIONS = 8  # Eqs. (16)-(17) need n >= 6 for 12 sensors
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
 RATE_SPREAD = 5e-4
 """Hidden per-position rate error: about 4 sigma of one reading of M (sigma_M ~ 1.2e-4 rad/s)."""
+RATE_POSITIONS = 16
+"""Of the n rate factors a calibration absorbs d(d+1)/2 = 6 combinations (the random-effects
+model sees n - 6): 8 positions leave 2, too few to tell the spread from other effects."""
 FALSE_ALARM = 1e-3
 
 
@@ -48,9 +51,9 @@ def gap_bounds(result, d) -> dict:
     return {k: stats.chi2.ppf(1 - q, dof) / dof for k, dof in features.items()}
 
 
-def record(path, **bench):
+def record(path, positions=POSITIONS, **bench):
     with VirtualBench(seed=3, speed=40.0, remount_time=1.0, **bench) as b:
-        record_rotary(b, path, FAST, suggested_axes(POSITIONS))
+        record_rotary(b, path, FAST, suggested_axes(positions))
     return path
 
 
@@ -61,7 +64,7 @@ def clean(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def rate_error(tmp_path_factory):
-    return record(tmp_path_factory.mktemp("rate") / "rate.h5",
+    return record(tmp_path_factory.mktemp("rate") / "rate.h5", RATE_POSITIONS,
                   rate_error={"spread": RATE_SPREAD})
 
 
@@ -81,6 +84,7 @@ def test_effect_free_bench_session_is_called_none(clean):
 
 def test_hidden_table_rate_error_is_named(rate_error):
     d = session_data.from_session(rate_error)
+    assert d.shape[0] == RATE_POSITIONS
     result = diagnose(d)
     assert result.effects[:1] == ["rate_error"]
     check_explained(result, d)
@@ -149,11 +153,12 @@ def test_a_session_without_a_completed_position_is_refused(tmp_path):
         session_data.from_session(path)
 
 
-def test_cli_names_a_session_that_is_not_rotary(tmp_path):
+def test_cli_sends_a_session_that_is_not_rotary_to_the_free_static_path(tmp_path):
+    # a gyro-only session without rotary events: the free-static path says what it needs
     path = tmp_path / "static.h5"
     spec = StreamSpec(["g1", "g2", "g3"], "rad/s", 1000.0, 200.0)
     with SessionWriter.create(path, {"protocol": "static", "unit_serial": "X"}, {"imu": spec}):
         pass
     out = subprocess.run([sys.executable, "-m", "station.cli", "diagnose", str(path)],
                          check=False, capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "no rotary protocol events" in out.stdout
+    assert out.returncode == 2 and "one accelerometer stream (m/s^2)" in out.stdout

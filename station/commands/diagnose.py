@@ -1,9 +1,10 @@
-"""`station diagnose SESSION`: name the effects that separate a rotary session from its twin."""
+"""`station diagnose SESSION`: name the effects that separate a rotary or free-static session from
+its twin."""
 
 import json
 from pathlib import Path
 
-from station.diagnose import data, diagnose, report
+from station.diagnose import data, diagnose, report, static_report
 from station.errors import CalibrationInputError
 from station.session import Session
 
@@ -17,7 +18,9 @@ def register(subparsers) -> None:
         "every named effect by its likelihood ratio, add the strongest significant one and "
         "repeat (docs/diagnose.md).",
     )
-    p.add_argument("session", metavar="SESSION", help="rotary session (.h5) or data file (.npz)")
+    p.add_argument("session", metavar="SESSION",
+                   help="session (.h5: rotary, or free-static from station import) or rotary "
+                   "data file (.npz)")
     p.add_argument("--json", action="store_true", help="print the diagnosis as JSON")
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
@@ -29,8 +32,8 @@ def run(args) -> int:
     """Diagnose, print, optionally write the report; bad input is reported, not raised."""
     path = Path(args.session)
     if path.suffix not in (".npz", ".h5") or not path.is_file():
-        print(f"station diagnose: {path} is not a rotary session (.h5 recorded by the station, "
-              "or a .npz data file); record or simulate one "
+        print(f"station diagnose: {path} is not a session (.h5 recorded or imported by the "
+              "station) or a rotary .npz data file; record, import or simulate one "
               "(station simulate --protocol rotary --out x.npz)")
         return 2
     if not 0 < args.alpha < 1:
@@ -41,11 +44,10 @@ def run(args) -> int:
             session = data.load(path)
         else:
             with Session.open(path) as recorded:
-                if not data.is_rotary(recorded):  # the one dispatch point for other protocols
-                    print(f"station diagnose: {path} holds no rotary protocol events (protocol "
-                          f"{recorded.protocol!r}); only rotary sessions are diagnosed so far")
-                    return 2
-                session = data.from_session(recorded)
+                rotary = data.is_rotary(recorded)
+                session = data.from_session(recorded) if rotary else None
+            if not rotary:  # the one dispatch point for other protocols
+                return static_report.command(args)
         result = diagnose(session, alpha=args.alpha, max_effects=args.max_effects)
     except (CalibrationInputError, ValueError, OSError) as err:
         print(f"station diagnose: {err}")

@@ -35,10 +35,16 @@ def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool) -> np.ndarra
         for side, sign in enumerate((1.0, -1.0)):
             # standardised distance to the inner edge of the rail's bin; beyond 12 the mass is 0
             lo = (r - 0.5 - sign * mu) / sc[i]
-            lo = lo[lo < 12]
-            tail = ndtr(-lo)
-            out[side, i] = (tail if clipped else tail - ndtr(-lo - 1 / sc[i])).sum()
+            out[side, i] = pile_up(lo[lo < 12], 1 / sc[i], clipped).sum()
     return out
+
+
+def pile_up(lo, width, clipped: bool):
+    """Probability of reading the rail for a Gaussian output whose distance to the inner edge
+    of the rail's quantisation bin is lo standard deviations (bin width `width` of them): the
+    whole tail when the output is clipped, the bin's mass when it is free."""
+    tail = ndtr(-lo)
+    return tail if clipped else tail - ndtr(-lo - width)
 
 
 def deviance(n_obs: np.ndarray, n_exp: np.ndarray) -> float:

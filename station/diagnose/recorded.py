@@ -9,10 +9,11 @@ contiguous stretches of the IMU stream are taken, each aligned and cut to the sh
 over the positions:
 
 1. static   : from `static_start`, the shortest static window;
-2. moving   : the spin start t_s aligned, from the shortest lead between `static_end` and t_s
-              (the guard) up to the shortest t_s -> t_e (t_e: the stop command); it holds the
-              spin-up, the settling, the rotating window (the positions' common part of
-              `rotate_start`..`rotate_end`, cut to whole turns later) and the steady guard after it;
+2. moving   : `rotate_start` aligned, from the shortest lead after `static_end` (the guard, the
+              spin-up from t_s, the settling) up to the shortest `rotate_start` -> t_e (t_e: the
+              stop command); the rotating window is all of the steady rotation after
+              `rotate_start` (the protocol's turns and the steady guard), cut to whole turns per
+              position later;
 3. spindown : from t_e, the shortest stretch up to `position_done`.
 
 Cut away, and why: the mounting and the wait for a still table before the static window (the
@@ -176,26 +177,31 @@ def _off_rate(fs, slope, source, span) -> CalibrationInputError:
 
 
 def _grid(t, fs, pos) -> tuple:
-    """(n, k) stream indices of the three aligned stretches, and the windows on the grid."""
+    """(n, k) stream indices of the three aligned stretches, and the windows on the grid.
+
+    The moving stretch is aligned at each position's `rotate_start`: every position then has at
+    least its own whole turns plus the steady guard after that index, whatever its settling took
+    (aligned at the spin start instead, the positions' common part of the rotating windows can be
+    shorter than a turn when the settling times differ by a few polls). The spin-ups land at
+    slightly different indices; the `spinup` window spans them all (the twin's rate profile is
+    per position, so only the transients statistic sees the window)."""
     def samples(a, b, pick):
         return pick([np.sum((t >= p[a]) & (t < p[b])) for p in pos])
 
-    ns, lead = samples("s0", "s1", min), samples("s1", "ts", min)
-    moving, down = samples("ts", "te", min), samples("te", "done", min)
-    rot0, rot1 = samples("ts", "r0", max), samples("ts", "r1", min)
-    if rot1 <= rot0:
-        raise CalibrationInputError("the positions' rotating windows have no common part once "
-                                    "their spin-ups are aligned.",
-                                    "Record with more revolutions per position.")
+    ns, lead = samples("s0", "s1", min), samples("s1", "r0", min)
+    moving, down = samples("r0", "te", min), samples("te", "done", min)
+    settle_max, settle_min = samples("ts", "r0", max), samples("ts", "r0", min)
     index = np.stack([np.concatenate([
-        np.arange(s, s + ns), np.arange(m - lead, m + moving), np.arange(e, e + down)])
-        for s, m, e in (np.searchsorted(t, [p["s0"], p["ts"], p["te"]]) for p in pos)])
+        np.arange(s, s + ns), np.arange(r - lead, r + moving), np.arange(e, e + down)])
+        for s, r, e in (np.searchsorted(t, [p["s0"], p["r0"], p["te"]]) for p in pos)])
     up, dn = (math.ceil(fs * max(1 / p[key] for p in pos)) for key in ("up", "down"))
-    m0 = ns + lead
-    windows = {"static": (0, ns), "spinup": (m0, m0 + min(up, moving)),
-               "rotating": (m0 + rot0, m0 + rot1),
+    m0 = ns + lead  # the rotating windows' start
+    windows = {"static": (0, ns),
+               "spinup": (max(ns, m0 - settle_max), min(m0, m0 - settle_min + up)),
+               "rotating": (m0, m0 + moving),  # cut to whole turns per position later
                "spindown": (m0 + moving, m0 + moving + min(dn, down))}
     return index, {name: np.array(w) for name, w in windows.items()}
+
 
 
 def _fraction(t, p) -> np.ndarray:

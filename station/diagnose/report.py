@@ -6,7 +6,6 @@ import io
 
 import numpy as np
 
-from station.diagnose.gap import STATISTICS
 from station.diagnose.model import parameters
 
 
@@ -80,6 +79,7 @@ def text(doc: dict) -> str:
     for name, params in doc["steps"][-1]["parameters"].items():
         shown = {k: v["value"] for k, v in params.items() if not isinstance(v["value"], list)}
         lines.append(f"{name}: {shown}")
+    lines.extend(doc.get("remarks", []))
     return "\n".join(lines)
 
 
@@ -92,7 +92,7 @@ def plot_png(doc: dict) -> bytes:
 
     labels = ["+".join(s["model"][1:]) or "nominal" for s in doc["steps"]]
     fig, ax = plt.subplots(figsize=(7, 4))
-    for stat in STATISTICS:
+    for stat in doc["steps"][0]["gap"]:
         ax.plot(range(len(labels)), [max(s["gap"][stat], 1e-3) for s in doc["steps"]],
                 marker="o", label=stat)
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
@@ -108,8 +108,9 @@ def plot_png(doc: dict) -> bytes:
     return buf.getvalue()
 
 
-def html_report(doc: dict) -> str:
-    """A self-contained HTML page: summary, plot, evidence tables, parameters."""
+def html_report(doc: dict, extra: str = "") -> str:
+    """A self-contained HTML page: summary, plot (and `extra` HTML), evidence tables,
+    parameters."""
     png = base64.b64encode(plot_png(doc)).decode()
     rows = []
     for step in doc["steps"]:
@@ -127,6 +128,6 @@ def html_report(doc: dict) -> str:
         "<!doctype html><html><head><meta charset='utf-8'><title>station diagnose</title></head>"
         f"<body><h1>Diagnosis of {html.escape(str(doc['session']))}</h1>"
         f"<p>Named effects: <b>{html.escape(', '.join(doc['effects']) or 'none')}</b></p>"
-        f"<img src='data:image/png;base64,{png}' alt='gap per step'>"
+        f"<img src='data:image/png;base64,{png}' alt='gap per step'>{extra}"
         f"{''.join(rows)}<h2>Summary</h2><pre>{html.escape(text(doc))}</pre></body></html>"
     )

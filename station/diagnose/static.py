@@ -1,0 +1,580 @@
+"""`station diagnose` on a free-static session: still intervals, their twin, the named effects a
+static session can show (docs/diagnose.md, "Free-static sessions").
+
+Data: the accelerometer stream (m >= 3 channels) and optionally a gyro stream (3 channels), SI
+units, cut into still intervals (station.stillness.detect_still on all channels) and each
+interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples
+within the bins (white-noise assumption).
+
+Nominal model (the free-static calibration, station.free_static): accelerometer bin means
+a^T v_j + b with |v_j| = g in interval j (ellipsoid closed form + ML, station.calibrate), gyro
+bin means = one bias per channel. The twin predicts every bin of every still interval; the
+model's deviance is the chi2 of the bin means (white noise: var = sigma_i^2 / samples) plus the
+rail pile-up deviance (station.diagnose.rails). Every extension is fitted jointly with the
+calibration (v_j, a upper triangular, b) by weighted nonlinear least squares on the bins; its
+evidence is the deviance decrease (station.diagnose.select).
+"""
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from station.calibrate import calibrate
+from station.diagnose import rails
+from station.diagnose.effects import Fitted, tone_null
+from station.diagnose.effects import saturation as saturation_ext
+from station.diagnose.select import Diagnosis, Step, evidence
+from station.errors import CalibrationInputError
+from station.sim.earth import OMEGA_EARTH
+from station.stillness import detect_still
+
+STANDARD_GRAVITY = 9.80665
+BIN_S = 1.0
+"""Target bin length, s: each still interval is cut into floor(T / BIN_S) bins (at least 1)."""
+SCALES_S = (0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
+"""Block lengths of the white-noise check (scatter of block means against sigma^2 / samples)."""
+CANDIDATES = ("bias_drift", "scale_nonlinearity", "saturation", "earth_rate")
+NOT_TESTABLE = {
+    "rate_error": "needs the table's commanded rate (rotary sessions only)",
+    "axis_wobble": "needs the table turning (a tone at the table rate)",
+    "latency": "needs a known motion to delay (spin-up and spin-down of the table)",
+}
+TAU_GRID = np.geomspace(1 / 30, 1.0, 7)
+"""Warm-up time constants of `bias_drift`, as fractions of the session length."""
+
+
+@dataclass(frozen=True)
+class StaticData:
+    """A free-static session as the diagnosis sees it.
+
+    x : (K, c) samples, SI units (or raw counts of them); the first m channels are the
+        accelerometer, the others (0 or 3) the gyro.  t : (K,) s from the first sample.
+    intervals : (P, 2) still intervals [start, stop).  bins : (B, 2) [start, stop) inside them;
+    bin_interval : (B,) interval of each bin.  lsb : (c,) quantisation step of each channel.
+    """
+
+    x: np.ndarray
+    t: np.ndarray
+    fs: float
+    m: int
+    gravity: float
+    intervals: np.ndarray
+    bins: np.ndarray
+    bin_interval: np.ndarray
+    lsb: np.ndarray
+    units: tuple = ()
+    notes: tuple = ()
+
+    @property
+    def c(self) -> int:
+        return self.x.shape[1]
+
+    @property
+    def gyro(self) -> bool:
+        return self.c > self.m
+
+    @cached_property
+    def still(self) -> np.ndarray:
+        """Sample indices of the bins, in order."""
+        return np.concatenate([np.arange(a, z) for a, z in self.bins])
+
+    @cached_property
+    def lengths(self) -> np.ndarray:
+        """(B,) samples per bin."""
+        return self.bins[:, 1] - self.bins[:, 0]
+
+    def binmean(self, y: np.ndarray) -> np.ndarray:
+        """(B, ...) means of per-sample values y (K, ...) over the bins."""
+        starts = np.concatenate([[0], np.cumsum(self.lengths)[:-1]])
+        sums = np.add.reduceat(y[self.still], starts, axis=0)
+        return sums / self.lengths.reshape((-1,) + (1,) * (y.ndim - 1))
+
+    @cached_property
+    def z(self) -> np.ndarray:
+        """(B, c) measured bin means."""
+        return self.binmean(self.x)
+
+    @cached_property
+    def sigma(self) -> np.ndarray:
+        """(c,) noise sigma pooled from the scatter within the bins."""
+        dev = self.x[self.still] - np.repeat(self.z, self.lengths, axis=0)
+        return np.sqrt(np.sum(dev**2, 0) / (self.still.size - len(self.bins)))
+
+    @cached_property
+    def weights(self) -> np.ndarray:
+        """(B, c) sqrt(samples) / sigma: whitening of the bin means."""
+        return np.sqrt(self.lengths)[:, None] / self.sigma
+
+    @cached_property
+    def interval_means(self) -> tuple:
+        """(P, c) means of each still interval and (P,) their samples."""
+        n = np.bincount(self.bin_interval, self.lengths)
+        s = np.stack([np.bincount(self.bin_interval, self.lengths * self.z[:, i])
+                      for i in range(self.c)], 1)
+        return s / n[:, None], n
+
+
+def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
+                units=(), notes=(), **detector) -> StaticData:
+    """StaticData of accelerometer samples (K, m) and optional gyro samples (K, 3) at fs Hz;
+    `detector`: options of station.stillness.detect_still."""
+    acc = np.asarray(accel, float)
+    if acc.ndim != 2 or acc.shape[1] < 3 or acc.shape[0] < 10:
+        raise CalibrationInputError(f"accelerometer samples have shape {acc.shape}.",
+                                    "Give a (samples, m >= 3) accelerometer stream.")
+    x = acc
+    if gyro is not None:
+        g = np.asarray(gyro, float)
+        if g.shape != (acc.shape[0], 3):
+            raise CalibrationInputError(
+                f"gyro samples have shape {g.shape}, accelerometer {acc.shape}.",
+                "Give a 3-axis gyro on the same time base (or no gyro).")
+        x = np.hstack([acc, g])
+    still = detect_still(x, fs, **detector)
+    if len(still.intervals) < 9 + 1:
+        raise CalibrationInputError(
+            f"only {len(still.intervals)} still intervals found.",
+            "A free-static diagnosis needs at least 10 poses (9 calibration parameters).")
+    bins, owner = _bins(still.intervals, round(BIN_S * fs))
+    return StaticData(x, np.arange(len(x)) / fs, float(fs), acc.shape[1], float(gravity),
+                      still.intervals, bins, owner, _lsb(x[still.intervals[0, 0]:]),
+                      tuple(units), tuple(notes))
+
+
+def _bins(intervals: np.ndarray, n: int):
+    """(B, 2) bins of about n samples covering each interval, and their interval index."""
+    bins, owner = [], []
+    for j, (a, z) in enumerate(intervals):
+        k = max((z - a) // n, 1)
+        edges = a + np.round(np.linspace(0, z - a, k + 1)).astype(int)
+        bins += list(zip(edges[:-1], edges[1:]))
+        owner += [j] * k
+    return np.array(bins), np.array(owner)
+
+
+def _lsb(x: np.ndarray) -> np.ndarray:
+    """(c,) quantisation step: the smallest gap between distinct values, ignoring gaps below
+    1e-3 of the median gap (decimal printing of imported numbers)."""
+    out = []
+    for col in x.T:
+        d = np.diff(np.unique(col))
+        d = d[d > 1e-3 * np.median(d)] if d.size else np.array([1.0])
+        out.append(d.min())
+    return np.array(out)
+
+
+# ------------------------------------------------------------------------------------- model
+
+
+@dataclass(frozen=True)
+class Base:
+    """What every model of a session starts from: the nominal calibration and fixed geometry.
+
+    cal : the nominal calibration (station.calibrate, canonical frame), or None when the poses
+          do not determine the ellipsoid (e.g. six faces, each visited by hand several times):
+          the accelerometer's nominal model is then one free mean per interval (`pose`: (P,)
+          the mean each interval uses).
+    tangents : (P, 3, 2) orthonormal tangents of the nominal v_j (the v_j are moved in them).
+    up : (P, 3) gravity direction of each interval in the accelerometer's own axes (the frame
+         nearest the nominal layout: a gyro triad on the same board shares it to ~1 deg).
+    horizontal : (P, 3, 2) orthonormal basis perpendicular to up.
+    rails : (2, c) lowest and highest value of the still samples; lsb (c,).
+    """
+
+    cal: object
+    pose: np.ndarray
+    tangents: np.ndarray
+    up: np.ndarray
+    horizontal: np.ndarray
+    rails: np.ndarray
+
+
+def _perp(u: np.ndarray) -> np.ndarray:
+    """(P, 3, 2) orthonormal bases of the planes perpendicular to the unit vectors u (P, 3)."""
+    q = np.linalg.svd(np.eye(3)[None] - u[:, :, None] * u[:, None, :])[0]
+    return q[:, :, :2]
+
+
+def base(data: StaticData) -> Base:
+    """Nominal calibration of the interval means (weighted by sigma_i / sqrt(samples))."""
+    means, n = data.interval_means
+    m = data.m
+    sigma = data.sigma[:m, None] / np.sqrt(n)[None]
+    pose = np.arange(len(means))
+    rail = np.stack([data.x[data.still].min(0), data.x[data.still].max(0)])
+    try:
+        cal = calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate", sigma=sigma)
+    except CalibrationInputError:
+        up = means[:, :3] / np.linalg.norm(means[:, :3], axis=1, keepdims=True)
+        return Base(None, pose, None, up, _perp(up), rail)
+    v = cal.v if m != 3 else calibrate(means[:, :m].T, data.gravity, d=3, bias="estimate",
+                                       sigma=sigma, nominal=np.eye(3)).v
+    up = (v / np.linalg.norm(v, axis=0)).T
+    vc = (cal.v / np.linalg.norm(cal.v, axis=0)).T
+    return Base(cal, pose, _perp(vc), up, _perp(up), rail)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Packing of the parameter vector: name -> slice, for a set of extensions."""
+
+    slices: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, data: StaticData, b0: Base, names) -> "Layout":
+        m, p, q = data.m, len(data.intervals), data.c - data.m
+        if b0.cal is None:
+            sizes = {"mu": m * (b0.pose.max() + 1), "b": data.c}
+        else:
+            sizes = {"a": 3 * m - 3, "b": data.c, "v": 2 * p}
+        if "scale_nonlinearity" in names:
+            sizes["k2"] = m
+        if "bias_drift" in names:
+            sizes["warmup"] = sizes["slope"] = data.c
+        if "earth_rate" in names and q:
+            sizes["earth"] = 2
+        out, i = {}, 0
+        for k, s in sizes.items():
+            out[k] = slice(i, i + s)
+            i += s
+        return cls(out)
+
+    @property
+    def size(self) -> int:
+        return max(s.stop for s in self.slices.values())
+
+    def unpack(self, theta) -> dict:
+        return {k: theta[s] for k, s in self.slices.items()}
+
+
+def _a_matrix(values: np.ndarray, m: int) -> np.ndarray:
+    """(3, m) sensitivity, upper triangular in its first three columns (the canonical frame)."""
+    a = np.zeros((3, m))
+    a[np.triu_indices(3, 0, m)] = values
+    return a
+
+
+def _a_values(a: np.ndarray) -> np.ndarray:
+    return a[np.triu_indices(3, 0, a.shape[1])]
+
+
+def predict(data: StaticData, b0: Base, names, p: dict, basis=None) -> np.ndarray:
+    """(B, c) bin means the model predicts (the twin), for parameters p (Layout.unpack) and the
+    drift basis of bias_drift's time constant (`drift_basis`)."""
+    out = np.zeros(data.z.shape)
+    if "mu" in p:
+        out[:, :data.m] = p["mu"].reshape(-1, data.m)[b0.pose][data.bin_interval]
+        s = None
+    else:
+        a = _a_matrix(p["a"], data.m)
+        v = b0.cal.v / np.linalg.norm(b0.cal.v, axis=0)
+        v = v + np.einsum("pik,pk->ip", b0.tangents, p["v"].reshape(-1, 2))
+        v = data.gravity * v / np.linalg.norm(v, axis=0)
+        s = (a.T @ v).T[data.bin_interval]
+    if s is not None:
+        out[:, :data.m] = s + p["k2"] * s**2 if "k2" in p else s
+    out += p["b"]
+    if "warmup" in p:
+        warm, slope = basis
+        out += warm[:, None] * p["warmup"] + slope[:, None] * p["slope"]
+    if "earth" in p:
+        u, north = p["earth"]
+        hor = np.stack([np.cos(h := headings(data, b0, u, out)), np.sin(h)], 1)
+        rate = u * b0.up + north * np.einsum("pik,pk->pi", b0.horizontal, hor)
+        out[:, data.m:] += rate[data.bin_interval]
+    if "saturation" in names:
+        out = clipped(out, b0.rails, data.sigma)
+    return out
+
+
+def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarray:
+    """(P,) heading of the Earth rate's horizontal part in each interval, profiled out: the
+    direction of the free 2-D weighted fit of the horizontal gyro residual net of the vertical
+    part u and the rest of the model `rest` (B, c) (station.diagnose.effects.tone_null's phase)."""
+    w = data.lengths[:, None] / data.sigma[data.m:] ** 2
+    r = (data.z - rest)[:, data.m:] - u * b0.up[data.bin_interval]
+    g = np.stack([np.bincount(data.bin_interval, (w * r)[:, i], len(data.intervals))
+                  for i in range(data.c - data.m)], 1)
+    wp = np.stack([np.bincount(data.bin_interval, w[:, i], len(data.intervals))
+                   for i in range(data.c - data.m)], 1)
+    h = np.einsum("pik,pi,pil->pkl", b0.horizontal, wp, b0.horizontal)
+    theta = np.linalg.solve(h, np.einsum("pik,pi->pk", b0.horizontal, g)[..., None])[..., 0]
+    return np.arctan2(theta[:, 1], theta[:, 0])
+
+
+def drift_basis(data: StaticData, tau: float):
+    """Two (B,) bin means of exp(-t / tau) (warm-up, Eq. of station.sim.effects.bias_drift) and of
+    t / T (a linear drift over the session of length T)."""
+    span = data.t[-1]
+    return data.binmean(np.exp(-data.t / tau)), data.binmean(data.t / span)
+
+
+def clipped(z: np.ndarray, rail: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """E[clip(z + e, low, high)], e ~ N(0, sigma^2): the saturation extension's expected output
+    (station.diagnose.effects.saturation about the rails' centre)."""
+    centre, half = rail.mean(0), (rail[1] - rail[0]) / 2
+    ctx = _Sigma(sigma)
+    fit = Fitted("saturation", {"range": half}, {}, 1)
+    return centre + saturation_ext.apply(ctx, fit, z - centre)
+
+
+@dataclass(frozen=True)
+class _Sigma:
+    sigma: np.ndarray
+
+
+# ----------------------------------------------------------------------------- fit and loop
+
+
+@dataclass(frozen=True)
+class Model:
+    """A fitted model of a free-static session: extensions {name: Fitted} in the order added."""
+
+    fitted: dict
+    params: dict  # Layout.unpack of the joint fit
+    tau: float
+    prediction: np.ndarray  # (B, c) the twin's bin means
+    chi2: float
+    rails: float
+    calibration: object  # accelerometer calibration of the interval means net of the extensions
+    base: Base
+
+    @property
+    def names(self) -> tuple:
+        return tuple(self.fitted)
+
+    @property
+    def deviance(self) -> float:
+        return self.chi2 + self.rails
+
+
+def rail_deviance(data: StaticData, b0: Base, prediction: np.ndarray, clip: bool) -> float:
+    """Poisson deviance of the still samples at each channel's lowest and highest value against
+    the twin's expectation (station.diagnose.rails)."""
+    x = data.x[data.still]
+    mu = np.repeat(prediction, data.lengths, axis=0)
+    obs = np.stack([(x == b0.rails[0]).sum(0), (x == b0.rails[1]).sum(0)])
+    exp = np.stack([
+        rails.pile_up((mu - b0.rails[0] - data.lsb / 2) / data.sigma, data.lsb / data.sigma,
+                      clip).sum(0),
+        rails.pile_up((b0.rails[1] - data.lsb / 2 - mu) / data.sigma, data.lsb / data.sigma,
+                      clip).sum(0),
+    ])
+    return rails.deviance(obs, exp)
+
+
+def _start(data: StaticData, b0: Base, layout: Layout, start) -> np.ndarray:
+    """Initial parameters: those of `start` where shared, else the nominal calibration."""
+    theta = np.zeros(layout.size)
+    p = layout.unpack(theta)  # views into theta
+    if start is not None:
+        for k, v in start.params.items():
+            if k in p:
+                p[k][:] = v
+        if not ("earth" in p and "earth" not in start.params):
+            return theta
+    else:
+        means, n = data.interval_means
+        p["b"][data.m:] = means[:, data.m:].T @ n / n.sum()
+        if b0.cal is None:
+            p["mu"][:] = np.concatenate([means[b0.pose == k, :data.m].T @ n[b0.pose == k]
+                                         / n[b0.pose == k].sum()
+                                         for k in range(b0.pose.max() + 1)])
+        else:
+            p["a"][:] = _a_values(b0.cal.a)
+            p["b"][:data.m] = b0.cal.bias
+    if "earth" in p:  # from the gyro interval means net of the bias
+        r = data.interval_means[0][:, data.m:] - p["b"][data.m:]
+        p["earth"][0] = np.mean(np.einsum("pi,pi->p", b0.up, r))
+        p["earth"][1] = np.mean(np.linalg.norm(np.einsum("pik,pi->pk", b0.horizontal, r), 1))
+    return theta
+
+
+def _solve(data: StaticData, b0: Base, names, start, basis):
+    """Weighted least squares of the bin means on the model with extensions `names`."""
+    layout = Layout.of(data, b0, names)
+
+    def residual(theta):
+        return ((data.z - predict(data, b0, names, layout.unpack(theta), basis))
+                * data.weights).ravel()
+
+    sol = least_squares(residual, _start(data, b0, layout, start), method="trf",
+                        jac=_jacobian(residual, _touched(data, b0, layout)), x_scale="jac",
+                        xtol=1e-12, ftol=1e-12, gtol=1e-10, max_nfev=200)
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac)
+    return layout, sol.x, cov, float(2 * sol.cost)
+
+
+def _touched(data: StaticData, b0: Base, layout: Layout) -> list:
+    """For each parameter, the residuals (bin x channel, row-major) it moves."""
+    m, c = data.m, data.c
+    idx = np.arange(len(data.bins) * c).reshape(-1, c)
+    mine = [np.flatnonzero(data.bin_interval == j) for j in range(len(data.intervals))]
+    cols = []
+    for name, sl in layout.slices.items():
+        n = sl.stop - sl.start
+        if name == "a":
+            cols += [idx[:, i] for i in np.triu_indices(3, 0, m)[1]]
+        elif name == "v":
+            cols += [idx[mine[k // 2], :m].ravel() for k in range(n)]
+        elif name == "mu":
+            cols += [idx[np.isin(data.bin_interval, np.flatnonzero(b0.pose == k // m)), k % m]
+                     for k in range(n)]
+        elif name == "earth":
+            cols += [idx[:, m:].ravel()] * 2
+        else:  # one per channel: b, k2, warmup, slope
+            cols += [idx[:, i] for i in range(n)]
+    return cols
+
+
+def _jacobian(fun, cols: list):
+    """Forward-difference Jacobian of fun, perturbing together the parameters that move
+    disjoint residuals (the pose and heading parameters of different intervals)."""
+    groups, used = [], []
+    size = 1 + max(int(r.max()) for r in cols)
+    for k, rows in enumerate(cols):
+        for g, u in zip(groups, used):
+            if not u[rows].any():
+                g.append(k)
+                u[rows] = True
+                break
+        else:
+            groups.append([k])
+            used.append(np.zeros(size, bool))
+            used[-1][rows] = True
+
+    def jac(theta):
+        f0 = fun(theta)
+        out = np.zeros((f0.size, theta.size))
+        for g in groups:
+            step = 1.49e-8 * np.maximum(1.0, np.abs(theta[g]))
+            t = theta.copy()
+            t[g] += step
+            df = fun(t) - f0
+            for k, h in zip(g, step):
+                out[cols[k], k] = df[cols[k]] / h
+        return out
+
+    return jac
+
+
+def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
+    """The model with extensions `names` fitted jointly with the calibration (the warm-up time
+    constant of bias_drift on a grid, the smallest deviance kept)."""
+    taus = data.t[-1] * TAU_GRID if "bias_drift" in names else [np.inf]
+    best = None
+    for tau in taus:
+        basis = drift_basis(data, tau) if np.isfinite(tau) else None
+        layout, theta, cov, chi2 = _solve(data, b0, names, start, basis)
+        pred = predict(data, b0, names, layout.unpack(theta), basis)
+        rail = rail_deviance(data, b0, pred, "saturation" in names)
+        if best is None or chi2 + rail < best[0]:
+            best = (chi2 + rail, layout, theta, cov, chi2, rail, pred, tau, basis)
+    _, layout, theta, cov, chi2, rail, pred, tau, basis = best
+    p = {k: v.copy() for k, v in layout.unpack(theta).items()}
+    sig = {k: np.sqrt(np.maximum(np.diag(cov)[s], 0)) for k, s in layout.slices.items()}
+    fitted = {name: _fitted(name, data, b0, p, sig, tau, taus) for name in names}
+    return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis), b0)
+
+
+def _calibration(data: StaticData, b0: Base, names, p: dict, basis):
+    """The accelerometer calibration of the interval means once the extensions' part of the
+    twin is taken off (before the extensions: the nominal calibration)."""
+    if not names or b0.cal is None:
+        return b0.cal
+    bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
+    added = predict(data, b0, names, p, basis) - predict(data, b0, (), bare, basis)
+    means, n = data.interval_means
+    extra = np.stack([np.bincount(data.bin_interval, data.lengths * added[:, i])
+                      for i in range(data.m)], 1) / n[:, None]
+    sigma = data.sigma[:data.m, None] / np.sqrt(n)[None]
+    return calibrate((means[:, :data.m] - extra).T, data.gravity, d=3, bias="estimate",
+                     sigma=sigma)
+
+
+def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus) -> Fitted:
+    """The Fitted record of one extension from the joint fit's parameters and 1-sigma."""
+    if name == "bias_drift":
+        span = data.t[-1]
+        return Fitted(name, {"warmup": p["warmup"], "warmup_tau": tau,
+                             "drift_per_s": p["slope"] / span},
+                      {"warmup": sig["warmup"], "drift_per_s": sig["slope"] / span,
+                       "warmup_tau": np.nan},
+                      dof=2 * data.c + 1,
+                      notes=f"offset warmup_i exp(-t / tau) + drift_i t per channel (accelerometer "
+                      f"then gyro); tau from the grid {np.round(taus, 1).tolist()} s")
+    if name == "scale_nonlinearity":
+        return Fitted(name, {"k2": p["k2"]}, {"k2": sig["k2"]}, dof=data.m,
+                      notes="output s + k2 s^2 per accelerometer channel, s = a_i . v in output "
+                      "units; k2 in 1 / output unit")
+    if name == "saturation":
+        return Fitted(name, {"low": b0.rails[0], "high": b0.rails[1]},
+                      {"low": data.lsb / 2, "high": data.lsb / 2}, dof=1,
+                      notes="rails = the lowest and highest value of the still samples")
+    return _earth_fitted(data, b0, p, sig)
+
+
+def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
+    """Earth rate: vertical U along gravity, horizontal N with a free heading per interval.
+
+    Null law: U enters linearly (chi2(1)); N with one free heading per interval is the tone fit
+    of station.diagnose.effects.tone_null with the 2 x 2 normal matrices of the horizontal plane;
+    the sum is moment-matched to scale * chi2(nu).
+    """
+    e, s = p["earth"], sig["earth"]
+    _, n = data.interval_means
+    w = n[:, None] / data.sigma[data.m:] ** 2  # (P, 3) information per axis
+    h = np.einsum("pik,pi,pil->pkl", b0.horizontal, w, b0.horizontal)
+    scale, nu = tone_null(h)
+    mean, var = 1 + scale * nu, 2 + 2 * scale**2 * nu
+    u, north = e[0], abs(e[1])
+    return Fitted(
+        "earth_rate",
+        {"vertical": u, "horizontal": north, "rate": np.hypot(u, north),
+         "latitude_deg": np.degrees(np.arctan2(u, north))},
+        {"vertical": s[0], "horizontal": s[1], "rate": np.hypot(u * s[0], north * s[1])
+         / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan},
+        dof=len(data.intervals) + 2,
+        null=(var / (2 * mean), 2 * mean**2 / var),
+        notes=f"gyro output units (Earth: {OMEGA_EARTH:.4e} rad/s); heading per interval is "
+        "nuisance, profiled out (the unit is turned by hand); latitude = atan2(vertical, "
+        "horizontal); an orientation-dependent gyro bias (g-sensitivity) has the same signature",
+    )
+
+
+def untestable(data: StaticData, b0: Base) -> dict:
+    """{effect: why this session cannot show it}."""
+    out = dict(NOT_TESTABLE)
+    if not data.gyro:
+        out["earth_rate"] = "needs a gyro stream"
+    if b0.cal is None:
+        out["scale_nonlinearity"] = ("the poses do not determine the ellipsoid (too few distinct "
+                                     "orientations), so the accelerometer has no shape to test")
+    return out
+
+
+def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
+                    candidates=None) -> Diagnosis:
+    """The evidence loop of station.diagnose.select on a free-static session."""
+    from station.diagnose import static_report
+
+    b0 = base(data)
+    current = fit(data, b0)
+    if candidates is None:
+        candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
+    steps = []
+    while True:
+        remaining = [c for c in candidates if c not in current.fitted]
+        fits, ev = {}, {}
+        if len(current.fitted) < max_effects:
+            for name in remaining:
+                fits[name] = fit(data, b0, (*current.fitted, name), current)
+                ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
+        best = min((n for n in ev if ev[n]["significant"]), key=lambda n: ev[n]["log10_p"],
+                   default="none")
+        steps.append(Step(current, static_report.statistics(data, current), ev, best))
+        if best == "none":
+            return Diagnosis(steps, alpha)
+        current = fits[best]

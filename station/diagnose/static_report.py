@@ -1,0 +1,245 @@
+"""Free-static diagnosis: session loading, gap statistics, the white-noise check, and the JSON /
+text / HTML form shared with the rotary path (station.diagnose.report).
+
+Gap statistics (1 = explained by white noise of the sigma measured within the bins):
+- `between`: accelerometer interval means against the model, chi2 / dof of the calibration
+  (absent when the poses do not determine the calibration);
+- `gyro`: gyro interval means against the model (one bias, plus the Earth rate when fitted);
+- `within`: bin means around their interval's mean (the scatter of sub-interval means);
+- `trend`: slopes of the bin residuals within each interval, in units of their standard error;
+- `rails`: rail pile-up deviance per channel side that holds the extreme value.
+"""
+
+import base64
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from station.diagnose import report
+from station.diagnose.model import parameters
+from station.diagnose.select import log_sf
+from station.diagnose.static import (SCALES_S, STANDARD_GRAVITY, StaticData, diagnose_static,
+                                     from_arrays, untestable)
+from station.errors import CalibrationInputError
+
+
+def statistics(data: StaticData, model) -> dict:
+    """{statistic: normalised gap} of a fitted model (station.diagnose.static.Model)."""
+    m, c, p, nb = data.m, data.c, len(data.intervals), len(data.bins)
+    free = model.base.cal is None  # one mean per distinct pose
+    r = (data.z - model.prediction) * data.weights  # whitened bin residuals
+    _, n = data.interval_means
+    root = np.sqrt(data.lengths)
+    big = np.stack([np.bincount(data.bin_interval, root * r[:, i], p) for i in range(c)], 1)
+    big /= np.sqrt(n)[:, None]  # whitened interval-mean residuals
+    nominal = m * (model.base.pose.max() + 1) if free else 3 * m - 3 + m + 2 * p
+    dof = p * m - nominal  # none when every interval has its own mean
+    out = {"between": float(np.sum(big[:, :m] ** 2) / dof)} if dof > 0 else {}
+    if data.gyro:
+        out["gyro"] = float(np.sum(big[:, m:] ** 2) / max(p * (c - m) - (c - m), 1))
+    out["within"] = float((np.sum(r**2) - np.sum(big**2)) / max((nb - p) * c, 1))
+    out["trend"] = _trend(data, r)
+    out["rails"] = model.rails / (2 * c)
+    return out
+
+
+def _trend(data: StaticData, r: np.ndarray) -> float:
+    """Mean square of the within-interval slopes of the whitened bin residuals r (B, c), each in
+    units of its standard error (weighted least squares on the bin times)."""
+    tb = data.binmean(data.t)
+    w = data.lengths.astype(float)
+    z = []
+    for j in range(len(data.intervals)):
+        k = data.bin_interval == j
+        if k.sum() < 2:
+            continue
+        dt = tb[k] - np.sum(w[k] * tb[k]) / w[k].sum()
+        z.append((np.sqrt(w[k]) * dt) @ r[k] / np.sqrt(np.sum(w[k] * dt**2)))
+    return float(np.mean(np.square(z))) if z else float("nan")
+
+
+def whiteness(data: StaticData, model) -> dict:
+    """Scatter of block means within the still intervals against white noise, per block length:
+    sum (block mean - interval mean)^2 L / sigma^2 / (blocks - 1), pooled over intervals and over
+    the channels of each stream; 1 for white noise, growing with L for a random walk or flicker
+    (an Allan-variance-like ratio, normalised by the sigma used in every chi2)."""
+    x = data.x[data.still] - np.repeat(model.prediction, data.lengths, axis=0)
+    edges = np.concatenate([[0], np.cumsum(data.intervals[:, 1] - data.intervals[:, 0])])
+    groups = {"accelerometer": slice(0, data.m)}
+    if data.gyro:
+        groups["gyro"] = slice(data.m, data.c)
+    out = {g: {} for g in groups}
+    for scale in SCALES_S:
+        size = max(round(scale * data.fs), 1)
+        num, dof = np.zeros(data.c), 0
+        for a, z in zip(edges[:-1], edges[1:]):
+            k = (z - a) // size
+            if k < 2:
+                continue
+            blocks = x[a:a + k * size].reshape(k, size, -1).mean(1)
+            num += np.sum((blocks - blocks.mean(0)) ** 2, 0) * size / data.sigma**2
+            dof += k - 1
+        if dof:
+            for g, sl in groups.items():
+                out[g][f"{scale:g}"] = float(num[sl].mean() / dof)
+    return out
+
+
+def white_noise_verdict(data: StaticData, step, alpha: float) -> dict:
+    """Does white noise explain the scatter within the intervals? The `within` gap against its
+    chi2 law, and the ratios by block length."""
+    dof = max((len(data.bins) - len(data.intervals)) * data.c, 1)
+    within = step.gap["within"]
+    log_p = log_sf(within * dof, dof) / np.log(10)
+    ratios = whiteness(data, step.model)
+    holds = bool(log_p > np.log10(alpha))
+    worst = max(((g, s, v) for g, r in ratios.items() for s, v in r.items()), key=lambda x: x[2])
+    message = (
+        f"white noise holds: bin scatter {within:.2f} x the white-noise expectation "
+        f"(log10 p = {log_p:.1f})" if holds else
+        f"WHITE NOISE FAILS: the bin means scatter "
+        f"{within:.2f} x the white-noise expectation (log10 p = {log_p:.1f}); block means of "
+        f"{worst[1]} s ({worst[0]}) {worst[2]:.1f} x: coloured noise / bias random walk. The LRs "
+        "are inflated and the p-values optimistic; log10_p_quasi divides each LR by the "
+        "dispersion (the `within` gap)")
+    return {"within": within, "dof": dof, "log10_p": log_p, "holds": holds,
+            "ratio_by_block_s": ratios, "message": message}
+
+
+def _evidence_with_quasi(evidence: dict, dispersion: float) -> dict:
+    """The evidence entries plus log10 p of LR / dispersion (quasi-likelihood, dispersion >= 1)."""
+    phi = max(dispersion, 1.0)
+    return {k: {**e, "log10_p_quasi": log_sf(e["lr"] / (e["null_scale"] * phi), e["null_dof"])
+                / np.log(10)} for k, e in evidence.items()}
+
+
+def to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
+    """The JSON document of a free-static diagnosis (same layout as the rotary one)."""
+    steps = [{
+        "model": ["nominal", *step.model.names],
+        "gap": step.gap,
+        "deviance": step.model.deviance,
+        "parameters": {k: parameters(f) for k, f in step.model.fitted.items()},
+        "notes": {k: f.notes for k, f in step.model.fitted.items() if f.notes},
+        "evidence": _evidence_with_quasi(step.evidence, step.gap["within"]),
+        "chosen": step.chosen,
+    } for step in diagnosis.steps]
+    white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
+    lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
+    not_testable = untestable(data, diagnosis.steps[0].model.base)
+    remarks = [white["message"], *data.notes] + [
+        f"not testable in a static session: {k} ({v})" for k, v in not_testable.items()]
+    return report.jsonable({
+        "session": source,
+        "protocol": "free_static",
+        "intervals": len(data.intervals),
+        "interval_s": {"min": lengths.min(), "median": float(np.median(lengths)),
+                       "max": lengths.max()},
+        "bins": len(data.bins),
+        "accelerometer_channels": data.m,
+        "gyro_channels": data.c - data.m,
+        "units": list(data.units),
+        "fs": data.fs,
+        "gravity": data.gravity,
+        "noise_sigma": data.sigma,
+        "alpha": diagnosis.alpha,
+        "effects": diagnosis.effects,
+        "not_testable": not_testable,
+        "white_noise": white,
+        "steps": steps,
+        "calibration_before": _summary(diagnosis.steps[0].model.calibration),
+        "calibration_after": _summary(diagnosis.final.calibration),
+        "remarks": remarks,
+    })
+
+
+def _summary(cal):
+    """report.calibration_summary, or None without a calibration (poses not spread enough)."""
+    return None if cal is None else report.calibration_summary(cal)
+
+
+def whiteness_png(doc: dict) -> bytes:
+    """PNG of the block-mean scatter ratio against the block length (1 = white noise)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():
+        ax.plot([float(s) for s in ratios], list(ratios.values()), marker="o", label=group)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("block length, s")
+    ax.set_ylabel("scatter / white noise")
+    ax.set_title("Scatter of block means within the still intervals")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def html_report(doc: dict) -> str:
+    """The rotary report's page plus the white-noise plot."""
+    png = base64.b64encode(whiteness_png(doc)).decode()
+    return report.html_report(doc, extra=f"<img src='data:image/png;base64,{png}' "
+                                         "alt='block-mean scatter against block length'>")
+
+
+# ------------------------------------------------------------------------- session and command
+
+
+def load(path, **detector) -> StaticData:
+    """StaticData of a session: its accelerometer stream (units m/s^2) and, when there is one,
+    its 3-axis gyro stream (rad/s). Gravity: metadata `gravity`, else standard gravity."""
+    from station.session import Session
+
+    with Session.open(path) as s:
+        by_unit = {}
+        for name, spec in s.specs.items():
+            by_unit.setdefault(spec.units[0] if len(set(spec.units)) == 1 else "", []).append(name)
+        accel, gyro = by_unit.get("m/s^2", []), by_unit.get("rad/s", [])
+        if len(accel) != 1 or len(gyro) > 1:
+            raise CalibrationInputError(
+                f"{path} has streams {dict(by_unit)} by unit; one accelerometer stream (m/s^2) "
+                "and at most one gyro stream (rad/s) are needed.",
+                "Import the accelerometer (and gyro) of one unit into the session.")
+        acc = s.stream(accel[0])
+        gyr = s.stream(gyro[0]) if gyro else None
+        gravity = s.metadata.get("gravity")
+        imported = s.metadata.get("import", {}).get("streams", {})
+    notes = [] if gravity else [f"gravity not in the session: {STANDARD_GRAVITY} m/s^2 assumed "
+                                "(only the common scale depends on it)"]
+    raw = [n for n in [accel[0], *gyro] if imported.get(n, {}).get("raw_counts")]
+    if raw:
+        notes.append(f"streams {raw} hold raw counts: values and parameters are in counts")
+    if gyr is not None and gyr.counts.shape[1] != 3:
+        raise CalibrationInputError(f"gyro stream {gyro[0]!r} has {gyr.counts.shape[1]} channels.",
+                                    "Give a 3-axis gyro stream, or none.")
+    units = [f"{accel[0]}: m/s^2"] + ([f"{gyro[0]}: rad/s"] if gyro else [])
+    return from_arrays(acc.to_si(), acc.spec.rate_hz, gyro=None if gyr is None else gyr.to_si(),
+                       gravity=float(gravity or STANDARD_GRAVITY), units=units, notes=notes,
+                       **detector)
+
+
+def command(args) -> int:
+    """`station diagnose SESSION.h5` for a free-static session: diagnose, print, report."""
+    if not 0 < args.alpha < 1:
+        print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
+        return 2
+    try:
+        data = load(args.session)
+        result = diagnose_static(data, alpha=args.alpha, max_effects=args.max_effects)
+    except (CalibrationInputError, ValueError, OSError) as err:
+        print(f"station diagnose: {err}")
+        return 2
+    doc = to_dict(result, data, str(args.session))
+    print(json.dumps(doc, indent=1) if args.json else report.text(doc))
+    if args.report:
+        Path(args.report).write_text(html_report(doc))
+    return 0
