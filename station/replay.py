@@ -159,7 +159,9 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
         np.round((t - twin.start_time) * spec.rate_hz).astype(np.int64), 0, k - 1)], clock,
         max_lag=np.inf)
     replayed = {**metadata, "replay_of": str(path)}
-    with twin, SerialImu(twin.port, loaded, clock) as imu, \
+    # the port is opened before the twin streams: opening flushes what the port holds (pyserial),
+    # and frame 0 must not be among it on a busy host
+    with SerialImu(twin.port, loaded, clock) as imu, twin, \
             SessionWriter.create(out, replayed, {"imu": spec}, clock=clock) as writer:
         with Recorder(writer, imu, clock=clock) as recorder:
             deadline = time.monotonic() + timeout

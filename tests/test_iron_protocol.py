@@ -4,6 +4,7 @@ within 3 sigma of the truth; face recognition and refusals on their own."""
 
 import numpy as np
 import pytest
+from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from station.constraints import FACES, from_faces
@@ -40,7 +41,13 @@ def _angles(a):
     return np.arccos(np.clip(u.T @ u, -1, 1))
 
 
-def test_recovers_biases_gains_and_angles_within_3_sigma(recorded):
+FAMILY_FALSE_ALARM = 1e-3
+"""Chance that an efficient fit fails the z test below in any of its 14 parameters (Bonferroni:
+two-sided per parameter at 1e-3 / 14, |z| < 3.97); 3 sigma for each would fail 3.7 % of runs,
+and the session's noise changes from run to run with the host's timing."""
+
+
+def test_recovers_biases_gains_and_angles_within_their_sigma(recorded):
     _, truth, _, result = recorded
     i, k = np.triu_indices(4, 1)
     z = {
@@ -50,8 +57,9 @@ def test_recovers_biases_gains_and_angles_within_3_sigma(recorded):
         "angle": (result.axis_angles[i, k] - _angles(truth.a)[i, k])
         / result.axis_angles_sigma[i, k],
     }
+    limit = stats.norm.isf(FAMILY_FALSE_ALARM / 2 / sum(v.size for v in z.values()))
     for name, values in z.items():
-        assert np.all(np.abs(values) < 3), (name, values)
+        assert np.all(np.abs(values) < limit), (name, values, limit)
     # the uncertainties are those of 5 s means of 100 ug/sqrt(Hz) noise, not vacuous
     assert np.all(result.bias_sigma < 5e-4) and np.all(result.scale_factors_sigma < 1e-4)
     # the model explains the data: chi2 / dof near 1 (sigma = the windows' standard errors)
