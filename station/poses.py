@@ -56,16 +56,11 @@ def rodrigues(w: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Directions:
-    """One free direction per position: v_j on the sphere of radius `magnitude`."""
+class _OnePerPosition:
+    """Pose models with one stimulus vector per position (its own pose group)."""
 
     v: np.ndarray  # (d, n)
     magnitude: float
-
-    @classmethod
-    def start(cls, v0, magnitude):
-        v = np.asarray(v0, float)
-        return cls(magnitude * v / np.linalg.norm(v, axis=0), float(magnitude))
 
     @property
     def group(self):
@@ -75,6 +70,19 @@ class Directions:
     def count(self):
         return self.v.shape[1]
 
+    def vectors(self):
+        return self.v
+
+
+@dataclass(frozen=True)
+class Directions(_OnePerPosition):
+    """One free direction per position: v_j on the sphere of radius `magnitude`."""
+
+    @classmethod
+    def start(cls, v0, magnitude):
+        v = np.asarray(v0, float)
+        return cls(magnitude * v / np.linalg.norm(v, axis=0), float(magnitude))
+
     @property
     def null(self):
         return np.zeros((self.count, self.v.shape[0] - 1), bool)
@@ -82,9 +90,6 @@ class Directions:
     @property
     def free(self):
         return self.v.shape[1] * (self.v.shape[0] - 1)
-
-    def vectors(self):
-        return self.v
 
     def jacobian(self):
         return self.magnitude * tangent_basis(self.v / self.magnitude)
@@ -95,11 +100,9 @@ class Directions:
 
 
 @dataclass(frozen=True)
-class SoftMagnitudes:
+class SoftMagnitudes(_OnePerPosition):
     """A free vector per position, prior |v_j| = c (1 + delta_j), delta_j ~ N(0, spread^2)."""
 
-    v: np.ndarray  # (d, n)
-    magnitude: float
     spread: float
 
     @classmethod
@@ -108,23 +111,12 @@ class SoftMagnitudes:
         return cls(Directions.start(v0, magnitude).v, float(magnitude), float(spread))
 
     @property
-    def group(self):
-        return np.arange(self.v.shape[1])
-
-    @property
-    def count(self):
-        return self.v.shape[1]
-
-    @property
     def null(self):
         return np.zeros(self.v.shape[::-1], bool)
 
     @property
     def free(self):
         return self.v.size
-
-    def vectors(self):
-        return self.v
 
     def jacobian(self):
         d, n = self.v.shape

@@ -85,10 +85,7 @@ def text(doc: dict) -> str:
 
 def plot_png(doc: dict) -> bytes:
     """PNG of each gap statistic against the model steps (log scale, 1 = explained)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     labels = ["+".join(s["model"][1:]) or "nominal" for s in doc["steps"]]
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -101,10 +98,25 @@ def plot_png(doc: dict) -> bytes:
     ax.set_ylabel("gap (1 = explained by the noise)")
     ax.set_title("Gap between the session and its twin")
     ax.legend(fontsize=7)
+    return png(fig)
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, imported when a plot is drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def png(fig) -> bytes:
+    """The figure as PNG bytes (laid out tight), closed."""
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
+    pyplot().close(fig)
     return buf.getvalue()
 
 

@@ -75,18 +75,27 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
 def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int = 3,
              candidates=tuple(EXTENSIONS)) -> Diagnosis:
     """Run the workflow on a session (station.diagnose.data.RotaryData)."""
-    current = model.nominal(data)
-    steps = []
+    return greedy(model.nominal(data), candidates,
+                  lambda current, names: model.fit(data, list(names), current, iterations),
+                  lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects)
+
+
+def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int) -> Diagnosis:
+    """The evidence loop from the model `start`: every candidate not yet in the model is added
+    (`extend(current, names)` -> the model fitted with those extensions) and its evidence
+    measured; the strongest significant one is kept; repeated until none is significant or
+    `max_effects` are in. `statistics(model)` gives each step's gap."""
+    current, steps = start, []
     while True:
         remaining = [c for c in candidates if c not in current.fitted]
         fits, ev = {}, {}
         if len(current.fitted) < max_effects:
             for name in remaining:
-                fits[name] = model.fit(data, [*current.fitted, name], current, iterations)
+                fits[name] = extend(current, (*current.fitted, name))
                 ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
         best = min((n for n in ev if ev[n]["significant"]), key=lambda n: ev[n]["log10_p"],
                    default="none")
-        steps.append(Step(current, gap.statistics(data, current), ev, best))
+        steps.append(Step(current, statistics(current), ev, best))
         if best == "none":
             return Diagnosis(steps, alpha)
         current = fits[best]

@@ -25,7 +25,7 @@ from station.calibrate import calibrate
 from station.diagnose import rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
-from station.diagnose.select import Diagnosis, Step, evidence
+from station.diagnose.select import Diagnosis, greedy
 from station.errors import CalibrationInputError
 from station.sim.earth import OMEGA_EARTH
 from station.stillness import detect_still
@@ -561,20 +561,8 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
     from station.diagnose import static_report
 
     b0 = base(data)
-    current = fit(data, b0)
     if candidates is None:
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
-    steps = []
-    while True:
-        remaining = [c for c in candidates if c not in current.fitted]
-        fits, ev = {}, {}
-        if len(current.fitted) < max_effects:
-            for name in remaining:
-                fits[name] = fit(data, b0, (*current.fitted, name), current)
-                ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
-        best = min((n for n in ev if ev[n]["significant"]), key=lambda n: ev[n]["log10_p"],
-                   default="none")
-        steps.append(Step(current, static_report.statistics(data, current), ev, best))
-        if best == "none":
-            return Diagnosis(steps, alpha)
-        current = fits[best]
+    return greedy(fit(data, b0), candidates, lambda current, names: fit(data, b0, names, current),
+                  lambda m: static_report.statistics(data, m), alpha=alpha,
+                  max_effects=max_effects)

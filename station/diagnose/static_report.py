@@ -11,7 +11,6 @@ Gap statistics (1 = explained by white noise of the sigma measured within the bi
 """
 
 import base64
-import io
 import json
 from pathlib import Path
 
@@ -20,8 +19,14 @@ import numpy as np
 from station.diagnose import report
 from station.diagnose.model import parameters
 from station.diagnose.select import log_sf
-from station.diagnose.static import (SCALES_S, STANDARD_GRAVITY, StaticData, diagnose_static,
-                                     from_arrays, untestable)
+from station.diagnose.static import (
+    SCALES_S,
+    STANDARD_GRAVITY,
+    StaticData,
+    diagnose_static,
+    from_arrays,
+    untestable,
+)
 from station.errors import CalibrationInputError
 
 
@@ -162,10 +167,7 @@ def _summary(cal):
 
 def whiteness_png(doc: dict) -> bytes:
     """PNG of the block-mean scatter ratio against the block length (1 = white noise)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = report.pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():
@@ -177,11 +179,7 @@ def whiteness_png(doc: dict) -> bytes:
     ax.set_ylabel("scatter / white noise")
     ax.set_title("Scatter of block means within the still intervals")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return buf.getvalue()
+    return report.png(fig)
 
 
 def html_report(doc: dict) -> str:
