@@ -14,10 +14,10 @@ from station.diagnose.static import diagnose_static, from_arrays
 from station.diagnose.static_report import to_dict
 from station.errors import CalibrationInputError
 from station.importers import import_csv, import_text
-from station.sim.earth import earth_rate_enu
+from station.sim.earth import OMEGA_EARTH
 from station.sim.effects import parse_all
 from station.sim.layouts import accelerometer_triad
-from station.sim.static import simulate_static
+from station.sim.static import simulate_static, static_gyro
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"
@@ -26,24 +26,26 @@ if not REAL.is_dir():  # a worktree one level deeper than the main checkout
 needs_data = pytest.mark.skipif(not REAL.is_dir(), reason="real data (../shared) not available")
 FS = 100.0
 GYRO_SIGMA = 0.002  # rad/s per sample
+G_TRUE = np.array([[2.0, -1.0, 0.5], [1.0, 3.0, -2.0], [0.0, 1.5, -1.0]]) * 1e-5
+"""Hidden g-sensitivity, rad/s per m/s^2 (0.006-0.017 deg/s per g; about 1-3 x the interval
+means' noise at g)."""
+G_SPEC = "g_sensitivity=matrix=" + ":".join(f"{x:g}" for x in G_TRUE.ravel())
 
 
-def simulated(effects=(), seed=1, earth=0.0):
+def simulated(effects=(), seed=1, gyro_effects=(), gyro_sigma=GYRO_SIGMA):
     """(accel, gyro, truth) of a 20-pose free-static session (4 s still, 2 s moves, 100 Hz). The
-    gyro reads a bias, white noise and, in the still intervals, an Earth rate of `earth` rad/s."""
+    gyro reads a bias, white noise and, in the still intervals, the `gyro_effects` (earth_rate,
+    g_sensitivity: station.sim.static.static_gyro)."""
     unit = accelerometer_triad(np.random.default_rng(seed), fs=FS)
     sim = simulate_static(unit, 20, effects=parse_all(list(effects)))
     acc = sim.arrays["y"][0] * sim.arrays["lsb"]
-    rng = np.random.default_rng(seed + 1000)
-    gyro = 0.01 + GYRO_SIGMA * rng.standard_normal(acc.shape)
-    omega = np.einsum("pij,j->pi", sim.truth["orientations"], earth_rate_enu(52.0, earth))
-    for j, (a, z) in enumerate(sim.truth["still"]):
-        gyro[a:z] += omega[j]
+    gyro = static_gyro(sim.truth, len(acc), np.random.default_rng(seed + 1000), sigma=gyro_sigma,
+                       effects=parse_all(list(gyro_effects)))
     return acc, gyro, sim.truth
 
 
-def run(effects=(), seed=1, earth=0.0, gyro=False):
-    acc, g, truth = simulated(effects, seed, earth)
+def run(effects=(), seed=1, gyro_effects=(), gyro=False, gyro_sigma=GYRO_SIGMA):
+    acc, g, truth = simulated(effects, seed, gyro_effects, gyro_sigma)
     data = from_arrays(acc, FS, gyro=g if gyro else None, gravity=truth["gravity"])
     return data, diagnose_static(data)
 
@@ -55,13 +57,34 @@ def cases():
         "none_gyro": run(seed=3, gyro=True),
         "bias_drift": run(["bias_drift=warmup=0.005,warmup_tau=40"], seed=1),
         "scale_nonlinearity": run(["scale_nonlinearity=k2=1.5e-4"], seed=2),
-        "earth_rate": run(seed=4, earth=3e-4, gyro=True),
+        "earth_rate": run(seed=4, gyro_effects=["earth_rate=rate=3e-4"], gyro=True),
+        "g_sensitivity": run(seed=5, gyro_effects=[G_SPEC], gyro=True),
+        # the true Earth rate, on a gyro 10 x quieter (interval means 1e-5 rad/s)
+        "earth_true": run(seed=6, gyro_effects=["earth_rate"], gyro=True, gyro_sigma=2e-4),
     }
 
 
-@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity", "earth_rate"])
+@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity", "earth_rate",
+                                 "g_sensitivity"])
 def test_the_hidden_effect_is_named(cases, key):
     assert cases[key][1].effects == [key]
+
+
+def test_the_true_earth_rate_is_told_from_g_sensitivity(cases):
+    result = cases["earth_true"][1]
+    assert result.effects == ["earth_rate"]
+    first = result.steps[0].evidence
+    assert first["earth_rate"]["log10_p"] < first["g_sensitivity"]["log10_p"]
+    f = result.final.fitted["earth_rate"]
+    assert abs(f.values["rate"] - OMEGA_EARTH) < 4 * f.sigma["rate"]
+
+
+def test_g_sensitivity_recovered_within_its_uncertainty(cases):
+    f = cases["g_sensitivity"][1].final.fitted["g_sensitivity"]
+    z = (f.value("G") - G_TRUE) / f.sigma["G"]
+    # 9 z-scores, Bonferroni limit for a 1e-3 family-wise false alarm: |z| < 3.87
+    assert np.all(np.abs(z) < 3.87), z
+    assert np.allclose(f.value("G_deg_s_per_g"), f.value("G") * np.degrees(9.80665))
 
 
 @pytest.mark.parametrize("key", ["none", "none_gyro"])

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from station.reduction import reduce_arrays
+from station.sim.earth import normal_gravity
 from station.sim.effects import parse, parse_all
 from station.sim.effects.earth_rate import EarthRate
 from station.sim.layouts import A_MODEL, perturbed
@@ -61,6 +62,18 @@ def test_earth_rate_moves_static_means_by_the_projected_earth_rate(setup):
     along_axis = np.einsum("in,ni->n", shift, c[:, :, 2])
     assert np.abs(along_axis).max() < 3e-5  # |v_j| unchanged to first order
     assert np.allclose(np.linalg.norm(shift, axis=0), north, rtol=0.01)
+
+
+def test_g_sensitivity_moves_every_window_by_a_transpose_g_f(setup):
+    a, c = setup
+    g_true = np.arange(9.0).reshape(3, 3) * 1e-4 - 4e-4
+    spec = "g_sensitivity=matrix=" + ":".join(f"{x:g}" for x in g_true.ravel())
+    base, _, _ = run(setup)
+    arrays, _, _ = run(setup, [spec])
+    f = normal_gravity(52.2) * c[:, :, 2]  # (N, 3) gravity up the table axis, unit frame
+    s0, s1 = reduce_arrays(base), reduce_arrays(arrays)
+    assert np.abs((s1.static_mean - s0.static_mean) - a.T @ g_true @ f.T).max() < 3 * LSB
+    assert np.abs(s1.M - s0.M).max() < 3 * LSB  # a bias per position: M is unchanged
 
 
 def test_rate_error_scales_the_readings(setup):
@@ -181,6 +194,7 @@ def test_effects_compose_and_are_deterministic_from_the_seed(setup):
         ("latency=lag=1", "bad parameter"),
         ("latency=delay=x", "not a number"),
         ("bias_drift=warmup_tau=0", "must be positive"),
+        ("g_sensitivity=matrix=1:2", "give 9"),
     ],
 )
 def test_bad_effect_specs_are_refused_with_advice(spec, message):

@@ -35,7 +35,7 @@ BIN_S = 1.0
 """Target bin length, s: each still interval is cut into floor(T / BIN_S) bins (at least 1)."""
 SCALES_S = (0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
 """Block lengths of the white-noise check (scatter of block means against sigma^2 / samples)."""
-CANDIDATES = ("bias_drift", "scale_nonlinearity", "saturation", "earth_rate")
+CANDIDATES = ("bias_drift", "scale_nonlinearity", "saturation", "earth_rate", "g_sensitivity")
 NOT_TESTABLE = {
     "rate_error": "needs the table's commanded rate (rotary sessions only)",
     "axis_wobble": "needs the table turning (a tone at the table rate)",
@@ -233,8 +233,10 @@ class Layout:
             sizes["k2"] = m
         if "bias_drift" in names:
             sizes["warmup"] = sizes["slope"] = data.c
-        if "earth_rate" in names and q:
-            sizes["earth"] = 2
+        if "g_sensitivity" in names and q:
+            sizes["gsens"] = 9
+        if "earth_rate" in names and q:  # the vertical part is in G's trace when G is fitted
+            sizes["earth"] = 1 if "gsens" in sizes else 2
         out, i = {}, 0
         for k, s in sizes.items():
             out[k] = slice(i, i + s)
@@ -279,14 +281,33 @@ def predict(data: StaticData, b0: Base, names, p: dict, basis=None) -> np.ndarra
     if "warmup" in p:
         warm, slope = basis
         out += warm[:, None] * p["warmup"] + slope[:, None] * p["slope"]
+    if "gsens" in p:
+        out[:, data.m:] += specific_force(data, b0)[data.bin_interval] @ gsens(p).T
     if "earth" in p:
-        u, north = p["earth"]
+        u, north = earth_parts(p)
         hor = np.stack([np.cos(h := headings(data, b0, u, out)), np.sin(h)], 1)
         rate = u * b0.up + north * np.einsum("pik,pk->pi", b0.horizontal, hor)
         out[:, data.m:] += rate[data.bin_interval]
     if "saturation" in names:
         out = clipped(out, b0.rails, data.sigma)
     return out
+
+
+def specific_force(data: StaticData, b0: Base) -> np.ndarray:
+    """(P, 3) specific force of each interval in the accelerometer's own axes: g up_j."""
+    return data.gravity * b0.up
+
+
+def gsens(p: dict) -> np.ndarray:
+    """The 3 x 3 g-sensitivity G of the parameters (row-major), gyro output per m/s^2."""
+    return p["gsens"].reshape(3, 3)
+
+
+def earth_parts(p: dict) -> tuple:
+    """(vertical U, horizontal N) of the Earth-rate parameters; U = 0 when G is fitted too (the
+    vertical part U up_j = (U / g) I f_j is then one direction of G)."""
+    e = p["earth"]
+    return (0.0, e[0]) if e.size == 1 else (e[0], e[1])
 
 
 def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarray:
@@ -371,8 +392,12 @@ def _start(data: StaticData, b0: Base, layout: Layout, start) -> np.ndarray:
     p = layout.unpack(theta)  # views into theta
     if start is not None:
         for k, v in start.params.items():
-            if k in p:
+            if k in p and p[k].size == v.size:
                 p[k][:] = v
+        if "gsens" in p and "earth" in start.params and start.params["earth"].size == 2:
+            u, north = start.params["earth"]  # G on top of the Earth rate: U moves into G
+            p["gsens"][:] = (u / data.gravity) * np.eye(3).ravel()
+            p["earth"][:] = north
         if not ("earth" in p and "earth" not in start.params):
             return theta
     else:
@@ -385,10 +410,13 @@ def _start(data: StaticData, b0: Base, layout: Layout, start) -> np.ndarray:
         else:
             p["a"][:] = _a_values(b0.cal.a)
             p["b"][:data.m] = b0.cal.bias
-    if "earth" in p:  # from the gyro interval means net of the bias
+    if "earth" in p:  # from the gyro interval means net of the bias (and of G f)
         r = data.interval_means[0][:, data.m:] - p["b"][data.m:]
-        p["earth"][0] = np.mean(np.einsum("pi,pi->p", b0.up, r))
-        p["earth"][1] = np.mean(np.linalg.norm(np.einsum("pik,pi->pk", b0.horizontal, r), 1))
+        if "gsens" in p:
+            r = r - specific_force(data, b0) @ gsens(p).T
+        north = np.mean(np.linalg.norm(np.einsum("pik,pi->pk", b0.horizontal, r), 1))
+        p["earth"][:] = [north] if p["earth"].size == 1 else [
+            np.mean(np.einsum("pi,pi->p", b0.up, r)), north]
     return theta
 
 
@@ -423,7 +451,9 @@ def _touched(data: StaticData, b0: Base, layout: Layout) -> list:
             cols += [idx[np.isin(data.bin_interval, np.flatnonzero(b0.pose == k // m)), k % m]
                      for k in range(n)]
         elif name == "earth":
-            cols += [idx[:, m:].ravel()] * 2
+            cols += [idx[:, m:].ravel()] * n
+        elif name == "gsens":  # G[i, k] moves gyro channel i
+            cols += [idx[:, m + k // 3] for k in range(n)]
         else:  # one per channel: b, k2, warmup, slope
             cols += [idx[:, i] for i in range(n)]
     return cols
@@ -475,7 +505,7 @@ def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
     _, layout, theta, cov, chi2, rail, pred, tau, basis = best
     p = {k: v.copy() for k, v in layout.unpack(theta).items()}
     sig = {k: np.sqrt(np.maximum(np.diag(cov)[s], 0)) for k, s in layout.slices.items()}
-    fitted = {name: _fitted(name, data, b0, p, sig, tau, taus) for name in names}
+    fitted = {name: _fitted(name, data, b0, p, sig, tau, taus, names) for name in names}
     return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis), b0)
 
 
@@ -494,7 +524,8 @@ def _calibration(data: StaticData, b0: Base, names, p: dict, basis):
                      sigma=sigma)
 
 
-def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus) -> Fitted:
+def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus,
+            names) -> Fitted:
     """The Fitted record of one extension from the joint fit's parameters and 1-sigma."""
     if name == "bias_drift":
         span = data.t[-1]
@@ -513,7 +544,27 @@ def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus
         return Fitted(name, {"low": b0.rails[0], "high": b0.rails[1]},
                       {"low": data.lsb / 2, "high": data.lsb / 2}, dof=1,
                       notes="rails = the lowest and highest value of the still samples")
+    if name == "g_sensitivity":
+        return _gsens_fitted(data, p, sig, "earth_rate" in names)
     return _earth_fitted(data, b0, p, sig)
+
+
+def _gsens_fitted(data: StaticData, p: dict, sig: dict, with_earth: bool) -> Fitted:
+    """g-sensitivity: gyro interval means = b_g + G f_j (IEEE Std 528's g-sensitive bias), G
+    linear: null law chi2(9), or chi2(8) beside the Earth rate (whose vertical part (U / g) I is
+    one direction of G: U moves into G's trace)."""
+    per_g = np.degrees(STANDARD_GRAVITY)  # rad/s per m/s^2 -> deg/s per g
+    g, s = gsens(p), sig["gsens"].reshape(3, 3)
+    return Fitted(
+        "g_sensitivity",
+        {"G": g, "G_deg_s_per_g": g * per_g},
+        {"G": s, "G_deg_s_per_g": s * per_g},
+        dof=8 if with_earth else 9,
+        notes="gyro bias b + G f, f the specific force of the interval in the accelerometer's "
+        "axes (m/s^2); G[i, k] = gyro channel i per f_k, in gyro output units per m/s^2 and in "
+        "deg/s per g (g = 9.80665, for rad/s gyros); the Earth rate's vertical part is the "
+        "special case G = (U / g) I",
+    )
 
 
 def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
@@ -523,24 +574,27 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
     of station.diagnose.effects.tone_null with the 2 x 2 normal matrices of the horizontal plane;
     the sum is moment-matched to scale * chi2(nu).
     """
-    e, s = p["earth"], sig["earth"]
     _, n = data.interval_means
     w = n[:, None] / data.sigma[data.m:] ** 2  # (P, 3) information per axis
     h = np.einsum("pik,pi,pil->pkl", b0.horizontal, w, b0.horizontal)
     scale, nu = tone_null(h)
-    mean, var = 1 + scale * nu, 2 + 2 * scale**2 * nu
-    u, north = e[0], abs(e[1])
+    vertical = p["earth"].size == 2  # else the vertical part is in G (g_sensitivity)
+    mean, var = vertical + scale * nu, 2 * vertical + 2 * scale**2 * nu
+    (u, north), s = earth_parts(p), sig["earth"]
+    north, su = abs(north), s[0] if vertical else np.nan
     return Fitted(
         "earth_rate",
-        {"vertical": u, "horizontal": north, "rate": np.hypot(u, north),
-         "latitude_deg": np.degrees(np.arctan2(u, north))},
-        {"vertical": s[0], "horizontal": s[1], "rate": np.hypot(u * s[0], north * s[1])
+        {"vertical": u if vertical else np.nan, "horizontal": north,
+         "rate": np.hypot(u, north) if vertical else np.nan,
+         "latitude_deg": np.degrees(np.arctan2(u, north)) if vertical else np.nan},
+        {"vertical": su, "horizontal": s[-1], "rate": np.hypot(u * su, north * s[-1])
          / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan},
-        dof=len(data.intervals) + 2,
+        dof=len(data.intervals) + 1 + vertical,
         null=(var / (2 * mean), 2 * mean**2 / var),
         notes=f"gyro output units (Earth: {OMEGA_EARTH:.4e} rad/s); heading per interval is "
         "nuisance, profiled out (the unit is turned by hand); latitude = atan2(vertical, "
-        "horizontal); an orientation-dependent gyro bias (g-sensitivity) has the same signature",
+        "horizontal); a vertical part alone is also g-sensitivity G = (U / g) I, so the two "
+        "compete (g_sensitivity); beside G only the horizontal part is fitted",
     )
 
 
@@ -548,7 +602,7 @@ def untestable(data: StaticData, b0: Base) -> dict:
     """{effect: why this session cannot show it}."""
     out = dict(NOT_TESTABLE)
     if not data.gyro:
-        out["earth_rate"] = "needs a gyro stream"
+        out["earth_rate"] = out["g_sensitivity"] = "needs a gyro stream"
     if b0.cal is None:
         out["scale_nonlinearity"] = ("the poses do not determine the ellipsoid (too few distinct "
                                      "orientations), so the accelerometer has no shape to test")

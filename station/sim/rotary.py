@@ -3,9 +3,9 @@
 Per position j the unit sits on the table in orientation C_j (table frame -> unit frame, so the
 table axis in the unit frame is u_j = C_j e_z). The table follows the commanded trapezoid of
 `RotaryTiming`; the angular-rate truth in the unit frame is rate(t) u_j, distorted by the named
-effects in this order: rate_error, axis_wobble, earth_rate (kinematics), projection a^T omega,
-scale_nonlinearity, latency (sensed signal), biases + bias_drift + walk + noise, saturation,
-quantisation.
+effects in this order: rate_error, axis_wobble, earth_rate, g_sensitivity (kinematics),
+projection a^T omega, scale_nonlinearity, latency (sensed signal), biases + bias_drift + walk +
+noise, saturation, quantisation.
 """
 
 from dataclasses import dataclass
@@ -13,7 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.sim.effects import axis_wobble, earth_rate, to_json
+from station.sim.earth import normal_gravity
+from station.sim.effects import axis_wobble, earth_rate, g_sensitivity, to_json
+from station.sim.effects.earth_rate import EarthRate
 from station.sim.profile import RotaryTiming
 from station.sim.sensing import sense
 from station.sim.unit import SensorUnit
@@ -60,6 +62,10 @@ def angular_rate(rate, angle, t, orientation, effects: dict) -> np.ndarray:
         omega = rate[..., None] * orientation[:, None, :, 2]
     if "earth_rate" in effects:
         omega = earth_rate.apply(omega, orientation, angle, effects["earth_rate"])
+    if "g_sensitivity" in effects:
+        g = normal_gravity(effects.get("earth_rate", EarthRate()).latitude_deg)
+        f = g * orientation[:, None, :, 2]  # specific force: the table axis is up
+        omega = g_sensitivity.apply(omega, f, effects["g_sensitivity"])
     return omega
 
 
@@ -90,7 +96,7 @@ def simulate_rotary(
     t, rate_cmd, angle_cmd, rate, angle = table_motion(timing, fs, factors)
     k = t.size
     t0 = np.arange(n) * (k / fs + gap)
-    if {"axis_wobble", "earth_rate"} & effects.keys():
+    if {"axis_wobble", "earth_rate", "g_sensitivity"} & effects.keys():
         s = unit.project(angular_rate(rate, angle, t, orientation, effects))
     else:  # fast path: omega = rate u_j, so a^T omega = rate (a^T u_j)
         s = rate[..., None] * unit.project(orientation[:, :, 2])[:, None, :]

@@ -52,8 +52,11 @@ def refuse_motion_effects(effects: dict, protocol: str) -> None:
 
 
 def check_per_sensor(effects: dict, m: int) -> None:
-    """Raise unless every per-sensor parameter (a tuple) has one value per sensor."""
+    """Raise unless every per-sensor parameter (a tuple) of a sensor effect has one value per
+    sensor (the motion effects' tuples, e.g. g_sensitivity's matrix, are not per sensor)."""
     for name, params in effects.items():
+        if name not in SENSOR_EFFECTS:
+            continue
         for field in dataclasses.fields(params):
             value = getattr(params, field.name)
             if isinstance(value, tuple) and len(value) != m:

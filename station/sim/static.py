@@ -9,8 +9,8 @@ in the data file (the station must detect them), only in the truth.
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.sim.earth import normal_gravity
-from station.sim.effects import to_json
+from station.sim.earth import earth_rate_enu, normal_gravity
+from station.sim.effects import g_sensitivity, to_json
 from station.sim.rotary import Simulation
 from station.sim.sensing import refuse_motion_effects, sense
 from station.sim.unit import SensorUnit
@@ -78,3 +78,28 @@ def simulate_static(
         "effects": to_json(effects),
     }
     return Simulation(arrays, truth)
+
+
+def static_gyro(truth: dict, samples: int, rng: np.random.Generator, *, bias: float = 0.01,
+                sigma: float = 0.002, effects: dict | None = None) -> np.ndarray:
+    """(samples, 3) gyro of a free-static session (`simulate_static`'s truth), rad/s: a common
+    bias, white noise of `sigma` per sample and, in the still intervals, the gyro effects
+    earth_rate (the Earth rate in the unit frame of each pose; the heading is in the random
+    orientation) and g_sensitivity (G f_j, f_j = the pose's specific force). The turns between
+    poses are not simulated (the stillness detector finds them on the accelerometer)."""
+    effects = effects or {}
+    extra = sorted(set(effects) - {"earth_rate", "g_sensitivity"})
+    if extra:
+        raise ValueError(f"effect(s) {', '.join(extra)} are not simulated on the static gyro; "
+                         "it supports earth_rate and g_sensitivity")
+    rot = np.asarray(truth["orientations"])
+    omega = np.zeros((len(rot), 3))
+    if "earth_rate" in effects:
+        p = effects["earth_rate"]
+        omega += rot @ earth_rate_enu(p.latitude_deg, p.rate)
+    if "g_sensitivity" in effects:
+        omega = g_sensitivity.apply(omega, np.asarray(truth["v"]).T, effects["g_sensitivity"])
+    out = bias + sigma * rng.standard_normal((samples, 3))
+    for j, (a, z) in enumerate(truth["still"]):
+        out[a:z] += omega[j]
+    return out

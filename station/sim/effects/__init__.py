@@ -11,6 +11,7 @@ import dataclasses
 from station.sim.effects.axis_wobble import AxisWobble
 from station.sim.effects.bias_drift import BiasDrift
 from station.sim.effects.earth_rate import EarthRate
+from station.sim.effects.g_sensitivity import GSensitivity
 from station.sim.effects.latency import Latency
 from station.sim.effects.rate_error import RateError
 from station.sim.effects.saturation import Saturation
@@ -21,6 +22,7 @@ EFFECTS = {
     "scale_nonlinearity": ScaleNonlinearity,
     "rate_error": RateError,
     "earth_rate": EarthRate,
+    "g_sensitivity": GSensitivity,
     "saturation": Saturation,
     "axis_wobble": AxisWobble,
     "latency": Latency,

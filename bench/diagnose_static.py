@@ -1,0 +1,193 @@
+"""Acceptance statistics of `station diagnose` on free-static sessions (issue 7), and its
+findings on the real recordings.
+
+Simulated sessions (20 poses, 4 s still, 2 s turns, 100 Hz, accelerometer triad + gyro; the gyro
+of station.sim.static.static_gyro) hide one effect each, or none: per hidden effect, how often the
+right effect is named first (and nothing else beside one extra), over seeds; for g_sensitivity
+the z-scores of the 9 entries of G against their 1-sigma, for the Earth rates the fitted rate.
+Real recordings (when /work/shared, ../shared from the repository, is present): the named
+effects, each step's log10 p, the final parameters with 1-sigma, the white-noise gap and the
+wall time. Run as `.venv/bin/python -P bench/diagnose_static.py [--json] [--seeds N]
+[--no-real]`.
+"""
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np
+
+from station.diagnose.static import diagnose_static, from_arrays
+from station.diagnose.static_report import load, to_dict
+from station.importers import import_csv, import_text
+from station.sim.effects import parse_all
+from station.sim.layouts import accelerometer_triad
+from station.sim.static import simulate_static, static_gyro
+
+FS = 100.0
+G_TRUE = np.array([[2.0, -1.0, 0.5], [1.0, 3.0, -2.0], [0.0, 1.5, -1.0]]) * 1e-5
+"""Hidden g-sensitivity, rad/s per m/s^2 (0.006-0.017 deg/s per g)."""
+CASES = {
+    "none": ((), (), 2e-3),
+    "bias_drift": (("bias_drift=warmup=0.005,warmup_tau=40",), (), 2e-3),
+    "scale_nonlinearity": (("scale_nonlinearity=k2=1.5e-4",), (), 2e-3),
+    "earth_rate": ((), ("earth_rate=rate=3e-4",), 2e-3),
+    "earth_rate_sidereal": ((), ("earth_rate",), 2e-4),
+    "g_sensitivity": ((), ("g_sensitivity=matrix=" + ":".join(f"{x:g}" for x in G_TRUE.ravel()),),
+                      2e-3),
+}
+"""Case -> (accelerometer effects, gyro effects, gyro sigma per sample in rad/s). The sidereal
+Earth rate (7.29e-5 rad/s) is hidden on a gyro 10 x quieter (interval means 1e-5 rad/s)."""
+REAL = [ROOT.parent / "shared" / "data" / "real", Path("/work/shared/data/real")]
+
+
+def session(case: str, seed: int):
+    """(StaticData, truth) of one simulated free-static session hiding `case`."""
+    acc_fx, gyro_fx, sigma = CASES[case]
+    unit = accelerometer_triad(np.random.default_rng(seed), fs=FS)
+    sim = simulate_static(unit, 20, effects=parse_all(list(acc_fx)))
+    acc = sim.arrays["y"][0] * sim.arrays["lsb"]
+    gyro = static_gyro(sim.truth, len(acc), np.random.default_rng(seed + 1000), sigma=sigma,
+                       effects=parse_all(list(gyro_fx)))
+    return from_arrays(acc, FS, gyro=gyro, gravity=sim.truth["gravity"]), sim.truth
+
+
+def run_case(case: str, seed: int) -> dict:
+    """Diagnose one session: named effects, first-step evidence, G z-scores, Earth rate."""
+    data, _ = session(case, seed)
+    start = time.perf_counter()
+    result = diagnose_static(data)
+    out = {"named": result.effects, "seconds": time.perf_counter() - start,
+           "log10_p_first": {k: e["log10_p"] for k, e in result.steps[0].evidence.items()}}
+    fitted = result.final.fitted
+    if "g_sensitivity" in fitted:
+        f = fitted["g_sensitivity"]
+        out["G_z"] = ((f.value("G") - G_TRUE) / f.sigma["G"]).tolist()
+    if "earth_rate" in fitted:
+        f = fitted["earth_rate"]
+        out["earth_rate"] = (float(f.values["rate"]), float(f.sigma["rate"]))
+    return out
+
+
+def expected(case: str) -> str:
+    return "earth_rate" if case.startswith("earth_rate") else case
+
+
+def acceptance(seeds: int, cases=tuple(CASES)) -> dict:
+    """Per case: rate of the right call over `seeds` seeds, and the runs."""
+    out = {}
+    for case in cases:
+        runs = [run_case(case, 100 + s) for s in range(seeds)]
+        want = expected(case)
+        first = [r["named"][0] if r["named"] else "none" for r in runs]
+        right = [f == want and len(r["named"]) <= 1 + (want != "none")
+                 for f, r in zip(first, runs)]
+        entry = {"sessions": len(runs), "right_rate": float(np.mean(right)),
+                 "exact_rate": float(np.mean([r["named"] == ([] if want == "none" else [want])
+                                              for r in runs])),
+                 "named": [r["named"] for r in runs],
+                 "seconds_median": float(np.median([r["seconds"] for r in runs]))}
+        z = [np.abs(r["G_z"]).max() for r in runs if "G_z" in r]
+        if z:
+            entry["G_max_abs_z"] = [float(x) for x in z]
+        rates = [r["earth_rate"] for r in runs if "earth_rate" in r]
+        if rates:
+            entry["earth_rate_fitted"] = rates
+        entry["log10_p_first"] = [r["log10_p_first"] for r in runs]
+        out[case] = entry
+    return out
+
+
+def recordings(root: Path, tmp: Path) -> dict:
+    """{unit: session file} of the three real recordings imported into sessions."""
+    xs = root / "imutk-xsens"
+    out = {"xsens": import_text(tmp / "xsens.h5", {"accel": xs / "xsens_acc.mat",
+                                                   "gyro": xs / "xsens_gyro.mat"},
+                                {"accel": "counts:m/s^2", "gyro": "counts:rad/s"})}
+    x = np.loadtxt(root / "imucalib-mpu9150x5" / "imu0.log")  # no time column: 100 Hz
+    t = np.arange(len(x)) / 100.0
+    for name, cols in (("acc", x[:, :3]), ("gyr", x[:, 3:])):
+        np.savetxt(tmp / f"{name}.txt", np.column_stack([t, cols]), fmt="%.8g")
+    out["mpu9150_imu0"] = import_text(tmp / "mpu.h5", {"acc": tmp / "acc.txt",
+                                                       "gyr": tmp / "gyr.txt"},
+                                      {"acc": "m/s^2", "gyr": "rad/s"}, fs=100.0)
+    out["imucal_ferraris"] = import_csv(
+        tmp / "ferraris.h5", root / "imucal-ferraris" / "example_ferraris_session.csv",
+        {"acc": ["acc_x", "acc_y", "acc_z"], "gyr": ["gyr_x", "gyr_y", "gyr_z"]},
+        {"acc": "m/s^2", "gyr": "deg/s"}, index_column="n_samples", fs=102.4)
+    return out
+
+
+def real() -> dict | None:
+    """Findings of the free-static diagnose on the real recordings, or None without them."""
+    root = next((r for r in REAL if r.is_dir()), None)
+    if root is None:
+        return None
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for unit, path in recordings(root, Path(tmp)).items():
+            data = load(path)
+            start = time.perf_counter()
+            result = diagnose_static(data)
+            seconds = time.perf_counter() - start
+            doc = to_dict(result, data, unit)
+            out[unit] = {
+                "seconds": seconds,
+                "intervals": doc["intervals"],
+                "effects": doc["effects"],
+                "steps": [{"chosen": s["chosen"],
+                           "log10_p": {k: e["log10_p"] for k, e in s["evidence"].items()},
+                           "log10_p_quasi": {k: e["log10_p_quasi"]
+                                             for k, e in s["evidence"].items()}}
+                          for s in doc["steps"]],
+                "parameters": doc["steps"][-1]["parameters"],
+                "white_noise_within": doc["white_noise"]["within"],
+                "white_noise_holds": doc["white_noise"]["holds"],
+            }
+    return out
+
+
+def show(out: dict) -> None:
+    for case, r in out["acceptance"].items():
+        extra = ""
+        if "G_max_abs_z" in r:
+            extra += f"  max|z| of G {np.round(r['G_max_abs_z'], 2).tolist()}"
+        if "earth_rate_fitted" in r:
+            extra += "  rate " + ", ".join(f"{v:.2e}+-{s:.1e}" for v, s in r["earth_rate_fitted"])
+        print(f"{case:20s} right {r['right_rate']:.2f} (exact {r['exact_rate']:.2f}) of "
+              f"{r['sessions']}  {r['seconds_median']:.1f} s{extra}")
+    for unit, r in (out.get("real") or {}).items():
+        print(f"\n{unit}: {r['effects']}  ({r['intervals']} intervals, {r['seconds']:.1f} s, "
+              f"within gap {r['white_noise_within']:.2f})")
+        for s in r["steps"]:
+            print("  ", s["chosen"], {k: round(v, 1) for k, v in s["log10_p"].items()})
+        for name, params in r["parameters"].items():
+            for k, v in params.items():
+                print(f"    {name}.{k} = {np.round(v['value'], 6).tolist()} "
+                      f"+- {np.round(v['sigma'], 6).tolist() if v['sigma'] is not None else None}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--seeds", type=int, default=4, help="sessions per hidden effect")
+    parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
+    parser.add_argument("--no-real", action="store_true", help="skip the real recordings")
+    args = parser.parse_args()
+    out = {"acceptance": acceptance(args.seeds, args.cases)}
+    if not args.no_real:
+        out["real"] = real()
+    if args.json:
+        print(json.dumps(out, indent=1, default=float))
+    else:
+        show(out)
+
+
+if __name__ == "__main__":
+    main()
