@@ -12,6 +12,7 @@ import threading
 import time
 
 import numpy as np
+from scipy import stats
 
 import station
 from station.protocols.rotary import reduce_session, suggested_axes
@@ -20,7 +21,13 @@ from station.uncertainty import eps_tail_probability
 from station.virtual_bench import VirtualBench
 
 POSITIONS, SEED, SPEED, RATE_HZ = 10, 5, 80.0, 100.0
-POSITION_WALL = 15.0 / SPEED  # a position takes at least 15 s of clock (remount to rest)
+MARGIN = 2.0
+"""rest, guard and steady (clock s). Sample instants are estimated from the least delayed arrival
+(`station.recorder.arrival_offset`), so they are late by the smallest host latency of the
+segment: 14 ms of wall on a loaded 2-core host, 1.1 s of this 80x clock. Margins of 0.5 s let the
+static window take samples of the previous mounting and the rotating window the end of the
+spin-up (chi2/dof 4-5 in 3 of 8 runs, eps 8 x the bound in one CI run); 2 s is 25 ms of wall."""
+POSITION_WALL = 21.0 / SPEED  # a position takes at least 21 s of clock (remount to rest)
 # The recording process: creates the session (or resumes it with the same code as `station
 # resume`) and prints "flushed <imu rows> <table rows> <events>" whenever the durable row counts
 # change, then "done" if nobody killed it first.
@@ -45,7 +52,8 @@ def watch(writer):
 
 path, mode = sys.argv[1], sys.argv[2]
 if mode == "create":
-    settings = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+    settings = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest={MARGIN}, guard={MARGIN},
+                              steady={MARGIN})
     with VirtualBench(seed={SEED}, speed={SPEED}, rate_hz={RATE_HZ}, remount_time=1.0) as bench:
         record_rotary(bench, path, settings, suggested_axes({POSITIONS}), watch=watch)
 else:
@@ -128,4 +136,6 @@ def test_ten_kills_at_random_moments_then_station_resume_completes_the_session(t
     result = station.calibrate(reduced.M, 1.0, sigma=reduced.sigma)
     bound = station.crlb(a, suggested_axes(POSITIONS).T, reduced.sigma)
     assert eps_tail_probability(station.eps(a, result.a), bound) > 1e-4
+    # no window took samples of a mounting change or a ramp: chi2 of the fit within its law
+    assert result.chi2 < stats.chi2.isf(1e-4, result.dof), (result.chi2, result.dof)
     assert np.all(reduced.revolutions == 1)
