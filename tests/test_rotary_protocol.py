@@ -24,7 +24,8 @@ from station.session import Event, Session, SessionWriter
 from station.virtual_bench import VirtualBench
 
 # short windows: one position is about 20 s of clock, half a second of wall time at 40x
-FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=1.0, guard=1.0, steady=1.0)
+"""Margins of 1 s: 25 ms of wall at 40x, above a loaded host's latency (docs/protocols.md)."""
 KINDS = ["position_start", "static_start", "static_end", "rotate_start", "rotate_end",
          "position_done"]
 
