@@ -38,7 +38,7 @@ from drivers.twin_serial import SerialTwin
 from drivers.twin_table import TableTwin
 from station.clock import ScaledClock
 from station.operator import SimulatedTechnician
-from station.protocols.rotary import RotaryProtocol, continue_session
+from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.session import Session, SessionWriter, StreamSpec
 from station.sim.effects.rate_error import RateError
 from station.sim.layouts import A_MODEL, gyro_array
@@ -49,6 +49,12 @@ IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
 BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
+HOST_LATENCY = 0.05
+"""Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
+instants are estimated from the least delayed arrival, so they are late by the smallest host
+latency of a segment (14 ms measured on a loaded 2-core host); the fast clock multiplies it, and
+a shorter margin lets a window take samples of the previous mounting or of a ramp
+(docs/protocols.md)."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +136,13 @@ class VirtualBench:
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.imu_twin = None
 
+    def with_margins(self, settings: RotarySettings) -> RotarySettings:
+        """`settings` with rest, guard and steady of at least HOST_LATENCY wall seconds of this
+        bench's clock (2 s at 40x; a real bench at 1x keeps its settings)."""
+        least = HOST_LATENCY * self.clock.speed
+        return dataclasses.replace(settings, **{name: max(getattr(settings, name), least)
+                                                for name in ("rest", "guard", "steady")})
+
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
         hidden = {"rate_error": self.rate_error} if self.rate_error else {}
@@ -204,7 +217,8 @@ def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_seri
     view           : optional `station.live_view.LiveView` shown while recording
     """
     with bench.drivers() as (imu, table):
-        protocol = RotaryProtocol(table, bench.technician, bench.clock, settings, axes)
+        protocol = RotaryProtocol(table, bench.technician, bench.clock,
+                                  bench.with_margins(settings or RotarySettings()), axes)
         metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
                     "virtual_bench": bench.metadata()}
         with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},

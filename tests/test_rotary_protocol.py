@@ -24,8 +24,8 @@ from station.session import Event, Session, SessionWriter
 from station.virtual_bench import VirtualBench
 
 # short windows: one position is about 20 s of clock, half a second of wall time at 40x
-FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=1.0, guard=1.0, steady=1.0)
-"""Margins of 1 s: 25 ms of wall at 40x, above a loaded host's latency (docs/protocols.md)."""
+FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+"""Short windows; the bench raises the margins to its host-latency floor (`with_margins`)."""
 KINDS = ["position_start", "static_start", "static_end", "rotate_start", "rotate_end",
          "position_done"]
 
@@ -39,7 +39,7 @@ class BenchSession:
         self._drivers = self.bench.drivers()
         self.imu, self.table = self._drivers.__enter__()
         self.protocol = RotaryProtocol(self.table, technician or self.bench.technician,
-                                       self.bench.clock, settings,
+                                       self.bench.clock, self.bench.with_margins(settings),
                                        suggested_axes(3) if axes is None else axes)
         self.writer = SessionWriter.create(
             path, {**self.protocol.metadata(), "unit_serial": "TEST"},
@@ -74,7 +74,8 @@ def session(tmp_path):
 
 class Interrupting:
     """The real table driver, running `action(reading)` on each read in the middle of the rotating
-    window of the `run`-th spin (the table has turned 2 rad since it reached the rate)."""
+    window of the `run`-th spin: the table has turned 4 rad since it reached the rate (2 rad of
+    the bench's 2 s steady margin at 1 rad/s, then 2 rad into the window)."""
 
     def __init__(self, table, action, run=1):
         self.table, self.action, self.run = table, action, run
@@ -93,7 +94,7 @@ class Interrupting:
         if self.starts == self.run and reading.at_rate:
             if self.at_rate_angle is None:
                 self.at_rate_angle = reading.angle
-            if reading.angle - self.at_rate_angle > 2.0:
+            if reading.angle - self.at_rate_angle > 4.0:
                 self.action(reading)
         return reading
 
@@ -121,7 +122,8 @@ def test_protocol_records_each_position_in_order_with_windows_the_table_confirms
     for w in windows.values():
         static = (table.time > w["static"][0]) & (table.time < w["static"][1])
         rotating = (table.time > w["rotating"][0]) & (table.time < w["rotating"][1])
-        assert static.sum() >= 5 and not table.flag("moving")[static].any()
+        # polled during the window (how often depends on the host: 3 s are 75 ms of wall)
+        assert static.sum() >= 2 and not table.flag("moving")[static].any()
         assert np.all(np.abs(table.rate[rotating] - 1.0) < FAST.tolerance)
         swept = np.interp(w["rotating"][1], table.time, table.angle) - np.interp(
             w["rotating"][0], table.time, table.angle)
