@@ -5,6 +5,7 @@ import json
 from pathlib import Path
 
 from station.diagnose import data, diagnose, report, static_report
+from station.diagnose.static import diagnose_static
 from station.errors import CalibrationInputError
 from station.session import Session
 
@@ -40,20 +41,26 @@ def run(args) -> int:
         print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
         return 2
     try:
-        if path.suffix == ".npz":
+        rotary = path.suffix == ".npz"
+        if rotary:
             session = data.load(path)
         else:
             with Session.open(path) as recorded:
-                rotary = data.is_rotary(recorded)
+                rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
                 session = data.from_session(recorded) if rotary else None
-            if not rotary:  # the one dispatch point for other protocols
-                return static_report.command(args)
-        result = diagnose(session, alpha=args.alpha, max_effects=args.max_effects)
+        if rotary:
+            doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects),
+                                 session, str(path))
+        else:
+            static = static_report.load(path)
+            doc = static_report.to_dict(
+                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
+                static, str(path))
     except (CalibrationInputError, ValueError, OSError) as err:
         print(f"station diagnose: {err}")
         return 2
-    doc = report.to_dict(result, session, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
-        Path(args.report).write_text(report.html_report(doc))
+        page = report.html_report if rotary else static_report.html_report
+        Path(args.report).write_text(page(doc))
     return 0

@@ -35,19 +35,23 @@ def calibration_summary(cal) -> dict:
     }
 
 
+def step_dict(step, evidence=None) -> dict:
+    """One step of a diagnosis (station.diagnose.select.Step) for the JSON document; `evidence`
+    replaces the step's own (e.g. with quasi-likelihood p-values added)."""
+    return {
+        "model": ["nominal", *step.model.names],
+        "gap": step.gap,
+        "deviance": step.model.deviance,
+        "parameters": {k: parameters(f) for k, f in step.model.fitted.items()},
+        "notes": {k: f.notes for k, f in step.model.fitted.items() if f.notes},
+        "evidence": step.evidence if evidence is None else evidence,
+        "chosen": step.chosen,
+    }
+
+
 def to_dict(diagnosis, data, source: str = "") -> dict:
     """The JSON document of a diagnosis; `effects` is the ordered list of named effects."""
-    steps = []
-    for step in diagnosis.steps:
-        steps.append({
-            "model": ["nominal", *step.model.names],
-            "gap": step.gap,
-            "deviance": step.model.deviance,
-            "parameters": {k: parameters(f) for k, f in step.model.fitted.items()},
-            "notes": {k: f.notes for k, f in step.model.fitted.items() if f.notes},
-            "evidence": step.evidence,
-            "chosen": step.chosen,
-        })
+    steps = [step_dict(step) for step in diagnosis.steps]
     n, k, m = data.shape
     return jsonable({
         "session": source,

@@ -11,19 +11,15 @@ Gap statistics (1 = explained by white noise of the sigma measured within the bi
 """
 
 import base64
-import json
-from pathlib import Path
 
 import numpy as np
 
 from station.diagnose import report
-from station.diagnose.model import parameters
 from station.diagnose.select import log_sf
 from station.diagnose.static import (
     SCALES_S,
     STANDARD_GRAVITY,
     StaticData,
-    diagnose_static,
     from_arrays,
     untestable,
 )
@@ -122,15 +118,8 @@ def _evidence_with_quasi(evidence: dict, dispersion: float) -> dict:
 
 def to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
     """The JSON document of a free-static diagnosis (same layout as the rotary one)."""
-    steps = [{
-        "model": ["nominal", *step.model.names],
-        "gap": step.gap,
-        "deviance": step.model.deviance,
-        "parameters": {k: parameters(f) for k, f in step.model.fitted.items()},
-        "notes": {k: f.notes for k, f in step.model.fitted.items() if f.notes},
-        "evidence": _evidence_with_quasi(step.evidence, step.gap["within"]),
-        "chosen": step.chosen,
-    } for step in diagnosis.steps]
+    steps = [report.step_dict(step, _evidence_with_quasi(step.evidence, step.gap["within"]))
+             for step in diagnosis.steps]
     white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
     lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
     not_testable = untestable(data, diagnosis.steps[0].model.base)
@@ -223,21 +212,3 @@ def load(path, **detector) -> StaticData:
     return from_arrays(acc.to_si(), acc.spec.rate_hz, gyro=None if gyr is None else gyr.to_si(),
                        gravity=float(gravity or STANDARD_GRAVITY), units=units, notes=notes,
                        **detector)
-
-
-def command(args) -> int:
-    """`station diagnose SESSION.h5` for a free-static session: diagnose, print, report."""
-    if not 0 < args.alpha < 1:
-        print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
-        return 2
-    try:
-        data = load(args.session)
-        result = diagnose_static(data, alpha=args.alpha, max_effects=args.max_effects)
-    except (CalibrationInputError, ValueError, OSError) as err:
-        print(f"station diagnose: {err}")
-        return 2
-    doc = to_dict(result, data, str(args.session))
-    print(json.dumps(doc, indent=1) if args.json else report.text(doc))
-    if args.report:
-        Path(args.report).write_text(html_report(doc))
-    return 0
