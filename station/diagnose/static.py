@@ -461,7 +461,9 @@ def _touched(data: StaticData, b0: Base, layout: Layout) -> list:
 
 def _jacobian(fun, cols: list):
     """Forward-difference Jacobian of fun, perturbing together the parameters that move
-    disjoint residuals (the pose and heading parameters of different intervals)."""
+    disjoint residuals (the pose and heading parameters of different intervals). scipy's own
+    grouping (`least_squares(jac_sparsity=...)`) would force the inexact `lsmr` trust-region
+    solver; this keeps the dense `exact` one."""
     groups, used = [], []
     size = 1 + max(int(r.max()) for r in cols)
     for k, rows in enumerate(cols):
