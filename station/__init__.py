@@ -9,4 +9,4 @@ from station.errors import CalibrationInputError
 from station.frames import eps
 from station.uncertainty import crlb
 
-__all__ = ["calibrate", "CalibrationResult", "CalibrationInputError", "crlb", "eps"]
+__all__ = ["CalibrationInputError", "CalibrationResult", "calibrate", "crlb", "eps"]

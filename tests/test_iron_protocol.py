@@ -9,18 +9,11 @@ from scipy.spatial.transform import Rotation
 
 from station.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
-from station.iron_bench import ACC4, IronBench, record_session
+from station.hand_bench import ACC4, HandBench, record_iron_session
 from station.operator import SimulatedTechnician
-from station.protocols.iron import (
-    FACE_UP,
-    IronProtocol,
-    IronSettings,
-    ProtocolError,
-    StreamTap,
-    pose_windows,
-    recognise_faces,
-    up_direction,
-)
+from station.protocols.iron import FACE_UP, IronProtocol, IronSettings, recognise_faces
+from station.protocols.rotary import ProtocolError
+from station.protocols.still import StreamTap, pose_windows, up_direction
 from station.recorder import Recorder
 from station.session import Session, SessionWriter
 
@@ -32,7 +25,7 @@ def recorded(tmp_path_factory):
     """One two-mounting session (12 poses) recorded on the bench at 40x: (path, truth, readings,
     result)."""
     path = tmp_path_factory.mktemp("iron") / "iron.h5"
-    truth, readings, result = record_session(path, seed=SEED, speed=40.0, mountings=2)
+    truth, readings, result = record_iron_session(path, seed=SEED, speed=40.0, mountings=2)
     return path, truth, readings, result
 
 
@@ -140,7 +133,7 @@ def test_a_technician_who_does_not_move_the_iron_times_out(tmp_path):
         def wait(self, instruction):
             self.prompt(instruction.text)
 
-    with IronBench(seed=1, speed=40.0) as bench, bench.driver() as imu:
+    with HandBench(seed=1, speed=40.0) as bench, bench.driver() as imu:
         idle = Idle(bench.rig, bench.clock)
         protocol = IronProtocol(idle, bench.clock, ACC4,
                                 IronSettings(gravity=bench.gravity, timeout=8.0))

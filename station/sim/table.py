@@ -16,7 +16,6 @@ import numpy as np
 
 from station.sim.effects.rate_error import RateError
 
-
 HISTORY = 10_000  # commands remembered for `true_rates` (a session issues a few per position)
 
 

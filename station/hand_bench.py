@@ -1,24 +1,27 @@
-"""The virtual right-angle-iron bench: a 4-accelerometer unit in an iron, turned by a technician,
-streaming through the real serial wire protocol.
+"""The virtual hand bench: an accelerometer unit turned by a technician - in a right-angle iron,
+or freely - streaming through the real serial wire protocol.
 
-    with IronBench(seed=1, speed=40) as bench, bench.driver() as imu:
+    with HandBench(seed=1, speed=40) as bench, bench.driver() as imu:
         ...  # imu: drivers.serial_imu.SerialImu on the twin's pseudo-terminal
-        bench.technician  # IronTechnician: turns the iron from face to face, re-mounts the unit
+        bench.technician  # HandTechnician: turns the unit (or its iron), re-mounts it in the iron
         bench.truth()     # what the station should find
 
-One `ScaledClock` drives everything. The unit (`ACC4`: three orthogonal accelerometers and one skew
-one, `station.sim.layouts.accelerometer_triad` noise, biases and quantisation) sits in an `IronRig`:
-the unit is fixed in the iron in a mounting B (iron frame -> unit frame), the iron stands on one
-of its faces, and every change of face or mounting is a smooth turn of `turn_time` seconds (a
-raised-cosine slerp), so the station sees real motion between the still poses. The rig is the
-`source(times)` of `drivers.twin_serial.SerialTwin`; the profile is the bundled binary serial
-profile with an `[imu]` section for the four accelerometers.
+One `ScaledClock` drives everything. The unit (by default `ACC4`: three orthogonal accelerometers
+and one skew one; `TRIAD` for a plain triad; `station.sim.layouts.accelerometer_triad` noise,
+biases and quantisation) sits in a `HandRig`: the unit is fixed in a mounting B (iron frame ->
+unit frame; the identity for free poses), the iron (or the unit itself) is turned to an attitude,
+and every change of attitude or mounting is a smooth turn of `turn_time` seconds (a raised-cosine
+slerp), so the station sees real motion between the still poses. The rig is the `source(times)` of
+`drivers.twin_serial.SerialTwin`; the profile is the bundled binary serial profile with an `[imu]`
+section for the accelerometers.
 
-The iron is square to `squareness_deg` (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's
+Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
+In an iron that is the iron's squareness (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's
 constraints (same face 1, perpendicular 0, opposite -1) hold only as well as the iron is square, and
 an error of e rad acts like a reading error of about g e. A 5 s mean of this unit has a standard
 error of 4.4e-4 m/s^2 = g x 4.5e-5: at 0.002 deg (3.5e-5 rad) the chi2 per degree of freedom rose
 to 1.3 and gains moved by up to 3.8 sigma in simulation, so the simulated iron is ten times better.
+Free poses (`record_static_session`) only need to be different: there the hand errs by 5 deg.
 """
 
 import contextlib
@@ -34,30 +37,33 @@ from drivers.serial_imu import SerialImu
 from drivers.twin_serial import SerialTwin
 from station.clock import ScaledClock
 from station.operator import SimulatedTechnician
-from station.session import StreamSpec
+from station.session import Session, StreamSpec, write_results
 from station.sim.earth import normal_gravity
 from station.sim.layouts import accelerometer_triad
 
 ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
-"""Nominal layout of the iron bench's unit: an orthogonal triad and one skew accelerometer."""
+"""Nominal layout of the bench's default unit: an orthogonal triad and one skew accelerometer."""
+
+TRIAD = np.eye(3)
+"""Nominal layout of a plain accelerometer triad."""
 
 G0 = 9.80665
 
 
-def acc4_profile(rate_hz: float) -> SerialImuProfile:
-    """The bundled binary serial profile carrying four accelerometer channels (4096 counts per g)."""
+def accel_profile(m: int, rate_hz: float) -> SerialImuProfile:
+    """The bundled binary serial profile carrying m accelerometer channels (4096 counts per g)."""
     base = SerialImuProfile.load("imu12_serial")
-    imu = ImuSection("acc4-serial", ("a1", "a2", "a3", "a4"), ("m/s^2",) * 4, (4096 / G0,) * 4,
-                     float(rate_hz))
+    imu = ImuSection(f"acc{m}-serial", tuple(f"a{i + 1}" for i in range(m)), ("m/s^2",) * m,
+                     (4096 / G0,) * m, float(rate_hz))
     return dataclasses.replace(base, imu=imu)
 
 
-class IronRig:
-    """A sensor unit fixed in a right-angle iron: `times -> counts (k, m)` for the serial twin.
+class HandRig:
+    """A sensor unit in the technician's hands: `times -> counts (k, m)` for the serial twin.
 
     `orientation` (set by the technician) is the iron's attitude, world -> iron frame: its third
-    column is the iron-frame direction pointing up. `remount(b)` fixes the unit anew (b: iron ->
-    unit frame). Each change starts a turn now, lasting `turn_time` clock seconds; the stimulus is
+    column is the iron-frame direction pointing up (without an iron: the unit's attitude, mounting
+    the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change starts a turn now, lasting `turn_time` clock seconds; the stimulus is
     the specific force g C(t) e_z in the unit frame, C = b W the world -> unit attitude.
     """
 
@@ -113,12 +119,12 @@ class IronRig:
         self.poses.append(target)
 
 
-class IronTechnician(SimulatedTechnician):
-    """The iron bench's technician: `SimulatedTechnician` turning an `IronRig`.
+class HandTechnician(SimulatedTechnician):
+    """The hand bench's technician: `SimulatedTechnician` turning a `HandRig`.
 
-    An instruction with an orientation (the iron's attitude, world -> iron) stands the iron on a
-    face, with the iron's squareness error; one without an orientation is a re-mounting of the unit
-    in the iron (the iron protocol's only such instruction): the next of `mountings`.
+    An instruction with an orientation (the iron's or the unit's attitude) turns the rig there, with
+    a random error of `placement_deg`; one without an orientation is a re-mounting of the unit in
+    the iron (the iron protocol's only such instruction): the next of `mountings`.
 
     With a `period`, the technician works to a metronome: each turn starts at the first multiple of
     `period` clock seconds at least `handling_time` after the request (the answer comes two
@@ -126,9 +132,9 @@ class IronTechnician(SimulatedTechnician):
     step (unless it is late by more than the slack), and a seeded session replays the same samples.
     """
 
-    def __init__(self, rig: IronRig, clock, mountings, handling_time: float = 3.0,
-                 squareness_deg: float = 0.0002, rng=None, period: float | None = None):
-        super().__init__(rig, clock, 0.0, squareness_deg, rng)
+    def __init__(self, rig: HandRig, clock, mountings, handling_time: float = 3.0,
+                 placement_deg: float = 0.0002, rng=None, period: float | None = None):
+        super().__init__(rig, clock, 0.0, placement_deg, rng)
         self.mountings = np.asarray(mountings, float)
         self.handling_time = float(handling_time)
         self.period = period
@@ -149,11 +155,11 @@ class IronTechnician(SimulatedTechnician):
 
 
 @dataclass(frozen=True)
-class IronTruth:
+class HandTruth:
     """What the simulated unit is and the stimuli it felt.
 
     a (3, m) true sensitivity (dimensionless, SI readings); bias (m,) m/s^2; gravity m/s^2;
-    up (P, 3) the up direction in the unit frame after each turn (faces and re-mountings);
+    up (P, 3) the up direction in the unit frame after each turn (poses and re-mountings);
     a_nominal (3, m).
     """
 
@@ -164,35 +170,38 @@ class IronTruth:
     a_nominal: np.ndarray
 
 
-class IronBench:
-    """Starts the simulated iron bench; `close()` (or leaving the `with`) stops it.
+class HandBench:
+    """Starts the simulated hand bench; `close()` (or leaving the `with`) stops it.
 
     seed          : seed of the unit, the mountings and the technician
     speed         : clock speed, simulated seconds per wall second
     rate_hz       : IMU sample rate
+    layout        : (3, m) nominal layout of the accelerometers (ACC4, TRIAD, ...)
     mountings     : (K, 3, 3) iron -> unit rotations used in turn, or a count of random ones
     handling_time : simulated seconds the technician takes before each turn
-    period        : the technician's metronome (see IronTechnician), None: none
-    turn_time     : seconds each turn of the iron lasts
-    squareness_deg: the iron's squareness error (standard deviation per axis), degrees
+    period        : the technician's metronome (see HandTechnician), None: none
+    turn_time     : seconds each turn lasts
+    placement_deg : how far each turn misses its target (standard deviation per axis), degrees
     latitude_deg  : site latitude (normal gravity)
     """
 
-    def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, mountings=3,
-                 handling_time: float = 3.0, period: float | None = None, turn_time: float = 2.0,
-                 squareness_deg: float = 0.0002, latitude_deg: float = 52.2):
+    def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
+                 mountings=3, handling_time: float = 3.0, period: float | None = None,
+                 turn_time: float = 2.0, placement_deg: float = 0.0002,
+                 latitude_deg: float = 52.2):
         rng = np.random.default_rng(seed)
+        self.layout = np.asarray(layout, float)
         self.clock = ScaledClock(speed)
-        self.profile = acc4_profile(rate_hz)
+        self.profile = accel_profile(self.layout.shape[1], rate_hz)
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
         self.gravity = normal_gravity(latitude_deg)
-        self.unit = accelerometer_triad(rng, ACC4, fs=rate_hz,
+        self.unit = accelerometer_triad(rng, self.layout, fs=rate_hz,
                                         counts_per_unit=self.profile.imu.scale)
         if np.ndim(mountings) == 0:
             mountings = Rotation.random(int(mountings), random_state=rng).as_matrix()
-        self.rig = IronRig(self.unit, self.clock, self.gravity, turn_time)
-        self.technician = IronTechnician(self.rig, self.clock, mountings, handling_time,
-                                         squareness_deg, np.random.default_rng([seed, 1]), period)
+        self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time)
+        self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
+                                         placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
 
     def start(self) -> Self:
@@ -220,41 +229,71 @@ class IronBench:
         with SerialImu(self.twin.port, self.profile, self.clock) as imu:
             yield imu
 
-    def truth(self) -> IronTruth:
+    def truth(self) -> HandTruth:
         """The true unit and the up direction (unit frame) after each turn so far."""
         up = np.array([c[:, 2] for c in self.rig.poses]).reshape(-1, 3)
-        return IronTruth(self.unit.a.copy(), self.unit.bias.copy(), self.gravity, up, ACC4)
+        return HandTruth(self.unit.a.copy(), self.unit.bias.copy(), self.gravity, up, self.layout)
 
 
-def record_session(path, seed: int = 1, speed: float = 40.0, mountings: int = 2,
-                   rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
-                   period: float | None = 20.0):
-    """Record an iron session on a new bench into `path` (a new .h5), solve it and keep the result
-    as `results/live`; returns (IronTruth, IronReadings, CalibrationResult)."""
+def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int = 2,
+                        rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
+                        period: float | None = 20.0):
+    """Record an iron session of the ACC4 unit on a new bench into `path` (a new .h5), solve it and
+    keep the result as `results/live`; returns (HandTruth, IronReadings, CalibrationResult)."""
     from station.protocols.iron import (
         IronProtocol,
         IronSettings,
-        StreamTap,
         calibrate_iron,
         iron_readings,
     )
-    from station.recorder import Recorder
-    from station.session import Session, SessionWriter, write_results
 
-    with IronBench(seed=seed, speed=speed, rate_hz=rate_hz, period=period) as bench, \
-            bench.driver() as imu:
+    with HandBench(seed=seed, speed=speed, rate_hz=rate_hz, period=period) as bench:
         settings = settings or IronSettings(gravity=bench.gravity, mountings=mountings)
         protocol = IronProtocol(bench.technician, bench.clock, ACC4, settings)
-        tap = StreamTap(imu, bench.stream_spec.rate_hz, bench.stream_spec.counts_per_unit)
-        metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-ACC4-{seed}",
-                    "bench": {"kind": "iron", "seed": seed, "speed": speed}}
-        writer = SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
-                                      clock=bench.clock)
-        with writer, Recorder(writer, tap, clock=bench.clock) as recorder:
-            protocol.run(recorder, tap)
-        truth = bench.truth()
-    with Session.open(path) as session:
-        readings = iron_readings(session)
+        truth = _record(path, bench, protocol, unit_serial or f"SIM-ACC4-{seed}", seed, speed)
+    readings = _reduce(path, iron_readings)
     result = calibrate_iron(readings, settings.gravity, nominal=ACC4)
     write_results(path, "live", "imu", readings.M, result, readings.sigma)
     return truth, readings, result
+
+
+def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD, poses: int = 18,
+                          rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
+                          period: float | None = 20.0, placement_deg: float = 5.0):
+    """Record a free-static session of a unit on `layout` on a new bench into `path` (a new .h5),
+    solve it and keep the result as `results/live`; returns (HandTruth, StillReadings,
+    CalibrationResult)."""
+    from station.protocols.static import (
+        StaticProtocol,
+        StaticSettings,
+        calibrate_static,
+        static_readings,
+    )
+
+    with HandBench(seed=seed, speed=speed, rate_hz=rate_hz, layout=layout, mountings=[np.eye(3)],
+                   period=period, placement_deg=placement_deg) as bench:
+        settings = settings or StaticSettings(gravity=bench.gravity, poses=poses)
+        protocol = StaticProtocol(bench.technician, bench.clock, bench.layout,
+                                  bench.stream_spec.units, settings)
+        m = bench.layout.shape[1]
+        truth = _record(path, bench, protocol, unit_serial or f"SIM-ACC{m}-{seed}", seed, speed)
+    readings = _reduce(path, static_readings)
+    result = calibrate_static(readings, settings.gravity, nominal=bench.layout)
+    write_results(path, "live", "imu", readings.M, result, readings.sigma)
+    return truth, readings, result
+
+
+def _record(path, bench: HandBench, protocol, unit_serial: str, seed: int, speed: float):
+    """Run `protocol` on the bench's serial driver into the new session `path`; the truth."""
+    from station.protocols.still import record_poses
+
+    metadata = {**protocol.metadata(), "unit_serial": unit_serial,
+                "bench": {"kind": protocol.metadata()["protocol"], "seed": seed, "speed": speed}}
+    with bench.driver() as imu:
+        record_poses(protocol, imu, bench.stream_spec, bench.clock, path, metadata)
+    return bench.truth()
+
+
+def _reduce(path, reduction):
+    with Session.open(path) as session:
+        return reduction(session)

@@ -1,0 +1,202 @@
+"""The free-static protocol for accelerometers (multi-position calibration, no fixture) and its
+reduction.
+
+The technician turns the unit by hand into a sequence of poses and lets go; each pose needs only to
+be still and different from the others, not exact: the station measures where "up" is. The poses
+asked for are the unit's 6 faces, then its 8 corners, then its 12 edges (`GUIDED_POSES`), which
+spread the stimulus directions over the whole sphere as the biases need. No key press is needed
+between poses: the station finds each still pose itself (`station.protocols.still.PoseWatcher`).
+
+    pose -> settle -> hold -> pose (next) ... -> done
+
+- pose:   ask for the next pose (the instruction's orientation is an attitude whose third column
+          is the unit-frame direction asked to point up);
+- settle: wait for a still interval that began after the request;
+- hold:   record the first `hold` s of it (a motion sends the protocol back to settle); the up
+          direction u_j = the nominal least-squares direction of the accelerometers' mean. A pose
+          within `separation_deg` of an earlier one adds almost nothing: the technician is told
+          which and the same pose is asked for again; otherwise `position_done` (detail `up`).
+
+Every accelerometer channel of the stream (unit m/s^2) is calibrated; other channels (gyros) help
+the stillness detection. The solver (`calibrate_static`) is `station.calibrate(M, g, d=3,
+bias="estimate")`: the ellipsoid closed form for a triad, Hwangbo & Kanade's joint-bias
+factorization for m > 3, then maximum likelihood with each mean's standard error.
+"""
+
+import itertools
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from station.calibrate import calibrate
+from station.errors import CalibrationInputError
+from station.operator import Instruction
+from station.protocols.rotary import mounting
+from station.protocols.still import (
+    PoseWatcher,
+    StillReadings,
+    StillSettings,
+    StreamTap,
+    run_states,
+    still_readings,
+    up_direction,
+)
+
+ACCELEROMETER = "m/s^2"
+
+
+def _guided_poses() -> list:
+    """(name, unit-frame up direction, words) of the faces, corners and edges of the unit."""
+    poses = []
+    for k in (1, 3, 2):  # faces, corners, edges
+        for axes in itertools.combinations(range(3), k):
+            for signs in itertools.product((1, -1), repeat=k):
+                up = np.zeros(3)
+                up[list(axes)] = signs
+                name = "".join(("+" if s > 0 else "-") + "xyz"[i] for i, s in zip(axes, signs))
+                what = {1: f"lay the unit down with its {name} axis pointing up",
+                        2: f"rest the unit on an edge: {name[:2]} and {name[2:]} pointing up "
+                           "about equally (45 degrees), the third axis level",
+                        3: f"stand the unit on a corner: {name[:2]}, {name[2:4]} and {name[4:]} "
+                           "all pointing up about equally"}[k]
+                poses.append((name, up / np.linalg.norm(up), what))
+    return poses
+
+
+GUIDED_POSES = _guided_poses()
+"""The 26 poses the protocol asks for, in order: 6 faces, 8 corners, 12 edges."""
+
+
+@dataclass(frozen=True)
+class StaticSettings(StillSettings):
+    """`StillSettings` (gravity, hold and the stillness detector) and:
+
+    poses          : how many poses to record (12 .. 26: the first `poses` of `GUIDED_POSES`; a
+                     triad with biases has 9 unknowns, and 9 poses determine them exactly, with
+                     nothing left to check the fit and, with noise, a quadric that may not close)
+    separation_deg : smallest angle between the up directions of two poses
+    """
+
+    poses: int = 18
+    separation_deg: float = 15.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not (isinstance(self.poses, int) and 12 <= self.poses <= len(GUIDED_POSES)):
+            raise ValueError(f"poses must be a whole number from 12 (a triad's 9 unknowns and 3 to "
+                             f"check the fit) to {len(GUIDED_POSES)}, got {self.poses!r}")
+        if not 0 < self.separation_deg < 35:
+            raise ValueError("separation_deg must lie between 0 and 35 degrees (the guided poses "
+                             f"are 35 degrees apart), got {self.separation_deg!r}")
+
+
+def accelerometer_channels(units) -> np.ndarray:
+    """Indices of the stream channels in m/s^2; CalibrationInputError when fewer than 3."""
+    channels = np.flatnonzero([u == ACCELEROMETER for u in units])
+    if len(channels) < 3:
+        raise CalibrationInputError(
+            f"the stream has {len(channels)} accelerometer channels (unit {ACCELEROMETER}); "
+            "free-static calibration needs at least 3.",
+            "Use a device profile whose [imu] units mark the accelerometer channels m/s^2.")
+    return channels
+
+
+class StaticProtocol:
+    """Runs the free-static protocol with an operator into a running Recorder reading a
+    `StreamTap`.
+
+    operator  : `station.operator` ConsoleOperator or a simulated technician
+    clock     : the session clock (shared with the devices)
+    a_nominal : (3, m_acc) nominal layout of the accelerometers (SI readings), for the up direction
+    units     : the stream's channel units (the accelerometers are the m/s^2 ones)
+    """
+
+    def __init__(self, operator, clock, a_nominal, units, settings: StaticSettings | None = None):
+        self.operator = operator
+        self.clock = clock
+        self.a_nominal = np.asarray(a_nominal, float)
+        self.channels = accelerometer_channels(units)
+        if self.a_nominal.shape != (3, len(self.channels)):
+            raise CalibrationInputError(
+                f"the nominal layout has shape {self.a_nominal.shape} for "
+                f"{len(self.channels)} accelerometer channels.",
+                f"Give 3 rows and {len(self.channels)} columns, one per accelerometer.")
+        self.settings = settings or StaticSettings()
+        self.recorder = self.watcher = None
+        self.position, self.state = 0, "pose"
+        self.directions = []
+        self.handlers = {"pose": self._pose, "settle": self._settle, "hold": self._hold}
+
+    def metadata(self) -> dict:
+        """What a session file should record about this protocol run."""
+        return {"protocol": "static", "settings": asdict(self.settings),
+                "a_nominal": self.a_nominal.tolist(), "gravity": self.settings.gravity,
+                "channels": self.channels.tolist()}
+
+    def run(self, recorder, tap: StreamTap) -> None:
+        """Record every pose into `recorder` (started, reading `tap`); an error is recorded as an
+        `abort` event and raised."""
+        self.recorder, self.position = recorder, 0
+        self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap)
+        run_states(self, recorder, "pose")
+
+    # -- states ----------------------------------------------------------------------------------
+
+    def _pose(self) -> str:
+        j = self.position
+        name, up, words = GUIDED_POSES[j]
+        self.watcher.request()
+        self.operator.wait(Instruction(f"pose {j + 1}/{self.settings.poses}: {words}, and let go",
+                                       mounting(up)))
+        self.recorder.event("position_start", j, {"pose_asked": name})
+        return "settle"
+
+    def _settle(self) -> str:
+        self.watcher.settle(f"asking for pose {self.position + 1}")
+        return "hold"
+
+    def _hold(self) -> str:
+        j = self.position
+        z = self.watcher.hold(j)
+        if z is None:
+            return "settle"
+        u = up_direction(z[self.channels, None], self.a_nominal)[0]
+        if self.directions:
+            angles = np.degrees(np.arccos(np.clip(np.array(self.directions) @ u, -1, 1)))
+            i = int(np.argmin(angles))
+            if angles[i] < self.settings.separation_deg:
+                self.operator.prompt(
+                    f"pose {j + 1} is {angles[i]:.0f} deg from pose {i + 1}; it adds little. "
+                    f"Turn the unit further ({GUIDED_POSES[j][2]}).")
+                self.recorder.event("note", j, {"text": f"refused: {angles[i]:.1f} deg from "
+                                                        f"pose {i + 1}"})
+                return "pose"
+        self.directions.append(u)
+        self.recorder.event("position_done", j, {"up": u.tolist()})
+        self.position += 1
+        return "done" if self.position == self.settings.poses else "pose"
+
+
+# ------------------------------------------------------------------------------------ reduction
+
+
+def static_readings(session, stream: str = "imu", **detector) -> StillReadings:
+    """The accelerometer rows of the still poses of a free-static session (`still_readings`)."""
+    still = still_readings(session, stream, **detector)
+    channels = session.metadata.get("channels")
+    if channels is None:
+        channels = accelerometer_channels(session.specs[stream].units)
+    channels = np.asarray(channels)
+    if channels.dtype.kind not in "iu" or channels.ndim != 1 or len(set(channels.tolist())) < 3 \
+            or channels.min() < 0 or channels.max() >= still.M.shape[0]:
+        raise CalibrationInputError(f"{session.path} records accelerometer channels {channels!r}.",
+                                    "The session file is damaged or not from the free-static "
+                                    "protocol.")
+    return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
+
+
+def calibrate_static(readings: StillReadings, gravity: float, nominal=None):
+    """`station.calibrate` with the biases estimated: ellipsoid (triad) or joint-bias factorization
+    (m > 3), then maximum likelihood weighted by each mean's standard error."""
+    return calibrate(readings.M, gravity, d=3, bias="estimate", sigma=readings.sigma,
+                     nominal=nominal)

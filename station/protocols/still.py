@@ -1,0 +1,284 @@
+"""Still poses held by hand: what the right-angle-iron and the free-static protocols share.
+
+In both, the technician turns the unit (in an iron, or freely) and lets go; the station needs no key
+press to know when a pose begins: it watches the stream (`StreamTap`) and finds each still pose
+itself (`station.stillness.detect_still`: dispersion with hysteresis, a minimum still time, a
+timeout). `PoseWatcher` does the watching for a protocol:
+
+- `request()`  : a new pose was asked for now; only a still interval starting later counts;
+- `settle(after)` : wait for such an interval (an open interval of at least `min_still`);
+                 `timeout` s without one is a ProtocolError (`after` says what was asked);
+- `hold(position)`: wait until the first `hold` s of it are recorded and still; records
+                 `static_start` / `static_end` (detail `window`, clock seconds, so the averaging
+                 window does not depend on when the host polled) and returns the window's mean;
+                 a motion records a `note`, tells the operator and returns None (settle again).
+
+The reduction (`still_readings`) does not trust the live polling: it detects the still intervals
+once on the whole recording (one noise level for the session) and averages, for each completed
+pose, the first `hold` seconds of the interval that overlaps its recorded window most.
+"""
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+from station.protocols.rotary import ProtocolError
+from station.recorder import Recorder, sample_times
+from station.session import SessionWriter
+from station.stillness import detect_still
+
+
+@dataclass(frozen=True)
+class StillSettings:
+    """Durations in clock seconds, gravity in m/s^2.
+
+    gravity   : local gravity (the stimulus magnitude)
+    hold      : length of each still window
+    window, enter, leave, min_still, rest_length : stillness detector (station.stillness)
+    lookback  : seconds of stream the detector looks at (enough for a rest stretch and a pose)
+    poll, timeout, stale : time between checks, longest wait for a still pose, longest IMU silence
+    """
+
+    gravity: float = 9.80665
+    hold: float = 5.0
+    window: float = 1.0
+    enter: float = 4.0
+    leave: float = 8.0
+    min_still: float = 1.5
+    rest_length: float = 2.0
+    lookback: float = 30.0
+    poll: float = 0.25
+    timeout: float = 60.0
+    stale: float = 10.0
+
+    def __post_init__(self):
+        positive = ("gravity", "hold", "window", "min_still", "rest_length", "lookback", "poll",
+                    "timeout", "stale")
+        bad = [n for n in positive if not getattr(self, n) > 0]
+        if bad:
+            raise ValueError(f"settings {bad} must be positive")
+        if self.lookback < self.rest_length + self.hold + 2 * self.window:
+            raise ValueError("lookback must hold a rest stretch, a window and a still pose")
+
+
+class StreamTap:
+    """An IMU driver whose blocks pass on to the recorder while a copy stays for the protocol."""
+
+    def __init__(self, imu, rate_hz: float, counts_per_unit):
+        self.imu = imu
+        self.rate_hz = float(rate_hz)
+        self.lsb = 1.0 / np.asarray(counts_per_unit, float)
+        self._blocks = []
+        self._lock = threading.Lock()
+
+    def read_block(self, timeout: float = 0.0):
+        block = self.imu.read_block(timeout=timeout)
+        if block is not None and len(block):
+            with self._lock:
+                self._blocks.append(block)
+        return block
+
+    def samples(self, since: float = -np.inf):
+        """(times (K,), readings (K, m) in SI units) of the samples taken at or after `since`."""
+        with self._lock:
+            blocks = list(self._blocks)
+        if not blocks:
+            return np.zeros(0), np.zeros((0, len(self.lsb)))
+        seq = np.concatenate([b.seq for b in blocks])
+        t = sample_times(seq, np.concatenate([b.host_time for b in blocks]), self.rate_hz)
+        keep = t >= since
+        counts = np.concatenate([b.counts for b in blocks])[keep]
+        return t[keep], counts * self.lsb
+
+
+class PoseWatcher:
+    """Finds and holds the still poses of a running Recorder reading a `StreamTap` (see the module
+    docstring); `operator` hears about motions during a hold."""
+
+    def __init__(self, settings: StillSettings, clock, operator, recorder, tap: StreamTap):
+        self.settings = settings
+        self.clock = clock
+        self.operator = operator
+        self.recorder = recorder
+        self.tap = tap
+        self._since = self._start = None
+
+    def request(self) -> None:
+        """A new pose is asked for now: still intervals that began earlier do not count."""
+        self._since = self.clock.now()
+
+    def settle(self, after: str) -> float:
+        """Start time of the first still interval after the request; records `static_start`."""
+        deadline = self.clock.now() + self.settings.timeout
+        while (start := self._still_since()) is None:
+            if self.clock.now() > deadline:
+                raise ProtocolError(f"no still pose within {self.settings.timeout:g} s after "
+                                    f"{after}; put the unit down, let go and record the session "
+                                    "again")
+            self.clock.sleep(self.settings.poll)
+        self._start = start
+        return start
+
+    def hold(self, position: int) -> np.ndarray | None:
+        """Mean reading (m,) of the `hold` s window of the pose at `position` after `settle`, or
+        None when the unit moved (the next still interval must begin after the motion)."""
+        s = self.settings
+        self.recorder.event("static_start", position, {"still_since": self._start})
+        end = self._start + s.hold
+        self.clock.sleep(end - self.clock.now())
+        self.recorder.drain(end + s.window, s.stale)  # the detector sees up to w/2 before the last
+        since = self._still_since()
+        if since is None or since > self._start + s.window:  # a start jitters by a few samples
+            self.operator.prompt(f"pose {position + 1}: the unit moved; let it rest")
+            self.recorder.event("note", position, {"text": "moved during the still window"})
+            self._since = self._start + s.window
+            return None
+        self.recorder.event("static_end", position, {"window": [self._start, end]})
+        t, z = self.tap.samples(self._start)
+        return z[t <= end].mean(axis=0)
+
+    def _still_since(self) -> float | None:
+        """Start time of the still interval going on now, if it began after the request."""
+        s = self.settings
+        self.recorder.check(s.stale)
+        t, z = self.tap.samples(self.clock.now() - s.lookback)
+        if len(t) < (s.rest_length + 2 * s.window) * self.tap.rate_hz:
+            return None
+        still = detect_still(z, self.tap.rate_hz, rest_length=s.rest_length, window=s.window,
+                             enter=s.enter, leave=s.leave, min_still=s.min_still,
+                             timeout=s.timeout)
+        if not len(still.intervals):
+            return None
+        start, stop = still.intervals[-1]
+        h = round(s.window * self.tap.rate_hz / 2)  # half the detector's window
+        if stop < len(t) - h - 1 or start <= h or t[start] < self._since:
+            return None  # over, begun before the samples looked at, or before the request
+        return float(t[start])
+
+
+def up_direction(z, a_nominal, bias_guess=None) -> np.ndarray:
+    """(P, 3) unit up directions in the unit frame from readings z (m, P): nominal least squares."""
+    z = np.asarray(z, float)
+    a = np.asarray(a_nominal, float)
+    if bias_guess is not None:
+        z = z - np.asarray(bias_guess, float).reshape(-1, 1)
+    v = np.linalg.lstsq(a.T, z, rcond=None)[0].T
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def run_states(protocol, recorder, first: str) -> None:
+    """Run `protocol`'s state handlers from `first` until "done" (the one place where its state
+    changes); an error is recorded as an `abort` event and raised."""
+    protocol.state = first
+    try:
+        while protocol.state != "done":
+            protocol.state = protocol.handlers[protocol.state]()
+    except BaseException as exc:
+        try:
+            recorder.event("abort", protocol.position, {
+                "state": protocol.state, "error": f"{type(exc).__name__}: {exc}"})
+        except Exception as record_error:  # noqa: BLE001
+            exc.add_note(f"and the abort could not be recorded ({record_error})")
+        raise
+
+
+def record_poses(protocol, imu, spec, clock, path, metadata: dict) -> None:
+    """Run a still-pose `protocol` on the opened `imu` driver (stream `spec`) into the new session
+    file `path` with `metadata`; the file keeps every sample and event whatever happens."""
+    tap = StreamTap(imu, spec.rate_hz, spec.counts_per_unit)
+    writer = SessionWriter.create(path, metadata, {"imu": spec}, clock=clock)
+    with writer, Recorder(writer, tap, clock=clock) as recorder:
+        protocol.run(recorder, tap)
+
+
+# ------------------------------------------------------------------------------------ reduction
+
+
+@dataclass(frozen=True)
+class StillReadings:
+    """Averaged readings of the completed still poses of a session (SI units).
+
+    M, sigma : (m, P) means and their standard errors; windows : (P, 2) clock seconds of the
+    first and last sample averaged; mountings : (P,) mounting index (0 without mountings).
+    """
+
+    M: np.ndarray
+    sigma: np.ndarray
+    windows: np.ndarray
+    mountings: np.ndarray
+
+
+def pose_windows(events) -> tuple[np.ndarray, np.ndarray]:
+    """((P, 2) still windows in clock seconds, (P,) mountings) of the completed poses; a pose
+    recorded again (after a motion, or refused) keeps its last window."""
+    poses: dict = {}
+    for e in events:
+        if e.position is None or e.kind not in ("position_start", "static_start", "static_end",
+                                                "position_done"):
+            continue
+        if e.kind == "position_start":
+            poses[e.position] = {"mounting": e.detail.get("mounting", 0)}
+        pose = poses.setdefault(e.position, {})
+        pose[e.kind] = e.time
+        if e.kind == "static_end":
+            pose["window"] = _window(e.detail.get("window", [pose.get("static_start"), e.time]))
+    done = [p for _, p in sorted(poses.items())
+            if all(k in p for k in ("static_start", "window", "position_done"))]
+    windows = np.array([p["window"] for p in done]).reshape(-1, 2)
+    return windows, np.array([int(p.get("mounting", 0)) for p in done], dtype=np.int64)
+
+
+def _window(value) -> list:
+    """A [start, stop] pair of finite clock seconds from an (untrusted) event detail."""
+    w = np.asarray(value, dtype=object)
+    if w.shape != (2,) or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in w) \
+            or not w[0] < w[1]:
+        raise CalibrationInputError(f"a static_end event holds the window {value!r}.",
+                                    "The session file is damaged or not from a still-pose "
+                                    "protocol.")
+    return [float(w[0]), float(w[1])]
+
+
+def still_readings(session, stream: str = "imu", **detector) -> StillReadings:
+    """The completed still poses of a session (`station.session.Session`).
+
+    The still intervals are detected once on the whole recording (`station.stillness.
+    detect_still`, one noise level for the session; options: `detector`, default the protocol's
+    settings in the metadata), so the result does not depend on when the live protocol polled.
+    With the protocol's events, each completed pose averages the first `hold` seconds of the
+    interval that overlaps its recorded window most; without them (an imported recording) every
+    interval is a pose, all in one mounting.
+    """
+    data = session.stream(stream)
+    rate = data.spec.rate_hz
+    t = sample_times(data.seq, data.host_time, rate)
+    z = data.to_si()
+    settings = session.metadata.get("settings", {})
+    options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
+               if isinstance(settings.get(k), (int, float))}
+    still = detect_still(z, rate, **{**options, **detector})
+    windows, mountings = pose_windows(session.events())
+    spans = still.intervals
+    if len(windows):
+        first, last = t[spans[:, 0]], t[spans[:, 1] - 1]
+        overlap = (np.minimum(last[None], windows[:, 1:]) - np.maximum(first[None], windows[:, :1]))
+        best = np.argmax(overlap, axis=1)
+        lost = np.flatnonzero(overlap[np.arange(len(windows)), best] <= 0)
+        if len(lost):
+            raise CalibrationInputError(
+                f"pose(s) {(lost + 1).tolist()} of {session.path} are not still in the whole "
+                "recording.", "Check the detector settings, or record those poses again.")
+        hold = np.round((windows[:, 1] - windows[:, 0]) * rate).astype(np.int64)
+        spans = np.column_stack([spans[best, 0], np.minimum(spans[best, 1],
+                                                            spans[best, 0] + hold)])
+    else:
+        mountings = np.zeros(len(spans), np.int64)
+    if not len(spans):
+        raise CalibrationInputError(f"the session {session.path} has no still pose.",
+                                    "Record the unit in still poses, each still for seconds.")
+    M = np.array([z[a:b].mean(axis=0) for a, b in spans]).T
+    sigma = np.array([z[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b in spans]).T
+    return StillReadings(M, sigma, np.column_stack([t[spans[:, 0]], t[spans[:, 1] - 1]]),
+                         mountings)
