@@ -71,6 +71,18 @@ class Section:
                                   "or a single value for all")
         return tuple(float(v) if kind is float else v for v in value)
 
+    def get_rows(self, key: str, rows: int, columns: int, default=_REQUIRED) -> tuple:
+        """The matrix value of `key`: `rows` lists of `columns` numbers each."""
+        value = self.table.get(key, _REQUIRED)
+        if value is _REQUIRED:
+            return self.get(key, list, default)  # the missing-key error, or the default
+        self._read.add(key)
+        if not (isinstance(value, list) and len(value) == rows and all(
+                isinstance(r, list) and len(r) == columns and all(_is(v, float) for v in r)
+                for r in value)):
+            raise self.error(key, f"must be {rows} lists of {columns} numbers, got {value!r}")
+        return tuple(tuple(float(v) for v in r) for r in value)
+
     def sub(self, key: str) -> "Section":
         """The sub-table `[name.key]`."""
         self._read.add(key)

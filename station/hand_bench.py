@@ -32,7 +32,7 @@ from typing import Self
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from drivers.profile import ImuSection, SerialImuProfile
+from drivers.profile import SerialImuProfile
 from drivers.serial_imu import SerialImu
 from drivers.twin_serial import SerialTwin
 from station.clock import ScaledClock
@@ -47,15 +47,12 @@ ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
 TRIAD = np.eye(3)
 """Nominal layout of a plain accelerometer triad."""
 
-G0 = 9.80665
-
 
 def accel_profile(m: int, rate_hz: float) -> SerialImuProfile:
-    """The bundled binary serial profile carrying m accelerometer channels (4096 counts per g)."""
-    base = SerialImuProfile.load("imu12_serial")
-    imu = ImuSection(f"acc{m}-serial", tuple(f"a{i + 1}" for i in range(m)), ("m/s^2",) * m,
-                     (4096 / G0,) * m, float(rate_hz))
-    return dataclasses.replace(base, imu=imu)
+    """The bundled serial profile `acc<m>_serial` (m = 3 or 4 accelerometers, 4096 counts per g) at
+    `rate_hz`."""
+    base = SerialImuProfile.load(f"acc{m}_serial")
+    return dataclasses.replace(base, imu=dataclasses.replace(base.imu, rate_hz=float(rate_hz)))
 
 
 class HandRig:

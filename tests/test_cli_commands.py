@@ -88,12 +88,19 @@ def test_apply_to_the_recorded_session_gives_the_table_rate(recorded, tmp_path, 
 
 
 def test_solve_refuses_what_it_cannot_solve(tmp_path, capsys):
-    path = tmp_path / "iron.h5"
+    path = tmp_path / "imported.h5"
     spec = StreamSpec(("a1", "a2", "a3"), "m/s^2", 1000.0, 100.0)
-    with SessionWriter.create(path, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
+    with SessionWriter.create(path, {"protocol": "import", "unit_serial": "X"}, {"imu": spec}):
         pass
     assert cli.main(["solve", str(path)]) == 1
-    assert "records a 'iron' session" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "records a 'import' session" in err and "station.free_static" in err
+    iron = tmp_path / "iron.h5"  # a still-pose session without its gravity
+    with SessionWriter.create(iron, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
+        pass
+    assert cli.main(["solve", str(iron)]) == 1
+    assert "no usable gravity (None). Give the stimulus magnitude with --magnitude" \
+        in capsys.readouterr().err
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
     assert cli.main(["solve", str(tmp_path / "junk.h5")]) == 1
     assert "station solve:" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""`station record`: a live rotary-table session with the devices of a bench profile.
+"""`station record`: a live session with the devices of a bench profile.
 
 The bench profile (TOML) says where the devices are and how to run the protocol:
 
@@ -14,19 +14,29 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     # channel = "can0"
     # rate_hz = 200.0             # optional: overrides the device profile's sample rate
 
-    [table]
+    [table]                       # rotary only
     host = "192.168.0.50"         # Modbus TCP rotary table
     port = 502
     profile = "table_modbus"      # register map: path or bundled name
 
     [protocol]
-    positions = 20                # any other key: a field of RotarySettings (rate, static, ...)
+    kind = "rotary"               # "rotary" (default), "iron" or "static"
+    positions = 20                # rotary; any other key: a field of the protocol's settings
 
-The technician follows the prompts (Enter when the unit is mounted; Ctrl-D or Ctrl-C aborts and
-stops the table). The station runs the rotary protocol (`station.protocols.rotary`) through the
-recorder into a crash-safe session file; `--solve` then writes its calibration file as
-`station solve` does. Examples of bench profiles: drivers/profiles/bench_*.toml; `station twin`
-writes one for its virtual devices.
+The three protocols (docs/protocols.md):
+- rotary (`station.protocols.rotary`): gyros on a rotary table, Eq. (18) of Rupniewski; the
+  technician re-mounts the unit and presses Enter; Ctrl-D or Ctrl-C aborts and stops the table;
+- iron (`station.protocols.iron`): accelerometers in a right-angle iron, standing on its faces
+  (keys: mountings, faces, hold, gravity, ...), Hwangbo & Kanade's constraints;
+- static (`station.protocols.static`): accelerometers turned by hand into free still poses (keys:
+  poses, separation_deg, hold, gravity, ...); gyro channels of the stream help find the poses.
+  The iron and static protocols need no [table]; the stations finds each still pose itself;
+  `layout = [[...], [...], [...]]` gives the accelerometers' nominal axes (3 rows, a column per
+  accelerometer channel; default the identity for a triad), used to tell where "up" is.
+
+The protocol runs through the recorder into a crash-safe session file; `--solve` then writes its
+calibration file as `station solve` does. Examples of bench profiles: drivers/profiles/bench_*.toml;
+`station twin` writes one for its virtual devices.
 """
 
 import argparse
@@ -38,10 +48,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "record", help="record a rotary-table session with the devices of a bench profile",
+        "record", help="record a session (rotary, iron or static) with the devices of a bench "
+                       "profile",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
                "  station twin --speed 40 --profile-out twin.toml &   # then:\n"
@@ -57,6 +70,9 @@ def register(sub) -> None:
     p.set_defaults(run=run)
 
 
+PROTOCOLS = ("rotary", "iron", "static")
+
+
 @dataclass(frozen=True)
 class BenchProfile:
     """A parsed bench profile; `imu` is a SerialImuProfile or CanProfile with the rate applied."""
@@ -67,13 +83,15 @@ class BenchProfile:
     link: str
     imu: object
     imu_address: dict  # serial: {"port"}; can: {"interface", "channel", "bitrate"?}
-    table_host: str
-    table_port: int
-    table_map: object
-    table_source: str  # the register map's profile file
-    positions: int
-    settings: object  # RotarySettings
+    protocol: str  # one of PROTOCOLS
+    positions: int  # rotary: positions; iron: mountings x faces; static: poses
+    settings: object  # RotarySettings, IronSettings or StaticSettings
     tables: dict  # the TOML tables, recorded in the session's metadata
+    table_host: str | None = None  # rotary only
+    table_port: int | None = None
+    table_map: object = None
+    table_source: str | None = None  # the register map's profile file
+    layout: np.ndarray | None = None  # iron and static: (3, m_acc) nominal accelerometer axes
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -81,7 +99,6 @@ class BenchProfile:
         from drivers.can_imu import CanProfile
         from drivers.profile import ProfileError, Section, SerialImuProfile, load_profile
         from drivers.rotary_table import TableRegisterMap
-        from station.protocols.rotary import RotarySettings
 
         profile = load_profile(path)
         base = Path(profile.source).parent
@@ -99,8 +116,8 @@ class BenchProfile:
         unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] and [protocol]")
-        bench, imu, table, proto = (section(n) for n in ("bench", "imu", "table", "protocol"))
+                               "[imu], [table] (rotary) and [protocol]")
+        bench, imu, proto = (section(n) for n in ("bench", "imu", "protocol"))
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)
         if not serial or not speed > 0:
@@ -117,22 +134,79 @@ class BenchProfile:
             address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
             if imu.has("bitrate"):
                 address["bitrate"] = imu.get("bitrate", int)
-        host, port = table.get("host", str), table.get("port", int)
-        table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
-        table_map = table_profile.section("table", TableRegisterMap.parse)
-        positions = proto.get("positions", int)
-        kinds = {f.name: type(f.default) for f in dataclasses.fields(RotarySettings)}
-        given = {k: proto.get(k, kind) for k, kind in kinds.items() if proto.has(k)}
-        try:
-            settings = RotarySettings(**given)
-        except ValueError as exc:
-            raise ProfileError(f"{path}: [protocol] {exc}") from None
-        for s in (bench, imu, table, proto):
+        kind = proto.get("kind", str, default="rotary", choices=PROTOCOLS)
+        fields = {"source": profile.source, "unit_serial": serial, "clock_speed": speed,
+                  "link": link, "imu": dev, "imu_address": address, "protocol": kind,
+                  "tables": profile.tables}
+        if kind == "rotary":
+            table = section("table")
+            table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
+            fields.update(table_host=table.get("host", str), table_port=table.get("port", int),
+                          table_map=table_profile.section("table", TableRegisterMap.parse),
+                          table_source=table_profile.source,
+                          positions=proto.get("positions", int), **_settings(kind, proto, path))
+            table.finish()
+            if fields["positions"] < 1:
+                raise ProfileError(f"{path}: [protocol] positions must be at least 1")
+        else:
+            if "table" in profile.tables:
+                raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
+                                   "[table] section (or set [protocol] kind = \"rotary\")")
+            fields.update(_settings(kind, proto, path))
+            fields["layout"] = _layout(proto, dev.imu, path)
+            if kind == "iron" and fields["layout"].shape[1] != len(dev.imu.channels):
+                raise ProfileError(f"{path}: the iron protocol calibrates every channel of the "
+                                   "stream; use a device profile with accelerometer channels only")
+            s = fields["settings"]
+            fields["positions"] = s.poses if kind == "static" else s.mountings * len(s.faces)
+        for s in (bench, imu, proto):
             s.finish()
-        if positions < 1:
-            raise ProfileError(f"{path}: [protocol] positions must be at least 1")
-        return cls(profile.source, serial, speed, link, dev, address, host, port, table_map,
-                   table_profile.source, positions, settings, profile.tables)
+        return cls(**fields)
+
+
+def _settings(kind: str, proto, path) -> dict:
+    """{"settings": the protocol's settings dataclass} from the [protocol] keys named as its
+    fields (lists for tuple fields)."""
+    from drivers.profile import ProfileError
+    from station.protocols.iron import IronSettings
+    from station.protocols.rotary import RotarySettings
+    from station.protocols.static import StaticSettings
+
+    cls = {"rotary": RotarySettings, "iron": IronSettings, "static": StaticSettings}[kind]
+    given = {}
+    for f in dataclasses.fields(cls):
+        if proto.has(f.name):
+            kind_ = type(f.default)
+            given[f.name] = (proto.get_list(f.name, str) if kind_ is tuple
+                             else proto.get(f.name, kind_))
+    try:
+        return {"settings": cls(**given)}
+    except ValueError as exc:
+        raise ProfileError(f"{path}: [protocol] {exc}") from None
+
+
+def _layout(proto, imu, path) -> np.ndarray:
+    """(3, m_acc) nominal axes of the stream's accelerometer channels: `layout`, default the
+    identity for a triad."""
+    from drivers.profile import ProfileError
+    from station.errors import CalibrationInputError
+    from station.protocols.static import accelerometer_channels
+
+    try:
+        m = len(accelerometer_channels(imu.units))
+    except CalibrationInputError as exc:
+        raise ProfileError(f"{path}: {exc}") from None
+    default = np.eye(3).tolist() if m == 3 else None
+    rows = proto.get_rows("layout", 3, m, default)
+    if rows is None:
+        raise ProfileError(f"{path}: [protocol] layout: missing; the device has {m} "
+                           "accelerometer channels: give their nominal axes, 3 lists of "
+                           f"{m} numbers (a column per channel)")
+    a = np.array(rows, float)
+    if np.linalg.matrix_rank(a) < 3 or np.any(np.linalg.norm(a, axis=0) == 0):
+        raise ProfileError(f"{path}: [protocol] layout: the axes must span 3 dimensions and each "
+                           "column be non-zero")
+    return a
 
 
 def run(args) -> int:
@@ -149,22 +223,27 @@ def run(args) -> int:
     except ProfileError as exc:
         print(f"station record: {exc}", file=sys.stderr)
         return 2
+    if args.live and bench.protocol != "rotary":
+        print("station record: the live view shows rotary sessions; record a "
+              f"{bench.protocol} session without --live", file=sys.stderr)
+        return 2
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}.h5"
     if out.exists():
         print(f"station record: {out} exists; choose another --out", file=sys.stderr)
         return 1
     out.parent.mkdir(parents=True, exist_ok=True)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
+    stopped = "; the table was stopped" if bench.protocol == "rotary" else ""
     try:
         summary = record(bench, out, operator, live=args.live)
         if args.solve:
             summary["calibration"] = solve(out)
     except KeyboardInterrupt:
-        print(f"station record: interrupted; the table was stopped; {out} keeps the completed "
-              "positions", file=sys.stderr)
+        print(f"station record: interrupted{stopped}; {out} keeps the completed positions",
+              file=sys.stderr)
         return 130
     except OperatorAbort as exc:
-        print(f"station record: {exc}; the table was stopped", file=sys.stderr)
+        print(f"station record: {exc}{stopped}", file=sys.stderr)
         return 1
     except (CalibrationInputError, CalibrationFileError, ProtocolError, RecordingError,
             TableError, OSError) as exc:
@@ -182,33 +261,59 @@ def run(args) -> int:
 
 
 def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
-    """Run the rotary protocol with the bench's devices and `operator` into the session `out`.
-    live: show the live view (station.live_view) while recording."""
+    """Run the bench's protocol with its devices and `operator` into the session `out`.
+    live: show the live view (station.live_view) while recording a rotary session."""
     from drivers.profile import load_profile
     from station.clock import ScaledClock, WallClock
-    from station.live_view import LiveView
-    from station.protocols.rotary import RotaryProtocol, continue_session, suggested_axes
-    from station.session import Session, SessionWriter, StreamSpec
+    from station.session import Session, StreamSpec
 
     start = time.perf_counter()
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
-    with devices(bench, clock) as (imu, table):
-        protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                                  suggested_axes(bench.positions))
-        metadata = {**protocol.metadata(), "unit_serial": bench.unit_serial,
-                    "bench": {"profile": bench.source, "tables": bench.tables},
-                    "profiles": {"imu": load_profile(bench.imu.source).tables,
-                                 "table": load_profile(bench.table_source).tables}}
-        spec = StreamSpec.from_profile(bench.imu.imu)
-        with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
-            continue_session(writer, metadata, imu, table, operator, clock,
-                             LiveView(clock) if live else None)
+    spec = StreamSpec.from_profile(bench.imu.imu)
+    metadata = {"unit_serial": bench.unit_serial,
+                "bench": {"profile": bench.source, "tables": bench.tables},
+                "profiles": {"imu": load_profile(bench.imu.source).tables}}
+    if bench.protocol == "rotary":
+        _record_rotary(bench, out, operator, clock, spec, metadata, live)
+    else:
+        with imu_driver(bench, clock) as imu:
+            protocol = _hand_protocol(bench, operator, clock, spec)
+            from station.protocols.still import record_poses
+
+            record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
-    return {"session": str(out), "unit_serial": bench.unit_serial,
+    return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
             "positions_done": 0 if done is None else done + 1, "samples": samples,
             "wall_seconds": time.perf_counter() - start}
+
+
+def _record_rotary(bench, out, operator, clock, spec, metadata, live) -> None:
+    """The rotary protocol with the bench's IMU and table into the new session `out`."""
+    from drivers.profile import load_profile
+    from station.live_view import LiveView
+    from station.protocols.rotary import RotaryProtocol, continue_session, suggested_axes
+    from station.session import SessionWriter
+
+    with imu_driver(bench, clock) as imu, table_driver(bench, clock) as table:
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  suggested_axes(bench.positions))
+        metadata = {**protocol.metadata(), **metadata}
+        metadata["profiles"]["table"] = load_profile(bench.table_source).tables
+        with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
+            continue_session(writer, metadata, imu, table, operator, clock,
+                             LiveView(clock) if live else None)
+
+
+def _hand_protocol(bench, operator, clock, spec):
+    """The iron or free-static protocol of the bench profile."""
+    from station.protocols.iron import IronProtocol
+    from station.protocols.static import StaticProtocol
+
+    if bench.protocol == "iron":
+        return IronProtocol(operator, clock, bench.layout, bench.settings)
+    return StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
 
 
 def solve(path) -> dict:
@@ -222,21 +327,27 @@ def solve(path) -> dict:
 
 
 @contextlib.contextmanager
-def devices(bench: BenchProfile, clock):
-    """(imu, table): the drivers of the bench, opened; closed (and the table stopped) on exit."""
+def imu_driver(bench: BenchProfile, clock):
+    """The bench's IMU driver, opened; closed on exit."""
     import can
 
     from drivers.can_imu import CanImu
-    from drivers.rotary_table import RotaryTable
     from drivers.serial_imu import SerialImu
 
+    if bench.link == "serial":
+        with SerialImu(bench.imu_address["port"], bench.imu, clock) as imu:
+            yield imu
+        return
     with contextlib.ExitStack() as stack:
-        table = stack.enter_context(RotaryTable(bench.table_host, bench.table_port,
-                                                bench.table_map, clock=clock))
-        if bench.link == "serial":
-            imu = stack.enter_context(SerialImu(bench.imu_address["port"], bench.imu, clock))
-        else:
-            bus = can.Bus(**bench.imu_address)
-            stack.callback(bus.shutdown)
-            imu = stack.enter_context(CanImu(bus, bench.imu, clock))
-        yield imu, table
+        bus = can.Bus(**bench.imu_address)
+        stack.callback(bus.shutdown)
+        yield stack.enter_context(CanImu(bus, bench.imu, clock))
+
+
+@contextlib.contextmanager
+def table_driver(bench: BenchProfile, clock):
+    """The bench's rotary table driver, connected; stopped and closed on exit."""
+    from drivers.rotary_table import RotaryTable
+
+    with RotaryTable(bench.table_host, bench.table_port, bench.table_map, clock=clock) as table:
+        yield table

@@ -1,11 +1,19 @@
-"""`station solve`: a recorded rotary session -> a calibration file.
+"""`station solve`: a recorded session -> a calibration file.
 
-Reduces the session's raw stream to the readings matrix M (Eq. 18 of Rupniewski: rotating minus
-static mean per position, whole revolutions by the table angle), calibrates it (closed form, then
-maximum likelihood, weighted by each entry's standard error) with the table rate as the magnitude,
-and writes the calibration file (`station.calfile`). Eq. (18) readings carry no bias, so the biases
-come from the static windows: b_i = mean over positions of the static means, 1-sigma = their
-scatter / sqrt(n) (which also holds whatever varies between positions, e.g. the Earth's rate).
+Rotary sessions: reduces the raw stream to the readings matrix M (Eq. 18 of Rupniewski: rotating
+minus static mean per position, whole revolutions by the table angle), calibrates it (closed form,
+then maximum likelihood, weighted by each entry's standard error) with the table rate as the
+magnitude. Eq. (18) readings carry no bias, so the biases come from the static windows: b_i = mean
+over positions of the static means, 1-sigma = their scatter / sqrt(n) (which also holds whatever
+varies between positions, e.g. the Earth's rate).
+
+Iron and free-static sessions: the means of the still poses (`station.protocols.still`) are
+calibrated with the biases estimated (Hwangbo & Kanade's factorization with the faces' constraints,
+or the ellipsoid / joint-bias closed form), then maximum likelihood; the magnitude is the recorded
+local gravity, the frame the recorded nominal layout (or --nominal). Free-static sessions
+calibrate the accelerometer channels only.
+
+The calibration file (`station.calfile`) holds the result with its uncertainties.
 """
 
 import argparse
@@ -18,7 +26,7 @@ import numpy as np
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "solve", help="solve a recorded rotary session into a calibration file",
+        "solve", help="solve a recorded session into a calibration file",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  station solve sessions/SN42.h5\n"
                "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json")
@@ -30,7 +38,8 @@ def register(sub) -> None:
                    help="CSV of the nominal layout (d rows x m columns): report a aligned to it "
                         "(physical frame) instead of the canonical frame of Eq. (19)")
     p.add_argument("--magnitude", type=float,
-                   help="stimulus magnitude |v| (default: the session's table rate, rad/s)")
+                   help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
+                        "its local gravity in m/s^2)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
@@ -58,50 +67,107 @@ def run(args) -> int:
 
 
 def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None):
-    """The `station.calfile.Calibration` of a recorded rotary session file."""
-    import station
+    """The `station.calfile.Calibration` of a recorded session file (rotary, iron or static)."""
     from station.calfile import Calibration
     from station.errors import CalibrationInputError
-    from station.protocols.rotary import reduce_session
     from station.session import Session
 
     with Session.open(path) as session:
-        if session.protocol != "rotary":
+        solver = {"rotary": _rotary, "iron": _hand, "static": _hand}.get(session.protocol)
+        if solver is None:
             raise CalibrationInputError(
-                f"{path} records a {session.protocol!r} session; `station solve` solves rotary "
-                "sessions.", "Use the calibration workflow of that protocol.")
+                f"{path} records a {session.protocol!r} session; `station solve` solves rotary, "
+                "iron and static sessions.", "Use the calibration workflow of that recording "
+                "(e.g. station.free_static for an imported continuous recording).")
         if stream not in session.specs:
             raise CalibrationInputError(f"{path} has no stream {stream!r}.",
                                         f"Choose one of {sorted(session.specs)} with --stream.")
-        reduced = reduce_session(session, stream)
+        result, channels, bias = solver(session, stream, nominal, magnitude)
         spec = session.specs[stream]
-        c = table_rate(session.metadata, path) if magnitude is None else magnitude
-        info = {"path": str(Path(path).resolve()), "stream": stream, "protocol": "rotary",
-                "created": session.created, "software_version": session.software_version}
+        info = {"path": str(Path(path).resolve()), "stream": stream,
+                "protocol": session.protocol, "created": session.created,
+                "software_version": session.software_version}
         serial = session.unit_serial
+    return Calibration.from_result(
+        result, serial, [spec.channels[i] for i in channels], [spec.units[i] for i in channels],
+        counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info, **bias)
+
+
+def _rotary(session, stream, nominal, magnitude):
+    """(result, channels, bias) of a rotary session: Eq. (18) readings are bias-free, so the biases
+    are the mean of the static windows over the positions, 1-sigma their scatter / sqrt(n)."""
+    import station
+    from station.errors import CalibrationInputError
+    from station.protocols.rotary import reduce_session
+
+    reduced = reduce_session(session, stream)
+    c = table_rate(session.metadata, session.path) if magnitude is None else magnitude
     result = station.calibrate(reduced.M, c, sigma=reduced.sigma, nominal=nominal)
     n = reduced.M.shape[1]
     if n < 2:
         raise CalibrationInputError("one position cannot give the biases' uncertainty.",
                                     "Record more positions.")
-    bias = reduced.static_mean.mean(axis=1)
-    bias_sigma = reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n)
-    return Calibration.from_result(
-        result, serial, spec.channels, spec.units, bias=bias, bias_sigma=bias_sigma,
-        bias_source="static windows of the rotary protocol (mean over positions)",
-        counts_per_unit=spec.counts_per_unit, session=info)
+    bias = {"bias": reduced.static_mean.mean(axis=1),
+            "bias_sigma": reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n),
+            "bias_source": "static windows of the rotary protocol (mean over positions)"}
+    return result, np.arange(reduced.M.shape[0]), bias
+
+
+def _hand(session, stream, nominal, magnitude):
+    """(result, channels, bias) of an iron or free-static session: the biases are estimated with
+    the calibration; the frame is `nominal`, else the layout the protocol recorded."""
+    from station.protocols.iron import calibrate_iron, iron_readings
+    from station.protocols.static import calibrate_static, session_channels, static_readings
+
+    g = gravity(session.metadata, session.path) if magnitude is None else magnitude
+    if nominal is None:
+        nominal = read_layout(session.metadata.get("a_nominal"), session.path)
+    if session.protocol == "iron":
+        result = calibrate_iron(iron_readings(session, stream), g, nominal)
+        channels = np.arange(len(session.specs[stream].channels))
+    else:
+        result = calibrate_static(static_readings(session, stream), g, nominal)
+        channels = session_channels(session, stream)
+    return result, channels, {"bias_source": f"estimated with the calibration ({session.protocol} "
+                                             "protocol's still poses)"}
 
 
 def table_rate(metadata: dict, path) -> float:
     """|rate| of the rotary settings recorded in the session's metadata (untrusted)."""
-    from station.errors import CalibrationInputError
-
     settings = metadata.get("settings") if isinstance(metadata, dict) else None
     rate = settings.get("rate") if isinstance(settings, dict) else None
-    if type(rate) not in (int, float) or not np.isfinite(rate) or rate == 0:
-        raise CalibrationInputError(f"{path} records no usable table rate ({rate!r}).",
+    return abs(_recorded_number(rate, "table rate", path))
+
+
+def gravity(metadata: dict, path) -> float:
+    """The local gravity a still-pose protocol recorded in the session's metadata (untrusted)."""
+    g = metadata.get("gravity") if isinstance(metadata, dict) else None
+    return _recorded_number(g, "gravity", path, positive=True)
+
+
+def _recorded_number(value, what: str, path, positive: bool = False) -> float:
+    from station.errors import CalibrationInputError
+
+    if type(value) not in (int, float) or not np.isfinite(value) or value == 0 \
+            or (positive and value < 0):
+        raise CalibrationInputError(f"{path} records no usable {what} ({value!r}).",
                                     "Give the stimulus magnitude with --magnitude.")
-    return abs(float(rate))
+    return float(value)
+
+
+def read_layout(rows, path) -> np.ndarray:
+    """The nominal layout (3 x m) a session's metadata holds (untrusted)."""
+    from station.errors import CalibrationInputError
+
+    try:
+        a = np.array(rows, dtype=float)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.ndim != 2 or a.shape[0] != 3 or not np.all(np.isfinite(a)):
+        raise CalibrationInputError(f"{path} records no usable nominal layout.",
+                                    "Give one with --nominal (a CSV of 3 rows, a column per "
+                                    "sensor).")
+    return a
 
 
 def read_nominal(path) -> np.ndarray:

@@ -15,6 +15,7 @@ calibration (v_j, a upper triangular, b) by weighted nonlinear least squares on 
 evidence is the deviance decrease (station.diagnose.select).
 """
 
+import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -149,7 +150,7 @@ def _bins(intervals: np.ndarray, n: int):
     for j, (a, z) in enumerate(intervals):
         k = max((z - a) // n, 1)
         edges = a + np.round(np.linspace(0, z - a, k + 1)).astype(int)
-        bins += list(zip(edges[:-1], edges[1:]))
+        bins += list(itertools.pairwise(edges))
         owner += [j] * k
     return np.array(bins), np.array(owner)
 

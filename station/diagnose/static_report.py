@@ -11,6 +11,7 @@ Gap statistics (1 = explained by white noise of the sigma measured within the bi
 """
 
 import base64
+import itertools
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def whiteness(data: StaticData, model) -> dict:
     for scale in SCALES_S:
         size = max(round(scale * data.fs), 1)
         num, dof = np.zeros(data.c), 0
-        for a, z in zip(edges[:-1], edges[1:]):
+        for a, z in itertools.pairwise(edges):
             k = (z - a) // size
             if k < 2:
                 continue
@@ -200,8 +201,8 @@ def load(path, **detector) -> StaticData:
         gyr = s.stream(gyro[0]) if gyro else None
         gravity = s.metadata.get("gravity")
         imported = s.metadata.get("import", {}).get("streams", {})
-    notes = [] if gravity else [f"gravity not in the session: {STANDARD_GRAVITY} m/s^2 assumed "
-                                "(only the common scale depends on it)"]
+    notes = [] if gravity else [(f"gravity not in the session: {STANDARD_GRAVITY} m/s^2 assumed "
+                                "(only the common scale depends on it)")]
     raw = [n for n in [accel[0], *gyro] if imported.get(n, {}).get("raw_counts")]
     if raw:
         notes.append(f"streams {raw} hold raw counts: values and parameters are in counts")

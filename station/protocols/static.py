@@ -183,16 +183,23 @@ class StaticProtocol:
 def static_readings(session, stream: str = "imu", **detector) -> StillReadings:
     """The accelerometer rows of the still poses of a free-static session (`still_readings`)."""
     still = still_readings(session, stream, **detector)
+    channels = session_channels(session, stream)
+    return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
+
+
+def session_channels(session, stream: str = "imu") -> np.ndarray:
+    """Indices of the accelerometer channels of a free-static session's stream: the metadata's
+    (checked: untrusted), or those in m/s^2."""
+    m = len(session.specs[stream].channels)
     channels = session.metadata.get("channels")
     if channels is None:
-        channels = accelerometer_channels(session.specs[stream].units)
-    channels = np.asarray(channels)
-    if channels.dtype.kind not in "iu" or channels.ndim != 1 or len(set(channels.tolist())) < 3 \
-            or channels.min() < 0 or channels.max() >= still.M.shape[0]:
+        return accelerometer_channels(session.specs[stream].units)
+    if not (isinstance(channels, list) and all(type(c) is int and 0 <= c < m for c in channels)
+            and len(set(channels)) == len(channels) >= 3):
         raise CalibrationInputError(f"{session.path} records accelerometer channels {channels!r}.",
                                     "The session file is damaged or not from the free-static "
                                     "protocol.")
-    return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
+    return np.array(channels)
 
 
 def calibrate_static(readings: StillReadings, gravity: float, nominal=None):
