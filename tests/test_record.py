@@ -120,3 +120,8 @@ def test_the_example_bench_profiles_load():
     assert serial.imu_address == {"port": "/dev/ttyUSB0"} and serial.positions == 20
     assert can.link == "can" and can.imu_address["interface"] == "socketcan"
     assert serial.imu.imu.channels == can.imu.imu.channels
+    static, iron = BenchProfile.load("bench_static"), BenchProfile.load("bench_iron")
+    assert (static.protocol, static.positions, static.table_host) == ("static", 18, None)
+    np.testing.assert_array_equal(static.layout, np.eye(3))
+    assert (iron.protocol, iron.positions) == ("iron", 12)  # 2 mountings x 6 faces
+    np.testing.assert_allclose(np.linalg.norm(iron.layout, axis=0), 1.0, atol=1e-5)
