@@ -1,6 +1,7 @@
 """`station record` and `station solve` for the still-pose protocols (iron, free-static) through
 the bench profile, the real serial driver and the virtual hand bench; bench profile checks."""
 
+import io
 import json
 
 import numpy as np
@@ -29,9 +30,10 @@ def _profile(tmp_path, bench: HandBench, protocol: str, extra: str = "") -> Benc
 LAYOUT4 = "layout = " + json.dumps(ACC4.tolist()) + "\n"
 
 CASES = {
-    "static": dict(layout=TRIAD, mountings=[np.eye(3)], placement_deg=5.0, extra="poses = 12\n"),
-    "iron": dict(layout=ACC4, mountings=2, placement_deg=0.0002,
-                 extra="mountings = 2\n" + LAYOUT4),
+    "static": {"layout": TRIAD, "mountings": [np.eye(3)], "placement_deg": 5.0,
+               "extra": "poses = 12\n"},
+    "iron": {"layout": ACC4, "mountings": 2, "placement_deg": 0.0002,
+             "extra": "mountings = 2\n" + LAYOUT4},
 }
 
 
@@ -115,3 +117,28 @@ def test_live_view_is_refused_for_hand_protocols(tmp_path, capsys):
                      "--out", str(tmp_path / "x.h5")]) == 2
     assert "live view shows rotary sessions" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("protocol", ["static", "iron"])
+def test_station_record_against_the_hand_twin_with_a_console_operator(protocol, tmp_path):
+    """The twin's technician turns on its own metronome; the console operator only presses Enter:
+    the station finds every pose itself and the calibration file matches the truth."""
+    from station.commands.twin import HandTwin
+    from station.operator import ConsoleOperator
+
+    with HandTwin(protocol, seed=9, speed=40.0, poses=12, mountings=1) as twin:
+        (tmp_path / "b.toml").write_text(twin.profile_text("SN-TWIN"))
+        profile = BenchProfile.load(tmp_path / "b.toml")
+        prompts = io.StringIO()
+        summary = record(profile, tmp_path / "s.h5", ConsoleOperator(io.StringIO("\n" * 50),
+                                                                       prompts))
+        truth = twin.truth()
+    assert twin.error is None
+    assert summary["positions_done"] == profile.positions == (12 if protocol == "static" else 6)
+    assert cli.main(["solve", str(tmp_path / "s.h5")]) == 0
+    cal = load(tmp_path / "s.cal.json", unit_serial="SN-TWIN")
+    a = np.array(truth["a"])
+    z = np.concatenate([(cal.bias - truth["bias"]) / cal.bias_sigma,
+                        (cal.scale_factors - np.linalg.norm(a, axis=0)) / cal.scale_factors_sigma])
+    assert np.all(np.abs(z) < stats.norm.isf(FAMILY_FALSE_ALARM / 2 / z.size)), z
+    assert "press Enter when done" in prompts.getvalue()

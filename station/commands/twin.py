@@ -8,6 +8,13 @@ table is commanded to stop, so a technician has nothing to turn: pressing Enter 
 `station record` runs the whole session. Restart the twin for each new session (the fixture counts
 the stops).
 
+`--protocol iron` and `--protocol static` start the virtual hand bench instead
+(`station.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who turns
+it on a 20 s metronome through the protocol's sequence (static: the guided poses; iron: a
+re-mounting, then the six faces, per mounting), starting when the station opens the port. The
+technician does not hear the station, so `station record` must keep up (it does with the default
+5 s hold) and records the turns in order.
+
 It prints the devices' addresses and writes a bench profile pointing at them (`--profile-out`),
 then runs until Ctrl-C or `--lifetime` wall seconds. `--speed` makes the twin's clock run faster
 than the wall; the profile tells `station record` to use the same speed. With --json, the truth
@@ -35,14 +42,21 @@ from station.protocols.rotary import instruction, suggested_axes
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "twin", help="run the virtual bench's devices (serial IMU + Modbus table) for `record`",
+        "twin", help="run the virtual bench's devices (serial IMU, Modbus table) for `record`",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  station twin --profile-out bench.toml\n"
-               "  station twin --speed 40 --positions 12 --profile-out bench.toml --json")
+               "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
+               "  station twin --protocol static --speed 20 --profile-out hand.toml")
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
+    p.add_argument("--protocol", choices=("rotary", "iron", "static"), default="rotary",
+                   help="the bench: rotary table (12 gyros, default), right-angle iron (4 "
+                        "accelerometers) or free static poses by hand (accelerometer triad)")
     p.add_argument("--positions", type=int, default=20,
-                   help="positions of the protocol the fixture follows (default 20)")
+                   help="positions of the protocol the fixture follows: rotary positions or "
+                        "static poses (default 20)")
+    p.add_argument("--mountings", type=int, default=2,
+                   help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="clock speed, simulated seconds per wall second (default 1)")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
@@ -52,6 +66,25 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true",
                    help="machine-readable addresses, and the truth when stopping")
     p.set_defaults(run=run)
+
+
+class PortWatch:
+    """Tells (once) when a program opens the pty `port`: pyserial configures the terminal then."""
+
+    def __init__(self, port: str):
+        self._fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self._idle = termios.tcgetattr(self._fd)
+
+    def opened(self) -> bool:
+        if self._fd is None or termios.tcgetattr(self._fd) == self._idle:
+            return False
+        self.close()
+        return True
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
 
 
 class BenchTwin:
@@ -70,7 +103,7 @@ class BenchTwin:
         self.axes = suggested_axes(positions)
         self.mounted = 0
         self.error = None
-        self._port_fd = None  # the pty watched for the station's open, until it happens
+        self._watch = None  # the pty watched for the station's open
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
 
@@ -84,8 +117,7 @@ class BenchTwin:
         if b.kind == "serial":
             b.table_twin.start()
             b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf)
-            self._port_fd = os.open(b.imu_twin.port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-            self._idle_attrs = termios.tcgetattr(self._port_fd)
+            self._watch = PortWatch(b.imu_twin.port)
         else:
             b.start()
         self._thread.start()
@@ -95,9 +127,8 @@ class BenchTwin:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join()
-        if self._port_fd is not None:
-            os.close(self._port_fd)
-            self._port_fd = None
+        if self._watch is not None:
+            self._watch.close()
         self.bench.close()
 
     def __enter__(self) -> Self:
@@ -138,21 +169,13 @@ class BenchTwin:
         self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
         self.mounted += 1
 
-    def _port_opened(self) -> bool:
-        """True (once) when a program configured the pty's terminal, as pyserial does on open."""
-        if termios.tcgetattr(self._port_fd) == self._idle_attrs:
-            return False
-        os.close(self._port_fd)
-        self._port_fd = None
-        return True
-
     def _fixture(self) -> None:
         """Start the serial stream when the station opens the port; re-mount the unit at each
         running -> stopped transition of the table's run command."""
         try:
             running = False
             while not self._stop.wait(0.002):
-                if self._port_fd is not None and self._port_opened():
+                if self._watch is not None and self._watch.opened():
                     self.bench.imu_twin.start()
                 now = self.bench.table.state().running
                 if running and not now:
@@ -162,15 +185,129 @@ class BenchTwin:
             self.error = exc
 
 
+class HandTwin:
+    """A `station.hand_bench.HandBench` whose technician follows the protocol on a metronome.
+
+    protocol  : "static" (a triad turned by hand through the first `poses` guided poses, 5 deg
+                off each) or "iron" (the ACC4 unit in an iron square to 0.0002 deg, `mountings`
+                re-mountings, each followed by the six faces)
+    period    : clock seconds between the technician's turns; each turn starts on a multiple of
+                it, and the first after the station opened the port. The technician does not
+                hear the station: `station record` must keep up (a pose takes it about
+                `hold` + 3 s), and then records the turns in order.
+    """
+
+    def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
+                 poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
+                 period: float = 20.0):
+        from station.hand_bench import ACC4, TRIAD, HandBench
+
+        static = protocol == "static"
+        self.protocol, self.seed = protocol, seed
+        self.bench = HandBench(seed, speed, rate_hz, layout=TRIAD if static else ACC4,
+                               mountings=[np.eye(3)] if static else mountings, period=period,
+                               placement_deg=5.0 if static else 0.0002)
+        self.instructions = _hand_instructions(protocol, poses, mountings)
+        self.settings = {"poses": poses} if static else {"mountings": mountings}
+        self.turns = 0
+        self.error = None
+        self._watch = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
+
+    def start(self) -> Self:
+        """Serve the serial IMU from the moment the station opens its port."""
+        from drivers.twin_serial import SerialTwin
+
+        b = self.bench
+        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf)
+        self._watch = PortWatch(b.twin.port)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)  # a turn being waited for ends within a period
+        self._watch.close()
+        self.bench.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def profile_text(self, unit_serial: str | None = None) -> str:
+        """A bench profile (`station record --profile`) for this protocol and device."""
+        b = self.bench
+        imu = {"link": "serial", "profile": f"acc{b.layout.shape[1]}_serial",
+               "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz}
+        protocol = {"kind": self.protocol, "gravity": b.gravity, **self.settings}
+        lines = [f"{k} = {_toml(v)}" for k, v in protocol.items()]
+        if self.protocol == "iron":
+            lines.append(f"layout = {json.dumps(b.layout.tolist())}")
+        return (f"# Bench profile of the virtual hand bench (station twin), written "
+                f"{time.ctime()}.\n[bench]\nunit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
+                f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
+                + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
+                + "\n\n[protocol]\n" + "\n".join(lines) + "\n")
+
+    def addresses(self) -> dict:
+        b = self.bench
+        return {"imu": {"link": "serial", "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
+                "clock_speed": b.clock.speed}
+
+    def truth(self) -> dict:
+        """The simulated unit and the up direction after each turn (JSON-ready)."""
+        t = self.bench.truth()
+        return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
+                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns}
+
+    def _fixture(self) -> None:
+        """Start the stream when the station opens the port, then turn as instructed, in order."""
+        try:
+            while not self._watch.opened():
+                if self._stop.wait(0.002):
+                    return
+            self.bench.twin.start()
+            for instruction in self.instructions:
+                if self._stop.is_set():
+                    return
+                self.bench.technician.wait(instruction)
+                self.turns += 1
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = exc
+
+
+def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
+    """What the hand bench's technician does, in order (as the protocol would ask)."""
+    from station.operator import Instruction
+    from station.protocols.iron import FACE_UP
+    from station.protocols.rotary import mounting
+    from station.protocols.static import GUIDED_POSES
+
+    if protocol == "static":
+        return [Instruction(words, mounting(up)) for _, up, words in GUIDED_POSES[:poses]]
+    faces = [Instruction(f"face {f}", mounting(FACE_UP[f])) for f in FACE_UP]
+    return [item for _ in range(mountings) for item in (Instruction("re-mount"), *faces)]
+
+
 def run(args) -> int:
-    if args.positions < 1 or not args.speed > 0 or not args.lifetime > 0:
-        print("station twin: --positions, --speed and --lifetime must be positive",
+    if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
+        print("station twin: --positions, --mountings, --speed and --lifetime must be positive",
               file=sys.stderr)
+        return 2
+    if args.protocol == "static" and not 12 <= args.positions <= 26:
+        print("station twin: a static session has 12 to 26 poses (--positions)", file=sys.stderr)
         return 2
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    twin = BenchTwin("serial", args.seed, args.speed, args.positions, args.rate_hz,
-                     args.lifetime)
+    if args.protocol == "rotary":
+        twin = BenchTwin("serial", args.seed, args.speed, args.positions, args.rate_hz,
+                         args.lifetime)
+    else:
+        twin = HandTwin(args.protocol, args.seed, args.speed, args.positions, args.mountings,
+                        args.rate_hz)
     try:
         with twin:
             args.profile_out.write_text(twin.profile_text(f"SIM-{args.seed}"))
@@ -178,9 +315,10 @@ def run(args) -> int:
             if args.json:
                 print(json.dumps(info), flush=True)
             else:
+                table = info.get("table")
                 print(f"serial IMU twin on {info['imu']['port']} ({info['imu']['rate_hz']:g} Hz)\n"
-                      f"Modbus table twin on 127.0.0.1:{info['table']['port']}\n"
-                      f"bench profile: {info['profile']}\n"
+                      + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
+                      + f"bench profile: {info['profile']}\n"
                       f"  station record --profile {args.profile_out}\n"
                       "Ctrl-C stops the twin.", flush=True)
             try:

@@ -11,7 +11,7 @@ from the data.
           wait until it is still again: that pose is not a requested face;
 - face:   ask for the next face (the instruction's orientation is the iron's attitude, world ->
           iron frame, third column up);
-- settle: wait for a still interval that started after the request (an open interval of at
+- settle: wait for a still interval that started after the last pose (an open interval of at
           least the detector's `min_still`); `timeout` s without one is a ProtocolError;
 - hold:   wait until the first `hold` s of the still interval are recorded and still (a motion
           sends the protocol back to settle); `static_end` records that window (detail `window`,

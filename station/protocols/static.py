@@ -11,7 +11,7 @@ between poses: the station finds each still pose itself (`station.protocols.stil
 
 - pose:   ask for the next pose (the instruction's orientation is an attitude whose third column
           is the unit-frame direction asked to point up);
-- settle: wait for a still interval that began after the request;
+- settle: wait for a still interval that began after the last pose's window;
 - hold:   record the first `hold` s of it (a motion sends the protocol back to settle); the up
           direction u_j = the nominal least-squares direction of the accelerometers' mean. A pose
           within `separation_deg` of an earlier one adds almost nothing: the technician is told

@@ -5,7 +5,10 @@ press to know when a pose begins: it watches the stream (`StreamTap`) and finds 
 itself (`station.stillness.detect_still`: dispersion with hysteresis, a minimum still time, a
 timeout). `PoseWatcher` does the watching for a protocol:
 
-- `request()`  : a new pose was asked for now; only a still interval starting later counts;
+- `request()`  : a new pose was asked for: only a still interval that began after the last pose
+                 (its window, or the start of a settled pose not held, e.g. the iron's
+                 re-mounting) counts: the unit was moved since (before the first pose: after now).
+                 A technician quicker than the host's prompt still has the pose taken;
 - `settle(after)` : wait for such an interval (an open interval of at least `min_still`);
                  `timeout` s without one is a ProtocolError (`after` says what was asked);
 - `hold(position)`: wait until the first `hold` s of it are recorded and still; records
@@ -103,14 +106,15 @@ class PoseWatcher:
         self.operator = operator
         self.recorder = recorder
         self.tap = tap
-        self._since = self._start = None
+        self._since = self._start = self._last = None
 
     def request(self) -> None:
-        """A new pose is asked for now: still intervals that began earlier do not count."""
-        self._since = self.clock.now()
+        """A new pose is asked for: still intervals that began before the last pose's window
+        ended (before now, for the first pose) do not count."""
+        self._since = self.clock.now() if self._last is None else self._last
 
     def settle(self, after: str) -> float:
-        """Start time of the first still interval after the request; records `static_start`."""
+        """Start time of the first still interval that counts for the request."""
         deadline = self.clock.now() + self.settings.timeout
         while (start := self._still_since()) is None:
             if self.clock.now() > deadline:
@@ -118,7 +122,8 @@ class PoseWatcher:
                                     f"{after}; put the unit down, let go and record the session "
                                     "again")
             self.clock.sleep(self.settings.poll)
-        self._start = start
+        # the next request needs a later interval (a detected start jitters by under a window)
+        self._start, self._last = start, start + self.settings.window
         return start
 
     def hold(self, position: int) -> np.ndarray | None:
@@ -136,11 +141,12 @@ class PoseWatcher:
             self._since = self._start + s.window
             return None
         self.recorder.event("static_end", position, {"window": [self._start, end]})
+        self._last = end
         t, z = self.tap.samples(self._start)
         return z[t <= end].mean(axis=0)
 
     def _still_since(self) -> float | None:
-        """Start time of the still interval going on now, if it began after the request."""
+        """Start time of the still interval going on now, if it began after `_since`."""
         s = self.settings
         self.recorder.check(s.stale)
         t, z = self.tap.samples(self.clock.now() - s.lookback)
