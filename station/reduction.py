@@ -38,6 +38,11 @@ class Reduced:
         """(m, n) standard error of M from the windows' scatter: sqrt(s_s^2/N_s + s_r^2/N_r)."""
         return np.sqrt(self.static_sd**2 / self.n_static + self.rotating_sd**2 / self.n_rotating)
 
+    def take(self, keep) -> "Reduced":
+        """The readings of the positions `keep` (column indices), in that order."""
+        keep = list(keep)
+        return Reduced(**{name: getattr(self, name)[..., keep] for name in self.__dataclass_fields__})
+
 
 def _windows(window, n: int, k: int, name: str) -> np.ndarray:
     """(n, 2) [start, stop) windows from a (2,) or (n, 2) array, checked against k samples."""

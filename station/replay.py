@@ -1,21 +1,33 @@
-"""Replay of a recorded rotary session, for the calibration engineer.
+"""Replay of a recorded session (rotary, right-angle iron or free-static), for the calibration
+engineer.
 
-`replay` re-reduces the raw IMU stream (Eq. 18 of Rupniewski, `reduce_session`) and re-solves it
-(`station.calibrate`: closed form, then maximum likelihood weighted by each reading's standard
-error, magnitude = the recorded table rate), possibly with other settings (`ReplaySettings`:
-trimmed windows, a subset of positions, another solver method). It is deterministic: the same
-file and settings give bit-identical numbers, so the results stored in a session (`results/<name>`)
-are reproduced exactly by a replay with the settings that made them. `replay_into` stores a
-replay under a new results name (stored results are never overwritten).
+`replay` reduces the raw IMU stream again and re-solves it, possibly with other settings
+(`ReplaySettings`: trimmed windows, a subset of positions, another solver method, no refinement,
+another magnitude). The one dispatch point on the protocol is `PROTOCOLS`:
 
-`replay_raw` sends the recorded IMU stream again over the serial wire protocol (a pseudo-terminal
-twin, `drivers.twin_serial.SerialTwin`) through the ordinary driver and recorder into a new session
-file, with the original's table states and events placed at the same instants relative to the
-re-recorded samples: the new file reduces to the same readings as the original.
+- rotary: Eq. (18) of Rupniewski (`reduce_session`), then `station.calibrate` (closed form, then
+  maximum likelihood weighted by each reading's standard error), magnitude = the recorded table
+  rate;
+- iron and static: the still poses (`iron_readings` with the faces recognised from the data, or
+  `static_readings`, both `still_readings`), then `calibrate_still` (biases estimated; the faces'
+  constraints of Eq. 15 for the iron, following a subset of poses; Hwangbo & Kanade's factorization
+  or the ellipsoid, then maximum likelihood), magnitude = the recorded gravity, reported in the
+  frame of the recorded nominal layout `a_nominal` as the live solution is.
+
+It is deterministic: the same file and settings give bit-identical numbers, so the results stored in
+a session (`results/<name>`) are reproduced exactly by a replay with the settings that made them.
+`replay_into` stores a replay under a new results name (stored results are never overwritten).
+
+`replay_raw` (rotary sessions only) sends the recorded IMU stream again over the serial wire
+protocol (a pseudo-terminal twin, `drivers.twin_serial.SerialTwin`) through the ordinary driver and
+recorder into a new session file, with the original's table states and events placed at the same
+instants relative to the re-recorded samples: the new file reduces to the same readings as the
+original.
 """
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -23,9 +35,12 @@ import numpy as np
 
 import station
 from station.calibrate import CalibrationResult
+from station.errors import CalibrationInputError
+from station.protocols.iron import iron_readings
 from station.protocols.rotary import SEGMENT_EVENTS, reduce_session
+from station.protocols.static import static_readings
+from station.protocols.still import calibrate_still
 from station.recorder import arrival_offset
-from station.reduction import Reduced
 from station.session import (
     TABLE_STATUS_BITS,
     Session,
@@ -38,14 +53,16 @@ METHODS = ("auto", "pca", "ellipsoid", "factorization")
 
 @dataclass(frozen=True)
 class ReplaySettings:
-    """How to reduce and solve a session again; the defaults are those of `station solve`.
+    """How to reduce and solve a session again; the defaults are those of the recording's solution.
 
     stream    : sample stream to calibrate
-    trim      : seconds left out at both ends of every window
-    positions : 0-based positions to use (None: every completed position)
+    trim      : seconds left out at both ends of every window (rotary: static and rotating
+                windows; iron, static: each pose's averaged window)
+    positions : 0-based positions (poses) to use (None: every completed one)
     method    : closed-form method of `station.calibrate` ("auto", "pca", ...)
     refine    : maximum-likelihood refinement after the closed form
-    magnitude : stimulus magnitude |v| (None: the recorded table rate)
+    magnitude : stimulus magnitude |v| (None: the recorded table rate, or gravity for the iron
+                and static protocols)
     """
 
     stream: str = "imu"
@@ -70,32 +87,91 @@ class ReplaySettings:
             object.__setattr__(self, "positions", positions)
 
 
-def replay(path, settings: ReplaySettings | None = None) -> tuple[Reduced, CalibrationResult]:
-    """(readings, calibration) of the rotary session at `path`, solved again from the raw stream."""
+@dataclass(frozen=True)
+class Protocol:
+    """How `replay` reduces and solves the sessions of one protocol.
+
+    reduce   : (session, stream, trim=seconds) -> readings with M, sigma (m, n) and take(columns)
+    stimulus : metadata keys, outermost first, of the recorded stimulus magnitude
+    solve    : (readings, magnitude, settings, metadata) -> CalibrationResult
+    """
+
+    reduce: Callable
+    stimulus: tuple
+    solve: Callable
+
+
+def _solve_rotary(reduced, magnitude, settings, metadata):
+    """`station.calibrate` of Eq. (18) readings (no bias: the static means are subtracted)."""
+    return station.calibrate(reduced.M, magnitude, sigma=reduced.sigma, method=settings.method,
+                             refine=settings.refine)
+
+
+def _solve_still(readings, magnitude, settings, metadata):
+    """`calibrate_still` in the frame of the recorded nominal layout, as the live solution."""
+    try:
+        nominal = np.asarray(metadata["a_nominal"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        nominal = None
+    if nominal is None or nominal.shape != (3, readings.M.shape[0]) or \
+            not np.all(np.isfinite(nominal)):
+        raise CalibrationInputError(
+            f"the session's metadata holds no usable nominal layout a_nominal (3 x "
+            f"{readings.M.shape[0]}).", "The session file is damaged or not from the iron or "
+            "free-static protocol.")
+    return calibrate_still(readings, magnitude, nominal=nominal, method=settings.method,
+                           refine=settings.refine)
+
+
+PROTOCOLS = {
+    "rotary": Protocol(reduce_session, ("settings", "rate"), _solve_rotary),
+    "iron": Protocol(iron_readings, ("gravity",), _solve_still),
+    "static": Protocol(static_readings, ("gravity",), _solve_still),
+}
+"""The protocols `replay` knows, by the `protocol` of the session's metadata."""
+
+
+def replay(path, settings: ReplaySettings | None = None) -> tuple[object, CalibrationResult]:
+    """(readings, calibration) of the session at `path`, reduced and solved again from its raw
+    stream; readings: `station.reduction.Reduced` (rotary) or `StillReadings` (iron, static)."""
     settings = settings or ReplaySettings()
     with Session.open(path) as session:
-        if session.protocol != "rotary":
+        protocol = PROTOCOLS.get(session.protocol)
+        if protocol is None:
             raise ValueError(f"{path} records a {session.protocol!r} session; replay reduces "
-                             "rotary sessions")
-        reduced = reduce_session(session, settings.stream, trim=settings.trim)
+                             f"{', '.join(PROTOCOLS)} sessions (solve others with station solve)")
+        readings = protocol.reduce(session, settings.stream, trim=settings.trim)
         completed = sorted(_completed(session.events()))
-        rate = session.metadata.get("settings", {}).get("rate")
-    if settings.positions is not None:
-        missing = sorted(set(settings.positions) - set(completed))
-        if missing:
-            raise ValueError(f"positions {[p + 1 for p in missing]} were not completed in {path}; "
-                             f"choose among {[p + 1 for p in completed]}")
-        keep = [completed.index(p) for p in settings.positions]
-        reduced = Reduced(**{name: getattr(reduced, name)[..., keep]
-                             for name in Reduced.__dataclass_fields__})
-    magnitude = settings.magnitude
-    if magnitude is None:
-        if not isinstance(rate, int | float) or not math.isfinite(rate) or rate == 0:
-            raise ValueError(f"{path} records no usable table rate; give the magnitude")
-        magnitude = abs(float(rate))
-    result = station.calibrate(reduced.M, magnitude, sigma=reduced.sigma,
-                               method=settings.method, refine=settings.refine)
-    return reduced, result
+        metadata = session.metadata
+    readings = _select(readings, completed, settings.positions, path)
+    magnitude = settings.magnitude or _recorded(metadata, protocol.stimulus, path)
+    return readings, protocol.solve(readings, magnitude, settings, metadata)
+
+
+def _select(readings, completed: list, positions, path):
+    """The readings of `positions` (0-based, None: all) among the `completed` ones."""
+    if len(completed) != readings.M.shape[1]:
+        raise ValueError(f"{path} reduces to {readings.M.shape[1]} readings for "
+                         f"{len(completed)} completed positions; the file is damaged")
+    if positions is None:
+        return readings
+    missing = sorted(set(positions) - set(completed))
+    if missing:
+        raise ValueError(f"positions {[p + 1 for p in missing]} were not completed in {path}; "
+                         f"choose among {[p + 1 for p in completed]}")
+    return readings.take([completed.index(p) for p in positions])
+
+
+def _recorded(metadata: dict, keys: tuple, path) -> float:
+    """The stimulus magnitude recorded in the metadata under `keys` (absolute value)."""
+    value = metadata
+    for key in keys:
+        value = value.get(key) if isinstance(value, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
+            or value == 0:
+        raise ValueError(f"{path} records no usable {'.'.join(keys)} (stimulus magnitude); "
+                         "give the magnitude")
+    return abs(float(value))
 
 
 def replay_into(path, name: str, settings: ReplaySettings | None = None):
@@ -139,6 +215,10 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     from station.recorder import Recorder
 
     with Session.open(path) as session:
+        if session.protocol != "rotary":
+            raise ValueError(f"{path} records a {session.protocol!r} session; raw replay "
+                             "re-records rotary sessions only (stream, table states and events); "
+                             "replay it without --raw to reduce and solve it again")
         data, table, events = session.stream("imu"), session.table(), session.events()
         metadata = session.metadata
     segments = [e.kind for e in events if e.kind in SEGMENT_EVENTS]

@@ -2,15 +2,14 @@
 exactly, other settings give other results under new names, the CLI, and the raw stream sent again
 through the serial pty twin reduces to the same readings as the original recording."""
 
-import dataclasses
 import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+from results import assert_same
 
-from station.calibrate import CalibrationResult
 from station.cli import main
 from station.protocols.rotary import reduce_session
 from station.replay import ReplaySettings, replay, replay_into, replay_raw
@@ -30,16 +29,6 @@ EXAMPLES = sorted(p for p in SESSIONS.glob("*.h5") if _protocol(p) == "rotary")
 def stored(path, name="rotary"):
     with Session.open(path) as f:
         return f.results(name)
-
-
-def assert_same(result, calibration):
-    """Every field of two CalibrationResults bit-identical."""
-    for field in dataclasses.fields(CalibrationResult):
-        a, b = getattr(result, field.name), getattr(calibration, field.name)
-        if isinstance(a, np.ndarray):
-            assert np.array_equal(a, b), field.name
-        else:
-            assert a == b, field.name
 
 
 @pytest.fixture

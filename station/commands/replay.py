@@ -1,10 +1,13 @@
-"""`station replay SESSION`: reduce and solve a recorded rotary session again from its raw stream.
+"""`station replay SESSION`: reduce and solve a recorded session (rotary, right-angle iron or
+free-static) again from its raw stream.
 
-Settings may differ from the recording's (trimmed windows, a subset of positions, another solver
-method); the result is stored in the session under a new results name (never overwriting one).
-The same settings give bit-identical numbers: a replay with the defaults reproduces the results
-`station solve`-style solving stored. `--raw OUT` instead sends the recorded IMU stream again over
-the serial wire protocol (a pty twin) and records it into the new session file OUT.
+Settings may differ from the recording's (trimmed windows, a subset of positions or poses, another
+solver method, another magnitude); the result is stored in the session under a new results name
+(never overwriting one). The same settings give bit-identical numbers: a replay with the defaults
+reproduces the results the recording stored (rotary: `station solve`-style solving; iron and
+free-static: `results/live`). `--raw OUT` (rotary sessions only) instead sends the recorded IMU
+stream again over the serial wire protocol (a pty twin) and records it into the new session file
+OUT.
 """
 
 import json
@@ -13,24 +16,28 @@ from pathlib import Path
 
 
 def register(sub) -> None:
-    p = sub.add_parser("replay", help="re-reduce and re-solve a recorded rotary session",
+    p = sub.add_parser("replay", help="re-reduce and re-solve a recorded rotary, iron or free-static session",
                        description=__doc__,
                        epilog="examples:\n  station replay sessions/rotary-12gyro.h5\n"
                               "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
                               "  station replay unit.h5 --positions 1-6,9 --json\n"
+                              "  station replay iron.h5 --positions 1-6 --trim 1\n"
                               "  station replay unit.h5 --raw again.h5")
     p.add_argument("session", type=Path, help="the session file (.h5)")
     p.add_argument("--name", help="results name to store under (default: replay-<k>)")
     p.add_argument("--trim", type=float, default=0.0,
-                   help="seconds left out at both ends of every window (default 0)")
-    p.add_argument("--positions", help="1-based positions to use, e.g. 1-6,9 (default: all)")
+                   help="seconds left out at both ends of every window (rotary: static and "
+                        "rotating windows; iron, static: each pose's window; default 0)")
+    p.add_argument("--positions", help="1-based positions (poses) to use, e.g. 1-6,9 (default: all completed)")
     p.add_argument("--method", default="auto",
                    help="closed-form method: auto, pca, ellipsoid, factorization")
     p.add_argument("--no-refine", action="store_true", help="skip the maximum-likelihood step")
-    p.add_argument("--magnitude", type=float, help="stimulus magnitude (default: table rate)")
+    p.add_argument("--magnitude", type=float, help="stimulus magnitude (default: the recorded table rate, or gravity "
+                        "for iron and free-static sessions)")
     p.add_argument("--dry-run", action="store_true", help="print the result, store nothing")
     p.add_argument("--raw", type=Path, metavar="OUT",
-                   help="replay the raw stream through the serial twin into new session OUT")
+                   help="replay the raw stream through the serial twin into new session OUT "
+                        "(rotary sessions only)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 

@@ -27,11 +27,11 @@ perpendicular 0, opposite -1, only within a mounting); the solver is `station.ca
 bias="estimate", constraints=...)` = Hwangbo & Kanade's factorization + maximum likelihood.
 """
 
+import dataclasses
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.calibrate import calibrate
 from station.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
 from station.operator import Instruction
@@ -41,6 +41,7 @@ from station.protocols.still import (
     StillReadings,
     StillSettings,
     StreamTap,
+    calibrate_still,
     run_states,
     still_readings,
     up_direction,
@@ -202,6 +203,12 @@ class IronReadings(StillReadings):
 
     faces: list
 
+    def take(self, keep):
+        """The readings of the poses `keep` (column indices), in that order, with their faces: the
+        constraints follow the subset."""
+        keep = list(keep)
+        return dataclasses.replace(super().take(keep), faces=[self.faces[k] for k in keep])
+
     def constraints(self):
         """The inner-product constraints of the poses (Eq. 15)."""
         return from_faces(self.faces, self.mountings)
@@ -210,7 +217,8 @@ class IronReadings(StillReadings):
 def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
                   tolerance_deg: float = 20.0, **detector) -> IronReadings:
     """The still poses of an iron session (`station.session.Session`, `still_readings`) and their
-    faces. `a_nominal` defaults to the metadata's (or the identity for a triad)."""
+    faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector` (the
+    stillness detector's options and `trim`) goes to `still_readings`."""
     still = still_readings(session, stream, **detector)
     if a_nominal is None:
         a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : still.M.shape[0]].tolist())
@@ -222,5 +230,4 @@ def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
 def calibrate_iron(readings: IronReadings, gravity: float, nominal=None):
     """`station.calibrate` with the faces' constraints and the biases estimated (Hwangbo & Kanade
     factorization, Eqs. 14-15 and 29, then maximum likelihood)."""
-    return calibrate(readings.M, gravity, d=3, bias="estimate", constraints=readings.constraints(),
-                     sigma=readings.sigma, nominal=nominal)
+    return calibrate_still(readings, gravity, nominal)

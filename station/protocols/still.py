@@ -21,11 +21,14 @@ once on the whole recording (one noise level for the session) and averages, for 
 pose, the first `hold` seconds of the interval that overlaps its recorded window most.
 """
 
+import dataclasses
 import threading
 from dataclasses import dataclass
 
 import numpy as np
 
+from station.calibrate import calibrate
+from station.constraints import Constraints
 from station.errors import CalibrationInputError
 from station.protocols.rotary import ProtocolError
 from station.recorder import Recorder, sample_times
@@ -215,6 +218,25 @@ class StillReadings:
     windows: np.ndarray
     mountings: np.ndarray
 
+    def take(self, keep):
+        """The readings of the poses `keep` (column indices), in that order."""
+        keep = list(keep)
+        return dataclasses.replace(self, M=self.M[:, keep], sigma=self.sigma[:, keep],
+                                   windows=self.windows[keep], mountings=self.mountings[keep])
+
+    def constraints(self) -> Constraints | None:
+        """Inner-product constraints between the poses: None, equal magnitudes only."""
+        return None
+
+
+def calibrate_still(readings: StillReadings, gravity: float, nominal=None, method: str = "auto",
+                    refine: bool = True):
+    """`station.calibrate` of still poses with the biases estimated and the poses' constraints
+    (`readings.constraints()`): the ellipsoid (triad) or Hwangbo & Kanade's factorization
+    (Eqs. 14-15 and 29), then maximum likelihood weighted by each mean's standard error."""
+    return calibrate(readings.M, gravity, d=3, bias="estimate", constraints=readings.constraints(),
+                     sigma=readings.sigma, nominal=nominal, method=method, refine=refine)
+
 
 def pose_windows(events) -> tuple[np.ndarray, np.ndarray]:
     """((P, 2) still windows in clock seconds, (P,) mountings) of the completed poses; a pose
@@ -247,7 +269,7 @@ def _window(value) -> list:
     return [float(w[0]), float(w[1])]
 
 
-def still_readings(session, stream: str = "imu", **detector) -> StillReadings:
+def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) -> StillReadings:
     """The completed still poses of a session (`station.session.Session`).
 
     The still intervals are detected once on the whole recording (`station.stillness.
@@ -255,7 +277,8 @@ def still_readings(session, stream: str = "imu", **detector) -> StillReadings:
     settings in the metadata), so the result does not depend on when the live protocol polled.
     With the protocol's events, each completed pose averages the first `hold` seconds of the
     interval that overlaps its recorded window most; without them (an imported recording) every
-    interval is a pose, all in one mounting.
+    interval is a pose, all in one mounting. `trim` seconds (rounded to whole samples) are left
+    out at both ends of every averaged window.
     """
     data = session.stream(stream)
     rate = data.spec.rate_hz
@@ -284,7 +307,23 @@ def still_readings(session, stream: str = "imu", **detector) -> StillReadings:
     if not len(spans):
         raise CalibrationInputError(f"the session {session.path} has no still pose.",
                                     "Record the unit in still poses, each still for seconds.")
+    spans = _trimmed(spans, trim, rate, session.path)
     M = np.array([z[a:b].mean(axis=0) for a, b in spans]).T
     sigma = np.array([z[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b in spans]).T
     return StillReadings(M, sigma, np.column_stack([t[spans[:, 0]], t[spans[:, 1] - 1]]),
                          mountings)
+
+
+def _trimmed(spans, trim: float, rate: float, path):
+    """Sample spans (P, 2) with round(trim x rate) samples cut at both ends; 2 samples must stay."""
+    if not (np.isfinite(trim) and trim >= 0):
+        raise CalibrationInputError(f"trim {trim!r} s is not a duration.",
+                                    "Give the seconds to leave out as a number >= 0.")
+    cut = round(trim * rate)
+    spans = spans + np.array([cut, -cut])
+    short = np.flatnonzero(spans[:, 1] - spans[:, 0] < 2)
+    if len(short):
+        raise CalibrationInputError(
+            f"trimming {trim:g} s at both ends leaves pose(s) {(short + 1).tolist()} of {path} "
+            "fewer than 2 samples.", "Trim less than half of the shortest still window.")
+    return spans
