@@ -37,6 +37,7 @@ from drivers.serial_imu import SerialImu
 from drivers.twin_serial import SerialTwin
 from station.clock import ScaledClock
 from station.operator import SimulatedTechnician
+from station.protocols.still import calibrate_still, record_poses
 from station.session import Session, StreamSpec, write_results
 from station.sim.earth import normal_gravity
 from station.sim.layouts import accelerometer_triad
@@ -240,7 +241,6 @@ def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int
     from station.protocols.iron import (
         IronProtocol,
         IronSettings,
-        calibrate_iron,
         iron_readings,
     )
 
@@ -249,7 +249,7 @@ def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int
         protocol = IronProtocol(bench.technician, bench.clock, ACC4, settings)
         truth = _record(path, bench, protocol, unit_serial or f"SIM-ACC4-{seed}", seed, speed)
     readings = _reduce(path, iron_readings)
-    result = calibrate_iron(readings, settings.gravity, nominal=ACC4)
+    result = calibrate_still(readings, settings.gravity, nominal=ACC4)
     write_results(path, "live", "imu", readings.M, result, readings.sigma)
     return truth, readings, result
 
@@ -263,7 +263,6 @@ def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD
     from station.protocols.static import (
         StaticProtocol,
         StaticSettings,
-        calibrate_static,
         static_readings,
     )
 
@@ -275,15 +274,13 @@ def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD
         m = bench.layout.shape[1]
         truth = _record(path, bench, protocol, unit_serial or f"SIM-ACC{m}-{seed}", seed, speed)
     readings = _reduce(path, static_readings)
-    result = calibrate_static(readings, settings.gravity, nominal=bench.layout)
+    result = calibrate_still(readings, settings.gravity, nominal=bench.layout)
     write_results(path, "live", "imu", readings.M, result, readings.sigma)
     return truth, readings, result
 
 
 def _record(path, bench: HandBench, protocol, unit_serial: str, seed: int, speed: float):
     """Run `protocol` on the bench's serial driver into the new session `path`; the truth."""
-    from station.protocols.still import record_poses
-
     metadata = {**protocol.metadata(), "unit_serial": unit_serial,
                 "bench": {"kind": protocol.metadata()["protocol"], "seed": seed, "speed": speed}}
     with bench.driver() as imu:

@@ -11,8 +11,9 @@ from station.cli import main
 from station.errors import CalibrationInputError
 from station.free_static import calibrate_free_static
 from station.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
-from station.protocols.iron import calibrate_iron, iron_readings
+from station.protocols.iron import iron_readings
 from station.protocols.rotary import reduce_session
+from station.protocols.still import calibrate_still
 from station.reduction import reduce_arrays
 from station.session import Session
 from station.sim import npz
@@ -173,6 +174,6 @@ def test_real_imucal_ferraris_csv_through_the_iron_path(tmp_path):
         readings = iron_readings(s, stream="acc")
     assert {"+x", "-x", "+y", "-y", "+z", "-z"} <= set(readings.faces)
     raw = np.abs(np.linalg.norm(readings.M, axis=0) - 9.81)
-    result = calibrate_iron(readings, 9.81)
+    result = calibrate_still(readings, 9.81)
     fitted = np.abs(np.linalg.norm(result.apply(readings.M), axis=0) - 9.81)
     assert raw.max() > 0.4 and fitted.max() < 0.03

@@ -13,10 +13,9 @@ from station.protocols.static import (
     StaticProtocol,
     StaticSettings,
     accelerometer_channels,
-    calibrate_static,
     static_readings,
 )
-from station.protocols.still import record_poses
+from station.protocols.still import calibrate_still, record_poses
 from station.session import Session, SessionWriter, StreamSpec
 
 FAMILY_FALSE_ALARM = 1e-3
@@ -130,7 +129,7 @@ def test_a_repeated_pose_is_refused_and_asked_for_again(tmp_path):
     u = readings.M / np.linalg.norm(readings.M, axis=0)
     cos = u.T @ u - 2 * np.eye(12)
     assert np.degrees(np.arccos(cos.max())) > settings.separation_deg
-    result = calibrate_static(readings, settings.gravity)
+    result = calibrate_still(readings, settings.gravity)
     assert result.dof == 3 * 12 - 2 * 12 - 9  # 12 distinct poses calibrate a triad
 
 

@@ -116,17 +116,18 @@ def _rotary(session, stream, nominal, magnitude):
 def _hand(session, stream, nominal, magnitude):
     """(result, channels, bias) of an iron or free-static session: the biases are estimated with
     the calibration; the frame is `nominal`, else the layout the protocol recorded."""
-    from station.protocols.iron import calibrate_iron, iron_readings
-    from station.protocols.static import calibrate_static, session_channels, static_readings
+    from station.protocols.iron import iron_readings
+    from station.protocols.static import session_channels, static_readings
+    from station.protocols.still import calibrate_still
 
     g = gravity(session.metadata, session.path) if magnitude is None else magnitude
     if nominal is None:
         nominal = read_layout(session.metadata.get("a_nominal"), session.path)
     if session.protocol == "iron":
-        result = calibrate_iron(iron_readings(session, stream), g, nominal)
+        result = calibrate_still(iron_readings(session, stream), g, nominal)
         channels = np.arange(len(session.specs[stream].channels))
     else:
-        result = calibrate_static(static_readings(session, stream), g, nominal)
+        result = calibrate_still(static_readings(session, stream), g, nominal)
         channels = session_channels(session, stream)
     return result, channels, {"bias_source": f"estimated with the calibration ({session.protocol} "
                                              "protocol's still poses)"}

@@ -41,7 +41,6 @@ from station.protocols.still import (
     StillReadings,
     StillSettings,
     StreamTap,
-    calibrate_still,
     run_states,
     still_readings,
     up_direction,
@@ -225,9 +224,3 @@ def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
     faces = recognise_faces(up_direction(still.M, a_nominal, bias_guess), still.mountings,
                             tolerance_deg)
     return IronReadings(still.M, still.sigma, still.windows, still.mountings, faces)
-
-
-def calibrate_iron(readings: IronReadings, gravity: float, nominal=None):
-    """`station.calibrate` with the faces' constraints and the biases estimated (Hwangbo & Kanade
-    factorization, Eqs. 14-15 and 29, then maximum likelihood)."""
-    return calibrate_still(readings, gravity, nominal)

@@ -18,9 +18,10 @@ between poses: the station finds each still pose itself (`station.protocols.stil
           which and the same pose is asked for again; otherwise `position_done` (detail `up`).
 
 Every accelerometer channel of the stream (unit m/s^2) is calibrated; other channels (gyros) help
-the stillness detection. The solver (`calibrate_static`) is `station.calibrate(M, g, d=3,
-bias="estimate")`: the ellipsoid closed form for a triad, Hwangbo & Kanade's joint-bias
-factorization for m > 3, then maximum likelihood with each mean's standard error.
+the stillness detection. The solver (`station.protocols.still.calibrate_still`) is
+`station.calibrate(M, g, d=3, bias="estimate")`: the ellipsoid closed form for a triad, Hwangbo &
+Kanade's joint-bias factorization for m > 3, then maximum likelihood with each mean's standard
+error.
 """
 
 import itertools
@@ -28,7 +29,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.calibrate import calibrate
 from station.errors import CalibrationInputError
 from station.operator import Instruction
 from station.protocols.rotary import mounting
@@ -181,7 +181,8 @@ class StaticProtocol:
 
 
 def static_readings(session, stream: str = "imu", **detector) -> StillReadings:
-    """The accelerometer rows of the still poses of a free-static session (`still_readings`)."""
+    """The accelerometer rows of the still poses of a free-static session (`still_readings`, with
+    its `trim` and detector options)."""
     still = still_readings(session, stream, **detector)
     channels = session_channels(session, stream)
     return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
@@ -200,10 +201,3 @@ def session_channels(session, stream: str = "imu") -> np.ndarray:
                                     "The session file is damaged or not from the free-static "
                                     "protocol.")
     return np.array(channels)
-
-
-def calibrate_static(readings: StillReadings, gravity: float, nominal=None):
-    """`station.calibrate` with the biases estimated: ellipsoid (triad) or joint-bias factorization
-    (m > 3), then maximum likelihood weighted by each mean's standard error."""
-    return calibrate(readings.M, gravity, d=3, bias="estimate", sigma=readings.sigma,
-                     nominal=nominal)
