@@ -152,6 +152,27 @@ def test_hdf5_session_through_the_command(tmp_path, capsys):
     assert "<img" in html.read_text()
 
 
+def test_one_stream_with_accelerometer_and_gyro_channels(tmp_path, capsys):
+    """A 6-channel unit (3 m/s^2 + 3 rad/s in one stream, as a recorded IMU): the channels are
+    taken by unit; the gyro's hidden Earth rate is found, so the gyro columns were read."""
+    from drivers.samples import SampleBlock
+    from station.session import SessionWriter, StreamSpec
+
+    acc, gyro, truth = simulated(seed=4, gyro_effects=["earth_rate=rate=3e-4"])
+    counts = np.round(np.column_stack([acc, gyro]) * 1e6).astype(np.int64)
+    spec = StreamSpec(["ax", "ay", "az", "gx", "gy", "gz"], ["m/s^2"] * 3 + ["rad/s"] * 3, 1e6,
+                      FS, "int64")
+    path = tmp_path / "imu6.h5"
+    metadata = {"protocol": "import", "unit_serial": "SIM6", "gravity": truth["gravity"]}
+    with SessionWriter.create(path, metadata, {"imu": spec}) as w:
+        seq = np.arange(len(counts))
+        w.append("imu", SampleBlock(counts, seq, seq / FS, seq / FS, tuple(spec.channels)))
+    assert main(["diagnose", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["accelerometer_channels"] == 3 and doc["gyro_channels"] == 3
+    assert doc["effects"][:1] == ["earth_rate"]
+
+
 # ------------------------------------------------------------------------------ real recordings
 
 

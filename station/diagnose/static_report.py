@@ -183,33 +183,43 @@ def html_report(doc: dict) -> str:
 
 
 def load(path, **detector) -> StaticData:
-    """StaticData of a session: its accelerometer stream (units m/s^2) and, when there is one,
-    its 3-axis gyro stream (rad/s). Gravity: metadata `gravity`, else standard gravity."""
+    """StaticData of a session: its accelerometer channels (unit m/s^2, one stream) and, when there
+    are any, its 3 gyro channels (rad/s; the same or another stream on the same time base): an
+    imported recording or a free-static session. Gravity: metadata `gravity`, else standard."""
     from station.session import Session
 
     with Session.open(path) as s:
-        by_unit = {}
-        for name, spec in s.specs.items():
-            by_unit.setdefault(spec.units[0] if len(set(spec.units)) == 1 else "", []).append(name)
-        accel, gyro = by_unit.get("m/s^2", []), by_unit.get("rad/s", [])
+        accel, gyro = (_channels(s.specs, unit) for unit in ("m/s^2", "rad/s"))
         if len(accel) != 1 or len(gyro) > 1:
             raise CalibrationInputError(
-                f"{path} has streams {dict(by_unit)} by unit; one accelerometer stream (m/s^2) "
-                "and at most one gyro stream (rad/s) are needed.",
+                f"{path} has accelerometer channels in streams {sorted(accel)} and gyro channels "
+                f"in {sorted(gyro)}; one accelerometer stream (m/s^2) and at most one gyro "
+                "stream (rad/s) are needed.",
                 "Import the accelerometer (and gyro) of one unit into the session.")
-        acc = s.stream(accel[0])
-        gyr = s.stream(gyro[0]) if gyro else None
+        (acc_name, acc_cols), = accel.items()
+        acc = s.stream(acc_name)
+        gyr = None
+        if gyro:
+            (gyro_name, gyro_cols), = gyro.items()
+            gyr = s.stream(gyro_name).to_si()[:, gyro_cols]
         gravity = s.metadata.get("gravity")
         imported = s.metadata.get("import", {}).get("streams", {})
     notes = [] if gravity else [(f"gravity not in the session: {STANDARD_GRAVITY} m/s^2 assumed "
                                 "(only the common scale depends on it)")]
-    raw = [n for n in [accel[0], *gyro] if imported.get(n, {}).get("raw_counts")]
+    raw = [n for n in [acc_name, *gyro] if imported.get(n, {}).get("raw_counts")]
     if raw:
         notes.append(f"streams {raw} hold raw counts: values and parameters are in counts")
-    if gyr is not None and gyr.counts.shape[1] != 3:
-        raise CalibrationInputError(f"gyro stream {gyro[0]!r} has {gyr.counts.shape[1]} channels.",
+    if gyr is not None and gyr.shape[1] != 3:
+        raise CalibrationInputError(f"gyro stream {gyro_name!r} has {gyr.shape[1]} gyro channels.",
                                     "Give a 3-axis gyro stream, or none.")
-    units = [f"{accel[0]}: m/s^2"] + ([f"{gyro[0]}: rad/s"] if gyro else [])
-    return from_arrays(acc.to_si(), acc.spec.rate_hz, gyro=None if gyr is None else gyr.to_si(),
+    units = [f"{acc_name}: m/s^2"] + ([f"{gyro_name}: rad/s"] if gyro else [])
+    return from_arrays(acc.to_si()[:, acc_cols], acc.spec.rate_hz, gyro=gyr,
                        gravity=float(gravity or STANDARD_GRAVITY), units=units, notes=notes,
                        **detector)
+
+
+def _channels(specs: dict, unit: str) -> dict:
+    """{stream name: indices of its channels in `unit`} for the streams that have any."""
+    found = {name: [i for i, u in enumerate(spec.units) if u == unit]
+             for name, spec in specs.items()}
+    return {name: cols for name, cols in found.items() if cols}
