@@ -51,9 +51,12 @@ def test_there_are_small_committed_example_sessions():
 def test_replay_of_an_example_session_reproduces_its_stored_results_exactly(path):
     reduced, result = replay(path)
     s = stored(path)
-    assert np.array_equal(reduced.M, s.readings)
+    assert np.array_equal(reduced.M, s.readings)  # the reduction is exact on any machine
     assert np.array_equal(reduced.sigma, s.readings_sigma)
-    assert_same(result, s.calibration)
+    # solved by another numpy/LAPACK build: last-bit differences (seen 2e-16 absolute, on
+    # residuals of 1e-4 that are differences of readings near 1; 3e-9 relative on a 1-sigma
+    # from the gauge pseudo-inverse)
+    assert_same(result, s.calibration, rtol=1e-6)
 
 
 def test_other_settings_give_other_numbers_under_a_new_name(copy):
