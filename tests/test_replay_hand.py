@@ -142,3 +142,18 @@ def test_replay_refuses_an_unknown_protocol(tmp_path):
     with pytest.raises(ValueError, match="'import' session; replay reduces rotary, iron, static"):
         replay(path)
     assert main(["replay", str(path)]) == 1
+
+
+def test_station_diagnose_reads_the_recorded_hand_session(session, tmp_path, capsys):
+    """An effect-free hand-bench session (iron or free static, recorded through the serial driver)
+    goes to the free-static diagnosis: every still pose found, nothing named at a family-wise
+    false alarm of FALSE_ALARM, the white-noise check holding."""
+    _, path = session
+    with Session.open(path) as f:
+        poses = len(f.results("live").readings[0])
+    assert main(["diagnose", str(path), "--json", "--alpha", str(FALSE_ALARM)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["protocol"] == "free_static" and doc["gyro_channels"] == 0
+    assert doc["intervals"] >= poses  # the still poses (and the rest before the first turn)
+    assert doc["effects"] == [], doc["steps"][0]["evidence"]
+    assert "rate_error" in doc["not_testable"]
