@@ -5,7 +5,8 @@ signature, m in {3, 6, 12}, n = 20. Prints, per effect, how often the right effe
 is named, the gap before and after, and for rate_error, scale_nonlinearity and bias_drift the
 eps of the calibration before and after against sqrt(trace(CRLB)) (for rate_error also against
 the bound of the random-effects model at the true spread, `crlb(..., spread=s)`, which is the
-smallest eps possible when the table's rate scatters); then the time of one full 20-position,
+smallest eps possible when the table's rate scatters unseen; with the table's encoder,
+`rate_error_encoder`, the nominal bound applies); then the time of one full 20-position,
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
 [--effects rate_error none] [--no-timing]`.
 """
@@ -38,22 +39,25 @@ CASES = {
     "bias_drift": "bias_drift=warmup=0.004,heating=0.0006",
     "scale_nonlinearity": "scale_nonlinearity=k2=2e-4",
     "rate_error": "rate_error=spread=1.5e-4",
+    "rate_error_encoder": "rate_error=scale=1e-4,spread=1.5e-4,encoder=1",
     "earth_rate": "earth_rate=rate=2e-4",
     "axis_wobble": "axis_wobble=angle_deg=0.004",
     "latency": "latency=delay=3e-4",
     "saturation": "saturation",
 }
-"""Effect -> simulator spec of the hidden effect for the short sessions. The saturation range is
-set per session 2 noise sigma below the largest steady output (`rail_below_peak`)."""
+"""Case -> simulator spec of the hidden effect for the short sessions; the right call is the spec's
+effect name. `rate_error`: the table reports the commanded angle; `rate_error_encoder`: its angle
+reads the shaft. The saturation range is set per session 2 noise sigma below the largest steady
+output (`rail_below_peak`)."""
 
 LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
 
 
-def session(effect: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
-    """(RotaryData, truth) of one simulated session hiding `effect`."""
-    name, params = parse(CASES[effect])
+def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
+    """(RotaryData, truth) of one simulated session hiding the effect of `case`."""
+    name, params = parse(CASES[case])
     effects = {} if params is None else {name: params}
-    if effect == "saturation":
+    if case == "saturation":
         effects = {name: Saturation(rail_below_peak(m, seed, timing, fs, n))}
     rng = np.random.default_rng(seed)
     unit = gyro_array(rng, LAYOUTS[m], fs=fs)
@@ -70,16 +74,16 @@ def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
     return float(np.abs(steady).max() - sigmas * unit.sigma.max())
 
 
-def run_case(effect: str, m: int, seed: int, **kwargs) -> dict:
+def run_case(case: str, m: int, seed: int, **kwargs) -> dict:
     """Diagnose one session; the named effects, gaps and calibration errors."""
-    d, truth = session(effect, m, seed, **kwargs)
+    d, truth = session(case, m, seed, **kwargs)
     result = diagnose(d)
     a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
     bound = float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m))))
     spread = truth["effects"].get("rate_error", {}).get("spread")
     rate = result.final.fitted.get("rate_error")
     return {
-        "effect": effect,
+        "case": case,
         "m": m,
         "seed": seed,
         "named": result.effects,
@@ -90,8 +94,16 @@ def run_case(effect: str, m: int, seed: int, **kwargs) -> dict:
         "crlb": bound,
         "crlb_random": float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m, spread=spread)))),
         "spread_true": spread,
-        "spread_fitted": None if rate is None else (rate.values["spread"], rate.sigma["spread"]),
+        "spread_fitted": _estimate(rate, "spread"),
+        "gain_fitted": _estimate(rate, "gain"),  # with the table's encoder
     }
+
+
+def _estimate(fitted, key: str):
+    """(value, 1-sigma) of a fitted extension's parameter, None when it has no such estimate."""
+    if fitted is None or key not in fitted.values or not np.isfinite(fitted.sigma[key]):
+        return None
+    return float(fitted.values[key]), float(fitted.sigma[key])
 
 
 def rms_ratio(runs, key: str, bound: str) -> float:
@@ -99,13 +111,14 @@ def rms_ratio(runs, key: str, bound: str) -> float:
     return float(np.sqrt(np.mean([(r[key] / r[bound]) ** 2 for r in runs])))
 
 
-def acceptance(seeds: int, effects=tuple(CASES)) -> dict:
-    """Per effect: rate of the right call, gaps and eps over m in {3, 6, 12} and `seeds` seeds."""
+def acceptance(seeds: int, cases=tuple(CASES)) -> dict:
+    """Per case: rate of the right call, gaps and eps over m in {3, 6, 12} and `seeds` seeds."""
     out = {}
-    for effect in effects:
-        runs = [run_case(effect, m, 1000 * m + s) for m in LAYOUTS for s in range(seeds)]
+    for case in cases:
+        effect = parse(CASES[case])[0]
+        runs = [run_case(case, m, 1000 * m + s) for m in LAYOUTS for s in range(seeds)]
         right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none") for r in runs]
-        out[effect] = {
+        out[case] = {
             "sessions": len(runs),
             "right_rate": float(np.mean(right)),
             "named": [r["named"] for r in runs],
@@ -119,6 +132,7 @@ def acceptance(seeds: int, effects=tuple(CASES)) -> dict:
             "eps_after_over_random_bound_rms": rms_ratio(runs, "eps_after", "crlb_random"),
             "random_bound_over_bound_rms": rms_ratio(runs, "crlb_random", "crlb"),
             "spread_fitted": [r["spread_fitted"] for r in runs],
+            "gain_fitted": [r["gain_fitted"] for r in runs],
         }
     return out
 
@@ -135,9 +149,9 @@ def timing() -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
-    parser.add_argument("--seeds", type=int, default=4, help="sessions per effect and m")
+    parser.add_argument("--seeds", type=int, default=4, help="sessions per case and m")
     parser.add_argument("--effects", nargs="+", choices=list(CASES), default=list(CASES),
-                        help="hidden effects to run (default: all)")
+                        help="cases (hidden effects) to run (default: all)")
     parser.add_argument("--no-timing", action="store_true", help="skip the full-session timing")
     args = parser.parse_args()
     out = {"acceptance": acceptance(args.seeds, args.effects)}
@@ -148,8 +162,8 @@ def main() -> None:
         return
     if not args.no_timing:
         print(f"full session: {out['timing_full_session']['seconds']:.1f} s")
-    for effect, r in out["acceptance"].items():
-        print(f"{effect:19s} right {r['right_rate']:.2f} of {r['sessions']}  eps/bound "
+    for case, r in out["acceptance"].items():
+        print(f"{case:19s} right {r['right_rate']:.2f} of {r['sessions']}  eps/bound "
               f"{r['eps_before_over_bound_rms']:.2f} -> {r['eps_after_over_bound_rms']:.2f}  "
               f"eps/random-effects bound {r['eps_before_over_random_bound_rms']:.2f} -> "
               f"{r['eps_after_over_random_bound_rms']:.2f}")

@@ -86,6 +86,18 @@ def test_rate_error_scales_the_readings(setup):
     assert np.allclose(np.linalg.norm(m1, axis=0) / np.linalg.norm(m0, axis=0), factors, rtol=1e-4)
 
 
+def test_rate_error_with_an_encoder_shows_in_the_recorded_angle(setup):
+    from station.diagnose.data import from_arrays
+
+    echo, _, _ = run(setup, ["rate_error=scale=0.02,spread=0.005"])
+    arrays, truth, _ = run(setup, ["rate_error=scale=0.02,spread=0.005,encoder=1"])
+    # the command's angle: 1 to rounding, well inside the diagnosis' ENCODER_TOL
+    assert np.abs(from_arrays(echo).rate_factors - 1).max() < 1e-12
+    # the angle's slope over whole turns is the true rate: factors to rounding
+    assert np.allclose(from_arrays(arrays).rate_factors, truth["rate_factors"], rtol=1e-12)
+    assert truth["effects"]["rate_error"]["encoder"] is True
+
+
 def test_axis_wobble_adds_a_tone_and_changes_the_mean_at_second_order(setup):
     a, c = setup
     beta = np.radians(2.0)

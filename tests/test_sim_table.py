@@ -88,6 +88,18 @@ def test_rate_error_changes_true_motion_not_the_report():
     assert s.true_angle == pytest.approx(1.01 * s.angle)
 
 
+def test_an_encoder_reports_the_true_motion_under_rate_error():
+    clock = SteppedClock()
+    table = RotaryTable(clock, max_accel=10.0, rate_error=RateError(scale=0.01, encoder=True),
+                        seed=1)
+    table.set_rate(1.0)
+    table.start()
+    clock.t = 10.0
+    s = table.state()
+    assert s.true_rate == pytest.approx(1.01) and s.rate == s.true_rate
+    assert s.angle == s.true_angle and s.rate_setpoint == 1.0
+
+
 def test_rate_noise_has_its_standard_deviation_while_moving_only():
     clock = SteppedClock()
     table = RotaryTable(clock, max_accel=10.0, rate_noise=0.01, seed=3)

@@ -74,6 +74,16 @@ class RotaryData:
         s0, s1 = self.windows["static"]
         return np.sqrt(self.y[:, s0:s1].var(1, ddof=1).mean(0))
 
+    @cached_property
+    def rate_factors(self) -> np.ndarray:
+        """(n,) mean table rate over each whole-revolution rotating window, as read by the
+        table's angle, over the commanded rate c: exactly 1 when the angle is the command's."""
+        r0 = self.windows["rotating"][0]
+        last = self.rot_stop - 1
+        rows = np.arange(self.shape[0])
+        turned = self.angle[rows, last] - self.angle[rows, r0]
+        return turned * self.fs / (last - r0) / self.c
+
     @property
     def sigma_m(self) -> np.ndarray:
         """(m, n) standard error of M for white noise of `sigma` per sample."""

@@ -97,9 +97,10 @@ def _in_calibration(fitted: dict) -> tuple[dict, dict]:
     inside, options = {}, {}
     for name, f in fitted.items():
         own = getattr(EXTENSIONS[name], "calibration_options", None)
-        if own is not None:
+        own_options = None if own is None else own(f)
+        if own_options is not None:
             inside[name] = f
-            options.update(own(f))
+            options.update(own_options)
     return inside, options
 
 

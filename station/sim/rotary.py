@@ -35,7 +35,8 @@ def random_orientations(n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def table_motion(timing: RotaryTiming, fs: float, factors: np.ndarray):
-    """Commanded rate (k,), reported angle (k,), true rate and cumulative true angle (n, k).
+    """Times and commanded rate (k,), commanded angle (k,), true rate and cumulative true angle
+    (n, k).
 
     The true motion is the commanded one times each position's rate factor; the true angle keeps
     counting across positions (the table is not reset between positions).
@@ -93,6 +94,7 @@ def simulate_rotary(
     orientation = np.asarray(orientations, float)
     n, fs = orientation.shape[0], unit.fs
     factors = effects["rate_error"].factors(n, rng) if "rate_error" in effects else np.ones(n)
+    encoder = "rate_error" in effects and effects["rate_error"].encoder
     t, rate_cmd, angle_cmd, rate, angle = table_motion(timing, fs, factors)
     k = t.size
     t0 = np.arange(n) * (k / fs + gap)
@@ -109,7 +111,8 @@ def simulate_rotary(
         "t0": t0,
         "rate_cmd": rate_cmd,
         "c_cmd": np.float64(timing.rate),
-        "angle": np.broadcast_to(angle_cmd, (n, k)).copy(),
+        # the table's reported angle within each position: its encoder's, or the command's
+        "angle": factors[:, None] * angle_cmd if encoder else np.broadcast_to(angle_cmd, (n, k)).copy(),
         **{f"seg_{name}": np.array(seg) for name, seg in segments.items()},
     }
     if a_nominal is not None:

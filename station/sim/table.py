@@ -3,8 +3,9 @@
 The table's controller ramps its rate towards the setpoint with bounded acceleration, integrates the
 angle exactly (piecewise linear rate), and raises `at_rate` once the rate has stayed within
 `tolerance` of the setpoint for `settle_time`. `TableState.rate` and `.angle` are what the table
-reports (its own encoder and controller); with the `rate_error` effect the physical motion the IMU
-feels is `true_rate = factor * rate`, where the factor is drawn anew at every `start()`.
+reports; with the `rate_error` effect the physical motion the IMU feels is `true_rate = factor *
+rate`, where the factor is drawn anew at every `start()`, and the reported motion is the
+command's (default) or, with `RateError(encoder=True)`, the true one (an encoder on the shaft).
 """
 
 import collections
@@ -198,10 +199,11 @@ class RotaryTable:
                 self._in_band_since is not None
                 and self._t - self._in_band_since >= self.settle_time
             )
+            encoder = self._rate_error.encoder  # the registers read the shaft, not the command
             return TableState(
                 time=self._t,
-                rate=self._rate + noise,
-                angle=self._angle,
+                rate=(self._factor if encoder else 1.0) * self._rate + noise,
+                angle=self._true_angle if encoder else self._angle,
                 rate_setpoint=self._setpoint,
                 running=self._running,
                 moving=moving,

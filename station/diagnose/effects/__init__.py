@@ -6,9 +6,9 @@ Each module exposes
   without it (`prediction`), by weighted least squares on the binned residuals;
 - `apply(ctx, fitted, x, ...)`: its distortion at its stage, through the simulator's own effect
   function (imported, never copied);
-- optionally `calibration_options(fitted) -> dict`: keyword arguments of `station.calibrate` when
-  the extension enters the calibration's own model (rate_error: the magnitudes' spread) instead
-  of a correction of the readings M.
+- optionally `calibration_options(fitted) -> dict | None`: keyword arguments of
+  `station.calibrate` when the extension enters the calibration's own model (rate_error: the
+  magnitudes' spread) instead of a correction of the readings M; None: corrected for.
 """
 
 from dataclasses import dataclass

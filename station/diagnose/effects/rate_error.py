@@ -1,7 +1,15 @@
-"""Extension `rate_error`: the table's true rate is the command times 1 + delta_j per position,
-delta_j ~ N(0, spread^2) a random effect (one parameter, the spread s).
+"""Extension `rate_error`: the table's true rate is the command times 1 + delta_j per position.
 
-Why random: the table reports the commanded angle, so nothing but the readings tells delta_j, and
+When the table's angle reads the shaft (an encoder: `RotaryData.rate_factors` differ from 1), the
+delta_j are measured: the extension has one parameter, the gain lambda of the signature
+delta_j s_j(t), a fixed effect (LR ~ chi2(1)); lambda = 1 says the readings follow the encoder's
+rates, and the readings are corrected like any fixed effect (the common part of the delta_j
+included: with the encoder it is no longer a common scale factor of unknown size).
+
+Otherwise (the table reports the commanded angle) delta_j ~ N(0, spread^2) is a random effect (one
+parameter, the spread s).
+
+Why random: nothing but the readings tells delta_j then, and
 with one free factor per position the magnitudes |v_j| = c (1 + delta_j) leave a only determined
 up to GL(3) (the magnitude constraint is what fixes g = a a^T). With the prior on delta_j, a is
 identifiable again. The common part of the delta_j (the simulator's `scale`) is a common scale
@@ -32,6 +40,9 @@ from station.diagnose.effects import Fitted
 from station.sim.effects import rate_error
 
 STAGE = "rate"
+ENCODER_TOL = 1e-9
+"""Largest |rate factor - 1| read from the table's angle that still counts as the command's echo
+(no encoder information)."""
 
 
 def quadratic_design(u: np.ndarray) -> np.ndarray:
@@ -65,8 +76,11 @@ def reml_spread(delta: np.ndarray, w: np.ndarray, x: np.ndarray) -> tuple[float,
 
 
 def fit(ctx, prediction, r) -> Fitted:
-    """The spread s, the factors 1 + delta_j (BLUP) and the deviance terms; see the module
-    docstring."""
+    """With an encoder, the gain of the measured factors; otherwise the spread s, the factors
+    1 + delta_j (BLUP) and the deviance terms; see the module docstring."""
+    measured = ctx.data.rate_factors - 1.0
+    if np.max(np.abs(measured)) > ENCODER_TOL:
+        return _fit_encoder(ctx, prediction, r, measured)
     lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
     delta_hat, w = lf.theta[:, 0], lf.cov[:, 0, 0]
     x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
@@ -90,9 +104,42 @@ def fit(ctx, prediction, r) -> Fitted:
     )
 
 
-def calibration_options(fitted: Fitted) -> dict:
+def _fit_encoder(ctx, prediction, r, measured: np.ndarray) -> Fitted:
+    """The gain lambda of the encoder's relative rate errors `measured` (n,); factors
+    1 + lambda measured_j.
+
+    The calibration absorbs the part X e of the measured_j (common scale and quadratic forms of
+    the axes, `quadratic_design`), so the residuals of the twin without this extension hold only
+    the rest, measured - X e (weighted by the information w_j^-1 of each position's level): the
+    gain is the least-squares coefficient of that rest times s_j(t), whatever the correction the
+    calibration already saw."""
+    per_position = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
+    info = 1.0 / per_position.cov[:, 0, 0]
+    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
+    absorbed = x @ np.linalg.lstsq(x * np.sqrt(info)[:, None], np.sqrt(info) * measured,
+                                   rcond=None)[0]
+    rest = measured - absorbed
+    lf = linear.fit(ctx.data, r, [prediction.s * rest[:, None, None]], ctx.sigma, "global")
+    gain, sd = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
+    return Fitted(
+        "rate_error",
+        {"factors": 1.0 + gain * measured, "gain": gain, "scale": float(measured.mean()),
+         "spread": float(measured.std(ddof=1))},
+        {"factors": sd * np.abs(measured), "gain": sd, "scale": np.nan, "spread": np.nan},
+        dof=1,
+        reduction=lf.reduction(),
+        notes="rates read by the table's encoder: scale and spread are the mean and sd of "
+        "true/commanded - 1 over the positions (measured, no sigma); gain 1 means the readings "
+        "follow the encoder; the gain is tested on what a calibration cannot absorb",
+    )
+
+
+def calibration_options(fitted: Fitted) -> dict | None:
     """Keyword arguments of station.calibrate for the uncorrected Eq. (18) readings: the
-    soft-magnitude maximum likelihood at the fitted spread."""
+    soft-magnitude maximum likelihood at the fitted spread; None when the encoder measured the
+    factors (the readings are corrected instead)."""
+    if "gain" in fitted.values:
+        return None
     return {"magnitude_spread": float(fitted.values["spread"])}
 
 

@@ -6,6 +6,11 @@ scale : float
     Overall relative error of the table's rate: true = commanded * (1 + scale + delta_j).
 spread : float
     Standard deviation of the per-position (per run) relative error delta_j.
+encoder : bool
+    What the table's angle (and rate) registers report. False (default): the command, so nothing
+    but the IMU's readings shows the error (a controller that echoes its set point). True: an
+    encoder on the shaft reads the true motion, so the recorded angle shows each position's rate
+    (`encoder=1` on the command line).
 
 The distortion multiplies the angular-rate truth by the factor of each position, so |v_j| changes
 while its direction does not.
@@ -22,6 +27,10 @@ class RateError:
 
     scale: float = 0.0
     spread: float = 0.0
+    encoder: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "encoder", bool(self.encoder))
 
     def factors(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """(n,) true/commanded rate ratios 1 + scale + delta_j, delta_j ~ N(0, spread^2)."""
