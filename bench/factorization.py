@@ -9,7 +9,13 @@ with the Cramer-Rao bound of each invariant (the 1-sigma of `station.calibrate` 
 readings of the same orientations, noise = per-sample sigma with quantisation, over sqrt(samples)).
 Errors are gauge invariant: biases, gains |a_i| and angles between sensor axes.
 
-Usage: .venv/bin/python bench/factorization.py [--trials 1000] [--seed 0] [--json]
+`--per-sample` feeds the linear factorization the 200 single samples (the paper's "200 gravity
+magnitude constraints") instead of the 20 orientation means; ML always refines on the means (a
+sufficient statistic). The JSON also gives the Fisher information of one quantised sample about
+its mean (`quantised_information`): the exact likelihood of a rounded Gaussian against the
+additive model sigma^2 + 1/12 used for the bound.
+
+Usage: .venv/bin/python bench/factorization.py [--trials 1000] [--seed 0] [--per-sample] [--json]
 """
 
 import argparse
@@ -19,6 +25,7 @@ import sys
 import time
 
 import numpy as np
+from scipy.stats import norm
 
 from station.calibrate import calibrate
 from station.factorization import factorize
@@ -54,14 +61,27 @@ SIGMA_AVERAGED = np.sqrt(SIGMA_COUNTS**2 + 1 / 12) / np.sqrt(SAMPLES) * VOLTS_PE
 
 
 def simulate(rng: np.random.Generator, a: np.ndarray, b: np.ndarray) -> tuple:
-    """Averaged readings (4 x 20, volts) of random orientations, noisy and quantised per sample,
-    and the noiseless readings of the same orientations."""
+    """Samples (4 x 20 x 10, volts) at random orientations, noisy and quantised, and the
+    noiseless readings of the same orientations (4 x 20)."""
     g = rng.normal(size=(3, ORIENTATIONS))
     g /= np.linalg.norm(g, axis=0)  # gravity direction uniform on the sphere, 1 g
     volts = a.T @ g + b[:, None]
     noise = SIGMA_COUNTS * rng.normal(size=(a.shape[1], ORIENTATIONS, SAMPLES))
     counts = np.clip(np.round(volts[:, :, None] / VOLTS_PER_COUNT + noise), 0, 2047)
-    return counts.mean(axis=2) * VOLTS_PER_COUNT, volts
+    return counts * VOLTS_PER_COUNT, volts
+
+
+def quantised_information(sigma: float = SIGMA_COUNTS, offsets: int = 64) -> dict:
+    """Fisher information (1 / counts^2) of one rounded N(mu, sigma^2) sample about mu, averaged
+    over the offset of mu within a count, against the additive model's 1 / (sigma^2 + 1/12) and
+    the unquantised 1 / sigma^2."""
+    k = np.arange(-12, 13)[:, None]
+    mu = (np.arange(offsets) + 0.5) / offsets
+    lo, hi = (k - 0.5 - mu) / sigma, (k + 0.5 - mu) / sigma
+    p = norm.cdf(hi) - norm.cdf(lo)
+    dp = (norm.pdf(lo) - norm.pdf(hi)) / sigma
+    exact = np.sum(np.divide(dp**2, p, out=np.zeros_like(p), where=p > 0), axis=0).mean()
+    return {"exact": float(exact), "additive": 1 / (sigma**2 + 1 / 12), "unquantised": sigma**-2}
 
 
 def bound(noiseless: np.ndarray) -> np.ndarray:
@@ -80,8 +100,9 @@ def invariants(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.concatenate([b, gains, angles])
 
 
-def table1(trials: int, seed: int) -> dict:
-    """Errors of the linear factorization and of the ML refinement over `trials` simulations."""
+def table1(trials: int, seed: int, per_sample: bool = False) -> dict:
+    """Errors of the linear factorization (on the orientation means, or on every sample with
+    `per_sample`) and of the ML refinement over `trials` simulations."""
     a, b = true_layout()
     truth = invariants(a, b)
     rng = np.random.default_rng(seed)
@@ -89,12 +110,15 @@ def table1(trials: int, seed: int) -> dict:
     crlb = np.empty((trials, len(truth)))
     t_lin = t_ml = 0.0
     for t in range(trials):
-        readings, noiseless = simulate(rng, a, b)
+        samples, noiseless = simulate(rng, a, b)
+        readings = samples.mean(axis=2)
         crlb[t] = bound(noiseless)
         t0 = time.perf_counter()
-        fact = factorize(readings, magnitude=1.0)  # magnitude constraints only: quartic, Eq. 29
+        # magnitude constraints only: quartic, Eq. 29
+        fact = factorize(samples.reshape(len(b), -1) if per_sample else readings, magnitude=1.0)
         t1 = time.perf_counter()
-        fit = refine(readings, fact.a, fact.v, bias0=fact.bias, estimate_bias=True, magnitude=1.0)
+        v0 = fact.v.reshape(3, ORIENTATIONS, SAMPLES).mean(axis=2) if per_sample else fact.v
+        fit = refine(readings, fact.a, v0, bias0=fact.bias, estimate_bias=True, magnitude=1.0)
         t2 = time.perf_counter()
         t_lin, t_ml = t_lin + t1 - t0, t_ml + t2 - t1
         lin[t] = invariants(fact.a, fact.bias) - truth
@@ -118,7 +142,8 @@ def table1(trials: int, seed: int) -> dict:
                          "linear_over_ml": linear / refined, "ml_over_crlb": refined / best,
                          "paper_linear_over_ml": paper / refined}
     return {
-        "trials": trials, "seed": seed,
+        "trials": trials, "seed": seed, "linear_input": "samples" if per_sample else "means",
+        "quantised_information": quantised_information(),
         "setup": {"orientations": ORIENTATIONS, "samples": SAMPLES, "sigma_counts": SIGMA_COUNTS,
                   "volts_per_count": VOLTS_PER_COUNT, "bias_volts": BIAS_VOLTS},
         "rows": rows, "groups": groups,
@@ -134,7 +159,10 @@ def table1(trials: int, seed: int) -> dict:
 def _print(result: dict) -> None:
     """Human-readable table: paper columns beside the measured RMS errors."""
     print(f"Hwangbo & Kanade Table I, {result['trials']} trials, seed {result['seed']}, "
-          f"sigma {SIGMA_COUNTS} counts/sample")
+          f"sigma {SIGMA_COUNTS} counts/sample, linear on the {result['linear_input']}")
+    info = result["quantised_information"]
+    print(f"Fisher information of a quantised sample (1/count^2): exact {info['exact']:.4f}, "
+          f"additive model {info['additive']:.4f}, unquantised {info['unquantised']:.4f}")
     print(f"{'':6} {'truth':>7} {'paper lin':>10} {'lin RMS':>10} {'lin mean':>10} "
           f"{'paper NL':>10} {'ML RMS':>10} {'ML mean':>10}")
     for r in result["rows"]:
@@ -157,9 +185,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--per-sample", action="store_true",
+                        help="linear factorization on the 200 samples, not the 20 means")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = parser.parse_args(argv)
-    result = table1(args.trials, args.seed)
+    result = table1(args.trials, args.seed, args.per_sample)
     if args.json:
         print(json.dumps(result, indent=2))
     else:
