@@ -9,6 +9,7 @@ harmonics 12 n m coefficients, transients 2 n m means; `averaged` has the calibr
 rail side held by construction contributes one chi2(1)-like deviance.
 """
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from scipy import stats
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
+from station.diagnose.effects.rate_error import encoder_reads
 from station.diagnose.gap import HARMONICS
 from station.errors import CalibrationInputError
 from station.importers import import_npz
@@ -69,6 +71,12 @@ def rate_error(tmp_path_factory):
                   rate_error={"spread": RATE_SPREAD})
 
 
+@pytest.fixture(scope="module")
+def rate_error_encoder(tmp_path_factory):
+    return record(tmp_path_factory.mktemp("encoder") / "encoder.h5", RATE_POSITIONS,
+                  rate_error={"spread": RATE_SPREAD, "encoder": True})
+
+
 def check_explained(result, d):
     gaps, bounds = result.steps[-1].gap, gap_bounds(result, d)
     assert all(gaps[k] < bounds[k] for k in bounds), (gaps, bounds)
@@ -88,6 +96,31 @@ def test_hidden_table_rate_error_is_named(rate_error):
     assert d.shape[0] == RATE_POSITIONS
     result = diagnose(d)
     assert result.effects[:1] == ["rate_error"]
+    check_explained(result, d)
+
+
+def test_a_table_that_reports_its_command_keeps_the_random_effect(rate_error):
+    """Even when the encoder test is forced to fire on its noise (1-sigma understated 1000 x), the
+    likelihood keeps the random-effects fit of an echo table's hidden rate error."""
+    d = session_data.from_session(rate_error)
+    forced = dataclasses.replace(d, rate_factors_sigma=d.rate_factors_sigma * 1e-3)
+    assert encoder_reads(forced)
+    result = diagnose(forced)
+    assert result.effects[:1] == ["rate_error"]
+    assert "gain" not in result.final.fitted["rate_error"].values  # the spread, not the encoder
+
+
+def test_rate_error_read_by_the_tables_encoder_is_corrected(rate_error_encoder):
+    """The table's angle reads the shaft: each position's rate factor is measured from rest to
+    rest, the extension's gain is 1 within its sigma, and the model explains the session."""
+    d = session_data.from_session(rate_error_encoder)
+    assert encoder_reads(d)
+    # measured spread of the factors within 5 x its standard error (16 draws: sd / sqrt(30))
+    assert abs(np.std(d.rate_factors - 1, ddof=1) - RATE_SPREAD) < 5 * RATE_SPREAD / np.sqrt(30)
+    result = diagnose(d)
+    assert result.effects[:1] == ["rate_error"]
+    fitted = result.final.fitted["rate_error"]
+    assert abs(fitted.values["gain"] - 1) < 3.29 * fitted.sigma["gain"], fitted.values["gain"]
     check_explained(result, d)
 
 

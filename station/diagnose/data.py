@@ -36,6 +36,8 @@ class RotaryData:
     windows : name -> (2,) [start, stop) of static, spinup, rotating, spindown; the rotating
         window is cut per position to whole revolutions (rot_stop, (n,)).
     bin : samples per bin of the binned residuals.
+    rate_factors_sigma : (n,) 1-sigma of `rate_factors` (0: read off an exact angle array;
+        recorded sessions: the IMU timing of the turning time).
     """
 
     counts: np.ndarray
@@ -50,6 +52,7 @@ class RotaryData:
     a_nominal: np.ndarray | None
     bin: int
     times: np.ndarray | None = None
+    rate_factors_sigma: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -77,7 +80,8 @@ class RotaryData:
     @cached_property
     def rate_factors(self) -> np.ndarray:
         """(n,) mean table rate over each whole-revolution rotating window, as read by the
-        table's angle, over the commanded rate c: exactly 1 when the angle is the command's."""
+        table's angle, over the commanded rate c: 1 when the angle is the command's (to rounding
+        for an angle array, to `rate_factors_sigma` for a recorded session)."""
         r0 = self.windows["rotating"][0]
         last = self.rot_stop - 1
         rows = np.arange(self.shape[0])
@@ -149,7 +153,7 @@ def from_session(session_or_path, stream: str = "imu", bin_seconds: float = 0.1)
     grid = recorded.arrays(session_or_path, stream)
     return _rotary_data(grid["counts"], grid["lsb"], grid["fs"], grid["rate"], grid["c"],
                         grid["angle"], grid["windows"], grid["a_nominal"], bin_seconds,
-                        grid["times"][:, 0], grid["times"])
+                        grid["times"][:, 0], grid["times"], grid["rate_factors_sigma"])
 
 
 def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
@@ -188,10 +192,11 @@ def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
 
 
 def _rotary_data(counts, lsb, fs, rate, c, angle, windows, a_nominal, bin_seconds, t0,
-                 times=None) -> RotaryData:
+                 times=None, rate_factors_sigma=None) -> RotaryData:
     """The RotaryData of checked arrays; the rotating window cut to whole turns per position."""
     r0, r1 = windows["rotating"]
     rot_stop = np.array([whole_revolutions(a, r0, r1)[0] for a in angle])
+    sd = np.zeros(len(angle)) if rate_factors_sigma is None else np.asarray(rate_factors_sigma)
     return RotaryData(counts=counts, lsb=np.array(lsb, float), fs=fs, t0=t0, rate=rate, c=c,
                       angle=angle, windows=windows, rot_stop=rot_stop, a_nominal=a_nominal,
-                      bin=max(1, round(bin_seconds * fs)), times=times)
+                      bin=max(1, round(bin_seconds * fs)), times=times, rate_factors_sigma=sd)

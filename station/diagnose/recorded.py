@@ -34,7 +34,10 @@ spin-down). A latency common to all sensors is absorbed there (it is not identif
 the table's timing); latencies differing between sensors remain. The rate profile is the
 commanded rate c (the table's recorded set point) times that trapezoid; the table angle is the
 recorded angle at rest before the spin-up (exact: a still table's angle does not depend on the
-reading's stamp) plus the integral of that rate profile.
+reading's stamp) plus the integral of that rate profile times the position's rate factor: the
+angle the table reports from rest to rest over c times the IMU-timed turning time (1 for a table
+that reports its command, to the IMU timing's precision; the true rate's factor for a table whose
+angle reads the shaft, which the `rate_error` extension then uses).
 
 Sample instants come from the sequence numbers at the nominal rate (`station.recorder.
 sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
@@ -85,10 +88,12 @@ def arrays(session, stream: str = "imu") -> dict:
     times = t[index]
     c = _commanded(session.path, table, pos.values())
     rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values())])
-    angle = np.stack([_angle(session.path, table, tj, p, j, c)
-                      for tj, (j, p) in zip(times, pos.items())])
+    factors = [_rate_factor(session.path, table, p, j, c) for j, p in pos.items()]
+    angle = np.stack([_angle(session.path, table, tj, p, j, c * f)
+                      for tj, (j, p), (f, _) in zip(times, pos.items(), factors)])
     return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
+            "rate_factors_sigma": np.array([sd for _, sd in factors]),
             "a_nominal": _nominal(session.metadata, len(data.spec.channels))}
 
 
@@ -121,30 +126,41 @@ def _complete(t, seq, fs, t0, t1, j) -> None:
 
 
 def _ramps(t, y, p, j) -> dict:
-    """Spin start ts, spin-up slope up (1/s), stop te, spin-down slope down, from the IMU."""
-    base = y[(t >= p["s0"]) & (t <= p["s1"])].mean(0)
-    d = y[(t >= p["r0"]) & (t <= p["r1"])].mean(0) - base
+    """Spin start ts, spin-up slope up (1/s), stop te, spin-down slope down, from the IMU; and
+    the turning time at full rate (te + 1/(2 down)) - (ts + 1/(2 up)) with its 1-sigma: the two
+    line fits, and the noise of the static and rotating means that scale f (an error e . D /
+    |D|^2 moves both half crossings inwards by (e . D / |D|^2) / (2 slope))."""
+    static, rotating = ((t >= p["s0"]) & (t <= p["s1"])), ((t >= p["r0"]) & (t <= p["r1"]))
+    base = y[static].mean(0)
+    d = y[rotating].mean(0) - base
     f = (y - base) @ d / (d @ d)
-    ts, up = _line(t, f, p["s1"], p["r0"], j, "spin-up")
-    te, down = _line(t, 1 - f, p["r1"], p["done"], j, "spin-down")
-    return {"ts": ts, "up": up, "te": te, "down": down}
+    ts, up, half_up, sd_up = _line(t, f, p["s1"], p["r0"], j, "spin-up")
+    te, down, half_down, sd_down = _line(t, 1 - f, p["r1"], p["done"], j, "spin-down")
+    var_means = y[static].var(0, ddof=1) * (1 / static.sum() + 1 / rotating.sum())
+    sd_scale = 0.5 * (1 / up + 1 / down) * np.sqrt(var_means @ d**2) / (d @ d)
+    return {"ts": ts, "up": up, "te": te, "down": down, "turning": half_down - half_up,
+            "turning_sd": float(np.sqrt(sd_up**2 + sd_down**2 + sd_scale**2))}
 
 
 def _line(t, f, t0, t1, j, what) -> tuple:
-    """(zero crossing, slope) of the straight line through the samples of [t0, t1] whose f lies
-    in RAMP_BAND (f rising from 0 to 1)."""
+    """(zero crossing, slope, half crossing, its 1-sigma) of the straight line through the
+    samples of [t0, t1] whose f lies in RAMP_BAND (f rising from 0 to 1)."""
     on = (t >= t0) & (t <= t1) & (f > RAMP_BAND[0]) & (f < RAMP_BAND[1])
     if on.sum() < MIN_RAMP_SAMPLES:
         raise CalibrationInputError(
             f"position {j + 1}: the {what} is not seen in the IMU stream ({int(on.sum())} "
             f"samples on the ramp between {t0:.2f} s and {t1:.2f} s).",
             "Check that the IMU was recording while the table moved; record the position again.")
-    slope, intercept = np.polyfit(t[on], f[on], 1)
+    (slope, intercept), cov = np.polyfit(t[on], f[on], 1, cov="unscaled")
     if not slope > 0:
         raise CalibrationInputError(
             f"position {j + 1}: the {what} does not ramp in the IMU stream.",
             "Check the unit's mounting and the table; record the position again.")
-    return -intercept / slope, slope
+    half = (0.5 - intercept) / slope
+    grad = np.array([-half, -1.0]) / slope  # d half / d (slope, intercept)
+    dof = max(int(on.sum()) - 2, 1)
+    scatter = np.sum((f[on] - slope * t[on] - intercept) ** 2) / dof
+    return -intercept / slope, slope, half, float(np.sqrt(scatter * grad @ cov @ grad))
 
 
 def _check_rate(data, t, fs, pos) -> None:
@@ -231,15 +247,39 @@ def _commanded(path, table, pos) -> float:
     return float(values[0])
 
 
-def _angle(path, table, t, p, j, c) -> np.ndarray:
+def _angle(path, table, t, p, j, rate) -> np.ndarray:
     """Cumulative table angle at times t: the recorded angle at rest before the spin-up (exact:
-    not affected by the reading's time stamp) plus c times the trapezoid's integral."""
-    before = ~table.flag("moving") & (table.time >= p["s0"]) & (table.time <= p["s1"])
-    if not before.any():
+    not affected by the reading's time stamp) plus `rate` times the trapezoid's integral."""
+    return _rest_angle(path, table, p["s0"], p["s1"], j, "static window") + rate * _swept(t, p)
+
+
+def _rate_factor(path, table, p, j, c) -> tuple:
+    """(factor, 1-sigma): the angle the table reports between rest before the spin-up and rest
+    after the stop, over c times the IMU-timed turning time at full rate (`_ramps`). 1 for a
+    table that reports its command (to the IMU timing's precision, the sigma); the true rate over
+    the command for one whose angle reads the shaft. (1, inf) without a reading at rest after the
+    stop (a position cut at the end of its spin-down, as imported arrays)."""
+    if not _at_rest(table, p["te"], p["done"]).any():
+        return 1.0, math.inf
+    turned = (_rest_angle(path, table, p["te"], p["done"], j, "rest after the stop")
+              - _rest_angle(path, table, p["s0"], p["s1"], j, "static window"))
+    factor = turned / (c * p["turning"])
+    return factor, factor * p["turning_sd"] / p["turning"]
+
+
+def _at_rest(table, t0, t1) -> np.ndarray:
+    """Mask of the table readings at rest within [t0, t1]."""
+    return ~table.flag("moving") & (table.time >= t0) & (table.time <= t1)
+
+
+def _rest_angle(path, table, t0, t1, j, where) -> float:
+    """Median angle of the table readings at rest within [t0, t1]."""
+    rest = _at_rest(table, t0, t1)
+    if not rest.any():
         raise CalibrationInputError(
-            f"the session {path} holds no table reading at rest in position {j + 1}'s static "
-            "window.", "Record the session with the rotary table connected.")
-    return np.median(table.angle[before]) + c * _swept(t, p)
+            f"the session {path} holds no table reading at rest in position {j + 1}'s {where}.",
+            "Record the session with the rotary table connected.")
+    return float(np.median(table.angle[rest]))
 
 
 def _nominal(metadata: dict, m: int):
