@@ -15,7 +15,7 @@ from scipy import stats
 
 import station
 from station.calfile import load
-from station.commands.record import BenchProfile, record
+from station.commands.record import BenchProfile, record, resume, solve
 from station.commands.twin import BenchTwin
 from station.operator import ConsoleOperator, OperatorAbort
 from station.protocols.rotary import reduce_session
@@ -92,6 +92,43 @@ def test_end_of_input_aborts_and_stops_the_table(tmp_path):
         assert len(aborts) == 1 and "OperatorAbort" in aborts[0].detail["error"]
         # after the abort, the link counters are still recorded for the report
         assert events[-1].kind == "note" and events[-1].detail["link"]["frames"] > 0
+
+
+def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_path, capsys):
+    """Three positions, then the technician's input ends (abort); a killed station may also leave
+    the table turning. `station resume` with the bench profile stops the table, refuses a
+    profile for another unit, and completes the session with the real drivers."""
+    from station.cli import main
+
+    path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
+    with BenchTwin(seed=6, speed=40, positions=POSITIONS) as twin:
+        profile.write_text(twin.profile_text())
+        bench = BenchProfile.load(profile)
+        with pytest.raises(OperatorAbort):
+            record(bench, path, ConsoleOperator(stdin=io.StringIO("\n" * 3), stdout=io.StringIO()))
+        other = tmp_path / "other.toml"
+        other.write_text(twin.profile_text(unit_serial="SIM-99"))
+        assert main(["resume", str(path), "--profile", str(other)]) == 1
+        assert "recorded unit 'SIM-6', the profile is for 'SIM-99'" in capsys.readouterr().err
+        table = twin.bench.table  # the table's physics: left turning by a station that died
+        table.set_rate(1.0)
+        table.start()
+        operator = ConsoleOperator(stdin=io.StringIO("\n" * POSITIONS), stdout=io.StringIO())
+        assert resume(bench, path, operator) == 3
+        assert not table.state().running
+        truth = twin.truth()
+    with Session.open(path) as s:
+        events = s.events()
+        done = sorted({e.position for e in events if e.kind == "position_done"})
+        assert done == list(range(POSITIONS)) and s.closed_cleanly
+        resumed = [e for e in events if e.kind == "session_resumed"]
+        assert len(resumed) == 1 and resumed[0].time > max(
+            e.time for e in events if e.kind == "abort")  # the clock went on
+    cal = load(solve(path)["calibration"])
+    dof = cal.fit["dof"]
+    assert abs(cal.fit["chi2"] / dof - 1) < 5 * np.sqrt(2 / dof)
+    assert np.all(np.abs(cal.scale_factors - np.linalg.norm(truth["a"], axis=0))
+                  < 5 * cal.scale_factors_sigma)
 
 
 @pytest.mark.parametrize("edit, message", [

@@ -306,6 +306,51 @@ def _record_rotary(bench, out, operator, clock, spec, metadata, live) -> None:
                              LiveView(clock) if live else None)
 
 
+def resume(bench: BenchProfile, path, operator) -> int:
+    """Continue the rotary session `path` (killed, paused or aborted) with the devices of `bench`
+    from the position after its last completed one; returns that position (the number of
+    positions when none was left).
+
+    The session's own protocol settings and axes rule (the profile's [protocol] is not used); the
+    profile must be for the same unit and give the same stream (channels, units, scales, rate),
+    else the resumed counts would not mean what the recorded ones do. The clock continues after
+    the session's last recorded instant (a reboot restarts the host's monotonic time), and the
+    table is commanded to stop before anything else (a killed station may have left it turning).
+    """
+    from station.clock import ScaledClock
+    from station.protocols.rotary import continue_session
+    from station.session import Session, SessionWriter, StreamSpec
+    from station.virtual_bench import last_instant
+
+    with Session.open(path) as session:
+        metadata, recorded, end = session.metadata, session.specs.get("imu"), last_instant(session)
+    _check_same_bench(bench, path, metadata, recorded, StreamSpec.from_profile(bench.imu.imu))
+    clock = ScaledClock(bench.clock_speed, start=end + 1.0)
+    with imu_driver(bench, clock) as imu, table_driver(bench, clock) as table:
+        table.stop()
+        with SessionWriter.resume(path, clock=clock) as writer:
+            return continue_session(writer, metadata, imu, table, operator, clock)
+
+
+def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec) -> None:
+    """Refuse (ValueError, naming the difference) a bench profile that cannot continue the
+    session: another protocol, another unit, another stream."""
+    if metadata.get("protocol") != "rotary" or bench.protocol != "rotary":
+        raise ValueError(f"{path} holds a {metadata.get('protocol')!r} session and the profile a "
+                         f"{bench.protocol!r} one; only rotary sessions resume: record a hand "
+                         "session again (its poses are quick to repeat)")
+    if metadata.get("unit_serial") != bench.unit_serial:
+        raise ValueError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
+                         f"{bench.unit_serial!r}: mount the same unit, or use its bench profile")
+    if recorded is None:
+        raise ValueError(f"{path} has no imu stream to continue")
+    differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
+              if getattr(recorded, name) != getattr(spec, name)]
+    if differ:
+        raise ValueError(f"the profile's IMU stream differs from the recorded one in {differ}: "
+                         "resume with the device profile and rate the session was recorded with")
+
+
 def _hand_protocol(bench, operator, clock, spec):
     """The iron or free-static protocol of the bench profile."""
     from station.protocols.iron import IronProtocol

@@ -2,7 +2,10 @@
 
 The session file is reopened (rows cut by a kill are dropped), the positions after the last
 completed one are recorded, and the file is closed cleanly. Sessions recorded on the virtual bench
-(`bench` in their metadata) resume on a new virtual bench built from it.
+(`bench` in their metadata) resume on a new virtual bench built from it. Sessions recorded with
+real devices (`station record`) resume with the devices of a bench profile: `--profile`, by
+default the one the session was recorded with (its path is in the metadata); it must be for the
+same unit and stream (`station.commands.record.resume`). The table is stopped first.
 """
 
 import json
@@ -14,8 +17,11 @@ def register(sub) -> None:
     p = sub.add_parser("resume", help="continue a rotary session after a kill, pause or abort",
                        description=__doc__,
                        epilog="examples:\n  station resume unit7.h5\n"
+                              "  station resume unit7.h5 --profile bench.toml   # a port moved\n"
                               "  station resume demo.h5 --speed 80 --json")
     p.add_argument("session", type=Path, help="the session file (.h5)")
+    p.add_argument("--profile", type=Path,
+                   help="bench profile of the real devices (default: the one recorded with)")
     p.add_argument("--speed", type=float,
                    help="virtual bench: clock speed, simulated s per wall s (default: as recorded)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -23,7 +29,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from drivers.profile import ProfileError
     from drivers.rotary_table import TableError
+    from station.operator import OperatorAbort
     from station.protocols.rotary import ProtocolError
     from station.recorder import RecordingError
     from station.session import Session, SessionFormatError, SessionLockedError
@@ -34,13 +42,24 @@ def run(args) -> int:
         return 2
     overrides = {} if args.speed is None else {"speed": args.speed}
     try:
-        first = resume_rotary(args.session, **overrides)
+        profile = args.profile or _recorded_profile(args.session)
+        if profile is None:
+            first = resume_rotary(args.session, **overrides)
+        else:
+            first = _resume_with_devices(args.session, profile, args.json)
+    except ProfileError as exc:
+        print(f"station resume: {exc}", file=sys.stderr)
+        return 2
+    except OperatorAbort as exc:
+        print(f"station resume: {exc}; the table was stopped; resume again to go on",
+              file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("station resume: interrupted; the table was stopped; resume again to go on",
               file=sys.stderr)
         return 130
     except (SessionFormatError, SessionLockedError, ValueError, ProtocolError, RecordingError,
-            TableError) as exc:
+            TableError, OSError) as exc:
         print(f"station resume: {exc}", file=sys.stderr)
         return 1
     with Session.open(args.session) as session:
@@ -56,3 +75,29 @@ def run(args) -> int:
         print(f"{args.session}: recorded positions {first + 1}..{n} of {n}; the session is "
               "complete")
     return 0
+
+
+def _recorded_profile(path) -> Path | None:
+    """The bench profile a `station record` session was recorded with; None for a virtual-bench
+    session. Refuses (ProfileError) a recorded profile that is gone."""
+    from drivers.profile import ProfileError
+    from station.session import Session
+
+    with Session.open(path) as session:
+        bench = session.metadata.get("bench")
+    if not (isinstance(bench, dict) and isinstance(bench.get("profile"), str)):
+        return None
+    profile = Path(bench["profile"])
+    if not profile.is_file():
+        raise ProfileError(f"{path} was recorded with the bench profile {profile}, which is gone; "
+                           "give the bench's profile with --profile")
+    return profile
+
+
+def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
+    """Resume `path` with the devices of the bench profile, prompting on the console."""
+    from station.commands.record import BenchProfile, resume
+    from station.operator import ConsoleOperator
+
+    bench = BenchProfile.load(profile)
+    return resume(bench, path, ConsoleOperator(stdout=sys.stderr if quiet else sys.stdout))
