@@ -25,6 +25,7 @@ instants relative to the re-recorded samples: the new file reduces to the same r
 original.
 """
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -175,11 +176,28 @@ def _recorded(metadata: dict, keys: tuple, path) -> float:
 
 
 def replay_into(path, name: str, settings: ReplaySettings | None = None):
-    """Replay the session and store the readings and calibration as `results/<name>`."""
+    """Replay the session and store the readings and calibration as `results/<name>`, with the
+    settings that made them (`SessionResults.settings`; `stored_settings` reads them back)."""
     settings = settings or ReplaySettings()
     reduced, result = replay(path, settings)
-    write_results(path, name, settings.stream, reduced.M, result, reduced.sigma)
+    write_results(path, name, settings.stream, reduced.M, result, reduced.sigma,
+                  settings=dataclasses.asdict(settings))
     return reduced, result
+
+
+def stored_settings(path, name: str) -> ReplaySettings:
+    """The ReplaySettings stored with `results/<name>` (a replay's), to reproduce or vary them;
+    ValueError when those results were not made by a replay."""
+    with Session.open(path) as session:
+        stored = session.results(name).settings
+    if stored is None:
+        raise ValueError(f"results/{name} of {path} holds no replay settings (the recording's "
+                         "own results: replay with the defaults reproduces them)")
+    known = {f.name for f in dataclasses.fields(ReplaySettings)}
+    if not set(stored) <= known:
+        raise ValueError(f"results/{name} holds unknown settings {sorted(set(stored) - known)}; "
+                         "it was written by a newer station")
+    return ReplaySettings(**stored)
 
 
 def free_name(path, prefix: str = "replay") -> str:
@@ -206,8 +224,6 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     timeout : wall seconds the re-recording may take
     The stream must be one gap-free segment (a session that was never resumed or reconnected).
     """
-    import dataclasses
-
     from drivers.profile import SerialImuProfile
     from drivers.serial_imu import SerialImu
     from drivers.twin_serial import SerialTwin

@@ -164,6 +164,7 @@ class SessionResults:
     readings_sigma: np.ndarray | None  # (m, n) standard deviation of each entry
     calibration: CalibrationResult | None
     created: str
+    settings: dict | None = None  # what reduced and solved them (replay), None: the recording's
 
 
 def last_completed_position(events) -> int | None:
@@ -377,12 +378,13 @@ class SessionWriter:
 
 
 def write_results(path, name: str, stream: str, readings, calibration=None,
-                  readings_sigma=None) -> None:
+                  readings_sigma=None, settings: dict | None = None) -> None:
     """Add `results/<name>` to a closed session file (after the recording, or on replay).
 
     readings       : reduced readings M (m x n, SI units of `stream`'s channels, one row each)
     calibration    : optional `CalibrationResult` solved from them
     readings_sigma : optional standard deviation of each entry of M (m x n)
+    settings       : optional JSON-ready dict of what reduced and solved them (replay settings)
     Existing results are never overwritten: replay writes under a new name.
     """
     if not RESULT_NAME.match(str(name)):
@@ -398,6 +400,7 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
         raise SessionLockedError(f"{path} was not closed (a writer is live or was killed): close "
                                  "it, or run SessionWriter.resume(path) and close, then retry")
     m = len(spec.channels)
+    settings_json = None if settings is None else _json(dict(settings), "settings")
     readings = _float_matrix(readings, "readings", rows=m)
     if readings_sigma is not None:
         readings_sigma = _float_matrix(readings_sigma, "readings_sigma", shape=readings.shape)
@@ -406,6 +409,8 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
             raise ValueError(f"results/{name} exists in {path}; write under a new name")
         g = f["results"].create_group(name)
         g.attrs.update(stream=stream, units=list(spec.units), created=utc_now())
+        if settings_json is not None:
+            g.attrs["settings"] = settings_json
         g.create_dataset("readings", data=readings)
         if readings_sigma is not None:
             g.create_dataset("readings_sigma", data=readings_sigma)
@@ -746,8 +751,10 @@ class Session:
         sigma = _matrix(g, "readings_sigma", where, shape=readings.shape) if "readings_sigma" in g \
             else None
         cal = _read_calibration(g, where, readings.shape) if "calibration" in g else None
+        settings = _json_object(_attr(g.attrs, "settings", str, where), f"{where} settings") \
+            if "settings" in g.attrs else None
         return SessionResults(name, stream, tuple(_attr(g.attrs, "units", list, where)), readings,
-                              sigma, cal, _attr(g.attrs, "created", str, where))
+                              sigma, cal, _attr(g.attrs, "created", str, where), settings)
 
     def close(self) -> None:
         self._file.close()
@@ -812,15 +819,19 @@ def _read_metadata(f, where) -> dict:
     ds = _child(f, "metadata", h5py.Dataset, where)
     if ds.shape != () or ds.dtype.kind not in "OS":
         raise SessionFormatError(f"{where}: /metadata must be one JSON string")
-    raw = ds[()]
+    return _json_object(ds[()], f"{where}: /metadata")
+
+
+def _json_object(raw, what: str) -> dict:
+    """A JSON object from untrusted text, size-limited; SessionFormatError naming `what`."""
     if len(raw) > MAX_JSON_BYTES:
-        raise SessionFormatError(f"{where}: /metadata is over {MAX_JSON_BYTES} bytes")
+        raise SessionFormatError(f"{what} is over {MAX_JSON_BYTES} bytes")
     try:
         value = json.loads(raw)
     except (ValueError, UnicodeDecodeError) as e:
-        raise SessionFormatError(f"{where}: /metadata is not valid JSON ({e})") from None
+        raise SessionFormatError(f"{what} is not valid JSON ({e})") from None
     if not isinstance(value, dict):
-        raise SessionFormatError(f"{where}: /metadata must be a JSON object")
+        raise SessionFormatError(f"{what} must be a JSON object")
     return value
 
 

@@ -2,6 +2,7 @@
 exactly, other settings give other results under new names, the CLI, and the raw stream sent again
 through the serial pty twin reduces to the same readings as the original recording."""
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -12,7 +13,7 @@ from results import assert_same
 
 from station.cli import main
 from station.protocols.rotary import reduce_session
-from station.replay import ReplaySettings, replay, replay_into, replay_raw
+from station.replay import ReplaySettings, replay, replay_into, replay_raw, stored_settings
 from station.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
@@ -75,6 +76,31 @@ def test_other_settings_give_other_numbers_under_a_new_name(copy):
     assert not np.array_equal(new.readings, original.readings[:, :10])
     with pytest.raises(ValueError, match="exists"):
         replay_into(copy, "trimmed", settings)
+
+
+def test_the_settings_are_stored_with_the_results_and_reproduce_them(copy, capsys):
+    settings = ReplaySettings(trim=0.25, positions=(0, 2, 3, 4, 5, 6, 7, 9), refine=False)
+    replay_into(copy, "mine", settings)
+    assert stored_settings(copy, "mine") == settings
+    with Session.open(copy) as f:
+        assert f.results("mine").settings["positions"] == [0, 2, 3, 4, 5, 6, 7, 9]
+        assert f.results("rotary").settings is None  # the recording's own results
+    with pytest.raises(ValueError, match="holds no replay settings"):
+        stored_settings(copy, "rotary")
+    # --like: the stored settings reproduce the stored results bit for bit ...
+    assert main(["replay", str(copy), "--like", "mine", "--json"]) == 0
+    same = json.loads(capsys.readouterr().out)
+    assert same["settings"] == {**dataclasses.asdict(settings), "positions": list(settings.positions)}
+    # ... and the options given change them (here: no trim)
+    assert main(["replay", str(copy), "--like", "mine", "--trim", "0", "--json"]) == 0
+    untrimmed = json.loads(capsys.readouterr().out)
+    assert untrimmed["settings"] == {**same["settings"], "trim": 0.0}
+    with Session.open(copy) as f:
+        mine, like, full = (f.results(n) for n in ("mine", same["results"], untrimmed["results"]))
+        original = f.results("rotary")
+    assert np.array_equal(mine.readings, like.readings)
+    assert_same(like.calibration, mine.calibration)
+    assert np.array_equal(full.readings, original.readings[:, list(settings.positions)])
 
 
 def test_replay_refuses_bad_settings(copy):

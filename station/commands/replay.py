@@ -10,6 +10,7 @@ stream again over the serial wire protocol (a pty twin) and records it into the 
 OUT.
 """
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -21,16 +22,20 @@ def register(sub) -> None:
                        epilog="examples:\n  station replay sessions/rotary-12gyro.h5\n"
                               "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
                               "  station replay unit.h5 --positions 1-6,9 --json\n"
+                              "  station replay unit.h5 --like trim --no-refine\n"
                               "  station replay iron.h5 --positions 1-6 --trim 1\n"
                               "  station replay unit.h5 --raw again.h5")
     p.add_argument("session", type=Path, help="the session file (.h5)")
     p.add_argument("--name", help="results name to store under (default: replay-<k>)")
-    p.add_argument("--trim", type=float, default=0.0,
+    p.add_argument("--like", metavar="NAME",
+                   help="start from the settings stored with results/NAME (an earlier replay); "
+                        "the options given here change them")
+    p.add_argument("--trim", type=float,
                    help="seconds left out at both ends of every window (rotary: static and "
                         "rotating windows; iron, static: each pose's window; default 0)")
     p.add_argument("--positions", help="1-based positions (poses) to use, e.g. 1-6,9 (default: all completed)")
-    p.add_argument("--method", default="auto",
-                   help="closed-form method: auto, pca, ellipsoid, factorization")
+    p.add_argument("--method",
+                   help="closed-form method: auto (default), pca, ellipsoid, factorization")
     p.add_argument("--no-refine", action="store_true", help="skip the maximum-likelihood step")
     p.add_argument("--magnitude", type=float, help="stimulus magnitude (default: the recorded table rate, or gravity "
                         "for iron and free-static sessions)")
@@ -57,9 +62,7 @@ def run(args) -> int:
             replay_raw(args.session, args.raw)
             summary = {"session": str(args.session), "raw_replay": str(args.raw)}
         else:
-            settings = ReplaySettings(trim=args.trim, positions=_positions(args.positions),
-                                      method=args.method, refine=not args.no_refine,
-                                      magnitude=args.magnitude)
+            settings = _settings(args)
             if args.dry_run:
                 name = None
                 reduced, result = replay(args.session, settings)
@@ -69,6 +72,7 @@ def run(args) -> int:
             summary = {"session": str(args.session), "results": name,
                        "positions": int(reduced.M.shape[1]), "method": result.method,
                        "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
+                       "settings": dataclasses.asdict(settings),
                        "scale_factors": result.scale_factors.tolist(),
                        "scale_factors_sigma": result.scale_factors_sigma.tolist()}
     except (CalibrationInputError, SessionFormatError, SessionLockedError, ValueError,
@@ -86,6 +90,20 @@ def run(args) -> int:
               f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
         print("scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"]))
     return 0
+
+
+def _settings(args):
+    """ReplaySettings: the defaults, or those stored with results/<--like>, changed by the
+    options given."""
+    from station.replay import ReplaySettings, stored_settings
+
+    base = stored_settings(args.session, args.like) if args.like else ReplaySettings()
+    given = {"trim": args.trim, "positions": _positions(args.positions), "method": args.method,
+             "magnitude": args.magnitude}
+    changes = {k: v for k, v in given.items() if v is not None}
+    if args.no_refine:
+        changes["refine"] = False
+    return dataclasses.replace(base, **changes)
 
 
 def _positions(text):
