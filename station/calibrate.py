@@ -48,6 +48,9 @@ class CalibrationResult:
     axis_angles_sigma: np.ndarray
     bias_sigma: np.ndarray | None
     covariance: np.ndarray  # (m p, m p) of theta = (a_1, b_1, a_2, ...), gauge-free pseudo-inverse
+    # (d m + m or d m) covariance of (vec(a) row-major in `frame`, then b when estimated): the
+    # gauge removed by the frame; None in results stored before it existed
+    parameter_covariance: np.ndarray | None = None
 
     @property
     def d(self) -> int:
@@ -232,15 +235,17 @@ def _result(fit: ml.MLFit, method, refined, c, scale_known, estimate_bias, nomin
 
         def frame_fn(x):
             return align_to(x, nominal) @ x
-    a_var = np.diag(uncertainty.propagate(cov, uncertainty.frame_jacobian(fit.a, p, frame_fn)))
+    jac = uncertainty.frame_jacobian(fit.a, p, frame_fn)
+    if estimate_bias:
+        jac = np.vstack([jac, uncertainty.bias_jacobian(m, p)])
+    parameter_cov = uncertainty.propagate(cov, jac)
+    a_var = np.diag(parameter_cov)[: d * m]
 
     scale_sigma = np.sqrt(np.diag(uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
     (i, k), jac = uncertainty.axis_angle_jacobian(fit.a, p)
     angle_sigma = np.zeros((m, m))
     angle_sigma[i, k] = angle_sigma[k, i] = np.sqrt(np.diag(uncertainty.propagate(cov, jac)))
-    bias_sigma = None
-    if estimate_bias:
-        bias_sigma = np.sqrt(np.diag(uncertainty.propagate(cov, uncertainty.bias_jacobian(m, p))))
+    bias_sigma = np.sqrt(np.diag(parameter_cov)[d * m:]) if estimate_bias else None
 
     return CalibrationResult(
         a=rot @ fit.a,
@@ -265,4 +270,5 @@ def _result(fit: ml.MLFit, method, refined, c, scale_known, estimate_bias, nomin
         axis_angles_sigma=angle_sigma,
         bias_sigma=bias_sigma,
         covariance=cov,
+        parameter_covariance=parameter_cov,
     )

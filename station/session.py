@@ -897,6 +897,10 @@ def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
         raise SessionFormatError(str(e)) from None
 
 
+LATER_FIELDS = ("parameter_covariance",)
+"""CalibrationResult fields added after format version 1 was first written: None when absent."""
+
+
 def _read_calibration(g, where, readings_shape) -> CalibrationResult:
     """A `CalibrationResult` from its group; every field present or listed as None, arrays float,
     shapes consistent with the readings (m x n)."""
@@ -919,6 +923,8 @@ def _read_calibration(g, where, readings_shape) -> CalibrationResult:
             if not isinstance(value, str | np.generic):
                 raise SessionFormatError(f"{where}: attribute {key!r} must be a scalar")
             values[key] = value if isinstance(value, str) else value.item()
+        elif key in LATER_FIELDS:
+            values[key] = None  # written before the field existed
         else:
             raise SessionFormatError(f"{where}: field {key!r} is missing")
     a = values["a"]
@@ -935,4 +941,9 @@ def _read_calibration(g, where, readings_shape) -> CalibrationResult:
     cov = values["covariance"]
     if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
         raise SessionFormatError(f"{where}/covariance must be square, got {cov.shape}")
+    pc = values["parameter_covariance"]
+    k = a.size + (m if values["bias_estimated"] else 0)
+    if pc is not None and pc.shape != (k, k):
+        raise SessionFormatError(f"{where}/parameter_covariance has shape {pc.shape}, expected "
+                                 f"({k}, {k})")
     return CalibrationResult(**values)

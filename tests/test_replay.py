@@ -56,8 +56,13 @@ def test_replay_of_an_example_session_reproduces_its_stored_results_exactly(path
     assert np.array_equal(reduced.sigma, s.readings_sigma)
     # solved by another numpy/LAPACK build: last-bit differences (seen 2e-16 absolute, on
     # residuals of 1e-4 that are differences of readings near 1; 3e-9 relative on a 1-sigma
-    # from the gauge pseudo-inverse)
-    assert_same(result, s.calibration, rtol=1e-6)
+    # from the gauge pseudo-inverse). The file predates parameter_covariance: its diagonal must
+    # give the stored 1-sigma of a.
+    assert s.calibration.parameter_covariance is None
+    assert_same(dataclasses.replace(result, parameter_covariance=None), s.calibration, rtol=1e-6)
+    np.testing.assert_allclose(np.sqrt(np.diag(result.parameter_covariance)),
+                               s.calibration.a_sigma.ravel(), rtol=1e-6,
+                               atol=1e-6 * s.calibration.a_sigma.max())  # zeros of Eq. (19)
 
 
 def test_other_settings_give_other_numbers_under_a_new_name(copy):

@@ -3,6 +3,8 @@
 import numpy as np
 from layouts import random_directions, section4_gyros
 
+from scipy import stats
+
 import station
 
 
@@ -42,6 +44,29 @@ def test_bias_intervals_cover_the_truth_for_a_triad_with_unknown_biases():
         cover.append(np.abs(res.bias - b) < 1.96 * res.bias_sigma)
     lo, hi = binomial_band(0.95, trials)
     assert lo < np.mean(cover) < hi, np.mean(cover)
+
+
+def test_the_joint_covariance_of_a_and_b_is_honest():
+    """parameter_covariance (vec(a) in the canonical frame, then b): the Mahalanobis distance of
+    the error is chi2 with d m + m - d(d-1)/2 = 9 dof (the frame fixes three entries of a)."""
+    rng = np.random.default_rng(11)
+    a = np.array([[9.7, 0.05, -0.1], [0.0, 9.9, 0.08], [0.0, 0.0, 9.8]])  # canonical already
+    trials, d2 = 300, []
+    for _ in range(trials):
+        b = rng.normal(0, 0.5, 3)
+        v = random_directions(rng, 3, 24)
+        res = station.calibrate(a.T @ v + b[:, None] + 0.01 * rng.standard_normal((3, 24)), 1.0,
+                                bias="estimate", sigma=0.01)
+        cov = res.parameter_covariance
+        np.testing.assert_allclose(np.diag(cov), np.r_[res.a_sigma.ravel(), res.bias_sigma] ** 2,
+                                   rtol=1e-9, atol=1e-20)
+        assert np.linalg.matrix_rank(cov, rtol=1e-8, hermitian=True) == 9
+        err = np.r_[(res.a - a).ravel(), res.bias - b]
+        d2.append(err @ np.linalg.pinv(cov, rcond=1e-8, hermitian=True) @ err)
+    d2 = np.array(d2)
+    assert abs(d2.mean() - 9) < 3 * np.sqrt(2 * 9 / trials), d2.mean()  # chi2(9): mean 9, var 18
+    lo, hi = binomial_band(0.95, trials)
+    assert lo < np.mean(d2 < stats.chi2.ppf(0.95, 9)) < hi
 
 
 def test_crlb_trace_scales_with_sigma_squared_and_inverse_n():
