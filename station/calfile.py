@@ -10,9 +10,11 @@ The file records everything needed to use the calibration without this software:
 and version, the software version, the conventions (docs/conventions.md: `a` is d x m, column i =
 sensor i's sensitive vector; model z = a^T v + b with the bias after the projection; fusion
 v = (a a^T)^-1 a (z - b)), the units (SI readings, raw counts per SI unit at the driver edge), the
-unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, the gauge-invariant
-scale factors and axis angles with theirs, the frame of `a`, the fit, the session it came from and
-the date. Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives
+unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, their joint covariance
+(version 2: order a row-major, then b; in the frame of `a`, whose gauge it removes; biases
+measured apart from the fit are independent of `a`), the gauge-invariant scale factors and axis
+angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
+date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives
 back bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits
 and damage (it is not a signature).
 
@@ -32,8 +34,8 @@ import numpy as np
 from station.provenance import software_version, utc_now
 
 FORMAT = "imu-station-calibration"
-FORMAT_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)  # 2 added `covariance`
 MAX_BYTES = 4 << 20
 SI_UNITS = ("rad/s", "m/s^2", "T")
 FRAMES = ("canonical", "nominal")
@@ -47,9 +49,14 @@ CONVENTIONS = {
     "counts": "SI reading = raw counts / counts_per_unit",
     "matrices": "nested JSON lists, row-major",
 }
-_KEYS = ("format", "format_version", "software_version", "created", "conventions", "unit", "units",
-         "frame", "magnitude", "scale_known", "sensitivity", "bias", "invariants", "fit", "session",
-         "checksum")
+CONVENTIONS_V1 = dict(CONVENTIONS)
+CONVENTIONS["covariance"] = ("joint covariance of (a row-major, then b): (d m + m) x (d m + m), "
+                             "in the frame of a; null when unknown")
+_KEYS_V1 = ("format", "format_version", "software_version", "created", "conventions", "unit",
+            "units", "frame", "magnitude", "scale_known", "sensitivity", "bias", "invariants",
+            "fit", "session", "checksum")
+_KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum")}
+_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS}
 
 
 class CalibrationFileError(ValueError):
@@ -69,6 +76,8 @@ class Calibration:
     magnitude           : |v_j| of the calibration positions; scale_known False: Remark 2
     fit                 : {"method", "chi2", "dof", "positions", "bias_source"}
     session             : where the readings came from (path, stream, ...) or None
+    covariance          : (d m + m, d m + m) joint covariance of (a row-major, b) in `frame`, its
+                          diagonal the squared sigmas; None when unknown (version-1 files)
     """
 
     unit_serial: str
@@ -88,6 +97,7 @@ class Calibration:
     fit: dict
     counts_per_unit: np.ndarray | None = None
     session: dict | None = None
+    covariance: np.ndarray | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
 
@@ -118,10 +128,11 @@ class Calibration:
                     "the biases measured apart, e.g. from the static windows")
             bias, bias_sigma = result.bias, result.bias_sigma
         units = (units,) * m if isinstance(units, str) else tuple(units)
+        bias_sigma = np.asarray(bias_sigma, float)
         cal = cls(
             unit_serial=str(unit_serial), sensors=tuple(str(s) for s in sensors), units=units,
             a=result.a, a_sigma=result.a_sigma, bias=np.asarray(bias, float),
-            bias_sigma=np.asarray(bias_sigma, float), scale_factors=result.scale_factors,
+            bias_sigma=bias_sigma, scale_factors=result.scale_factors,
             scale_factors_sigma=result.scale_factors_sigma, axis_angles=result.axis_angles,
             axis_angles_sigma=result.axis_angles_sigma, frame=result.frame,
             magnitude=float(result.magnitude), scale_known=bool(result.scale_known),
@@ -129,7 +140,7 @@ class Calibration:
                  "positions": int(result.v.shape[1]), "bias_source": bias_source},
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
-            session=session)
+            session=session, covariance=_joint_covariance(result, bias is result.bias, bias_sigma))
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 
@@ -182,6 +193,7 @@ class Calibration:
                            "axis_angles": _list(self.axis_angles),
                            "axis_angles_sigma": _list(self.axis_angles_sigma)},
             "fit": dict(self.fit), "session": self.session,
+            "covariance": _list(self.covariance),
         }
         doc["checksum"] = checksum(doc)
         return doc
@@ -199,6 +211,22 @@ class Calibration:
         with open(tmp, "w", encoding="utf-8") as f:
             f.write(self.dumps())
         os.replace(tmp, path)
+
+
+def _joint_covariance(result, own_bias: bool, bias_sigma: np.ndarray) -> np.ndarray | None:
+    """Covariance of (a row-major, b): the result's own when it estimated b, else its block of a
+    beside independent biases of `bias_sigma` (measured apart, e.g. the static windows); None
+    for a result without parameter_covariance (stored before it existed)."""
+    cov = result.parameter_covariance
+    if cov is None:
+        return None
+    k = result.a.size
+    if own_bias:
+        return cov
+    joint = np.zeros((k + len(bias_sigma),) * 2)
+    joint[:k, :k] = cov[:k, :k]
+    joint[k:, k:] = np.diag(bias_sigma**2)
+    return joint
 
 
 def checksum(doc: dict) -> str:
@@ -269,14 +297,14 @@ def _from_document(doc, where: str) -> Calibration:
         raise fail(f"format_version {version!r} is not one this software reads "
                    f"({', '.join(map(str, SUPPORTED_VERSIONS))})",
                    "files of a newer version need newer station software")
-    unknown = sorted(set(doc) - set(_KEYS))
-    missing = [k for k in _KEYS if k not in doc]
+    unknown = sorted(set(doc) - set(_KEYS[version]))
+    missing = [k for k in _KEYS[version] if k not in doc]
     if unknown or missing:
         raise fail(f"unknown keys {unknown} / missing keys {missing} for format version {version}")
     if doc["checksum"] != checksum(doc):
         raise fail("the checksum does not match the content (it was changed after it was "
                    "written)")
-    if doc["conventions"] != CONVENTIONS:
+    if doc["conventions"] != _CONVENTIONS[version]:
         raise fail("its conventions differ from this software's (docs/conventions.md)")
     unit, units = _dict(doc, "unit", fail), _dict(doc, "units", fail)
     serial = _str(unit, "serial", fail)
@@ -312,18 +340,35 @@ def _from_document(doc, where: str) -> Calibration:
     cpu = units.get("counts_per_unit")
     cpu = None if cpu is None else _array(units, "counts_per_unit", fail, shape=(m,),
                                           positive=True)
+    a_sigma = _array(sens, "sigma", fail, shape=(d, m), sigma=True)
+    bias_sigma = _array(bias, "sigma", fail, shape=(m,), sigma=True)
+    covariance = None if doc.get("covariance") is None else \
+        _covariance(doc, np.r_[a_sigma.ravel(), bias_sigma], fail)
     return Calibration(
         unit_serial=serial, sensors=tuple(sensors), units=tuple(readings_units), a=a,
-        a_sigma=_array(sens, "sigma", fail, shape=(d, m), sigma=True),
-        bias=_array(bias, "b", fail, shape=(m,)),
-        bias_sigma=_array(bias, "sigma", fail, shape=(m,), sigma=True),
+        a_sigma=a_sigma, bias=_array(bias, "b", fail, shape=(m,)), bias_sigma=bias_sigma,
         scale_factors=_array(inv, "scale_factors", fail, shape=(m,), positive=True),
         scale_factors_sigma=_array(inv, "scale_factors_sigma", fail, shape=(m,), sigma=True),
         axis_angles=_array(inv, "axis_angles", fail, shape=(m, m)),
         axis_angles_sigma=_array(inv, "axis_angles_sigma", fail, shape=(m, m), sigma=True),
         frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
-        counts_per_unit=cpu, session=session, created=doc["created"],
+        counts_per_unit=cpu, session=session, covariance=covariance, created=doc["created"],
         software_version=doc["software_version"])
+
+
+def _covariance(doc, sigma: np.ndarray, fail) -> np.ndarray:
+    """The joint covariance, checked: square over (a, b), symmetric, positive semi-definite, its
+    diagonal the squares of the sigmas the file states."""
+    k = sigma.size
+    cov = _array(doc, "covariance", fail, shape=(k, k))
+    scale = max(float(np.abs(cov).max()), 1e-300)
+    if np.abs(cov - cov.T).max() > 1e-12 * scale:
+        raise fail("covariance is not symmetric")
+    if np.linalg.eigvalsh(cov).min() < -1e-9 * scale:
+        raise fail("covariance is not positive semi-definite")
+    if not np.allclose(np.diag(cov), sigma**2, rtol=1e-9, atol=1e-12 * scale):
+        raise fail("the covariance's diagonal differs from the squared sigmas of a and b")
+    return cov
 
 
 def _dict(doc, key, fail) -> dict:

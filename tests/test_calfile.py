@@ -87,7 +87,7 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
-    with pytest.raises(CalibrationFileError, match=r"format_version 2 .*reads \(1\).*newer"):
+    with pytest.raises(CalibrationFileError, match=r"format_version 3 .*reads \(1, 2\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -187,3 +187,60 @@ def test_from_result_keeps_the_solver_output_and_needs_biases():
     assert back.a.tobytes() == result.a.tobytes()
     assert back.fit["dof"] == result.dof and back.frame == result.frame == "canonical"
     assert back.axis_angles_sigma.tobytes() == result.axis_angles_sigma.tobytes()
+
+
+def test_the_joint_covariance_goes_into_the_file_and_back():
+    rng = np.random.default_rng(4)
+    a = np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.8]])
+    v = rng.standard_normal((3, 16))
+    v /= np.linalg.norm(v, axis=0)
+    b = np.array([0.1, -0.2, 0.05, 0.3])
+    joint = station.calibrate(a.T @ v + b[:, None] + 1e-3 * rng.standard_normal((4, 16)), 1.0,
+                              bias="estimate", sigma=1e-3)
+    cal = loads(Calibration.from_result(joint, "SN1", SENSORS, "rad/s").dumps())
+    assert cal.covariance.tobytes() == joint.parameter_covariance.tobytes()  # (a, b) correlated
+    assert np.abs(cal.covariance[:12, 12:]).max() > 0
+    # biases measured apart (a rotary session's static windows): independent of a
+    unbiased = station.calibrate(a.T @ v + 1e-3 * rng.standard_normal((4, 16)), 1.0, sigma=1e-3)
+    sb = np.full(4, 2e-5)
+    cal = loads(Calibration.from_result(unbiased, "SN1", SENSORS, "rad/s", bias=b,
+                                        bias_sigma=sb).dumps())
+    assert np.array_equal(cal.covariance[:12, :12], unbiased.parameter_covariance)
+    assert np.array_equal(cal.covariance[12:, 12:], np.diag(sb**2))
+    assert not cal.covariance[:12, 12:].any()
+
+
+def with_covariance(cov) -> Calibration:
+    """make() with a covariance whose diagonal agrees with its sigmas unless `cov` is given."""
+    return make(covariance=cov)
+
+
+def test_a_covariance_that_contradicts_the_file_is_refused():
+    sigma = np.r_[np.full(12, 1e-4), np.full(4, 1e-5)]
+    good = np.diag(sigma**2)
+    good[0, 1] = good[1, 0] = 0.5e-8  # correlation 0.5 between two entries of a
+    assert loads(with_covariance(good).dumps()).covariance.tobytes() == good.tobytes()
+    asymmetric = good.copy()
+    asymmetric[0, 1] *= 2
+    wrong_diagonal = good.copy()
+    wrong_diagonal[3, 3] *= 4
+    indefinite = good.copy()
+    indefinite[0, 1] = indefinite[1, 0] = 2e-8  # correlation 2
+    for cov, problem in ((asymmetric, "not symmetric"), (wrong_diagonal, "diagonal differs"),
+                         (indefinite, "not positive semi-definite"), (good[:4, :4], "shape")):
+        with pytest.raises(CalibrationFileError, match=problem):
+            loads(with_covariance(cov).dumps())
+
+
+def test_a_version_1_file_still_loads_without_covariance():
+    from station.calfile import CONVENTIONS_V1
+
+    def to_v1(doc):
+        del doc["covariance"]
+        doc.update(format_version=1, conventions=CONVENTIONS_V1)
+
+    back = loads(edited(make(), to_v1, True))
+    assert back.covariance is None and back.unit_serial == "SN42"
+    with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance'\\]"):
+        loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
+                                                              conventions=CONVENTIONS_V1), True))
