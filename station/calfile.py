@@ -150,11 +150,35 @@ class Calibration:
 
     def apply(self, z) -> np.ndarray:
         """Calibrated vectors (k, d) from SI readings z (k, m) or (m,): F (z - b) per row."""
+        return (self._readings(z) - self.bias) @ self.fusion_matrix().T
+
+    def _readings(self, z) -> np.ndarray:
+        """z as floats, refused unless it holds m readings per instant."""
         z = np.asarray(z, float)
         if z.shape[-1:] != (self.m,):
             raise CalibrationFileError(f"readings have shape {z.shape}; this calibration needs "
                                        f"{self.m} readings per instant (sensors {self.sensors})")
-        return (z - self.bias) @ self.fusion_matrix().T
+        return z
+
+    def vector_covariance(self, z) -> np.ndarray:
+        """(k, d, d) covariance of each calibrated vector F (z - b) due to the calibration's own
+        uncertainty (`covariance`), for SI readings z (k, m) or (m,), by the Jacobian
+            dv/db_i = -F[:, i],  dv/da_ri = G^-1[:, r] (y - a^T v)_i - F[:, i] v_r,
+        with G = a a^T, F = G^-1 a, y = z - b, v = F y (first order). The readings' own noise is
+        not included."""
+        if self.covariance is None:
+            raise CalibrationFileError("this calibration file has no covariance (format version "
+                                       "1); solve the session again for one")
+        y = np.atleast_2d(self._readings(z)) - self.bias
+        g_inv = np.linalg.inv(self.a @ self.a.T)
+        f = g_inv @ self.a
+        v = y @ f.T
+        res = y - v @ self.a
+        d, m = self.a.shape
+        jac_a = (g_inv[None, :, :, None] * res[:, None, None, :]
+                 - f[None, :, None, :] * v[:, None, :, None]).reshape(len(y), d, d * m)
+        jac = np.concatenate([jac_a, np.broadcast_to(-f, (len(y), d, m))], axis=2)
+        return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
 
     def check_unit(self, unit_serial: str | None = None, sensors=None, units=None,
                    where: str = "the data") -> None:

@@ -62,6 +62,34 @@ def test_csv_of_si_readings_in_any_column_order(tmp_path, cal_path):
     assert np.allclose(values[:, 1:], v, atol=1e-12)
 
 
+def test_sigma_columns_from_the_calibrations_covariance(tmp_path, capsys):
+    v, z = truth(k=20)
+    sigma = np.r_[np.full(12, 1e-4), np.full(4, 1e-5)]
+    cal = make(covariance=np.diag(sigma**2))
+    path = tmp_path / "cov.cal.json"
+    cal.save(path)
+    data, out = tmp_path / "z.csv", tmp_path / "v.csv"
+    write_csv(data, list(SENSORS), [z[:, i] for i in range(4)])
+    assert cli.main(["apply", str(path), str(data), "--out", str(out), "--sigma"]) == 0
+    header, values = read_csv(out)
+    assert header[3:] == ["sigma_v_x [rad/s]", "sigma_v_y [rad/s]", "sigma_v_z [rad/s]"]
+    assert np.allclose(values[:, :3], v, atol=1e-12)
+    expected = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2))
+    assert np.allclose(values[:, 3:], expected, rtol=1e-12)
+    # b's own sigma alone: F diag(sb^2) F^T, a lower bound of each component's variance
+    f = cal.fusion_matrix()
+    assert np.all(values[:, 3:] ** 2 >= np.diag(f @ np.diag(sigma[12:] ** 2) @ f.T) * (1 - 1e-9))
+    assert cli.main(["apply", str(cal_path_of(tmp_path)), str(data), "--sigma"]) == 1
+    assert "no covariance" in capsys.readouterr().err
+
+
+def cal_path_of(tmp_path):
+    """A calibration file without covariance (as version-1 files)."""
+    path = tmp_path / "nocov.cal.json"
+    make().save(path)
+    return path
+
+
 def test_csv_of_raw_counts(tmp_path, cal_path, capsys):
     v, z = truth()
     data = tmp_path / "counts.csv"

@@ -244,3 +244,47 @@ def test_a_version_1_file_still_loads_without_covariance():
     with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
+
+
+def test_vector_covariance_is_the_first_order_propagation():
+    """Against central differences of apply() over each parameter of (a row-major, b)."""
+    rng = np.random.default_rng(6)
+    root = rng.standard_normal((16, 16)) * 1e-4
+    cov = root @ root.T
+    sigma = np.sqrt(np.diag(cov))
+    cal = make(a_sigma=sigma[:12].reshape(3, 4), bias_sigma=sigma[12:], covariance=cov)
+    z = rng.uniform(-2, 2, (5, 4))
+    jac = np.zeros((5, 3, 16))
+    for k in range(16):
+        h = np.zeros(16)
+        h[k] = 1e-6
+        plus, minus = (make(a=cal.a + s * h[:12].reshape(3, 4), bias=cal.bias + s * h[12:])
+                       for s in (1, -1))
+        jac[:, :, k] = (plus.apply(z) - minus.apply(z)) / 2e-6
+    expected = np.einsum("kpi,ij,kqj->kpq", jac, cov, jac)
+    np.testing.assert_allclose(cal.vector_covariance(z), expected, rtol=1e-6,
+                               atol=1e-9 * np.abs(expected).max())
+    with pytest.raises(CalibrationFileError, match="no covariance"):
+        make().vector_covariance(z)
+
+
+def test_calibrated_vectors_scatter_as_their_covariance_says():
+    """Over repeated calibrations, the error of F (z - b) at one reading, in the canonical frame,
+    has Mahalanobis distance chi2(3): mean 3 within 3 standard errors."""
+    from station.frames import to_canonical
+
+    rng = np.random.default_rng(5)
+    a = to_canonical(np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.8]]))
+    b = np.array([0.1, -0.2, 0.05, 0.3])
+    truth = np.array([0.3, -0.5, 0.8])
+    z = a.T @ truth + b
+    trials, d2 = 300, []
+    for _ in range(trials):
+        v = rng.standard_normal((3, 16))
+        v /= np.linalg.norm(v, axis=0)
+        res = station.calibrate(a.T @ v + b[:, None] + 1e-3 * rng.standard_normal((4, 16)), 1.0,
+                                bias="estimate", sigma=1e-3)
+        cal = Calibration.from_result(res, "SN1", SENSORS, "rad/s")
+        err = cal.apply(z) - truth
+        d2.append(err @ np.linalg.solve(cal.vector_covariance(z)[0], err))
+    assert abs(np.mean(d2) - 3) < 3 * np.sqrt(6 / trials), np.mean(d2)

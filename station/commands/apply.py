@@ -10,7 +10,9 @@ file. DATA is either
   divides by the calibration's counts per unit.
 
 The output (CSV, or HDF5 when OUT ends in .h5) has columns time [s] and v_x, v_y (, v_z) in the
-readings' unit, in the calibration's frame.
+readings' unit, in the calibration's frame. `--sigma` adds the 1-sigma of each component that the
+calibration's own uncertainty leaves (its covariance, calibration file version 2; the readings'
+noise is not included): columns sigma_v_x, ... (HDF5: dataset `v_sigma`).
 """
 
 import argparse
@@ -43,6 +45,8 @@ def register(sub) -> None:
     p.add_argument("--counts", action="store_true",
                    help="CSV readings are raw counts (divided by the calibration's counts per "
                         "unit)")
+    p.add_argument("--sigma", action="store_true",
+                   help="add the 1-sigma of each component from the calibration's uncertainty")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
     p.set_defaults(run=run)
@@ -67,12 +71,16 @@ def run(args) -> int:
         else:
             time, z = read_csv(args.data, cal, args.counts)
         v = cal.apply(z)
+        sigma = None
+        if args.sigma:
+            sigma = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2)) \
+                if len(z) else np.zeros_like(v)
         if args.out is None:
-            sys.stdout.write(csv_text(time, v, cal.units[0]))
+            sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
         elif args.out.suffix.lower() in HDF5_SUFFIXES:
-            write_hdf5(args.out, time, v, cal, args.data)
+            write_hdf5(args.out, time, v, cal, args.data, sigma)
         else:
-            args.out.write_text(csv_text(time, v, cal.units[0]))
+            args.out.write_text(csv_text(time, v, cal.units[0], sigma))
     except (CalibrationFileError, SessionFormatError, OSError) as exc:
         print(f"station apply: {exc}", file=sys.stderr)
         return 1
@@ -158,20 +166,23 @@ def _parse_header(header, fail) -> tuple:
     return names, units
 
 
-def csv_text(time, v, unit: str) -> str:
-    """CSV of the calibrated vectors (with a time column when time is given)."""
+def csv_text(time, v, unit: str, sigma=None) -> str:
+    """CSV of the calibrated vectors (with a time column when time is given, and their 1-sigma
+    columns when sigma is given)."""
     d = v.shape[1]
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow((["time [s]"] if time is not None else [])
-                    + [f"{axis} [{unit}]" for axis in AXES[:d]])
-    rows = v if time is None else np.column_stack([time, v])
+                    + [f"{axis} [{unit}]" for axis in AXES[:d]]
+                    + ([f"sigma_{axis} [{unit}]" for axis in AXES[:d]] if sigma is not None else []))
+    rows = np.column_stack([x for x in (time, v, sigma) if x is not None])
     writer.writerows(rows.tolist())
     return out.getvalue()
 
 
-def write_hdf5(path, time, v, cal, source) -> None:
-    """An HDF5 file: datasets `v` (k, d) and `time` (k,) (when known), with units and origin."""
+def write_hdf5(path, time, v, cal, source, sigma=None) -> None:
+    """An HDF5 file: datasets `v` (k, d), `time` (k,) (when known) and `v_sigma` (k, d) (when
+    given), with units and origin."""
     import h5py
 
     tmp = f"{path}.tmp{os.getpid()}"
@@ -183,4 +194,8 @@ def write_hdf5(path, time, v, cal, source) -> None:
         ds.attrs.update(units=cal.units[0], columns=list(AXES[:v.shape[1]]))
         if time is not None:
             f.create_dataset("time", data=time).attrs["units"] = "s"
+        if sigma is not None:
+            f.create_dataset("v_sigma", data=sigma).attrs.update(
+                units=cal.units[0], columns=list(AXES[:v.shape[1]]),
+                meaning="1-sigma from the calibration's uncertainty, readings' noise excluded")
     os.replace(tmp, path)
