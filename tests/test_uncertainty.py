@@ -32,36 +32,36 @@ def test_95_percent_intervals_of_scales_and_angles_cover_the_truth():
     assert lo < np.mean(cover_ang) < hi, np.mean(cover_ang)
 
 
-def test_bias_intervals_cover_the_truth_for_a_triad_with_unknown_biases():
-    rng = np.random.default_rng(8)
-    a = np.array([[9.7, 0.05, -0.1], [0.0, 9.9, 0.08], [0.0, 0.0, 9.8]])
-    trials, cover = 300, []
+TRIAD = np.array([[9.7, 0.05, -0.1], [0.0, 9.9, 0.08], [0.0, 0.0, 9.8]])
+"""An accelerometer triad (m/s^2 per g), upper triangular: already in the canonical frame."""
+
+
+def triad_with_unknown_biases(seed: int, trials: int = 300):
+    """(biases, calibration) of `trials` triads at 24 random poses, noise 0.01, biases estimated."""
+    rng = np.random.default_rng(seed)
     for _ in range(trials):
         b = rng.normal(0, 0.5, 3)
         v = random_directions(rng, 3, 24)
-        res = station.calibrate(a.T @ v + b[:, None] + 0.01 * rng.standard_normal((3, 24)), 1.0,
-                                bias="estimate", sigma=0.01)
-        cover.append(np.abs(res.bias - b) < 1.96 * res.bias_sigma)
-    lo, hi = binomial_band(0.95, trials)
+        yield b, station.calibrate(TRIAD.T @ v + b[:, None] + 0.01 * rng.standard_normal((3, 24)),
+                                   1.0, bias="estimate", sigma=0.01)
+
+
+def test_bias_intervals_cover_the_truth_for_a_triad_with_unknown_biases():
+    cover = [np.abs(res.bias - b) < 1.96 * res.bias_sigma for b, res in triad_with_unknown_biases(8)]
+    lo, hi = binomial_band(0.95, len(cover))
     assert lo < np.mean(cover) < hi, np.mean(cover)
 
 
 def test_the_joint_covariance_of_a_and_b_is_honest():
     """parameter_covariance (vec(a) in the canonical frame, then b): the Mahalanobis distance of
     the error is chi2 with d m + m - d(d-1)/2 = 9 dof (the frame fixes three entries of a)."""
-    rng = np.random.default_rng(11)
-    a = np.array([[9.7, 0.05, -0.1], [0.0, 9.9, 0.08], [0.0, 0.0, 9.8]])  # canonical already
     trials, d2 = 300, []
-    for _ in range(trials):
-        b = rng.normal(0, 0.5, 3)
-        v = random_directions(rng, 3, 24)
-        res = station.calibrate(a.T @ v + b[:, None] + 0.01 * rng.standard_normal((3, 24)), 1.0,
-                                bias="estimate", sigma=0.01)
+    for b, res in triad_with_unknown_biases(11, trials):
         cov = res.parameter_covariance
         np.testing.assert_allclose(np.diag(cov), np.r_[res.a_sigma.ravel(), res.bias_sigma] ** 2,
                                    rtol=1e-9, atol=1e-20)
         assert np.linalg.matrix_rank(cov, rtol=1e-8, hermitian=True) == 9
-        err = np.r_[(res.a - a).ravel(), res.bias - b]
+        err = np.r_[(res.a - TRIAD).ravel(), res.bias - b]
         d2.append(err @ np.linalg.pinv(cov, rcond=1e-8, hermitian=True) @ err)
     d2 = np.array(d2)
     assert abs(d2.mean() - 9) < 3 * np.sqrt(2 * 9 / trials), d2.mean()  # chi2(9): mean 9, var 18
