@@ -14,8 +14,8 @@ unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, their
 (version 2: order a row-major, then b; in the frame of `a`, whose gauge it removes; biases
 measured apart from the fit are independent of `a`), the gauge-invariant scale factors and axis
 angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
-date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives
-back bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits
+date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's
+shortest round-trip form, so a load gives back bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits
 and damage (it is not a signature).
 
 Loading treats the file as untrusted: size limit, strict JSON (no NaN/Infinity, no duplicate keys),
@@ -39,7 +39,7 @@ SUPPORTED_VERSIONS = (1, 2)  # 2 added `covariance`
 MAX_BYTES = 4 << 20
 SI_UNITS = ("rad/s", "m/s^2", "T")
 FRAMES = ("canonical", "nominal")
-CONVENTIONS = {
+CONVENTIONS_V1 = {
     "document": "docs/conventions.md",
     "model": "z_i = a_i . v + b_i + noise  (M = a^T v + b 1^T)",
     "sensitivity": "a is d x m (rows = frame axes, columns = sensors in the order of unit.sensors); "
@@ -49,9 +49,9 @@ CONVENTIONS = {
     "counts": "SI reading = raw counts / counts_per_unit",
     "matrices": "nested JSON lists, row-major",
 }
-CONVENTIONS_V1 = dict(CONVENTIONS)
-CONVENTIONS["covariance"] = ("joint covariance of (a row-major, then b): (d m + m) x (d m + m), "
-                             "in the frame of a; null when unknown")
+CONVENTIONS = {**CONVENTIONS_V1,
+               "covariance": "joint covariance of (a row-major, then b): (d m + m) x (d m + m), "
+                             "in the frame of a; null when unknown"}
 _KEYS_V1 = ("format", "format_version", "software_version", "created", "conventions", "unit",
             "units", "frame", "magnitude", "scale_known", "sensitivity", "bias", "invariants",
             "fit", "session", "checksum")
@@ -121,7 +121,8 @@ class Calibration:
         units            : one SI unit for all sensors, or one per sensor.
         """
         m = result.m
-        if bias is None:
+        own_bias = bias is None
+        if own_bias:
             if result.bias is None or result.bias_sigma is None:
                 raise CalibrationFileError(
                     "the calibration has no estimated bias (its readings were bias-free); give "
@@ -140,7 +141,7 @@ class Calibration:
                  "positions": int(result.v.shape[1]), "bias_source": bias_source},
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
-            session=session, covariance=_joint_covariance(result, bias is result.bias, bias_sigma))
+            session=session, covariance=_joint_covariance(result, own_bias, bias_sigma))
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 

@@ -88,9 +88,13 @@ def arrays(session, stream: str = "imu") -> dict:
     times = t[index]
     c = _commanded(session.path, table, pos.values())
     rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values())])
-    factors = [_rate_factor(session.path, table, p, j, c) for j, p in pos.items()]
-    angle = np.stack([_angle(session.path, table, tj, p, j, c * f)
-                      for tj, (j, p), (f, _) in zip(times, pos.items(), factors)])
+    # the table's angle at rest before each spin-up (exact: a still table's angle does not depend
+    # on the reading's time stamp)
+    start = [_rest_angle(session.path, table, p["s0"], p["s1"], j, "static window")
+             for j, p in pos.items()]
+    factors = [_rate_factor(table, p, c, a0) for p, a0 in zip(pos.values(), start)]
+    angle = np.stack([a0 + c * f * _swept(tj, p)
+                      for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors)])
     return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": np.array([sd for _, sd in factors]),
@@ -247,23 +251,16 @@ def _commanded(path, table, pos) -> float:
     return float(values[0])
 
 
-def _angle(path, table, t, p, j, rate) -> np.ndarray:
-    """Cumulative table angle at times t: the recorded angle at rest before the spin-up (exact:
-    not affected by the reading's time stamp) plus `rate` times the trapezoid's integral."""
-    return _rest_angle(path, table, p["s0"], p["s1"], j, "static window") + rate * _swept(t, p)
-
-
-def _rate_factor(path, table, p, j, c) -> tuple:
-    """(factor, 1-sigma): the angle the table reports between rest before the spin-up and rest
-    after the stop, over c times the IMU-timed turning time at full rate (`_ramps`). 1 for a
-    table that reports its command (to the IMU timing's precision, the sigma); the true rate over
-    the command for one whose angle reads the shaft. (1, inf) without a reading at rest after the
-    stop (a position cut at the end of its spin-down, as imported arrays)."""
-    if not _at_rest(table, p["te"], p["done"]).any():
+def _rate_factor(table, p, c, start: float) -> tuple:
+    """(factor, 1-sigma): the angle the table reports between rest before the spin-up (`start`)
+    and rest after the stop, over c times the IMU-timed turning time at full rate (`_ramps`). 1
+    for a table that reports its command (to the IMU timing's precision, the sigma); the true
+    rate over the command for one whose angle reads the shaft. (1, inf) without a reading at rest
+    after the stop (a position cut at the end of its spin-down, as imported arrays)."""
+    rest = _at_rest(table, p["te"], p["done"])
+    if not rest.any():
         return 1.0, math.inf
-    turned = (_rest_angle(path, table, p["te"], p["done"], j, "rest after the stop")
-              - _rest_angle(path, table, p["s0"], p["s1"], j, "static window"))
-    factor = turned / (c * p["turning"])
+    factor = (np.median(table.angle[rest]) - start) / (c * p["turning"])
     return factor, factor * p["turning_sd"] / p["turning"]
 
 

@@ -83,18 +83,21 @@ def fit(ctx, prediction, r) -> Fitted:
     (`encoder_reads`), the encoder's fit if it explains more (a larger chi2 decrease net of the
     random effect's penalty: the test of `encoder_reads` relies on the IMU timing's 1-sigma,
     which a busy virtual bench can understate); see the module docstring."""
-    random = _fit_random(ctx, prediction, r)
+    # per position: the least-squares factor of the signature s_j(t) and its variance w_j; the
+    # quadratic forms of the axes that a calibration absorbs
+    lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
+    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
+    random = _fit_random(lf, x)
     if not encoder_reads(ctx.data):
         return random
-    encoder = _fit_encoder(ctx, prediction, r, ctx.data.rate_factors - 1.0)
+    encoder = _fit_encoder(ctx, prediction, r, ctx.data.rate_factors - 1.0, lf.cov[:, 0, 0], x)
     return encoder if encoder.reduction >= random.reduction - random.penalty else random
 
 
-def _fit_random(ctx, prediction, r) -> Fitted:
-    """The spread s by REML, the factors 1 + delta_j (BLUP) and the deviance terms."""
-    lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
+def _fit_random(lf, x) -> Fitted:
+    """The spread s by REML, the factors 1 + delta_j (BLUP) and the deviance terms, from the
+    per-position fit `lf` and the absorbed design x."""
     delta_hat, w = lf.theta[:, 0], lf.cov[:, 0, 0]
-    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
     t, t_sigma = reml_spread(delta_hat, w, x)
     vinv, p, _ = _projector(t, w, x)
     shrink = t * vinv
@@ -123,18 +126,17 @@ def encoder_reads(data) -> bool:
     return bool(np.sum(z**2) > chi2.isf(ENCODER_ALPHA, z.size))
 
 
-def _fit_encoder(ctx, prediction, r, measured: np.ndarray) -> Fitted:
+def _fit_encoder(ctx, prediction, r, measured: np.ndarray, w: np.ndarray,
+                 x: np.ndarray) -> Fitted:
     """The gain lambda of the encoder's relative rate errors `measured` (n,); factors
     1 + lambda measured_j.
 
     The calibration absorbs the part X e of the measured_j (common scale and quadratic forms of
-    the axes, `quadratic_design`), so the residuals of the twin without this extension hold only
-    the rest, measured - X e (weighted by the information w_j^-1 of each position's level): the
-    gain is the least-squares coefficient of that rest times s_j(t), whatever the correction the
-    calibration already saw."""
-    per_position = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
-    info = 1.0 / per_position.cov[:, 0, 0]
-    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
+    the axes, x = `quadratic_design`), so the residuals of the twin without this extension hold
+    only the rest, measured - X e (weighted by the information w_j^-1 of each position's level):
+    the gain is the least-squares coefficient of that rest times s_j(t), whatever the correction
+    the calibration already saw."""
+    info = 1.0 / w
     absorbed = x @ np.linalg.lstsq(x * np.sqrt(info)[:, None], np.sqrt(info) * measured,
                                    rcond=None)[0]
     rest = measured - absorbed
