@@ -23,13 +23,13 @@ import numpy as np
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
-from station.frames import eps
-from station.sim.effects import parse
-from station.sim.effects.saturation import Saturation
+from station.model.frames import eps
+from station.model.effects import parse
+from station.model.effects.saturation import Saturation
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
-from station.uncertainty import crlb
+from station.solve.uncertainty import crlb
 
 SHORT = RotaryTiming(static=4.0, moving=10.0)
 """A short position (4 s static, 10 s moving) for the acceptance suite, at 100 Hz."""

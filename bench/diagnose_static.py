@@ -25,8 +25,8 @@ import numpy as np
 
 from station.diagnose.static import diagnose_static, from_arrays
 from station.diagnose.static_report import load, to_dict
-from station.importers import import_csv, import_text
-from station.sim.effects import parse_all
+from station.files.importers import import_csv, import_text
+from station.model.effects import parse_all
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 

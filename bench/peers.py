@@ -19,7 +19,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from station.ferraris import (
+from station.reduce.ferraris import (
     FACE_SECTIONS,
     calibrate_ferraris,
     find_sections,
@@ -28,8 +28,8 @@ from station.ferraris import (
     read_section_list,
     section_overlap,
 )
-from station.gyro_turns import gravity_carry_errors, mirrored
-from station.uncertainty import axis_angles
+from station.solve.gyro_turns import gravity_carry_errors, mirrored
+from station.solve.uncertainty import axis_angles
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "imucal-ferraris"
 G = 9.81  # imucal's default, used for its reference

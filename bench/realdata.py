@@ -17,17 +17,17 @@ from pathlib import Path
 
 import numpy as np
 
-from station.ferraris import (
+from station.reduce.ferraris import (
     calibrate_ferraris,
     find_sections,
     read_recording,
     read_section_list,
     section_overlap,
 )
-from station.free_static import calibrate_free_static, leave_one_out, read_table
-from station.gyro_turns import gravity_carry_errors
-from station.stillness import detect_still
-from station.uncertainty import axis_angles
+from station.reduce.free_static import calibrate_free_static, leave_one_out, read_table
+from station.solve.gyro_turns import gravity_carry_errors
+from station.reduce.stillness import detect_still
+from station.solve.uncertainty import axis_angles
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 FS = 100.0  # both data sets, PROVENANCE.md

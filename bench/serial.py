@@ -27,11 +27,11 @@ import time
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from drivers.frames import CRCS, BinaryFrameParser, encode_frames
+from drivers.wire.frames import CRCS, BinaryFrameParser, encode_frames
 from drivers.profile import SerialImuProfile
 from drivers.serial_imu import SerialImu
-from drivers.twin_serial import OVERFLOW, SENT, SerialTwin, corrupt_frame
-from station.clock import ScaledClock
+from drivers.twins.serial import OVERFLOW, SENT, SerialTwin, corrupt_frame
+from drivers.clock import ScaledClock
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels

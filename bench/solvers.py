@@ -28,10 +28,10 @@ from factorization import table1  # noqa: E402
 from layouts import random_directions, section4_gyros  # noqa: E402
 
 import station  # noqa: E402
-from station.constraints import from_faces  # noqa: E402
-from station.factorization import factorize  # noqa: E402
-from station.ml import refine  # noqa: E402
-from station.pca import pca_calibration  # noqa: E402
+from station.solve.constraints import from_faces  # noqa: E402
+from station.solve.factorization import factorize  # noqa: E402
+from station.solve.ml import refine  # noqa: E402
+from station.solve.pca import pca_calibration  # noqa: E402
 
 N_VALUES = (8, 12, 20, 50, 100, 200)
 SIGMAS = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2)

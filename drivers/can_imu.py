@@ -26,7 +26,7 @@ import numpy as np
 
 from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
 from drivers.samples import SampleBlock
-from station.clock import WallClock
+from drivers.clock import WallClock
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from drivers.profile import ProfileError, Section, load_profile
-from station.clock import WallClock
+from drivers.clock import WallClock
 
 EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                    4: "device failure", 5: "acknowledge", 6: "device busy",

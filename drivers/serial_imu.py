@@ -4,7 +4,7 @@
         block = imu.read_block(timeout=0.5)   # SampleBlock or None
 
 The wire format (binary frames or ASCII lines) comes from the device profile; parsing is in
-drivers/frames.py. Reads take what the port has (`read(in_waiting or 1)`) with a short timeout, so a
+drivers/wire/frames.py. Reads take what the port has (`read(in_waiting or 1)`) with a short timeout, so a
 block is returned as soon as a sample is complete. A lost device (unplug) raises DeviceLostError
 naming the port; every sample decoded before it has already been returned, and `open()` reconnects.
 For a recorder, `start(callback)` runs the reads in a background thread.
@@ -15,9 +15,9 @@ import time
 
 import serial
 
-from drivers.frames import AsciiLineParser, BinaryFrameParser
+from drivers.wire.frames import AsciiLineParser, BinaryFrameParser
 from drivers.profile import SerialImuProfile
-from station.clock import WallClock
+from drivers.clock import WallClock
 
 
 class SerialPortError(ConnectionError):
@@ -56,7 +56,7 @@ class SerialImu:
 
     @property
     def stats(self):
-        """Link counters (drivers.frames.LinkStats), cumulative over reconnects."""
+        """Link counters (drivers.wire.frames.LinkStats), cumulative over reconnects."""
         return self.parser.stats
 
     @property

@@ -16,7 +16,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.replay import replay_into
-from station.virtual_bench import VirtualBench, record_rotary
+from station.twin.rotary_bench import VirtualBench, record_rotary
 
 # 12 positions of a 12-gyro unit, 25 Hz, one revolution per position: about 1.2 MB (0.65 MB of it
 # is the fixed 64 KB chunks of the session format)

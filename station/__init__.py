@@ -4,9 +4,9 @@ Public API (README, "Python API"): `calibrate` -> `CalibrationResult`, `crlb` (C
 the canonical frame), `eps` (error metric of Eq. 19), `CalibrationInputError`.
 """
 
-from station.calibrate import CalibrationResult, calibrate
+from station.solve.calibrate import CalibrationResult, calibrate
 from station.errors import CalibrationInputError
-from station.frames import eps
-from station.uncertainty import crlb
+from station.model.frames import eps
+from station.solve.uncertainty import crlb
 
 __all__ = ["CalibrationInputError", "CalibrationResult", "calibrate", "crlb", "eps"]

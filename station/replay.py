@@ -19,7 +19,7 @@ a session (`results/<name>`) are reproduced exactly by a replay with the setting
 `replay_into` stores a replay under a new results name (stored results are never overwritten).
 
 `replay_raw` (rotary sessions only) sends the recorded IMU stream again over the serial wire
-protocol (a pseudo-terminal twin, `drivers.twin_serial.SerialTwin`) through the ordinary driver and
+protocol (a pseudo-terminal twin, `drivers.twins.serial.SerialTwin`) through the ordinary driver and
 recorder into a new session file, with the original's table states and events placed at the same
 instants relative to the re-recorded samples: the new file reduces to the same readings as the
 original.
@@ -35,14 +35,14 @@ from types import SimpleNamespace
 import numpy as np
 
 import station
-from station.calibrate import CalibrationResult
+from station.solve.calibrate import CalibrationResult
 from station.errors import CalibrationInputError
 from station.protocols.iron import iron_readings
 from station.protocols.rotary import SEGMENT_EVENTS, reduce_session
 from station.protocols.static import static_readings
 from station.protocols.still import calibrate_still
-from station.recorder import arrival_offset
-from station.session import (
+from station.acquire.recorder import arrival_offset
+from station.files.session import (
     TABLE_STATUS_BITS,
     Session,
     SessionWriter,
@@ -134,7 +134,7 @@ PROTOCOLS = {
 
 def replay(path, settings: ReplaySettings | None = None) -> tuple[object, CalibrationResult]:
     """(readings, calibration) of the session at `path`, reduced and solved again from its raw
-    stream; readings: `station.reduction.Reduced` (rotary) or `StillReadings` (iron, static)."""
+    stream; readings: `station.reduce.eq18.Reduced` (rotary) or `StillReadings` (iron, static)."""
     settings = settings or ReplaySettings()
     with Session.open(path) as session:
         protocol = PROTOCOLS.get(session.protocol)
@@ -226,9 +226,9 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     """
     from drivers.profile import SerialImuProfile
     from drivers.serial_imu import SerialImu
-    from drivers.twin_serial import SerialTwin
-    from station.clock import ScaledClock
-    from station.recorder import Recorder
+    from drivers.twins.serial import SerialTwin
+    from drivers.clock import ScaledClock
+    from station.acquire.recorder import Recorder
 
     with Session.open(path) as session:
         if session.protocol != "rotary":

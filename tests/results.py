@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 
-from station.calibrate import CalibrationResult
+from station.solve.calibrate import CalibrationResult
 
 
 def assert_same(result, calibration, rtol: float = 0.0):

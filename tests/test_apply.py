@@ -13,9 +13,9 @@ from test_calfile import SENSORS, make
 
 from drivers.samples import SampleBlock
 from station import cli
-from station.calfile import load
-from station.export_c import c_header
-from station.session import SessionWriter, StreamSpec
+from station.files.calfile import load
+from station.files.export_c import c_header
+from station.files.session import SessionWriter, StreamSpec
 
 RATE = 100.0
 CPU = 1e6  # counts per rad/s

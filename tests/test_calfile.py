@@ -1,4 +1,4 @@
-"""The calibration file (station.calfile): exact round trip, refusals of tampered, foreign and
+"""The calibration file (station.files.calfile): exact round trip, refusals of tampered, foreign and
 malformed files, and the least-squares fusion it applies (docs/conventions.md)."""
 
 import json
@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import station
-from station.calfile import (
+from station.files.calfile import (
     FORMAT_VERSION,
     Calibration,
     CalibrationFileError,
@@ -233,7 +233,7 @@ def test_a_covariance_that_contradicts_the_file_is_refused():
 
 
 def test_a_version_1_file_still_loads_without_covariance():
-    from station.calfile import CONVENTIONS_V1
+    from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
         del doc["covariance"]
@@ -271,7 +271,7 @@ def test_vector_covariance_is_the_first_order_propagation():
 def test_calibrated_vectors_scatter_as_their_covariance_says():
     """Over repeated calibrations, the error of F (z - b) at one reading, in the canonical frame,
     has Mahalanobis distance chi2(3): mean 3 within 3 standard errors."""
-    from station.frames import to_canonical
+    from station.model.frames import to_canonical
 
     rng = np.random.default_rng(5)
     a = to_canonical(np.array([[1.0, 0.0, 0.0, 0.6], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.8]]))

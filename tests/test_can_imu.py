@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.can_imu import CanImu, CanProfile, replay
-from drivers.twin_can import CanImuTwin
+from drivers.twins.can import CanImuTwin
 
 PROFILE = CanProfile.load("imu12_can")
 M = len(PROFILE.imu.channels)

@@ -10,12 +10,12 @@ from serial.tools import list_ports
 
 import station
 from station import cli
-from station.calfile import load
+from station.files.calfile import load
 from station.commands.record import BenchProfile, record
 from station.commands.twin import BenchTwin
-from station.frames import align_to
-from station.operator import ConsoleOperator
-from station.session import Session, SessionWriter, StreamSpec
+from station.model.frames import align_to
+from station.acquire.operator import ConsoleOperator
+from station.files.session import Session, SessionWriter, StreamSpec
 
 COMMANDS = ("solve", "apply", "export", "devices", "twin", "record")
 POSITIONS = 7
@@ -94,7 +94,7 @@ def test_solve_refuses_what_it_cannot_solve(tmp_path, capsys):
         pass
     assert cli.main(["solve", str(path)]) == 1
     err = capsys.readouterr().err
-    assert "records a 'import' session" in err and "station.free_static" in err
+    assert "records a 'import' session" in err and "station.reduce.free_static" in err
     iron = tmp_path / "iron.h5"  # a still-pose session without its gravity
     with SessionWriter.create(iron, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
         pass

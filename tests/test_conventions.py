@@ -4,7 +4,7 @@ import numpy as np
 from layouts import A_MODEL, random_directions
 
 import station
-from station.frames import align_to, canonical_rotation, to_canonical
+from station.model.frames import align_to, canonical_rotation, to_canonical
 
 
 def rotation(rng, d):

@@ -115,7 +115,7 @@ def test_diagnose_is_exported():
 
 
 def test_rate_error_spread_and_calibration_are_those_of_the_random_effects_model(runs):
-    from station.uncertainty import crlb, eps_tail_probability
+    from station.solve.uncertainty import crlb, eps_tail_probability
 
     r = runs["rate_error"]
     spread, spread_sigma = r["spread_fitted"]
@@ -127,7 +127,7 @@ def test_rate_error_spread_and_calibration_are_those_of_the_random_effects_model
 
 
 def test_rate_error_read_by_the_encoder_is_corrected_to_the_nominal_bound(runs):
-    from station.uncertainty import crlb, eps_tail_probability
+    from station.solve.uncertainty import crlb, eps_tail_probability
 
     r = runs["rate_error_encoder"]
     gain, gain_sigma = r["gain_fitted"]

@@ -24,15 +24,15 @@ from station.diagnose import diagnose
 from station.diagnose.effects.rate_error import encoder_reads
 from station.diagnose.gap import HARMONICS
 from station.errors import CalibrationInputError
-from station.importers import import_npz
+from station.files.importers import import_npz
 from station.protocols.rotary import RotarySettings, suggested_axes
-from station.session import Session, SessionWriter, StreamSpec
-from station.sim.effects import parse
+from station.files.session import Session, SessionWriter, StreamSpec
+from station.model.effects import parse
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.npz import write
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
-from station.virtual_bench import VirtualBench, record_rotary
+from station.twin.rotary_bench import VirtualBench, record_rotary
 
 POSITIONS = 8  # Eqs. (16)-(17) need n >= 6 for 12 sensors
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)

@@ -13,9 +13,9 @@ from station.cli import main
 from station.diagnose.static import diagnose_static, from_arrays
 from station.diagnose.static_report import to_dict
 from station.errors import CalibrationInputError
-from station.importers import import_csv, import_text
-from station.sim.earth import OMEGA_EARTH
-from station.sim.effects import parse_all
+from station.files.importers import import_csv, import_text
+from station.model.earth import OMEGA_EARTH
+from station.model.effects import parse_all
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 
@@ -156,7 +156,7 @@ def test_one_stream_with_accelerometer_and_gyro_channels(tmp_path, capsys):
     """A 6-channel unit (3 m/s^2 + 3 rad/s in one stream, as a recorded IMU): the channels are
     taken by unit; the gyro's hidden Earth rate is found, so the gyro columns were read."""
     from drivers.samples import SampleBlock
-    from station.session import SessionWriter, StreamSpec
+    from station.files.session import SessionWriter, StreamSpec
 
     acc, gyro, truth = simulated(seed=4, gyro_effects=["earth_rate=rate=3e-4"])
     counts = np.round(np.column_stack([acc, gyro]) * 1e6).astype(np.int64)

@@ -1,4 +1,4 @@
-"""Hwangbo & Kanade factorization (station/factorization.py), constraints (station/constraints.py).
+"""Hwangbo & Kanade factorization (station/solve/factorization.py), constraints (station/solve/constraints.py).
 
 Truth is generated here from a known layout and known stimuli; the solver sees only readings and
 constraints. Noiseless data must be reproduced exactly (up to the rotation of Remark 1, via Eq. 19).
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from layouts import random_directions
 
-from station.constraints import Constraints, from_faces, magnitude_constraints
+from station.solve.constraints import Constraints, from_faces, magnitude_constraints
 from station.errors import CalibrationInputError
-from station.factorization import factorize
-from station.frames import eps
-from station.uncertainty import crlb
+from station.solve.factorization import factorize
+from station.model.frames import eps
+from station.solve.uncertainty import crlb
 
 FACE_VECTORS = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),
                 "+z": (0, 0, 1), "-z": (0, 0, -1)}

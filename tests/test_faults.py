@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fixture
 
-from drivers.twin_serial import SENT, UNPLUGGED
-from station.operator import SimulatedTechnician
+from drivers.twins.serial import SENT, UNPLUGGED
+from station.acquire.operator import SimulatedTechnician
 from station.protocols.rotary import (
     ProtocolError,
     RotarySettings,
@@ -22,7 +22,7 @@ from station.protocols.rotary import (
     position_windows,
     reduce_session,
 )
-from station.session import Session
+from station.files.session import Session
 
 
 @pytest.fixture(autouse=True)

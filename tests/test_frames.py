@@ -1,4 +1,4 @@
-"""Binary frame and ASCII line parsing (drivers/frames.py): exact decoding, CRC catalogue values,
+"""Binary frame and ASCII line parsing (drivers/wire/frames.py): exact decoding, CRC catalogue values,
 resynchronisation, the sequence guard against CRC false locks, counters."""
 
 import binascii
@@ -8,10 +8,10 @@ import zlib
 
 import numpy as np
 
-from drivers.frames import CRCS, AsciiLineParser, BinaryFrameParser, encode_frames, encode_lines
+from drivers.wire.frames import CRCS, AsciiLineParser, BinaryFrameParser, encode_frames, encode_lines
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
-from drivers.twin_serial import corrupt_frame
+from drivers.twins.serial import corrupt_frame
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels

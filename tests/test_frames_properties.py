@@ -1,7 +1,7 @@
 """Property tests: random and mutated byte streams into the binary and ASCII parsers.
 
 No exception may escape, and every accepted binary frame must exist in the input with a correct
-CRC (checked with the stdlib CRC, independent of drivers/frames.py)."""
+CRC (checked with the stdlib CRC, independent of drivers/wire/frames.py)."""
 
 import binascii
 import struct
@@ -10,7 +10,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.frames import AsciiLineParser, BinaryFrameParser, encode_frames
+from drivers.wire.frames import AsciiLineParser, BinaryFrameParser, encode_frames
 from drivers.profile import SerialImuProfile
 
 PROFILE = SerialImuProfile.load("imu12_serial")

@@ -7,9 +7,9 @@ import scipy.io
 from test_stillness import A_TRUE, COUNTS, FS, simulated
 
 from station.errors import CalibrationInputError
-from station.free_static import calibrate_free_static, leave_one_out, read_table
-from station.sim.earth import normal_gravity
-from station.uncertainty import axis_angles
+from station.reduce.free_static import calibrate_free_static, leave_one_out, read_table
+from station.model.earth import normal_gravity
+from station.solve.uncertainty import axis_angles
 
 G = normal_gravity(45.4)  # the latitude of `simulated`
 GYRO_BIAS = np.array([12.0, -30.0, 7.0])  # counts

@@ -1,4 +1,4 @@
-"""Gyro calibration from turns of known angle (station/gyro_turns.py, Hwangbo & Kanade Eq. 31) on
+"""Gyro calibration from turns of known angle (station/solve/gyro_turns.py, Hwangbo & Kanade Eq. 31) on
 simulated turns with a known truth: recovery within the noise of the integrals, turn senses,
 handedness, and the gravity-carry check."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from station.errors import CalibrationInputError
-from station.gyro_turns import (
+from station.solve.gyro_turns import (
     angle_deg,
     calibrate_turns,
     carry_gravity,

@@ -81,7 +81,7 @@ def test_ellipsoid_needs_enough_and_diverse_orientations():
 
 
 def test_constraints_without_magnitudes_are_refused_with_advice():
-    from station.constraints import Constraints
+    from station.solve.constraints import Constraints
 
     rng = np.random.default_rng(7)
     readings = readings_for(random_directions(rng, 3, 10))

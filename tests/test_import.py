@@ -9,13 +9,13 @@ import pytest
 import station
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.free_static import calibrate_free_static
-from station.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
+from station.reduce.free_static import calibrate_free_static
+from station.files.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
 from station.protocols.iron import iron_readings
 from station.protocols.rotary import reduce_session
 from station.protocols.still import calibrate_still
-from station.reduction import reduce_arrays
-from station.session import Session
+from station.reduce.eq18 import reduce_arrays
+from station.files.session import Session
 from station.sim import npz
 from station.sim.layouts import A_MODEL, accelerometer_triad, gyro_array
 from station.sim.profile import RotaryTiming

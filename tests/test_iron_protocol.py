@@ -7,15 +7,15 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from station.constraints import FACES, from_faces
+from station.solve.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
-from station.hand_bench import ACC4, HandBench, record_iron_session
-from station.operator import SimulatedTechnician
+from station.twin.hand_bench import ACC4, HandBench, record_iron_session
+from station.acquire.operator import SimulatedTechnician
 from station.protocols.iron import FACE_UP, IronProtocol, IronSettings, recognise_faces
 from station.protocols.rotary import ProtocolError
 from station.protocols.still import StreamTap, pose_windows, up_direction
-from station.recorder import Recorder
-from station.session import Session, SessionWriter
+from station.acquire.recorder import Recorder
+from station.files.session import Session, SessionWriter
 
 SEED = 2
 

@@ -6,8 +6,8 @@ import pytest
 from layouts import A_MODEL, random_directions
 
 import station
-from station.ml import refine
-from station.poses import tangent_basis
+from station.solve.ml import refine
+from station.solve.poses import tangent_basis
 
 
 def test_tangent_basis_is_orthonormal_and_perpendicular():

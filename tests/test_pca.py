@@ -5,8 +5,8 @@ import pytest
 from layouts import random_directions, section4_gyros
 
 import station
-from station.identifiability import min_positions
-from station.pca import pca_calibration
+from station.solve.identifiability import min_positions
+from station.solve.pca import pca_calibration
 
 
 @pytest.mark.parametrize("d", [1, 2, 3, 4])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from station.errors import CalibrationInputError
-from station.ferraris import (
+from station.reduce.ferraris import (
     calibrate_ferraris,
     find_sections,
     labelled_sections,
@@ -21,7 +21,7 @@ from station.ferraris import (
     read_section_list,
     section_overlap,
 )
-from station.gyro_turns import gravity_carry_errors, mirrored
+from station.solve.gyro_turns import gravity_carry_errors, mirrored
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "real" / "imucal-ferraris"

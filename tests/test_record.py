@@ -14,13 +14,13 @@ import pytest
 from scipy import stats
 
 import station
-from station.calfile import load
+from station.files.calfile import load
 from station.commands.record import BenchProfile, record, resume, solve
 from station.commands.twin import BenchTwin
-from station.operator import ConsoleOperator, OperatorAbort
+from station.acquire.operator import ConsoleOperator, OperatorAbort
 from station.protocols.rotary import reduce_session
-from station.session import Session
-from station.uncertainty import eps_tail_probability
+from station.files.session import Session
+from station.solve.uncertainty import eps_tail_probability
 
 POSITIONS = 8
 STATION = [sys.executable, "-m", "station.cli"]

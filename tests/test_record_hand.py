@@ -10,10 +10,10 @@ from scipy import stats
 
 from drivers.profile import ProfileError
 from station import cli
-from station.calfile import load
+from station.files.calfile import load
 from station.commands.record import BenchProfile, record
-from station.hand_bench import ACC4, TRIAD, HandBench
-from station.session import Session
+from station.twin.hand_bench import ACC4, TRIAD, HandBench
+from station.files.session import Session
 
 FAMILY_FALSE_ALARM = 1e-3
 
@@ -124,7 +124,7 @@ def test_station_record_against_the_hand_twin_with_a_console_operator(protocol, 
     """The twin's technician turns on its own metronome; the console operator only presses Enter:
     the station finds every pose itself and the calibration file matches the truth."""
     from station.commands.twin import HandTwin
-    from station.operator import ConsoleOperator
+    from station.acquire.operator import ConsoleOperator
 
     with HandTwin(protocol, seed=9, speed=40.0, poses=12, mountings=1) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text("SN-TWIN"))

@@ -16,20 +16,20 @@ from scipy import stats
 
 import station
 from station.protocols.rotary import reduce_session, suggested_axes
-from station.session import Session
-from station.uncertainty import eps_tail_probability
-from station.virtual_bench import VirtualBench
+from station.files.session import Session
+from station.solve.uncertainty import eps_tail_probability
+from station.twin.rotary_bench import VirtualBench
 
 POSITIONS, SEED, SPEED, RATE_HZ = 10, 5, 80.0, 100.0
 POSITION_WALL = 25.0 / SPEED  # at least 25 s of clock (remount to rest), with the bench's margins
-# (station.virtual_bench.HOST_LATENCY: 4 s of this clock)
+# (station.twin.rotary_bench.HOST_LATENCY: 4 s of this clock)
 # The recording process: creates the session (or resumes it with the same code as `station
 # resume`) and prints "flushed <imu rows> <table rows> <events>" whenever the durable row counts
 # change, then "done" if nobody killed it first.
 WORKER = f"""
 import sys, threading, time
 from station.protocols.rotary import RotarySettings, suggested_axes
-from station.virtual_bench import VirtualBench, record_rotary, resume_rotary
+from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 
 def watch(writer):
     def report():

@@ -14,7 +14,7 @@ from results import assert_same
 from station.cli import main
 from station.protocols.rotary import reduce_session
 from station.replay import ReplaySettings, replay, replay_into, replay_raw, stored_settings
-from station.session import Session
+from station.files.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
 

@@ -19,17 +19,19 @@ import pytest
 from rich.console import Console
 
 from drivers.samples import SampleBlock
-from station import calibrate, cli, report
-from station.live_view import LiveView
+from station.solve import calibrate
+from station import cli
+from station.report import session as report
+from station.acquire.live_view import LiveView
 from station.protocols.rotary import (
     RotaryProtocol,
     position_windows,
     reduce_session,
     suggested_axes,
 )
-from station.recorder import Recorder
-from station.session import Session, SessionWriter, write_results
-from station.virtual_bench import VirtualBench
+from station.acquire.recorder import Recorder
+from station.files.session import Session, SessionWriter, write_results
+from station.twin.rotary_bench import VirtualBench
 
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.rotary_table import TableFault
 from station.errors import CalibrationInputError
-from station.operator import ConsoleOperator, Instruction, OperatorAbort, SimulatedTechnician
+from station.acquire.operator import ConsoleOperator, Instruction, OperatorAbort, SimulatedTechnician
 from station.protocols.rotary import (
     ProtocolError,
     RotaryProtocol,
@@ -19,9 +19,9 @@ from station.protocols.rotary import (
     reduce_session,
     suggested_axes,
 )
-from station.recorder import Recorder, RecordingError, sample_times
-from station.session import Event, Session, SessionWriter
-from station.virtual_bench import VirtualBench
+from station.acquire.recorder import Recorder, RecordingError, sample_times
+from station.files.session import Event, Session, SessionWriter
+from station.twin.rotary_bench import VirtualBench
 
 # short windows: one position is about 20 s of clock, half a second of wall time at 40x
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)

@@ -11,8 +11,8 @@ import pytest
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
 from drivers.serial_imu import DeviceLostError, SerialImu, SerialPortError
-from drivers.twin_serial import PAUSED, SENT, SerialTwin
-from station.clock import ScaledClock
+from drivers.twins.serial import PAUSED, SENT, SerialTwin
+from drivers.clock import ScaledClock
 
 BINARY = SerialImuProfile.load("imu12_serial")
 ASCII = SerialImuProfile.load("imu_ascii")

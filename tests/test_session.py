@@ -13,9 +13,9 @@ from layouts import section4_gyros
 
 from drivers.profile import ImuSection, load_profile
 from drivers.samples import SampleBlock
-from station import calibrate
-from station.clock import ScaledClock
-from station.session import (
+from station.solve import calibrate
+from drivers.clock import ScaledClock
+from station.files.session import (
     EVENT_KINDS,
     Session,
     SessionFormatError,
@@ -90,7 +90,7 @@ def test_round_trip_is_exact(tmp_path):
         assert s.last_completed_position() == 0
         assert s.metadata == META and s.protocol == "rotary" and s.unit_serial == "SN-0042"
         assert s.format_version == 1 and s.closed_cleanly
-    with h5py.File(path, "r") as f:  # the documented layout, read without station.session
+    with h5py.File(path, "r") as f:  # the documented layout, read without station.files.session
         assert f.attrs["format"] == "imu-station-session" and f.attrs["format_version"] == 1
         assert json.loads(f.attrs["units"])["imu"] == ["rad/s"] * 12
         assert f.attrs["created"].endswith("Z")

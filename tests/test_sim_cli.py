@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from station.commands import simulate
-from station.reduction import reduce_arrays
+from station.reduce.eq18 import reduce_arrays
 from station.sim import npz
 
 ROTARY_KEYS = {

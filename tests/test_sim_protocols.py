@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from station.sim.earth import normal_gravity
-from station.sim.effects import parse_all
+from station.model.earth import normal_gravity
+from station.model.effects import parse_all
 from station.sim.iron import simulate_iron
 from station.sim.static import simulate_static
-from station.sim.unit import SensorUnit
+from station.model.unit import SensorUnit
 
 LSB = 1e-5
 

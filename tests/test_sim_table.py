@@ -5,9 +5,9 @@ import threading
 
 import pytest
 
-from station.clock import ScaledClock
-from station.sim.effects.rate_error import RateError
-from station.sim.table import RotaryTable
+from drivers.clock import ScaledClock
+from station.model.effects.rate_error import RateError
+from station.sim.table import TablePhysics
 
 
 class SteppedClock:
@@ -22,7 +22,7 @@ class SteppedClock:
 
 def test_spin_up_is_a_bounded_ramp_and_angle_is_its_integral():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=2.0, settle_time=0.5, tolerance=1e-3)
+    table = TablePhysics(clock, max_accel=2.0, settle_time=0.5, tolerance=1e-3)
     table.set_rate(1.0)
     assert table.start()
     clock.t = 0.25
@@ -39,7 +39,7 @@ def test_spin_up_is_a_bounded_ramp_and_angle_is_its_integral():
 
 def test_stop_decelerates_to_rest_and_total_angle_matches():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=1.0)
+    table = TablePhysics(clock, max_accel=1.0)
     table.set_rate(-2.0)
     table.start()
     clock.t = 5.0
@@ -56,7 +56,7 @@ def test_stop_decelerates_to_rest_and_total_angle_matches():
 
 def test_fault_stops_the_table_and_refuses_start_until_cleared():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=4.0)
+    table = TablePhysics(clock, max_accel=4.0)
     table.set_rate(1.0)
     table.start()
     clock.t = 2.0
@@ -70,7 +70,7 @@ def test_fault_stops_the_table_and_refuses_start_until_cleared():
 
 
 def test_setpoint_outside_range_is_refused_with_advice():
-    table = RotaryTable(SteppedClock(), max_rate=5.0)
+    table = TablePhysics(SteppedClock(), max_rate=5.0)
     with pytest.raises(ValueError, match="outside the table's range"):
         table.set_rate(6.0)
     with pytest.raises(ValueError):
@@ -79,7 +79,7 @@ def test_setpoint_outside_range_is_refused_with_advice():
 
 def test_rate_error_changes_true_motion_not_the_report():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=10.0, rate_error=RateError(scale=0.01), seed=1)
+    table = TablePhysics(clock, max_accel=10.0, rate_error=RateError(scale=0.01), seed=1)
     table.set_rate(1.0)
     table.start()
     clock.t = 10.0
@@ -90,7 +90,7 @@ def test_rate_error_changes_true_motion_not_the_report():
 
 def test_an_encoder_reports_the_true_motion_under_rate_error():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=10.0, rate_error=RateError(scale=0.01, encoder=True),
+    table = TablePhysics(clock, max_accel=10.0, rate_error=RateError(scale=0.01, encoder=True),
                         seed=1)
     table.set_rate(1.0)
     table.start()
@@ -102,7 +102,7 @@ def test_an_encoder_reports_the_true_motion_under_rate_error():
 
 def test_rate_noise_has_its_standard_deviation_while_moving_only():
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=10.0, rate_noise=0.01, seed=3)
+    table = TablePhysics(clock, max_accel=10.0, rate_noise=0.01, seed=3)
     assert table.state().rate == 0.0
     table.set_rate(1.0)
     table.start()
@@ -113,7 +113,7 @@ def test_rate_noise_has_its_standard_deviation_while_moving_only():
 
 
 def test_concurrent_callers_on_a_fast_clock_see_monotonic_time_and_angle():
-    table = RotaryTable(ScaledClock(speed=100.0), max_accel=5.0)
+    table = TablePhysics(ScaledClock(speed=100.0), max_accel=5.0)
     table.set_rate(3.0)
     table.start()
     seen = []
@@ -136,7 +136,7 @@ def test_true_rates_at_past_times_follow_the_command_history():
     """A late twin asks for the motion at its samples' own (past) times: the answer must be the
     state the table had then, not the present one (closed form: ramps of 2 rad/s^2)."""
     clock = SteppedClock()
-    table = RotaryTable(clock, max_accel=2.0, rate_error=RateError(scale=0.01), seed=3)
+    table = TablePhysics(clock, max_accel=2.0, rate_error=RateError(scale=0.01), seed=3)
     table.set_rate(1.0)
     clock.t = 1.0
     table.start()  # ramp 1.0 .. 1.5 s, then 1 rad/s

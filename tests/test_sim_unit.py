@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from station.sim.earth import OMEGA_EARTH, earth_rate_enu, earth_rate_table, normal_gravity
+from station.model.earth import OMEGA_EARTH, earth_rate_enu, earth_rate_table, normal_gravity
 from station.sim.profile import Profile, RotaryTiming
-from station.sim.unit import SensorUnit
+from station.model.unit import SensorUnit
 
 
 def test_sample_is_a_transpose_v_plus_bias_in_counts():
@@ -82,7 +82,7 @@ def test_live_walk_steps_with_the_actual_sample_times():
 
 def test_mounted_unit_streams_the_table_rate_along_its_axis():
     from station.sim.live import MountedUnit
-    from station.sim.table import RotaryTable
+    from station.sim.table import TablePhysics
 
     class Stopped:
         t = 100.0
@@ -91,7 +91,7 @@ def test_mounted_unit_streams_the_table_rate_along_its_axis():
             return self.t
 
     clock = Stopped()
-    table = RotaryTable(clock, max_accel=10.0)
+    table = TablePhysics(clock, max_accel=10.0)
     table.set_rate(2.0)
     table.start()
     clock.t = 200.0

@@ -7,7 +7,7 @@ import pytest
 from scipy import stats
 
 from station.errors import CalibrationInputError
-from station.hand_bench import ACC4, TRIAD, HandBench, HandTechnician, record_static_session
+from station.twin.hand_bench import ACC4, TRIAD, HandBench, HandTechnician, record_static_session
 from station.protocols.static import (
     GUIDED_POSES,
     StaticProtocol,
@@ -16,7 +16,7 @@ from station.protocols.static import (
     static_readings,
 )
 from station.protocols.still import calibrate_still, record_poses
-from station.session import Session, SessionWriter, StreamSpec
+from station.files.session import Session, SessionWriter, StreamSpec
 
 FAMILY_FALSE_ALARM = 1e-3
 """Chance that an efficient fit fails the Bonferroni z test below in any of its parameters."""

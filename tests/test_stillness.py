@@ -7,8 +7,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from station.errors import CalibrationInputError
 from station.sim.static import simulate_static
-from station.sim.unit import SensorUnit
-from station.stillness import detect_still, hysteresis, moving_variance
+from station.model.unit import SensorUnit
+from station.reduce.stillness import detect_still, hysteresis, moving_variance
 
 FS = 100.0
 COUNTS = 400.0  # counts per m/s^2, about an Xsens MTi

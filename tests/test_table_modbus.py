@@ -15,9 +15,9 @@ from drivers.rotary_table import (
     TableRegisterMap,
     TableTimeout,
 )
-from drivers.twin_table import TableTwin
-from station.clock import ScaledClock
-from station.sim.table import RotaryTable as TablePhysics
+from drivers.twins.table import TableTwin
+from drivers.clock import ScaledClock
+from station.sim.table import TablePhysics
 
 MAP = TableRegisterMap.load("table_modbus")
 TIMEOUT, RETRIES = 0.1, 1

@@ -81,7 +81,7 @@ def test_crlb_trace_scales_with_sigma_squared_and_inverse_n():
 def test_eps_tail_probability_matches_the_monte_carlo_of_an_efficient_estimator():
     # Section IV layout, n = 50: the closed form is efficient there (ratio 1.00 in bench/solvers.py),
     # so P(eps_trial >= eps_q) over real trials must match the predicted tail at its quantiles
-    from station.uncertainty import eps_tail_probability
+    from station.solve.uncertainty import eps_tail_probability
 
     rng = np.random.default_rng(12)
     a, v, _ = section4_gyros(rng, 50, 0.0)

@@ -53,8 +53,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.calfile import CalibrationFileError, load
-    from station.session import SessionFormatError
+    from station.files.calfile import CalibrationFileError, load
+    from station.files.session import SessionFormatError
 
     if args.json and args.out is None:
         print("station apply: --json prints a summary; give --out for the vectors",
@@ -95,9 +95,9 @@ def run(args) -> int:
 
 def read_session(path, stream: str, cal) -> tuple:
     """(time (k,), SI readings (k, m)) of a session's stream, checked against the calibration."""
-    from station.calfile import CalibrationFileError
-    from station.recorder import sample_times
-    from station.session import Session
+    from station.files.calfile import CalibrationFileError
+    from station.acquire.recorder import sample_times
+    from station.files.session import Session
 
     with Session.open(path) as session:
         if stream not in session.specs:
@@ -113,7 +113,7 @@ def read_session(path, stream: str, cal) -> tuple:
 def read_csv(path, cal, counts: bool = False) -> tuple:
     """(time (k,) or None, SI readings (k, m) in the calibration's sensor order) from a CSV file
     with a header row (see the module docstring)."""
-    from station.calfile import CalibrationFileError
+    from station.files.calfile import CalibrationFileError
 
     def fail(problem):
         return CalibrationFileError(f"{path}: {problem}")

@@ -42,9 +42,9 @@ def register(sub) -> None:
 def run(args) -> int:
     from drivers.rotary_table import TableError
     from station.errors import CalibrationInputError
-    from station.identifiability import check_positions
+    from station.solve.identifiability import check_positions
     from station.protocols.rotary import ProtocolError
-    from station.recorder import RecordingError
+    from station.acquire.recorder import RecordingError
 
     if not args.speed > 0:
         raise SystemExit("station demo: --speed must be positive (simulated s per wall s)")
@@ -76,13 +76,13 @@ def run(args) -> int:
 def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, speed: float = 40.0,
              settings=None, live: bool = False) -> dict:
     """Record, reduce and calibrate one session on the virtual bench; the summary as a dict.
-    live: show the live view (station.live_view) while recording."""
+    live: show the live view (station.acquire.live_view) while recording."""
     import station
-    from station.live_view import LiveView
+    from station.acquire.live_view import LiveView
     from station.protocols.rotary import RotarySettings, reduce_session, suggested_axes
-    from station.session import Session, write_results
-    from station.uncertainty import eps_tail_probability
-    from station.virtual_bench import VirtualBench, record_rotary
+    from station.files.session import Session, write_results
+    from station.solve.uncertainty import eps_tail_probability
+    from station.twin.rotary_bench import VirtualBench, record_rotary
 
     start = time.perf_counter()
     settings = settings or RotarySettings()

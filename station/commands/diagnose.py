@@ -4,10 +4,12 @@ its twin."""
 import json
 from pathlib import Path
 
-from station.diagnose import data, diagnose, report, static_report
+from station.diagnose import data, diagnose, static_report
+
+from station.report import diagnosis as report
 from station.diagnose.static import diagnose_static
 from station.errors import CalibrationInputError
-from station.session import Session
+from station.files.session import Session
 
 
 def register(subparsers) -> None:

@@ -1,4 +1,4 @@
-"""`station export`: a calibration file -> a C header for firmware (`station.export_c`).
+"""`station export`: a calibration file -> a C header for firmware (`station.files.export_c`).
 
 The header holds the least-squares fusion matrix (a a^T)^-1 a, the biases and the counts per SI
 unit as `static const float` (or double) arrays with their units in comments, so that the firmware
@@ -32,8 +32,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.calfile import CalibrationFileError, load
-    from station.export_c import c_header
+    from station.files.calfile import CalibrationFileError, load
+    from station.files.export_c import c_header
 
     out = args.c_header
     if out.exists() and not args.force:

@@ -1,4 +1,4 @@
-"""`station import`: a foreign recording into a new session file (station/importers.py)."""
+"""`station import`: a foreign recording into a new session file (station/files/importers.py)."""
 
 import argparse
 from pathlib import Path
@@ -33,7 +33,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from station.errors import CalibrationInputError
-    from station.importers import import_csv, import_npz, import_text
+    from station.files.importers import import_csv, import_npz, import_text
 
     if args.out.exists():
         raise SystemExit(f"station import: {args.out} exists; choose another name")

@@ -212,11 +212,11 @@ def _layout(proto, imu, path) -> np.ndarray:
 def run(args) -> int:
     from drivers.profile import ProfileError
     from drivers.rotary_table import TableError
-    from station.calfile import CalibrationFileError
+    from station.files.calfile import CalibrationFileError
     from station.errors import CalibrationInputError
-    from station.operator import ConsoleOperator, OperatorAbort
+    from station.acquire.operator import ConsoleOperator, OperatorAbort
     from station.protocols.rotary import ProtocolError
-    from station.recorder import RecordingError
+    from station.acquire.recorder import RecordingError
 
     try:
         bench = BenchProfile.load(args.profile)
@@ -262,10 +262,10 @@ def run(args) -> int:
 
 def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     """Run the bench's protocol with its devices and `operator` into the session `out`.
-    live: show the live view (station.live_view) while recording a rotary session."""
+    live: show the live view (station.acquire.live_view) while recording a rotary session."""
     from drivers.profile import load_profile
-    from station.clock import ScaledClock, WallClock
-    from station.session import Session, StreamSpec
+    from drivers.clock import ScaledClock, WallClock
+    from station.files.session import Session, StreamSpec
 
     start = time.perf_counter()
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
@@ -292,9 +292,9 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
 def _record_rotary(bench, out, operator, clock, spec, metadata, live) -> None:
     """The rotary protocol with the bench's IMU and table into the new session `out`."""
     from drivers.profile import load_profile
-    from station.live_view import LiveView
+    from station.acquire.live_view import LiveView
     from station.protocols.rotary import RotaryProtocol, continue_session, suggested_axes
-    from station.session import SessionWriter
+    from station.files.session import SessionWriter
 
     with imu_driver(bench, clock) as imu, table_driver(bench, clock) as table:
         protocol = RotaryProtocol(table, operator, clock, bench.settings,
@@ -317,10 +317,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     the session's last recorded instant (a reboot restarts the host's monotonic time), and the
     table is commanded to stop before anything else (a killed station may have left it turning).
     """
-    from station.clock import ScaledClock
+    from drivers.clock import ScaledClock
     from station.protocols.rotary import continue_session
-    from station.session import Session, SessionWriter, StreamSpec
-    from station.virtual_bench import last_instant
+    from station.files.session import Session, SessionWriter, StreamSpec
+    from station.twin.rotary_bench import last_instant
 
     with Session.open(path) as session:
         metadata, recorded, end = session.metadata, session.specs.get("imu"), last_instant(session)

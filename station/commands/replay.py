@@ -50,7 +50,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from station.errors import CalibrationInputError
     from station.replay import ReplaySettings, free_name, replay, replay_into, replay_raw
-    from station.session import SessionFormatError, SessionLockedError
+    from station.files.session import SessionFormatError, SessionLockedError
 
     if not args.session.is_file():
         print(f"station replay: no session file {args.session}", file=sys.stderr)

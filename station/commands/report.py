@@ -1,6 +1,6 @@
 """`station report`: one self-contained HTML report of a session file, plus its figures as PNG.
 
-The report (station/report.py) shows the summary, warnings in plain words, the residuals against
+The report (station/report/session.py) shows the summary, warnings in plain words, the residuals against
 the noise level, the sensitive axes, the coverage of the orientations, the table rate stability,
 the stream health and the uncertainty of each parameter. The figures are embedded in the HTML and
 also written next to it as <stem>-<figure>.png. An existing report of the same name is replaced.
@@ -28,8 +28,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station import report
-    from station.session import SessionFormatError
+    from station.report import session as report
+    from station.files.session import SessionFormatError
 
     if not args.session.is_file():
         print(f"station report: {args.session} is not a file; give the path of a session (.h5)",

@@ -31,11 +31,11 @@ def register(sub) -> None:
 def run(args) -> int:
     from drivers.profile import ProfileError
     from drivers.rotary_table import TableError
-    from station.operator import OperatorAbort
+    from station.acquire.operator import OperatorAbort
     from station.protocols.rotary import ProtocolError
-    from station.recorder import RecordingError
-    from station.session import Session, SessionFormatError, SessionLockedError
-    from station.virtual_bench import resume_rotary
+    from station.acquire.recorder import RecordingError
+    from station.files.session import Session, SessionFormatError, SessionLockedError
+    from station.twin.rotary_bench import resume_rotary
 
     if not args.session.is_file():
         print(f"station resume: no session file {args.session}", file=sys.stderr)
@@ -81,7 +81,7 @@ def _recorded_profile(path) -> Path | None:
     """The bench profile a `station record` session was recorded with; None for a virtual-bench
     session. Refuses (ProfileError) a recorded profile that is gone."""
     from drivers.profile import ProfileError
-    from station.session import Session
+    from station.files.session import Session
 
     with Session.open(path) as session:
         bench = session.metadata.get("bench")
@@ -97,7 +97,7 @@ def _recorded_profile(path) -> Path | None:
 def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
     """Resume `path` with the devices of the bench profile, prompting on the console."""
     from station.commands.record import BenchProfile, resume
-    from station.operator import ConsoleOperator
+    from station.acquire.operator import ConsoleOperator
 
     bench = BenchProfile.load(profile)
     return resume(bench, path, ConsoleOperator(stdout=sys.stderr if quiet else sys.stdout))

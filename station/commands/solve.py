@@ -13,7 +13,7 @@ or the ellipsoid / joint-bias closed form), then maximum likelihood; the magnitu
 local gravity, the frame the recorded nominal layout (or --nominal). Free-static sessions
 calibrate the accelerometer channels only.
 
-The calibration file (`station.calfile`) holds the result with its uncertainties.
+The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
 import argparse
@@ -46,9 +46,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.calfile import CalibrationFileError
+    from station.files.calfile import CalibrationFileError
     from station.errors import CalibrationInputError
-    from station.session import SessionFormatError
+    from station.files.session import SessionFormatError
 
     out = args.out or args.session.with_suffix(".cal.json")
     if out.exists() and not args.force:
@@ -67,10 +67,10 @@ def run(args) -> int:
 
 
 def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None):
-    """The `station.calfile.Calibration` of a recorded session file (rotary, iron or static)."""
-    from station.calfile import Calibration
+    """The `station.files.calfile.Calibration` of a recorded session file (rotary, iron or static)."""
+    from station.files.calfile import Calibration
     from station.errors import CalibrationInputError
-    from station.session import Session
+    from station.files.session import Session
 
     with Session.open(path) as session:
         solver = {"rotary": _rotary, "iron": _hand, "static": _hand}.get(session.protocol)
@@ -78,7 +78,7 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
             raise CalibrationInputError(
                 f"{path} records a {session.protocol!r} session; `station solve` solves rotary, "
                 "iron and static sessions.", "Use the calibration workflow of that recording "
-                "(e.g. station.free_static for an imported continuous recording).")
+                "(e.g. station.reduce.free_static for an imported continuous recording).")
         if stream not in session.specs:
             raise CalibrationInputError(f"{path} has no stream {stream!r}.",
                                         f"Choose one of {sorted(session.specs)} with --stream.")

@@ -1,6 +1,6 @@
 """`station twin`: the virtual bench's devices, for `station record` to talk to.
 
-Starts the digital twin of a bench (`station.virtual_bench.VirtualBench`): a 12-gyro unit streaming
+Starts the digital twin of a bench (`station.twin.rotary_bench.VirtualBench`): a 12-gyro unit streaming
 binary frames through a pseudo-terminal, and a Modbus TCP rotary table on 127.0.0.1 whose registers
 follow the simulated table's physics. The unit sits in a motorised fixture that turns it to the
 next position of the rotary protocol (`station.protocols.rotary.suggested_axes`) each time the
@@ -9,7 +9,7 @@ table is commanded to stop, so a technician has nothing to turn: pressing Enter 
 the stops).
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
-(`station.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who turns
+(`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who turns
 it on a 20 s metronome through the protocol's sequence (static: the guided poses; iron: a
 re-mounting, then the six faces, per mounting), starting when the station opens the port. The
 technician does not hear the station, so `station record` must keep up (it does with the default
@@ -95,7 +95,7 @@ class BenchTwin:
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0):
-        from station.virtual_bench import VirtualBench
+        from station.twin.rotary_bench import VirtualBench
 
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime)
@@ -110,7 +110,7 @@ class BenchTwin:
     def start(self) -> Self:
         """Serve the table; the serial IMU streams from the moment the station opens its port
         (a twin streaming to nobody would hand the station a stale backlog, computed late)."""
-        from drivers.twin_serial import SerialTwin
+        from drivers.twins.serial import SerialTwin
 
         self._mount()
         b = self.bench
@@ -186,7 +186,7 @@ class BenchTwin:
 
 
 class HandTwin:
-    """A `station.hand_bench.HandBench` whose technician follows the protocol on a metronome.
+    """A `station.twin.hand_bench.HandBench` whose technician follows the protocol on a metronome.
 
     protocol  : "static" (a triad turned by hand through the first `poses` guided poses, 5 deg
                 off each) or "iron" (the ACC4 unit in an iron square to 0.0002 deg, `mountings`
@@ -200,7 +200,7 @@ class HandTwin:
     def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
                  poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
                  period: float = 20.0):
-        from station.hand_bench import ACC4, TRIAD, HandBench
+        from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
         self.protocol, self.seed = protocol, seed
@@ -217,7 +217,7 @@ class HandTwin:
 
     def start(self) -> Self:
         """Serve the serial IMU from the moment the station opens its port."""
-        from drivers.twin_serial import SerialTwin
+        from drivers.twins.serial import SerialTwin
 
         b = self.bench
         b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf)
@@ -281,7 +281,7 @@ class HandTwin:
 
 def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
     """What the hand bench's technician does, in order (as the protocol would ask)."""
-    from station.operator import Instruction
+    from station.acquire.operator import Instruction
     from station.protocols.iron import FACE_UP
     from station.protocols.rotary import mounting
     from station.protocols.static import GUIDED_POSES

@@ -15,8 +15,8 @@ import numpy as np
 
 from station.diagnose import recorded
 from station.errors import CalibrationInputError
-from station.reduction import reduce_rotary, whole_revolutions
-from station.session import Session
+from station.reduce.eq18 import reduce_rotary, whole_revolutions
+from station.files.session import Session
 from station.sim import npz
 
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
@@ -126,7 +126,7 @@ def load(path, bin_seconds: float = 0.1) -> RotaryData:
 
 
 def is_rotary(session) -> bool:
-    """True when a recorded session (`station.session.Session`) holds rotary protocol events."""
+    """True when a recorded session (`station.files.session.Session`) holds rotary protocol events."""
     return recorded.is_rotary(session.events())
 
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.calibrate import CalibrationResult, calibrate
-from station.diagnose import linear, rails, twin
+from station.solve.calibrate import CalibrationResult, calibrate
+from station.diagnose import linear, rails, prediction as twin
 from station.diagnose.effects import EXTENSIONS, Fitted
 
 

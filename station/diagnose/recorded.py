@@ -39,7 +39,7 @@ angle the table reports from rest to rest over c times the IMU-timed turning tim
 that reports its command, to the IMU timing's precision; the true rate's factor for a table whose
 angle reads the shaft, which the `rate_error` extension then uses).
 
-Sample instants come from the sequence numbers at the nominal rate (`station.recorder.
+Sample instants come from the sequence numbers at the nominal rate (`station.acquire.recorder.
 sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
 times), and a window with a gap in the sequence numbers (a lossy link) is refused.
 """
@@ -50,7 +50,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.protocols.rotary import SEGMENT_EVENTS, position_windows
-from station.recorder import sample_times
+from station.acquire.recorder import sample_times
 
 RAMP_BAND = (0.1, 0.9)
 """Fractions of the steady rate between which ramp samples are fitted by a line."""

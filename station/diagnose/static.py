@@ -2,11 +2,11 @@
 static session can show (docs/diagnose.md, "Free-static sessions").
 
 Data: the accelerometer stream (m >= 3 channels) and optionally a gyro stream (3 channels), SI
-units, cut into still intervals (station.stillness.detect_still on all channels) and each
+units, cut into still intervals (station.reduce.stillness.detect_still on all channels) and each
 interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples
 within the bins (white-noise assumption).
 
-Nominal model (the free-static calibration, station.free_static): accelerometer bin means
+Nominal model (the free-static calibration, station.reduce.free_static): accelerometer bin means
 a^T v_j + b with |v_j| = g in interval j (ellipsoid closed form + ML, station.calibrate), gyro
 bin means = one bias per channel. The twin predicts every bin of every still interval; the
 model's deviance is the chi2 of the bin means (white noise: var = sigma_i^2 / samples) plus the
@@ -22,14 +22,14 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.calibrate import calibrate
+from station.solve.calibrate import calibrate
 from station.diagnose import rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy
 from station.errors import CalibrationInputError
-from station.sim.earth import OMEGA_EARTH
-from station.stillness import detect_still
+from station.model.earth import OMEGA_EARTH
+from station.reduce.stillness import detect_still
 
 STANDARD_GRAVITY = 9.80665
 BIN_S = 1.0
@@ -120,7 +120,7 @@ class StaticData:
 def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
                 units=(), notes=(), **detector) -> StaticData:
     """StaticData of accelerometer samples (K, m) and optional gyro samples (K, 3) at fs Hz;
-    `detector`: options of station.stillness.detect_still."""
+    `detector`: options of station.reduce.stillness.detect_still."""
     acc = np.asarray(accel, float)
     if acc.ndim != 2 or acc.shape[1] < 3 or acc.shape[0] < 10:
         raise CalibrationInputError(f"accelerometer samples have shape {acc.shape}.",
@@ -327,7 +327,7 @@ def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarr
 
 
 def drift_basis(data: StaticData, tau: float):
-    """Two (B,) bin means of exp(-t / tau) (warm-up, Eq. of station.sim.effects.bias_drift) and of
+    """Two (B,) bin means of exp(-t / tau) (warm-up, Eq. of station.model.effects.bias_drift) and of
     t / T (a linear drift over the session of length T)."""
     span = data.t[-1]
     return data.binmean(np.exp(-data.t / tau)), data.binmean(data.t / span)

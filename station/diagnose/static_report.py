@@ -1,5 +1,5 @@
 """Free-static diagnosis: session loading, gap statistics, the white-noise check, and the JSON /
-text / HTML form shared with the rotary path (station.diagnose.report).
+text / HTML form shared with the rotary path (station.report.diagnosis).
 
 Gap statistics (1 = explained by white noise of the sigma measured within the bins):
 - `between`: accelerometer interval means against the model, chi2 / dof of the calibration
@@ -15,7 +15,7 @@ import itertools
 
 import numpy as np
 
-from station.diagnose import report
+from station.report import diagnosis as report
 from station.diagnose.select import log_sf
 from station.diagnose.static import (
     SCALES_S,
@@ -186,7 +186,7 @@ def load(path, **detector) -> StaticData:
     """StaticData of a session: its accelerometer channels (unit m/s^2, one stream) and, when there
     are any, its 3 gyro channels (rad/s; the same or another stream on the same time base): an
     imported recording or a free-static session. Gravity: metadata `gravity`, else standard."""
-    from station.session import Session
+    from station.files.session import Session
 
     with Session.open(path) as s:
         accel, gyro = (_channels(s.specs, unit) for unit in ("m/s^2", "rad/s"))

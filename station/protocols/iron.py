@@ -22,7 +22,7 @@ Face recognition (`recognise_faces`): the averaged reading z_j gives the up dire
 frame through the nominal layout, u_j ~ (A A^T)^-1 A (z_j - b_guess); within a mounting the first
 pose is face "+x", a later pose within `tolerance_deg` of (the opposite of) an earlier face is that
 face (its opposite), one perpendicular to all earlier axes opens the next axis. Any consistent
-labelling gives the same constraints (`station.constraints.from_faces`, Eq. 15: same face 1,
+labelling gives the same constraints (`station.solve.constraints.from_faces`, Eq. 15: same face 1,
 perpendicular 0, opposite -1, only within a mounting); the solver is `station.calibrate(M, g,
 bias="estimate", constraints=...)` = Hwangbo & Kanade's factorization + maximum likelihood.
 """
@@ -32,9 +32,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.constraints import FACES, from_faces
+from station.solve.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
-from station.operator import Instruction
+from station.acquire.operator import Instruction
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
@@ -107,7 +107,7 @@ def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
 class IronProtocol:
     """Runs the iron protocol with an operator into a running Recorder reading a `StreamTap`.
 
-    operator  : `station.operator` ConsoleOperator or a simulated technician
+    operator  : `station.acquire.operator` ConsoleOperator or a simulated technician
     clock     : the session clock (shared with the devices)
     a_nominal : (3, m) nominal layout of the unit (SI readings), for face recognition
     """
@@ -215,7 +215,7 @@ class IronReadings(StillReadings):
 
 def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
                   tolerance_deg: float = 20.0, **detector) -> IronReadings:
-    """The still poses of an iron session (`station.session.Session`, `still_readings`) and their
+    """The still poses of an iron session (`station.files.session.Session`, `still_readings`) and their
     faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector` (the
     stillness detector's options and `trim`) goes to `still_readings`."""
     still = still_readings(session, stream, **detector)

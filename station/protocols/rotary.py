@@ -49,12 +49,12 @@ import numpy as np
 
 from drivers.rotary_table import TableTimeout
 from station.errors import CalibrationInputError
-from station.operator import Instruction
-from station.recorder import Recorder, RecordingError, sample_times
-from station.reduction import Reduced, reduce_rotary
+from station.acquire.operator import Instruction
+from station.acquire.recorder import Recorder, RecordingError, sample_times
+from station.reduce.eq18 import Reduced, reduce_rotary
 
 SEGMENT_EVENTS = ("resume", "session_resumed")
-"""Events after which the IMU stream is a new segment (see `station.recorder.sample_times`)."""
+"""Events after which the IMU stream is a new segment (see `station.acquire.recorder.sample_times`)."""
 
 
 class ProtocolError(RuntimeError):
@@ -143,7 +143,7 @@ class RotaryProtocol:
     """Runs the rotary protocol with a table driver and an operator into a running Recorder.
 
     table    : `drivers.rotary_table.RotaryTable` (connected) or anything with its methods
-    operator : `station.operator` ConsoleOperator or SimulatedTechnician
+    operator : `station.acquire.operator` ConsoleOperator or SimulatedTechnician
     clock    : the session clock (shared with the devices)
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
     """
@@ -185,7 +185,7 @@ class RotaryProtocol:
         return cls(table, operator, clock, settings, axes)
 
     def run(self, recorder, first: int = 0) -> None:
-        """Run positions first..n-1 into `recorder` (a started `station.recorder.Recorder`); the
+        """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`); the
         table is stopped whatever happens."""
         if not 0 <= first < len(self.axes):
             raise ValueError(f"first position {first} is outside 0..{len(self.axes) - 1}")
@@ -394,7 +394,7 @@ class RotaryProtocol:
 
 
 class Unwatched:
-    """No live view: the observer interface of `station.live_view.LiveView`, passing through."""
+    """No live view: the observer interface of `station.acquire.live_view.LiveView`, passing through."""
 
     def follow(self, protocol):
         return protocol
@@ -415,7 +415,7 @@ class Unwatched:
 def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
     """Run the rotary protocol recorded in `metadata` into `writer` (`SessionWriter.create`d or
     `.resume`d), from the position after the last completed one; returns that first position
-    (len(axes) when nothing was left to record). `view`: a `station.live_view.LiveView` to show.
+    (len(axes) when nothing was left to record). `view`: a `station.acquire.live_view.LiveView` to show.
 
     The IMU link's counters (CRC failures, gaps, ...) are recorded at the end as a `note` event
     with a `link` detail, for the report."""
@@ -463,7 +463,7 @@ def position_windows(events) -> dict:
 
 def reduce_session(session, stream: str = "imu", coverage: float = 0.9,
                    trim: float = 0.0) -> Reduced:
-    """Eq. (18) readings of a recorded rotary session (`station.session.Session`), SI units.
+    """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle

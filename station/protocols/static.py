@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.operator import Instruction
+from station.acquire.operator import Instruction
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
@@ -105,7 +105,7 @@ class StaticProtocol:
     """Runs the free-static protocol with an operator into a running Recorder reading a
     `StreamTap`.
 
-    operator  : `station.operator` ConsoleOperator or a simulated technician
+    operator  : `station.acquire.operator` ConsoleOperator or a simulated technician
     clock     : the session clock (shared with the devices)
     a_nominal : (3, m_acc) nominal layout of the accelerometers (SI readings), for the up direction
     units     : the stream's channel units (the accelerometers are the m/s^2 ones)

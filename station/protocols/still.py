@@ -2,7 +2,7 @@
 
 In both, the technician turns the unit (in an iron, or freely) and lets go; the station needs no key
 press to know when a pose begins: it watches the stream (`StreamTap`) and finds each still pose
-itself (`station.stillness.detect_still`: dispersion with hysteresis, a minimum still time, a
+itself (`station.reduce.stillness.detect_still`: dispersion with hysteresis, a minimum still time, a
 timeout). `PoseWatcher` does the watching for a protocol:
 
 - `request()`  : a new pose was asked for: only a still interval that began after the last pose
@@ -27,13 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.calibrate import calibrate
-from station.constraints import Constraints
+from station.solve.calibrate import calibrate
+from station.solve.constraints import Constraints
 from station.errors import CalibrationInputError
 from station.protocols.rotary import ProtocolError
-from station.recorder import Recorder, sample_times
-from station.session import SessionWriter
-from station.stillness import detect_still
+from station.acquire.recorder import Recorder, sample_times
+from station.files.session import SessionWriter
+from station.reduce.stillness import detect_still
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ class StillSettings:
 
     gravity   : local gravity (the stimulus magnitude)
     hold      : length of each still window
-    window, enter, leave, min_still, rest_length : stillness detector (station.stillness)
+    window, enter, leave, min_still, rest_length : stillness detector (station.reduce.stillness)
     lookback  : seconds of stream the detector looks at (enough for a rest stretch and a pose)
     poll, timeout, stale : time between checks, longest wait for a still pose, longest IMU silence
     """
@@ -270,9 +270,9 @@ def _window(value) -> list:
 
 
 def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) -> StillReadings:
-    """The completed still poses of a session (`station.session.Session`).
+    """The completed still poses of a session (`station.files.session.Session`).
 
-    The still intervals are detected once on the whole recording (`station.stillness.
+    The still intervals are detected once on the whole recording (`station.reduce.stillness.
     detect_still`, one noise level for the session; options: `detector`, default the protocol's
     settings in the metadata), so the result does not depend on when the live protocol polled.
     With the protocol's events, each completed pose averages the first `hold` seconds of the

@@ -10,11 +10,11 @@ sees a known-angle turn of the iron about the vertical on each face, with a rais
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.sim.earth import normal_gravity
-from station.sim.effects import to_json
+from station.model.earth import normal_gravity
+from station.model.effects import to_json
 from station.sim.rotary import Simulation, random_orientations
-from station.sim.sensing import refuse_motion_effects, sense
-from station.sim.unit import SensorUnit
+from station.model.sensing import refuse_motion_effects, sense
+from station.model.unit import SensorUnit
 
 FACE_NORMALS = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float

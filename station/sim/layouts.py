@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from station.sim.unit import SensorUnit
+from station.model.unit import SensorUnit
 
 A_MODEL = np.array(
     [

@@ -2,19 +2,19 @@
 
 import numpy as np
 
-from station.sim.table import RotaryTable
-from station.sim.unit import SensorUnit
+from station.sim.table import TablePhysics
+from station.model.unit import SensorUnit
 
 
 class MountedUnit:
-    """`times -> counts (k, m)` for `unit` on `table`, for `drivers.twin_can`/serial twins.
+    """`times -> counts (k, m)` for `unit` on `table`, for `drivers.twins.can`/serial twins.
 
     `orientation` (3 x 3, table frame -> unit frame) is what the technician changes between
     positions; the angular rate is the table's true rate along the table axis at each sample's
-    own time (`RotaryTable.true_rates`), so a twin that falls behind still sends the right motion.
+    own time (`TablePhysics.true_rates`), so a twin that falls behind still sends the right motion.
     """
 
-    def __init__(self, unit: SensorUnit, table: RotaryTable, orientation=None):
+    def __init__(self, unit: SensorUnit, table: TablePhysics, orientation=None):
         self.unit = unit
         self.table = table
         self.orientation = np.eye(3) if orientation is None else np.asarray(orientation, float)

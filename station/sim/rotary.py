@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.sim.earth import normal_gravity
-from station.sim.effects import axis_wobble, earth_rate, g_sensitivity, to_json
-from station.sim.effects.earth_rate import EarthRate
+from station.model.earth import normal_gravity
+from station.model.effects import axis_wobble, earth_rate, g_sensitivity, to_json
+from station.model.effects.earth_rate import EarthRate
 from station.sim.profile import RotaryTiming
-from station.sim.sensing import sense
-from station.sim.unit import SensorUnit
+from station.model.sensing import sense
+from station.model.unit import SensorUnit
 
 
 @dataclass
@@ -84,7 +84,7 @@ def simulate_rotary(
         deterministic).
     timing : durations and commanded rate of a position (default `RotaryTiming()`).
     gap : seconds between the end of one position and the start of the next (re-mounting).
-    effects : {name: parameters} from `station.sim.effects.parse_all`; empty = ideal.
+    effects : {name: parameters} from `station.model.effects.parse_all`; empty = ideal.
     """
     effects = effects or {}
     timing = timing or RotaryTiming()

@@ -9,11 +9,11 @@ in the data file (the station must detect them), only in the truth.
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.sim.earth import earth_rate_enu, normal_gravity
-from station.sim.effects import g_sensitivity, to_json
+from station.model.earth import earth_rate_enu, normal_gravity
+from station.model.effects import g_sensitivity, to_json
 from station.sim.rotary import Simulation
-from station.sim.sensing import refuse_motion_effects, sense
-from station.sim.unit import SensorUnit
+from station.model.sensing import refuse_motion_effects, sense
+from station.model.unit import SensorUnit
 
 
 def attitude_path(rotations: Rotation, still: float, move: float, fs: float):

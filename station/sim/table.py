@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.sim.effects.rate_error import RateError
+from station.model.effects.rate_error import RateError
 
 HISTORY = 10_000  # commands remembered for `true_rates` (a session issues a few per position)
 
@@ -40,12 +40,12 @@ class TableState:
     true_angle: float
 
 
-class RotaryTable:
+class TablePhysics:
     """Rotary table physics advanced to `clock.now()` on every call; thread-safe.
 
     Parameters
     ----------
-    clock : object with `now()` (e.g. `station.clock.ScaledClock`), shared with the other twins.
+    clock : object with `now()` (e.g. `drivers.clock.ScaledClock`), shared with the other twins.
     max_accel : bound on |d rate / dt|, rad/s^2.
     rate_noise : standard deviation of the reported rate while moving, rad/s (encoder jitter).
     max_rate : largest accepted |setpoint|, rad/s.

@@ -1,4 +1,4 @@
-"""Model extensions, one module per named effect, mirroring `station/sim/effects/<name>.py`.
+"""Model extensions, one module per named effect, mirroring `station/model/effects/<name>.py`.
 
 Each module exposes
 - `STAGE`: where the twin applies it ("rate", "motion", "sensed", "offset", "output");

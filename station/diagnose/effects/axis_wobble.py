@@ -10,8 +10,8 @@ import numpy as np
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted, tone_null
-from station.sim.effects import axis_wobble
-from station.sim.effects.axis_wobble import AxisWobble
+from station.model.effects import axis_wobble
+from station.model.effects.axis_wobble import AxisWobble
 
 STAGE = "motion"
 
@@ -46,7 +46,7 @@ def fit(ctx, prediction, r) -> Fitted:
 
 
 def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Angular rate of the coning table axis, per position (station.sim.effects.axis_wobble).
+    """Angular rate of the coning table axis, per position (station.model.effects.axis_wobble).
 
     Replaces the nominal rate(t) u_j, so it comes before the Earth rate, as in the simulator.
     """

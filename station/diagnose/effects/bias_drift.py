@@ -11,8 +11,8 @@ import numpy as np
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
-from station.sim.effects import bias_drift
-from station.sim.effects.bias_drift import BiasDrift
+from station.model.effects import bias_drift
+from station.model.effects.bias_drift import BiasDrift
 
 STAGE = "offset"
 WARMUP_TAUS = np.geomspace(30.0, 3000.0, 7)
@@ -62,7 +62,7 @@ def _span(values) -> float:
 
 
 def apply(ctx, fitted: Fitted, rate: np.ndarray) -> np.ndarray:
-    """Offsets (n, k, m) of the fitted drift (station.sim.effects.bias_drift)."""
+    """Offsets (n, k, m) of the fitted drift (station.model.effects.bias_drift)."""
     p = BiasDrift(
         warmup=tuple(fitted.value("warmup")), warmup_tau=float(fitted.values["warmup_tau"]),
         heating=tuple(fitted.value("heating")), heating_tau=float(fitted.values["heating_tau"]),

@@ -13,8 +13,8 @@ import numpy as np
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted, tone_null
-from station.sim.effects import earth_rate
-from station.sim.effects.earth_rate import EarthRate
+from station.model.effects import earth_rate
+from station.model.effects.earth_rate import EarthRate
 
 STAGE = "motion"
 
@@ -79,7 +79,7 @@ def _shift(law: tuple) -> tuple:
 
 
 def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Angular rate plus the Earth rate, per position at its heading (station.sim.effects)."""
+    """Angular rate plus the Earth rate, per position at its heading (station.model.effects)."""
     out = np.empty_like(omega)
     lat, mag = float(fitted.values["latitude_deg"]), float(fitted.values["rate"])
     for j, h in enumerate(fitted.value("heading_deg")):

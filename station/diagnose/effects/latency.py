@@ -9,8 +9,8 @@ import numpy as np
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
-from station.sim.effects import latency
-from station.sim.effects.latency import Latency
+from station.model.effects import latency
+from station.model.effects.latency import Latency
 
 STAGE = "sensed"
 
@@ -31,5 +31,5 @@ def fit(ctx, prediction, r) -> Fitted:
 
 
 def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
-    """Sensed signals delayed per channel (station.sim.effects.latency)."""
+    """Sensed signals delayed per channel (station.model.effects.latency)."""
     return latency.apply(s, ctx.data.t, Latency(tuple(fitted.value("delay"))))

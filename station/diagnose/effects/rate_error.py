@@ -39,7 +39,7 @@ from scipy.stats import chi2
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
-from station.sim.effects import rate_error
+from station.model.effects import rate_error
 
 STAGE = "rate"
 ENCODER_TOL = 1e-9
@@ -165,5 +165,5 @@ def calibration_options(fitted: Fitted) -> dict | None:
 
 
 def apply(ctx, fitted: Fitted, rate: np.ndarray) -> np.ndarray:
-    """Table rate (n, k) times each position's factor (station.sim.effects.rate_error)."""
+    """Table rate (n, k) times each position's factor (station.model.effects.rate_error)."""
     return rate_error.apply(rate[..., None], fitted.value("factors"))[..., 0]

@@ -12,8 +12,8 @@ from scipy.special import ndtr
 
 from station.diagnose import rails
 from station.diagnose.effects import Fitted
-from station.sim.effects import saturation
-from station.sim.effects.saturation import Saturation
+from station.model.effects import saturation
+from station.model.effects.saturation import Saturation
 
 STAGE = "output"
 
@@ -28,7 +28,7 @@ def fit(ctx, prediction, r) -> Fitted:
 
 def apply(ctx, fitted: Fitted, z: np.ndarray) -> np.ndarray:
     """Expected clipped output for outputs z + N(0, sigma^2); the noise-free limit is the
-    simulator's clip (station.sim.effects.saturation)."""
+    simulator's clip (station.model.effects.saturation)."""
     rng = np.broadcast_to(fitted.value("range"), z.shape[-1:])
     sigma = np.broadcast_to(ctx.sigma, z.shape[-1:])
     if not np.all(sigma > 0):

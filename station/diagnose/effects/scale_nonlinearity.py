@@ -8,8 +8,8 @@ import numpy as np
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
-from station.sim.effects import scale_nonlinearity
-from station.sim.effects.scale_nonlinearity import ScaleNonlinearity
+from station.model.effects import scale_nonlinearity
+from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
 STAGE = "sensed"
 
@@ -29,5 +29,5 @@ def fit(ctx, prediction, r) -> Fitted:
 
 
 def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
-    """Sensed signals with the quadratic term (station.sim.effects.scale_nonlinearity)."""
+    """Sensed signals with the quadratic term (station.model.effects.scale_nonlinearity)."""
     return scale_nonlinearity.apply(s, ScaleNonlinearity(tuple(fitted.value("k2"))))

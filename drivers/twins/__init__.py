@@ -1,0 +1,1 @@
+"""Virtual devices speaking the real wire protocols: serial IMU on a pty, CAN IMU on a virtual bus, Modbus table."""

@@ -1,0 +1,231 @@
+"""Virtual serial IMU: a pseudo-terminal pair streaming the profile's wire format.
+
+The driver opens `twin.port` exactly as it would open /dev/ttyUSB0. `port` is a stable symlink (like
+udev's /dev/serial/by-id/...) to the pty slave, so the same path works again after `unplug()` and
+`plug()`. Both pty ends are put in raw mode at once (no echo, no line buffering) and the twin keeps
+one slave fd open so the pty survives the driver closing and reopening the port.
+
+Frames are paced by the shared clock: frame `seq` carries the data `source(times)` at
+`time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes wait
+while the pty is full (like hardware flow control); if the twin falls more than `max_lag` seconds of
+clock time behind, it skips frames like a device whose buffer overflows.
+
+Fault knobs (attributes, changeable while streaming):
+- `corrupt`: fraction of frames mutated by `corrupt_frame` (bytes flipped, deleted or inserted);
+- `drop`: fraction of frames not sent at all (the sequence number jumps);
+- `pause(seconds)`: silence; the frames due meanwhile are lost;
+- `unplug()` / `plug()`: the device disappears (the reader gets an error) and comes back.
+Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
+"""
+
+import os
+import select
+import shutil
+import tempfile
+import threading
+import time
+import tty
+
+import numpy as np
+
+from drivers.wire.frames import encode_frames, encode_lines
+from drivers.profile import SerialImuProfile
+from drivers.clock import WallClock
+
+# fates of frames in the log
+SENT, CORRUPTED, DROPPED, PAUSED, OVERFLOW, UNPLUGGED = range(6)
+
+
+def corrupt_frame(frame: bytes, rng: np.random.Generator) -> bytes:
+    """A damaged copy of one frame, like a noisy line: one of, equally likely,
+    flip 1-4 bytes (XOR with a non-zero value), delete a run of 1 to len/2 bytes, or insert 1 to len
+    random bytes inside it."""
+    data = bytearray(frame)
+    n = len(data)
+    kind = rng.integers(3)
+    if kind == 0:
+        for i in rng.choice(n, size=min(n, int(rng.integers(1, 5))), replace=False):
+            data[i] ^= int(rng.integers(1, 256))
+    elif kind == 1:
+        start = int(rng.integers(n))
+        del data[start : start + int(rng.integers(1, max(2, n // 2 + 1)))]
+    else:
+        at = int(rng.integers(1, max(2, n)))
+        data[at:at] = rng.integers(0, 256, size=int(rng.integers(1, n + 1)), dtype=np.uint8).tobytes()
+    return bytes(data)
+
+
+class SerialTwin:
+    """A serial IMU of profile `profile` behind a pseudo-terminal (see the module docstring).
+
+    source  : callable times (k,) in clock seconds -> counts (k, m) integers
+    clock   : shared clock (WallClock or ScaledClock)
+    rate_hz : frame rate in clock time (default: the profile's rate)
+    seed    : seed of the fault generator
+    """
+
+    max_batch = 4096  # frames encoded and written at once
+
+    def __init__(self, profile, source, clock=None, rate_hz=None, seed=0, corrupt=0.0, drop=0.0,
+                 max_lag=1.0):
+        self.profile = profile if isinstance(profile, SerialImuProfile) else SerialImuProfile.load(profile)
+        self.source = source
+        self.clock = clock or WallClock()
+        self.rate_hz = float(rate_hz or self.profile.imu.rate_hz)
+        self.corrupt, self.drop, self.max_lag = corrupt, drop, max_lag
+        self.start_time = None
+        self.error = None
+        self._rng = np.random.default_rng(seed)
+        self._log = []
+        self._pause = (np.inf, np.inf)  # clock-time window of silence
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = None
+        self._master = self._keeper = None
+        self._dir = tempfile.mkdtemp(prefix="serial-twin-")
+        self.port = os.path.join(self._dir, "ttyIMU")
+        self.plug()
+
+    # -- device life -----------------------------------------------------------------------------
+
+    def plug(self) -> None:
+        """Connect a fresh pty pair behind `port` (raw mode on both ends before any byte flows)."""
+        with self._lock:
+            if self._master is not None:
+                return
+            master, slave = os.openpty()
+            tty.setraw(master)
+            tty.setraw(slave)
+            os.set_blocking(master, False)
+            self._master, self._keeper = master, slave
+            os.symlink(os.ttyname(slave), self.port + ".new")
+            os.replace(self.port + ".new", self.port)
+
+    def unplug(self) -> None:
+        """Pull the cable: close the pty; a reader then gets an error, as with a real unplug."""
+        with self._lock:
+            if self._master is None:
+                return
+            os.close(self._master)
+            os.close(self._keeper)
+            self._master = self._keeper = None
+            os.unlink(self.port)
+
+    def pause(self, seconds: float) -> None:
+        """Go silent for `seconds` of clock time; the frames due meanwhile are lost."""
+        now = self.clock.now()
+        self._pause = (now, now + seconds)
+
+    def start(self, start_time=None) -> "SerialTwin":
+        """Start streaming; frame 0 is at `start_time` (default: now)."""
+        self.start_time = self.clock.now() if start_time is None else float(start_time)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="serial-twin", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop streaming, remove the pty and the port link; re-raise a streaming error (e.g. from
+        the source)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        self.unplug()
+        shutil.rmtree(self._dir, ignore_errors=True)
+        if self.error is not None:
+            raise self.error
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    # -- what was sent ---------------------------------------------------------------------------
+
+    def time_of(self, seq) -> np.ndarray:
+        """Clock time of frame number `seq` (the time its data was sampled at)."""
+        return self.start_time + np.asarray(seq, dtype=np.int64) / self.rate_hz
+
+    def log(self) -> tuple:
+        """(seq, fate) of every frame so far; fate is SENT, CORRUPTED, DROPPED, PAUSED, OVERFLOW
+        or UNPLUGGED."""
+        if not self._log:
+            return np.zeros(0, np.int64), np.zeros(0, np.int8)
+        seq, fate = zip(*self._log)
+        return np.concatenate(seq), np.concatenate(fate)
+
+    # -- streaming -------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._stream()
+        except Exception as exc:  # reported by stop()
+            self.error = exc
+
+    def _stream(self) -> None:
+        next_seq = 0
+        while not self._stop.is_set():
+            due = int(np.floor((self.clock.now() - self.start_time) * self.rate_hz)) + 1
+            if due <= next_seq:
+                time.sleep(0.002)
+                continue
+            if due - next_seq > self.max_lag * self.rate_hz:  # buffer overflow: skip the oldest
+                skipped = np.arange(next_seq, due - int(self.max_lag * self.rate_hz))
+                self._log.append((skipped, np.full(len(skipped), OVERFLOW, np.int8)))
+                next_seq = int(skipped[-1]) + 1
+            seq = np.arange(next_seq, min(due, next_seq + self.max_batch))
+            self._send(seq)
+            next_seq = int(seq[-1]) + 1
+
+    def _send(self, seq: np.ndarray) -> None:
+        """Encode frames `seq`, apply the fault knobs, write them and log their fates."""
+        times = self.time_of(seq)
+        fate = np.full(len(seq), SENT, np.int8)
+        fate[self._rng.random(len(seq)) < self.corrupt] = CORRUPTED
+        fate[self._rng.random(len(seq)) < self.drop] = DROPPED
+        fate[(times >= self._pause[0]) & (times < self._pause[1])] = PAUSED
+        frames = self._encode(seq[fate <= CORRUPTED], times[fate <= CORRUPTED])
+        for i in np.flatnonzero(fate[fate <= CORRUPTED] == CORRUPTED):
+            frames[i] = corrupt_frame(frames[i], self._rng)
+        written = self._write(b"".join(frames))
+        ends = np.cumsum([len(f) for f in frames])
+        sent = np.flatnonzero(fate <= CORRUPTED)
+        fate[sent[ends > written]] = UNPLUGGED
+        self._log.append((seq, fate))
+
+    def _encode(self, seq: np.ndarray, times: np.ndarray) -> list:
+        """The wire bytes of frames `seq` sampled at `times`, one list item per frame."""
+        if len(seq) == 0:
+            return []
+        counts = np.asarray(self.source(times))
+        m = len(self.profile.imu.channels)
+        if counts.shape != (len(times), m) or not np.issubdtype(counts.dtype, np.integer):
+            raise ValueError(f"twin source must return integer counts of shape ({len(times)}, {m}); "
+                             f"got {counts.dtype} {counts.shape}")
+        fmt = self.profile.serial.frame
+        if self.profile.serial.protocol == "ascii":
+            return encode_lines(fmt, times, counts).splitlines(keepends=True)
+        ticks = np.round(times / fmt.time_tick).astype(np.int64) if "time" in fmt.layout else seq
+        data = encode_frames(fmt, seq, ticks, counts)
+        size = len(data) // len(times)
+        return [data[i : i + size] for i in range(0, len(data), size)]
+
+    def _write(self, data: bytes) -> int:
+        """Write while the pty accepts bytes; stop early on unplug or stop. Bytes written."""
+        view, done = memoryview(data), 0
+        while done < len(data) and not self._stop.is_set():
+            with self._lock:
+                if self._master is None:
+                    break
+                try:
+                    done += os.write(self._master, view[done:])
+                    continue
+                except BlockingIOError:
+                    master = self._master
+            try:
+                select.select([], [master], [], 0.02)
+            except (OSError, ValueError):  # unplugged meanwhile
+                pass
+        return done

@@ -1,0 +1,168 @@
+"""Virtual rotary table: a pymodbus TCP server on 127.0.0.1 whose registers follow the physics of
+`station.sim.table.TablePhysics`.
+
+The server runs in a background thread with its own asyncio loop, listens on an ephemeral port
+(`TableTwin.port`) and stops on `close()` or by itself after `lifetime` seconds. Registers are not
+pushed into a datastore (pymodbus 3.16 ignores updates of a running server's context): the
+`SimDevice` action hook refreshes them from `table.state()` on every read and turns every write into
+`set_rate` / `start` / `stop` calls, answering Modbus exceptions like a real controller would.
+
+Fault knobs (`inject`), each applied to the next `count` requests:
+  "busy"      -> exception 6 (device busy)
+  "exception" -> the given exception `code` (e.g. 4 device failure, 2 illegal address)
+  "slow"      -> the reply comes `delay` seconds late (the whole controller stalls, like a real one)
+  "drop"      -> no reply at all
+"""
+
+import asyncio
+import collections
+import threading
+import time
+from typing import Self
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from drivers.rotary_table import FIXED_REGISTERS, TableRegisterMap
+
+KINDS = ("busy", "exception", "slow", "drop")
+WRITE_SINGLE = 6  # Modbus function code "write single register"
+
+
+class TableTwin:
+    """Serve `table` (a `station.sim.table.TablePhysics`) with the layout of `register_map`."""
+
+    def __init__(self, table, register_map: TableRegisterMap, lifetime: float = 60.0):
+        self.table = table
+        self.map = register_map
+        self.lifetime = lifetime
+        self.port = None
+        self.requests = 0
+        self._faults = collections.deque()
+        self._loop = asyncio.new_event_loop()
+        self._stopping = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="TableTwin", daemon=True)
+        self._error = None
+
+    def start(self) -> "TableTwin":
+        """Start serving; returns once the port is known."""
+        self._thread.start()
+        self._ready.wait(10)
+        if self.port is None:
+            raise RuntimeError(f"the table twin's Modbus server did not start: {self._error!r}")
+        return self
+
+    def close(self) -> None:
+        """Stop the server and its thread (idempotent)."""
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._stopping.set)
+            self._thread.join(10)
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def inject(self, kind: str, count: int = 1, code: int | None = None,
+               delay: float | None = None) -> None:
+        """Make the next `count` requests fail in the way `kind` says (see the module doc)."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown fault {kind!r}; choose one of {KINDS}")
+        if kind == "exception" and code not in set(ExcCodes):
+            raise ValueError(f"fault 'exception' needs a Modbus exception code, got {code!r}")
+        if kind == "slow" and not (delay and delay > 0):
+            raise ValueError("fault 'slow' needs a positive delay in seconds")
+        self._faults.extend([(kind, code, delay)] * count)
+
+    def _serve(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._main())
+        except Exception as exc:  # noqa: BLE001 - reported by start()
+            self._error = exc
+            self._ready.set()
+        finally:
+            pending = asyncio.all_tasks(self._loop)
+            for task in pending:
+                task.cancel()
+            self._loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
+            self._loop.close()
+
+    async def _main(self) -> None:
+        self._stopping = asyncio.Event()
+        first, count = self.map.span
+        device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
+            SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
+        server = ModbusTcpServer(device, address=("127.0.0.1", 0))
+        await server.serve_forever(background=True)
+        try:
+            self.port = server.transport.sockets[0].getsockname()[1]
+            self._ready.set()
+            try:
+                await asyncio.wait_for(self._stopping.wait(), self.lifetime)
+            except TimeoutError:
+                pass
+        finally:
+            await server.shutdown()
+
+    async def _action(self, func_code, start, address, count, registers, values):
+        """pymodbus hook called before each access: faults, then physics."""
+        if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write:
+            self._refresh(start, registers)  # part of the same request, no second fault
+            return None
+        self.requests += 1
+        if self._faults:
+            kind, code, delay = self._faults.popleft()
+            if kind == "busy":
+                return ExcCodes.DEVICE_BUSY
+            if kind == "exception":
+                return ExcCodes(code)
+            if kind == "drop":
+                raise asyncio.CancelledError  # the request task ends without a reply
+            time.sleep(delay)  # noqa: ASYNC251 - "slow": the whole controller stalls
+        if values:
+            return self._write(address, values)
+        self._refresh(start, registers)
+        return None
+
+    def _refresh(self, start: int, registers: list) -> None:
+        """Write the table's present state into the register image (in place)."""
+        s, m = self.table.state(), self.map
+        bits = {"ready": not s.fault, "moving": s.moving, "at_rate": s.at_rate, "fault": s.fault}
+        image = {m.registers["status"]: sum(1 << m.status_bits[n] for n, on in bits.items() if on),
+                 m.registers["command"]: m.run if s.running else m.stop}
+        angle_counts = (round(s.angle * m.angle_scale) + 2**31) % 2**32 - 2**31  # int32 wrap
+        fixed = {"rate_setpoint": m.encode(s.rate_setpoint, m.rate_scale),
+                 "rate": m.encode(s.rate, m.rate_scale),
+                 "angle": m.encode(angle_counts / m.angle_scale, m.angle_scale)}
+        for name in FIXED_REGISTERS:
+            image.update(zip(m.addresses(name), fixed[name]))
+        for address, value in image.items():
+            registers[address - start] = value
+
+    def _write(self, address: int, values: list) -> ExcCodes | None:
+        """Apply a write of `values` at `address` to the physics, as the controller would."""
+        m = self.map
+        written = dict(zip(range(address, address + len(values)), values))
+        setpoint = list(m.addresses("rate_setpoint"))
+        if not set(written) <= set(setpoint) | {m.registers["command"]}:
+            return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        if any(a in written for a in setpoint):
+            if not all(a in written for a in setpoint):
+                return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
+            try:
+                self.table.set_rate(m.decode([written[a] for a in setpoint], m.rate_scale))
+            except ValueError:
+                return ExcCodes.ILLEGAL_VALUE
+        command = written.get(m.registers["command"])
+        if command == m.run:
+            if not self.table.start():
+                return ExcCodes.DEVICE_FAILURE
+        elif command == m.stop:
+            self.table.stop()
+        elif command is not None:
+            return ExcCodes.ILLEGAL_VALUE
+        return None

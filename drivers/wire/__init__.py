@@ -1,0 +1,1 @@
+"""Wire formats of serial IMUs, parsed in bulk."""

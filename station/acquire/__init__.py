@@ -1,0 +1,1 @@
+"""Live acquisition: the recorder, the technician (operator) and the live view."""

@@ -1,0 +1,322 @@
+"""The live view while a rotary session records: what the station is doing, in one rich panel.
+
+Shown: the protocol phase in words, position k of n, a progress bar per window (static: seconds of
+the static window elapsed; rotating: table angle swept of the whole turns asked), the table's rate,
+setpoint and state, the IMU's samples per second, the link's CRC and gap counters, a stillness
+indicator, and the instruction the technician has to carry out now and the next one.
+
+The view is fed through a small observer interface (`LiveView.on_event`, `on_table`, `on_samples`,
+`on_message`). The recorder and the protocol have no observer hook, so the view wraps the three
+objects the protocol talks through - the IMU driver, the operator and the recorder - in thin
+proxies that forward every call unchanged and tell the view; the protocol's `state` and `position`
+are read from the protocol itself:
+
+    view = LiveView(clock)
+    operator = view.observe_operator(operator)
+    protocol = view.follow(RotaryProtocol(table, operator, clock, settings, axes))
+    with Recorder(writer, view.observe_imu(imu), clock=clock) as recorder, view.show():
+        protocol.run(view.observe_recorder(recorder))
+
+Stillness: the dispersion s = mean over channels of var_w(x_k) / var_ref,k over the last
+`window` s of samples, var_ref the quietest window seen so far (docs/stillness.md's statistic, with
+the rest period found on line); still below `enter`, moving above `leave` (hysteresis). At a
+constant table rate the gyro signals are steady, so "still" means a steady signal; the table's own
+`moving` flag is shown beside it.
+"""
+
+import collections
+import contextlib
+import math
+import threading
+
+import numpy as np
+from rich.console import Console, Group
+from rich.live import Live
+from rich.panel import Panel
+from rich.progress_bar import ProgressBar
+from rich.table import Table
+
+from station.protocols.rotary import instruction
+
+PHASES = {
+    "mount": "waiting for the technician to mount the unit",
+    "still": "waiting for the table to stand still",
+    "static": "recording the static window (biases)",
+    "spin_up": "starting the table",
+    "settle": "waiting for the table rate to settle",
+    "rotating": "recording the rotating window",
+    "stop": "stopping the table",
+    "rest": "waiting for the table to come to rest",
+    "restart": "recording the position again",
+    "done": "all positions recorded",
+}
+COUNTERS = ("crc_failures", "resyncs", "gaps", "dropped", "incomplete", "errors")
+"""Link counters shown when the IMU driver's `stats` has them (serial `LinkStats`, CAN
+`CanStats`)."""
+
+
+class LiveView:
+    """State of the live view and its rendering; the observer callbacks may come from any thread.
+
+    clock    : the session clock (window progress and rates are in its seconds)
+    rate_hz  : the IMU's sample rate (default: the observed recorder's)
+    window   : seconds of samples in the stillness statistic
+    enter, leave : hysteresis of the stillness statistic, multiples of the reference variance
+    """
+
+    def __init__(self, clock, rate_hz: float | None = None, window: float = 0.5,
+                 enter: float = 4.0, leave: float = 8.0):
+        self.protocol = None
+        self.clock = clock
+        self.rate_hz = rate_hz
+        self.window = window
+        self.enter, self.leave = enter, leave
+        self.imu = None
+        self._lock = threading.Lock()
+        self._windows = {}  # "static"/"rotating" -> (start clock time or angle, end or None)
+        self._table = None
+        self._message = ""
+        self._arrivals = collections.deque()  # (clock time, samples)
+        self._recent = collections.deque()  # SI sample blocks of the last `window` s
+        self._recent_count = 0
+        self._reference = None  # quietest per-channel variance so far
+        self._next_stillness = -math.inf  # clock time of the next stillness update
+        self.dispersion = math.nan
+        self.still = None
+        self.samples = 0
+        self.seq_gaps = 0
+        self._last_seq = None
+        self.display_error = None  # the first exception of a callback (shown, never raised)
+
+    # -- observer interface ----------------------------------------------------------------------
+
+    def on_event(self, kind: str, position=None, detail: dict | None = None,
+                 time: float | None = None) -> None:
+        """A protocol event was recorded (`station.files.session.EVENT_KINDS`) at clock `time` (default
+        now)."""
+        now = self.clock.now() if time is None else time
+        detail = detail or {}
+        with self._lock:
+            if kind == "position_start":
+                self._windows = {}
+            elif kind == "static_start":
+                self._windows["static"] = (now, None)
+            elif kind == "static_end" and "static" in self._windows:
+                self._windows["static"] = (self._windows["static"][0], now)
+            elif kind == "rotate_start":
+                self._windows["rotating"] = (float(detail.get("angle", math.nan)), None)
+            elif kind == "rotate_end" and "rotating" in self._windows:
+                self._windows["rotating"] = (self._windows["rotating"][0],
+                                             float(detail.get("angle", math.nan)))
+
+    def on_table(self, reading) -> None:
+        """A table state was read (`drivers.rotary_table.TableReading`)."""
+        with self._lock:
+            self._table = reading
+
+    def on_message(self, text: str) -> None:
+        """The technician was told something (a prompt or an instruction)."""
+        with self._lock:
+            self._message = text
+
+    def on_samples(self, block, counts_per_unit=None) -> None:
+        """A block of samples arrived (`drivers.samples.SampleBlock`); `counts_per_unit` converts
+        its counts to SI (only the stillness statistic uses them, so any scale works)."""
+        now = self.clock.now()
+        x = np.asarray(block.counts, float)
+        if counts_per_unit is not None:
+            x = x / np.asarray(counts_per_unit, float)
+        with self._lock:
+            seq = np.asarray(block.seq)
+            if self._last_seq is not None:
+                steps = np.diff(np.concatenate([[self._last_seq], seq]))
+                self.seq_gaps += int(np.sum(steps > 1))
+            self._last_seq = int(seq[-1])
+            self.samples += len(seq)
+            self._arrivals.append((now, len(seq)))
+            while self._arrivals and self._arrivals[0][0] < now - 1.0:
+                self._arrivals.popleft()
+            self._recent.append(x)
+            self._recent_count += len(x)
+            keep = max(2, int(self.window * self.rate_hz)) if self.rate_hz else math.inf
+            while self._recent and self._recent_count - len(self._recent[0]) >= keep:
+                self._recent_count -= len(self._recent.popleft())
+            if self._recent_count >= keep and now >= self._next_stillness:
+                self._next_stillness = now + self.window / 4
+                self._update_stillness(np.concatenate(self._recent))
+
+    # -- wiring ----------------------------------------------------------------------------------
+
+    def follow(self, protocol):
+        """Show `protocol` (`station.protocols.rotary.RotaryProtocol`: its state, position, axes
+        and settings); returns it."""
+        self.protocol = protocol
+        return protocol
+
+    def observe_imu(self, imu, counts_per_unit=None):
+        """A proxy of the IMU driver for the recorder: every block read also feeds the view."""
+        self.imu = imu
+        return _ObservedImu(imu, self, counts_per_unit)
+
+    def observe_operator(self, operator):
+        """A proxy of the operator for the protocol: what the technician is told feeds the view."""
+        return _Observed(operator, self, {"prompt": self.on_message,
+                                          "wait": lambda i: self.on_message(i.text),
+                                          "confirm": self.on_message})
+
+    def observe_recorder(self, recorder):
+        """A proxy of the recorder for the protocol: events and table states feed the view."""
+        if self.rate_hz is None:
+            self.rate_hz = getattr(recorder, "rate_hz", None)
+        return _ObservedRecorder(recorder, self)
+
+    @contextlib.contextmanager
+    def show(self, console: Console | None = None, refresh_per_second: float = 4):
+        """Display the view (rich.live) while the block runs."""
+        with Live(console=console, get_renderable=self.render,
+                  refresh_per_second=refresh_per_second, transient=False):
+            yield self
+
+    def guarded(self, callback, *args, **kwargs) -> None:
+        """Call an observer callback; a failure is kept in `display_error`, never raised: a
+        display problem must not stop a recording."""
+        try:
+            callback(*args, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - shown in the view instead
+            if self.display_error is None:
+                self.display_error = exc
+
+    # -- rendering -------------------------------------------------------------------------------
+
+    def render(self) -> Panel:
+        """The view as one rich renderable."""
+        p = self.protocol
+        if p is None:
+            return Panel("waiting for the protocol to start", title="calibration session")
+        n, j, state = len(p.axes), p.position, p.state
+        with self._lock:
+            windows, table, message = dict(self._windows), self._table, self._message
+            fps = self._fps()
+        grid = Table.grid(padding=(0, 2))
+        grid.add_column(style="bold", no_wrap=True)
+        grid.add_column()
+        grid.add_row("phase", f"{PHASES.get(state, state)} [dim]({state})[/]")
+        done = min(j, n) if state != "done" else n
+        grid.add_row("position", Group(f"{min(j + 1, n)} of {n}", ProgressBar(n, done, 40)))
+        for name, (fraction, words) in self._window_progress(windows, table).items():
+            grid.add_row(f"{name} window", Group(words, ProgressBar(1.0, fraction, 40)))
+        grid.add_row("table", self._table_words(table))
+        grid.add_row("IMU", f"{fps:.0f} samples/s, {self.samples} received, "
+                            f"{self.seq_gaps} sequence gap(s)")
+        grid.add_row("link", self._counter_words())
+        grid.add_row("stillness", self._stillness_words())
+        grid.add_row("technician", message or "-")
+        if j + 1 < n:
+            grid.add_row("next", instruction(j + 1, n, p.axes[j + 1]).text)
+        if self.display_error is not None:
+            grid.add_row("[red]view error[/]", f"{self.display_error!r} (recording unaffected)")
+        return Panel(grid, title="calibration session", border_style="blue")
+
+    def _window_progress(self, windows, table) -> dict:
+        """{"static" / "rotating": (fraction done, words)} of the current position."""
+        s, now, shown = self.protocol.settings, self.clock.now(), {}
+        if "static" in windows:
+            start, end = windows["static"]
+            elapsed = (end if end is not None else now) - start
+            shown["static"] = (min(1.0, elapsed / s.static), f"{elapsed:.1f} of {s.static:g} s")
+        if "rotating" in windows:
+            start, end = windows["rotating"]
+            angle = end if end is not None else (table.angle if table is not None else start)
+            turns = abs(angle - start) / (2 * math.pi) if math.isfinite(start) else 0.0
+            shown["rotating"] = (min(1.0, turns / s.revolutions),
+                                 f"{turns:.2f} of {s.revolutions} turns")
+        return shown
+
+    @staticmethod
+    def _table_words(table) -> str:
+        if table is None:
+            return "no state read yet"
+        flags = [name for name in ("running", "moving", "at_rate", "fault")
+                 if getattr(table, name, False)]
+        still = "turning" if getattr(table, "moving", False) else "standing still"
+        return (f"{table.rate:+.4f} rad/s (setpoint {table.rate_setpoint:+.4f}), {still}; "
+                f"flags: {', '.join(flags) or 'none'}")
+
+    def _counter_words(self) -> str:
+        stats = getattr(self.imu, "stats", None)
+        shown = [f"{name.replace('_', ' ')} {getattr(stats, name)}" for name in COUNTERS
+                 if isinstance(getattr(stats, name, None), int)]
+        return ", ".join(shown) or "the driver keeps no counters"
+
+    def _stillness_words(self) -> str:
+        if self.still is None:
+            return "measuring..."
+        word = "[green]still[/]" if self.still else "[yellow]moving[/]"
+        return f"{word} (dispersion {self.dispersion:.1f}; still below {self.enter:g})"
+
+    # -- statistics ------------------------------------------------------------------------------
+
+    def _fps(self) -> float:
+        """Samples per second of the session clock over the last second of arrivals."""
+        if len(self._arrivals) < 2:
+            return 0.0
+        span = self._arrivals[-1][0] - self._arrivals[0][0]
+        return sum(k for _, k in list(self._arrivals)[1:]) / span if span > 0 else 0.0
+
+    def _update_stillness(self, x) -> None:
+        """Dispersion of the latest window against the quietest one seen, with hysteresis."""
+        var = np.var(x, axis=0)
+        floor = np.finfo(float).tiny
+        self._reference = var if self._reference is None else np.minimum(self._reference, var)
+        self.dispersion = float(np.mean(var / np.maximum(self._reference, floor)))
+        if self.still is None:
+            self.still = self.dispersion < self.enter
+        elif self.still and self.dispersion > self.leave:
+            self.still = False
+        elif not self.still and self.dispersion < self.enter:
+            self.still = True
+
+
+class _Observed:
+    """Forwards every attribute to `target`; the methods in `hooks` also call hook(*args)."""
+
+    def __init__(self, target, view, hooks: dict):
+        self._target, self._view, self._hooks = target, view, hooks
+
+    def __getattr__(self, name):
+        value = getattr(self._target, name)
+        hook = self._hooks.get(name)
+        if hook is None:
+            return value
+
+        def observed(*args, **kwargs):
+            result = value(*args, **kwargs)
+            self._view.guarded(hook, *args, **kwargs)
+            return result
+        return observed
+
+
+class _ObservedImu(_Observed):
+    """The IMU driver: `read_block` also hands the block to the view."""
+
+    def __init__(self, imu, view, counts_per_unit):
+        super().__init__(imu, view, {})
+        self._counts_per_unit = counts_per_unit
+
+    def read_block(self, *args, **kwargs):
+        block = self._target.read_block(*args, **kwargs)
+        if block is not None and len(block):
+            self._view.guarded(self._view.on_samples, block, self._counts_per_unit)
+        return block
+
+
+class _ObservedRecorder(_Observed):
+    """The recorder: each event reaches the view with the clock time the session stored for it."""
+
+    def __init__(self, recorder, view):
+        super().__init__(recorder, view, {"table": view.on_table})
+
+    def event(self, kind, position=None, detail=None):
+        time = self._target.event(kind, position, detail)
+        self._view.guarded(self._view.on_event, kind, position, detail, time=time)
+        return time

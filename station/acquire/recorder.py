@@ -1,0 +1,181 @@
+"""The recorder: IMU samples, table states and protocol events into one session file.
+
+A reader thread pulls `SampleBlock`s from an IMU driver (anything with `read_block(timeout)`, e.g.
+`drivers.serial_imu.SerialImu` opened, or `drivers.can_imu.CanImu` started) and appends them to a
+`station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
+through the same recorder; one lock serialises every access to the writer, which is not
+thread-safe.
+
+The reader never dies silently: a lost device or a writer failure ends the thread and is kept in
+`error`; `check()` re-raises it in the protocol's thread, and also raises when no sample has
+arrived for too long (a silent device).
+
+Samples arrive late when the host is busy (a CAN notifier can lag by a second of wall time):
+`drain(t)` waits until every sample taken up to clock time t has arrived, so that a protocol can
+make sure a window is complete before it moves the table.
+
+A lost device (`reconnect()` after the cable is back) or a resumed session starts a new segment of
+the stream: the sequence numbers may jump or restart, so sample times are worked out per segment
+(`sample_times(..., breaks)`, the breaks being the times of the `resume` and `session_resumed`
+events).
+"""
+
+import threading
+import time
+from typing import Self
+
+import numpy as np
+
+
+def arrival_offset(seq, host_time, rate_hz: float) -> float:
+    """The smallest host_time - seq / rate_hz: sampling instant of sample 0 on the host clock.
+
+    host_time is the arrival time: later than the sampling by a latency that grows when the host
+    is busy, and one time for all samples read together. seq / rate_hz is exact up to a constant
+    (and the device's clock error: 50 ppm is 35 ms over a 700 s session, well inside a protocol's
+    guard times); the least delayed sample gives the constant.
+    """
+    return float(np.min(np.asarray(host_time, float) - np.asarray(seq, float) / rate_hz))
+
+
+def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
+    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
+
+    The stream is cut into segments, each with its own `arrival_offset`: before each clock time
+    in `breaks` (a reconnection, a resumed session) and wherever `seq` does not increase (a device
+    that restarted its numbering).
+    """
+    seq, host_time = np.asarray(seq), np.asarray(host_time, float)
+    if seq.size == 0:
+        return np.zeros(0)
+    segment = np.searchsorted(np.sort(np.asarray(breaks, float)), host_time, side="right")
+    segment = segment + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
+    times = np.empty(len(seq))
+    for k in np.unique(segment):
+        part = segment == k
+        times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
+    return times
+
+
+class RecordingError(RuntimeError):
+    """The IMU stream stopped: the device went silent or the reader failed."""
+
+
+class Recorder:
+    """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
+
+    clock    : the session's clock (the writer's, shared with the devices)
+    interval : wall seconds between two reads, so that each block holds several samples (a pty
+               holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
+    drain_timeout : wall seconds `drain` waits for the samples in flight
+    busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
+                    processes) can hold the reader that long, which is many seconds of a fast clock
+    """
+
+    def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.003,
+                 drain_timeout: float = 30.0, busy_grace: float = 2.0):
+        self.writer = writer
+        self.imu = imu
+        self.stream = stream
+        self.clock = clock or writer.clock
+        self.interval = interval
+        self.drain_timeout = drain_timeout
+        self.busy_grace = busy_grace
+        self.rate_hz = writer.specs[stream].rate_hz
+        self.samples = 0
+        self.error = None
+        self._last_arrival = None  # (clock, wall) time of the last block
+        self._offset = np.inf  # arrival_offset of the samples so far
+        self._last_seq = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = None
+
+    def start(self) -> "Recorder":
+        """Start the reader thread."""
+        self._last_arrival = (self.clock.now(), time.monotonic())
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._read, name="recorder", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """End the reader thread now (the devices and the writer stay open)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def reconnect(self) -> None:
+        """Reopen a lost IMU (`imu.open()`, e.g. `SerialImu`) and read on, as a new segment of the
+        stream; record the `resume` event before calling it. Raises the driver's error while the
+        device is still missing (then call it again later)."""
+        self.stop()
+        self.imu.open()
+        self.error = None
+        self._offset, self._last_seq = np.inf, None
+        self.start()
+
+    def sampled_until(self) -> float:
+        """Sampling instant (clock s) of the newest sample received; -inf before the first."""
+        if self._last_seq is None:
+            return -np.inf
+        return self._last_seq / self.rate_hz + self._offset
+
+    def drain(self, until: float, stale: float) -> None:
+        """Wait until the samples taken up to clock time `until` have arrived; RecordingError
+        when none comes for `stale` clock seconds or after `drain_timeout` wall seconds."""
+        deadline = time.monotonic() + self.drain_timeout
+        while self.sampled_until() < until:
+            self.check(stale)
+            if time.monotonic() > deadline:
+                raise RecordingError(
+                    f"the IMU samples lag {until - self.sampled_until():.1f} s behind after "
+                    f"waiting {self.drain_timeout} s; the host is too busy for this link's rate")
+            time.sleep(self.interval)
+
+    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
+        """Record a protocol event now (see `station.files.session.EVENT_KINDS`); returns the clock time
+        stored with it (stamped before waiting for the writer, which a block may be holding)."""
+        time = self.clock.now()
+        with self._lock:
+            self.writer.event(kind, position, detail, time=time)
+        return time
+
+    def table(self, reading) -> None:
+        """Keep one table state (`drivers.rotary_table.TableReading`)."""
+        with self._lock:
+            self.writer.append_table(reading)
+
+    def check(self, stale: float) -> None:
+        """Raise RecordingError if the reader failed or no sample came for `stale` clock seconds
+        (and at least `busy_grace` wall seconds)."""
+        if self.error is not None:
+            raise RecordingError(f"recording of the IMU stopped: {self.error}") from self.error
+        clock, wall = self._last_arrival
+        silent = self.clock.now() - clock
+        if silent > stale and time.monotonic() - wall > self.busy_grace:
+            raise RecordingError(f"no IMU sample for {silent:.1f} s (limit {stale} s); check the "
+                                 "IMU's power and cable, then record the session again")
+
+    def _read(self) -> None:
+        try:
+            while not self._stop.is_set():
+                block = self.imu.read_block(timeout=0.0)
+                if block is not None and len(block):
+                    self._last_arrival = (self.clock.now(), time.monotonic())
+                    with self._lock:
+                        self.writer.append(self.stream, block)
+                    self.samples += len(block)
+                    self._offset = min(self._offset, arrival_offset(block.seq, block.host_time,
+                                                                    self.rate_hz))
+                    self._last_seq = int(block.seq[-1])
+                time.sleep(self.interval)
+        except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
+            self.error = exc

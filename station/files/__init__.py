@@ -1,0 +1,1 @@
+"""Files the station reads and writes: session files, calibration files, imports and exports."""

@@ -1,0 +1,460 @@
+"""The calibration file: one unit's calibration as versioned, self-describing JSON.
+
+    cal = Calibration.from_result(result, unit_serial="SN42", sensors=("g1", ..., "g12"),
+                                  units="rad/s", bias=b, bias_sigma=sb, session={...})
+    cal.save("SN42.cal.json")                 # refuses to overwrite unless overwrite=True
+    cal = load("SN42.cal.json", unit_serial="SN42")   # refuses another unit's file
+    v = cal.apply(z)                           # (k, m) SI readings -> (k, d) calibrated vectors
+
+The file records everything needed to use the calibration without this software: the format name
+and version, the software version, the conventions (docs/conventions.md: `a` is d x m, column i =
+sensor i's sensitive vector; model z = a^T v + b with the bias after the projection; fusion
+v = (a a^T)^-1 a (z - b)), the units (SI readings, raw counts per SI unit at the driver edge), the
+unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, their joint covariance
+(version 2: order a row-major, then b; in the frame of `a`, whose gauge it removes; biases
+measured apart from the fit are independent of `a`), the gauge-invariant scale factors and axis
+angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
+date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's
+shortest round-trip form, so a load gives back bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits
+and damage (it is not a signature).
+
+Loading treats the file as untrusted: size limit, strict JSON (no NaN/Infinity, no duplicate keys),
+format and version checked first, then the checksum, then every key, type, shape and unit; unknown
+keys are refused. Errors are `CalibrationFileError` (a `ValueError`) naming the file, the problem
+and what to do.
+"""
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from station.files.provenance import software_version, utc_now
+
+FORMAT = "imu-station-calibration"
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)  # 2 added `covariance`
+MAX_BYTES = 4 << 20
+SI_UNITS = ("rad/s", "m/s^2", "T")
+FRAMES = ("canonical", "nominal")
+CONVENTIONS_V1 = {
+    "document": "docs/conventions.md",
+    "model": "z_i = a_i . v + b_i + noise  (M = a^T v + b 1^T)",
+    "sensitivity": "a is d x m (rows = frame axes, columns = sensors in the order of unit.sensors); "
+                   "column i = sensor i's sensitive axis times its scale factor",
+    "bias": "b has one entry per sensor, added after the projection, in the readings' units",
+    "apply": "v = (a a^T)^-1 a (z - b), z = the m readings of one instant in SI units",
+    "counts": "SI reading = raw counts / counts_per_unit",
+    "matrices": "nested JSON lists, row-major",
+}
+CONVENTIONS = {**CONVENTIONS_V1,
+               "covariance": "joint covariance of (a row-major, then b): (d m + m) x (d m + m), "
+                             "in the frame of a; null when unknown"}
+_KEYS_V1 = ("format", "format_version", "software_version", "created", "conventions", "unit",
+            "units", "frame", "magnitude", "scale_known", "sensitivity", "bias", "invariants",
+            "fit", "session", "checksum")
+_KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum")}
+_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS}
+
+
+class CalibrationFileError(ValueError):
+    """A calibration file this software cannot or must not use; the message says what to do."""
+
+
+@dataclass(frozen=True, eq=False)
+class Calibration:
+    """One unit's calibration, as stored in a calibration file (shapes: d axes, m sensors).
+
+    a, a_sigma          : (d, m) sensitivity matrix in `frame` and its 1-sigma
+    bias, bias_sigma    : (m,) biases in the readings' units and their 1-sigma
+    scale_factors(_sigma), axis_angles(_sigma) : (m,), (m, m) rad; frame-free invariants
+    units               : SI unit of each sensor's readings (also the unit of v and of b)
+    counts_per_unit     : (m,) raw counts per SI unit at the driver edge, or None if unknown
+    frame               : "canonical" (Eq. 19) or "nominal" (aligned to a nominal layout)
+    magnitude           : |v_j| of the calibration positions; scale_known False: Remark 2
+    fit                 : {"method", "chi2", "dof", "positions", "bias_source"}
+    session             : where the readings came from (path, stream, ...) or None
+    covariance          : (d m + m, d m + m) joint covariance of (a row-major, b) in `frame`, its
+                          diagonal the squared sigmas; None when unknown (version-1 files)
+    """
+
+    unit_serial: str
+    sensors: tuple
+    units: tuple
+    a: np.ndarray
+    a_sigma: np.ndarray
+    bias: np.ndarray
+    bias_sigma: np.ndarray
+    scale_factors: np.ndarray
+    scale_factors_sigma: np.ndarray
+    axis_angles: np.ndarray
+    axis_angles_sigma: np.ndarray
+    frame: str
+    magnitude: float
+    scale_known: bool
+    fit: dict
+    counts_per_unit: np.ndarray | None = None
+    session: dict | None = None
+    covariance: np.ndarray | None = None
+    created: str = field(default_factory=lambda: utc_now())
+    software_version: str = field(default_factory=lambda: software_version())
+
+    @property
+    def d(self) -> int:
+        return self.a.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.a.shape[1]
+
+    @classmethod
+    def from_result(cls, result, unit_serial: str, sensors, units, *, bias=None, bias_sigma=None,
+                    bias_source: str = "estimated with the calibration", counts_per_unit=None,
+                    session: dict | None = None) -> "Calibration":
+        """A calibration file's content from a `station.solve.calibrate.CalibrationResult`.
+
+        bias, bias_sigma : (m,) biases and 1-sigma measured apart from the fit (e.g. the static
+                           windows of a rotary session, whose Eq. (18) readings are bias-free);
+                           default: the result's own (it must then have estimated them).
+        units            : one SI unit for all sensors, or one per sensor.
+        """
+        m = result.m
+        own_bias = bias is None
+        if own_bias:
+            if result.bias is None or result.bias_sigma is None:
+                raise CalibrationFileError(
+                    "the calibration has no estimated bias (its readings were bias-free); give "
+                    "the biases measured apart, e.g. from the static windows")
+            bias, bias_sigma = result.bias, result.bias_sigma
+        units = (units,) * m if isinstance(units, str) else tuple(units)
+        bias_sigma = np.asarray(bias_sigma, float)
+        cal = cls(
+            unit_serial=str(unit_serial), sensors=tuple(str(s) for s in sensors), units=units,
+            a=result.a, a_sigma=result.a_sigma, bias=np.asarray(bias, float),
+            bias_sigma=bias_sigma, scale_factors=result.scale_factors,
+            scale_factors_sigma=result.scale_factors_sigma, axis_angles=result.axis_angles,
+            axis_angles_sigma=result.axis_angles_sigma, frame=result.frame,
+            magnitude=float(result.magnitude), scale_known=bool(result.scale_known),
+            fit={"method": result.method, "chi2": float(result.chi2), "dof": int(result.dof),
+                 "positions": int(result.v.shape[1]), "bias_source": bias_source},
+            counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
+                                                                               float),
+            session=session, covariance=_joint_covariance(result, own_bias, bias_sigma))
+        _from_document(cal.to_document(), "the calibration")  # the same checks as a load
+        return cal
+
+    def fusion_matrix(self) -> np.ndarray:
+        """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""
+        return np.linalg.solve(self.a @ self.a.T, self.a)
+
+    def apply(self, z) -> np.ndarray:
+        """Calibrated vectors (k, d) from SI readings z (k, m) or (m,): F (z - b) per row."""
+        return (self._readings(z) - self.bias) @ self.fusion_matrix().T
+
+    def _readings(self, z) -> np.ndarray:
+        """z as floats, refused unless it holds m readings per instant."""
+        z = np.asarray(z, float)
+        if z.shape[-1:] != (self.m,):
+            raise CalibrationFileError(f"readings have shape {z.shape}; this calibration needs "
+                                       f"{self.m} readings per instant (sensors {self.sensors})")
+        return z
+
+    def vector_covariance(self, z) -> np.ndarray:
+        """(k, d, d) covariance of each calibrated vector F (z - b) due to the calibration's own
+        uncertainty (`covariance`), for SI readings z (k, m) or (m,), by the Jacobian
+            dv/db_i = -F[:, i],  dv/da_ri = G^-1[:, r] (y - a^T v)_i - F[:, i] v_r,
+        with G = a a^T, F = G^-1 a, y = z - b, v = F y (first order). The readings' own noise is
+        not included."""
+        if self.covariance is None:
+            raise CalibrationFileError("this calibration file has no covariance (format version "
+                                       "1); solve the session again for one")
+        y = np.atleast_2d(self._readings(z)) - self.bias
+        g_inv = np.linalg.inv(self.a @ self.a.T)
+        f = g_inv @ self.a
+        v = y @ f.T
+        res = y - v @ self.a
+        d, m = self.a.shape
+        jac_a = (g_inv[None, :, :, None] * res[:, None, None, :]
+                 - f[None, :, None, :] * v[:, None, :, None]).reshape(len(y), d, d * m)
+        jac = np.concatenate([jac_a, np.broadcast_to(-f, (len(y), d, m))], axis=2)
+        return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
+
+    def check_unit(self, unit_serial: str | None = None, sensors=None, units=None,
+                   where: str = "the data") -> None:
+        """Raise CalibrationFileError unless this calibration is for that unit, sensors, units."""
+        if unit_serial is not None and str(unit_serial) != self.unit_serial:
+            raise CalibrationFileError(
+                f"the calibration is for unit {self.unit_serial!r} but {where} comes from unit "
+                f"{unit_serial!r}; use that unit's calibration file")
+        if sensors is not None and tuple(sensors) != self.sensors:
+            raise CalibrationFileError(
+                f"{where} has sensors {list(sensors)} but the calibration's are "
+                f"{list(self.sensors)}; give the readings of the calibrated sensors, in its order")
+        if units is not None:
+            units = (units,) * self.m if isinstance(units, str) else tuple(units)
+            if units != self.units:
+                raise CalibrationFileError(
+                    f"{where} is in {sorted(set(units))} but the calibration expects "
+                    f"{sorted(set(self.units))}; convert the readings to SI first")
+
+    def to_document(self) -> dict:
+        """The JSON document of the file (checksum included)."""
+        doc = {
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "software_version": self.software_version, "created": self.created,
+            "conventions": dict(CONVENTIONS),
+            "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
+            "units": {"readings": list(self.units), "stimulus": self.units[0],
+                      "sensitivity": "1 (reading unit per stimulus unit)",
+                      "bias": "readings' unit", "axis_angles": "rad",
+                      "counts_per_unit": _list(self.counts_per_unit)},
+            "frame": self.frame, "magnitude": self.magnitude, "scale_known": self.scale_known,
+            "sensitivity": {"a": _list(self.a), "sigma": _list(self.a_sigma)},
+            "bias": {"b": _list(self.bias), "sigma": _list(self.bias_sigma)},
+            "invariants": {"scale_factors": _list(self.scale_factors),
+                           "scale_factors_sigma": _list(self.scale_factors_sigma),
+                           "axis_angles": _list(self.axis_angles),
+                           "axis_angles_sigma": _list(self.axis_angles_sigma)},
+            "fit": dict(self.fit), "session": self.session,
+            "covariance": _list(self.covariance),
+        }
+        doc["checksum"] = checksum(doc)
+        return doc
+
+    def dumps(self) -> str:
+        """The file's text."""
+        return _pretty(self.to_document()) + "\n"
+
+    def save(self, path, overwrite: bool = False) -> None:
+        """Write the file (atomically: a temporary file renamed into place)."""
+        path = os.fspath(path)
+        if os.path.exists(path) and not overwrite:
+            raise FileExistsError(f"{path} exists; choose another name or allow overwriting")
+        tmp = f"{path}.tmp{os.getpid()}"
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(self.dumps())
+        os.replace(tmp, path)
+
+
+def _joint_covariance(result, own_bias: bool, bias_sigma: np.ndarray) -> np.ndarray | None:
+    """Covariance of (a row-major, b): the result's own when it estimated b, else its block of a
+    beside independent biases of `bias_sigma` (measured apart, e.g. the static windows); None
+    for a result without parameter_covariance (stored before it existed)."""
+    cov = result.parameter_covariance
+    if cov is None:
+        return None
+    k = result.a.size
+    if own_bias:
+        return cov
+    joint = np.zeros((k + len(bias_sigma),) * 2)
+    joint[:k, :k] = cov[:k, :k]
+    joint[k:, k:] = np.diag(bias_sigma**2)
+    return joint
+
+
+def checksum(doc: dict) -> str:
+    """"sha256:<hex>" of the canonical JSON (sorted keys, no spaces) of doc without "checksum"."""
+    body = {k: v for k, v in doc.items() if k != "checksum"}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+def load(path, unit_serial: str | None = None, sensors=None, units=None) -> Calibration:
+    """Read a calibration file; refuse it unless it is for `unit_serial` / `sensors` / `units`
+    (each checked when given)."""
+    path = os.fspath(path)
+    try:
+        size = os.path.getsize(path)
+        if size > MAX_BYTES:
+            raise CalibrationFileError(f"{path} holds {size} bytes; a calibration file is at most "
+                                       f"{MAX_BYTES} bytes: is it the right file?")
+        with open(path, "rb") as f:
+            text = f.read(MAX_BYTES + 1).decode("utf-8")
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read calibration file {path}: {exc.strerror}") \
+            from None
+    except UnicodeDecodeError:
+        raise CalibrationFileError(f"{path} is not UTF-8 text; a calibration file is JSON") \
+            from None
+    cal = loads(text, path)
+    cal.check_unit(unit_serial, sensors, units, where="the data")
+    return cal
+
+
+def loads(text: str, where: str = "calibration") -> Calibration:
+    """Parse a calibration file's text (see `load`)."""
+    try:
+        doc = json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_no_duplicates)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, _Invalid, huge ints
+        raise CalibrationFileError(f"{where} is not valid calibration JSON ({exc})") from None
+    return _from_document(doc, where)
+
+
+class _Invalid(ValueError):
+    pass
+
+
+def _refuse_constant(name):
+    raise _Invalid(f"{name} is not a number; the file must hold finite numbers only")
+
+
+def _no_duplicates(pairs):
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        raise _Invalid(f"duplicate keys {sorted({k for k in keys if keys.count(k) > 1})}")
+    return dict(pairs)
+
+
+def _from_document(doc, where: str) -> Calibration:
+    """Check a parsed document, in order: format, version, checksum, content."""
+    def fail(problem: str, advice: str = "the file is damaged or was edited; solve the session "
+                                         "again or use an intact copy") -> CalibrationFileError:
+        return CalibrationFileError(f"{where}: {problem}; {advice}")
+
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        found = doc.get("format") if isinstance(doc, dict) else type(doc).__name__
+        raise fail(f"not an IMU station calibration file (format {found!r}, expected {FORMAT!r})",
+                   "give a file written by `station solve`")
+    version = doc.get("format_version")
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
+        raise fail(f"format_version {version!r} is not one this software reads "
+                   f"({', '.join(map(str, SUPPORTED_VERSIONS))})",
+                   "files of a newer version need newer station software")
+    unknown = sorted(set(doc) - set(_KEYS[version]))
+    missing = [k for k in _KEYS[version] if k not in doc]
+    if unknown or missing:
+        raise fail(f"unknown keys {unknown} / missing keys {missing} for format version {version}")
+    if doc["checksum"] != checksum(doc):
+        raise fail("the checksum does not match the content (it was changed after it was "
+                   "written)")
+    if doc["conventions"] != _CONVENTIONS[version]:
+        raise fail("its conventions differ from this software's (docs/conventions.md)")
+    unit, units = _dict(doc, "unit", fail), _dict(doc, "units", fail)
+    serial = _str(unit, "serial", fail)
+    sensors = _strings(unit, "sensors", fail)
+    m = len(sensors)
+    if m == 0 or len(set(sensors)) != m:
+        raise fail(f"unit.sensors {sensors} must be distinct sensor ids")
+    readings_units = _strings(units, "readings", fail)
+    bad = sorted(set(readings_units) - set(SI_UNITS))
+    if bad or len(readings_units) != m or len(set(readings_units)) != 1:
+        raise fail(f"units.readings {readings_units} must be one SI unit ({', '.join(SI_UNITS)}) "
+                   f"for all {m} sensors")
+    if units.get("stimulus") != readings_units[0]:
+        raise fail(f"units.stimulus {units.get('stimulus')!r} differs from the readings' unit")
+    sens, bias, inv = (_dict(doc, k, fail) for k in ("sensitivity", "bias", "invariants"))
+    a = _array(sens, "a", fail, ndim=2, cols=m)
+    d = a.shape[0]
+    if not 1 <= d <= m or np.linalg.matrix_rank(a) < d:
+        raise fail(f"sensitivity.a of shape {a.shape} must be d x m with rank d <= m")
+    frame, magnitude = doc["frame"], doc["magnitude"]
+    if frame not in FRAMES:
+        raise fail(f"frame {frame!r} is not one of {FRAMES}")
+    if type(magnitude) not in (int, float) or not magnitude > 0:
+        raise fail(f"magnitude {magnitude!r} must be a positive number")
+    if type(doc["scale_known"]) is not bool:
+        raise fail("scale_known must be true or false")
+    fit, session = _dict(doc, "fit", fail), doc["session"]
+    if session is not None and not isinstance(session, dict):
+        raise fail("session must be an object or null")
+    for key in ("software_version", "created"):
+        if not isinstance(doc[key], str):
+            raise fail(f"{key} must be a string")
+    cpu = units.get("counts_per_unit")
+    cpu = None if cpu is None else _array(units, "counts_per_unit", fail, shape=(m,),
+                                          positive=True)
+    a_sigma = _array(sens, "sigma", fail, shape=(d, m), sigma=True)
+    bias_sigma = _array(bias, "sigma", fail, shape=(m,), sigma=True)
+    covariance = None if doc.get("covariance") is None else \
+        _covariance(doc, np.r_[a_sigma.ravel(), bias_sigma], fail)
+    return Calibration(
+        unit_serial=serial, sensors=tuple(sensors), units=tuple(readings_units), a=a,
+        a_sigma=a_sigma, bias=_array(bias, "b", fail, shape=(m,)), bias_sigma=bias_sigma,
+        scale_factors=_array(inv, "scale_factors", fail, shape=(m,), positive=True),
+        scale_factors_sigma=_array(inv, "scale_factors_sigma", fail, shape=(m,), sigma=True),
+        axis_angles=_array(inv, "axis_angles", fail, shape=(m, m)),
+        axis_angles_sigma=_array(inv, "axis_angles_sigma", fail, shape=(m, m), sigma=True),
+        frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
+        counts_per_unit=cpu, session=session, covariance=covariance, created=doc["created"],
+        software_version=doc["software_version"])
+
+
+def _covariance(doc, sigma: np.ndarray, fail) -> np.ndarray:
+    """The joint covariance, checked: square over (a, b), symmetric, positive semi-definite, its
+    diagonal the squares of the sigmas the file states."""
+    k = sigma.size
+    cov = _array(doc, "covariance", fail, shape=(k, k))
+    scale = max(float(np.abs(cov).max()), 1e-300)
+    if np.abs(cov - cov.T).max() > 1e-12 * scale:
+        raise fail("covariance is not symmetric")
+    if np.linalg.eigvalsh(cov).min() < -1e-9 * scale:
+        raise fail("covariance is not positive semi-definite")
+    if not np.allclose(np.diag(cov), sigma**2, rtol=1e-9, atol=1e-12 * scale):
+        raise fail("the covariance's diagonal differs from the squared sigmas of a and b")
+    return cov
+
+
+def _dict(doc, key, fail) -> dict:
+    value = doc.get(key)
+    if not isinstance(value, dict):
+        raise fail(f"{key} must be an object")
+    return value
+
+
+def _str(doc, key, fail) -> str:
+    value = doc.get(key)
+    if not isinstance(value, str) or not value:
+        raise fail(f"{key} must be a non-empty string")
+    return value
+
+
+def _strings(doc, key, fail) -> list:
+    value = doc.get(key)
+    if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+        raise fail(f"{key} must be a list of non-empty strings")
+    return value
+
+
+def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positive=False):
+    """A float64 array from nested lists of JSON numbers (bool refused), checked."""
+    value = doc.get(key)
+
+    def numbers(x):
+        return all(numbers(y) for y in x) if isinstance(x, list) \
+            else type(x) in (int, float)
+
+    if not isinstance(value, list) or not numbers(value):
+        raise fail(f"{key} must be a (nested) list of numbers")
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except ValueError:
+        raise fail(f"{key} is a ragged list; give a full matrix") from None
+    if (ndim is not None and arr.ndim != ndim) or (cols is not None and arr.shape[-1:] != (cols,)) \
+            or (shape is not None and arr.shape != shape):
+        want = shape if shape is not None else f"{ndim}-D with {cols} columns"
+        raise fail(f"{key} has shape {arr.shape}, expected {want}")
+    if not np.all(np.isfinite(arr)) or (sigma and np.any(arr < 0)) \
+            or (positive and np.any(arr <= 0)):
+        raise fail(f"{key} must be finite{' and non-negative' if sigma else ''}"
+                   f"{' and positive' if positive else ''}")
+    return arr
+
+
+def _pretty(value, indent: str = "") -> str:
+    """JSON with one key per line and each vector (matrix row) on one line."""
+    inner = indent + "  "
+    if isinstance(value, dict) and value:
+        items = (f"{inner}{json.dumps(k)}: {_pretty(v, inner)}" for k, v in value.items())
+        return "{\n" + ",\n".join(items) + f"\n{indent}}}"
+    if isinstance(value, list) and value and isinstance(value[0], list):
+        return "[\n" + ",\n".join(inner + _pretty(v, inner) for v in value) + f"\n{indent}]"
+    return json.dumps(value, allow_nan=False)
+
+
+def _list(x):
+    """Nested lists of Python floats (repr round-trips exactly), None for None."""
+    return None if x is None else np.asarray(x, dtype=np.float64).tolist()
+
+

@@ -1,0 +1,80 @@
+"""A C header with a calibration, for firmware that fuses the sensors itself.
+
+For the m readings z of one instant (SI units) the firmware computes the calibrated d-vector
+
+    v[k] = sum_i FUSION[k][i] * (z[i] - BIAS[i])        (v = (a a^T)^-1 a (z - b))
+
+and, from raw counts, z[i] = counts[i] / COUNTS_PER_UNIT[i]. The header holds the fusion matrix,
+the biases and the counts scale as `static const float` (or double) arrays with their units in
+comments, plus the unit's serial, the sensor order, the frame and the calibration file's checksum
+so the firmware image can be traced back to the calibration.
+"""
+
+import re
+
+import numpy as np
+
+from station.files.calfile import Calibration
+
+CTYPES = ("float", "double")
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}\Z")
+
+
+def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") -> str:
+    """The header text; `prefix` names the macros and arrays (a C identifier, e.g. IMU_CAL)."""
+    if not _IDENT.match(prefix):
+        raise ValueError(f"prefix {prefix!r} is not a C identifier (letters, digits, '_', not "
+                         "starting with a digit, at most 32 characters)")
+    if ctype not in CTYPES:
+        raise ValueError(f"C type {ctype!r}: choose one of {CTYPES}")
+    d, m = cal.d, cal.m
+    unit = cal.units[0]
+    guard = f"{prefix.upper()}_H"
+    lines = [
+        (f"/* Calibration of IMU unit {_comment(cal.unit_serial)}, written by imu-station "
+         f"{_comment(cal.software_version)}."),
+        (f" * Calibrated {_comment(cal.created)}; calibration file checksum "
+         f"{_comment(_checksum(cal))}."),
+        f" * Sensors (index i): {_comment(', '.join(cal.sensors))}.",
+        f" * Frame of v: {cal.frame} (docs/conventions.md); fit: {_comment(cal.fit.get('method'))}.",
+        " *",
+        f" *   z[i] = counts[i] / {prefix}_COUNTS_PER_UNIT[i]                 ({unit})",
+        f" *   v[k] = sum_i {prefix}_FUSION[k][i] * (z[i] - {prefix}_BIAS[i])   ({unit})",
+        " */",
+        f"#ifndef {guard}",
+        f"#define {guard}",
+        "",
+        f"#define {prefix}_D {d}  /* components of v */",
+        f"#define {prefix}_M {m}  /* sensors */",
+        "",
+        f"/* least-squares fusion matrix (a a^T)^-1 a, {d} x {m}, {unit} per {unit} */",
+        f"static const {ctype} {prefix}_FUSION[{d}][{m}] = {{",
+        *(f"    {{{_row(row, ctype)}}}," for row in cal.fusion_matrix()),
+        "};",
+        "",
+        f"/* bias of each sensor, {unit}, subtracted before fusion */",
+        f"static const {ctype} {prefix}_BIAS[{m}] = {{{_row(cal.bias, ctype)}}};",
+    ]
+    if cal.counts_per_unit is not None:
+        lines += ["", f"/* raw counts per {unit} of each sensor */",
+                  (f"static const {ctype} {prefix}_COUNTS_PER_UNIT[{m}] = "
+                   f"{{{_row(cal.counts_per_unit, ctype)}}};")]
+    lines += ["", f"#endif /* {guard} */", ""]
+    return "\n".join(lines)
+
+
+def _row(values, ctype: str) -> str:
+    """C literals: the shortest text that round-trips the float32 (with an f suffix) or the
+    float64 value."""
+    if ctype == "float":
+        return ", ".join(f"{np.float32(x)!s}f" for x in values)
+    return ", ".join(repr(float(x)) for x in values)
+
+
+def _comment(text) -> str:
+    """Text safe inside a C comment (untrusted strings cannot close it or start a directive)."""
+    return re.sub(r"[^A-Za-z0-9 _.,:;=+\-/()^]", "?", str(text))
+
+
+def _checksum(cal: Calibration) -> str:
+    return cal.to_document()["checksum"]

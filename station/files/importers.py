@@ -1,0 +1,385 @@
+"""Foreign recordings into session files (docs/session-format.md), as `station import` does.
+
+Three formats, every file treated as untrusted input (sizes, types and values checked before use,
+nothing unpickled or evaluated; errors are `CalibrationInputError`s naming the problem and the fix):
+
+- `import_text`: whitespace-separated tables `t x y z` (imu_tk's `.mat` files are such text; MATLAB
+  v5 files with one numeric array are read too), one file per stream, time in seconds;
+- `import_csv`: a CSV file with a header of column names (imucal's sessions), one stream per group
+  of named columns, time from a column of seconds or of sample numbers at a given rate;
+- `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
+  `rate_cmd`, `c_cmd`, `seg_*`, `a_nominal`, optional `angle`), loaded with `allow_pickle=False`
+  after its array headers were checked. The session holds the counts, the table's angle and rate as
+  table states and the protocol's events, so `station.protocols.rotary.reduce_session` reduces it.
+
+Units: each stream's numbers are in a `unit` given by the user: an SI unit (`m/s^2`, `rad/s`, `T`),
+a known other one (`g`, `deg/s`, `uT`, `gauss`), or raw counts of a quantity, `counts:m/s^2`, with
+their scale when known, `counts:m/s^2@415` (counts per SI unit; default 1: readings then stay in
+counts, the calibration's `a` is in counts per SI unit). Numbers that are not raw counts are stored
+as fixed-point integers, `FIXED_POINT` counts per unit given (an error below 5e-7 of that unit).
+"""
+
+import csv
+import hashlib
+import math
+import re
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.rotary_table import TableReading
+from drivers.samples import SampleBlock
+from station.errors import CalibrationInputError
+from station.reduce.free_static import read_table
+from station.files.session import SessionWriter, StreamSpec
+
+FIXED_POINT = 1e6
+"""Counts per given unit for numbers that are not raw counts."""
+
+UNITS = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", 9.80665), "rad/s": ("rad/s", 1.0),
+         "deg/s": ("rad/s", math.pi / 180), "T": ("T", 1.0), "uT": ("T", 1e-6),
+         "gauss": ("T", 1e-4)}
+"""unit -> (SI unit, SI units per unit)."""
+
+MAX_BYTES = 1 << 31
+"""Largest array (uncompressed) an imported file may hold."""
+
+NPZ_KEYS = {"y": 3, "lsb": None, "fs": 0, "t0": 1, "rate_cmd": 1, "c_cmd": 0, "seg_static": 1,
+            "seg_spinup": 1, "seg_settle": 1, "seg_rotating": 1, "seg_spindown": 1,
+            "a_nominal": 2}
+"""Required keys of a rotary array file and their number of dimensions (None: 0 or 1)."""
+
+
+@dataclass(frozen=True)
+class Unit:
+    """What the numbers of a stream are: `si` unit, `raw` counts or not, and the counts per SI
+    unit of the stored integers."""
+
+    si: str
+    raw: bool
+    counts_per_unit: float
+
+    @classmethod
+    def parse(cls, spec: str) -> "Unit":
+        """`m/s^2`, `deg/s`, ..., or `counts:<SI unit>[@<counts per SI unit>]`."""
+        match = re.fullmatch(r"counts:([^@]+)(?:@(.+))?", spec.strip())
+        if match:
+            si, scale = match.group(1), match.group(2)
+            if si not in ("m/s^2", "rad/s", "T"):
+                raise CalibrationInputError(f"unit {spec!r}: raw counts of {si!r}?",
+                                            "Write counts:m/s^2, counts:rad/s or counts:T.")
+            try:
+                value = 1.0 if scale is None else float(scale)
+            except ValueError:
+                value = math.nan
+            if not (math.isfinite(value) and value > 0):
+                raise CalibrationInputError(f"unit {spec!r}: scale {scale!r} is not positive.",
+                                            "Give counts per SI unit, e.g. counts:m/s^2@415.")
+            return cls(si, True, value)
+        if spec not in UNITS:
+            raise CalibrationInputError(
+                f"unknown unit {spec!r}.",
+                f"Use one of {', '.join(UNITS)} or counts:<SI unit>[@<counts per SI unit>].")
+        si, factor = UNITS[spec]
+        return cls(si, False, FIXED_POINT / factor)
+
+
+def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED",
+                fs: float | None = None) -> Path:
+    """Import tables `t x y z ...` (one file per stream: name -> path) into a new session `out`.
+
+    units : stream name -> unit spec (see the module docstring). Streams must share their time
+    stamps when there are several. fs: nominal rate (default: from the median time step).
+    """
+    _check_names(streams, units)
+    tables = {name: read_table(path, _columns(path)) for name, path in streams.items()}
+    times = {name: t[:, 0] for name, t in tables.items()}
+    first = next(iter(times.values()))
+    for name, t in times.items():
+        if t.shape != first.shape or not np.array_equal(t, first):
+            raise CalibrationInputError(f"stream {name!r} has other time stamps than the first.",
+                                        "Import streams recorded on different clocks separately.")
+    values = {name: t[:, 1:] for name, t in tables.items()}
+    sources = {name: str(path) for name, path in streams.items()}
+    return _write(out, "text", sources, values, units, first, None, fs, unit_serial)
+
+
+def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None = None,
+               index_column: str | None = None, fs: float | None = None,
+               unit_serial: str = "IMPORTED") -> Path:
+    """Import a CSV file with a header row into a new session `out`.
+
+    streams : stream name -> list of column names (e.g. {"acc": ["acc_x", "acc_y", "acc_z"]})
+    units   : stream name -> unit spec
+    Time: `time_column` (seconds), or `index_column` (sample numbers) with `fs`, or rows at `fs`.
+    """
+    _check_names(streams, units)
+    path = Path(path)
+    header = _csv_header(path)
+    wanted = [c for cols in streams.values() for c in cols]
+    for extra in (time_column, index_column):
+        if extra is not None:
+            wanted.append(extra)
+    missing = [c for c in wanted if c not in header]
+    if missing or len(set(wanted)) != len(wanted):
+        raise CalibrationInputError(
+            f"{path}: columns {missing or wanted} missing or named twice (header: {header}).",
+            "Name each column once, as spelled in the file's first line.")
+    if (time_column is None) == (fs is None) and index_column is None:
+        raise CalibrationInputError("give either a time column or a sample rate fs.",
+                                    "Use --time COLUMN (seconds) or --fs HZ (with --index COLUMN).")
+    if index_column is not None and fs is None:
+        raise CalibrationInputError("an index column needs the sample rate fs.", "Give --fs HZ.")
+    try:
+        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2,
+                           usecols=[header.index(c) for c in wanted])
+    except ValueError as exc:
+        raise CalibrationInputError(f"{path}: the chosen columns are not all numbers ({exc}).",
+                                    "Pick numeric columns; text columns are not imported.") from None
+    if not np.all(np.isfinite(table)):
+        raise CalibrationInputError(f"{path}: the chosen columns hold NaN or infinite values.",
+                                    "Remove or interpolate the invalid rows first.")
+    by_name = {c: table[:, i] for i, c in enumerate(wanted)}
+    seq = None
+    if time_column is not None:
+        t = by_name[time_column]
+    elif index_column is not None:
+        seq = _integers(by_name[index_column], f"{path}: column {index_column!r}")
+        t = seq / fs
+    else:
+        t = np.arange(len(table)) / fs
+    values = {name: np.column_stack([by_name[c] for c in cols]) for name, cols in streams.items()}
+    return _write(out, "csv", {name: str(path) for name in streams}, values, units, t, seq, fs,
+                  unit_serial)
+
+
+def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:
+    """Import a rotary array file (docs/simulator.md) into a new session `out` that
+    `station.protocols.rotary.reduce_session` reduces like `station.reduce.eq18.reduce_arrays`."""
+    arrays = read_npz(path, max_bytes)
+    y, lsb, fs = arrays["y"], arrays["lsb"], float(arrays["fs"])
+    n, k, m = y.shape
+    start = np.round(arrays["t0"] * fs).astype(np.int64)
+    if np.any(np.diff(start) < k):
+        raise CalibrationInputError(f"{path}: positions overlap in time (t0 steps shorter than "
+                                    f"{k} samples at {fs:g} Hz).", "Check t0, fs and y.")
+    angle = arrays.get("angle")
+    if angle is None:
+        rate = arrays["rate_cmd"]
+        angle = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]))]) / fs
+    angle = np.broadcast_to(angle, (n, k))
+    swept = angle[:, -1] - angle[:, 0]  # the table's angle keeps counting across positions
+    angle = angle - angle[:, :1] + np.concatenate([[0.0], np.cumsum(swept)[:-1]])[:, None]
+    spec = StreamSpec([f"g{i + 1}" for i in range(m)], "rad/s", 1.0 / np.broadcast_to(lsb, (m,)),
+                      fs, "int64" if y.dtype.itemsize > 4 else "int32", "imported-npz")
+    metadata = {"protocol": "rotary", "unit_serial": unit_serial,
+                "a_nominal": arrays["a_nominal"].tolist(), "settings": {"rate": float(arrays["c_cmd"])},
+                "import": {"format": "npz", "source": str(path), "sha256": _sha256(path)}}
+    with SessionWriter.create(out, metadata, {"imu": spec}, clock=_Fixed(start[0] / fs)) as w:
+        for j in range(n):
+            seq = start[j] + np.arange(k)
+            t = seq / fs
+            w.append("imu", SampleBlock(y[j].astype(np.int64), seq, t, t, spec.channels))
+            w.append_table(_table_states(t, arrays, angle[j]))
+            _rotary_events(w, j, start[j], fs, arrays, angle[j])
+    return Path(out)
+
+
+def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
+    """The checked arrays of a rotary array file: headers first (no object arrays, at most
+    `max_bytes` each), then loaded without pickle, then types, shapes and values."""
+    path = Path(path)
+    headers = _npz_headers(path, max_bytes)
+    missing = sorted(set(NPZ_KEYS) - set(headers))
+    if missing:
+        raise CalibrationInputError(f"{path} lacks the arrays {missing}.",
+                                    "Give a rotary array file (docs/simulator.md).")
+    with np.load(path, allow_pickle=False) as f:
+        arrays = {key: f[key] for key in [*NPZ_KEYS, *(["angle"] if "angle" in headers else [])]}
+    for key, ndim in NPZ_KEYS.items():
+        a = arrays[key]
+        dims_ok = a.ndim <= 1 if ndim is None else a.ndim == ndim
+        if a.dtype.kind not in "iuf" or not dims_ok or not np.all(np.isfinite(a)):
+            raise CalibrationInputError(f"{path}: {key} is a {a.ndim}-D {a.dtype} array (finite "
+                                        f"numbers of {ndim if ndim is not None else '0 or 1'} "
+                                        "dimensions expected).", "Check the file's writer.")
+    y = arrays["y"]
+    if y.dtype.kind not in "iu" or 0 in y.shape:
+        raise CalibrationInputError(f"{path}: y is a {y.dtype} array of shape {y.shape}.",
+                                    "y holds integer counts, (positions, samples, sensors).")
+    n, k, m = y.shape
+    shapes = {"lsb": [(), (m,)], "t0": [(n,)], "rate_cmd": [(k,)], "a_nominal": [(3, m)],
+              "angle": [(k,), (n, k)]}
+    for key, allowed in shapes.items():
+        if key in arrays and arrays[key].shape not in allowed:
+            raise CalibrationInputError(f"{path}: {key} has shape {arrays[key].shape}, expected "
+                                        f"{' or '.join(map(str, allowed))}.", "Check the file.")
+    if "angle" in arrays and not np.all(np.isfinite(arrays["angle"])):
+        raise CalibrationInputError(f"{path}: angle holds NaN or infinite values.", "Check it.")
+    if not (np.all(arrays["lsb"] > 0) and arrays["fs"] > 0):
+        raise CalibrationInputError(f"{path}: lsb and fs must be positive.", "Check the file.")
+    for key in (k for k in NPZ_KEYS if k.startswith("seg_")):
+        s = arrays[key]
+        if s.shape != (2,) or s.dtype.kind not in "iu" or not 0 <= s[0] < s[1] <= k:
+            raise CalibrationInputError(f"{path}: {key} = {s.tolist()} is not a [start, stop) "
+                                        f"window within 0..{k}.", "Check the file.")
+    return arrays
+
+
+# ----------------------------------------------------------------------------------- internals
+
+
+class _Fixed:
+    """A clock standing at one time (the recording's start): imported events carry their own."""
+
+    def __init__(self, t: float):
+        self.t = float(t)
+
+    def now(self) -> float:
+        return self.t
+
+
+def _write(out, fmt, sources, values, units, t, seq, fs, unit_serial) -> Path:
+    """One session: a stream per entry of `values` ((K, c) numbers in the units given)."""
+    t = np.asarray(t, float)
+    if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise CalibrationInputError("the time stamps are not strictly increasing (or fewer than 2 "
+                                    "samples).", "Sort the rows by time and drop repeated rows.")
+    rate = float(fs) if fs is not None else 1.0 / float(np.median(np.diff(t)))
+    if not (math.isfinite(rate) and rate > 0):
+        raise CalibrationInputError(f"sample rate {fs!r} is not positive.", "Give fs in Hz.")
+    seq = np.arange(len(t), dtype=np.int64) if seq is None else np.asarray(seq, np.int64)
+    specs, blocks, notes = {}, {}, {}
+    for name, v in values.items():
+        unit = Unit.parse(units[name])
+        counts = _counts(v, unit, name)
+        specs[name] = StreamSpec([f"{name}{i + 1}" for i in range(v.shape[1])], unit.si,
+                                 unit.counts_per_unit, rate, "int64", f"imported-{fmt}")
+        blocks[name] = SampleBlock(counts, seq, t, t, specs[name].channels)
+        notes[name] = {"unit": units[name], "raw_counts": unit.raw}
+    metadata = {"protocol": "import", "unit_serial": unit_serial,
+                "import": {"format": fmt, "streams": notes,
+                           "sources": {n: {"path": p, "sha256": _sha256(p)}
+                                       for n, p in sources.items()}}}
+    with SessionWriter.create(out, metadata, specs, clock=_Fixed(t[0])) as w:
+        for name, block in blocks.items():
+            w.append(name, block)
+    return Path(out)
+
+
+def _counts(values, unit: Unit, name: str) -> np.ndarray:
+    """Integer counts of `values`: exact raw counts, or fixed point."""
+    v = np.asarray(values, float)
+    if unit.raw:
+        return _integers(v, f"stream {name!r} (raw counts)")
+    scaled = v * FIXED_POINT
+    if np.any(np.abs(scaled) >= 2.0**62):
+        raise CalibrationInputError(f"stream {name!r} holds numbers too large for its unit.",
+                                    "Check the unit given for it.")
+    return np.rint(scaled).astype(np.int64)
+
+
+def _integers(v, what: str) -> np.ndarray:
+    v = np.asarray(v, float)
+    if not np.all(v == np.round(v)) or np.any(np.abs(v) >= 2.0**62):
+        raise CalibrationInputError(f"{what} holds numbers that are not integers.",
+                                    "Give a physical unit for it instead of counts.")
+    return v.astype(np.int64)
+
+
+def _check_names(streams: dict, units: dict) -> None:
+    if not streams:
+        raise CalibrationInputError("no stream to import.", "Name at least one stream.")
+    for name in streams:
+        if not re.fullmatch(r"[a-z][a-z0-9_]{0,31}", str(name)) or name == "table":
+            raise CalibrationInputError(f"stream name {name!r} is not a lower-case identifier.",
+                                        "Use e.g. accel, gyro, acc (not table).")
+        if name not in units:
+            raise CalibrationInputError(f"no unit given for stream {name!r}.",
+                                        f"Give one, e.g. --unit {name}=m/s^2 or counts:m/s^2.")
+
+
+def _columns(path) -> int:
+    """Number of columns of a text table's first line (MATLAB files: checked by read_table)."""
+    with open(path, "rb") as f:
+        line = f.readline(1 << 16)
+    try:
+        return max(2, len(line.decode("ascii").split()))
+    except UnicodeDecodeError:
+        return 4  # not text: read_table reads it as a MATLAB file and checks the columns
+
+
+def _csv_header(path: Path) -> list:
+    try:
+        with path.open(newline="", encoding="utf-8") as f:
+            header = next(csv.reader(f), None)
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationInputError(f"cannot read {path} as UTF-8 CSV ({exc}).",
+                                    "Give a CSV file with a header line.") from None
+    if not header:
+        raise CalibrationInputError(f"{path} is empty.", "Give a CSV file with a header line.")
+    return [h.strip() for h in header]
+
+
+def _npz_headers(path: Path, max_bytes: int) -> dict:
+    """{name: (shape, dtype)} from the .npy headers inside a zip, refusing object arrays and
+    arrays larger than max_bytes, before anything is decompressed."""
+    out = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    raise CalibrationInputError(f"{path} holds {info.filename!r}, not an array.",
+                                                "Give an .npz written by numpy.savez.")
+                with zf.open(info) as f:
+                    major, _ = np.lib.format.read_magic(f)
+                    read = (np.lib.format.read_array_header_1_0 if major == 1
+                            else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read(f)
+                if dtype.hasobject or dtype.kind not in "iuf":
+                    raise CalibrationInputError(f"{path}: {info.filename} is of type {dtype}.",
+                                                "Only integer and float arrays are read.")
+                if math.prod(shape) * dtype.itemsize > max_bytes:
+                    raise CalibrationInputError(f"{path}: {info.filename} {shape} exceeds "
+                                                f"{max_bytes} bytes.", "Split the recording.")
+                out[info.filename[:-4]] = (shape, dtype)
+    except (zipfile.BadZipFile, ValueError, OSError) as exc:
+        if isinstance(exc, CalibrationInputError):
+            raise
+        raise CalibrationInputError(f"{path} is not a readable .npz file ({exc}).",
+                                    "Give an array file written by numpy.savez.") from None
+    return out
+
+
+def _table_states(t, arrays, angle) -> list:
+    """One table state per sample of a position: the commanded rate and the table's angle."""
+    rate, c = arrays["rate_cmd"], float(arrays["c_cmd"])
+    settle, rotating = arrays["seg_settle"], arrays["seg_rotating"]
+    return [TableReading(t[i], rate[i], angle[i], c if rate[i] else 0.0, bool(rate[i]), True,
+                         bool(rate[i]), bool(settle[0] <= i < rotating[1]), False)
+            for i in range(len(t))]
+
+
+def _rotary_events(w, j, start, fs, arrays, angle) -> None:
+    """Events of position j: window edges half a sample before their first and after their last
+    sample (clock = sample number / fs), as the rotary protocol records them."""
+    def edge(i):
+        return (start + i - 0.5) / fs
+
+    static, rotating = arrays["seg_static"], arrays["seg_rotating"]
+    w.event("position_start", j, time=edge(0))
+    w.event("static_start", j, time=edge(static[0]))
+    w.event("static_end", j, time=edge(static[1]))
+    w.event("rotate_start", j, {"angle": float(angle[rotating[0]])}, time=edge(rotating[0]))
+    w.event("rotate_end", j, {"angle": float(angle[rotating[1] - 1])}, time=edge(rotating[1]))
+    w.event("position_done", j, time=edge(len(arrays["rate_cmd"])))
+
+
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

@@ -1,0 +1,144 @@
+"""The free-static calibration path (multi-position method of Tedaldi et al.; DESIGN.md section 5).
+
+A continuous raw recording -> automatically detected still intervals (station.reduce.stillness) -> the
+accelerometer's averaged readings M (3 x P, one column per pose) -> `station.calibrate(M,
+magnitude=g_local, bias="estimate")` (ellipsoid closed form + maximum likelihood); the gyro biases are
+the gyro means over the still interval that holds the rest period.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+
+from station.solve.calibrate import CalibrationResult, calibrate
+from station.errors import CalibrationInputError
+from station.reduce.stillness import StillIntervals, detect_still
+
+MAT5_MAGIC = b"MATLAB 5.0 MAT-file"
+
+
+@dataclass(frozen=True)
+class FreeStaticCalibration:
+    """Result of the free-static path; units are those of the input (e.g. raw counts).
+
+    still : the detected still intervals over the accelerometer (and gyro) channels.
+    readings, readings_stderr : (m, P) accelerometer means per interval and their standard errors.
+    accel : the accelerometer calibration (a in input units per m/s^2, canonical frame).
+    rest_index : index of the still interval holding the rest period.
+    gyro_bias, gyro_bias_sigma : gyro means over that interval and their standard errors,
+                                 or None without a gyro.
+    """
+
+    still: StillIntervals
+    readings: np.ndarray
+    readings_stderr: np.ndarray
+    accel: CalibrationResult
+    rest_index: int
+    gyro_bias: np.ndarray | None
+    gyro_bias_sigma: np.ndarray | None
+
+
+def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **detector):
+    """Calibrate m >= 3 accelerometers from a free-static recording accel (K, m), fs in Hz.
+
+    A triad goes through the ellipsoid closed form, more sensors through the joint-bias factorization
+    (Hwangbo & Kanade p = 4); both are refined by maximum likelihood.
+    gyro     optional (K, k) gyro samples: used for stillness detection too, biases from the rest.
+    detector options of `station.reduce.stillness.detect_still` (rest, window, enter, leave, ...).
+    """
+    acc = np.asarray(accel, dtype=float)
+    if acc.ndim != 2 or acc.shape[1] < 3:
+        raise CalibrationInputError(
+            f"accelerometer samples have shape {acc.shape}.",
+            "Give a (samples, m) array with m >= 3 accelerometer channels.",
+        )
+    m = acc.shape[1]
+    channels = acc
+    if gyro is not None:
+        gyro = np.asarray(gyro, dtype=float)
+        if gyro.ndim != 2 or gyro.shape[0] != acc.shape[0]:
+            raise CalibrationInputError(
+                f"gyro samples have shape {gyro.shape}, accelerometer {acc.shape}.",
+                "Give both streams on the same time base, one row per sample.",
+            )
+        channels = np.hstack([acc, gyro])
+    still = detect_still(channels, fs, **detector)
+    readings, stderr = still.mean[:, :m].T, still.stderr[:, :m].T
+    fit = calibrate(readings, g_local, d=3, bias="estimate")  # refuses too few poses, with advice
+    rest_index = _interval_holding(still.intervals, still.rest)
+    return FreeStaticCalibration(
+        still=still,
+        readings=readings,
+        readings_stderr=stderr,
+        accel=fit,
+        rest_index=rest_index,
+        gyro_bias=None if gyro is None else still.mean[rest_index, m:],
+        gyro_bias_sigma=None if gyro is None else still.stderr[rest_index, m:],
+    )
+
+
+def leave_one_out(readings, g_local: float) -> np.ndarray:
+    """(P,) |a_j| - g_local for each pose j calibrated by the fit on the other P - 1 poses."""
+    readings = np.asarray(readings, dtype=float)
+    p = readings.shape[1]
+    errors = np.empty(p)
+    for j in range(p):
+        fit = calibrate(np.delete(readings, j, axis=1), g_local, d=3, bias="estimate")
+        errors[j] = np.linalg.norm(fit.apply(readings[:, j])) - g_local
+    return errors
+
+
+def read_table(path, columns: int) -> np.ndarray:
+    """(K, columns) numbers from a whitespace-separated text file or a MATLAB v5 .mat file.
+
+    A .mat file must hold exactly one numeric 2-D array; it is read without pickle or object arrays.
+    """
+    path = Path(path)
+    with path.open("rb") as f:
+        head = f.read(len(MAT5_MAGIC))
+    if head == MAT5_MAGIC:
+        table = _single_mat_array(path)
+    else:
+        try:
+            table = np.loadtxt(path, dtype=float, ndmin=2)
+        except ValueError as exc:
+            raise CalibrationInputError(
+                f"{path} is neither a MATLAB v5 file nor a table of numbers ({exc}).",
+                "Give a whitespace-separated numeric table or a .mat file with one numeric array.",
+            ) from None
+    if table.ndim != 2 or table.shape[1] != columns or not np.all(np.isfinite(table)):
+        raise CalibrationInputError(
+            f"{path} holds a {table.shape} table (finite: {bool(np.all(np.isfinite(table)))}); "
+            f"expected {columns} finite columns.",
+            "Check the file's format description (PROVENANCE.md) and the column count.",
+        )
+    return table
+
+
+def _single_mat_array(path: Path) -> np.ndarray:
+    """The one numeric array of a MATLAB v5 file, refusing structs, cells and several variables."""
+    variables = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
+    if len(variables) != 1:
+        raise CalibrationInputError(
+            f"{path} holds variables {sorted(variables)}.", "Save exactly one numeric matrix."
+        )
+    (table,) = variables.values()
+    if table.dtype.kind not in "iuf":
+        raise CalibrationInputError(
+            f"{path} holds a {table.dtype} array.",
+            "Save a plain numeric matrix (no cells/structs).",
+        )
+    return table.astype(float)
+
+
+def _interval_holding(intervals: np.ndarray, rest: np.ndarray) -> int:
+    """Index of the interval overlapping the rest period most."""
+    overlap = np.minimum(intervals[:, 1], rest[1]) - np.maximum(intervals[:, 0], rest[0])
+    if overlap.max() <= 0:
+        raise CalibrationInputError(
+            f"no still interval covers the rest period [{rest[0]}, {rest[1]}).",
+            "Check that the rest period is really at rest (or let the detector choose it).",
+        )
+    return int(np.argmax(overlap))

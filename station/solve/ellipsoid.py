@@ -1,0 +1,67 @@
+"""Closed-form start for a triad with unknown biases from arbitrary static orientations.
+
+With m = d sensors, z_j = a^T v_j + b and |v_j| = c give (z_j - b)^T (a^T a)^-1 (z_j - b) = c^2: the
+readings lie on an ellipsoid. An algebraic quadric fit (z^T Q z + l . z + k = 0, least squares on the
+unit-norm coefficient vector) gives its centre b and shape; a Cholesky factor of the shape gives a in
+the canonical upper-triangular frame of Eq. (19). Maximum likelihood (station/solve/ml.py) then refines it.
+"""
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+
+
+def quadric_terms(z: np.ndarray) -> np.ndarray:
+    """Monomials of a general quadric in d variables per reading: (n, d(d+1)/2 + d + 1)."""
+    d, n = z.shape
+    rows, cols = np.triu_indices(d)
+    return np.hstack([(z[rows] * z[cols]).T, z.T, np.ones((n, 1))])
+
+
+def ellipsoid_calibration(readings, magnitude: float = 1.0):
+    """Sensitivity a (d x d, canonical frame), stimuli v (d x n) and bias b (d,) of a triad.
+
+    Readings are d x n static averages in arbitrary orientations (no opposite pairs needed).
+    """
+    z = np.asarray(readings, dtype=float)
+    d, n = z.shape
+    unknowns = d * (d + 1) // 2 + d + 1
+    if n < unknowns - 1:
+        raise CalibrationInputError(
+            f"{n} static positions cannot fix the biases and the {d}x{d} shape of a triad "
+            f"(an ellipsoid fit needs at least {unknowns - 1}).",
+            f"Record {unknowns - 1 - n} more static positions in new orientations spread over "
+            "the sphere, or give the biases.",
+        )
+    centre = z.mean(axis=1, keepdims=True)
+    span = np.abs(z - centre).max()
+    terms = quadric_terms((z - centre) / span)  # centred and scaled for conditioning
+    _, s, vt = np.linalg.svd(terms, full_matrices=False)
+    if s[-2] <= 1e-10 * s[0]:
+        raise CalibrationInputError(
+            "the static orientations do not determine an ellipsoid (they lie on a plane or a "
+            "cone, e.g. rotations about one axis only).",
+            "Add orientations that tilt the unit about the other axes (up, down and sideways).",
+        )
+    coef = vt[-1]
+    rows, cols = np.triu_indices(d)
+    quad = np.zeros((d, d))
+    quad[rows, cols] = coef[: len(rows)]
+    quad = (quad + quad.T) / 2  # off-diagonal monomials carry the full coefficient
+    lin, const = coef[len(rows) : len(rows) + d], coef[-1]
+    centre_u = -np.linalg.solve(2 * quad, lin)
+    level = centre_u @ quad @ centre_u - const
+    shape = quad / level  # (u - u0)^T shape (u - u0) = 1 in scaled units
+    lam = np.linalg.eigvalsh(shape)
+    if lam.min() <= 0:
+        raise CalibrationInputError(
+            "the readings do not lie on an ellipsoid (the fitted quadric is not closed).",
+            "Check units and that the unit was static in each position; add positions spread "
+            "over the sphere.",
+        )
+    bias = centre[:, 0] + span * centre_u
+    # (z - b)^T shape (z - b) = span^2 and (z - b)^T (a^T a)^-1 (z - b) = c^2
+    gram = np.linalg.inv(shape) * (span / magnitude) ** 2  # a^T a
+    a = np.linalg.cholesky(gram).T  # upper triangular, positive diagonal
+    v = np.linalg.solve(a.T, z - bias[:, None])
+    return a, v * magnitude / np.linalg.norm(v, axis=0), bias

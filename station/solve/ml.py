@@ -1,0 +1,261 @@
+"""Maximum-likelihood refinement on the reading residuals (Levenberg-Marquardt, Schur complement).
+
+Model (docs/conventions.md): z_ij = a_i . v_j + b_i + noise_ij, noise_ij ~ N(0, sigma_ij^2), with
+|v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and the stimuli v,
+parametrised by station/solve/poses.py (a free direction per position, or one rotation per rigid group of
+positions of a right-angle iron, or a free vector per position whose magnitude is a random effect
+|v_j| = c (1 + delta_j), delta_j ~ N(0, s^2), with one extra residual row (|v_j| - c) / (c s) per
+position: the h-likelihood, whose maximum over a is the marginal-likelihood estimate of the
+linearised model). This replaces the constraint cost of Hwangbo & Kanade (ill-posed for m > 3) by
+the likelihood of the readings themselves.
+
+Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_i) that never couple
+with each other directly; the local parameters split per position group. The normal equations are
+solved by eliminating the local blocks (Schur complement), so an iteration costs O(m^2 n d^3)
+instead of a dense solve. The rotation gauge (Remark 1 of Rupniewski) leaves d(d-1)/2 flat
+directions; the Marquardt damping keeps the steps finite and the gradient has no component along them.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.errors import CalibrationInputError
+from station.solve.poses import Directions, SoftMagnitudes, rigid_groups
+
+
+@dataclass(frozen=True)
+class NormalEquations:
+    """Blocks of J^T W J and J^T W r at one point (see `normal_equations`)."""
+
+    h_global: np.ndarray  # (m, p, p)   per-sensor block, p = d (+1 with bias)
+    h_local: np.ndarray  # (G, k, k)   per-group block
+    h_cross: np.ndarray  # (m, G, p, k) sensor-group coupling
+    g_global: np.ndarray  # (m, p)
+    g_local: np.ndarray  # (G, k)
+
+
+@dataclass(frozen=True)
+class MLFit:
+    """Result of `refine`: the estimate, its residuals and the noise level."""
+
+    a: np.ndarray  # (d, m)
+    v: np.ndarray  # (d, n), |v_j| = magnitude (about it, with a magnitude spread)
+    bias: np.ndarray | None  # (m,) when estimated or given
+    residuals: np.ndarray  # (m, n) readings - model, output units
+    sigma: np.ndarray  # (m, n) noise standard deviation used as weight (estimated when not given)
+    sigma_estimated: bool
+    chi2: float  # sum of squared normalised residuals (and prior rows, with a magnitude spread)
+    dof: int  # m n (+ prior rows) - number of free parameters (gauge removed)
+    iterations: int
+    normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
+
+
+def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
+    """Sum per-position terms over each group along `axis` (identity for one position per group)."""
+    if isinstance(poses, (Directions, SoftMagnitudes)):
+        return x
+    x = np.moveaxis(x, axis, 0)
+    out = np.zeros((poses.count,) + x.shape[1:])
+    np.add.at(out, poses.group, x)
+    return np.moveaxis(out, 0, axis)
+
+
+def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations, np.ndarray]:
+    """Blocks of the Gauss-Newton normal equations and the residuals (readings - model)."""
+    v = poses.vectors()
+    n = v.shape[1]
+    x = v.T if bias is None else np.hstack([v.T, np.ones((n, 1))])  # d prediction / d theta_i
+    local = np.einsum("di,ndk->ink", a, poses.jacobian())  # d prediction_ij / d local_j
+    resid = readings - a.T @ v - (0.0 if bias is None else bias[:, None])
+    wr = weight * resid
+    h_local = _by_group(np.einsum("in,ink,inl->nkl", weight, local, local), poses, 0)
+    g_local = _by_group(np.einsum("in,ink->nk", wr, local), poses, 0)
+    if isinstance(poses, SoftMagnitudes):
+        prior, jac = poses.prior()
+        h_local = h_local + np.einsum("nk,nl->nkl", jac, jac)
+        g_local = g_local + prior[:, None] * jac
+    neq = NormalEquations(
+        h_global=np.einsum("in,np,nq->ipq", weight, x, x),
+        h_local=h_local + _null_identity(poses),
+        h_cross=_by_group(np.einsum("in,np,ink->inpk", weight, x, local), poses, 1),
+        g_global=wr @ x,
+        g_local=g_local,
+    )
+    return neq, resid
+
+
+def prior_rows(poses) -> np.ndarray:
+    """Residuals of the pose prior, (n,) for soft magnitudes, none for hard constraints."""
+    return poses.prior()[0] if isinstance(poses, SoftMagnitudes) else np.zeros(0)
+
+
+def cost(poses, weight, resid) -> float:
+    """The minimised objective: weighted squared residuals plus prior rows (-2 log h-likelihood)."""
+    return float(np.sum(weight * resid**2) + np.sum(prior_rows(poses) ** 2))
+
+
+def _null_identity(poses) -> np.ndarray:
+    """Unit curvature on local directions that move nothing (rotation of a one-axis group about
+    its axis), so every local block is invertible; they couple to nothing and never move."""
+    null = poses.null.astype(float)
+    return np.einsum("gk,kl->gkl", null, np.eye(null.shape[1]))
+
+
+def reduced_system(neq: NormalEquations, damping: float = 0.0):
+    """Schur complement on the global parameters: S = Hgg - Hgl Hll^-1 Hlg and its right side.
+
+    Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks.
+    """
+    m, p = neq.g_global.shape
+    h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
+    ch = np.einsum("igpk,gkl->igpl", neq.h_cross, h_local_inv)  # coupling x inverse local block
+    s = -np.einsum("igpl,jgql->ipjq", ch, neq.h_cross)
+    idx = np.arange(m)
+    s[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
+    g = neq.g_global - np.einsum("igpl,gl->ip", ch, neq.g_local)
+    return s.reshape(m * p, m * p), g.reshape(-1), h_local_inv
+
+
+def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
+    """Marquardt scaling: the diagonal of each block, as diagonal matrices (with a floor)."""
+    diag = np.einsum("...kk->...k", blocks)
+    floor = 1e-12 * max(float(diag.max(initial=0.0)), 1e-300)
+    return np.einsum("...k,kl->...kl", np.maximum(diag, floor), np.eye(blocks.shape[-1]))
+
+
+def lm_step(neq: NormalEquations, damping: float):
+    """One damped Gauss-Newton step: global step by the Schur complement, then the local steps."""
+    m, p = neq.g_global.shape
+    s, g, h_local_inv = reduced_system(neq, damping)
+    step_global = np.linalg.solve(s, g).reshape(m, p)
+    rhs = neq.g_local - np.einsum("igpk,ip->gk", neq.h_cross, step_global)
+    return step_global, np.einsum("gkl,gl->gk", h_local_inv, rhs)
+
+
+def free_parameters(m: int, d: int, with_bias: bool, poses) -> int:
+    """Unknowns that the data can determine: a, b, the local pose parameters, minus the gauge."""
+    return d * m + (m if with_bias else 0) + poses.free - d * (d - 1) // 2
+
+
+def start_poses(v0, magnitude, constraints=None, spread=None):
+    """Pose parametrisation: soft magnitudes when a spread > 0 is given, rigid groups when the
+    constraints describe them, else directions."""
+    v0 = np.asarray(v0, float)
+    if spread:
+        if constraints is not None:
+            raise CalibrationInputError(
+                "a magnitude spread (random table rate) cannot be combined with constraints.",
+                "Give either the constraints of a right-angle iron or magnitude_spread, not both.",
+            )
+        return SoftMagnitudes.start(v0, magnitude, spread)
+    groups = None if constraints is None else rigid_groups(constraints, v0, magnitude)
+    return Directions.start(v0, magnitude) if groups is None else groups
+
+
+def refine(
+    readings,
+    a0,
+    v0,
+    *,
+    bias0=None,
+    estimate_bias: bool = False,
+    magnitude: float = 1.0,
+    sigma=None,
+    constraints=None,
+    magnitude_spread: float | None = None,
+    max_iter: int = 100,
+    tol: float = 1e-12,
+) -> MLFit:
+    """Maximum-likelihood a, v (and b) from a start (a0, v0[, bias0]), e.g. the closed form.
+
+    sigma: noise standard deviation of the readings - scalar, per sensor (m,), or per entry (m, n).
+    When None, all entries get equal weight and one common sigma is estimated from the residuals.
+    A given bias0 with estimate_bias=False is held fixed (subtracted). constraints (station.solve.constraints)
+    that fix all inner products within groups of positions (a right-angle iron's mountings) make
+    each group rigid; otherwise each position has its own direction. magnitude_spread s > 0: the
+    magnitudes are a random effect, |v_j| = c (1 + delta_j) with delta_j ~ N(0, s^2) (each v_j a
+    free vector with that prior); it needs sigma, since it weighs the readings against the prior.
+    """
+    readings = np.asarray(readings, dtype=float)
+    m, n = readings.shape
+    a = np.array(a0, dtype=float)
+    d = a.shape[0]
+    check_spread(magnitude_spread, sigma)
+    poses = start_poses(v0, magnitude, constraints, magnitude_spread)
+    if bias0 is not None and not estimate_bias:
+        readings = readings - np.asarray(bias0, float)[:, None]
+    bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
+    sig = np.broadcast_to(sigma_matrix(sigma, m), (m, n))
+    weight = 1.0 / sig**2
+
+    neq, resid = normal_equations(a, poses, bias, readings, weight)
+    objective = cost(poses, weight, resid)
+    damping, it = 1e-6, 0
+    for it in range(1, max_iter + 1):
+        step_g, step_l = lm_step(neq, damping)
+        a_t = a + step_g[:, :d].T
+        b_t = None if bias is None else bias + step_g[:, d]
+        poses_t = poses.moved(step_l)
+        neq_t, resid_t = normal_equations(a_t, poses_t, b_t, readings, weight)
+        cost_t = cost(poses_t, weight, resid_t)
+        if cost_t <= objective:
+            converged = objective - cost_t <= tol * max(objective, 1e-300)
+            a, poses, bias, neq, resid, objective = a_t, poses_t, b_t, neq_t, resid_t, cost_t
+            damping = max(damping / 10, 1e-12)
+            if converged:
+                break
+        else:
+            damping *= 10
+            if damping > 1e12:
+                break
+
+    dof = m * n + prior_rows(poses).size - free_parameters(m, d, estimate_bias, poses)
+    estimated = sigma is None
+    if estimated:
+        scale = np.sqrt(objective / max(dof, 1))
+        sig = np.full((m, n), scale)
+        neq = _rescale(neq, 1.0 / scale**2)
+        objective = float(np.sum(resid**2) / scale**2)
+    if bias0 is not None and not estimate_bias:
+        bias = np.asarray(bias0, float)
+    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq)
+
+
+def check_spread(spread, sigma) -> None:
+    """A magnitude spread must be >= 0 and finite, and comes with the readings' noise level."""
+    if spread is None or spread == 0:
+        return
+    if not (np.isfinite(spread) and spread > 0):
+        raise CalibrationInputError(
+            f"magnitude_spread {spread!r} is not a non-negative number.",
+            "Give the relative standard deviation of |v_j| (e.g. 1.5e-4); 0 or None: |v_j| = c.",
+        )
+    if sigma is None:
+        raise CalibrationInputError(
+            "magnitude_spread weighs the readings against the magnitudes' prior, so the readings' "
+            "noise level is needed.",
+            "Pass sigma (e.g. the standard error of M from the static windows).",
+        )
+
+
+def sigma_matrix(sigma, m: int) -> np.ndarray:
+    """sigma as an array broadcastable to (m, n); None means unit weights."""
+    if sigma is None:
+        return np.ones((1, 1))
+    s = np.asarray(sigma, dtype=float)
+    if s.ndim == 1:
+        if s.shape[0] != m:
+            raise ValueError(f"sigma has {s.shape[0]} entries but there are {m} sensors")
+        s = s[:, None]
+    if np.any(~np.isfinite(s)) or np.any(s <= 0):
+        raise ValueError("sigma must be positive and finite (noise standard deviation of the readings)")
+    return s
+
+
+def _rescale(neq: NormalEquations, factor: float) -> NormalEquations:
+    """Normal equations with every weight multiplied by `factor`."""
+    return NormalEquations(
+        neq.h_global * factor, neq.h_local * factor, neq.h_cross * factor,
+        neq.g_global * factor, neq.g_local * factor,
+    )

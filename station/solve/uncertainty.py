@@ -1,0 +1,120 @@
+"""Uncertainty from the Fisher information, with the rotation gauge handled; the Cramer-Rao bound.
+
+The Fisher information of the readings model (station/solve/ml.py) reduced to the per-sensor parameters
+theta_i = (a_i, b_i) by the Schur complement over the position directions is singular along the
+d(d-1)/2 rotations of Remark 1 (Rupniewski). Its pseudo-inverse over the remaining directions is the
+covariance of every gauge-invariant function of theta: scale factors |a_i|, angles between axes,
+biases, and a expressed in a frame defined by a itself (the canonical frame of Eq. 19).
+"""
+
+import numpy as np
+
+from station.model.frames import to_canonical
+from station.solve.ml import NormalEquations, check_spread, normal_equations, reduced_system, sigma_matrix
+from station.solve.poses import Directions, SoftMagnitudes
+
+
+def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
+    """Inverse of a symmetric PSD matrix over all but its `gauge_dim` smallest eigen-directions."""
+    lam, vec = np.linalg.eigh(fisher)
+    keep = slice(gauge_dim, None)
+    return (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+
+
+def global_covariance(neq: NormalEquations, d: int) -> np.ndarray:
+    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher matrix."""
+    s, _, _ = reduced_system(neq)
+    return gauge_pinv(s, d * (d - 1) // 2)
+
+
+def propagate(cov: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    """Covariance of f(theta) given the Jacobian of f (k x len(theta))."""
+    return jac @ cov @ jac.T
+
+
+def scale_factor_jacobian(a: np.ndarray, p: int) -> np.ndarray:
+    """d|a_i| / d theta: (m, m p)."""
+    d, m = a.shape
+    jac = np.zeros((m, m, p))
+    jac[np.arange(m), np.arange(m), :d] = (a / np.linalg.norm(a, axis=0)).T
+    return jac.reshape(m, m * p)
+
+
+def axis_angles(a: np.ndarray) -> np.ndarray:
+    """Angles (rad) between the sensitive axes, (m, m)."""
+    u = a / np.linalg.norm(a, axis=0)
+    return np.arccos(np.clip(u.T @ u, -1.0, 1.0))
+
+
+def axis_angle_jacobian(a: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (i < k) and d angle(a_i, a_k) / d theta: (pairs, m p)."""
+    d, m = a.shape
+    norms = np.linalg.norm(a, axis=0)
+    u = a / norms
+    i, k = np.triu_indices(m, 1)
+    cos = np.einsum("dp,dp->p", u[:, i], u[:, k])
+    sin = np.sqrt(np.maximum(1.0 - cos**2, 1e-300))
+    jac = np.zeros((len(i), m, p))
+    rows = np.arange(len(i))
+    jac[rows, i, :d] = (-(u[:, k] - cos * u[:, i]) / (sin * norms[i])).T
+    jac[rows, k, :d] = (-(u[:, i] - cos * u[:, k]) / (sin * norms[k])).T
+    return np.stack([i, k]), jac.reshape(len(i), m * p)
+
+
+def bias_jacobian(m: int, p: int) -> np.ndarray:
+    """d b_i / d theta: (m, m p)."""
+    jac = np.zeros((m, m, p))
+    jac[np.arange(m), np.arange(m), p - 1] = 1.0
+    return jac.reshape(m, m * p)
+
+
+def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7) -> np.ndarray:
+    """d vec(frame(a)) / d theta by central differences, (d m, m p); frame(a) must be gauge-invariant."""
+    d, m = a.shape
+    jac = np.zeros((d * m, m, p))
+    h = step * max(np.abs(a).max(), 1e-300)
+    for i in range(m):
+        for k in range(d):
+            da = np.zeros_like(a)
+            da[k, i] = h
+            jac[:, i, k] = (frame(a + da) - frame(a - da)).ravel() / (2 * h)
+    return jac.reshape(d * m, m * p)
+
+
+def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = None) -> np.ndarray:
+    """Cramer-Rao bound on a in the canonical frame of Eq. (19): covariance (d m x d m), row-major.
+
+    For readings M = a^T v (+ b) + noise with noise standard deviation `sigma` (scalar, (m,) or
+    (m, n)) and |v_j| = c known, trace(crlb) is the smallest achievable E[eps^2] of Eq. (19).
+    spread s > 0: the bound of the random-effects model |v_j| = c (1 + delta_j), delta_j ~ N(0, s^2)
+    (calibrate(..., magnitude_spread=s)), c = the mean |v_j|: the Fisher information of the readings
+    and of the prior on the magnitudes, with each v_j a free vector, reduced to a (the hybrid bound;
+    for the linearised model the covariance of the marginal-likelihood estimate). It is larger than
+    the bound with known magnitudes, which it approaches as s -> 0.
+    """
+    check_spread(spread, sigma)
+    a = np.asarray(a, float)
+    v = np.asarray(v, float)
+    d, m = a.shape
+    norms = np.linalg.norm(v, axis=0)
+    poses = (SoftMagnitudes(v, float(norms.mean()), float(spread)) if spread
+             else Directions.start(v, float(norms[0])))
+    sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
+    bias = np.zeros(m) if estimate_bias else None
+    neq, _ = normal_equations(a, poses, bias, a.T @ v, 1.0 / sig**2)
+    p = d + (1 if estimate_bias else 0)
+    return propagate(global_covariance(neq, d), frame_jacobian(a, p))
+
+
+def eps_tail_probability(eps: float, bound: np.ndarray, samples: int = 200_000) -> float:
+    """Probability that an efficient estimator's error exceeds `eps` (Eq. 19), given `bound` = crlb(...).
+
+    In the small-noise limit an efficient estimate of the canonical a is Gaussian with covariance
+    `bound`, so eps^2 is distributed as sum_k lambda_k chi2_1 over the bound's eigenvalues (a
+    generalised chi-square); its tail is evaluated by Monte Carlo with a fixed seed (deterministic,
+    resolution 1 / samples). A small value says the calibration is worse than the noise explains.
+    """
+    lam = np.linalg.eigvalsh(np.asarray(bound, float))
+    lam = lam[lam > 1e-12 * lam.max()]
+    z = np.random.default_rng(0).standard_normal((samples, lam.size))
+    return float(np.mean((z**2) @ lam >= eps**2))

@@ -1,0 +1,254 @@
+"""The virtual bench: every device of a calibration bench, simulated, behind its real wire protocol.
+
+    with VirtualBench(imu="serial", seed=1, speed=40) as bench, bench.drivers() as (imu, table):
+        ...  # imu: drivers.serial_imu.SerialImu (or drivers.can_imu.CanImu), table: drivers.rotary_table.RotaryTable
+        bench.technician  # the simulated technician (station.acquire.operator.SimulatedTechnician)
+        bench.truth()     # what the station should find
+
+One `ScaledClock` drives everything: the rotary table physics (`station.sim.table`) served over
+Modbus TCP on 127.0.0.1 (`drivers.twins.table.TableTwin`), a 12-gyro unit (`station.sim.layouts.
+gyro_array`, Rupniewski Section IV) mounted on that table (`station.sim.live.MountedUnit`) and
+streaming through a pseudo-terminal (`drivers.twins.serial.SerialTwin`) or a python-can virtual bus
+(`drivers.twins.can.CanImuTwin`), and the technician who re-mounts the unit between positions.
+The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
+
+`record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
+left by a killed or paused run on a new bench built from the file's `virtual_bench` metadata (or
+the `bench` of `station demo`), its clock starting after the last recorded instant (the recorded
+times stay in order).
+"""
+
+import contextlib
+import dataclasses
+import itertools
+import os
+from dataclasses import dataclass
+from typing import Self
+
+import can
+import numpy as np
+
+from drivers.can_imu import CanImu, CanProfile
+from drivers.profile import SerialImuProfile
+from drivers.rotary_table import RotaryTable as TableDriver
+from drivers.rotary_table import TableRegisterMap
+from drivers.serial_imu import SerialImu
+from drivers.twins.can import CanImuTwin
+from drivers.twins.serial import SerialTwin
+from drivers.twins.table import TableTwin
+from drivers.clock import ScaledClock
+from station.acquire.operator import SimulatedTechnician
+from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
+from station.files.session import Session, SessionWriter, StreamSpec
+from station.model.effects.rate_error import RateError
+from station.sim.layouts import A_MODEL, gyro_array
+from station.sim.live import MountedUnit
+from station.sim.table import TablePhysics
+
+IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
+_channels = itertools.count()
+BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error"}
+"""The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
+HOST_LATENCY = 0.05
+"""Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
+instants are estimated from the least delayed arrival, so they are late by the smallest host
+latency of a segment (14 ms measured on a loaded 2-core host); the fast clock multiplies it, and
+a shorter margin lets a window take samples of the previous mounting or of a ramp
+(docs/protocols.md)."""
+
+
+@dataclass(frozen=True)
+class BenchTruth:
+    """What the simulated unit really is, and the stimulus it really felt.
+
+    a            : (3, m) true sensitivity matrix (dimensionless: readings are in SI units)
+    bias         : (m,) true biases, rad/s
+    orientations : (n, 3, 3) the mountings the technician really made (table -> unit frame)
+    a_nominal    : (3, m) the nominal layout
+    """
+
+    a: np.ndarray
+    bias: np.ndarray
+    orientations: np.ndarray
+    a_nominal: np.ndarray
+
+    def v(self, rate: float) -> np.ndarray:
+        """(3, n) true stimuli of the positions at table rate `rate`: rate times the table axis."""
+        return rate * self.orientations[:, :, 2].T
+
+
+class BenchTechnician(SimulatedTechnician):
+    """The simulated technician, who also plugs the IMU's cable back in when asked to do
+    something that is not a mounting (`fixes_cables = False` models one who does not)."""
+
+    def __init__(self, bench, *args):
+        super().__init__(bench.mounted, bench.clock, *args)
+        self.bench = bench
+        self.fixes_cables = True
+
+    def wait(self, instruction) -> None:
+        super().wait(instruction)
+        twin = self.bench.imu_twin
+        if instruction.orientation is None and self.fixes_cables and hasattr(twin, "plug"):
+            self.clock.sleep(self.remount_time)
+            twin.plug()
+
+
+class VirtualBench:
+    """Starts the simulated devices; `close()` (or leaving the `with`) stops them all.
+
+    imu           : "serial" (binary frames over a pty) or "can" (python-can virtual bus)
+    seed          : seed of the unit, the table and the technician
+    speed         : clock speed, simulated seconds per wall second
+    rate_hz       : IMU sample rate (the profiles' 2 kHz is more than a demo needs)
+    remount_time  : simulated seconds the technician takes to re-mount the unit
+    placement_deg : the technician's placement error (standard deviation per axis), degrees
+    lifetime      : wall seconds after which the Modbus server stops by itself
+    clock_start   : clock time at start (a resumed session continues after its last instant)
+    rate_error    : optional {"scale": ..., "spread": ...}: the table's hidden rate error
+                    (`station.model.effects.rate_error`), drawn anew at every start
+    """
+
+    def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
+                 rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
+                 lifetime: float = 3600.0, clock_start: float = 0.0,
+                 rate_error: dict | None = None):
+        if imu not in IMU_KINDS:
+            raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
+        self.kind = imu
+        self.seed, self.rate_hz = int(seed), float(rate_hz)
+        self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
+        self.clock = ScaledClock(speed, clock_start)
+        loader = SerialImuProfile if imu == "serial" else CanProfile
+        profile = loader.load(IMU_KINDS[imu])
+        self.profile = dataclasses.replace(
+            profile, imu=dataclasses.replace(profile.imu, rate_hz=float(rate_hz)))
+        self.stream_spec = StreamSpec.from_profile(self.profile.imu)
+        self.rate_error = dict(rate_error) if rate_error else None
+        self.table = TablePhysics(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed,
+                                 rate_error=RateError(**self.rate_error) if rate_error else None)
+        self.table_map = TableRegisterMap.load("table_modbus")
+        self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
+        self.mounted = MountedUnit(self.unit, self.table)
+        self.technician = BenchTechnician(self, remount_time, placement_deg,
+                                          np.random.default_rng([seed, 1]))
+        self.table_twin = TableTwin(self.table, self.table_map, lifetime)
+        self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
+        self.imu_twin = None
+
+    def with_margins(self, settings: RotarySettings) -> RotarySettings:
+        """`settings` with rest, guard and steady of at least HOST_LATENCY wall seconds of this
+        bench's clock (2 s at 40x; a real bench at 1x keeps its settings)."""
+        least = HOST_LATENCY * self.clock.speed
+        return dataclasses.replace(settings, **{name: max(getattr(settings, name), least)
+                                                for name in ("rest", "guard", "steady")})
+
+    def metadata(self) -> dict:
+        """What a session records about the bench: enough to build it again (`from_metadata`)."""
+        hidden = {"rate_error": self.rate_error} if self.rate_error else {}
+        return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
+                "rate_hz": self.rate_hz, "remount_time": self.remount_time,
+                "placement_deg": self.placement_deg, **hidden}
+
+    @classmethod
+    def from_metadata(cls, bench: dict, **overrides) -> "VirtualBench":
+        """The bench described by a session's `bench` metadata (`metadata()`), with `overrides`
+        (e.g. clock_start, speed)."""
+        if not isinstance(bench, dict) or not set(bench) <= BENCH_KEYS:
+            raise ValueError(f"the session's bench description {bench!r} is not one of this "
+                             f"station's virtual benches (keys {sorted(BENCH_KEYS)})")
+        return cls(**{**bench, **overrides})
+
+    def start(self) -> Self:
+        """Start the Modbus server and the IMU stream (or stop what started and raise)."""
+        try:
+            self.table_twin.start()
+            if self.kind == "serial":
+                self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
+                                           max_lag=np.inf)  # flow control: never skip frames
+            else:
+                self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
+                                           self.clock)
+            self.imu_twin.start()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Stop the IMU stream and the Modbus server (idempotent)."""
+        if self.imu_twin is not None:
+            twin, self.imu_twin = self.imu_twin, None
+            twin.stop()
+        self.table_twin.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @contextlib.contextmanager
+    def drivers(self):
+        """(imu, table): the station's real drivers connected to the twins, closed on exit; the
+        table driver stops the table on exit whatever happened."""
+        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock)
+        with contextlib.ExitStack() as stack:
+            if self.kind == "serial":
+                imu = stack.enter_context(SerialImu(self.imu_twin.port, self.profile, self.clock))
+            else:
+                bus = can.Bus(interface="virtual", channel=self.can_channel)
+                stack.callback(bus.shutdown)
+                imu = stack.enter_context(CanImu(bus, self.profile, self.clock))
+            yield imu, stack.enter_context(table)
+
+    def truth(self) -> BenchTruth:
+        """The true unit and the mountings made so far."""
+        return BenchTruth(self.unit.a.copy(), self.unit.bias.copy(),
+                          np.array(self.technician.orientations).reshape(-1, 3, 3), A_MODEL)
+
+
+def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
+                  watch=None, view=None) -> None:
+    """Record a new rotary session file at `path` on the started `bench`.
+
+    settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
+    watch          : optional callable(writer), called once the session file exists
+    view           : optional `station.acquire.live_view.LiveView` shown while recording
+    """
+    with bench.drivers() as (imu, table):
+        protocol = RotaryProtocol(table, bench.technician, bench.clock,
+                                  bench.with_margins(settings or RotarySettings()), axes)
+        metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
+                    "virtual_bench": bench.metadata()}
+        with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
+                                  clock=bench.clock) as writer:
+            if watch is not None:
+                watch(writer)
+            continue_session(writer, metadata, imu, table, bench.technician, bench.clock, view)
+
+
+def resume_rotary(path, watch=None, **overrides) -> int:
+    """Continue the rotary session at `path` (killed, paused or aborted) on a new virtual bench
+    built from its `bench` metadata; returns the first position recorded now (the number of
+    positions when none was left). overrides: VirtualBench arguments, e.g. speed."""
+    with Session.open(path) as session:
+        metadata = session.metadata
+        end = last_instant(session)
+    described = metadata.get("virtual_bench", metadata.get("bench"))
+    if not (isinstance(described, dict) and set(described) <= BENCH_KEYS):
+        raise ValueError(f"{path} was not recorded on the virtual bench; resume it with its "
+                         "real devices")
+    with VirtualBench.from_metadata(described, clock_start=end + 1.0, **overrides) as bench, \
+            bench.drivers() as (imu, table), \
+            SessionWriter.resume(path, clock=bench.clock) as writer:
+        if watch is not None:
+            watch(writer)
+        return continue_session(writer, metadata, imu, table, bench.technician, bench.clock)
+
+
+def last_instant(session) -> float:
+    """The latest clock time recorded in a session (events, table states, sample arrivals)."""
+    times = [e.time for e in session.events()] + [session.table().time.max(initial=-np.inf)]
+    times += [session.stream(name).host_time.max(initial=-np.inf) for name in session.specs]
+    return float(max(times))
