@@ -24,7 +24,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np
 
 from station.diagnose.static import diagnose_static, from_arrays
-from station.diagnose.static_report import load, to_dict
+from station.diagnose.static_report import load
+from station.report.diagnosis import static_to_dict as to_dict
 from station.files.importers import import_csv, import_text
 from station.model.effects import parse_all
 from station.sim.layouts import accelerometer_triad

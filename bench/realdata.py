@@ -24,7 +24,8 @@ from station.reduce.ferraris import (
     read_section_list,
     section_overlap,
 )
-from station.reduce.free_static import calibrate_free_static, leave_one_out, read_table
+from station.files.tables import read_table
+from station.reduce.free_static import calibrate_free_static, leave_one_out
 from station.solve.gyro_turns import gravity_carry_errors
 from station.reduce.stillness import detect_still
 from station.solve.uncertainty import axis_angles

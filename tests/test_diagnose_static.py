@@ -11,7 +11,7 @@ from scipy.stats import chi2
 
 from station.cli import main
 from station.diagnose.static import diagnose_static, from_arrays
-from station.diagnose.static_report import to_dict
+from station.report.diagnosis import static_to_dict as to_dict
 from station.errors import CalibrationInputError
 from station.files.importers import import_csv, import_text
 from station.model.earth import OMEGA_EARTH

@@ -55,7 +55,7 @@ def run(args) -> int:
                                  session, str(path))
         else:
             static = static_report.load(path)
-            doc = static_report.to_dict(
+            doc = report.static_to_dict(
                 diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
                 static, str(path))
     except (CalibrationInputError, ValueError, OSError) as err:
@@ -63,6 +63,6 @@ def run(args) -> int:
         return 2
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
-        page = report.html_report if rotary else static_report.html_report
+        page = report.html_report if rotary else report.static_html_report
         Path(args.report).write_text(page(doc))
     return 0

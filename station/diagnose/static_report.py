@@ -1,5 +1,5 @@
-"""Free-static diagnosis: session loading, gap statistics, the white-noise check, and the JSON /
-text / HTML form shared with the rotary path (station.report.diagnosis).
+"""Free-static diagnosis: session loading, gap statistics and the white-noise check (their JSON /
+text / HTML form: station.report.diagnosis, shared with the rotary path).
 
 Gap statistics (1 = explained by white noise of the sigma measured within the bins):
 - `between`: accelerometer interval means against the model, chi2 / dof of the calibration
@@ -10,19 +10,16 @@ Gap statistics (1 = explained by white noise of the sigma measured within the bi
 - `rails`: rail pile-up deviance per channel side that holds the extreme value.
 """
 
-import base64
 import itertools
 
 import numpy as np
 
-from station.report import diagnosis as report
 from station.diagnose.select import log_sf
 from station.diagnose.static import (
     SCALES_S,
     STANDARD_GRAVITY,
     StaticData,
     from_arrays,
-    untestable,
 )
 from station.errors import CalibrationInputError
 
@@ -108,75 +105,6 @@ def white_noise_verdict(data: StaticData, step, alpha: float) -> dict:
         "dispersion (the `within` gap)")
     return {"within": within, "dof": dof, "log10_p": log_p, "holds": holds,
             "ratio_by_block_s": ratios, "message": message}
-
-
-def _evidence_with_quasi(evidence: dict, dispersion: float) -> dict:
-    """The evidence entries plus log10 p of LR / dispersion (quasi-likelihood, dispersion >= 1)."""
-    phi = max(dispersion, 1.0)
-    return {k: {**e, "log10_p_quasi": log_sf(e["lr"] / (e["null_scale"] * phi), e["null_dof"])
-                / np.log(10)} for k, e in evidence.items()}
-
-
-def to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
-    """The JSON document of a free-static diagnosis (same layout as the rotary one)."""
-    steps = [report.step_dict(step, _evidence_with_quasi(step.evidence, step.gap["within"]))
-             for step in diagnosis.steps]
-    white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
-    lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
-    not_testable = untestable(data, diagnosis.steps[0].model.base)
-    remarks = [white["message"], *data.notes] + [
-        f"not testable in a static session: {k} ({v})" for k, v in not_testable.items()]
-    return report.jsonable({
-        "session": source,
-        "protocol": "free_static",
-        "intervals": len(data.intervals),
-        "interval_s": {"min": lengths.min(), "median": float(np.median(lengths)),
-                       "max": lengths.max()},
-        "bins": len(data.bins),
-        "accelerometer_channels": data.m,
-        "gyro_channels": data.c - data.m,
-        "units": list(data.units),
-        "fs": data.fs,
-        "gravity": data.gravity,
-        "noise_sigma": data.sigma,
-        "alpha": diagnosis.alpha,
-        "effects": diagnosis.effects,
-        "not_testable": not_testable,
-        "white_noise": white,
-        "steps": steps,
-        "calibration_before": _summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": _summary(diagnosis.final.calibration),
-        "remarks": remarks,
-    })
-
-
-def _summary(cal):
-    """report.calibration_summary, or None without a calibration (poses not spread enough)."""
-    return None if cal is None else report.calibration_summary(cal)
-
-
-def whiteness_png(doc: dict) -> bytes:
-    """PNG of the block-mean scatter ratio against the block length (1 = white noise)."""
-    plt = report.pyplot()
-
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():
-        ax.plot([float(s) for s in ratios], list(ratios.values()), marker="o", label=group)
-    ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("block length, s")
-    ax.set_ylabel("scatter / white noise")
-    ax.set_title("Scatter of block means within the still intervals")
-    ax.legend(fontsize=7)
-    return report.png(fig)
-
-
-def html_report(doc: dict) -> str:
-    """The rotary report's page plus the white-noise plot."""
-    png = base64.b64encode(whiteness_png(doc)).decode()
-    return report.html_report(doc, extra=f"<img src='data:image/png;base64,{png}' "
-                                         "alt='block-mean scatter against block length'>")
 
 
 # ------------------------------------------------------------------------- session and command

@@ -32,7 +32,7 @@ import numpy as np
 from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
-from station.reduce.free_static import read_table
+from station.files.tables import read_table
 from station.files.session import SessionWriter, StreamSpec
 
 FIXED_POINT = 1e6

@@ -7,6 +7,9 @@ import io
 import numpy as np
 
 from station.diagnose.model import parameters
+from station.diagnose.select import log_sf
+from station.diagnose.static import StaticData, untestable
+from station.diagnose.static_report import white_noise_verdict
 
 
 def jsonable(obj):
@@ -147,3 +150,75 @@ def html_report(doc: dict, extra: str = "") -> str:
         f"<img src='data:image/png;base64,{png}' alt='gap per step'>{extra}"
         f"{''.join(rows)}<h2>Summary</h2><pre>{html.escape(text(doc))}</pre></body></html>"
     )
+
+
+# ------------------------------------------------------------------------- free-static sessions
+
+
+def _evidence_with_quasi(evidence: dict, dispersion: float) -> dict:
+    """The evidence entries plus log10 p of LR / dispersion (quasi-likelihood, dispersion >= 1)."""
+    phi = max(dispersion, 1.0)
+    return {k: {**e, "log10_p_quasi": log_sf(e["lr"] / (e["null_scale"] * phi), e["null_dof"])
+                / np.log(10)} for k, e in evidence.items()}
+
+
+def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
+    """The JSON document of a free-static diagnosis (same layout as the rotary one)."""
+    steps = [step_dict(step, _evidence_with_quasi(step.evidence, step.gap["within"]))
+             for step in diagnosis.steps]
+    white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
+    lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
+    not_testable = untestable(data, diagnosis.steps[0].model.base)
+    remarks = [white["message"], *data.notes] + [
+        f"not testable in a static session: {k} ({v})" for k, v in not_testable.items()]
+    return jsonable({
+        "session": source,
+        "protocol": "free_static",
+        "intervals": len(data.intervals),
+        "interval_s": {"min": lengths.min(), "median": float(np.median(lengths)),
+                       "max": lengths.max()},
+        "bins": len(data.bins),
+        "accelerometer_channels": data.m,
+        "gyro_channels": data.c - data.m,
+        "units": list(data.units),
+        "fs": data.fs,
+        "gravity": data.gravity,
+        "noise_sigma": data.sigma,
+        "alpha": diagnosis.alpha,
+        "effects": diagnosis.effects,
+        "not_testable": not_testable,
+        "white_noise": white,
+        "steps": steps,
+        "calibration_before": _summary(diagnosis.steps[0].model.calibration),
+        "calibration_after": _summary(diagnosis.final.calibration),
+        "remarks": remarks,
+    })
+
+
+def _summary(cal):
+    """calibration_summary, or None without a calibration (poses not spread enough)."""
+    return None if cal is None else calibration_summary(cal)
+
+
+def whiteness_png(doc: dict) -> bytes:
+    """PNG of the block-mean scatter ratio against the block length (1 = white noise)."""
+    plt = pyplot()
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():
+        ax.plot([float(s) for s in ratios], list(ratios.values()), marker="o", label=group)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("block length, s")
+    ax.set_ylabel("scatter / white noise")
+    ax.set_title("Scatter of block means within the still intervals")
+    ax.legend(fontsize=7)
+    return png(fig)
+
+
+def static_html_report(doc: dict) -> str:
+    """The rotary report's page plus the white-noise plot."""
+    png = base64.b64encode(whiteness_png(doc)).decode()
+    return html_report(doc, extra=f"<img src='data:image/png;base64,{png}' "
+                                         "alt='block-mean scatter against block length'>")
