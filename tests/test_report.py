@@ -19,7 +19,7 @@ import pytest
 from rich.console import Console
 
 from drivers.samples import SampleBlock
-from station.solve import calibrate
+from station import calibrate
 from station import cli
 from station.report import session as report
 from station.acquire.live_view import LiveView

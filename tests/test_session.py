@@ -13,7 +13,7 @@ from layouts import section4_gyros
 
 from drivers.profile import ImuSection, load_profile
 from drivers.samples import SampleBlock
-from station.solve import calibrate
+from station import calibrate
 from drivers.clock import ScaledClock
 from station.files.session import (
     EVENT_KINDS,
