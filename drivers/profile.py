@@ -17,13 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from drivers.wire.frames import CRCS, INT_TYPES
+from drivers.errors import ProfileError
 
 BUNDLED = Path(__file__).parent / "profiles"
 _REQUIRED = object()
-
-
-class ProfileError(ValueError):
-    """A device profile that cannot describe the device; the message names the file, key and fix."""
 
 
 class Section:

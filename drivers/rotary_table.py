@@ -23,6 +23,7 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from drivers.profile import ProfileError, Section, load_profile
 from drivers.clock import WallClock
+from drivers.errors import TableBusy, TableError, TableFault, TableTimeout
 
 EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                    4: "device failure", 5: "acknowledge", 6: "device busy",
@@ -33,22 +34,6 @@ INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
 WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
-
-
-class TableError(RuntimeError):
-    """The rotary table did not do what was asked; the message says what to check."""
-
-
-class TableTimeout(TableError):
-    """No reply from the table within the timeout, after the bounded retries."""
-
-
-class TableBusy(TableError):
-    """The table kept answering 'device busy' (Modbus exception 6) after the bounded retries."""
-
-
-class TableFault(TableError):
-    """The table reported a device failure (Modbus exception 4): it needs the operator."""
 
 
 @dataclass(frozen=True)

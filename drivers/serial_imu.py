@@ -18,18 +18,7 @@ import serial
 from drivers.wire.frames import AsciiLineParser, BinaryFrameParser
 from drivers.profile import SerialImuProfile
 from drivers.clock import WallClock
-
-
-class SerialPortError(ConnectionError):
-    """The serial port cannot be opened or was lost; `port` names it."""
-
-    def __init__(self, port: str, message: str):
-        super().__init__(message)
-        self.port = port
-
-
-class DeviceLostError(SerialPortError):
-    """The device stopped answering mid-stream (unplugged, powered off)."""
+from drivers.errors import DeviceLostError, SerialPortError
 
 
 class SerialImu:

@@ -1,28 +1,138 @@
-"""The `station` command. Each subcommand lives in its own module exposing `register(subparsers)`;
-this file only lists them."""
+"""The `station` command: a table of subcommands, imported only when used, and THE error handler.
+
+Each subcommand lives in `station/commands/<module>.py` and exposes `register(p)`, which describes
+its parser `p` (description, options, examples) and sets `run`. `COMMANDS` below is the one list
+of them with their one-line summaries, so `station --help` imports no command (python-can's
+`BACKENDS` idea). Exit codes (docs/cli.md):
+
+    0    done
+    1    failed (the station could not do what was asked; the message says why)
+    2    bad input (a missing or wrong file, a bad option, data the calibration cannot use)
+    3    a device failed (IMU link, rotary table, device profile errors are 2)
+    130  interrupted (Ctrl-C); the rotary table has been stopped
+    141  stdout closed early (e.g. piped into `head`)
+
+Every error the station raises on purpose (`station.errors.StationError`,
+`drivers.errors.DeviceError`) is printed as one line on stderr; `--verbose` adds the traceback and
+debug logging. Anything else is a bug and keeps its traceback.
+"""
 
 import argparse
-import importlib
+import logging
+import os
 import sys
 
-# module names under station/commands/, one per subcommand
-COMMANDS = ["demo", "simulate", "report", "solve", "apply", "export", "devices", "twin", "record", "resume", "replay", "import_", "diagnose"]
+# name -> (module under station/commands/, one-line summary for `station --help`)
+COMMANDS = {
+    "demo": ("demo", "calibrate a 12-gyro unit on the virtual bench through the real drivers"),
+    "record": ("record", "record a session (rotary, iron or static) with the devices of a bench "
+                         "profile"),
+    "twin": ("twin", "run the virtual bench's devices (serial IMU, Modbus table) for `record`"),
+    "resume": ("resume", "continue a rotary session after a kill, pause or abort"),
+    "replay": ("replay", "re-reduce and re-solve a recorded rotary, iron or free-static session"),
+    "solve": ("solve", "solve a recorded session into a calibration file"),
+    "apply": ("apply", "apply a calibration file to readings (CSV or session) -> calibrated "
+                       "vectors"),
+    "export": ("export", "export a calibration file as a C header for firmware"),
+    "report": ("report", "write an HTML report (and PNG figures) of a session file"),
+    "diagnose": ("diagnose", "find where a session and its twin disagree and name the effect"),
+    "simulate": ("simulate", "simulate a session of the digital twin"),
+    "import": ("import_", "convert a foreign recording (text, CSV, .npz) into a session file"),
+    "devices": ("devices", "list serial ports and CAN interfaces"),
+}
+
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="station", description="IMU calibration station: record, solve, replay, diagnose."
-    )
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr, exit code 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+class _Version(argparse.Action):
+    """`--version`: the installed distribution's version, looked up only when asked."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from station.files.provenance import software_version
+
+        print(f"station {software_version()}")
+        parser.exit()
+
+
+def chosen(argv) -> str | None:
+    """The subcommand named in argv (the first word that is one), or None."""
+    return next((a for a in argv if a in COMMANDS), None)
+
+
+def build_parser(argv=()) -> Parser:
+    """The parser; only the subcommand named in argv is imported and fully described."""
+    import importlib
+
+    parser = Parser(prog="station",
+                    description="IMU calibration station: record, solve, replay, diagnose.",
+                    epilog="exit codes: 0 done, 1 failed, 2 bad input, 3 device, "
+                           "130 interrupted. `station COMMAND --help` for each command.")
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="debug logging, and the traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(f"station.commands.{name}").register(sub)
+    name = chosen(argv)
+    for command, (module, summary) in COMMANDS.items():
+        p = sub.add_parser(command, help=summary, add_help=command == name,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        if command == name:
+            importlib.import_module(f"station.commands.{module}").register(p)
     return parser
 
 
+def configure_logging(verbose: bool) -> None:
+    """Module loggers go to stderr through rich: warnings, or everything with --verbose."""
+    from rich.console import Console
+    from rich.logging import RichHandler
+
+    handler = RichHandler(console=Console(stderr=True), show_path=verbose, markup=False)
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[handler], force=True)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL if not verbose else logging.INFO)
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.run(args) or 0)
+    """Run one command; errors the station raises on purpose become one line and an exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv).parse_args(argv)
+    configure_logging(args.verbose)
+    try:
+        return int(args.run(args) or 0)
+    except KeyboardInterrupt as err:
+        return _fail(args, err, EXIT_INTERRUPTED, "interrupted")
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit's flush
+        return EXIT_BROKEN_PIPE
+    except Exception as err:
+        from drivers.errors import DeviceError
+        from station.errors import StationError
+
+        if not isinstance(err, StationError | DeviceError):
+            raise
+        return _fail(args, err, err.exit_code)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def _fail(args, err: BaseException, code: int, message: str = "") -> int:
+    """Print `station COMMAND: message; notes` as one line on stderr (the traceback first under
+    --verbose); the notes are what the command added on the way out (e.g. the table was
+    stopped)."""
+    if args.verbose:
+        import traceback
+
+        traceback.print_exc()
+    words = " ".join((message or str(err)).split())  # one line, whatever the message holds
+    print("; ".join([f"station {args.command}: {words}", *getattr(err, "__notes__", ())]),
+          file=sys.stderr)
+    return code
+

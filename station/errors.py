@@ -1,7 +1,42 @@
-"""Errors raised for inputs the calibration cannot use, each with advice on what to do."""
+"""Every error the station raises for something a person can act on, under one base.
+
+Each message names the problem and what to do about it. The command line prints it as one line on
+stderr and exits with the class's `exit_code` (docs/cli.md: 0 ok, 1 failed, 2 bad input, 3 device,
+130 interrupted); `station --verbose` adds the traceback. Each class keeps the built-in base that
+callers already catch (ValueError for bad input, RuntimeError for a bench that misbehaved)::
+
+    StationError                          1  the base; `except StationError` catches them all
+     +-- InputError (ValueError)          2  a file, an option or data the station cannot use
+     |    +-- CalibrationInputError       2  the data cannot determine the calibration
+     |    +-- SessionFormatError          2  not a session file this software can read
+     |    +-- CalibrationFileError        2  a calibration file this software must not use
+     +-- MissingFileError (FileNotFoundError)  2  a file named on the command line is not there
+     +-- SessionLockedError (RuntimeError)     1  another live process is writing the session file
+     +-- AcquisitionError (RuntimeError)  3  the bench did not do what the session needs
+     |    +-- RecordingError              3  the IMU stream stopped
+     |    +-- ProtocolError               3  the bench did not behave as the protocol needs
+     |         +-- SessionPaused          3  the operator stopped; the session can be resumed
+     +-- OperatorAbort                    1  the operator ended the session
+
+Device errors have their own root, `drivers.errors.DeviceError` (exit code 3), because the drivers
+never import the station (the layering contracts in pyproject.toml): ProfileError (ValueError, exit
+code 2), LinkError (ConnectionError: SerialPortError, DeviceLostError, CanLinkError) and TableError
+(RuntimeError: TableTimeout, TableBusy, TableFault). The command line catches both roots.
+"""
+
+class StationError(Exception):
+    """Base of the station's errors; `exit_code` is what the command line exits with."""
+
+    exit_code = 1
 
 
-class CalibrationInputError(ValueError):
+class InputError(StationError, ValueError):
+    """A file, an option or data the station cannot use; the message says what to give instead."""
+
+    exit_code = 2
+
+
+class CalibrationInputError(InputError):
     """The data cannot determine the calibration; the message says what to do about it.
 
     Attributes
@@ -14,3 +49,44 @@ class CalibrationInputError(ValueError):
         super().__init__(f"{problem} {advice}")
         self.problem = problem
         self.advice = advice
+
+
+class SessionFormatError(InputError):
+    """The file is not a session file this software can read; the message says what was found."""
+
+
+class CalibrationFileError(InputError):
+    """A calibration file this software cannot or must not use; the message says what to do."""
+
+
+class MissingFileError(StationError, FileNotFoundError):
+    """A file named on the command line does not exist (or is not a regular file)."""
+
+    exit_code = 2
+
+
+class SessionLockedError(StationError, RuntimeError):
+    """Another live process is writing the session file."""
+
+
+class AcquisitionError(StationError, RuntimeError):
+    """The bench did not do what the session needs; the message says what to check."""
+
+    exit_code = 3
+
+
+class RecordingError(AcquisitionError):
+    """The IMU stream stopped: the device went silent or the reader failed."""
+
+
+class ProtocolError(AcquisitionError):
+    """The bench did not behave as the protocol needs; the message says what and what to do."""
+
+
+class SessionPaused(ProtocolError):
+    """The table stopped answering and the operator chose to stop; the session can be resumed."""
+
+
+class OperatorAbort(StationError):
+    """The operator ended the session (end of input, or 'no' to a question that must be 'yes')."""
+

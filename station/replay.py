@@ -36,7 +36,7 @@ import numpy as np
 
 import station
 from station.solve.calibrate import CalibrationResult
-from station.errors import CalibrationInputError
+from station.errors import AcquisitionError, CalibrationInputError, InputError
 from station.protocols.iron import iron_readings
 from station.protocols.rotary import SEGMENT_EVENTS, reduce_session
 from station.protocols.static import static_readings
@@ -75,16 +75,16 @@ class ReplaySettings:
 
     def __post_init__(self):
         if self.method not in METHODS:
-            raise ValueError(f"unknown solver method {self.method!r}; choose one of {METHODS}")
+            raise InputError(f"unknown solver method {self.method!r}; choose one of {METHODS}")
         if not (math.isfinite(self.trim) and self.trim >= 0):
-            raise ValueError(f"trim must be >= 0 seconds, got {self.trim!r}")
+            raise InputError(f"trim must be >= 0 seconds, got {self.trim!r}")
         if self.magnitude is not None and not (math.isfinite(self.magnitude)
                                                and self.magnitude > 0):
-            raise ValueError(f"magnitude must be positive, got {self.magnitude!r}")
+            raise InputError(f"magnitude must be positive, got {self.magnitude!r}")
         if self.positions is not None:
             positions = tuple(int(p) for p in self.positions)
             if len(set(positions)) != len(positions) or min(positions, default=0) < 0:
-                raise ValueError(f"positions must be distinct indices >= 0, got {self.positions}")
+                raise InputError(f"positions must be distinct indices >= 0, got {self.positions}")
             object.__setattr__(self, "positions", positions)
 
 
@@ -139,7 +139,7 @@ def replay(path, settings: ReplaySettings | None = None) -> tuple[object, Calibr
     with Session.open(path) as session:
         protocol = PROTOCOLS.get(session.protocol)
         if protocol is None:
-            raise ValueError(f"{path} records a {session.protocol!r} session; replay reduces "
+            raise InputError(f"{path} records a {session.protocol!r} session; replay reduces "
                              f"{', '.join(PROTOCOLS)} sessions (solve others with station solve)")
         readings = protocol.reduce(session, settings.stream, trim=settings.trim)
         completed = sorted(_completed(session.events()))
@@ -152,13 +152,13 @@ def replay(path, settings: ReplaySettings | None = None) -> tuple[object, Calibr
 def _select(readings, completed: list, positions, path):
     """The readings of `positions` (0-based, None: all) among the `completed` ones."""
     if len(completed) != readings.M.shape[1]:
-        raise ValueError(f"{path} reduces to {readings.M.shape[1]} readings for "
+        raise InputError(f"{path} reduces to {readings.M.shape[1]} readings for "
                          f"{len(completed)} completed positions; the file is damaged")
     if positions is None:
         return readings
     missing = sorted(set(positions) - set(completed))
     if missing:
-        raise ValueError(f"positions {[p + 1 for p in missing]} were not completed in {path}; "
+        raise InputError(f"positions {[p + 1 for p in missing]} were not completed in {path}; "
                          f"choose among {[p + 1 for p in completed]}")
     return readings.take([completed.index(p) for p in positions])
 
@@ -170,7 +170,7 @@ def _recorded(metadata: dict, keys: tuple, path) -> float:
         value = value.get(key) if isinstance(value, dict) else None
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
             or value == 0:
-        raise ValueError(f"{path} records no usable {'.'.join(keys)} (stimulus magnitude); "
+        raise InputError(f"{path} records no usable {'.'.join(keys)} (stimulus magnitude); "
                          "give the magnitude")
     return abs(float(value))
 
@@ -191,11 +191,11 @@ def stored_settings(path, name: str) -> ReplaySettings:
     with Session.open(path) as session:
         stored = session.results(name).settings
     if stored is None:
-        raise ValueError(f"results/{name} of {path} holds no replay settings (the recording's "
+        raise InputError(f"results/{name} of {path} holds no replay settings (the recording's "
                          "own results: replay with the defaults reproduces them)")
     known = {f.name for f in dataclasses.fields(ReplaySettings)}
     if not set(stored) <= known:
-        raise ValueError(f"results/{name} holds unknown settings {sorted(set(stored) - known)}; "
+        raise InputError(f"results/{name} holds unknown settings {sorted(set(stored) - known)}; "
                          "it was written by a newer station")
     return ReplaySettings(**stored)
 
@@ -232,21 +232,21 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
 
     with Session.open(path) as session:
         if session.protocol != "rotary":
-            raise ValueError(f"{path} records a {session.protocol!r} session; raw replay "
+            raise InputError(f"{path} records a {session.protocol!r} session; raw replay "
                              "re-records rotary sessions only (stream, table states and events); "
                              "replay it without --raw to reduce and solve it again")
         data, table, events = session.stream("imu"), session.table(), session.events()
         metadata = session.metadata
     segments = [e.kind for e in events if e.kind in SEGMENT_EVENTS]
     if segments or np.any(np.diff(data.seq) != 1):
-        raise ValueError(f"{path}: the IMU stream has gaps or several segments ({segments}); "
+        raise InputError(f"{path}: the IMU stream has gaps or several segments ({segments}); "
                          "raw replay needs one gap-free recording")
     spec = data.spec
     loaded = SerialImuProfile.load(profile)
     if tuple(loaded.imu.channels) != spec.channels or \
             not np.array_equal(np.broadcast_to(loaded.imu.scale, len(spec.channels)),
                                spec.counts_per_unit):
-        raise ValueError(f"serial profile {profile!r} does not match the stream's channels and "
+        raise InputError(f"serial profile {profile!r} does not match the stream's channels and "
                          "counts per unit; give the profile of the recorded device")
     loaded = dataclasses.replace(loaded, imu=dataclasses.replace(loaded.imu, rate_hz=spec.rate_hz))
     counts, k = data.counts.astype(np.int64), len(data.seq)
@@ -264,7 +264,7 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
             while recorder.samples < k:
                 recorder.check(stale=10.0)
                 if time.monotonic() > deadline:
-                    raise TimeoutError(f"raw replay got {recorder.samples} of {k} samples in "
+                    raise AcquisitionError(f"raw replay got {recorder.samples} of {k} samples in "
                                        f"{timeout} s")
                 time.sleep(0.01)
         writer.flush()

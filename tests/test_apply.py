@@ -79,7 +79,7 @@ def test_sigma_columns_from_the_calibrations_covariance(tmp_path, capsys):
     # b's own sigma alone: F diag(sb^2) F^T, a lower bound of each component's variance
     f = cal.fusion_matrix()
     assert np.all(values[:, 3:] ** 2 >= np.diag(f @ np.diag(sigma[12:] ** 2) @ f.T) * (1 - 1e-9))
-    assert cli.main(["apply", str(cal_path_of(tmp_path)), str(data), "--sigma"]) == 1
+    assert cli.main(["apply", str(cal_path_of(tmp_path)), str(data), "--sigma"]) == 2
     assert "no covariance" in capsys.readouterr().err
 
 
@@ -115,7 +115,7 @@ def test_bad_csv_is_refused_with_the_reason(tmp_path, cal_path, capsys, header, 
     data = tmp_path / "bad.csv"
     with open(data, "w", newline="") as f:
         csv.writer(f).writerows([header, *rows])
-    assert cli.main(["apply", str(cal_path), str(data)]) == 1
+    assert cli.main(["apply", str(cal_path), str(data)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("station apply: ")
     assert re.search(message, err), err
@@ -155,7 +155,7 @@ def test_session_to_hdf5(tmp_path, cal_path, capsys):
 ])
 def test_a_session_of_another_unit_is_refused(tmp_path, cal_path, capsys, kwargs, message):
     session_file(tmp_path / "s.h5", **kwargs)
-    assert cli.main(["apply", str(cal_path), str(tmp_path / "s.h5")]) == 1
+    assert cli.main(["apply", str(cal_path), str(tmp_path / "s.h5")]) == 2
     assert re.search(message, capsys.readouterr().err)
 
 
@@ -165,7 +165,7 @@ def test_apply_never_overwrites(tmp_path, cal_path, capsys):
     _, z = truth()
     data = tmp_path / "z.csv"
     write_csv(data, list(SENSORS), [z])
-    assert cli.main(["apply", str(cal_path), str(data), "--out", str(out)]) == 1
+    assert cli.main(["apply", str(cal_path), str(data), "--out", str(out)]) == 2
     assert out.read_text() == "precious" and "exists" in capsys.readouterr().err
 
 
@@ -210,7 +210,7 @@ def test_the_c_header_computes_the_calibrated_vectors(tmp_path, cal_path, ctype,
 def test_export_refuses_another_unit_and_bad_names(tmp_path, cal_path, capsys):
     out = tmp_path / "cal.h"
     assert cli.main(["export", str(cal_path), "--c-header", str(out), "--unit-serial",
-                     "SN7"]) == 1
+                     "SN7"]) == 2
     assert "for unit 'SN42'" in capsys.readouterr().err and not out.exists()
     with pytest.raises(ValueError, match="not a C identifier"):
         c_header(load(cal_path), prefix="1BAD")

@@ -69,7 +69,7 @@ def test_solve_writes_a_calibration_file_matching_the_truth(recorded, tmp_path, 
                                                               rel=1e-6)
     # never overwrites
     capsys.readouterr()
-    assert cli.main(["solve", str(session), "--out", str(out)]) == 1
+    assert cli.main(["solve", str(session), "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
 
 
@@ -92,17 +92,17 @@ def test_solve_refuses_what_it_cannot_solve(tmp_path, capsys):
     spec = StreamSpec(("a1", "a2", "a3"), "m/s^2", 1000.0, 100.0)
     with SessionWriter.create(path, {"protocol": "import", "unit_serial": "X"}, {"imu": spec}):
         pass
-    assert cli.main(["solve", str(path)]) == 1
+    assert cli.main(["solve", str(path)]) == 2
     err = capsys.readouterr().err
     assert "records a 'import' session" in err and "station.reduce.free_static" in err
     iron = tmp_path / "iron.h5"  # a still-pose session without its gravity
     with SessionWriter.create(iron, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
         pass
-    assert cli.main(["solve", str(iron)]) == 1
+    assert cli.main(["solve", str(iron)]) == 2
     assert "no usable gravity (None). Give the stimulus magnitude with --magnitude" \
         in capsys.readouterr().err
     (tmp_path / "junk.h5").write_bytes(b"not hdf5")
-    assert cli.main(["solve", str(tmp_path / "junk.h5")]) == 1
+    assert cli.main(["solve", str(tmp_path / "junk.h5")]) == 2
     assert "station solve:" in capsys.readouterr().err
 
 

@@ -55,16 +55,16 @@ def test_demo_over_the_can_link_meets_the_acceptance(tmp_path):
     assert s["link"]["incomplete"] == 0 and s["link"]["errors"] == 0
 
 
-def test_demo_refuses_to_overwrite_a_session(tmp_path):
+def test_demo_refuses_to_overwrite_a_session(tmp_path, capsys):
     out = tmp_path / "kept.h5"
     out.write_bytes(b"precious")
-    with pytest.raises(SystemExit, match="exists; choose another --out"):
-        cli.main(["demo", "--out", str(out)])
+    assert cli.main(["demo", "--out", str(out)]) == 2
+    assert "exists; choose another --out" in capsys.readouterr().err
     assert out.read_bytes() == b"precious"
 
 
 def test_demo_refuses_too_few_positions_before_recording(capsys):
-    assert cli.main(["demo", "--positions", "4"]) == 1
+    assert cli.main(["demo", "--positions", "4"]) == 2
     err = capsys.readouterr().err
     assert "4 position(s) are too few" in err and "Record 2 more position(s)" in err
 

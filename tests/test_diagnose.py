@@ -83,7 +83,7 @@ def test_cli_json_and_report(tmp_path):
                                 a_nominal=bench.TRIAD)
     path, _ = npz.write(tmp_path / "s.npz", sim)
     html = tmp_path / "r.html"
-    out = subprocess.run([sys.executable, "-m", "station.cli", "diagnose", str(path), "--json",
+    out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path), "--json",
                           "--report", str(html)], check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
@@ -100,9 +100,9 @@ def test_cli_json_and_report(tmp_path):
 def test_cli_refuses_what_it_cannot_read(tmp_path):
     bad = tmp_path / "x.npz"
     np.savez(bad, y=np.zeros((2, 10, 3), np.int32))
-    out = subprocess.run([sys.executable, "-m", "station.cli", "diagnose", str(bad)],
+    out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(bad)],
                          check=False, capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "lacks" in out.stdout
+    assert out.returncode == 2 and "lacks" in out.stderr
 
 
 def test_missing_keys_name_the_problem():

@@ -23,7 +23,7 @@ from station.files.session import Session
 from station.solve.uncertainty import eps_tail_probability
 
 POSITIONS = 8
-STATION = [sys.executable, "-m", "station.cli"]
+STATION = [sys.executable, "-m", "station"]
 
 
 def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) -> None:
@@ -108,7 +108,7 @@ def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_pa
             record(bench, path, ConsoleOperator(stdin=io.StringIO("\n" * 3), stdout=io.StringIO()))
         other = tmp_path / "other.toml"
         other.write_text(twin.profile_text(unit_serial="SIM-99"))
-        assert main(["resume", str(path), "--profile", str(other)]) == 1
+        assert main(["resume", str(path), "--profile", str(other)]) == 2
         assert "recorded unit 'SIM-6', the profile is for 'SIM-99'" in capsys.readouterr().err
         table = twin.bench.table  # the table's physics: left turning by a station that died
         table.set_rate(1.0)

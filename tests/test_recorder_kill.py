@@ -100,7 +100,7 @@ def test_ten_kills_at_random_moments_then_station_resume_completes_the_session(t
         remaining = POSITIONS - (0 if last is None else last + 1)
         assert remaining > 0
 
-    done = subprocess.run([sys.executable, "-m", "station.cli", "resume", str(path), "--json"],
+    done = subprocess.run([sys.executable, "-m", "station", "resume", str(path), "--json"],
                           check=False, capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr

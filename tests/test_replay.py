@@ -123,7 +123,7 @@ def test_station_replay_command(copy, capsys):
     assert summary["results"] == "replay-1" and summary["positions"] == 9
     assert main(["replay", str(copy), "--dry-run"]) == 0
     assert "not stored" in capsys.readouterr().out
-    assert main(["replay", str(copy), "--method", "ellipsoid"]) == 1
+    assert main(["replay", str(copy), "--method", "ellipsoid"]) == 2
     assert "ellipsoid fit is for a triad" in capsys.readouterr().err
     with Session.open(copy) as f:
         assert set(f.result_names) == {"rotary", "replay-1"}

@@ -113,7 +113,7 @@ def test_station_replay_command_stores_replay_1_and_prints_json(copy, capsys):
 
 
 def test_raw_replay_refuses_a_hand_session(copy, tmp_path, capsys):
-    assert main(["replay", str(copy), "--raw", str(tmp_path / "again.h5")]) == 1
+    assert main(["replay", str(copy), "--raw", str(tmp_path / "again.h5")]) == 2
     assert "raw replay re-records rotary sessions only" in capsys.readouterr().err
     assert not (tmp_path / "again.h5").exists()
 
@@ -141,7 +141,7 @@ def test_replay_refuses_an_unknown_protocol(tmp_path):
         pass
     with pytest.raises(ValueError, match="'import' session; replay reduces rotary, iron, static"):
         replay(path)
-    assert main(["replay", str(path)]) == 1
+    assert main(["replay", str(path)]) == 2
 
 
 def test_station_diagnose_reads_the_recorded_hand_session(session, tmp_path, capsys):

@@ -266,13 +266,13 @@ def test_station_report_cli(recorded, tmp_path, capsys):
 def test_station_report_refuses_bad_input(tmp_path, capsys, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)
     Path("plain.txt").write_text("not a session")
-    assert cli.main(["report", *args]) == 1
+    assert cli.main(["report", *args]) == 2
     assert message in capsys.readouterr().err
 
 
 def test_station_report_names_the_results_it_has(recorded, tmp_path, capsys):
     assert cli.main(["report", str(recorded[0]), "--out", str(tmp_path / "r.html"),
-                     "--result", "nope"]) == 1
+                     "--result", "nope"]) == 2
     assert "no results named 'nope'; it has rotary" in capsys.readouterr().err
 
 

@@ -17,10 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-
-
-class OperatorAbort(Exception):
-    """The operator ended the session (end of input, or 'no' to a question that must be 'yes')."""
+from station.errors import OperatorAbort
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ import time
 from typing import Self
 
 import numpy as np
+from station.errors import RecordingError
 
 
 def arrival_offset(seq, host_time, rate_hz: float) -> float:
@@ -55,10 +56,6 @@ def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
         part = segment == k
         times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
     return times
-
-
-class RecordingError(RuntimeError):
-    """The IMU stream stopped: the device went silent or the reader failed."""
 
 
 class Recorder:

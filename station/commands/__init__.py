@@ -1,1 +1,26 @@
-"""One module per `station` subcommand; each exposes `register(subparsers)`."""
+"""One module per `station` subcommand; each exposes `register(p)` (its options on parser `p`) and
+sets `run(args)`. Errors are raised, not printed: `station.cli` turns them into one line and an
+exit code. The checks every command makes on the files it is given live here."""
+
+from pathlib import Path
+
+from station.errors import InputError, MissingFileError
+
+
+def existing_file(path, what: str, suffixes=()) -> Path:
+    """`path` as a Path if it names a regular file (with one of `suffixes`, when given)."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(f"{path} is not a file; give the path of {what}")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise InputError(f"{path} is not {what} (expected {' or '.join(suffixes)})")
+    return path
+
+
+def new_file(path, force: bool = False, option: str = "--out") -> Path:
+    """`path` as a Path if writing it loses nothing (absent, or `force`)."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise InputError(f"{path} exists; choose another {option}"
+                         + (" or add --force" if option == "--out" else ""))
+    return path

@@ -15,7 +15,6 @@ calibration's own uncertainty leaves (its covariance, calibration file version 2
 noise is not included): columns sigma_v_x, ... (HDF5: dataset `v_sigma`).
 """
 
-import argparse
 import csv
 import io
 import json
@@ -26,18 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
+from station.commands import existing_file, new_file
+from station.errors import InputError
+
 AXES = ("v_x", "v_y", "v_z")
 HDF5_SUFFIXES = (".h5", ".hdf5")
 _HEADER = re.compile(r"\s*([^\[\]]+?)\s*(?:\[\s*([^\[\]]+?)\s*\])?\s*\Z")
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "apply", help="apply a calibration file to readings (CSV or session) -> calibrated vectors",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station apply SN42.cal.json sessions/SN42.h5 --out rates.csv\n"
-               "  station apply SN42.cal.json readings.csv > rates.csv\n"
-               "  station apply SN42.cal.json counts.csv --counts --out rates.h5 --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station apply SN42.cal.json sessions/SN42.h5 --out rates.csv\n"
+        "  station apply SN42.cal.json readings.csv > rates.csv\n"
+        "  station apply SN42.cal.json counts.csv --counts --out rates.h5 --json"
+    )
     p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
     p.add_argument("data", type=Path, help="readings: a session file (.h5) or a CSV file")
     p.add_argument("--out", type=Path, help="output .csv or .h5 (default: CSV on stdout)")
@@ -53,37 +56,29 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.files.calfile import CalibrationFileError, load
-    from station.files.session import SessionFormatError
+    from station.files.calfile import load
 
     if args.json and args.out is None:
-        print("station apply: --json prints a summary; give --out for the vectors",
-              file=sys.stderr)
-        return 2
-    if args.out is not None and args.out.exists() and not args.force:
-        print(f"station apply: {args.out} exists; choose another --out or add --force",
-              file=sys.stderr)
-        return 1
-    try:
-        cal = load(args.calibration)
-        if args.data.suffix.lower() in HDF5_SUFFIXES:
-            time, z = read_session(args.data, args.stream, cal)
-        else:
-            time, z = read_csv(args.data, cal, args.counts)
-        v = cal.apply(z)
-        sigma = None
-        if args.sigma:
-            sigma = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2)) \
-                if len(z) else np.zeros_like(v)
-        if args.out is None:
-            sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
-        elif args.out.suffix.lower() in HDF5_SUFFIXES:
-            write_hdf5(args.out, time, v, cal, args.data, sigma)
-        else:
-            args.out.write_text(csv_text(time, v, cal.units[0], sigma))
-    except (CalibrationFileError, SessionFormatError, OSError) as exc:
-        print(f"station apply: {exc}", file=sys.stderr)
-        return 1
+        raise InputError("--json prints a summary; give --out for the vectors")
+    if args.out is not None:
+        new_file(args.out, args.force)
+    cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"))
+    data = existing_file(args.data, "readings (CSV or a session .h5)")
+    if data.suffix.lower() in HDF5_SUFFIXES:
+        time, z = read_session(data, args.stream, cal)
+    else:
+        time, z = read_csv(data, cal, args.counts)
+    v = cal.apply(z)
+    sigma = None
+    if args.sigma:
+        sigma = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2)) \
+            if len(z) else np.zeros_like(v)
+    if args.out is None:
+        sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
+    elif args.out.suffix.lower() in HDF5_SUFFIXES:
+        write_hdf5(args.out, time, v, cal, args.data, sigma)
+    else:
+        args.out.write_text(csv_text(time, v, cal.units[0], sigma))
     if args.json:
         norm = np.linalg.norm(v, axis=1)
         print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],

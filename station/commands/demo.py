@@ -8,7 +8,6 @@ the Cramer-Rao bound sqrt(trace(CRLB)).
 """
 
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -19,12 +18,13 @@ TRIAD_PAIRS = [(t + i, t + k) for t in range(0, 12, 3) for i, k in ((0, 1), (0, 
 """Sensor pairs within each of the four triads of Rupniewski's layout (nominally 90 deg apart)."""
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "demo", help="calibrate a 12-gyro unit on the virtual bench through the real drivers",
-        description=__doc__,
-        epilog="examples:\n  station demo\n  station demo --imu can --json\n"
-               "  station demo --positions 12 --speed 80 --out demo.h5")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station demo\n  station demo --imu can --json\n"
+        "  station demo --positions 12 --speed 80 --out demo.h5"
+    )
     p.add_argument("--imu", choices=("serial", "can"), default="serial",
                    help="IMU link: binary frames over a pty (default) or a virtual CAN bus")
     p.add_argument("--positions", type=int, default=20, help="number of positions n (default 20)")
@@ -40,32 +40,23 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from drivers.rotary_table import TableError
-    from station.errors import CalibrationInputError
+    from station.commands import new_file
+    from station.errors import InputError
     from station.solve.identifiability import check_positions
-    from station.protocols.rotary import ProtocolError
-    from station.acquire.recorder import RecordingError
 
     if not args.speed > 0:
-        raise SystemExit("station demo: --speed must be positive (simulated s per wall s)")
-    if args.out is not None and args.out.exists():
-        raise SystemExit(f"station demo: {args.out} exists; choose another --out")
-    try:
-        check_positions((12, args.positions), 3)  # before recording, not after
-        if args.out is None:
-            with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
-                summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
-                                   args.speed, live=args.live)
-            summary["session"] = None  # deleted with the temporary directory
-        else:
-            summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed,
-                               live=args.live)
-    except KeyboardInterrupt:
-        print("station demo: interrupted; the table was stopped", file=sys.stderr)
-        return 130
-    except (CalibrationInputError, ProtocolError, RecordingError, TableError) as exc:
-        print(f"station demo: {exc}", file=sys.stderr)
-        return 1
+        raise InputError("--speed must be positive (simulated s per wall s)")
+    if args.out is not None:
+        new_file(args.out)
+    check_positions((12, args.positions), 3)  # before recording, not after
+    if args.out is None:
+        with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
+            summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
+                               args.speed, live=args.live)
+        summary["session"] = None  # deleted with the temporary directory
+    else:
+        summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed,
+                           live=args.live)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:

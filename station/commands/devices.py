@@ -12,12 +12,13 @@ import logging
 import warnings
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "devices", help="list serial ports and CAN interfaces",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station devices\n  station devices --can-interfaces socketcan,virtual"
-               " --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station devices\n  station devices --can-interfaces socketcan,virtual"
+        " --json"
+    )
     p.add_argument("--can-interfaces", type=_names, metavar="NAMES",
                    help="comma-separated python-can interfaces to probe (default: all it knows)")
     p.add_argument("--json", action="store_true", help="machine-readable output")

@@ -8,18 +8,17 @@ from station.diagnose import data, diagnose, static_report
 
 from station.report import diagnosis as report
 from station.diagnose.static import diagnose_static
-from station.errors import CalibrationInputError
+from station.commands import existing_file
+from station.errors import InputError
 from station.files.session import Session
 
 
-def register(subparsers) -> None:
-    """Add the `diagnose` subcommand."""
-    p = subparsers.add_parser(
-        "diagnose",
-        help="find where a rotary session and its twin disagree and name the effect",
-        description="Fit the nominal model, compare the session with its digital twin, test "
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = (
+        "Fit the nominal model, compare the session with its digital twin, test "
         "every named effect by its likelihood ratio, add the strongest significant one and "
-        "repeat (docs/diagnose.md).",
+        "repeat (docs/diagnose.md)."
     )
     p.add_argument("session", metavar="SESSION",
                    help="session (.h5: rotary, or free-static from station import) or rotary "
@@ -32,35 +31,27 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    """Diagnose, print, optionally write the report; bad input is reported, not raised."""
-    path = Path(args.session)
-    if path.suffix not in (".npz", ".h5") or not path.is_file():
-        print(f"station diagnose: {path} is not a session (.h5 recorded or imported by the "
-              "station) or a rotary .npz data file; record, import or simulate one "
-              "(station simulate --protocol rotary --out x.npz)")
-        return 2
+    """Diagnose, print, optionally write the report."""
+    path = existing_file(args.session, "a session (.h5 recorded or imported by the station) or a "
+                         "rotary .npz data file (station simulate --protocol rotary --out x.npz)",
+                         (".npz", ".h5"))
     if not 0 < args.alpha < 1:
-        print(f"station diagnose: --alpha {args.alpha} must lie between 0 and 1")
-        return 2
-    try:
-        rotary = path.suffix == ".npz"
-        if rotary:
-            session = data.load(path)
-        else:
-            with Session.open(path) as recorded:
-                rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
-                session = data.from_session(recorded) if rotary else None
-        if rotary:
-            doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects),
-                                 session, str(path))
-        else:
-            static = static_report.load(path)
-            doc = report.static_to_dict(
-                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
-                static, str(path))
-    except (CalibrationInputError, ValueError, OSError) as err:
-        print(f"station diagnose: {err}")
-        return 2
+        raise InputError(f"--alpha {args.alpha} must lie between 0 and 1")
+    rotary = path.suffix == ".npz"
+    if rotary:
+        session = data.load(path)
+    else:
+        with Session.open(path) as recorded:
+            rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
+            session = data.from_session(recorded) if rotary else None
+    if rotary:
+        doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects),
+                             session, str(path))
+    else:
+        static = static_report.load(path)
+        doc = report.static_to_dict(
+            diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
+            static, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

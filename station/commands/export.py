@@ -5,19 +5,18 @@ unit as `static const float` (or double) arrays with their units in comments, so
 computes v = FUSION (counts / COUNTS_PER_UNIT - BIAS).
 """
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "export", help="export a calibration file as a C header for firmware",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station export SN42.cal.json --c-header imu_cal.h\n"
-               "  station export SN42.cal.json --c-header imu_cal.h --type double "
-               "--prefix GYRO_CAL --unit-serial SN42 --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station export SN42.cal.json --c-header imu_cal.h\n"
+        "  station export SN42.cal.json --c-header imu_cal.h --type double "
+        "--prefix GYRO_CAL --unit-serial SN42 --json"
+    )
     p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
     p.add_argument("--c-header", type=Path, required=True, metavar="OUT.h",
                    help="C header file to write")
@@ -32,20 +31,14 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.files.calfile import CalibrationFileError, load
+    from station.commands import existing_file, new_file
+    from station.files.calfile import load
     from station.files.export_c import c_header
 
-    out = args.c_header
-    if out.exists() and not args.force:
-        print(f"station export: {out} exists; choose another name or add --force",
-              file=sys.stderr)
-        return 1
-    try:
-        cal = load(args.calibration, unit_serial=args.unit_serial)
-        out.write_text(c_header(cal, args.prefix, args.type))
-    except (CalibrationFileError, ValueError, OSError) as exc:
-        print(f"station export: {exc}", file=sys.stderr)
-        return 1
+    out = new_file(args.c_header, args.force, "--c-header name or add --force")
+    cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"),
+               unit_serial=args.unit_serial)
+    out.write_text(c_header(cal, args.prefix, args.type))
     summary = {"header": str(out), "unit_serial": cal.unit_serial, "d": cal.d, "m": cal.m,
                "type": args.type, "prefix": args.prefix, "units": cal.units[0]}
     print(json.dumps(summary, indent=2) if args.json else

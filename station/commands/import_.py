@@ -1,6 +1,5 @@
 """`station import`: a foreign recording into a new session file (station/files/importers.py)."""
 
-import argparse
 from pathlib import Path
 
 EXAMPLES = """examples:
@@ -11,12 +10,13 @@ EXAMPLES = """examples:
   station import npz rotary.h5 recording.npz"""
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "import", help="convert a foreign recording (text, CSV, .npz) into a session file",
-        description=__doc__ + " Units: m/s^2, g, rad/s, deg/s, T, uT, gauss, or raw counts "
-        "counts:<SI unit>[@<counts per SI unit>].", epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = (
+        __doc__ + " Units: m/s^2, g, rad/s, deg/s, T, uT, gauss, or raw counts "
+        "counts:<SI unit>[@<counts per SI unit>]."
+    )
+    p.epilog = EXAMPLES
     p.add_argument("format", choices=("text", "csv", "npz"), help="format of the recording")
     p.add_argument("out", type=Path, help="session file to create (.h5, must not exist)")
     p.add_argument("source", nargs="?", type=Path, help="the CSV or .npz file")
@@ -32,26 +32,26 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.errors import CalibrationInputError
+    from station.commands import existing_file, new_file
+    from station.errors import InputError
     from station.files.importers import import_csv, import_npz, import_text
 
-    if args.out.exists():
-        raise SystemExit(f"station import: {args.out} exists; choose another name")
-    try:
-        streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
-        if args.format == "text":
-            out = import_text(args.out, streams, units, unit_serial=args.unit_serial, fs=args.fs)
-        elif args.source is None:
-            raise SystemExit(f"station import {args.format}: give the source file")
-        elif args.format == "csv":
-            columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
-            out = import_csv(args.out, args.source, columns, units, time_column=args.time,
-                             index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
-        else:
-            out = import_npz(args.out, args.source, unit_serial=args.unit_serial)
-    except (CalibrationInputError, OSError) as exc:
-        print(f"station import: {exc}")
-        return 2
+    new_file(args.out, option="name")
+    streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
+    if args.format == "text":
+        for path in streams.values():
+            existing_file(path, "a text recording (--stream NAME=FILE)")
+        out = import_text(args.out, streams, units, unit_serial=args.unit_serial, fs=args.fs)
+    elif args.source is None:
+        raise InputError(f"`import {args.format}` needs the source file")
+    elif args.format == "csv":
+        source = existing_file(args.source, "a CSV recording")
+        columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
+        out = import_csv(args.out, source, columns, units, time_column=args.time,
+                         index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
+    else:
+        out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
+                         unit_serial=args.unit_serial)
     print(f"wrote {out}")
     return 0
 

@@ -39,7 +39,6 @@ calibration file as `station solve` does. Examples of bench profiles: drivers/pr
 `station twin` writes one for its virtual devices.
 """
 
-import argparse
 import contextlib
 import dataclasses
 import json
@@ -49,16 +48,17 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from station.errors import InputError
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "record", help="record a session (rotary, iron or static) with the devices of a bench "
-                       "profile",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
-               "  station twin --speed 40 --profile-out twin.toml &   # then:\n"
-               "  station record --profile twin.toml --out twin.h5 --solve --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
+        "  station twin --speed 40 --profile-out twin.toml &   # then:\n"
+        "  station record --profile twin.toml --out twin.h5 --solve --json"
+    )
     p.add_argument("--profile", type=Path, required=True, help="bench profile (TOML)")
     p.add_argument("--out", type=Path, help="session file to create (default: "
                    "sessions/<unit serial>-<date>.h5)")
@@ -210,45 +210,26 @@ def _layout(proto, imu, path) -> np.ndarray:
 
 
 def run(args) -> int:
-    from drivers.profile import ProfileError
-    from drivers.rotary_table import TableError
-    from station.files.calfile import CalibrationFileError
-    from station.errors import CalibrationInputError
-    from station.acquire.operator import ConsoleOperator, OperatorAbort
-    from station.protocols.rotary import ProtocolError
-    from station.acquire.recorder import RecordingError
+    from station.acquire.operator import ConsoleOperator
+    from station.commands import existing_file, new_file
+    from station.errors import InputError
 
-    try:
-        bench = BenchProfile.load(args.profile)
-    except ProfileError as exc:
-        print(f"station record: {exc}", file=sys.stderr)
-        return 2
+    bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
     if args.live and bench.protocol != "rotary":
-        print("station record: the live view shows rotary sessions; record a "
-              f"{bench.protocol} session without --live", file=sys.stderr)
-        return 2
+        raise InputError("the live view shows rotary sessions; record a "
+                         f"{bench.protocol} session without --live")
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}.h5"
-    if out.exists():
-        print(f"station record: {out} exists; choose another --out", file=sys.stderr)
-        return 1
+    new_file(out, option="--out")
     out.parent.mkdir(parents=True, exist_ok=True)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
-    stopped = "; the table was stopped" if bench.protocol == "rotary" else ""
     try:
         summary = record(bench, out, operator, live=args.live)
         if args.solve:
             summary["calibration"] = solve(out)
-    except KeyboardInterrupt:
-        print(f"station record: interrupted{stopped}; {out} keeps the completed positions",
-              file=sys.stderr)
-        return 130
-    except OperatorAbort as exc:
-        print(f"station record: {exc}{stopped}", file=sys.stderr)
-        return 1
-    except (CalibrationInputError, CalibrationFileError, ProtocolError, RecordingError,
-            TableError, OSError) as exc:
-        print(f"station record: {exc}", file=sys.stderr)
-        return 1
+    except BaseException as err:
+        stopped = "the table was stopped; " if bench.protocol == "rotary" else ""
+        err.add_note(f"{stopped}{out} keeps the completed positions")
+        raise
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
@@ -336,18 +317,18 @@ def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec)
     """Refuse (ValueError, naming the difference) a bench profile that cannot continue the
     session: another protocol, another unit, another stream."""
     if metadata.get("protocol") != "rotary" or bench.protocol != "rotary":
-        raise ValueError(f"{path} holds a {metadata.get('protocol')!r} session and the profile a "
+        raise InputError(f"{path} holds a {metadata.get('protocol')!r} session and the profile a "
                          f"{bench.protocol!r} one; only rotary sessions resume: record a hand "
                          "session again (its poses are quick to repeat)")
     if metadata.get("unit_serial") != bench.unit_serial:
-        raise ValueError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
+        raise InputError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
                          f"{bench.unit_serial!r}: mount the same unit, or use its bench profile")
     if recorded is None:
-        raise ValueError(f"{path} has no imu stream to continue")
+        raise InputError(f"{path} has no imu stream to continue")
     differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
               if getattr(recorded, name) != getattr(spec, name)]
     if differ:
-        raise ValueError(f"the profile's IMU stream differs from the recorded one in {differ}: "
+        raise InputError(f"the profile's IMU stream differs from the recorded one in {differ}: "
                          "resume with the device profile and rate the session was recorded with")
 
 

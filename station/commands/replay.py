@@ -12,19 +12,20 @@ OUT.
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 
-def register(sub) -> None:
-    p = sub.add_parser("replay", help="re-reduce and re-solve a recorded rotary, iron or free-static session",
-                       description=__doc__,
-                       epilog="examples:\n  station replay sessions/rotary-12gyro.h5\n"
-                              "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
-                              "  station replay unit.h5 --positions 1-6,9 --json\n"
-                              "  station replay unit.h5 --like trim --no-refine\n"
-                              "  station replay iron.h5 --positions 1-6 --trim 1\n"
-                              "  station replay unit.h5 --raw again.h5")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station replay sessions/rotary-12gyro.h5\n"
+        "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
+        "  station replay unit.h5 --positions 1-6,9 --json\n"
+        "  station replay unit.h5 --like trim --no-refine\n"
+        "  station replay iron.h5 --positions 1-6 --trim 1\n"
+        "  station replay unit.h5 --raw again.h5"
+    )
     p.add_argument("session", type=Path, help="the session file (.h5)")
     p.add_argument("--name", help="results name to store under (default: replay-<k>)")
     p.add_argument("--like", metavar="NAME",
@@ -48,37 +49,27 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.errors import CalibrationInputError
-    from station.replay import ReplaySettings, free_name, replay, replay_into, replay_raw
-    from station.files.session import SessionFormatError, SessionLockedError
+    from station.commands import existing_file, new_file
+    from station.replay import free_name, replay, replay_into, replay_raw
 
-    if not args.session.is_file():
-        print(f"station replay: no session file {args.session}", file=sys.stderr)
-        return 2
-    try:
-        if args.raw is not None:
-            if args.raw.exists():
-                raise ValueError(f"{args.raw} exists; choose another file for the raw replay")
-            replay_raw(args.session, args.raw)
-            summary = {"session": str(args.session), "raw_replay": str(args.raw)}
+    existing_file(args.session, "a session file (.h5)")
+    if args.raw is not None:
+        replay_raw(args.session, new_file(args.raw, option="file for the raw replay"))
+        summary = {"session": str(args.session), "raw_replay": str(args.raw)}
+    else:
+        settings = _settings(args)
+        if args.dry_run:
+            name = None
+            reduced, result = replay(args.session, settings)
         else:
-            settings = _settings(args)
-            if args.dry_run:
-                name = None
-                reduced, result = replay(args.session, settings)
-            else:
-                name = args.name or free_name(args.session)
-                reduced, result = replay_into(args.session, name, settings)
-            summary = {"session": str(args.session), "results": name,
-                       "positions": int(reduced.M.shape[1]), "method": result.method,
-                       "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
-                       "settings": dataclasses.asdict(settings),
-                       "scale_factors": result.scale_factors.tolist(),
-                       "scale_factors_sigma": result.scale_factors_sigma.tolist()}
-    except (CalibrationInputError, SessionFormatError, SessionLockedError, ValueError,
-            TimeoutError) as exc:
-        print(f"station replay: {exc}", file=sys.stderr)
-        return 1
+            name = args.name or free_name(args.session)
+            reduced, result = replay_into(args.session, name, settings)
+        summary = {"session": str(args.session), "results": name,
+                   "positions": int(reduced.M.shape[1]), "method": result.method,
+                   "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
+                   "settings": dataclasses.asdict(settings),
+                   "scale_factors": result.scale_factors.tolist(),
+                   "scale_factors_sigma": result.scale_factors_sigma.tolist()}
     if args.json:
         print(json.dumps(summary))
     elif args.raw is not None:
@@ -108,6 +99,8 @@ def _settings(args):
 
 def _positions(text):
     """0-based positions from a 1-based list like "1-6,9"; None for None."""
+    from station.errors import InputError
+
     if text is None:
         return None
     positions = []
@@ -116,6 +109,6 @@ def _positions(text):
             first, _, last = part.partition("-")
             positions += range(int(first) - 1, int(last or first))
     except ValueError:
-        raise ValueError(f"--positions {text!r}: give 1-based numbers and ranges, e.g. 1-6,9") \
+        raise InputError(f"--positions {text!r}: give 1-based numbers and ranges, e.g. 1-6,9") \
             from None
     return tuple(positions)

@@ -7,16 +7,16 @@ also written next to it as <stem>-<figure>.png. An existing report of the same n
 """
 
 import json
-import sys
 from pathlib import Path
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "report", help="write an HTML report (and PNG figures) of a session file",
-        description=__doc__,
-        epilog="examples:\n  station report sessions/SN42.h5\n"
-               "  station report sessions/SN42.h5 --out reports/SN42.html --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station report sessions/SN42.h5\n"
+        "  station report sessions/SN42.h5 --out reports/SN42.html --json"
+    )
     p.add_argument("session", type=Path, help="session file (.h5)")
     p.add_argument("--out", type=Path,
                    help="HTML file to write (default: the session's name with .html)")
@@ -28,24 +28,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from station.commands import existing_file
+    from station.errors import InputError
     from station.report import session as report
-    from station.files.session import SessionFormatError
 
-    if not args.session.is_file():
-        print(f"station report: {args.session} is not a file; give the path of a session (.h5)",
-              file=sys.stderr)
-        return 1
+    existing_file(args.session, "a session file (.h5)")
     out = args.out or args.session.with_suffix(".html")
     if out.resolve() == args.session.resolve():
-        print("station report: --out would overwrite the session file; choose an .html name",
-              file=sys.stderr)
-        return 1
-    try:
-        built = report.build(args.session, args.result)
-        files = built.write(out)
-    except (SessionFormatError, ValueError, OSError) as exc:
-        print(f"station report: {exc}", file=sys.stderr)
-        return 1
+        raise InputError("--out would overwrite the session file; choose an .html name")
+    built = report.build(args.session, args.result)
+    files = built.write(out)
     if args.json:
         print(json.dumps({**built.summary, "files": [str(f) for f in files]}, indent=2))
     else:

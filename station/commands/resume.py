@@ -13,12 +13,14 @@ import sys
 from pathlib import Path
 
 
-def register(sub) -> None:
-    p = sub.add_parser("resume", help="continue a rotary session after a kill, pause or abort",
-                       description=__doc__,
-                       epilog="examples:\n  station resume unit7.h5\n"
-                              "  station resume unit7.h5 --profile bench.toml   # a port moved\n"
-                              "  station resume demo.h5 --speed 80 --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station resume unit7.h5\n"
+        "  station resume unit7.h5 --profile bench.toml   # a port moved\n"
+        "  station resume demo.h5 --speed 80 --json"
+    )
     p.add_argument("session", type=Path, help="the session file (.h5)")
     p.add_argument("--profile", type=Path,
                    help="bench profile of the real devices (default: the one recorded with)")
@@ -29,39 +31,23 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from drivers.profile import ProfileError
-    from drivers.rotary_table import TableError
-    from station.acquire.operator import OperatorAbort
-    from station.protocols.rotary import ProtocolError
-    from station.acquire.recorder import RecordingError
-    from station.files.session import Session, SessionFormatError, SessionLockedError
+    from drivers.errors import DeviceError
+    from station.commands import existing_file
+    from station.errors import AcquisitionError, OperatorAbort
+    from station.files.session import Session
     from station.twin.rotary_bench import resume_rotary
 
-    if not args.session.is_file():
-        print(f"station resume: no session file {args.session}", file=sys.stderr)
-        return 2
+    existing_file(args.session, "a session file (.h5)")
     overrides = {} if args.speed is None else {"speed": args.speed}
+    profile = args.profile or _recorded_profile(args.session)
     try:
-        profile = args.profile or _recorded_profile(args.session)
         if profile is None:
             first = resume_rotary(args.session, **overrides)
         else:
             first = _resume_with_devices(args.session, profile, args.json)
-    except ProfileError as exc:
-        print(f"station resume: {exc}", file=sys.stderr)
-        return 2
-    except OperatorAbort as exc:
-        print(f"station resume: {exc}; the table was stopped; resume again to go on",
-              file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("station resume: interrupted; the table was stopped; resume again to go on",
-              file=sys.stderr)
-        return 130
-    except (SessionFormatError, SessionLockedError, ValueError, ProtocolError, RecordingError,
-            TableError, OSError) as exc:
-        print(f"station resume: {exc}", file=sys.stderr)
-        return 1
+    except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
+        err.add_note("the table was stopped; resume again to go on")
+        raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()
         n = len(session.metadata["axes"])

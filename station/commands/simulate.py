@@ -11,13 +11,11 @@ from station.sim.rotary import simulate_rotary
 from station.sim.static import simulate_static
 
 
-def register(subparsers) -> None:
-    """Add the `simulate` subcommand."""
-    p = subparsers.add_parser(
-        "simulate",
-        help="simulate a session of the digital twin",
-        description="Simulate a rotary (12-gyro array), right-angle-iron or free-static "
-        "(accelerometer triad) session; the truth goes to FILE.truth.json.",
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = (
+        "Simulate a rotary (12-gyro array), right-angle-iron or free-static "
+        "(accelerometer triad) session; the truth goes to FILE.truth.json."
     )
     p.add_argument("--protocol", choices=("rotary", "iron", "static"), default="rotary")
     p.add_argument(
@@ -73,12 +71,15 @@ def simulate(args):
 
 
 def run(args) -> int:
-    """Simulate and write; bad effect specs or parameters are reported, not raised."""
+    """Simulate and write; bad effect specs or parameters raise InputError."""
+    from station.errors import InputError
+
     try:
         sim = simulate(args)
-        data, truth = npz.write(args.out, sim)
-    except ValueError as err:
-        print(f"station simulate: {err}")
-        return 2
+    except InputError:
+        raise
+    except ValueError as err:  # a settings dataclass refusing a value given on the command line
+        raise InputError(str(err)) from err
+    data, truth = npz.write(args.out, sim)
     print(f"wrote {data} {sim.arrays['y'].shape} and {truth}")
     return 0

@@ -16,20 +16,19 @@ calibrate the accelerometer channels only.
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "solve", help="solve a recorded session into a calibration file",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station solve sessions/SN42.h5\n"
-               "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station solve sessions/SN42.h5\n"
+        "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json"
+    )
     p.add_argument("session", type=Path, help="session file (.h5) recorded by `station record`")
     p.add_argument("--out", type=Path,
                    help="calibration file to write (default: SESSION with suffix .cal.json)")
@@ -46,21 +45,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from station.files.calfile import CalibrationFileError
-    from station.errors import CalibrationInputError
-    from station.files.session import SessionFormatError
+    from station.commands import existing_file, new_file
 
-    out = args.out or args.session.with_suffix(".cal.json")
-    if out.exists() and not args.force:
-        print(f"station solve: {out} exists; choose another --out or add --force", file=sys.stderr)
-        return 1
-    try:
-        nominal = None if args.nominal is None else read_nominal(args.nominal)
-        cal = solve_session(args.session, args.stream, nominal, args.magnitude)
-        cal.save(out, overwrite=args.force)
-    except (CalibrationInputError, CalibrationFileError, SessionFormatError, OSError) as exc:
-        print(f"station solve: {exc}", file=sys.stderr)
-        return 1
+    existing_file(args.session, "a session file (.h5)")
+    out = new_file(args.out or args.session.with_suffix(".cal.json"), args.force)
+    nominal = None if args.nominal is None else read_nominal(args.nominal)
+    cal = solve_session(args.session, args.stream, nominal, args.magnitude)
+    cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
     return 0

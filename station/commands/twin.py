@@ -24,11 +24,9 @@ The CAN twin (a python-can virtual channel) is visible only inside one process: 
 serves in-process tests and the demo, not a separate `station record`.
 """
 
-import argparse
 import json
 import os
 import signal
-import sys
 import termios
 import threading
 import time
@@ -40,13 +38,14 @@ import numpy as np
 from station.protocols.rotary import instruction, suggested_axes
 
 
-def register(sub) -> None:
-    p = sub.add_parser(
-        "twin", help="run the virtual bench's devices (serial IMU, Modbus table) for `record`",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  station twin --profile-out bench.toml\n"
-               "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
-               "  station twin --protocol static --speed 20 --profile-out hand.toml")
+def register(p) -> None:
+    """The options, description and examples of this subcommand, on its parser `p`."""
+    p.description = __doc__
+    p.epilog = (
+        "examples:\n  station twin --profile-out bench.toml\n"
+        "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
+        "  station twin --protocol static --speed 20 --profile-out hand.toml"
+    )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
     p.add_argument("--protocol", choices=("rotary", "iron", "static"), default="rotary",
@@ -293,13 +292,12 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 
 def run(args) -> int:
+    from station.errors import InputError, StationError
+
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
-        print("station twin: --positions, --mountings, --speed and --lifetime must be positive",
-              file=sys.stderr)
-        return 2
+        raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
     if args.protocol == "static" and not 12 <= args.positions <= 26:
-        print("station twin: a static session has 12 to 26 poses (--positions)", file=sys.stderr)
-        return 2
+        raise InputError("a static session has 12 to 26 poses (--positions)")
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     if args.protocol == "rotary":
@@ -329,8 +327,7 @@ def run(args) -> int:
     finally:
         signal.signal(signal.SIGTERM, previous)
     if twin.error is not None:
-        print(f"station twin: the fixture failed: {twin.error}", file=sys.stderr)
-        return 1
+        raise StationError(f"the fixture failed: {twin.error}")
     if args.json:
         print(json.dumps({"truth": truth}), flush=True)
     return 0

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from station.files.provenance import software_version, utc_now
+from station.errors import CalibrationFileError
 
 FORMAT = "imu-station-calibration"
 FORMAT_VERSION = 2
@@ -57,10 +58,6 @@ _KEYS_V1 = ("format", "format_version", "software_version", "created", "conventi
             "fit", "session", "checksum")
 _KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum")}
 _CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS}
-
-
-class CalibrationFileError(ValueError):
-    """A calibration file this software cannot or must not use; the message says what to do."""
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,6 +15,7 @@ import re
 import numpy as np
 
 from station.files.calfile import Calibration
+from station.errors import InputError
 
 CTYPES = ("float", "double")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}\Z")
@@ -23,10 +24,10 @@ _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}\Z")
 def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") -> str:
     """The header text; `prefix` names the macros and arrays (a C identifier, e.g. IMU_CAL)."""
     if not _IDENT.match(prefix):
-        raise ValueError(f"prefix {prefix!r} is not a C identifier (letters, digits, '_', not "
+        raise InputError(f"prefix {prefix!r} is not a C identifier (letters, digits, '_', not "
                          "starting with a digit, at most 32 characters)")
     if ctype not in CTYPES:
-        raise ValueError(f"C type {ctype!r}: choose one of {CTYPES}")
+        raise InputError(f"C type {ctype!r}: choose one of {CTYPES}")
     d, m = cal.d, cal.m
     unit = cal.units[0]
     guard = f"{prefix.upper()}_H"

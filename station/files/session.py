@@ -31,6 +31,7 @@ from drivers.samples import SampleBlock
 from station.solve.calibrate import CalibrationResult
 from drivers.clock import WallClock
 from station.files.provenance import software_version, utc_now
+from station.errors import SessionFormatError, SessionLockedError
 
 FORMAT = "imu-station-session"
 FORMAT_VERSION = 1
@@ -51,14 +52,6 @@ RESULT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}\Z")
 MAX_JSON_BYTES = 16 << 20
 CHUNK_BYTES = 64 << 10
 ALLOWED_FILTERS = {h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_FLETCHER32}
-
-
-class SessionFormatError(ValueError):
-    """The file is not a session file this software can read; the message says what was found."""
-
-
-class SessionLockedError(RuntimeError):
-    """Another live process is writing the session file."""
 
 
 @dataclass(frozen=True)
@@ -436,8 +429,6 @@ def _json(value, what: str) -> str:
     if len(text) > MAX_JSON_BYTES:
         raise ValueError(f"{what} is {len(text)} bytes of JSON, over the {MAX_JSON_BYTES} limit")
     return text
-
-
 
 
 def _write_layout(f, metadata, metadata_json, streams) -> None:

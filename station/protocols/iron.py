@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from station.solve.constraints import FACES, from_faces
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
 from station.acquire.operator import Instruction
 from station.protocols.rotary import mounting
 from station.protocols.still import (
@@ -68,11 +68,11 @@ class IronSettings(StillSettings):
         object.__setattr__(self, "faces", tuple(self.faces))
         unknown = [f for f in self.faces if f not in FACES]
         if unknown or not self.faces:
-            raise ValueError(f"faces must be a non-empty list of {FACES}, got {self.faces!r}")
+            raise InputError(f"faces must be a non-empty list of {FACES}, got {self.faces!r}")
         if not (isinstance(self.mountings, int) and self.mountings >= 1):
-            raise ValueError(f"mountings must be a whole number >= 1, got {self.mountings!r}")
+            raise InputError(f"mountings must be a whole number >= 1, got {self.mountings!r}")
         if not self.tolerance_deg > 0:
-            raise ValueError("tolerance_deg must be positive")
+            raise InputError("tolerance_deg must be positive")
 
 
 def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:

@@ -48,21 +48,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from drivers.rotary_table import TableTimeout
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError, ProtocolError, SessionPaused
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError, sample_times
 from station.reduce.eq18 import Reduced, reduce_rotary
 
 SEGMENT_EVENTS = ("resume", "session_resumed")
 """Events after which the IMU stream is a new segment (see `station.acquire.recorder.sample_times`)."""
-
-
-class ProtocolError(RuntimeError):
-    """The bench did not behave as the protocol needs; the message says what and what to do."""
-
-
-class SessionPaused(ProtocolError):
-    """The table stopped answering and the operator chose to stop; the session can be resumed."""
 
 
 @dataclass(frozen=True)
@@ -96,15 +88,15 @@ class RotarySettings:
 
     def __post_init__(self):
         if not (math.isfinite(self.rate) and self.rate != 0):
-            raise ValueError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
+            raise InputError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
         if not (isinstance(self.revolutions, int) and self.revolutions >= 1):
-            raise ValueError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
+            raise InputError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
         if not (isinstance(self.retries, int) and self.retries >= 0):
-            raise ValueError(f"retries must be a whole number >= 0, got {self.retries!r}")
+            raise InputError(f"retries must be a whole number >= 0, got {self.retries!r}")
         durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
         bad = [n for n in durations if not getattr(self, n) > 0]
         if bad:
-            raise ValueError(f"rotary settings {bad} must be positive")
+            raise InputError(f"rotary settings {bad} must be positive")
 
 
 def suggested_axes(n: int) -> np.ndarray:
@@ -114,7 +106,7 @@ def suggested_axes(n: int) -> np.ndarray:
     sensor layout (the PCA of Algorithm 2 needs v_j spanning R^3 in all directions).
     """
     if n < 1:
-        raise ValueError(f"number of positions must be positive, got {n}")
+        raise InputError(f"number of positions must be positive, got {n}")
     i = np.arange(n) + 0.5
     z = 1 - 2 * i / n
     phi = np.pi * (1 + np.sqrt(5)) * i
@@ -156,7 +148,7 @@ class RotaryProtocol:
         self.settings = settings or RotarySettings()
         self.axes = suggested_axes(20) if axes is None else np.asarray(axes, float)
         if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
-            raise ValueError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
+            raise InputError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
         self.position = 0
         self.state = "mount"
         self._handlers = {"mount": self._mount, "still": self._still, "static": self._static,
@@ -174,13 +166,13 @@ class RotaryProtocol:
     def from_metadata(cls, metadata: dict, table, operator, clock) -> "RotaryProtocol":
         """The protocol a session file recorded (`metadata()` of the original run)."""
         if metadata.get("protocol") != "rotary":
-            raise ValueError(f"the session was recorded with protocol "
+            raise InputError(f"the session was recorded with protocol "
                              f"{metadata.get('protocol')!r}, not 'rotary'")
         try:
             settings = RotarySettings(**metadata["settings"])
             axes = np.asarray(metadata["axes"], float)
         except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"the session's rotary settings or axes are unusable ({exc}); "
+            raise InputError(f"the session's rotary settings or axes are unusable ({exc}); "
                              "it was not written by this station") from None
         return cls(table, operator, clock, settings, axes)
 
@@ -188,7 +180,7 @@ class RotaryProtocol:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`); the
         table is stopped whatever happens."""
         if not 0 <= first < len(self.axes):
-            raise ValueError(f"first position {first} is outside 0..{len(self.axes) - 1}")
+            raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
         try:
             while self.state != "done":
@@ -473,7 +465,7 @@ def reduce_session(session, stream: str = "imu", coverage: float = 0.9,
     """
     data, table, events = session.stream(stream), session.table(), session.events()
     if not (math.isfinite(trim) and trim >= 0):
-        raise ValueError(f"window trim must be >= 0 seconds, got {trim!r}")
+        raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
     windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
                for j, w in position_windows(events).items()}
     if not windows:

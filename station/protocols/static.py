@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
 from station.acquire.operator import Instruction
 from station.protocols.rotary import mounting
 from station.protocols.still import (
@@ -83,10 +83,10 @@ class StaticSettings(StillSettings):
     def __post_init__(self):
         super().__post_init__()
         if not (isinstance(self.poses, int) and 12 <= self.poses <= len(GUIDED_POSES)):
-            raise ValueError(f"poses must be a whole number from 12 (a triad's 9 unknowns and 3 to "
+            raise InputError(f"poses must be a whole number from 12 (a triad's 9 unknowns and 3 to "
                              f"check the fit) to {len(GUIDED_POSES)}, got {self.poses!r}")
         if not 0 < self.separation_deg < 35:
-            raise ValueError("separation_deg must lie between 0 and 35 degrees (the guided poses "
+            raise InputError("separation_deg must lie between 0 and 35 degrees (the guided poses "
                              f"are 35 degrees apart), got {self.separation_deg!r}")
 
 

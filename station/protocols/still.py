@@ -29,7 +29,7 @@ import numpy as np
 
 from station.solve.calibrate import calibrate
 from station.solve.constraints import Constraints
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import ProtocolError
 from station.acquire.recorder import Recorder, sample_times
 from station.files.session import SessionWriter
@@ -64,9 +64,9 @@ class StillSettings:
                     "timeout", "stale")
         bad = [n for n in positive if not getattr(self, n) > 0]
         if bad:
-            raise ValueError(f"settings {bad} must be positive")
+            raise InputError(f"settings {bad} must be positive")
         if self.lookback < self.rest_length + self.hold + 2 * self.window:
-            raise ValueError("lookback must hold a rest stretch, a window and a still pose")
+            raise InputError("lookback must hold a rest stretch, a window and a still pose")
 
 
 class StreamTap:

@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 from station.solve.calibrate import calibrate
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import SEGMENT_EVENTS, position_windows, reduce_session
 from station.acquire.recorder import sample_times
 from station.files.session import Session
@@ -197,7 +197,7 @@ def _calibration(session, name, report):
     """(CalibrationResult, channel names, units) to report, or None with a warning saying why."""
     names = session.result_names
     if name is not None and name not in names:
-        raise ValueError(f"{session.path} has no results named {name!r}; it has "
+        raise InputError(f"{session.path} has no results named {name!r}; it has "
                          f"{', '.join(names) or 'none'} (omit --result to use the newest)")
     if names:
         chosen = [session.results(n) for n in names]

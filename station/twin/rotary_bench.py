@@ -44,6 +44,7 @@ from station.model.effects.rate_error import RateError
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
 from station.sim.table import TablePhysics
+from station.errors import InputError
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
@@ -114,7 +115,7 @@ class VirtualBench:
                  lifetime: float = 3600.0, clock_start: float = 0.0,
                  rate_error: dict | None = None):
         if imu not in IMU_KINDS:
-            raise ValueError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
+            raise InputError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
         self.seed, self.rate_hz = int(seed), float(rate_hz)
         self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
@@ -155,7 +156,7 @@ class VirtualBench:
         """The bench described by a session's `bench` metadata (`metadata()`), with `overrides`
         (e.g. clock_start, speed)."""
         if not isinstance(bench, dict) or not set(bench) <= BENCH_KEYS:
-            raise ValueError(f"the session's bench description {bench!r} is not one of this "
+            raise InputError(f"the session's bench description {bench!r} is not one of this "
                              f"station's virtual benches (keys {sorted(BENCH_KEYS)})")
         return cls(**{**bench, **overrides})
 
@@ -237,7 +238,7 @@ def resume_rotary(path, watch=None, **overrides) -> int:
         end = last_instant(session)
     described = metadata.get("virtual_bench", metadata.get("bench"))
     if not (isinstance(described, dict) and set(described) <= BENCH_KEYS):
-        raise ValueError(f"{path} was not recorded on the virtual bench; resume it with its "
+        raise InputError(f"{path} was not recorded on the virtual bench; resume it with its "
                          "real devices")
     with VirtualBench.from_metadata(described, clock_start=end + 1.0, **overrides) as bench, \
             bench.drivers() as (imu, table), \

@@ -1,0 +1,58 @@
+"""The drivers' errors, under one root (the drivers never import the station, so this is their own).
+
+    DeviceError                         exit code 3 on the command line
+     +-- ProfileError (ValueError)      2  a device profile that cannot describe the device
+     +-- LinkError (ConnectionError)    3  the link to an IMU cannot be opened or was lost
+     |    +-- SerialPortError              a serial port; `port` names it
+     |         +-- DeviceLostError         the device stopped answering mid-stream (unplugged)
+     +-- TableError (RuntimeError)      3  the rotary table did not do what was asked
+          +-- TableTimeout                 no reply within the timeout, after the bounded retries
+          +-- TableBusy                    'device busy' (Modbus exception 6) after the retries
+          +-- TableFault                   a device failure (Modbus exception 4): needs the operator
+
+The station's own errors are drawn in `station.errors`; the command line catches both roots.
+"""
+
+
+class DeviceError(Exception):
+    """Base of the drivers' errors; `exit_code` is what the command line exits with."""
+
+    exit_code = 3
+
+
+class ProfileError(DeviceError, ValueError):
+    """A device profile that cannot describe the device; the message names the file, key and fix."""
+
+    exit_code = 2
+
+
+class LinkError(DeviceError, ConnectionError):
+    """The link to an IMU cannot be opened or was lost; the message says what to check."""
+
+
+class SerialPortError(LinkError):
+    """The serial port cannot be opened or was lost; `port` names it."""
+
+    def __init__(self, port: str, message: str):
+        super().__init__(message)
+        self.port = port
+
+
+class DeviceLostError(SerialPortError):
+    """The device stopped answering mid-stream (unplugged, powered off)."""
+
+
+class TableError(DeviceError, RuntimeError):
+    """The rotary table did not do what was asked; the message says what to check."""
+
+
+class TableTimeout(TableError):
+    """No reply from the table within the timeout, after the bounded retries."""
+
+
+class TableBusy(TableError):
+    """The table kept answering 'device busy' (Modbus exception 6) after the bounded retries."""
+
+
+class TableFault(TableError):
+    """The table reported a device failure (Modbus exception 4): it needs the operator."""
