@@ -107,9 +107,9 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
     if settings.stream not in session.specs:
         raise CalibrationInputError(f"{path} has no stream {settings.stream!r}.",
                                     f"Choose one of {sorted(session.specs)} with --stream.")
+    magnitude = settings.magnitude or recorded_magnitude(session.metadata, kind.stimulus, path)
     readings = kind.entry("reduce")(session, settings.stream, trim=settings.trim)
     readings = _select(readings, sorted(_completed(session.events())), settings.positions, path)
-    magnitude = settings.magnitude or recorded_magnitude(session.metadata, kind.stimulus, path)
     if kind.nominal_frame and nominal is None:
         nominal = recorded_layout(session.metadata, readings.M.shape[0], path)
     return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
