@@ -21,8 +21,9 @@ then runs until Ctrl-C or `--lifetime` wall seconds. `--speed` makes the twin's 
 than the wall; the profile tells `station record` to use the same speed. With --json, the truth
 (sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
 
-The CAN twin (a python-can virtual channel) is visible only inside one process: `BenchTwin("can")`
-serves in-process tests and the demo, not a separate `station record`.
+The CAN twin (a python-can virtual channel) is visible only inside one process:
+`station.twin.served.BenchTwin("can")` serves in-process tests and the demo, not a separate
+`station record`.
 """
 
 import argparse
