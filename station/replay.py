@@ -21,11 +21,11 @@ It is deterministic: the same file and settings give bit-identical numbers, so t
 a session (`results/<name>`) are reproduced exactly by a replay with the settings that made them.
 `replay_into` stores a replay under a new results name (stored results are never overwritten).
 
-`replay_raw` (sessions of kinds with a table: rotary) sends the recorded IMU stream again over the serial wire
-protocol (a pseudo-terminal twin, `drivers.twins.serial.SerialTwin`) through the ordinary driver and
-recorder into a new session file, with the original's table states and events placed at the same
-instants relative to the re-recorded samples: the new file reduces to the same readings as the
-original.
+`replay_raw` (sessions of kinds with a table: rotary) sends the recorded IMU stream again over the
+serial wire protocol (a pseudo-terminal twin, `drivers.twins.serial.SerialTwin`) through the
+ordinary driver and recorder into a new session file, with the original's table states and events
+placed at the same instants relative to the re-recorded samples: the new file reduces to the same
+readings as the original.
 """
 
 import dataclasses

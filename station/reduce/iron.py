@@ -1,4 +1,4 @@
-"""A recorded right-angle-iron session (`station.protocols.iron`) -> its still poses and their faces.
+"""A recorded right-angle-iron session (`station.protocols.iron`) -> its still poses and faces.
 
 `recognise_faces` labels each pose's up direction with a face of the iron, relative to the first
 pose of its mounting (the live protocol uses it too); the labels give the inner-product
@@ -16,7 +16,8 @@ from station.solve.constraints import from_faces
 
 
 def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
-    """Face labels of poses with up `directions` (P, 3), relative to the first pose of each mounting.
+    """Face labels of poses with up `directions` (P, 3), relative to the first pose of each
+    mounting.
 
     Raises CalibrationInputError for a pose that is neither along nor perpendicular to the faces
     seen before in its mounting (the iron was not standing on a face).
@@ -63,9 +64,9 @@ class IronReadings(StillReadings):
 
 def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
                   tolerance_deg: float = 20.0, **detector) -> IronReadings:
-    """The still poses of an iron session (`station.files.session.Session`, `still_readings`) and their
-    faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector` (the
-    stillness detector's options and `trim`) goes to `still_readings`."""
+    """The still poses of an iron session (`station.files.session.Session`, `still_readings`) and
+    their faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector`
+    (the stillness detector's options and `trim`) goes to `still_readings`."""
     still = still_readings(session, stream, **detector)
     if a_nominal is None:
         a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : still.M.shape[0]].tolist())

@@ -1,5 +1,5 @@
-"""A recorded free-static session (`station.protocols.static`) -> the accelerometer rows of its still
-poses.
+"""A recorded free-static session (`station.protocols.static`) -> the accelerometer rows of its
+still poses.
 
 Every accelerometer channel of the stream (unit m/s^2) is calibrated; the session's metadata names
 them (`channels`), else their unit does (`accelerometer_channels`, which the live protocol uses

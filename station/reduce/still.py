@@ -1,4 +1,4 @@
-"""A recorded still-pose session (right-angle iron, free static) -> the averaged readings of its poses.
+"""A recorded still-pose session (right-angle iron, free static) -> the mean readings of its poses.
 
 The reduction does not trust the live polling of the protocol (`station.protocols.still`): it
 detects the still intervals once on the whole recording (`station.reduce.stillness.detect_still`,

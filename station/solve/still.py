@@ -1,4 +1,4 @@
-"""The solver of still poses (right-angle iron, free static): biases estimated with the calibration."""
+"""The solver of still poses (right-angle iron, free static), the biases estimated with it."""
 
 from station.solve.calibrate import calibrate
 
