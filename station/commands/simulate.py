@@ -16,7 +16,9 @@ def register(subparsers) -> None:
         "(12-gyro array), right-angle iron or free static (accelerometer triad); the truth goes "
         "to FILE.truth.json.",
     )
-    p.add_argument("--protocol", choices=kinds_with("simulate"), default="rotary")
+    p.add_argument("--protocol", choices=kinds_with("simulate"), default="rotary",
+                   help="protocol kind: " + "; ".join(f"{name} ({KINDS[name].title})"
+                                                      for name in kinds_with("simulate")))
     p.add_argument(
         "--effect",
         action="append",

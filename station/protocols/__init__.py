@@ -23,7 +23,7 @@ class Kind:
     """One protocol kind; each callable is a "module:attribute" reference (`entry`), None where the
     kind has no such part.
 
-    title     : what the kind calibrates, one line for the help texts
+    title     : what the kind calibrates, one line for the help texts (`station simulate --help`)
     settings  : the settings dataclass of its state machine (the bench profile's [protocol] keys)
     acquire   : (bench, imu, table, out, operator, clock, spec, metadata, view) -> None: run the
                 state machine with opened devices into the new session file `out` (`station
