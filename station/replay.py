@@ -3,51 +3,49 @@ engineer.
 
 `replay` reduces the raw IMU stream again and re-solves it, possibly with other settings
 (`ReplaySettings`: trimmed windows, a subset of positions, another solver method, no refinement,
-another magnitude). The one dispatch point on the protocol is `PROTOCOLS`:
+another magnitude). `solve_recorded` is the one reduce-and-solve path of the station (`station
+replay`, `station solve` and the session report use it); what it does for a session is the kind's
+entry in `station.protocols.KINDS`:
 
-- rotary: Eq. (18) of Rupniewski (`reduce_session`), then `station.calibrate` (closed form, then
-  maximum likelihood weighted by each reading's standard error), magnitude = the recorded table
-  rate;
-- iron and static: the still poses (`iron_readings` with the faces recognised from the data, or
-  `static_readings`, both `still_readings`), then `calibrate_still` (biases estimated; the faces'
-  constraints of Eq. 15 for the iron, following a subset of poses; Hwangbo & Kanade's factorization
-  or the ellipsoid, then maximum likelihood), magnitude = the recorded gravity, reported in the
-  frame of the recorded nominal layout `a_nominal` as the live solution is.
+- rotary: Eq. (18) of Rupniewski (`station.reduce.rotary.rotary_readings`), then
+  `station.calibrate` (closed form, then maximum likelihood weighted by each reading's standard
+  error), magnitude = the recorded table rate;
+- iron and static: the still poses (`station.reduce.iron.iron_readings` with the faces recognised
+  from the data, or `station.reduce.static.static_readings`, both `still_readings`), then
+  `station.solve.still.calibrate_still` (biases estimated; the faces' constraints of Eq. 15 for the
+  iron, following a subset of poses; Hwangbo & Kanade's factorization or the ellipsoid, then
+  maximum likelihood), magnitude = the recorded gravity, reported in the frame of the recorded
+  nominal layout `a_nominal` as the live solution is.
 
 It is deterministic: the same file and settings give bit-identical numbers, so the results stored in
 a session (`results/<name>`) are reproduced exactly by a replay with the settings that made them.
 `replay_into` stores a replay under a new results name (stored results are never overwritten).
 
-`replay_raw` (rotary sessions only) sends the recorded IMU stream again over the serial wire
-protocol (a pseudo-terminal twin, `drivers.twins.serial.SerialTwin`) through the ordinary driver and
-recorder into a new session file, with the original's table states and events placed at the same
-instants relative to the re-recorded samples: the new file reduces to the same readings as the
-original.
+`replay_raw` (sessions of kinds with a table: rotary) sends the recorded IMU stream again over the
+serial wire protocol (a pseudo-terminal twin, `drivers.twins.serial.SerialTwin`) through the
+ordinary driver and recorder into a new session file, with the original's table states and events
+placed at the same instants relative to the re-recorded samples: the new file reduces to the same
+readings as the original.
 """
 
 import dataclasses
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
 
-import station
-from station.solve.calibrate import CalibrationResult
 from station.errors import AcquisitionError, CalibrationInputError, InputError
-from station.protocols.iron import iron_readings
-from station.protocols.rotary import SEGMENT_EVENTS, reduce_session
-from station.protocols.static import static_readings
-from station.protocols.still import calibrate_still
-from station.acquire.recorder import arrival_offset
 from station.files.session import (
     TABLE_STATUS_BITS,
     Session,
     SessionWriter,
     write_results,
 )
+from station.protocols import KINDS, lookup
+from station.reduce.timeline import SEGMENT_EVENTS, arrival_offset
+from station.solve.calibrate import CalibrationResult
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
 
@@ -88,65 +86,61 @@ class ReplaySettings:
             object.__setattr__(self, "positions", positions)
 
 
-@dataclass(frozen=True)
-class Protocol:
-    """How `replay` reduces and solves the sessions of one protocol.
-
-    reduce   : (session, stream, trim=seconds) -> readings with M, sigma (m, n) and take(columns)
-    stimulus : metadata keys, outermost first, of the recorded stimulus magnitude
-    solve    : (readings, magnitude, settings, metadata) -> CalibrationResult
-    """
-
-    reduce: Callable
-    stimulus: tuple
-    solve: Callable
-
-
-def _solve_rotary(reduced, magnitude, settings, metadata):
-    """`station.calibrate` of Eq. (18) readings (no bias: the static means are subtracted)."""
-    return station.calibrate(reduced.M, magnitude, sigma=reduced.sigma, method=settings.method,
-                             refine=settings.refine)
-
-
-def _solve_still(readings, magnitude, settings, metadata):
-    """`calibrate_still` in the frame of the recorded nominal layout, as the live solution."""
-    try:
-        nominal = np.asarray(metadata["a_nominal"], dtype=float)
-    except (KeyError, TypeError, ValueError):
-        nominal = None
-    if nominal is None or nominal.shape != (3, readings.M.shape[0]) or \
-            not np.all(np.isfinite(nominal)):
-        raise CalibrationInputError(
-            f"the session's metadata holds no usable nominal layout a_nominal (3 x "
-            f"{readings.M.shape[0]}).", "The session file is damaged or not from the iron or "
-            "free-static protocol.")
-    return calibrate_still(readings, magnitude, nominal=nominal, method=settings.method,
-                           refine=settings.refine)
-
-
-PROTOCOLS = {
-    "rotary": Protocol(reduce_session, ("settings", "rate"), _solve_rotary),
-    "iron": Protocol(iron_readings, ("gravity",), _solve_still),
-    "static": Protocol(static_readings, ("gravity",), _solve_still),
-}
-"""The protocols `replay` knows, by the `protocol` of the session's metadata."""
-
-
 def replay(path, settings: ReplaySettings | None = None) -> tuple[object, CalibrationResult]:
     """(readings, calibration) of the session at `path`, reduced and solved again from its raw
-    stream; readings: `station.reduce.eq18.Reduced` (rotary) or `StillReadings` (iron, static)."""
-    settings = settings or ReplaySettings()
+    stream (`solve_recorded`)."""
     with Session.open(path) as session:
-        protocol = PROTOCOLS.get(session.protocol)
-        if protocol is None:
-            raise InputError(f"{path} records a {session.protocol!r} session; replay reduces "
-                             f"{', '.join(PROTOCOLS)} sessions (solve others with station solve)")
-        readings = protocol.reduce(session, settings.stream, trim=settings.trim)
-        completed = sorted(_completed(session.events()))
-        metadata = session.metadata
-    readings = _select(readings, completed, settings.positions, path)
-    magnitude = settings.magnitude or _recorded(metadata, protocol.stimulus, path)
-    return readings, protocol.solve(readings, magnitude, settings, metadata)
+        return solve_recorded(session, settings or ReplaySettings())
+
+
+def solve_recorded(session, settings: ReplaySettings, nominal=None,
+                   command: str = "replay") -> tuple[object, CalibrationResult]:
+    """(readings, calibration) of an open session (`station.files.session.Session`): the kind's
+    reduction, the positions chosen, the kind's solver (`station.protocols.KINDS`).
+
+    readings: `station.reduce.eq18.Reduced` (rotary) or `StillReadings` (iron, static); nominal:
+    the frame of the result (d x m), default the recorded layout for kinds solved in it; command:
+    who asks, for the error about a kind without a reduction.
+    """
+    name, path = session.protocol, session.path
+    kind = lookup(name, "reduce", f"{path} records a {name!r} session", command)
+    if settings.stream not in session.specs:
+        raise CalibrationInputError(f"{path} has no stream {settings.stream!r}.",
+                                    f"Choose one of {sorted(session.specs)} with --stream.")
+    magnitude = settings.magnitude or recorded_magnitude(session.metadata, kind.stimulus, path)
+    readings = kind.entry("reduce")(session, settings.stream, trim=settings.trim)
+    readings = _select(readings, sorted(_completed(session.events())), settings.positions, path)
+    if kind.nominal_frame and nominal is None:
+        nominal = recorded_layout(session.metadata, readings.M.shape[0], path)
+    return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
+                                         method=settings.method, refine=settings.refine)
+
+
+def recorded_magnitude(metadata: dict, stimulus: tuple, path) -> float:
+    """|stimulus magnitude| recorded in the (untrusted) metadata; stimulus: (words, keys outermost
+    first), a `Kind.stimulus`."""
+    words, keys = stimulus
+    value = metadata
+    for key in keys:
+        value = value.get(key) if isinstance(value, dict) else None
+    if type(value) not in (int, float) or not math.isfinite(value) or value == 0:
+        raise CalibrationInputError(f"{path} records no usable {words} ({value!r}).",
+                                    "Give the stimulus magnitude with --magnitude.")
+    return abs(float(value))
+
+
+def recorded_layout(metadata: dict, m: int, path) -> np.ndarray:
+    """The nominal layout (3 x m) the (untrusted) metadata records as `a_nominal`."""
+    try:
+        nominal = np.asarray(metadata.get("a_nominal"), dtype=float)
+    except (TypeError, ValueError):
+        nominal = None
+    if nominal is None or nominal.shape != (3, m) or not np.all(np.isfinite(nominal)):
+        raise CalibrationInputError(
+            f"{path} records no usable nominal layout a_nominal (3 x {m}).",
+            "Give one with --nominal (a CSV of 3 rows, a column per sensor), or check that the "
+            "session file is from a still-pose protocol.")
+    return nominal
 
 
 def _select(readings, completed: list, positions, path):
@@ -161,18 +155,6 @@ def _select(readings, completed: list, positions, path):
         raise InputError(f"positions {[p + 1 for p in missing]} were not completed in {path}; "
                          f"choose among {[p + 1 for p in completed]}")
     return readings.take([completed.index(p) for p in positions])
-
-
-def _recorded(metadata: dict, keys: tuple, path) -> float:
-    """The stimulus magnitude recorded in the metadata under `keys` (absolute value)."""
-    value = metadata
-    for key in keys:
-        value = value.get(key) if isinstance(value, dict) else None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) \
-            or value == 0:
-        raise InputError(f"{path} records no usable {'.'.join(keys)} (stimulus magnitude); "
-                         "give the magnitude")
-    return abs(float(value))
 
 
 def replay_into(path, name: str, settings: ReplaySettings | None = None):
@@ -231,10 +213,12 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     from station.acquire.recorder import Recorder
 
     with Session.open(path) as session:
-        if session.protocol != "rotary":
+        kind = KINDS.get(session.protocol)
+        if kind is None or not kind.table:
+            tabled = ", ".join(name for name, k in KINDS.items() if k.table)
             raise InputError(f"{path} records a {session.protocol!r} session; raw replay "
-                             "re-records rotary sessions only (stream, table states and events); "
-                             "replay it without --raw to reduce and solve it again")
+                             f"re-records {tabled} sessions only (stream, table states and "
+                             "events); replay it without --raw to reduce and solve it again")
         data, table, events = session.stream("imu"), session.table(), session.events()
         metadata = session.metadata
     segments = [e.kind for e in events if e.kind in SEGMENT_EVENTS]

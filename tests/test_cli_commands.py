@@ -12,7 +12,7 @@ import station
 from station import cli
 from station.files.calfile import load
 from station.commands.record import BenchProfile, record
-from station.commands.twin import BenchTwin
+from station.twin.served import BenchTwin
 from station.model.frames import align_to
 from station.acquire.operator import ConsoleOperator
 from station.files.session import Session, SessionWriter, StreamSpec

@@ -15,13 +15,8 @@ from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fix
 
 from drivers.twins.serial import SENT, UNPLUGGED
 from station.acquire.operator import SimulatedTechnician
-from station.protocols.rotary import (
-    ProtocolError,
-    RotarySettings,
-    SessionPaused,
-    position_windows,
-    reduce_session,
-)
+from station.protocols.rotary import ProtocolError, RotarySettings, SessionPaused
+from station.reduce.rotary import position_windows, rotary_readings
 from station.files.session import Session
 
 
@@ -44,7 +39,7 @@ def once(action):
 
 def recorded(path):
     with Session.open(path) as f:
-        return f.events(), f.table(), f.stream("imu"), reduce_session(f), f.closed_cleanly
+        return f.events(), f.table(), f.stream("imu"), rotary_readings(f), f.closed_cleanly
 
 
 def table_after(table, t):

@@ -11,9 +11,9 @@ from station.cli import main
 from station.errors import CalibrationInputError
 from station.reduce.free_static import calibrate_free_static
 from station.files.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
-from station.protocols.iron import iron_readings
-from station.protocols.rotary import reduce_session
-from station.protocols.still import calibrate_still
+from station.reduce.iron import iron_readings
+from station.reduce.rotary import rotary_readings
+from station.solve.still import calibrate_still
 from station.reduce.eq18 import reduce_arrays
 from station.files.session import Session
 from station.sim import npz
@@ -42,7 +42,7 @@ def test_npz_session_reduces_like_the_array_file(rotary_npz, tmp_path):
     out = tmp_path / "rotary.h5"
     assert main(["import", "npz", str(out), str(path), "--unit-serial", "SN7"]) == 0
     with Session.open(out) as s:
-        reduced = reduce_session(s)
+        reduced = rotary_readings(s)
         assert s.metadata["unit_serial"] == "SN7"
         np.testing.assert_array_equal(s.stream("imu").counts.reshape(sim.arrays["y"].shape),
                                       sim.arrays["y"])

@@ -16,9 +16,9 @@ from scipy import stats
 import station
 from station.files.calfile import load
 from station.commands.record import BenchProfile, record, resume, solve
-from station.commands.twin import BenchTwin
+from station.twin.served import BenchTwin
 from station.acquire.operator import ConsoleOperator, OperatorAbort
-from station.protocols.rotary import reduce_session
+from station.reduce.rotary import rotary_readings
 from station.files.session import Session
 from station.solve.uncertainty import eps_tail_probability
 
@@ -31,7 +31,7 @@ def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) 
     cal = load(cal_path)
     a = np.array(truth["a"])
     with Session.open(session_path) as s:
-        sigma = reduce_session(s).sigma
+        sigma = rotary_readings(s).sigma
     v = rate * np.array(truth["orientations"])[:POSITIONS, :, 2].T
     # as tests/test_demo.py: eps consistent with the Cramer-Rao bound at a 1e-4 false-alarm level
     assert eps_tail_probability(station.eps(a, cal.a), station.crlb(a, v, sigma)) > 1e-4

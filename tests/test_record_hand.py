@@ -123,7 +123,7 @@ def test_live_view_is_refused_for_hand_protocols(tmp_path, capsys):
 def test_station_record_against_the_hand_twin_with_a_console_operator(protocol, tmp_path):
     """The twin's technician turns on its own metronome; the console operator only presses Enter:
     the station finds every pose itself and the calibration file matches the truth."""
-    from station.commands.twin import HandTwin
+    from station.twin.served import HandTwin
     from station.acquire.operator import ConsoleOperator
 
     with HandTwin(protocol, seed=9, speed=40.0, poses=12, mountings=1) as twin:

@@ -15,7 +15,8 @@ import numpy as np
 from scipy import stats
 
 import station
-from station.protocols.rotary import reduce_session, suggested_axes
+from station.protocols.rotary import suggested_axes
+from station.reduce.rotary import rotary_readings
 from station.files.session import Session
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.rotary_bench import VirtualBench
@@ -110,7 +111,7 @@ def test_ten_kills_at_random_moments_then_station_resume_completes_the_session(t
     with Session.open(path) as f:
         assert f.closed_cleanly
         events = f.events()
-        reduced = reduce_session(f)
+        reduced = rotary_readings(f)
     # each resumed run starts with the position after the last one completed before the kill
     done_so_far = -1
     for i, e in enumerate(events):

@@ -12,7 +12,7 @@ import pytest
 from results import assert_same
 
 from station.cli import main
-from station.protocols.rotary import reduce_session
+from station.reduce.rotary import rotary_readings
 from station.replay import ReplaySettings, replay, replay_into, replay_raw, stored_settings
 from station.files.session import Session
 
@@ -136,7 +136,7 @@ def test_raw_replay_through_the_serial_twin_gives_the_same_readings(tmp_path):
     replay_raw(EXAMPLES[0], out, speed=200.0)
     with Session.open(EXAMPLES[0]) as a, Session.open(out) as b:
         first, again = a.stream("imu"), b.stream("imu")
-        reduced, reduced_again = reduce_session(a), reduce_session(b)
+        reduced, reduced_again = rotary_readings(a), rotary_readings(b)
         assert b.closed_cleanly and b.metadata["replay_of"] == str(EXAMPLES[0])
     k = len(first.seq)
     assert len(again.seq) >= k and np.all(np.diff(again.seq) == 1)

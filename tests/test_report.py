@@ -23,12 +23,8 @@ from station import calibrate
 from station import cli
 from station.report import session as report
 from station.acquire.live_view import LiveView
-from station.protocols.rotary import (
-    RotaryProtocol,
-    position_windows,
-    reduce_session,
-    suggested_axes,
-)
+from station.protocols.rotary import RotaryProtocol, suggested_axes
+from station.reduce.rotary import position_windows, rotary_readings
 from station.acquire.recorder import Recorder
 from station.files.session import Session, SessionWriter, write_results
 from station.twin.rotary_bench import VirtualBench
@@ -87,7 +83,7 @@ def recorded(tmp_path_factory):
             protocol.run(view.observe_recorder(recorder))
         a_nominal = bench.truth().a_nominal
     with Session.open(path) as session:
-        reduced = reduce_session(session)
+        reduced = rotary_readings(session)
     result = calibrate(reduced.M, 1.0, sigma=reduced.sigma, nominal=a_nominal)
     write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)
     return path, view, screen.export_text()

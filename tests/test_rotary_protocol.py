@@ -15,11 +15,11 @@ from station.protocols.rotary import (
     RotaryProtocol,
     RotarySettings,
     mounting,
-    position_windows,
-    reduce_session,
     suggested_axes,
 )
-from station.acquire.recorder import Recorder, RecordingError, sample_times
+from station.reduce.rotary import position_windows, rotary_readings
+from station.acquire.recorder import Recorder, RecordingError
+from station.reduce.timeline import sample_times
 from station.files.session import Event, Session, SessionWriter
 from station.twin.rotary_bench import VirtualBench
 
@@ -116,7 +116,7 @@ def test_protocol_records_each_position_in_order_with_windows_the_table_confirms
     with Session.open(s.path) as f:
         events = [e for e in f.events() if e.position is not None]
         table, stream = f.table(), f.stream("imu")
-        reduced = reduce_session(f)
+        reduced = rotary_readings(f)
     assert [(e.position, e.kind) for e in events] == [(j, k) for j in range(3) for k in KINDS]
     windows = position_windows(events)
     for w in windows.values():
@@ -196,7 +196,7 @@ def test_resume_after_an_abort_records_the_position_again(session):
     s.protocol.run(s.recorder, first=0)
     s.close()
     with Session.open(s.path) as f:
-        reduced = reduce_session(f)
+        reduced = rotary_readings(f)
         kinds = [e.kind for e in f.events()]
     assert kinds.count("abort") == 1 and kinds.count("position_done") == 3
     assert reduced.M.shape == (12, 3)
@@ -226,7 +226,7 @@ def test_samples_lost_in_a_window_are_refused_at_reduction(session):
     s.close()
     with Session.open(s.path) as f, pytest.raises(CalibrationInputError,
                                                   match="position 1: the static window"):
-        reduce_session(f)
+        rotary_readings(f)
 
 
 def test_a_silent_imu_aborts_the_session(session):

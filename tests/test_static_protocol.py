@@ -8,14 +8,10 @@ from scipy import stats
 
 from station.errors import CalibrationInputError
 from station.twin.hand_bench import ACC4, TRIAD, HandBench, HandTechnician, record_static_session
-from station.protocols.static import (
-    GUIDED_POSES,
-    StaticProtocol,
-    StaticSettings,
-    accelerometer_channels,
-    static_readings,
-)
-from station.protocols.still import calibrate_still, record_poses
+from station.protocols.static import GUIDED_POSES, StaticProtocol, StaticSettings
+from station.reduce.static import accelerometer_channels, static_readings
+from station.protocols.still import record_poses
+from station.solve.still import calibrate_still
 from station.files.session import Session, SessionWriter, StreamSpec
 
 FAMILY_FALSE_ALARM = 1e-3

@@ -16,8 +16,8 @@ make sure a window is complete before it moves the table.
 
 A lost device (`reconnect()` after the cable is back) or a resumed session starts a new segment of
 the stream: the sequence numbers may jump or restart, so sample times are worked out per segment
-(`sample_times(..., breaks)`, the breaks being the times of the `resume` and `session_resumed`
-events).
+(`station.reduce.timeline.sample_times`, the breaks being the times of the `resume` and
+`session_resumed` events).
 """
 
 import threading
@@ -27,35 +27,7 @@ from typing import Self
 import numpy as np
 from station.errors import RecordingError
 
-
-def arrival_offset(seq, host_time, rate_hz: float) -> float:
-    """The smallest host_time - seq / rate_hz: sampling instant of sample 0 on the host clock.
-
-    host_time is the arrival time: later than the sampling by a latency that grows when the host
-    is busy, and one time for all samples read together. seq / rate_hz is exact up to a constant
-    (and the device's clock error: 50 ppm is 35 ms over a 700 s session, well inside a protocol's
-    guard times); the least delayed sample gives the constant.
-    """
-    return float(np.min(np.asarray(host_time, float) - np.asarray(seq, float) / rate_hz))
-
-
-def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
-    """Sampling instants (clock s) of samples numbered `seq` at `rate_hz`, read at `host_time`.
-
-    The stream is cut into segments, each with its own `arrival_offset`: before each clock time
-    in `breaks` (a reconnection, a resumed session) and wherever `seq` does not increase (a device
-    that restarted its numbering).
-    """
-    seq, host_time = np.asarray(seq), np.asarray(host_time, float)
-    if seq.size == 0:
-        return np.zeros(0)
-    segment = np.searchsorted(np.sort(np.asarray(breaks, float)), host_time, side="right")
-    segment = segment + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
-    times = np.empty(len(seq))
-    for k in np.unique(segment):
-        part = segment == k
-        times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
-    return times
+from station.reduce.timeline import arrival_offset
 
 
 class Recorder:

@@ -70,8 +70,9 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     live: show the live view (station.acquire.live_view) while recording."""
     import station
     from station.acquire.live_view import LiveView
-    from station.protocols.rotary import RotarySettings, reduce_session, suggested_axes
+    from station.protocols.rotary import RotarySettings, suggested_axes
     from station.files.session import Session, write_results
+    from station.replay import ReplaySettings, solve_recorded
     from station.solve.uncertainty import eps_tail_probability
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
@@ -83,10 +84,9 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
         truth = bench.truth()
     recorded = time.perf_counter() - start
     with Session.open(path) as session:
-        reduced = reduce_session(session)
+        reduced, result = solve_recorded(session, ReplaySettings(), nominal=truth.a_nominal)
         link = next((e.detail["link"] for e in reversed(session.events()) if "link" in e.detail), {})
     c = abs(settings.rate)
-    result = station.calibrate(reduced.M, c, sigma=reduced.sigma, nominal=truth.a_nominal)
     write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)
     eps = station.eps(truth.a, result.a)
     crlb = station.crlb(truth.a, truth.v(c), reduced.sigma)

@@ -70,9 +70,6 @@ def register(p) -> None:
     p.set_defaults(run=run)
 
 
-PROTOCOLS = ("rotary", "iron", "static")
-
-
 @dataclass(frozen=True)
 class BenchProfile:
     """A parsed bench profile; `imu` is a SerialImuProfile or CanProfile with the rate applied."""
@@ -83,15 +80,15 @@ class BenchProfile:
     link: str
     imu: object
     imu_address: dict  # serial: {"port"}; can: {"interface", "channel", "bitrate"?}
-    protocol: str  # one of PROTOCOLS
-    positions: int  # rotary: positions; iron: mountings x faces; static: poses
-    settings: object  # RotarySettings, IronSettings or StaticSettings
+    protocol: str  # a kind of station.protocols.KINDS that records (acquire)
+    positions: int  # table kinds (rotary): positions; others: the settings' poses
+    settings: object  # the kind's settings (RotarySettings, IronSettings, StaticSettings, ...)
     tables: dict  # the TOML tables, recorded in the session's metadata
-    table_host: str | None = None  # rotary only
+    table_host: str | None = None  # kinds with a table (rotary) only
     table_port: int | None = None
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
-    layout: np.ndarray | None = None  # iron and static: (3, m_acc) nominal accelerometer axes
+    layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -99,6 +96,7 @@ class BenchProfile:
         from drivers.can_imu import CanProfile
         from drivers.profile import ProfileError, Section, SerialImuProfile, load_profile
         from drivers.rotary_table import TableRegisterMap
+        from station.protocols import KINDS, kinds_with
 
         profile = load_profile(path)
         base = Path(profile.source).parent
@@ -134,11 +132,11 @@ class BenchProfile:
             address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
             if imu.has("bitrate"):
                 address["bitrate"] = imu.get("bitrate", int)
-        kind = proto.get("kind", str, default="rotary", choices=PROTOCOLS)
+        kind = proto.get("kind", str, default="rotary", choices=tuple(kinds_with("acquire")))
         fields = {"source": profile.source, "unit_serial": serial, "clock_speed": speed,
                   "link": link, "imu": dev, "imu_address": address, "protocol": kind,
                   "tables": profile.tables}
-        if kind == "rotary":
+        if KINDS[kind].table:
             table = section("table")
             table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
             fields.update(table_host=table.get("host", str), table_port=table.get("port", int),
@@ -154,11 +152,11 @@ class BenchProfile:
                                    "[table] section (or set [protocol] kind = \"rotary\")")
             fields.update(_settings(kind, proto, path))
             fields["layout"] = _layout(proto, dev.imu, path)
-            if kind == "iron" and fields["layout"].shape[1] != len(dev.imu.channels):
-                raise ProfileError(f"{path}: the iron protocol calibrates every channel of the "
+            if not KINDS[kind].has("channels") and \
+                    fields["layout"].shape[1] != len(dev.imu.channels):
+                raise ProfileError(f"{path}: the {kind} protocol calibrates every channel of the "
                                    "stream; use a device profile with accelerometer channels only")
-            s = fields["settings"]
-            fields["positions"] = s.poses if kind == "static" else s.mountings * len(s.faces)
+            fields["positions"] = fields["settings"].poses
         for s in (bench, imu, proto):
             s.finish()
         return cls(**fields)
@@ -168,11 +166,9 @@ def _settings(kind: str, proto, path) -> dict:
     """{"settings": the protocol's settings dataclass} from the [protocol] keys named as its
     fields (lists for tuple fields)."""
     from drivers.profile import ProfileError
-    from station.protocols.iron import IronSettings
-    from station.protocols.rotary import RotarySettings
-    from station.protocols.static import StaticSettings
+    from station.protocols import KINDS
 
-    cls = {"rotary": RotarySettings, "iron": IronSettings, "static": StaticSettings}[kind]
+    cls = KINDS[kind].entry("settings")
     given = {}
     for f in dataclasses.fields(cls):
         if proto.has(f.name):
@@ -190,7 +186,7 @@ def _layout(proto, imu, path) -> np.ndarray:
     identity for a triad."""
     from drivers.profile import ProfileError
     from station.errors import CalibrationInputError
-    from station.protocols.static import accelerometer_channels
+    from station.reduce.static import accelerometer_channels
 
     try:
         m = len(accelerometer_channels(imu.units))
@@ -213,11 +209,14 @@ def run(args) -> int:
     from station.acquire.operator import ConsoleOperator
     from station.commands import existing_file, new_file
     from station.errors import InputError
+    from station.protocols import KINDS
 
     bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
-    if args.live and bench.protocol != "rotary":
-        raise InputError("the live view shows rotary sessions; record a "
-                         f"{bench.protocol} session without --live")
+    kind = KINDS[bench.protocol]
+    if args.live and not kind.live_view:
+        shown = ", ".join(name for name, k in KINDS.items() if k.live_view)
+        raise InputError(f"the live view shows {shown} sessions; record a {bench.protocol} "
+                         "session without --live")
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}.h5"
     new_file(out, option="--out")
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -227,7 +226,7 @@ def run(args) -> int:
         if args.solve:
             summary["calibration"] = solve(out)
     except BaseException as err:
-        stopped = "the table was stopped; " if bench.protocol == "rotary" else ""
+        stopped = "the table was stopped; " if kind.table else ""
         err.add_note(f"{stopped}{out} keeps the completed positions")
         raise
     if args.json:
@@ -242,11 +241,14 @@ def run(args) -> int:
 
 
 def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
-    """Run the bench's protocol with its devices and `operator` into the session `out`.
-    live: show the live view (station.acquire.live_view) while recording a rotary session."""
+    """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
+    and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
+    while recording, for kinds that have one."""
     from drivers.profile import load_profile
     from drivers.clock import ScaledClock, WallClock
+    from station.acquire.live_view import LiveView
     from station.files.session import Session, StreamSpec
+    from station.protocols import KINDS
 
     start = time.perf_counter()
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
@@ -254,37 +256,16 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     metadata = {"unit_serial": bench.unit_serial,
                 "bench": {"profile": bench.source, "tables": bench.tables},
                 "profiles": {"imu": load_profile(bench.imu.source).tables}}
-    if bench.protocol == "rotary":
-        _record_rotary(bench, out, operator, clock, spec, metadata, live)
-    else:
-        with imu_driver(bench, clock) as imu:
-            protocol = _hand_protocol(bench, operator, clock, spec)
-            from station.protocols.still import record_poses
-
-            record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+    kind = KINDS[bench.protocol]
+    with bench_devices(bench, clock, kind.table) as (imu, table):
+        kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
+                              LiveView(clock) if live else None)
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
             "positions_done": 0 if done is None else done + 1, "samples": samples,
             "wall_seconds": time.perf_counter() - start}
-
-
-def _record_rotary(bench, out, operator, clock, spec, metadata, live) -> None:
-    """The rotary protocol with the bench's IMU and table into the new session `out`."""
-    from drivers.profile import load_profile
-    from station.acquire.live_view import LiveView
-    from station.protocols.rotary import RotaryProtocol, continue_session, suggested_axes
-    from station.files.session import SessionWriter
-
-    with imu_driver(bench, clock) as imu, table_driver(bench, clock) as table:
-        protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                                  suggested_axes(bench.positions))
-        metadata = {**protocol.metadata(), **metadata}
-        metadata["profiles"]["table"] = load_profile(bench.table_source).tables
-        with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
-            continue_session(writer, metadata, imu, table, operator, clock,
-                             LiveView(clock) if live else None)
 
 
 def resume(bench: BenchProfile, path, operator) -> int:
@@ -299,27 +280,32 @@ def resume(bench: BenchProfile, path, operator) -> int:
     table is commanded to stop before anything else (a killed station may have left it turning).
     """
     from drivers.clock import ScaledClock
-    from station.protocols.rotary import continue_session
     from station.files.session import Session, SessionWriter, StreamSpec
     from station.twin.rotary_bench import last_instant
 
     with Session.open(path) as session:
         metadata, recorded, end = session.metadata, session.specs.get("imu"), last_instant(session)
-    _check_same_bench(bench, path, metadata, recorded, StreamSpec.from_profile(bench.imu.imu))
+    kind = _check_same_bench(bench, path, metadata, recorded,
+                             StreamSpec.from_profile(bench.imu.imu))
     clock = ScaledClock(bench.clock_speed, start=end + 1.0)
-    with imu_driver(bench, clock) as imu, table_driver(bench, clock) as table:
-        table.stop()
+    with bench_devices(bench, clock, kind.table) as (imu, table):
+        if table is not None:
+            table.stop()
         with SessionWriter.resume(path, clock=clock) as writer:
-            return continue_session(writer, metadata, imu, table, operator, clock)
+            return kind.entry("resume")(writer, metadata, imu, table, operator, clock)
 
 
-def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec) -> None:
-    """Refuse (ValueError, naming the difference) a bench profile that cannot continue the
-    session: another protocol, another unit, another stream."""
-    if metadata.get("protocol") != "rotary" or bench.protocol != "rotary":
-        raise InputError(f"{path} holds a {metadata.get('protocol')!r} session and the profile a "
-                         f"{bench.protocol!r} one; only rotary sessions resume: record a hand "
-                         "session again (its poses are quick to repeat)")
+def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec):
+    """The session's kind (`station.protocols.KINDS`) when the bench profile can continue it; else
+    InputError naming the difference: a kind that does not resume, another protocol, another
+    unit, another stream."""
+    from station.protocols import lookup
+
+    name = metadata.get("protocol")
+    kind = lookup(name, "resume", f"{path} holds a {name!r} session", "station resume")
+    if bench.protocol != name:
+        raise InputError(f"{path} holds a {name!r} session and the profile a "
+                         f"{bench.protocol!r} one: resume with the bench profile of that kind")
     if metadata.get("unit_serial") != bench.unit_serial:
         raise InputError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
                          f"{bench.unit_serial!r}: mount the same unit, or use its bench profile")
@@ -330,16 +316,7 @@ def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec)
     if differ:
         raise InputError(f"the profile's IMU stream differs from the recorded one in {differ}: "
                          "resume with the device profile and rate the session was recorded with")
-
-
-def _hand_protocol(bench, operator, clock, spec):
-    """The iron or free-static protocol of the bench profile."""
-    from station.protocols.iron import IronProtocol
-    from station.protocols.static import StaticProtocol
-
-    if bench.protocol == "iron":
-        return IronProtocol(operator, clock, bench.layout, bench.settings)
-    return StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    return kind
 
 
 def solve(path) -> dict:
@@ -368,6 +345,14 @@ def imu_driver(bench: BenchProfile, clock):
         bus = can.Bus(**bench.imu_address)
         stack.callback(bus.shutdown)
         yield stack.enter_context(CanImu(bus, bench.imu, clock))
+
+
+@contextlib.contextmanager
+def bench_devices(bench: BenchProfile, clock, table: bool):
+    """(imu, table) drivers of the bench, opened (table None unless `table`); closed on exit."""
+    with contextlib.ExitStack() as stack:
+        imu = stack.enter_context(imu_driver(bench, clock))
+        yield imu, stack.enter_context(table_driver(bench, clock)) if table else None
 
 
 @contextlib.contextmanager

@@ -2,22 +2,20 @@
 
 import numpy as np
 
-from station.sim import npz
 from station.model.effects import EFFECTS, parse_all
-from station.sim.iron import simulate_iron
-from station.sim.layouts import A_MODEL, TRIAD, accelerometer_triad, gyro_array
-from station.sim.profile import RotaryTiming
-from station.sim.rotary import simulate_rotary
-from station.sim.static import simulate_static
+from station.protocols import KINDS, kinds_with
+from station.sim import npz
 
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
     p.description = (
-        "Simulate a rotary (12-gyro array), right-angle-iron or free-static "
-        "(accelerometer triad) session; the truth goes to FILE.truth.json."
+        "Simulate a session of a protocol kind (station.protocols.KINDS): rotary (12-gyro array), "
+        "right-angle iron or free static (accelerometer triad); the truth goes to FILE.truth.json."
     )
-    p.add_argument("--protocol", choices=("rotary", "iron", "static"), default="rotary")
+    p.add_argument("--protocol", choices=kinds_with("simulate"), default="rotary",
+                   help="protocol kind: " + "; ".join(f"{name} ({KINDS[name].title})"
+                                                      for name in kinds_with("simulate")))
     p.add_argument(
         "--effect",
         action="append",
@@ -45,29 +43,9 @@ def register(p) -> None:
 
 
 def simulate(args):
-    """The Simulation the arguments describe."""
+    """The Simulation the arguments describe (the kind's simulate, `station.protocols.KINDS`)."""
     rng = np.random.default_rng(args.seed)
-    effects = parse_all(args.effect)
-    if args.protocol == "rotary":
-        unit = gyro_array(rng, fs=args.fs)
-        return simulate_rotary(
-            unit,
-            args.positions or 20,
-            RotaryTiming(rate=args.rate),
-            effects=effects,
-            a_nominal=A_MODEL,
-        )
-    if args.protocol == "iron":
-        unit = (
-            gyro_array(rng, TRIAD, fs=args.fs)
-            if args.turn_deg
-            else accelerometer_triad(rng, fs=args.fs)
-        )
-        return simulate_iron(
-            unit, args.positions or 3, turn_deg=args.turn_deg, effects=effects, a_nominal=TRIAD
-        )
-    unit = accelerometer_triad(rng, fs=args.fs)
-    return simulate_static(unit, args.positions or 20, effects=effects, a_nominal=TRIAD)
+    return KINDS[args.protocol].entry("simulate")(rng, parse_all(args.effect), args)
 
 
 def run(args) -> int:

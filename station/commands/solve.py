@@ -7,7 +7,7 @@ magnitude. Eq. (18) readings carry no bias, so the biases come from the static w
 over positions of the static means, 1-sigma = their scatter / sqrt(n) (which also holds whatever
 varies between positions, e.g. the Earth's rate).
 
-Iron and free-static sessions: the means of the still poses (`station.protocols.still`) are
+Iron and free-static sessions: the means of the still poses (`station.reduce.still`) are
 calibrated with the biases estimated (Hwangbo & Kanade's factorization with the faces' constraints,
 or the ellipsoid / joint-bias closed form), then maximum likelihood; the magnitude is the recorded
 local gravity, the frame the recorded nominal layout (or --nominal). Free-static sessions
@@ -58,23 +58,24 @@ def run(args) -> int:
 
 
 def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None):
-    """The `station.files.calfile.Calibration` of a recorded session file (rotary, iron or static)."""
+    """The `station.files.calfile.Calibration` of a recorded session file, through the station's
+    one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
+    `station.protocols.KINDS` says which channels it calibrates and where the biases come from."""
     from station.files.calfile import Calibration
-    from station.errors import CalibrationInputError
     from station.files.session import Session
+    from station.protocols import KINDS
+    from station.replay import ReplaySettings, solve_recorded
 
     with Session.open(path) as session:
-        solver = {"rotary": _rotary, "iron": _hand, "static": _hand}.get(session.protocol)
-        if solver is None:
-            raise CalibrationInputError(
-                f"{path} records a {session.protocol!r} session; `station solve` solves rotary, "
-                "iron and static sessions.", "Use the calibration workflow of that recording "
-                "(e.g. station.reduce.free_static for an imported continuous recording).")
-        if stream not in session.specs:
-            raise CalibrationInputError(f"{path} has no stream {stream!r}.",
-                                        f"Choose one of {sorted(session.specs)} with --stream.")
-        result, channels, bias = solver(session, stream, nominal, magnitude)
+        settings = ReplaySettings(stream=stream, magnitude=magnitude)
+        readings, result = solve_recorded(session, settings, nominal, command="station solve")
+        kind = KINDS[session.protocol]
         spec = session.specs[stream]
+        channels = (kind.entry("channels")(session, stream) if kind.has("channels")
+                    else np.arange(len(spec.channels)))
+        bias = kind.entry("bias")(readings) if kind.has("bias") else {
+            "bias_source": f"estimated with the calibration ({session.protocol} protocol's "
+                           "still poses)"}
         info = {"path": str(Path(path).resolve()), "stream": stream,
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version}
@@ -82,84 +83,6 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
     return Calibration.from_result(
         result, serial, [spec.channels[i] for i in channels], [spec.units[i] for i in channels],
         counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info, **bias)
-
-
-def _rotary(session, stream, nominal, magnitude):
-    """(result, channels, bias) of a rotary session: Eq. (18) readings are bias-free, so the biases
-    are the mean of the static windows over the positions, 1-sigma their scatter / sqrt(n)."""
-    import station
-    from station.errors import CalibrationInputError
-    from station.protocols.rotary import reduce_session
-
-    reduced = reduce_session(session, stream)
-    c = table_rate(session.metadata, session.path) if magnitude is None else magnitude
-    result = station.calibrate(reduced.M, c, sigma=reduced.sigma, nominal=nominal)
-    n = reduced.M.shape[1]
-    if n < 2:
-        raise CalibrationInputError("one position cannot give the biases' uncertainty.",
-                                    "Record more positions.")
-    bias = {"bias": reduced.static_mean.mean(axis=1),
-            "bias_sigma": reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n),
-            "bias_source": "static windows of the rotary protocol (mean over positions)"}
-    return result, np.arange(reduced.M.shape[0]), bias
-
-
-def _hand(session, stream, nominal, magnitude):
-    """(result, channels, bias) of an iron or free-static session: the biases are estimated with
-    the calibration; the frame is `nominal`, else the layout the protocol recorded."""
-    from station.protocols.iron import iron_readings
-    from station.protocols.static import session_channels, static_readings
-    from station.protocols.still import calibrate_still
-
-    g = gravity(session.metadata, session.path) if magnitude is None else magnitude
-    if nominal is None:
-        nominal = read_layout(session.metadata.get("a_nominal"), session.path)
-    if session.protocol == "iron":
-        result = calibrate_still(iron_readings(session, stream), g, nominal)
-        channels = np.arange(len(session.specs[stream].channels))
-    else:
-        result = calibrate_still(static_readings(session, stream), g, nominal)
-        channels = session_channels(session, stream)
-    return result, channels, {"bias_source": f"estimated with the calibration ({session.protocol} "
-                                             "protocol's still poses)"}
-
-
-def table_rate(metadata: dict, path) -> float:
-    """|rate| of the rotary settings recorded in the session's metadata (untrusted)."""
-    settings = metadata.get("settings") if isinstance(metadata, dict) else None
-    rate = settings.get("rate") if isinstance(settings, dict) else None
-    return abs(_recorded_number(rate, "table rate", path))
-
-
-def gravity(metadata: dict, path) -> float:
-    """The local gravity a still-pose protocol recorded in the session's metadata (untrusted)."""
-    g = metadata.get("gravity") if isinstance(metadata, dict) else None
-    return _recorded_number(g, "gravity", path, positive=True)
-
-
-def _recorded_number(value, what: str, path, positive: bool = False) -> float:
-    from station.errors import CalibrationInputError
-
-    if type(value) not in (int, float) or not np.isfinite(value) or value == 0 \
-            or (positive and value < 0):
-        raise CalibrationInputError(f"{path} records no usable {what} ({value!r}).",
-                                    "Give the stimulus magnitude with --magnitude.")
-    return float(value)
-
-
-def read_layout(rows, path) -> np.ndarray:
-    """The nominal layout (3 x m) a session's metadata holds (untrusted)."""
-    from station.errors import CalibrationInputError
-
-    try:
-        a = np.array(rows, dtype=float)
-    except (TypeError, ValueError):
-        a = np.zeros(0)
-    if a.ndim != 2 or a.shape[0] != 3 or not np.all(np.isfinite(a)):
-        raise CalibrationInputError(f"{path} records no usable nominal layout.",
-                                    "Give one with --nominal (a CSV of 3 rows, a column per "
-                                    "sensor).")
-    return a
 
 
 def read_nominal(path) -> np.ndarray:

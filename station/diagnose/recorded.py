@@ -39,7 +39,7 @@ angle the table reports from rest to rest over c times the IMU-timed turning tim
 that reports its command, to the IMU timing's precision; the true rate's factor for a table whose
 angle reads the shaft, which the `rate_error` extension then uses).
 
-Sample instants come from the sequence numbers at the nominal rate (`station.acquire.recorder.
+Sample instants come from the sequence numbers at the nominal rate (`station.reduce.timeline.
 sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
 times), and a window with a gap in the sequence numbers (a lossy link) is refused.
 """
@@ -49,8 +49,8 @@ import math
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.protocols.rotary import SEGMENT_EVENTS, position_windows
-from station.acquire.recorder import sample_times
+from station.reduce.rotary import position_windows
+from station.reduce.timeline import sample_times, segment_breaks
 
 RAMP_BAND = (0.1, 0.9)
 """Fractions of the steady rate between which ramp samples are fitted by a line."""
@@ -70,8 +70,7 @@ def arrays(session, stream: str = "imu") -> dict:
     events, table = session.events(), session.table()
     data = session.stream(stream)
     fs = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, fs,
-                     [e.time for e in events if e.kind in SEGMENT_EVENTS])
+    t = sample_times(data.seq, data.host_time, fs, segment_breaks(events))
     y = data.to_si()
     pos = {}
     for j, p in _spans(session.path, events).items():

@@ -10,7 +10,7 @@ nothing unpickled or evaluated; errors are `CalibrationInputError`s naming the p
 - `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
   `rate_cmd`, `c_cmd`, `seg_*`, `a_nominal`, optional `angle`), loaded with `allow_pickle=False`
   after its array headers were checked. The session holds the counts, the table's angle and rate as
-  table states and the protocol's events, so `station.protocols.rotary.reduce_session` reduces it.
+  table states and the protocol's events, so `station.reduce.rotary.rotary_readings` reduces it.
 
 Units: each stream's numbers are in a `unit` given by the user: an SI unit (`m/s^2`, `rad/s`, `T`),
 a known other one (`g`, `deg/s`, `uT`, `gauss`), or raw counts of a quantity, `counts:m/s^2`, with
@@ -157,7 +157,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
 
 def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:
     """Import a rotary array file (docs/simulator.md) into a new session `out` that
-    `station.protocols.rotary.reduce_session` reduces like `station.reduce.eq18.reduce_arrays`."""
+    `station.reduce.rotary.rotary_readings` reduces like `station.reduce.eq18.reduce_arrays`."""
     arrays = read_npz(path, max_bytes)
     y, lsb, fs = arrays["y"], arrays["lsb"], float(arrays["fs"])
     n, k, m = y.shape

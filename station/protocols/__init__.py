@@ -1,4 +1,141 @@
-"""Calibration protocols: what the station asks of the devices and the technician, step by step.
+"""Calibration protocols: what the station asks of the devices and the technician, step by step,
+and `KINDS`, the one registry of protocol kinds.
 
-`rotary` (gyros on a rotary table, Rupniewski Section IV, Eq. 18).
+- `rotary` (`station.protocols.rotary`): gyros on a rotary table, Rupniewski Section IV, Eq. 18;
+- `iron` (`station.protocols.iron`): accelerometers in a right-angle iron, Hwangbo & Kanade;
+- `static` (`station.protocols.static`): accelerometers in free still poses, no fixture.
+
+A session file records its kind (`protocol` in its metadata); every command that depends on the
+kind finds what to do in `KINDS` and nowhere else. A `Kind` names its parts as lazy references,
+"module:attribute" strings imported only when a command uses them (python-can's BACKENDS style),
+so importing this package costs nothing: no numpy, scipy, h5py or pymodbus. Adding a kind is one
+entry here (docs/protocols.md, "Adding a protocol kind").
 """
+
+import importlib
+from dataclasses import dataclass
+
+from station.errors import CalibrationInputError
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One protocol kind; each callable is a "module:attribute" reference (`entry`), None where the
+    kind has no such part.
+
+    title     : what the kind calibrates, one line for the help texts (`station simulate --help`)
+    settings  : the settings dataclass of its state machine (the bench profile's [protocol] keys)
+    acquire   : (bench, imu, table, out, operator, clock, spec, metadata, view) -> None: run the
+                state machine with opened devices into the new session file `out` (`station
+                record`; table None unless `table`, view None unless `live_view`)
+    table     : acquire needs the rotary table (the bench profile's [table]); else the bench
+                profile gives the nominal `layout` of the accelerometers and `positions` come from
+                the settings (`settings.poses`)
+    live_view : acquire can show `station.acquire.live_view.LiveView`
+    resume    : (writer, metadata, imu, table, operator, clock) -> first position: continue a
+                session after a kill, pause or abort (`station resume`)
+    reduce    : (session, stream, trim=seconds) -> readings with M, sigma (m, n), take(columns)
+    solve     : (readings, magnitude, nominal=, method=, refine=) -> CalibrationResult
+    stimulus  : (words, metadata keys outermost first) of the recorded stimulus magnitude
+    nominal_frame : the solution is given in the frame of the recorded nominal layout `a_nominal`
+    channels  : (session, stream) -> indices of the calibrated channels; None: every channel
+    bias      : readings -> the calibration file's bias terms; None: estimated by `solve`
+    simulate  : (rng, effects, options) -> `station.sim` Simulation (`station simulate`; options:
+                its arguments positions (None: the kind's default), fs, rate, turn_deg)
+    twin      : options -> a virtual bench for `station twin` (a context manager with
+                profile_text, addresses, truth, error; options: its arguments seed, speed,
+                positions, mountings, rate_hz, lifetime); ValueError for options it cannot serve
+    """
+
+    title: str
+    settings: str | None = None
+    acquire: str | None = None
+    table: bool = False
+    live_view: bool = False
+    resume: str | None = None
+    reduce: str | None = None
+    solve: str | None = None
+    stimulus: tuple = ("gravity", ("gravity",))
+    nominal_frame: bool = False
+    channels: str | None = None
+    bias: str | None = None
+    simulate: str | None = None
+    twin: str | None = None
+
+    def entry(self, role: str):
+        """The object the `role` reference names, imported now (check `has(role)` first)."""
+        module, _, attribute = getattr(self, role).partition(":")
+        return getattr(importlib.import_module(module), attribute)
+
+    def has(self, role: str) -> bool:
+        """True when the kind has a `role` part."""
+        return getattr(self, role) is not None
+
+
+KINDS = {
+    "rotary": Kind(
+        title="gyros on a rotary table (Rupniewski, Eq. 18)",
+        settings="station.protocols.rotary:RotarySettings",
+        acquire="station.protocols.rotary:record_session",
+        table=True,
+        live_view=True,
+        resume="station.protocols.rotary:continue_session",
+        reduce="station.reduce.rotary:rotary_readings",
+        solve="station.solve.rotary:calibrate_rotary",
+        stimulus=("table rate", ("settings", "rate")),
+        bias="station.reduce.rotary:static_bias",
+        simulate="station.sim.rotary:simulated_session",
+        twin="station.twin.served:rotary_twin",
+    ),
+    "iron": Kind(
+        title="accelerometers in a right-angle iron (Hwangbo & Kanade)",
+        settings="station.protocols.iron:IronSettings",
+        acquire="station.protocols.iron:record_session",
+        reduce="station.reduce.iron:iron_readings",
+        solve="station.solve.still:calibrate_still",
+        nominal_frame=True,
+        simulate="station.sim.iron:simulated_session",
+        twin="station.twin.served:iron_twin",
+    ),
+    "static": Kind(
+        title="accelerometers in free still poses",
+        settings="station.protocols.static:StaticSettings",
+        acquire="station.protocols.static:record_session",
+        reduce="station.reduce.static:static_readings",
+        solve="station.solve.still:calibrate_still",
+        nominal_frame=True,
+        channels="station.reduce.static:session_channels",
+        simulate="station.sim.static:simulated_session",
+        twin="station.twin.served:static_twin",
+    ),
+}
+"""The protocol kinds, by the name a session file records as its `protocol`."""
+
+VERBS = {"acquire": "records", "resume": "resumes", "reduce": "reduces", "solve": "solves",
+         "simulate": "simulates", "twin": "serves virtual benches of"}
+"""How an unknown-kind error says what a role does."""
+
+
+class UnknownKind(CalibrationInputError):
+    """A protocol kind that is not registered, or has no part for what was asked."""
+
+
+def kinds_with(role: str) -> list:
+    """Names of the registered kinds that have a `role` part, in registry order."""
+    return [name for name, kind in KINDS.items() if kind.has(role)]
+
+
+def lookup(name: str, role: str, subject: str | None = None, command: str = "the station") -> Kind:
+    """The kind `name`, which must have a `role` part; else UnknownKind naming the kinds that have
+    one. subject: what names the kind (default "protocol kind 'x'"), command: who asks."""
+    kind = KINDS.get(name)
+    if kind is not None and kind.has(role):
+        return kind
+    subject = subject or f"protocol kind {name!r}"
+    unknown = "" if kind is not None else \
+        f" ({name!r} is no registered protocol kind; the kinds are {', '.join(KINDS)})"
+    raise UnknownKind(f"{subject}; {command} {VERBS[role]} "
+                      f"{', '.join(kinds_with(role)) or 'no'} sessions{unknown}.",
+                      "Use the workflow of that recording (e.g. station.reduce.free_static for an "
+                      "imported continuous recording), or register the kind's part in "
+                      "station.protocols.KINDS.")

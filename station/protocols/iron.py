@@ -1,4 +1,4 @@
-"""The right-angle-iron protocol for accelerometers (Hwangbo & Kanade) and its reduction.
+"""The right-angle-iron protocol for accelerometers (Hwangbo & Kanade).
 
 The unit is fixed in a right-angle iron in one or more mountings; for each mounting the technician
 stands the iron on its faces in turn. The station needs no key press: it watches the stream and
@@ -18,7 +18,8 @@ from the data.
           clock seconds: the averaging window does not depend on when the host got round to
           polling); then the face is recognised and `position_done` recorded.
 
-Face recognition (`recognise_faces`): the averaged reading z_j gives the up direction in the unit
+Face recognition (`station.reduce.iron.recognise_faces`, live and offline by
+`station.reduce.iron.iron_readings`): the averaged reading z_j gives the up direction in the unit
 frame through the nominal layout, u_j ~ (A A^T)^-1 A (z_j - b_guess); within a mounting the first
 pose is face "+x", a later pose within `tolerance_deg` of (the opposite of) an earlier face is that
 face (its opposite), one perpendicular to all earlier axes opens the next axis. Any consistent
@@ -27,24 +28,23 @@ perpendicular 0, opposite -1, only within a mounting); the solver is `station.ca
 bias="estimate", constraints=...)` = Hwangbo & Kanade's factorization + maximum likelihood.
 """
 
-import dataclasses
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.solve.constraints import FACES, from_faces
-from station.errors import CalibrationInputError, InputError
 from station.acquire.operator import Instruction
+from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
-    StillReadings,
     StillSettings,
     StreamTap,
+    record_poses,
     run_states,
-    still_readings,
-    up_direction,
 )
+from station.reduce.iron import recognise_faces
+from station.reduce.still import up_direction
+from station.solve.constraints import FACES
 
 FACE_UP = {f: (1.0 if f[0] == "-" else -1.0) * np.eye(3)[FACES.index(f) // 2] for f in FACES}
 """Up direction in the iron frame when the iron stands on face f (its outward normal points down)."""
@@ -74,34 +74,10 @@ class IronSettings(StillSettings):
         if not self.tolerance_deg > 0:
             raise InputError("tolerance_deg must be positive")
 
-
-def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
-    """Face labels of poses with up `directions` (P, 3), relative to the first pose of each mounting.
-
-    Raises CalibrationInputError for a pose that is neither along nor perpendicular to the faces
-    seen before in its mounting (the iron was not standing on a face).
-    """
-    directions = np.asarray(directions, float)
-    mountings = list(mountings)
-    near, perp = np.cos(np.radians(tolerance_deg)), np.sin(np.radians(tolerance_deg))
-    axes: dict = {}
-    labels = []
-    for j, (u, k) in enumerate(zip(directions, mountings)):
-        seen = axes.setdefault(k, [])
-        cos = np.array([u @ a for a in seen])
-        if len(cos) and np.max(np.abs(cos)) > near:
-            i = int(np.argmax(np.abs(cos)))
-            labels.append(("+" if cos[i] > 0 else "-") + "xyz"[i])
-        elif len(seen) < 3 and np.all(np.abs(cos) < perp):
-            seen.append(u)
-            labels.append("+" + "xyz"[len(seen) - 1])
-        else:
-            angles = np.degrees(np.arccos(np.clip(np.abs(cos), 0, 1)))
-            raise CalibrationInputError(
-                f"pose {j + 1} (mounting {k}) is {np.round(angles, 1).tolist()} deg from the axes "
-                f"of the faces before it: not on a face of the iron (tolerance {tolerance_deg} "
-                "deg).", "Stand the iron squarely on one of its faces and record that pose again.")
-    return labels
+    @property
+    def poses(self) -> int:
+        """Poses recorded: the `faces` in each of the `mountings`."""
+        return self.mountings * len(self.faces)
 
 
 class IronProtocol:
@@ -127,7 +103,7 @@ class IronProtocol:
 
     @property
     def poses(self) -> int:
-        return self.settings.mountings * len(self.settings.faces)
+        return self.settings.poses
 
     def metadata(self) -> dict:
         """What a session file should record about this protocol run."""
@@ -193,34 +169,10 @@ class IronProtocol:
         return j // len(self.settings.faces)
 
 
-# ------------------------------------------------------------------------------------ reduction
-
-
-@dataclass(frozen=True)
-class IronReadings(StillReadings):
-    """`StillReadings` of an iron session and the faces recognised from the data (P labels)."""
-
-    faces: list
-
-    def take(self, keep):
-        """The readings of the poses `keep` (column indices), in that order, with their faces: the
-        constraints follow the subset."""
-        keep = list(keep)
-        return dataclasses.replace(super().take(keep), faces=[self.faces[k] for k in keep])
-
-    def constraints(self):
-        """The inner-product constraints of the poses (Eq. 15)."""
-        return from_faces(self.faces, self.mountings)
-
-
-def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
-                  tolerance_deg: float = 20.0, **detector) -> IronReadings:
-    """The still poses of an iron session (`station.files.session.Session`, `still_readings`) and their
-    faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector` (the
-    stillness detector's options and `trim`) goes to `still_readings`."""
-    still = still_readings(session, stream, **detector)
-    if a_nominal is None:
-        a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : still.M.shape[0]].tolist())
-    faces = recognise_faces(up_direction(still.M, a_nominal, bias_guess), still.mountings,
-                            tolerance_deg)
-    return IronReadings(still.M, still.sigma, still.windows, still.mountings, faces)
+def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
+                   view=None) -> None:
+    """`station record`'s iron session (`station.protocols.KINDS` acquire): the protocol with
+    the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
+    the new session file `out`; no table, no live view."""
+    protocol = IronProtocol(operator, clock, bench.layout, bench.settings)
+    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})

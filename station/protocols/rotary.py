@@ -36,8 +36,7 @@ Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
 
-`reduce_session` turns the recorded session into M (m x n), Eq. (18): m_j = mean(rotating) -
-mean(static), the rotating window cut to whole revolutions by the table's recorded angle.
+The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
 import contextlib
@@ -48,13 +47,16 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from drivers.rotary_table import TableTimeout
-from station.errors import CalibrationInputError, InputError, ProtocolError, SessionPaused
 from station.acquire.operator import Instruction
-from station.acquire.recorder import Recorder, RecordingError, sample_times
-from station.reduce.eq18 import Reduced, reduce_rotary
+from station.acquire.recorder import Recorder, RecordingError
+from station.errors import InputError
 
-SEGMENT_EVENTS = ("resume", "session_resumed")
-"""Events after which the IMU stream is a new segment (see `station.acquire.recorder.sample_times`)."""
+class ProtocolError(RuntimeError):
+    """The bench did not behave as the protocol needs; the message says what and what to do."""
+
+
+class SessionPaused(ProtocolError):
+    """The table stopped answering and the operator chose to stop; the session can be resumed."""
 
 
 @dataclass(frozen=True)
@@ -428,73 +430,24 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     return first
 
 
+def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
+                   view=None) -> None:
+    """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
+    the bench profile's settings at `suggested_axes(bench.positions)`, run with the opened `imu`
+    and `table` drivers into the new session file `out` (stream `spec`, `metadata` with the table's
+    register map added to its device profiles); `view` a LiveView to show, or None."""
+    from drivers.profile import load_profile
+    from station.files.session import SessionWriter
+
+    protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                              suggested_axes(bench.positions))
+    metadata = {**protocol.metadata(), **metadata}
+    metadata["profiles"]["table"] = load_profile(bench.table_source).tables
+    with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
+        continue_session(writer, metadata, imu, table, operator, clock, view)
+
+
 def _plain(values: dict) -> dict:
     """Counters as JSON numbers."""
     return {k: (v.item() if hasattr(v, "item") else v) for k, v in values.items()
             if isinstance(v, int | float | np.integer | np.floating)}
-
-
-# ------------------------------------------------------------------------------------ reduction
-
-
-def position_windows(events) -> dict:
-    """{position: {"static": (t0, t1), "rotating": (t0, t1)}} in clock seconds for every completed
-    position (one with `position_done`); a position recorded again after an abort keeps its last
-    run."""
-    pairs = {"static": ("static_start", "static_end"), "rotating": ("rotate_start", "rotate_end")}
-    times = {}
-    for e in events:
-        if e.position is not None:
-            if e.kind == "position_start":
-                times[e.position] = {}
-            times.setdefault(e.position, {})[e.kind] = e.time
-    return {j: {name: (t[a], t[b]) for name, (a, b) in pairs.items()}
-            for j, t in sorted(times.items())
-            if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
-
-
-def reduce_session(session, stream: str = "imu", coverage: float = 0.9,
-                   trim: float = 0.0) -> Reduced:
-    """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
-
-    Per completed position: the samples whose sampling instant lies in the static window and in
-    the rotating window, the latter cut to whole revolutions by the recorded table angle
-    (interpolated at the sampling instants). A window holding less than `coverage` of the samples
-    due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
-    (e.g. to test whether the table's start or stop leaks into the windows).
-    """
-    data, table, events = session.stream(stream), session.table(), session.events()
-    if not (math.isfinite(trim) and trim >= 0):
-        raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
-    windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
-               for j, w in position_windows(events).items()}
-    if not windows:
-        raise CalibrationInputError(f"the session {session.path} has no completed position.",
-                                    "Record at least as many positions as the solver asks for.")
-    if len(table.time) < 2:
-        raise CalibrationInputError(f"the session {session.path} holds no table states.",
-                                    "Record the session with the rotary table connected.")
-    rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate,
-                     [e.time for e in events if e.kind in SEGMENT_EVENTS])
-    lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
-    parts = []
-    for j, w in windows.items():
-        chosen = {name: (t >= t0) & (t <= t1) for name, (t0, t1) in w.items()}
-        for name, (t0, t1) in w.items():
-            due, got = (t1 - t0) * rate, int(chosen[name].sum())
-            if got < coverage * due:
-                raise CalibrationInputError(
-                    f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} "
-                    "were due.", "The IMU link lost data: check it and record the position again.")
-        static, rotating = chosen["static"], chosen["rotating"]
-        ns, nr = int(static.sum()), int(rotating.sum())
-        y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
-        angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
-        try:
-            parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
-                                                "rotating": np.array([ns, ns + nr])}, angle=angle))
-        except CalibrationInputError as exc:
-            raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
-    return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
-                      for name in Reduced.__dataclass_fields__})

@@ -1,5 +1,4 @@
-"""The free-static protocol for accelerometers (multi-position calibration, no fixture) and its
-reduction.
+"""The free-static protocol for accelerometers (multi-position calibration, no fixture).
 
 The technician turns the unit by hand into a sequence of poses and lets go; each pose needs only to
 be still and different from the others, not exact: the station measures where "up" is. The poses
@@ -18,7 +17,8 @@ between poses: the station finds each still pose itself (`station.protocols.stil
           which and the same pose is asked for again; otherwise `position_done` (detail `up`).
 
 Every accelerometer channel of the stream (unit m/s^2) is calibrated; other channels (gyros) help
-the stillness detection. The solver (`station.protocols.still.calibrate_still`) is
+the stillness detection (`station.reduce.static.static_readings` reduces the recording). The
+solver (`station.solve.still.calibrate_still`) is
 `station.calibrate(M, g, d=3, bias="estimate")`: the ellipsoid closed form for a triad, Hwangbo &
 Kanade's joint-bias factorization for m > 3, then maximum likelihood with each mean's standard
 error.
@@ -29,20 +29,18 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.errors import CalibrationInputError, InputError
 from station.acquire.operator import Instruction
+from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
-    StillReadings,
     StillSettings,
     StreamTap,
+    record_poses,
     run_states,
-    still_readings,
-    up_direction,
 )
-
-ACCELEROMETER = "m/s^2"
+from station.reduce.static import accelerometer_channels
+from station.reduce.still import up_direction
 
 
 def _guided_poses() -> list:
@@ -88,17 +86,6 @@ class StaticSettings(StillSettings):
         if not 0 < self.separation_deg < 35:
             raise InputError("separation_deg must lie between 0 and 35 degrees (the guided poses "
                              f"are 35 degrees apart), got {self.separation_deg!r}")
-
-
-def accelerometer_channels(units) -> np.ndarray:
-    """Indices of the stream channels in m/s^2; CalibrationInputError when fewer than 3."""
-    channels = np.flatnonzero([u == ACCELEROMETER for u in units])
-    if len(channels) < 3:
-        raise CalibrationInputError(
-            f"the stream has {len(channels)} accelerometer channels (unit {ACCELEROMETER}); "
-            "free-static calibration needs at least 3.",
-            "Use a device profile whose [imu] units mark the accelerometer channels m/s^2.")
-    return channels
 
 
 class StaticProtocol:
@@ -177,27 +164,10 @@ class StaticProtocol:
         return "done" if self.position == self.settings.poses else "pose"
 
 
-# ------------------------------------------------------------------------------------ reduction
-
-
-def static_readings(session, stream: str = "imu", **detector) -> StillReadings:
-    """The accelerometer rows of the still poses of a free-static session (`still_readings`, with
-    its `trim` and detector options)."""
-    still = still_readings(session, stream, **detector)
-    channels = session_channels(session, stream)
-    return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
-
-
-def session_channels(session, stream: str = "imu") -> np.ndarray:
-    """Indices of the accelerometer channels of a free-static session's stream: the metadata's
-    (checked: untrusted), or those in m/s^2."""
-    m = len(session.specs[stream].channels)
-    channels = session.metadata.get("channels")
-    if channels is None:
-        return accelerometer_channels(session.specs[stream].units)
-    if not (isinstance(channels, list) and all(type(c) is int and 0 <= c < m for c in channels)
-            and len(set(channels)) == len(channels) >= 3):
-        raise CalibrationInputError(f"{session.path} records accelerometer channels {channels!r}.",
-                                    "The session file is damaged or not from the free-static "
-                                    "protocol.")
-    return np.array(channels)
+def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
+                   view=None) -> None:
+    """`station record`'s free-static session (`station.protocols.KINDS` acquire): the protocol with
+    the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
+    the new session file `out`; no table, no live view."""
+    protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})

@@ -16,24 +16,20 @@ timeout). `PoseWatcher` does the watching for a protocol:
                  window does not depend on when the host polled) and returns the window's mean;
                  a motion records a `note`, tells the operator and returns None (settle again).
 
-The reduction (`still_readings`) does not trust the live polling: it detects the still intervals
-once on the whole recording (one noise level for the session) and averages, for each completed
-pose, the first `hold` seconds of the interval that overlaps its recorded window most.
+The offline reduction (`station.reduce.still.still_readings`) does not trust the live polling.
 """
 
-import dataclasses
 import threading
 from dataclasses import dataclass
 
 import numpy as np
 
-from station.solve.calibrate import calibrate
-from station.solve.constraints import Constraints
-from station.errors import CalibrationInputError, InputError
-from station.protocols.rotary import ProtocolError
-from station.acquire.recorder import Recorder, sample_times
+from station.acquire.recorder import Recorder
 from station.files.session import SessionWriter
+from station.protocols.rotary import ProtocolError
 from station.reduce.stillness import detect_still
+from station.reduce.timeline import sample_times
+from station.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -167,16 +163,6 @@ class PoseWatcher:
         return float(t[start])
 
 
-def up_direction(z, a_nominal, bias_guess=None) -> np.ndarray:
-    """(P, 3) unit up directions in the unit frame from readings z (m, P): nominal least squares."""
-    z = np.asarray(z, float)
-    a = np.asarray(a_nominal, float)
-    if bias_guess is not None:
-        z = z - np.asarray(bias_guess, float).reshape(-1, 1)
-    v = np.linalg.lstsq(a.T, z, rcond=None)[0].T
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
 def run_states(protocol, recorder, first: str) -> None:
     """Run `protocol`'s state handlers from `first` until "done" (the one place where its state
     changes); an error is recorded as an `abort` event and raised."""
@@ -200,130 +186,3 @@ def record_poses(protocol, imu, spec, clock, path, metadata: dict) -> None:
     writer = SessionWriter.create(path, metadata, {"imu": spec}, clock=clock)
     with writer, Recorder(writer, tap, clock=clock) as recorder:
         protocol.run(recorder, tap)
-
-
-# ------------------------------------------------------------------------------------ reduction
-
-
-@dataclass(frozen=True)
-class StillReadings:
-    """Averaged readings of the completed still poses of a session (SI units).
-
-    M, sigma : (m, P) means and their standard errors; windows : (P, 2) clock seconds of the
-    first and last sample averaged; mountings : (P,) mounting index (0 without mountings).
-    """
-
-    M: np.ndarray
-    sigma: np.ndarray
-    windows: np.ndarray
-    mountings: np.ndarray
-
-    def take(self, keep):
-        """The readings of the poses `keep` (column indices), in that order."""
-        keep = list(keep)
-        return dataclasses.replace(self, M=self.M[:, keep], sigma=self.sigma[:, keep],
-                                   windows=self.windows[keep], mountings=self.mountings[keep])
-
-    def constraints(self) -> Constraints | None:
-        """Inner-product constraints between the poses: None, equal magnitudes only."""
-        return None
-
-
-def calibrate_still(readings: StillReadings, gravity: float, nominal=None, method: str = "auto",
-                    refine: bool = True):
-    """`station.calibrate` of still poses with the biases estimated and the poses' constraints
-    (`readings.constraints()`): the ellipsoid (triad) or Hwangbo & Kanade's factorization
-    (Eqs. 14-15 and 29), then maximum likelihood weighted by each mean's standard error."""
-    return calibrate(readings.M, gravity, d=3, bias="estimate", constraints=readings.constraints(),
-                     sigma=readings.sigma, nominal=nominal, method=method, refine=refine)
-
-
-def pose_windows(events) -> tuple[np.ndarray, np.ndarray]:
-    """((P, 2) still windows in clock seconds, (P,) mountings) of the completed poses; a pose
-    recorded again (after a motion, or refused) keeps its last window."""
-    poses: dict = {}
-    for e in events:
-        if e.position is None or e.kind not in ("position_start", "static_start", "static_end",
-                                                "position_done"):
-            continue
-        if e.kind == "position_start":
-            poses[e.position] = {"mounting": e.detail.get("mounting", 0)}
-        pose = poses.setdefault(e.position, {})
-        pose[e.kind] = e.time
-        if e.kind == "static_end":
-            pose["window"] = _window(e.detail.get("window", [pose.get("static_start"), e.time]))
-    done = [p for _, p in sorted(poses.items())
-            if all(k in p for k in ("static_start", "window", "position_done"))]
-    windows = np.array([p["window"] for p in done]).reshape(-1, 2)
-    return windows, np.array([int(p.get("mounting", 0)) for p in done], dtype=np.int64)
-
-
-def _window(value) -> list:
-    """A [start, stop] pair of finite clock seconds from an (untrusted) event detail."""
-    w = np.asarray(value, dtype=object)
-    if w.shape != (2,) or not all(isinstance(x, (int, float)) and np.isfinite(x) for x in w) \
-            or not w[0] < w[1]:
-        raise CalibrationInputError(f"a static_end event holds the window {value!r}.",
-                                    "The session file is damaged or not from a still-pose "
-                                    "protocol.")
-    return [float(w[0]), float(w[1])]
-
-
-def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) -> StillReadings:
-    """The completed still poses of a session (`station.files.session.Session`).
-
-    The still intervals are detected once on the whole recording (`station.reduce.stillness.
-    detect_still`, one noise level for the session; options: `detector`, default the protocol's
-    settings in the metadata), so the result does not depend on when the live protocol polled.
-    With the protocol's events, each completed pose averages the first `hold` seconds of the
-    interval that overlaps its recorded window most; without them (an imported recording) every
-    interval is a pose, all in one mounting. `trim` seconds (rounded to whole samples) are left
-    out at both ends of every averaged window.
-    """
-    data = session.stream(stream)
-    rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate)
-    z = data.to_si()
-    settings = session.metadata.get("settings", {})
-    options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
-               if isinstance(settings.get(k), (int, float))}
-    still = detect_still(z, rate, **{**options, **detector})
-    windows, mountings = pose_windows(session.events())
-    spans = still.intervals
-    if len(windows):
-        first, last = t[spans[:, 0]], t[spans[:, 1] - 1]
-        overlap = (np.minimum(last[None], windows[:, 1:]) - np.maximum(first[None], windows[:, :1]))
-        best = np.argmax(overlap, axis=1)
-        lost = np.flatnonzero(overlap[np.arange(len(windows)), best] <= 0)
-        if len(lost):
-            raise CalibrationInputError(
-                f"pose(s) {(lost + 1).tolist()} of {session.path} are not still in the whole "
-                "recording.", "Check the detector settings, or record those poses again.")
-        hold = np.round((windows[:, 1] - windows[:, 0]) * rate).astype(np.int64)
-        spans = np.column_stack([spans[best, 0], np.minimum(spans[best, 1],
-                                                            spans[best, 0] + hold)])
-    else:
-        mountings = np.zeros(len(spans), np.int64)
-    if not len(spans):
-        raise CalibrationInputError(f"the session {session.path} has no still pose.",
-                                    "Record the unit in still poses, each still for seconds.")
-    spans = _trimmed(spans, trim, rate, session.path)
-    M = np.array([z[a:b].mean(axis=0) for a, b in spans]).T
-    sigma = np.array([z[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b in spans]).T
-    return StillReadings(M, sigma, np.column_stack([t[spans[:, 0]], t[spans[:, 1] - 1]]),
-                         mountings)
-
-
-def _trimmed(spans, trim: float, rate: float, path):
-    """Sample spans (P, 2) with round(trim x rate) samples cut at both ends; 2 samples must stay."""
-    if not (np.isfinite(trim) and trim >= 0):
-        raise CalibrationInputError(f"trim {trim!r} s is not a duration.",
-                                    "Give the seconds to leave out as a number >= 0.")
-    cut = round(trim * rate)
-    spans = spans + np.array([cut, -cut])
-    short = np.flatnonzero(spans[:, 1] - spans[:, 0] < 2)
-    if len(short):
-        raise CalibrationInputError(
-            f"trimming {trim:g} s at both ends leaves pose(s) {(short + 1).tolist()} of {path} "
-            "fewer than 2 samples.", "Trim less than half of the shortest still window.")
-    return spans

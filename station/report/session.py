@@ -16,9 +16,9 @@ The figures:
                 latency of each sample (host time - sampling instant);
 - uncertainty : scale factors, biases and axis angles with their 1-sigma uncertainties.
 
-The calibration is the stored `results/<name>` (the newest by default). A rotary session without
-stored results (e.g. a recording that was interrupted) is reduced (Eq. 18 of Rupniewski) and solved
-for the report; the report says so. Every text from the file is escaped: the file is untrusted.
+The calibration is the stored `results/<name>` (the newest by default). A session without stored
+results (e.g. a recording that was interrupted) is reduced and solved for the report as `station
+replay` does (`station.replay.solve_recorded`); the report says so. Every text from the file is escaped: the file is untrusted.
 """
 
 import base64
@@ -32,10 +32,11 @@ import numpy as np
 from matplotlib.figure import Figure
 from scipy import stats
 
-from station.solve.calibrate import calibrate
 from station.errors import CalibrationInputError, InputError
-from station.protocols.rotary import SEGMENT_EVENTS, position_windows, reduce_session
-from station.acquire.recorder import sample_times
+from station.protocols import KINDS
+from station.reduce.rotary import position_windows
+from station.replay import ReplaySettings, solve_recorded
+from station.reduce.timeline import sample_times, segment_breaks
 from station.files.session import Session
 
 FALSE_ALARMS = 0.01
@@ -208,14 +209,13 @@ def _calibration(session, name, report):
             report.warnings.append(f"results/{stored.name} holds readings but no calibration.")
             return None
         return stored.calibration, spec.channels, spec.units
-    if session.protocol != "rotary" or "imu" not in session.specs:
+    kind = KINDS.get(session.protocol)
+    if kind is None or not kind.has("reduce") or "imu" not in session.specs:
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
         return None
     try:
-        reduced = reduce_session(session)
-        rate = abs(float(session.metadata.get("settings", {}).get("rate", 1.0)))
-        cal = calibrate(reduced.M, rate, sigma=reduced.sigma)
+        _, cal = solve_recorded(session, ReplaySettings(), command="the report")
     except CalibrationInputError as exc:
         report.warnings.append(f"No calibration could be computed from this session: {exc}")
         return None
@@ -461,7 +461,7 @@ def _stream_health(report, name, data, events) -> None:
     if k < 2:
         report.warnings.append(f"Stream {name!r} holds {k} sample(s): nothing to analyse.")
         return
-    breaks = np.sort([e.time for e in events if e.kind in SEGMENT_EVENTS])
+    breaks = np.sort(segment_breaks(events))
     same_segment = np.diff(np.searchsorted(breaks, data.host_time, side="right")) == 0
     step = np.diff(data.seq)
     gaps = (step > 1) & same_segment  # a resumed recording may number its samples anew

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from station.model.earth import normal_gravity
 from station.model.effects import to_json
+from station.sim.layouts import TRIAD, accelerometer_triad, gyro_array
 from station.sim.rotary import Simulation, random_orientations
 from station.model.sensing import refuse_motion_effects, sense
 from station.model.unit import SensorUnit
@@ -113,3 +114,13 @@ def simulate_iron(
         "effects": to_json(effects),
     }
     return Simulation(arrays, truth)
+
+
+def simulated_session(rng: np.random.Generator, effects: dict, options) -> Simulation:
+    """`station simulate --protocol iron` (`station.protocols.KINDS`): an accelerometer triad at
+    `options.fs` in `options.positions` (default 3) mountings, or with `options.turn_deg` a gyro
+    triad turned by that angle on each face."""
+    unit = (gyro_array(rng, TRIAD, fs=options.fs) if options.turn_deg
+            else accelerometer_triad(rng, fs=options.fs))
+    return simulate_iron(unit, options.positions or 3, turn_deg=options.turn_deg, effects=effects,
+                         a_nominal=TRIAD)

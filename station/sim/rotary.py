@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from station.model.earth import normal_gravity
 from station.model.effects import axis_wobble, earth_rate, g_sensitivity, to_json
 from station.model.effects.earth_rate import EarthRate
+from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming
 from station.model.sensing import sense
 from station.model.unit import SensorUnit
@@ -141,3 +142,11 @@ def simulate_rotary(
         "effects": to_json(effects),
     }
     return Simulation(arrays, truth)
+
+
+def simulated_session(rng: np.random.Generator, effects: dict, options) -> Simulation:
+    """`station simulate --protocol rotary` (`station.protocols.KINDS`): a 12-gyro array at
+    `options.fs` on `options.positions` (default 20) random positions at `options.rate` rad/s."""
+    unit = gyro_array(rng, fs=options.fs)
+    return simulate_rotary(unit, options.positions or 20, RotaryTiming(rate=options.rate),
+                           effects=effects, a_nominal=A_MODEL)

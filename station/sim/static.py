@@ -11,9 +11,11 @@ from scipy.spatial.transform import Rotation
 
 from station.model.earth import earth_rate_enu, normal_gravity
 from station.model.effects import g_sensitivity, to_json
+from station.sim.layouts import TRIAD, accelerometer_triad
 from station.sim.rotary import Simulation
 from station.model.sensing import refuse_motion_effects, sense
 from station.model.unit import SensorUnit
+from station.errors import InputError
 
 
 def attitude_path(rotations: Rotation, still: float, move: float, fs: float):
@@ -90,7 +92,7 @@ def static_gyro(truth: dict, samples: int, rng: np.random.Generator, *, bias: fl
     effects = effects or {}
     extra = sorted(set(effects) - {"earth_rate", "g_sensitivity"})
     if extra:
-        raise ValueError(f"effect(s) {', '.join(extra)} are not simulated on the static gyro; "
+        raise InputError(f"effect(s) {', '.join(extra)} are not simulated on the static gyro; "
                          "it supports earth_rate and g_sensitivity")
     rot = np.asarray(truth["orientations"])
     omega = np.zeros((len(rot), 3))
@@ -103,3 +105,10 @@ def static_gyro(truth: dict, samples: int, rng: np.random.Generator, *, bias: fl
     for j, (a, z) in enumerate(truth["still"]):
         out[a:z] += omega[j]
     return out
+
+
+def simulated_session(rng: np.random.Generator, effects: dict, options) -> Simulation:
+    """`station simulate --protocol static` (`station.protocols.KINDS`): an accelerometer triad at
+    `options.fs` in `options.positions` (default 20) poses."""
+    unit = accelerometer_triad(rng, fs=options.fs)
+    return simulate_static(unit, options.positions or 20, effects=effects, a_nominal=TRIAD)

@@ -37,7 +37,8 @@ from drivers.serial_imu import SerialImu
 from drivers.twins.serial import SerialTwin
 from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
-from station.protocols.still import calibrate_still, record_poses
+from station.protocols.still import record_poses
+from station.solve.still import calibrate_still
 from station.files.session import Session, StreamSpec, write_results
 from station.model.earth import normal_gravity
 from station.sim.layouts import accelerometer_triad
@@ -238,11 +239,8 @@ def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int
                         period: float | None = 20.0):
     """Record an iron session of the ACC4 unit on a new bench into `path` (a new .h5), solve it and
     keep the result as `results/live`; returns (HandTruth, IronReadings, CalibrationResult)."""
-    from station.protocols.iron import (
-        IronProtocol,
-        IronSettings,
-        iron_readings,
-    )
+    from station.protocols.iron import IronProtocol, IronSettings
+    from station.reduce.iron import iron_readings
 
     with HandBench(seed=seed, speed=speed, rate_hz=rate_hz, period=period) as bench:
         settings = settings or IronSettings(gravity=bench.gravity, mountings=mountings)
@@ -260,11 +258,8 @@ def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD
     """Record a free-static session of a unit on `layout` on a new bench into `path` (a new .h5),
     solve it and keep the result as `results/live`; returns (HandTruth, StillReadings,
     CalibrationResult)."""
-    from station.protocols.static import (
-        StaticProtocol,
-        StaticSettings,
-        static_readings,
-    )
+    from station.protocols.static import StaticProtocol, StaticSettings
+    from station.reduce.static import static_readings
 
     with HandBench(seed=seed, speed=speed, rate_hz=rate_hz, layout=layout, mountings=[np.eye(3)],
                    period=period, placement_deg=placement_deg) as bench:

@@ -38,6 +38,7 @@ from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
 from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
+from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects.rate_error import RateError
@@ -236,6 +237,8 @@ def resume_rotary(path, watch=None, **overrides) -> int:
     with Session.open(path) as session:
         metadata = session.metadata
         end = last_instant(session)
+    name = metadata.get("protocol")
+    lookup(name, "resume", f"{path} holds a {name!r} session", "station resume")
     described = metadata.get("virtual_bench", metadata.get("bench"))
     if not (isinstance(described, dict) and set(described) <= BENCH_KEYS):
         raise InputError(f"{path} was not recorded on the virtual bench; resume it with its "

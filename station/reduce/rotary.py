@@ -1,0 +1,91 @@
+"""A recorded rotary session (`station.protocols.rotary`) -> its Eq. (18) readings.
+
+The protocol's events mark, per position, a static and a rotating window; `rotary_readings` turns
+the recorded stream into M (m x n), Eq. (18): m_j = mean(rotating) - mean(static), the rotating
+window cut to whole revolutions by the table's recorded angle (the arithmetic: `station.reduce.
+eq18`). Eq. (18) readings carry no bias; `static_bias` gives the calibration file its biases from
+the static windows.
+"""
+
+import math
+
+import numpy as np
+
+from station.errors import CalibrationInputError, InputError
+from station.reduce.eq18 import Reduced, reduce_rotary
+from station.reduce.timeline import sample_times, segment_breaks
+
+
+def position_windows(events) -> dict:
+    """{position: {"static": (t0, t1), "rotating": (t0, t1)}} in clock seconds for every completed
+    position (one with `position_done`); a position recorded again after an abort keeps its last
+    run."""
+    pairs = {"static": ("static_start", "static_end"), "rotating": ("rotate_start", "rotate_end")}
+    times = {}
+    for e in events:
+        if e.position is not None:
+            if e.kind == "position_start":
+                times[e.position] = {}
+            times.setdefault(e.position, {})[e.kind] = e.time
+    return {j: {name: (t[a], t[b]) for name, (a, b) in pairs.items()}
+            for j, t in sorted(times.items())
+            if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
+
+
+def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
+                   trim: float = 0.0) -> Reduced:
+    """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
+
+    Per completed position: the samples whose sampling instant lies in the static window and in
+    the rotating window, the latter cut to whole revolutions by the recorded table angle
+    (interpolated at the sampling instants). A window holding less than `coverage` of the samples
+    due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
+    (e.g. to test whether the table's start or stop leaks into the windows).
+    """
+    data, table, events = session.stream(stream), session.table(), session.events()
+    if not (math.isfinite(trim) and trim >= 0):
+        raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
+    windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
+               for j, w in position_windows(events).items()}
+    if not windows:
+        raise CalibrationInputError(f"the session {session.path} has no completed position.",
+                                    "Record at least as many positions as the solver asks for.")
+    if len(table.time) < 2:
+        raise CalibrationInputError(f"the session {session.path} holds no table states.",
+                                    "Record the session with the rotary table connected.")
+    rate = data.spec.rate_hz
+    t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
+    lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
+    parts = []
+    for j, w in windows.items():
+        chosen = {name: (t >= t0) & (t <= t1) for name, (t0, t1) in w.items()}
+        for name, (t0, t1) in w.items():
+            due, got = (t1 - t0) * rate, int(chosen[name].sum())
+            if got < coverage * due:
+                raise CalibrationInputError(
+                    f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} "
+                    "were due.", "The IMU link lost data: check it and record the position again.")
+        static, rotating = chosen["static"], chosen["rotating"]
+        ns, nr = int(static.sum()), int(rotating.sum())
+        y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
+        angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
+        try:
+            parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
+                                                "rotating": np.array([ns, ns + nr])}, angle=angle))
+        except CalibrationInputError as exc:
+            raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
+    return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
+                      for name in Reduced.__dataclass_fields__})
+
+
+def static_bias(reduced: Reduced) -> dict:
+    """The biases of a rotary calibration file: the mean of the static windows over the positions,
+    1-sigma their scatter / sqrt(n) (which also holds whatever varies between positions, e.g. the
+    Earth's rate)."""
+    n = reduced.M.shape[1]
+    if n < 2:
+        raise CalibrationInputError("one position cannot give the biases' uncertainty.",
+                                    "Record more positions.")
+    return {"bias": reduced.static_mean.mean(axis=1),
+            "bias_sigma": reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n),
+            "bias_source": "static windows of the rotary protocol (mean over positions)"}

@@ -1,0 +1,277 @@
+"""The virtual benches `station twin` serves to a separate `station record`: the devices of a bench
+on a pty and a Modbus server, and a fixture or technician that follows the protocol by itself.
+
+- `BenchTwin`: the rotary bench (`station.twin.rotary_bench.VirtualBench`) whose motorised
+  fixture re-mounts the unit at each table stop, at the next of `suggested_axes(positions)`;
+- `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
+  unit on a metronome through the iron's or the free-static protocol's sequence.
+
+`rotary_twin`, `iron_twin` and `static_twin` build them from `station twin`'s options: the
+kinds' twin entries in `station.protocols.KINDS`.
+"""
+
+import json
+import os
+import termios
+import threading
+import time
+from typing import Self
+
+import numpy as np
+
+from station.protocols.rotary import instruction, suggested_axes
+from station.errors import InputError
+
+
+class PortWatch:
+    """Tells (once) when a program opens the pty `port`: pyserial configures the terminal then."""
+
+    def __init__(self, port: str):
+        self._fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        self._idle = termios.tcgetattr(self._fd)
+
+    def opened(self) -> bool:
+        if self._fd is None or termios.tcgetattr(self._fd) == self._idle:
+            return False
+        self.close()
+        return True
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+class BenchTwin:
+    """A `VirtualBench` whose unit is re-mounted by a fixture at every table stop.
+
+    positions : the fixture follows `suggested_axes(positions)`, as the rotary protocol does
+    """
+
+    def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
+                 positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0):
+        from station.twin.rotary_bench import VirtualBench
+
+        self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
+                                  lifetime=lifetime)
+        self.seed = seed
+        self.axes = suggested_axes(positions)
+        self.mounted = 0
+        self.error = None
+        self._watch = None  # the pty watched for the station's open
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
+
+    def start(self) -> Self:
+        """Serve the table; the serial IMU streams from the moment the station opens its port
+        (a twin streaming to nobody would hand the station a stale backlog, computed late)."""
+        from drivers.twins.serial import SerialTwin
+
+        self._mount()
+        b = self.bench
+        if b.kind == "serial":
+            b.table_twin.start()
+            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf)
+            self._watch = PortWatch(b.imu_twin.port)
+        else:
+            b.start()
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        if self._watch is not None:
+            self._watch.close()
+        self.bench.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def addresses(self) -> dict:
+        """Where the station finds the devices."""
+        b = self.bench
+        imu = {"link": "serial", "port": b.imu_twin.port} if b.kind == "serial" else \
+            {"link": "can", "interface": "virtual", "channel": b.can_channel}
+        return {"imu": {**imu, "profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz},
+                "table": {"host": "127.0.0.1", "port": b.table_twin.port,
+                          "profile": "table_modbus"},
+                "clock_speed": b.clock.speed}
+
+    def profile_text(self, unit_serial: str | None = None) -> str:
+        """A bench profile (`station record --profile`) pointing at these devices."""
+        a = self.addresses()
+        serial = unit_serial or f"SIM-{self.seed}"
+        imu = "\n".join(f"{k} = {_toml(v)}" for k, v in a["imu"].items())
+        table = "\n".join(f"{k} = {_toml(v)}" for k, v in a["table"].items())
+        return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
+                f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
+                f"[imu]\n{imu}\n\n[table]\n{table}\n\n"
+                f"[protocol]\npositions = {len(self.axes)}\n")
+
+    def truth(self) -> dict:
+        """The simulated unit and the mountings made (JSON-ready)."""
+        t = self.bench.truth()
+        return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
+                "orientations": t.orientations.tolist(), "mounted": self.mounted}
+
+    def _mount(self) -> None:
+        j = self.mounted % len(self.axes)
+        self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.mounted += 1
+
+    def _fixture(self) -> None:
+        """Start the serial stream when the station opens the port; re-mount the unit at each
+        running -> stopped transition of the table's run command."""
+        try:
+            running = False
+            while not self._stop.wait(0.002):
+                if self._watch is not None and self._watch.opened():
+                    self.bench.imu_twin.start()
+                now = self.bench.table.state().running
+                if running and not now:
+                    self._mount()
+                running = now
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = exc
+
+
+class HandTwin:
+    """A `station.twin.hand_bench.HandBench` whose technician follows the protocol on a metronome.
+
+    protocol  : "static" (a triad turned by hand through the first `poses` guided poses, 5 deg
+                off each) or "iron" (the ACC4 unit in an iron square to 0.0002 deg, `mountings`
+                re-mountings, each followed by the six faces)
+    period    : clock seconds between the technician's turns; each turn starts on a multiple of
+                it, and the first after the station opened the port. The technician does not
+                hear the station: `station record` must keep up (a pose takes it about
+                `hold` + 3 s), and then records the turns in order.
+    """
+
+    def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
+                 poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
+                 period: float = 20.0):
+        from station.twin.hand_bench import ACC4, TRIAD, HandBench
+
+        static = protocol == "static"
+        self.protocol, self.seed = protocol, seed
+        self.bench = HandBench(seed, speed, rate_hz, layout=TRIAD if static else ACC4,
+                               mountings=[np.eye(3)] if static else mountings, period=period,
+                               placement_deg=5.0 if static else 0.0002)
+        self.instructions = _hand_instructions(protocol, poses, mountings)
+        self.settings = {"poses": poses} if static else {"mountings": mountings}
+        self.turns = 0
+        self.error = None
+        self._watch = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
+
+    def start(self) -> Self:
+        """Serve the serial IMU from the moment the station opens its port."""
+        from drivers.twins.serial import SerialTwin
+
+        b = self.bench
+        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf)
+        self._watch = PortWatch(b.twin.port)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)  # a turn being waited for ends within a period
+        self._watch.close()
+        self.bench.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def profile_text(self, unit_serial: str | None = None) -> str:
+        """A bench profile (`station record --profile`) for this protocol and device."""
+        b = self.bench
+        imu = {"link": "serial", "profile": f"acc{b.layout.shape[1]}_serial",
+               "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz}
+        protocol = {"kind": self.protocol, "gravity": b.gravity, **self.settings}
+        lines = [f"{k} = {_toml(v)}" for k, v in protocol.items()]
+        if self.protocol == "iron":
+            lines.append(f"layout = {json.dumps(b.layout.tolist())}")
+        return (f"# Bench profile of the virtual hand bench (station twin), written "
+                f"{time.ctime()}.\n[bench]\nunit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
+                f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
+                + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
+                + "\n\n[protocol]\n" + "\n".join(lines) + "\n")
+
+    def addresses(self) -> dict:
+        b = self.bench
+        return {"imu": {"link": "serial", "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
+                "clock_speed": b.clock.speed}
+
+    def truth(self) -> dict:
+        """The simulated unit and the up direction after each turn (JSON-ready)."""
+        t = self.bench.truth()
+        return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
+                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns}
+
+    def _fixture(self) -> None:
+        """Start the stream when the station opens the port, then turn as instructed, in order."""
+        try:
+            while not self._watch.opened():
+                if self._stop.wait(0.002):
+                    return
+            self.bench.twin.start()
+            for instruction in self.instructions:
+                if self._stop.is_set():
+                    return
+                self.bench.technician.wait(instruction)
+                self.turns += 1
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = exc
+
+
+def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
+    """What the hand bench's technician does, in order (as the protocol would ask)."""
+    from station.acquire.operator import Instruction
+    from station.protocols.iron import FACE_UP
+    from station.protocols.rotary import mounting
+    from station.protocols.static import GUIDED_POSES
+
+    if protocol == "static":
+        return [Instruction(words, mounting(up)) for _, up, words in GUIDED_POSES[:poses]]
+    faces = [Instruction(f"face {f}", mounting(FACE_UP[f])) for f in FACE_UP]
+    return [item for _ in range(mountings) for item in (Instruction("re-mount"), *faces)]
+
+
+def rotary_twin(options) -> BenchTwin:
+    """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
+    rate_hz, lifetime)."""
+    return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
+                     options.lifetime)
+
+
+def iron_twin(options) -> HandTwin:
+    """`station twin --protocol iron`: the ACC4 unit in an iron (options: seed, speed, positions,
+    mountings, rate_hz)."""
+    return HandTwin("iron", options.seed, options.speed, options.positions, options.mountings,
+                    options.rate_hz)
+
+
+def static_twin(options) -> HandTwin:
+    """`station twin --protocol static`: a triad turned through `options.positions` (12 to 26)
+    guided poses; ValueError outside that range."""
+    if not 12 <= options.positions <= 26:
+        raise InputError("a static session has 12 to 26 poses (--positions)")
+    return HandTwin("static", options.seed, options.speed, options.positions, options.mountings,
+                    options.rate_hz)
+
+
+def _toml(value) -> str:
+    """A TOML scalar (strings JSON-quoted: a valid TOML basic string)."""
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(float(value)) if isinstance(value, float) else repr(int(value))
