@@ -1,12 +1,11 @@
 """`station simulate`: the data file holds the import format, the truth lives beside it."""
 
-import argparse
 import json
 
 import numpy as np
 import pytest
 
-from station.commands import simulate
+from station import cli
 from station.reduce.eq18 import reduce_arrays
 from station.sim import npz
 
@@ -28,11 +27,8 @@ ROTARY_KEYS = {
 
 
 def station(*argv):
-    """Run the simulate subcommand as `station simulate ...` would."""
-    parser = argparse.ArgumentParser(prog="station")
-    simulate.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["simulate", *argv])
-    return args.run(args)
+    """Run `station simulate ...`; its exit code."""
+    return cli.main(["simulate", *argv])
 
 
 def test_rotary_file_has_the_import_keys_and_no_truth(tmp_path):
@@ -85,7 +81,7 @@ def test_iron_and_static_files(tmp_path, protocol, keys):
 
 def test_bad_requests_fail_with_a_message_and_write_nothing(tmp_path, capsys):
     assert station("--effect", "wobble", "--out", str(tmp_path / "x.npz")) == 2
-    assert "unknown effect" in capsys.readouterr().out
+    assert "unknown effect" in capsys.readouterr().err
     assert station("--out", str(tmp_path / "x.h5")) == 2
-    assert "must end with .npz" in capsys.readouterr().out
+    assert "must end with .npz" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []

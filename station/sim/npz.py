@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from station.errors import InputError
+
 
 def truth_path(path) -> Path:
     """`x.npz` -> `x.truth.json`."""
@@ -32,7 +34,7 @@ def write(path, simulation) -> tuple[Path, Path]:
     """Write `simulation.arrays` to `path` (.npz) and `simulation.truth` to the truth file."""
     p = Path(path)
     if p.suffix != ".npz":
-        raise ValueError(
+        raise InputError(
             f"output file {str(p)!r} must end with .npz (the truth goes to .truth.json)"
         )
     np.savez_compressed(p, **simulation.arrays)
