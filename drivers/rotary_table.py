@@ -19,20 +19,25 @@ from dataclasses import dataclass, field
 from typing import Self
 
 from pymodbus.client import ModbusTcpClient
+from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from drivers.profile import ProfileError, Section, load_profile
 from drivers.clock import WallClock
 
-EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
-                   4: "device failure", 5: "acknowledge", 6: "device busy",
-                   8: "memory parity error", 10: "gateway path unavailable",
-                   11: "gateway target failed to respond"}
-BUSY, DEVICE_FAILURE = 6, 4
 INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
 WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
+
+
+def exception_name(code: int) -> str:
+    """pymodbus' name of a Modbus exception code in words ("illegal address"), or "unknown
+    exception" for a code outside the standard."""
+    try:
+        return ExcCodes(code).name.lower().replace("_", " ")
+    except ValueError:
+        return "unknown exception"
 
 
 class TableError(RuntimeError):
@@ -273,15 +278,15 @@ class RotaryTable:
             if not response.isError():
                 return response
             code = response.exception_code
-            name = EXCEPTION_CODES.get(code, "unknown exception")
-            if code == BUSY:
+            if code == ExcCodes.DEVICE_BUSY:
                 error = TableBusy(f"{what}: the {where} stayed busy (Modbus exception 6) after "
                                   f"{attempt + 1} tries; wait for it to finish and retry")
                 time.sleep(self.busy_backoff)
                 continue
-            if code == DEVICE_FAILURE:
+            if code == ExcCodes.DEVICE_FAILURE:
                 raise TableFault(f"{what}: the {where} reports a device failure (Modbus "
                                  "exception 4); check the table's fault display and reset it")
-            raise TableError(f"{what}: the {where} answered Modbus exception {code} ({name}); "
+            raise TableError(f"{what}: the {where} answered Modbus exception {code} "
+                             f"({exception_name(code)}); "
                              "check the register map and device id in the device profile")
         raise error
