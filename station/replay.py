@@ -224,10 +224,10 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     timeout : wall seconds the re-recording may take
     The stream must be one gap-free segment (a session that was never resumed or reconnected).
     """
-    from drivers.profile import SerialImuProfile
-    from drivers.serial_imu import SerialImu
-    from drivers.twins.serial import SerialTwin
+    from drivers import open_imu
     from drivers.clock import ScaledClock
+    from drivers.profile import SerialImuProfile
+    from drivers.twins.serial import SerialTwin
     from station.acquire.recorder import Recorder
 
     with Session.open(path) as session:
@@ -257,7 +257,7 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     replayed = {**metadata, "replay_of": str(path)}
     # the port is opened before the twin streams: opening flushes what the port holds (pyserial),
     # and frame 0 must not be among it on a busy host
-    with SerialImu(twin.port, loaded, clock) as imu, twin, \
+    with open_imu("serial", twin.port, loaded, clock) as imu, twin, \
             SessionWriter.create(out, replayed, {"imu": spec}, clock=clock) as writer:
         with Recorder(writer, imu, clock=clock) as recorder:
             deadline = time.monotonic() + timeout

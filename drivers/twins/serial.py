@@ -28,7 +28,8 @@ import tty
 
 import numpy as np
 
-from drivers.wire.frames import encode_frames, encode_lines
+from drivers.wire.ascii import encode_lines
+from drivers.wire.binary import encode_frames
 from drivers.profile import SerialImuProfile
 from drivers.clock import WallClock
 

@@ -1,8 +1,7 @@
 """The recorder: IMU samples, table states and protocol events into one session file.
 
-A reader thread pulls `SampleBlock`s from an IMU driver (anything with `read_block(timeout)`, e.g.
-`drivers.serial_imu.SerialImu` opened, or `drivers.can_imu.CanImu` started) and appends them to a
-`station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
+A reader thread pulls `SampleBlock`s from an opened IMU driver (a `drivers.ImuDriver`: serial or
+CAN, see `drivers.open_imu`) and appends them to a `station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
 through the same recorder; one lock serialises every access to the writer, which is not
 thread-safe.
 
@@ -113,9 +112,9 @@ class Recorder:
         self.stop()
 
     def reconnect(self) -> None:
-        """Reopen a lost IMU (`imu.open()`, e.g. `SerialImu`) and read on, as a new segment of the
-        stream; record the `resume` event before calling it. Raises the driver's error while the
-        device is still missing (then call it again later)."""
+        """Reopen a lost IMU (`ImuDriver.open()`, whatever the link) and read on, as a new segment
+        of the stream; record the `resume` event before calling it. Raises the driver's
+        ConnectionError while the device is still missing (then call it again later)."""
         self.stop()
         self.imu.open()
         self.error = None
