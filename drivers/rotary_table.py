@@ -22,8 +22,8 @@ from pymodbus.client import ModbusTcpClient
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
-from drivers.profile import ProfileError, Section, load_profile
 from drivers.clock import WallClock
+from drivers.profile import ProfileError, Section, load_profile
 
 INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")

@@ -35,6 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 import station
+from drivers.samples import SampleBlock
 from station.solve.calibrate import CalibrationResult
 from station.errors import CalibrationInputError
 from station.protocols.iron import iron_readings
@@ -46,6 +47,7 @@ from station.files.session import (
     TABLE_STATUS_BITS,
     Session,
     SessionWriter,
+    StreamData,
     write_results,
 )
 
@@ -214,6 +216,12 @@ def _completed(events) -> set:
 # -------------------------------------------------------------------------------- raw replay
 
 
+def as_block(data: StreamData) -> SampleBlock:
+    """A recorded stream as the one `SampleBlock` a driver would have read (counts as int64)."""
+    return SampleBlock(data.counts.astype(np.int64), data.seq, data.device_time, data.host_time,
+                       data.spec.channels)
+
+
 def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
                timeout: float = 120.0) -> None:
     """Send the IMU stream of session `path` over a serial twin, record it into session `out`.
@@ -249,7 +257,8 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
         raise ValueError(f"serial profile {profile!r} does not match the stream's channels and "
                          "counts per unit; give the profile of the recorded device")
     loaded = dataclasses.replace(loaded, imu=dataclasses.replace(loaded.imu, rate_hz=spec.rate_hz))
-    counts, k = data.counts.astype(np.int64), len(data.seq)
+    recorded = as_block(data)
+    counts, k = recorded.counts, len(recorded)
     clock = ScaledClock(speed)
     twin = SerialTwin(loaded, lambda t: counts[np.clip(
         np.round((t - twin.start_time) * spec.rate_hz).astype(np.int64), 0, k - 1)], clock,

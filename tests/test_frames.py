@@ -8,12 +8,12 @@ import zlib
 
 import numpy as np
 
-from drivers.wire.ascii import AsciiLineParser, encode_lines
-from drivers.wire.binary import BinaryFrameParser, encode_frames
-from drivers.wire.crc import CRCS
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
 from drivers.twins.serial import corrupt_frame
+from drivers.wire.ascii import AsciiLineParser, encode_lines
+from drivers.wire.binary import BinaryFrameParser, encode_frames
+from drivers.wire.crc import CRCS
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels

@@ -25,6 +25,8 @@ from typing import Self
 
 import numpy as np
 
+from drivers.clock import WallClock
+
 
 def arrival_offset(seq, host_time, rate_hz: float) -> float:
     """The smallest host_time - seq / rate_hz: sampling instant of sample 0 on the host clock.
@@ -63,7 +65,7 @@ class RecordingError(RuntimeError):
 class Recorder:
     """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
 
-    clock    : the session's clock (the writer's, shared with the devices)
+    clock    : the session's clock (default: the writer's, shared with the devices, or WallClock)
     interval : wall seconds between two reads, so that each block holds several samples (a pty
                holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
     drain_timeout : wall seconds `drain` waits for the samples in flight
@@ -76,7 +78,7 @@ class Recorder:
         self.writer = writer
         self.imu = imu
         self.stream = stream
-        self.clock = clock or writer.clock
+        self.clock = clock or writer.clock or WallClock()
         self.interval = interval
         self.drain_timeout = drain_timeout
         self.busy_grace = busy_grace
