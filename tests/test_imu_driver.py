@@ -45,7 +45,8 @@ def wait_for(condition, limit: float = 20.0) -> None:
 
 def record_through_a_loss(path, imu, profile, clock, unplug, plug, enough: int):
     """Record `enough` samples, lose the device, reconnect through `Recorder.reconnect` and record
-    `enough` more; (the driver's loss error, the recorded stream)."""
+    `enough` more; (the driver's loss error, the recorded stream, the clock time of the `resume`
+    event)."""
     spec = StreamSpec.from_profile(profile.imu)
     with SessionWriter.create(path, {"protocol": "rotary", "unit_serial": "T"}, {"imu": spec},
                               clock=clock) as writer:
@@ -62,7 +63,8 @@ def record_through_a_loss(path, imu, profile, clock, unplug, plug, enough: int):
             wait_for(lambda: recorder.samples >= before + enough)
             recorder.check(stale=1e9)
     with Session.open(path) as session:
-        return info.value.__cause__, session.stream("imu")
+        resume = [e.time for e in session.events() if e.kind == "resume"]
+        return info.value.__cause__, session.stream("imu"), resume[0]
 
 
 def test_both_drivers_are_imu_drivers():
@@ -82,15 +84,18 @@ def test_recorder_reconnects_a_lost_serial_device(tmp_path):
     clock = ScaledClock(speed=10)
     twin = SerialTwin(SERIAL, serial_counts, clock=clock, seed=4)
     with twin, open_imu("serial", twin.port, SERIAL, clock) as imu:
-        error, data = record_through_a_loss(tmp_path / "s.h5", imu, SERIAL, clock, twin.unplug,
-                                            twin.plug, enough=1000)
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, SERIAL, clock,
+                                                    twin.unplug, twin.plug, enough=1000)
     assert isinstance(error, DeviceLostError) and error.port == twin.port
     assert imu.connections == 2
     assert np.all(np.diff(data.seq) > 0)
     assert np.array_equal(data.counts, serial_counts(twin.time_of(data.seq)))
+    before, after = data.seq[data.host_time < resume], data.seq[data.host_time > resume]
+    assert len(before) >= 1000 and len(after) >= 1000 and len(before) + len(after) == len(data.seq)
     seq, fate = twin.log()
-    lost = seq[(fate == SENT) & (seq > data.seq[0]) & (seq < data.seq[-1])]
-    assert np.setdiff1d(lost, data.seq).size < 100  # only the frames in flight at the unplug
+    sent = seq[(fate == SENT) & (seq >= data.seq[0]) & (seq <= data.seq[-1])]
+    missing = np.setdiff1d(sent, data.seq)  # only frames in flight when the cable was pulled
+    assert np.all((missing > before[-1]) & (missing < after[0]))
 
 
 def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
@@ -106,10 +111,13 @@ def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
     twin = CanImuTwin(name, CAN_200HZ, source, clock=clock)
     with open_imu("can", {"interface": "virtual", "channel": name}, CAN_200HZ, clock) as imu, twin:
         lost_bus = imu.bus
-        error, data = record_through_a_loss(tmp_path / "s.h5", imu, CAN_200HZ, clock,
-                                            lost_bus.shutdown, lambda: None, enough=100)
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, CAN_200HZ, clock,
+                                                    lost_bus.shutdown, lambda: None, enough=100)
         assert imu.bus is not lost_bus and imu.connections == 2
     assert isinstance(error, CanBusError) and name in error.channel
     assert imu.stats.errors == 1 and "closed bus" in imu.stats.last_error
-    assert np.all(np.diff(data.seq) > 0) and data.seq[-1] - data.seq[0] >= 200
-    assert np.array_equal(data.counts, can_pattern(data.seq))
+    assert np.all(np.diff(data.seq) > 0) and np.array_equal(data.counts, can_pattern(data.seq))
+    before, after = data.seq[data.host_time < resume], data.seq[data.host_time > resume]
+    assert len(before) >= 100 and len(after) >= 100
+    assert np.all(np.diff(before) == 1) and np.all(np.diff(after) == 1)  # lost only in the outage
+    assert imu.stats.dropped == after[0] - before[-1] - 1
