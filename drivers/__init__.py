@@ -4,10 +4,11 @@ Every IMU driver satisfies one declared interface, `ImuDriver`, with one meaning
 
     open()              connect to the device (or reconnect after a loss); a no-op when connected
     close()             disconnect; a later open() starts afresh
-    read_block(timeout) the samples decoded since the last call, waiting up to `timeout` seconds for
-                        the first: a SampleBlock, or None if none came. Raises the link's
-                        ConnectionError once the device is lost, after every sample decoded before
-                        the loss has been handed out; open() then reconnects
+    read_block(timeout) the samples decoded since the last call, waiting up to `timeout` seconds
+                        of the driver's clock for the first: a SampleBlock, or None if none
+                        came. Raises the link's ConnectionError once the device is lost, after
+                        every sample decoded before the loss has been handed out; open() then
+                        reconnects
     stats               the link's counters (a `LinkStats`), cumulative over reconnects
 
 and is a context manager (open on enter, close on exit). `open_imu(link, address, profile, clock)`

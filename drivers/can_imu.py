@@ -320,7 +320,8 @@ class _Receiver(can.Listener):
         self.assembler.stats.last_error = f"{type(exc).__name__}: {exc}"
 
     def stop(self) -> None:
-        """Called by `Notifier.stop`: close the log (a failure to flush is counted)."""
+        """Called by `CanImu.close` (a lost bus' notifier is stopped without it, the log goes on):
+        close the log (a failure to flush is counted)."""
         if self.logger is not None:
             try:
                 self.logger.stop()
@@ -374,13 +375,13 @@ class CanImu:
         return self
 
     def read_block(self, timeout: float = 0.1) -> SampleBlock | None:
-        """Samples completed since the last call; waits up to `timeout` s (wall) for the first.
-        Raises CanBusError once the bus is lost and its last samples are out."""
+        """Samples completed since the last call; waits up to `timeout` clock seconds for the
+        first. Raises CanBusError once the bus is lost and its last samples are out."""
         if self.bus is None:
             raise CanBusError(self.channel, f"CAN bus {self.channel} is not open; call open() first")
         with self._receiver.lock:
             if not self._assembler.ready() and self._receiver.lost is None:
-                self._receiver.data_ready.wait(timeout)
+                self._receiver.data_ready.wait(timeout / self._clock.speed)
             block, lost = self._assembler.take(), self._receiver.lost
         if block is None and lost is not None:
             self._disconnect()

@@ -22,7 +22,6 @@ from station.files.session.format import (
     STREAM_COLUMNS,
     SUPPORTED_VERSIONS,
     TABLE_COLUMNS,
-    CalibrationResult,
     Event,
     SessionFormatError,
     SessionResults,
@@ -33,6 +32,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
+from station.solve.calibrate import CalibrationResult
 
 
 class Session:

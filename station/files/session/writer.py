@@ -40,7 +40,6 @@ from station.files.session.format import (
     TABLE_STATUS_BITS,
     TABLE_UNITS,
     TIME_SCALES,
-    CalibrationResult,
     SessionLockedError,
     StreamSpec,
     complete_events,
@@ -48,6 +47,7 @@ from station.files.session.format import (
     last_completed_position,
 )
 from station.files.session.reader import Session, read_events, read_spec
+from station.solve.calibrate import CalibrationResult
 
 
 class SessionWriter:
