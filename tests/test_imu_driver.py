@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers import ImuDriver, LinkStats, driver_class, open_imu
-from drivers.can_imu import CanBusError, CanProfile
+from drivers.can_imu import CanBusError, CanProfile, replay
 from drivers.clock import ScaledClock, WallClock
 from drivers.profile import SerialImuProfile
 from drivers.serial_imu import DeviceLostError
@@ -107,9 +107,10 @@ def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
         state["k"] += len(times)
         return can_pattern(k)
 
-    clock = WallClock()
+    clock, log = WallClock(), tmp_path / "raw.log"
     twin = CanImuTwin(name, CAN_200HZ, source, clock=clock)
-    with open_imu("can", {"interface": "virtual", "channel": name}, CAN_200HZ, clock) as imu, twin:
+    with open_imu("can", {"interface": "virtual", "channel": name}, CAN_200HZ, clock,
+                  log_path=log) as imu, twin:
         lost_bus = imu.bus
         error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, CAN_200HZ, clock,
                                                     lost_bus.shutdown, lambda: None, enough=100)
@@ -121,3 +122,5 @@ def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
     assert len(before) >= 100 and len(after) >= 100
     assert np.all(np.diff(before) == 1) and np.all(np.diff(after) == 1)  # lost only in the outage
     assert imu.stats.dropped == after[0] - before[-1] - 1
+    replayed, _ = replay(log, CAN_200HZ)  # one raw log across the reconnection
+    assert np.array_equal(replayed.seq[:len(data.seq)], data.seq)
