@@ -1,4 +1,4 @@
-"""Binary frame and ASCII line parsing (drivers/wire/frames.py): exact decoding, CRC catalogue values,
+"""Binary frame and ASCII line parsing (drivers/wire/: crc.py, binary.py, ascii.py): exact decoding, CRC catalogue values,
 resynchronisation, the sequence guard against CRC false locks, counters."""
 
 import binascii
