@@ -1,5 +1,6 @@
-"""Binary frame and ASCII line parsing (drivers/wire/: crc.py, binary.py, ascii.py): exact decoding, CRC catalogue values,
-resynchronisation, the sequence guard against CRC false locks, counters."""
+"""Binary frame and ASCII line parsing (drivers/wire/: crc.py, binary.py, ascii.py): exact
+decoding, CRC catalogue values, resynchronisation, the sequence guard against CRC false locks,
+counters, the decode contract (bytes used)."""
 
 import binascii
 import dataclasses
