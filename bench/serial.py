@@ -27,7 +27,8 @@ import time
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from drivers.wire.frames import CRCS, BinaryFrameParser, encode_frames
+from drivers.wire.binary import BinaryFrameParser, encode_frames
+from drivers.wire.crc import CRCS
 from drivers.profile import SerialImuProfile
 from drivers.serial_imu import SerialImu
 from drivers.twins.serial import OVERFLOW, SENT, SerialTwin, corrupt_frame
@@ -62,8 +63,8 @@ def corrupted(data: bytes, size: int, fraction: float, rng) -> bytes:
 def parse_all(data: bytes):
     parser = BinaryFrameParser(FMT, CHANNELS)
     t = time.perf_counter()
-    blocks = [parser.feed(data[i : i + 65536], 0.0) for i in range(0, len(data), 65536)]
-    blocks.append(parser.feed(b"", 0.0, final=True))
+    blocks = [parser.decode(data[i : i + 65536], 0.0).block for i in range(0, len(data), 65536)]
+    blocks.append(parser.decode(b"", 0.0, final=True).block)
     return blocks, time.perf_counter() - t, parser.stats
 
 

@@ -6,16 +6,23 @@ profile (TOML: `[imu]` and `[can]` sections) says which frames make one sample, 
 counter and which signal feeds which channel. The raw integer value of a signal is the channel's
 count; the profile's `scale` (counts per SI unit) converts counts to SI units.
 
-Live: `CanImu(bus, profile)` runs one `can.Notifier` on the bus with one listener that never lets an
-exception escape (an escaping exception would kill the notifier thread), decodes frames as they
-arrive and, when asked, writes every raw frame to a `can.Logger` file (`.blf` or `.log`).
-`replay(log_path, profile)` decodes such a file to the same samples.
+Live: `CanImu(bus, profile)` is an `ImuDriver` (drivers/__init__.py); `bus` is the `can.Bus`
+keyword arguments (interface, channel, bitrate...): the driver opens the bus itself, so that it
+can open it again after a loss. It runs one `can.Notifier` on the bus with one listener that never
+lets an exception escape (an escaping exception would kill the notifier thread), decodes frames as
+they arrive and, when asked, writes every raw frame to a `can.Logger` file (`.blf` or `.log`; one
+file from `open()` to `close()`, across reconnections). `replay(log_path, profile)` decodes such a
+file to the same samples.
+
+A bus that raises (an unplugged adapter) loses the link: `read_block` hands out the samples decoded
+before, then raises `CanBusError`; `open()` opens a new bus on the same address.
 
 Frames that the profile does not know, short frames, and samples whose frames are incomplete (a lost
 frame of a multi-frame sample) are counted in `CanStats`, never emitted half-filled.
 """
 
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Self
@@ -24,9 +31,15 @@ import can
 import cantools
 import numpy as np
 
+from drivers import LinkStats
+from drivers.clock import WallClock
 from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
 from drivers.samples import SampleBlock
-from drivers.clock import WallClock
+from drivers.errors import CanBusError
+
+LOST_BUS_PAUSE = 0.1
+"""Wall seconds the listener rests after each error of a lost bus (it raises at once on every
+read until the driver notices the loss and stops the notifier)."""
 
 
 @dataclass(frozen=True)
@@ -150,19 +163,19 @@ def _signal(message, name: str, dbc: Path):
 
 
 @dataclass
-class CanStats:
-    """Counters of what the decoder saw. Every frame lands in exactly one of `used`, `unknown`,
-    `short` (fewer data bytes than the DBC says) and `orphaned` (part of an incomplete sample)."""
+class CanStats(LinkStats):
+    """Counters of what the decoder saw (LinkStats' samples, gaps, dropped, and the frames). Every
+    frame lands in exactly one of `used`, `unknown`, `short` (fewer data bytes than the DBC says)
+    and `orphaned` (part of an incomplete sample). `dropped` counts the samples missing between
+    consecutive counters, whether all their frames were lost or only some (`incomplete`)."""
 
     frames: int = 0
     used: int = 0
     unknown: int = 0
     short: int = 0
     orphaned: int = 0
-    samples: int = 0
     incomplete: int = 0  # samples dropped because one of their frames never arrived
-    gaps: int = 0  # samples missing between consecutive counters (all their frames lost)
-    errors: int = 0  # exceptions caught in the listener (decoder or logger), see `last_error`
+    errors: int = 0  # exceptions caught in the listener (decoder, logger, bus), see `last_error`
     last_error: str = ""
 
 
@@ -223,7 +236,9 @@ class SampleAssembler:
             last_counter, last_seq = self._last
             step = (counter - last_counter) % self.layout.counter_modulus
             seq = last_seq + (step or self.layout.counter_modulus)
-            self.stats.gaps += seq - last_seq - 1
+            missing = seq - last_seq - 1
+            self.stats.gaps += missing > 0
+            self.stats.dropped += missing
         self._last = (counter, seq)
         self._counts.append(self._row.copy())
         self._seq.append(seq)
@@ -264,6 +279,7 @@ class _Receiver(can.Listener):
         self.logger = logger
         self.lock = threading.Lock()
         self.data_ready = threading.Condition(self.lock)
+        self.lost = None  # the bus' exception once the link is lost
 
     def on_message_received(self, msg: can.Message) -> None:
         now = self.clock.now()
@@ -282,16 +298,23 @@ class _Receiver(can.Listener):
                     self._count(exc)
 
     def on_error(self, exc: Exception) -> None:
-        """Called by the Notifier when the bus itself raised; counted, the thread lives on."""
+        """Called by the Notifier when the bus itself raised: the link is lost (counted once; the
+        dead bus raises again on every read until the driver stops the notifier)."""
         with self.lock:
-            self._count(exc)
+            if self.lost is None:
+                self.lost = exc
+                self._count(exc)
+                self.data_ready.notify_all()
+                return
+        time.sleep(LOST_BUS_PAUSE)
 
     def _count(self, exc: Exception) -> None:
         self.assembler.stats.errors += 1
         self.assembler.stats.last_error = f"{type(exc).__name__}: {exc}"
 
     def stop(self) -> None:
-        """Called by `Notifier.stop`: close the log (a failure to flush is counted)."""
+        """Called by `CanImu.close` (a lost bus' notifier is stopped without it, the log goes on):
+        close the log (a failure to flush is counted)."""
         if self.logger is not None:
             try:
                 self.logger.stop()
@@ -301,54 +324,86 @@ class _Receiver(can.Listener):
 
 
 class CanImu:
-    """Live CAN IMU on a `can.BusABC` (the caller owns the bus and shuts it down).
+    """An `ImuDriver` for a live CAN IMU; `bus` holds the `can.Bus` keyword arguments.
 
     `log_path` (".blf" or ".log") records every raw frame with `can.Logger` for `replay`.
-    Use as a context manager, or call `start()` and `close()`; `read_block(timeout)` returns the
-    samples decoded since the last call.
     """
 
-    def __init__(self, bus: can.BusABC, profile: CanProfile, clock=None, log_path=None):
-        self.bus = bus
-        self.profile = profile
+    profile_type = CanProfile
+
+    def __init__(self, bus: dict, profile, clock=None, log_path=None):
+        self.bus_config = dict(bus)
+        self.channel = f"{self.bus_config.get('interface', 'can')}:{self.bus_config.get('channel')}"
+        self.profile = profile if isinstance(profile, CanProfile) else CanProfile.load(profile)
         self.log_path = Path(log_path) if log_path is not None else None
-        self._assembler = SampleAssembler(FrameLayout(profile))
+        self.connections = 0
+        self.bus = None
+        self._assembler = SampleAssembler(FrameLayout(self.profile))
         self._clock = clock or WallClock()
-        self._receiver = None
+        self._receiver = None  # from open() to close(): it holds the raw log
         self._notifier = None
 
     @property
     def stats(self) -> CanStats:
+        """Link counters, cumulative over reconnects."""
         return self._assembler.stats
 
-    def start(self) -> "CanImu":
-        """Start the notifier thread (and the raw log)."""
-        if self._notifier is not None:
-            raise RuntimeError("CanImu already started; call close() first")
-        logger = can.Logger(self.log_path) if self.log_path is not None else None
-        self._receiver = _Receiver(self._assembler, self._clock, logger)
-        self._notifier = can.Notifier(self.bus, [self._receiver], timeout=0.1)
+    def open(self) -> "CanImu":
+        """Open the bus and start decoding (and the raw log); after a loss, a new bus on the same
+        address (the log goes on). A no-op while the bus is open."""
+        if self.bus is not None:
+            return self
+        try:
+            bus = can.Bus(**self.bus_config)
+        except (can.CanError, OSError, ValueError) as exc:
+            raise CanBusError(self.channel, f"cannot open CAN bus {self.channel}: {exc}. Check the "
+                              "adapter, the interface name and the channel.") from exc
+        if self._receiver is None:
+            logger = can.Logger(self.log_path) if self.log_path is not None else None
+            self._receiver = _Receiver(self._assembler, self._clock, logger)
+        self._receiver.lost = None
+        self.bus = bus
+        self._notifier = can.Notifier(bus, [self._receiver], timeout=0.1)
+        self.connections += 1
         return self
 
     def read_block(self, timeout: float = 0.1) -> SampleBlock | None:
-        """Samples completed since the last call; waits up to `timeout` s (wall) for the first."""
-        if self._receiver is None:
-            raise RuntimeError("CanImu not started; call start() or use it as a context manager")
+        """Samples completed since the last call; waits up to `timeout` clock seconds for the
+        first. Raises CanBusError once the bus is lost and its last samples are out."""
+        if self.bus is None:
+            raise CanBusError(self.channel, f"CAN bus {self.channel} is not open; call open() first")
         with self._receiver.lock:
-            if not self._assembler.ready():
-                self._receiver.data_ready.wait(timeout)
-            return self._assembler.take()
+            if not self._assembler.ready() and self._receiver.lost is None:
+                self._receiver.data_ready.wait(timeout / self._clock.speed)
+            block, lost = self._assembler.take(), self._receiver.lost
+        if block is None and lost is not None:
+            self._disconnect()
+            raise CanBusError(self.channel, f"CAN IMU on {self.channel} was lost ({lost}). The "
+                              "samples read so far are kept; reconnect the adapter and call open() "
+                              "to continue.") from lost
+        return block
 
     def close(self) -> None:
-        """Stop the notifier, close the log; a sample still missing frames counts as incomplete."""
-        if self._notifier is not None:
-            self._notifier.stop()
-            self._notifier = None
-            with self._receiver.lock:
-                self._assembler.finish()
+        """Stop decoding, shut the bus down and close the log; a sample still missing frames counts
+        as incomplete."""
+        self._disconnect()
+        if self._receiver is not None:
+            self._receiver.stop()
+            self._receiver = None
+
+    def _disconnect(self) -> None:
+        """Stop the notifier (the receiver and its log stay) and shut the bus down."""
+        if self.bus is None:
+            return
+        self._notifier.remove_listener(self._receiver)
+        self._notifier.stop()
+        self.bus.shutdown()
+        self.bus, self._notifier = None, None
+        with self._receiver.lock:
+            self._assembler.finish()
 
     def __enter__(self) -> Self:
-        return self.start()
+        return self.open()
 
     def __exit__(self, *exc) -> None:
         self.close()

@@ -56,3 +56,11 @@ class TableBusy(TableError):
 
 class TableFault(TableError):
     """The table reported a device failure (Modbus exception 4): it needs the operator."""
+
+
+class CanBusError(LinkError):
+    """The CAN bus cannot be opened or was lost; `channel` names it."""
+
+    def __init__(self, channel: str, message: str):
+        super().__init__(message)
+        self.channel = channel

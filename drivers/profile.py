@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.wire.frames import CRCS, INT_TYPES
+from drivers.wire.binary import INT_TYPES
+from drivers.wire.crc import CRCS
 from drivers.errors import ProfileError
 
 BUNDLED = Path(__file__).parent / "profiles"
@@ -207,7 +208,7 @@ class BinaryFormat:
     time_type       : unsigned type of the device time, or None without a "time" field
     time_tick       : seconds per device-time tick
     count_type      : integer type of each channel count
-    crc             : CRC algorithm (a name in drivers.wire.frames.CRCS)
+    crc             : CRC algorithm (a name in drivers.wire.crc.CRCS)
     crc_covers_sync : whether the CRC covers the sync word (otherwise it starts after it)
     max_gap         : largest sequence step still counted as consistent (dropped frames + 1)
     """

@@ -19,21 +19,26 @@ from dataclasses import dataclass, field
 from typing import Self
 
 from pymodbus.client import ModbusTcpClient
+from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
-from drivers.profile import ProfileError, Section, load_profile
 from drivers.clock import WallClock
 from drivers.errors import TableBusy, TableError, TableFault, TableTimeout
+from drivers.profile import ProfileError, Section, load_profile
 
-EXCEPTION_CODES = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
-                   4: "device failure", 5: "acknowledge", 6: "device busy",
-                   8: "memory parity error", 10: "gateway path unavailable",
-                   11: "gateway target failed to respond"}
-BUSY, DEVICE_FAILURE = 6, 4
 INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
 WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
+
+
+def exception_name(code: int) -> str:
+    """pymodbus' name of a Modbus exception code in words ("illegal address"), or "unknown
+    exception" for a code outside the standard."""
+    try:
+        return ExcCodes(code).name.lower().replace("_", " ")
+    except ValueError:
+        return "unknown exception"
 
 
 @dataclass(frozen=True)
@@ -62,18 +67,18 @@ class TableRegisterMap:
         missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
         missing += [f"status_bits.{n}" for n in STATUS_BITS if n not in self.status_bits]
         if missing:
-            raise ValueError(f"table register map lacks {missing}; see docs/devices.md")
+            raise ProfileError(f"table register map lacks {missing}; see docs/devices.md")
         used = sorted(a for n in WORD_REGISTERS + FIXED_REGISTERS for a in self.addresses(n))
         if len(set(used)) != len(used) or used[0] < 0 or used[-1] > 0xFFFF:
-            raise ValueError(f"table registers overlap or leave 0..65535: {self.registers}")
+            raise ProfileError(f"table registers overlap or leave 0..65535: {self.registers}")
         if used[-1] - used[0] + 1 > 125:
-            raise ValueError("table registers must fit in one read of 125 registers")
+            raise ProfileError("table registers must fit in one read of 125 registers")
         if self.word_order not in ("big", "little"):
-            raise ValueError(f"word_order must be 'big' or 'little', got {self.word_order!r}")
+            raise ProfileError(f"word_order must be 'big' or 'little', got {self.word_order!r}")
         if not (self.rate_scale > 0 and self.angle_scale > 0):
-            raise ValueError("table scales (counts per rad/s, counts per rad) must be positive")
+            raise ProfileError("table scales (counts per rad/s, counts per rad) must be positive")
         if not all(0 <= b < 16 for b in self.status_bits.values()):
-            raise ValueError(f"status bits must be numbers 0..15, got {self.status_bits}")
+            raise ProfileError(f"status bits must be numbers 0..15, got {self.status_bits}")
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
 
     @classmethod
@@ -258,15 +263,15 @@ class RotaryTable:
             if not response.isError():
                 return response
             code = response.exception_code
-            name = EXCEPTION_CODES.get(code, "unknown exception")
-            if code == BUSY:
+            if code == ExcCodes.DEVICE_BUSY:
                 error = TableBusy(f"{what}: the {where} stayed busy (Modbus exception 6) after "
                                   f"{attempt + 1} tries; wait for it to finish and retry")
                 time.sleep(self.busy_backoff)
                 continue
-            if code == DEVICE_FAILURE:
+            if code == ExcCodes.DEVICE_FAILURE:
                 raise TableFault(f"{what}: the {where} reports a device failure (Modbus "
                                  "exception 4); check the table's fault display and reset it")
-            raise TableError(f"{what}: the {where} answered Modbus exception {code} ({name}); "
+            raise TableError(f"{what}: the {where} answered Modbus exception {code} "
+                             f"({exception_name(code)}); "
                              "check the register map and device id in the device profile")
         raise error

@@ -3,31 +3,34 @@
     with SerialImu("/dev/ttyUSB0", "imu12_serial") as imu:
         block = imu.read_block(timeout=0.5)   # SampleBlock or None
 
-The wire format (binary frames or ASCII lines) comes from the device profile; parsing is in
-drivers/wire/frames.py. Reads take what the port has (`read(in_waiting or 1)`) with a short timeout, so a
-block is returned as soon as a sample is complete. A lost device (unplug) raises DeviceLostError
-naming the port; every sample decoded before it has already been returned, and `open()` reconnects.
-For a recorder, `start(callback)` runs the reads in a background thread.
+An `ImuDriver` (drivers/__init__.py). The wire format (binary frames or ASCII lines) comes from
+the device profile; decoding is in drivers/wire/. Reads take what the port has
+(`read(in_waiting or 1)`) with a short timeout, so a block is returned as soon as a sample is
+complete. A lost device (unplug) raises DeviceLostError naming the port; every sample decoded before
+it has already been returned, and `open()` reconnects.
 """
-
-import threading
-import time
 
 import serial
 
-from drivers.wire.frames import AsciiLineParser, BinaryFrameParser
-from drivers.profile import SerialImuProfile
 from drivers.clock import WallClock
+from drivers.profile import SerialImuProfile
+from drivers.wire import SerialStats
+from drivers.wire.ascii import AsciiLineParser
+from drivers.wire.binary import BinaryFrameParser
+
 from drivers.errors import DeviceLostError, SerialPortError
 
 
 class SerialImu:
-    """A serial IMU described by a device profile (a SerialImuProfile, a path or a bundled name).
+    """An `ImuDriver` for a serial IMU described by a device profile (a SerialImuProfile, a path
+    or a bundled name).
 
     port         : device path ("/dev/ttyUSB0") or pyserial URL
     clock        : station clock for host timestamps and read timeouts (WallClock by default)
     read_timeout : wall seconds one low-level read may wait for a first byte
     """
+
+    profile_type = SerialImuProfile
 
     def __init__(self, port: str, profile, clock=None, read_timeout: float = 0.01):
         self.port = str(port)
@@ -37,15 +40,12 @@ class SerialImu:
         parser = BinaryFrameParser if self.profile.serial.protocol == "binary" else AsciiLineParser
         self.parser = parser(self.profile.serial.frame, self.profile.imu.channels)
         self.connections = 0
-        self.error = None
         self._serial = None
         self._lost = None  # DeviceLostError to raise once the last samples are handed out
-        self._thread = None
-        self._stop = threading.Event()
 
     @property
-    def stats(self):
-        """Link counters (drivers.wire.frames.LinkStats), cumulative over reconnects."""
+    def stats(self) -> SerialStats:
+        """Link counters, cumulative over reconnects."""
         return self.parser.stats
 
     @property
@@ -69,8 +69,7 @@ class SerialImu:
         return self
 
     def close(self) -> None:
-        """Stop the background reader if any and close the port."""
-        self.stop()
+        """Close the port."""
         self._close_port()
 
     def __enter__(self):
@@ -91,13 +90,13 @@ class SerialImu:
         while True:
             data = self._read()
             if data is None:  # lost: hand out the last decodable frames first
-                block = self.parser.feed(b"", self.clock.now(), final=True)
+                block = self.parser.decode(b"", self.clock.now(), final=True).block
                 if len(block):
                     return block
                 error, self._lost = self._lost, None
                 raise error
             if data:
-                block = self.parser.feed(data, self.clock.now())
+                block = self.parser.decode(data, self.clock.now()).block
                 if len(block):
                     return block
             if self.clock.now() >= deadline:
@@ -123,38 +122,3 @@ class SerialImu:
             except (serial.SerialException, OSError):
                 pass  # the device is already gone
             self._serial = None
-
-    # -- background reading ----------------------------------------------------------------------
-
-    def start(self, callback, on_error=None, interval: float = 0.005) -> None:
-        """Read in a background thread, calling `callback(block)` for every SampleBlock.
-
-        The thread waits `interval` wall seconds between reads so that each block holds several
-        samples. If the device is lost or the callback raises, the thread ends, keeps the exception
-        in `error` and calls `on_error(exc)`.
-        """
-        self.open()
-        self.error = None
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, args=(callback, on_error, interval),
-                                        name=f"serial-imu {self.port}", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        """End the background reader (the port stays open)."""
-        self._stop.set()
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join()
-            self._thread = None
-
-    def _run(self, callback, on_error, interval) -> None:
-        try:
-            while not self._stop.is_set():
-                block = self.read_block(timeout=0.0)
-                if block is not None:
-                    callback(block)
-                time.sleep(interval)
-        except Exception as exc:  # handed to the owner: a reader thread must not die silently
-            self.error = exc
-            if on_error is not None:
-                on_error(exc)

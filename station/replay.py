@@ -36,11 +36,13 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from drivers.samples import SampleBlock
 from station.errors import AcquisitionError, CalibrationInputError, InputError
 from station.files.session import (
     TABLE_STATUS_BITS,
     Session,
     SessionWriter,
+    StreamData,
     write_results,
 )
 from station.protocols import KINDS, lookup
@@ -196,6 +198,12 @@ def _completed(events) -> set:
 # -------------------------------------------------------------------------------- raw replay
 
 
+def as_block(data: StreamData) -> SampleBlock:
+    """A recorded stream as the one `SampleBlock` a driver would have read (counts as int64)."""
+    return SampleBlock(data.counts.astype(np.int64), data.seq, data.device_time, data.host_time,
+                       data.spec.channels)
+
+
 def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
                timeout: float = 120.0) -> None:
     """Send the IMU stream of session `path` over a serial twin, record it into session `out`.
@@ -206,10 +214,10 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     timeout : wall seconds the re-recording may take
     The stream must be one gap-free segment (a session that was never resumed or reconnected).
     """
-    from drivers.profile import SerialImuProfile
-    from drivers.serial_imu import SerialImu
-    from drivers.twins.serial import SerialTwin
+    from drivers import open_imu
     from drivers.clock import ScaledClock
+    from drivers.profile import SerialImuProfile
+    from drivers.twins.serial import SerialTwin
     from station.acquire.recorder import Recorder
 
     with Session.open(path) as session:
@@ -233,7 +241,8 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
         raise InputError(f"serial profile {profile!r} does not match the stream's channels and "
                          "counts per unit; give the profile of the recorded device")
     loaded = dataclasses.replace(loaded, imu=dataclasses.replace(loaded.imu, rate_hz=spec.rate_hz))
-    counts, k = data.counts.astype(np.int64), len(data.seq)
+    recorded = as_block(data)
+    counts, k = recorded.counts, len(recorded)
     clock = ScaledClock(speed)
     twin = SerialTwin(loaded, lambda t: counts[np.clip(
         np.round((t - twin.start_time) * spec.rate_hz).astype(np.int64), 0, k - 1)], clock,
@@ -241,7 +250,7 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
     replayed = {**metadata, "replay_of": str(path)}
     # the port is opened before the twin streams: opening flushes what the port holds (pyserial),
     # and frame 0 must not be among it on a busy host
-    with SerialImu(twin.port, loaded, clock) as imu, twin, \
+    with open_imu("serial", twin.port, loaded, clock) as imu, twin, \
             SessionWriter.create(out, replayed, {"imu": spec}, clock=clock) as writer:
         with Recorder(writer, imu, clock=clock) as recorder:
             deadline = time.monotonic() + timeout

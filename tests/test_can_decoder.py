@@ -44,7 +44,7 @@ def test_counter_wraps_into_a_monotonic_sequence():
         for i in range(3):
             asm.feed(frame(i, k % 256), host_time=0.0)
     assert asm.take().seq.tolist() == list(range(250, 262))
-    assert asm.stats.gaps == 0
+    assert (asm.stats.gaps, asm.stats.dropped) == (0, 0)
 
 
 def test_a_lost_middle_frame_drops_only_its_sample():
@@ -54,7 +54,7 @@ def test_a_lost_middle_frame_drops_only_its_sample():
             asm.feed(frame(i, counter), host_time=0.0)
     asm.finish()
     assert asm.take().seq.tolist() == [1, 3]
-    assert (asm.stats.incomplete, asm.stats.orphaned, asm.stats.gaps) == (2, 4, 1)
+    assert (asm.stats.incomplete, asm.stats.orphaned, asm.stats.gaps, asm.stats.dropped) == (2, 4, 1, 1)
 
 
 garbage_frame = st.builds(

@@ -8,7 +8,7 @@ import can
 import numpy as np
 import pytest
 
-from drivers.can_imu import CanImu, CanProfile, replay
+from drivers.can_imu import CanBusError, CanImu, CanProfile, replay
 from drivers.twins.can import CanImuTwin
 
 PROFILE = CanProfile.load("imu12_can")
@@ -32,6 +32,11 @@ def counting_source():
     return source
 
 
+def virtual(name: str) -> dict:
+    """The `can.Bus` keywords of virtual channel `name` (the driver opens its own bus)."""
+    return {"interface": "virtual", "channel": name}
+
+
 def channel() -> str:
     """A unique virtual channel name; it ends in a letter because the BLF writer turns trailing
     digits into a 16-bit channel number and fails on larger ones."""
@@ -52,22 +57,18 @@ def read_all(imu: CanImu, expected: int, timeout: float = 10.0):
 def test_2khz_three_frames_per_sample_decodes_and_replays_exactly(tmp_path):
     name, n, first = channel(), 1000, 200  # 0.5 s at 2 kHz; the 8-bit counter wraps 4 times
     log = tmp_path / "raw.blf"
-    bus = can.Bus(interface="virtual", channel=name)
-    try:
-        twin = CanImuTwin(name, PROFILE, counting_source(), samples=n, first_seq=first)
-        with CanImu(bus, PROFILE, log_path=log) as imu, twin:
-            assert twin.wait(timeout=20)
-            assert twin.error is None
-            blocks = read_all(imu, n)
-        stats = imu.stats
-    finally:
-        bus.shutdown()
+    twin = CanImuTwin(name, PROFILE, counting_source(), samples=n, first_seq=first)
+    with CanImu(virtual(name), PROFILE, log_path=log) as imu, twin:
+        assert twin.wait(timeout=20)
+        assert twin.error is None
+        blocks = read_all(imu, n)
+    stats = imu.stats
     got = np.concatenate([b.counts for b in blocks])
     seq = np.concatenate([b.seq for b in blocks])
     np.testing.assert_array_equal(seq, np.arange(first, first + n))
     np.testing.assert_array_equal(got, pattern(np.arange(n)))
     assert (stats.frames, stats.samples, stats.errors) == (3 * n, n, 0)
-    assert (stats.incomplete, stats.gaps) == (0, 0)
+    assert (stats.incomplete, stats.gaps, stats.dropped) == (0, 0, 0)
     host = np.concatenate([b.host_time for b in blocks])
     assert np.all(np.diff(host) >= 0) and np.all(np.isnan(blocks[0].device_time))
 
@@ -81,10 +82,9 @@ def test_2khz_three_frames_per_sample_decodes_and_replays_exactly(tmp_path):
 def test_lost_frames_are_counted_and_foreign_frames_ignored(tmp_path):
     name, n = channel(), 200
     drop = {(10, 1), (20, 0), (30, 0), (30, 1), (30, 2)}  # 10, 20 incomplete; 30 entirely lost
-    bus = can.Bus(interface="virtual", channel=name)
     intruder = can.Bus(interface="virtual", channel=name)
     try:
-        with CanImu(bus, PROFILE) as imu:
+        with CanImu(virtual(name), PROFILE) as imu:
             with CanImuTwin(name, PROFILE, counting_source(), samples=n, drop=drop) as twin:
                 for intrusion in [  # unknown id, short known frame, remote frame, extended id
                     {"arbitration_id": 0x7FF, "data": b"\x01\x02"},
@@ -98,12 +98,11 @@ def test_lost_frames_are_counted_and_foreign_frames_ignored(tmp_path):
             stats = imu.stats
     finally:
         intruder.shutdown()
-        bus.shutdown()
     seq = np.concatenate([b.seq for b in blocks])
     expected_seq = np.setdiff1d(np.arange(n), [10, 20, 30])
     np.testing.assert_array_equal(seq, expected_seq)
     np.testing.assert_array_equal(np.concatenate([b.counts for b in blocks]), pattern(expected_seq))
-    assert (stats.incomplete, stats.orphaned, stats.gaps) == (2, 4, 3)
+    assert (stats.incomplete, stats.orphaned, stats.gaps, stats.dropped) == (2, 4, 3, 3)
     assert (stats.unknown, stats.short) == (3, 1)
     assert stats.frames == stats.used + stats.unknown + stats.short + stats.orphaned
 
@@ -115,26 +114,24 @@ def test_failing_log_is_counted_and_decoding_goes_on(tmp_path):
     log = tmp_path / "raw.log"
     log.symlink_to("/dev/full")
     name, n = channel(), 600
-    bus = can.Bus(interface="virtual", channel=name)
-    try:
-        twin = CanImuTwin(name, PROFILE, counting_source(), samples=n)
-        with CanImu(bus, PROFILE, log_path=log) as imu, twin:
-            assert twin.wait(timeout=20)
-            blocks = read_all(imu, n)
-        stats = imu.stats
-    finally:
-        bus.shutdown()
+    twin = CanImuTwin(name, PROFILE, counting_source(), samples=n)
+    with CanImu(virtual(name), PROFILE, log_path=log) as imu, twin:
+        assert twin.wait(timeout=20)
+        blocks = read_all(imu, n)
+    stats = imu.stats
     assert sum(len(b) for b in blocks) == n
     assert stats.errors >= 1 and "No space" in stats.last_error
 
 
-def test_read_before_start_says_what_to_do():
-    bus = can.Bus(interface="virtual", channel=channel())
-    try:
-        with pytest.raises(RuntimeError, match="start"):
-            CanImu(bus, PROFILE).read_block()
-    finally:
-        bus.shutdown()
+def test_read_before_open_says_what_to_do():
+    with pytest.raises(CanBusError, match="call open"):
+        CanImu(virtual(channel()), PROFILE).read_block()
+
+
+def test_bus_that_cannot_open_names_the_channel():
+    with pytest.raises(CanBusError, match="no-such-interface") as info:
+        CanImu({"interface": "no-such-interface", "channel": "x"}, PROFILE).open()
+    assert info.value.channel == "no-such-interface:x"
 
 
 def test_twin_rejects_a_source_of_the_wrong_shape():

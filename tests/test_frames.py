@@ -1,5 +1,6 @@
-"""Binary frame and ASCII line parsing (drivers/wire/frames.py): exact decoding, CRC catalogue values,
-resynchronisation, the sequence guard against CRC false locks, counters."""
+"""Binary frame and ASCII line parsing (drivers/wire/: crc.py, binary.py, ascii.py): exact
+decoding, CRC catalogue values, resynchronisation, the sequence guard against CRC false locks,
+counters, the decode contract (bytes used)."""
 
 import binascii
 import dataclasses
@@ -8,10 +9,12 @@ import zlib
 
 import numpy as np
 
-from drivers.wire.frames import CRCS, AsciiLineParser, BinaryFrameParser, encode_frames, encode_lines
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
 from drivers.twins.serial import corrupt_frame
+from drivers.wire.ascii import AsciiLineParser, encode_lines
+from drivers.wire.binary import BinaryFrameParser, encode_frames
+from drivers.wire.crc import CRCS
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels
@@ -36,9 +39,10 @@ def parse(data: bytes, fmt=FMT, chunk=None) -> tuple:
     """All samples of `data` fed at once or in chunks of `chunk` bytes, and the parser's stats."""
     parser = BinaryFrameParser(fmt, CHANNELS)
     step = chunk or max(len(data), 1)
-    blocks = [parser.feed(data[i : i + step], float(i)) for i in range(0, len(data), step)]
-    blocks.append(parser.feed(b"", float(len(data)), final=True))  # end of stream
-    return SampleBlock.concat(blocks), parser.stats
+    decoded = [parser.decode(data[i : i + step], float(i)) for i in range(0, len(data), step)]
+    decoded.append(parser.decode(b"", float(len(data)), final=True))  # end of stream
+    assert sum(d.used for d in decoded) == len(data)  # at the end every byte is decided
+    return SampleBlock.concat([d.block for d in decoded]), parser.stats
 
 
 def manual_frame(seq: int, ticks: int, counts) -> bytes:
@@ -87,9 +91,9 @@ def test_host_time_is_the_read_that_completed_the_frame():
     parser = BinaryFrameParser(FMT, CHANNELS)
     # a complete frame waits until every frame that could overlap it is complete (and frame 0,
     # having no predecessor, until frame 1 vouches for it)
-    assert len(parser.feed(data[: SIZE + 10], 1.0)) == 0
-    b = parser.feed(data[SIZE + 10 : 3 * SIZE], 2.0)
-    c = parser.feed(data[3 * SIZE :], 3.0, final=True)
+    assert len(parser.decode(data[: SIZE + 10], 1.0).block) == 0
+    b = parser.decode(data[SIZE + 10 : 3 * SIZE], 2.0).block
+    c = parser.decode(data[3 * SIZE :], 3.0, final=True).block
     assert list(b.host_time) == [1.0, 2.0] and list(c.host_time) == [2.0, 3.0]
 
 
@@ -117,7 +121,7 @@ def test_sequence_and_time_unwrap_past_the_counter_width():
     seq = np.arange(1000)
     data = encode_frames(fmt, seq, seq * 500, pattern(seq))
     parser = BinaryFrameParser(fmt, CHANNELS)
-    block = parser.feed(data, 0.0, final=True)
+    block = parser.decode(data, 0.0, final=True).block
     assert np.array_equal(block.seq, seq)  # the uint8 counter wrapped 3 times
     assert np.allclose(block.device_time, seq * 500e-6)  # the uint16 tick counter wrapped 7 times
 
@@ -132,7 +136,7 @@ def test_other_layouts_big_endian_crc32_over_sync_without_time():
     one = data[: len(data) // 100]
     assert one[:3] == b"\xaa\x55\x01" and one[3:5] == struct.pack(">h", counts[0, 0])
     assert one[-4:] == struct.pack(">I", zlib.crc32(one[:-4]))
-    block = BinaryFrameParser(fmt, CHANNELS).feed(data, 0.0, final=True)
+    block = BinaryFrameParser(fmt, CHANNELS).decode(data, 0.0, final=True).block
     assert np.array_equal(block.counts, counts) and np.all(np.isnan(block.device_time))
 
 
@@ -182,7 +186,7 @@ ASCII = SerialImuProfile.load("imu_ascii")
 def ascii_parse(text: bytes, chunk=None, fmt=ASCII.serial.frame):
     parser = AsciiLineParser(fmt, ASCII.imu.channels)
     step = chunk or max(len(text), 1)
-    blocks = [parser.feed(text[i : i + step], 0.0) for i in range(0, len(text), step)]
+    blocks = [parser.decode(text[i : i + step], 0.0).block for i in range(0, len(text), step)]
     return SampleBlock.concat(blocks), parser.stats
 
 
@@ -200,7 +204,15 @@ def test_ascii_lines_with_timestamp_partial_first_line_and_bad_lines():
                                      [-1, -2, -3, -4, -5, -6]]
     assert np.allclose(block.device_time, [1.0005, 1.0015, 1.003])
     assert block.seq.tolist() == [0, 1, 2]
-    assert (stats.frames, stats.bad_lines, stats.skipped_bytes) == (3, 3, 8)
+    assert (stats.samples, stats.bad_lines, stats.skipped_bytes) == (3, 3, 8)
+
+
+def test_ascii_decoder_uses_whole_lines_and_everything_at_the_end():
+    parser = AsciiLineParser(ASCII.serial.frame, ASCII.imu.channels)
+    first = parser.decode(b"partial\n1.0,1,2,3,4,5,6\n2.0,1,2", 0.0)
+    assert first.used == len(b"partial\n1.0,1,2,3,4,5,6\n") and len(first.block) == 1
+    last = parser.decode(b",3", 0.0, final=True)  # an unterminated line is decided: dropped
+    assert (last.used, len(last.block)) == (len(b"2.0,1,2,3"), 0)
 
 
 def test_ascii_fixed_point_space_separated_round_trip():

@@ -1,7 +1,7 @@
 """Property tests: random and mutated byte streams into the binary and ASCII parsers.
 
 No exception may escape, and every accepted binary frame must exist in the input with a correct
-CRC (checked with the stdlib CRC, independent of drivers/wire/frames.py)."""
+CRC (checked with the stdlib CRC, independent of drivers/wire/crc.py)."""
 
 import binascii
 import struct
@@ -10,7 +10,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.wire.frames import AsciiLineParser, BinaryFrameParser, encode_frames
+from drivers.wire.ascii import AsciiLineParser
+from drivers.wire.binary import BinaryFrameParser, encode_frames
 from drivers.profile import SerialImuProfile
 
 PROFILE = SerialImuProfile.load("imu12_serial")
@@ -26,7 +27,7 @@ def frame_bytes(seq_raw: int, ticks_raw: int, counts) -> bytes:
 
 def feed_in_chunks(parser, data: bytes, cuts) -> list:
     bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-    return [parser.feed(data[a:b], 0.0) for a, b in zip(bounds, bounds[1:])]
+    return [parser.decode(data[a:b], 0.0).block for a, b in zip(bounds, bounds[1:])]
 
 
 def assert_only_true_frames(blocks, data: bytes) -> None:

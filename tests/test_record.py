@@ -91,7 +91,7 @@ def test_end_of_input_aborts_and_stops_the_table(tmp_path):
         aborts = [e for e in events if e.kind == "abort"]
         assert len(aborts) == 1 and "OperatorAbort" in aborts[0].detail["error"]
         # after the abort, the link counters are still recorded for the report
-        assert events[-1].kind == "note" and events[-1].detail["link"]["frames"] > 0
+        assert events[-1].kind == "note" and events[-1].detail["link"]["samples"] > 0
 
 
 def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_path, capsys):
@@ -154,7 +154,7 @@ def test_bad_bench_profiles_are_refused_with_the_fix(tmp_path, capsys, edit, mes
 
 def test_the_example_bench_profiles_load():
     serial, can = BenchProfile.load("bench_serial"), BenchProfile.load("bench_can")
-    assert serial.imu_address == {"port": "/dev/ttyUSB0"} and serial.positions == 20
+    assert serial.imu_address == "/dev/ttyUSB0" and serial.positions == 20
     assert can.link == "can" and can.imu_address["interface"] == "socketcan"
     assert serial.imu.imu.channels == can.imu.imu.channels
     static, iron = BenchProfile.load("bench_static"), BenchProfile.load("bench_iron")

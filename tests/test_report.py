@@ -209,7 +209,7 @@ def copy_positions(source, target, keep: int, serial: str, extra_events=()) -> N
         metadata = {**s.metadata, "unit_serial": serial}
         spec = s.specs["imu"]
     with SessionWriter.create(target, metadata, {"imu": spec}) as w:
-        w.append("imu", imu.to_block())
+        w.append("imu", imu)
         w.append_table([SimpleNamespace(
             time=t, rate=r, angle=a, rate_setpoint=sp,
             **{bit: bool(st >> i & 1) for i, bit in enumerate(

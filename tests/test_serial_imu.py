@@ -3,8 +3,6 @@
 The twin streams at 2 kHz of simulated time on a ScaledClock, so each test lasts a fraction of a
 second of wall time."""
 
-import threading
-
 import numpy as np
 import pytest
 
@@ -106,24 +104,6 @@ def test_unplug_names_the_port_keeps_samples_and_reconnects():
     assert after.seq[0] > before.seq[-1]
     assert np.array_equal(after.counts, source(twin.time_of(after.seq)))
     assert imu.connections == 2
-
-
-def test_background_reader_delivers_blocks_and_reports_the_unplug():
-    clock = ScaledClock(speed=10)
-    twin = SerialTwin(BINARY, source, clock=clock, seed=4)
-    blocks, lost = [], threading.Event()
-    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
-        imu.start(blocks.append, on_error=lambda exc: lost.set())
-        while sum(map(len, blocks)) < 1000:
-            assert imu.error is None
-            lost.wait(0.01)
-        twin.unplug()
-        assert lost.wait(5.0)
-        imu.stop()
-    assert isinstance(imu.error, DeviceLostError)
-    got = SampleBlock.concat(blocks)
-    assert np.setdiff1d(intact_between(twin, got.seq[0], got.seq[-1]), got.seq).size == 0
-    assert np.array_equal(got.counts, source(twin.time_of(got.seq)))
 
 
 def test_ascii_device_through_the_pty():

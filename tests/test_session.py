@@ -4,6 +4,7 @@ bad input."""
 import dataclasses
 import json
 import threading
+from pathlib import Path
 from types import SimpleNamespace
 
 import h5py
@@ -11,10 +12,9 @@ import numpy as np
 import pytest
 from layouts import section4_gyros
 
+from drivers.clock import ScaledClock
 from drivers.profile import ImuSection, load_profile
 from drivers.samples import SampleBlock
-from station import calibrate
-from drivers.clock import ScaledClock
 from station.files.session import (
     EVENT_KINDS,
     Session,
@@ -24,6 +24,8 @@ from station.files.session import (
     StreamSpec,
     write_results,
 )
+from station.replay import as_block
+from station.solve.calibrate import calibrate
 
 CHANNELS = tuple(f"g{i + 1}" for i in range(12))
 SPEC = StreamSpec(CHANNELS, "rad/s", 1.0e6, 2000.0, device="imu12")
@@ -71,7 +73,7 @@ def test_round_trip_is_exact(tmp_path):
         assert np.array_equal(d.device_time, every.device_time, equal_nan=True)
         assert np.array_equal(d.host_time, every.host_time)
         assert d.spec == SPEC and np.array_equal(d.to_si(), every.counts / 1.0e6)
-        assert np.array_equal(d.to_block().counts, every.counts)
+        assert np.array_equal(as_block(d).counts, every.counts)
         t = s.table()
         assert np.array_equal(t.time, [0.5, 1.0, 2.0])
         assert np.array_equal(t.angle, [0.0125, 0.05, 0.2])
@@ -230,6 +232,66 @@ def test_resume_appends_after_a_clean_close(tmp_path):
         assert kinds == ["session_start", "position_done", "position_done", "session_resumed",
                          "position_done"]
         assert s.events()[3].position == 1 and s.last_completed_position() == 2
+
+
+def assert_scaled(f, rows: dict) -> None:
+    """Every group's time column is the dimension scale of its other columns' rows, the stream's
+    channel names that of the counts' columns, every column carries `units`; `rows` = expected
+    lengths of the scales."""
+    imu, table, events = f["streams/imu"], f["streams/table"], f["events"]
+    for group, scale, columns in [(imu, "host_time", ("counts", "seq", "device_time")),
+                                  (table, "time", ("rate", "angle", "rate_setpoint", "status")),
+                                  (events, "time", ("position", "kind", "detail_end"))]:
+        assert group[scale].is_scale and group[scale].attrs["units"] == "s"
+        assert group[scale].shape == (rows[group.name],)
+        for column in columns:
+            attached = group[column].dims[0]
+            assert len(attached) == 1 and attached[0] == group[scale], (group.name, column)
+            assert attached[0].shape == (rows[group.name],) and "units" in group[column].attrs
+    assert [c.decode() for c in imu["counts"].dims[1][0][()]] == list(CHANNELS)
+    assert imu["counts"].attrs["units"] == "count" and table["rate"].attrs["units"] == "rad/s"
+    assert events["detail"].is_scale
+
+
+def test_time_columns_are_dimension_scales_through_swmr_appends_and_resume(tmp_path):
+    rng = np.random.default_rng(8)
+    path = tmp_path / "s.h5"
+    w = new_session(path, flush_interval=0.0)  # every append is flushed in SWMR mode
+    for start in range(0, 900, 300):
+        w.append("imu", block(rng, start, 300))
+    w.append_table([table_reading(0.5), table_reading(1.0)])
+    w.event("position_done", 0)
+    with h5py.File(path, "r", swmr=True, libver=("v110", "v110")) as f:  # while the writer is live
+        assert_scaled(f, {"/streams/imu": 900, "/streams/table": 2, "/events": 2})
+    w.close()
+    with SessionWriter.resume(path) as w:
+        w.append("imu", block(rng, 900, 100))
+    with h5py.File(path, "r") as f:
+        assert_scaled(f, {"/streams/imu": 1000, "/streams/table": 2, "/events": 3})
+    with Session.open(path) as s:
+        assert len(s.stream("imu").seq) == 1000
+
+
+def test_results_readings_carry_the_stream_units(tmp_path):
+    path = tmp_path / "s.h5"
+    new_session(path).close()
+    readings, cal = readings_and_calibration()
+    write_results(path, "live", "imu", readings, cal, np.full(readings.shape, 0.01))
+    with h5py.File(path, "r") as f:
+        for name in ("readings", "readings_sigma"):
+            assert list(f[f"results/live/{name}"].attrs["units"]) == ["rad/s"] * 12
+
+
+def test_version_1_files_without_scales_still_read():
+    """The committed example sessions were written before the dimension scales existed."""
+    examples = sorted((Path(__file__).resolve().parent.parent / "sessions").glob("*.h5"))
+    assert examples
+    for path in examples:
+        with h5py.File(path, "r") as f:
+            assert not f["streams/imu/host_time"].is_scale
+            assert "units" not in f["streams/imu/counts"].attrs
+        with Session.open(path) as s:
+            assert s.format_version == 1 and len(s.stream("imu").seq) > 0 and s.events()
 
 
 def test_resume_refuses_a_live_session(tmp_path):

@@ -103,7 +103,7 @@ def spinning(twin, clock) -> RotaryTable:
     ({"kind": "slow", "count": RETRIES + 1, "delay": 2.5 * TIMEOUT}, TableTimeout, "no reply", 1.0),
     ({"kind": "drop", "count": RETRIES + 1}, TableTimeout, "no reply", 3.0),
     ({"kind": "exception", "code": 4}, TableFault, "device failure", 3.0),
-    ({"kind": "exception", "code": 2}, TableError, "exception 2 .illegal data address", 3.0),
+    ({"kind": "exception", "code": 2}, TableError, "exception 2 .illegal address", 3.0),
 ])
 def test_each_fault_gives_its_error_and_the_table_is_stopped(bench, fault, expected, message,
                                                              setpoint):

@@ -28,9 +28,10 @@ import tty
 
 import numpy as np
 
-from drivers.wire.frames import encode_frames, encode_lines
-from drivers.profile import SerialImuProfile
 from drivers.clock import WallClock
+from drivers.profile import SerialImuProfile
+from drivers.wire.ascii import encode_lines
+from drivers.wire.binary import encode_frames
 
 # fates of frames in the log
 SENT, CORRUPTED, DROPPED, PAUSED, OVERFLOW, UNPLUGGED = range(6)

@@ -51,8 +51,8 @@ PHASES = {
     "done": "all positions recorded",
 }
 COUNTERS = ("crc_failures", "resyncs", "gaps", "dropped", "incomplete", "errors")
-"""Link counters shown when the IMU driver's `stats` has them (serial `LinkStats`, CAN
-`CanStats`)."""
+"""Link counters shown when the IMU driver's `stats` has them (every link's `drivers.LinkStats`:
+gaps, dropped; serial `SerialStats`, CAN `CanStats`)."""
 
 
 class LiveView:

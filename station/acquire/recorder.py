@@ -1,8 +1,7 @@
 """The recorder: IMU samples, table states and protocol events into one session file.
 
-A reader thread pulls `SampleBlock`s from an IMU driver (anything with `read_block(timeout)`, e.g.
-`drivers.serial_imu.SerialImu` opened, or `drivers.can_imu.CanImu` started) and appends them to a
-`station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
+A reader thread pulls `SampleBlock`s from an opened IMU driver (a `drivers.ImuDriver`: serial or
+CAN, see `drivers.open_imu`) and appends them to a `station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
 through the same recorder; one lock serialises every access to the writer, which is not
 thread-safe.
 
@@ -27,13 +26,14 @@ from typing import Self
 import numpy as np
 from station.errors import RecordingError
 
+from drivers.clock import WallClock
 from station.reduce.timeline import arrival_offset
 
 
 class Recorder:
     """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
 
-    clock    : the session's clock (the writer's, shared with the devices)
+    clock    : the session's clock (default: the writer's, shared with the devices, or WallClock)
     interval : wall seconds between two reads, so that each block holds several samples (a pty
                holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
     drain_timeout : wall seconds `drain` waits for the samples in flight
@@ -46,7 +46,7 @@ class Recorder:
         self.writer = writer
         self.imu = imu
         self.stream = stream
-        self.clock = clock or writer.clock
+        self.clock = clock or writer.clock or WallClock()
         self.interval = interval
         self.drain_timeout = drain_timeout
         self.busy_grace = busy_grace
@@ -82,9 +82,9 @@ class Recorder:
         self.stop()
 
     def reconnect(self) -> None:
-        """Reopen a lost IMU (`imu.open()`, e.g. `SerialImu`) and read on, as a new segment of the
-        stream; record the `resume` event before calling it. Raises the driver's error while the
-        device is still missing (then call it again later)."""
+        """Reopen a lost IMU (`ImuDriver.open()`, whatever the link) and read on, as a new segment
+        of the stream; record the `resume` event before calling it. Raises the driver's
+        ConnectionError while the device is still missing (then call it again later)."""
         self.stop()
         self.imu.open()
         self.error = None

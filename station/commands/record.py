@@ -79,7 +79,7 @@ class BenchProfile:
     clock_speed: float
     link: str
     imu: object
-    imu_address: dict  # serial: {"port"}; can: {"interface", "channel", "bitrate"?}
+    imu_address: str | dict  # serial: the port; can: {"interface", "channel", "bitrate"?}
     protocol: str  # a kind of station.protocols.KINDS that records (acquire)
     positions: int  # table kinds (rotary): positions; others: the settings' poses
     settings: object  # the kind's settings (RotarySettings, IronSettings, StaticSettings, ...)
@@ -93,8 +93,8 @@ class BenchProfile:
     @classmethod
     def load(cls, path) -> "BenchProfile":
         """Read and check a bench profile; `drivers.profile.ProfileError` names any problem."""
-        from drivers.can_imu import CanProfile
-        from drivers.profile import ProfileError, Section, SerialImuProfile, load_profile
+        from drivers import driver_class
+        from drivers.profile import ProfileError, Section, load_profile
         from drivers.rotary_table import TableRegisterMap
         from station.protocols import KINDS, kinds_with
 
@@ -122,12 +122,11 @@ class BenchProfile:
             raise ProfileError(f"{path}: [bench] needs a non-empty unit_serial and a positive "
                                "clock_speed")
         link = imu.get("link", str, choices=("serial", "can"))
-        loader = SerialImuProfile if link == "serial" else CanProfile
-        dev = loader.load(device(imu.get("profile", str)))
+        dev = driver_class(link).profile_type.load(device(imu.get("profile", str)))
         rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
         dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
         if link == "serial":
-            address = {"port": imu.get("port", str)}
+            address = imu.get("port", str)
         else:
             address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
             if imu.has("bitrate"):
@@ -332,19 +331,10 @@ def solve(path) -> dict:
 @contextlib.contextmanager
 def imu_driver(bench: BenchProfile, clock):
     """The bench's IMU driver, opened; closed on exit."""
-    import can
+    from drivers import open_imu
 
-    from drivers.can_imu import CanImu
-    from drivers.serial_imu import SerialImu
-
-    if bench.link == "serial":
-        with SerialImu(bench.imu_address["port"], bench.imu, clock) as imu:
-            yield imu
-        return
-    with contextlib.ExitStack() as stack:
-        bus = can.Bus(**bench.imu_address)
-        stack.callback(bus.shutdown)
-        yield stack.enter_context(CanImu(bus, bench.imu, clock))
+    with open_imu(bench.link, bench.imu_address, bench.imu, clock) as imu:
+        yield imu
 
 
 @contextlib.contextmanager

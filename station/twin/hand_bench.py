@@ -2,7 +2,7 @@
 or freely - streaming through the real serial wire protocol.
 
     with HandBench(seed=1, speed=40) as bench, bench.driver() as imu:
-        ...  # imu: drivers.serial_imu.SerialImu on the twin's pseudo-terminal
+        ...  # imu: a drivers.ImuDriver (serial) on the twin's pseudo-terminal
         bench.technician  # HandTechnician: turns the unit (or its iron), re-mounts it in the iron
         bench.truth()     # what the station should find
 
@@ -32,8 +32,8 @@ from typing import Self
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from drivers import open_imu
 from drivers.profile import SerialImuProfile
-from drivers.serial_imu import SerialImu
 from drivers.twins.serial import SerialTwin
 from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
@@ -225,7 +225,7 @@ class HandBench:
     @contextlib.contextmanager
     def driver(self):
         """The station's real serial driver on the twin's port, closed on exit."""
-        with SerialImu(self.twin.port, self.profile, self.clock) as imu:
+        with open_imu("serial", self.twin.port, self.profile, self.clock) as imu:
             yield imu
 
     def truth(self) -> HandTruth:

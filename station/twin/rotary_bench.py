@@ -1,7 +1,7 @@
 """The virtual bench: every device of a calibration bench, simulated, behind its real wire protocol.
 
     with VirtualBench(imu="serial", seed=1, speed=40) as bench, bench.drivers() as (imu, table):
-        ...  # imu: drivers.serial_imu.SerialImu (or drivers.can_imu.CanImu), table: drivers.rotary_table.RotaryTable
+        ...  # imu: a drivers.ImuDriver (serial or CAN), table: drivers.rotary_table.RotaryTable
         bench.technician  # the simulated technician (station.acquire.operator.SimulatedTechnician)
         bench.truth()     # what the station should find
 
@@ -25,14 +25,11 @@ import os
 from dataclasses import dataclass
 from typing import Self
 
-import can
 import numpy as np
 
-from drivers.can_imu import CanImu, CanProfile
-from drivers.profile import SerialImuProfile
+from drivers import driver_class, open_imu
 from drivers.rotary_table import RotaryTable as TableDriver
 from drivers.rotary_table import TableRegisterMap
-from drivers.serial_imu import SerialImu
 from drivers.twins.can import CanImuTwin
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
@@ -121,8 +118,7 @@ class VirtualBench:
         self.seed, self.rate_hz = int(seed), float(rate_hz)
         self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
         self.clock = ScaledClock(speed, clock_start)
-        loader = SerialImuProfile if imu == "serial" else CanProfile
-        profile = loader.load(IMU_KINDS[imu])
+        profile = driver_class(imu).profile_type.load(IMU_KINDS[imu])
         self.profile = dataclasses.replace(
             profile, imu=dataclasses.replace(profile.imu, rate_hz=float(rate_hz)))
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
@@ -196,13 +192,16 @@ class VirtualBench:
         table driver stops the table on exit whatever happened."""
         table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock)
         with contextlib.ExitStack() as stack:
-            if self.kind == "serial":
-                imu = stack.enter_context(SerialImu(self.imu_twin.port, self.profile, self.clock))
-            else:
-                bus = can.Bus(interface="virtual", channel=self.can_channel)
-                stack.callback(bus.shutdown)
-                imu = stack.enter_context(CanImu(bus, self.profile, self.clock))
+            imu = stack.enter_context(open_imu(self.kind, self.imu_address, self.profile,
+                                               self.clock))
             yield imu, stack.enter_context(table)
+
+    @property
+    def imu_address(self):
+        """Where the IMU driver finds the twin: the pty's path or the virtual CAN bus."""
+        if self.kind == "serial":
+            return self.imu_twin.port
+        return {"interface": "virtual", "channel": self.can_channel}
 
     def truth(self) -> BenchTruth:
         """The true unit and the mountings made so far."""

@@ -1,4 +1,4 @@
-"""Wire formats of serial IMUs: binary frames and ASCII lines, parsed in bulk.
+"""Binary frames of serial IMUs, parsed in bulk.
 
 Binary frame (layout from the device profile, `[serial.binary]`):
 
@@ -18,133 +18,17 @@ max_gap / 2**bits. The decision depends only on the byte stream, not on how it w
 A candidate whose header (sync, sequence) survived but whose payload was corrupted so that CRC-16
 still matches cannot be told from an intact frame by any check on this format; a profile may choose
 `crc32` to make that 2**16 times rarer.
-
-ASCII lines: comma-, semicolon-, tab- or space-separated values, one sample per line, with an
-optional timestamp column. The first line after opening is discarded (it is usually partial).
 """
-
-from dataclasses import dataclass
-from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from drivers.samples import SampleBlock
-
-# --------------------------------------------------------------------------------------------------
-# CRC
-
-
-@dataclass(frozen=True)
-class Crc:
-    """A CRC in the Rocksoft/Williams parametrisation (width, poly, init, reflected, xorout)."""
-
-    width: int
-    poly: int
-    init: int
-    reflected: bool
-    xorout: int
-
-    @property
-    def size(self) -> int:
-        """Bytes the CRC occupies in a frame."""
-        return self.width // 8
-
-    @cached_property
-    def table(self) -> np.ndarray:
-        """The 256-entry byte table of the table-driven algorithm."""
-        mask = (1 << self.width) - 1
-        table = np.zeros(256, dtype=np.uint32)
-        if self.reflected:
-            poly = int(f"{self.poly:0{self.width}b}"[::-1], 2)
-            for byte in range(256):
-                c = byte
-                for _ in range(8):
-                    c = (c >> 1) ^ poly if c & 1 else c >> 1
-                table[byte] = c
-        else:
-            top = 1 << (self.width - 1)
-            for byte in range(256):
-                c = byte << (self.width - 8)
-                for _ in range(8):
-                    c = ((c << 1) ^ self.poly) if c & top else (c << 1)
-                table[byte] = c & mask
-        return table
-
-    def bytewise(self, data: np.ndarray) -> np.ndarray:
-        """CRC of every row of `data` (N, n) uint8 by the byte-at-a-time algorithm -> (N,) uint32."""
-        table, mask, shift = self.table, np.uint32((1 << self.width) - 1), self.width - 8
-        crc = np.full(data.shape[0], self.init, dtype=np.uint32)
-        for column in np.ascontiguousarray(data.T):
-            if self.reflected:
-                crc = (crc >> 8) ^ table[(crc ^ column) & 0xFF]
-            else:
-                crc = ((crc << 8) & mask) ^ table[((crc >> shift) ^ column) & 0xFF]
-        return crc ^ np.uint32(self.xorout)
-
-    @lru_cache(maxsize=8)
-    def positional(self, n: int) -> tuple:
-        """(crc of n zero bytes, table (n, 256) of what byte value b at position j adds).
-
-        A CRC is affine over GF(2): crc(d) = crc(0) ^ XOR_j T[j, d_j] for messages of length n.
-        """
-        unit = np.zeros((n, 256, n), dtype=np.uint8)
-        unit[np.arange(n), :, np.arange(n)] = np.arange(256, dtype=np.uint8)
-        zero = self.bytewise(np.zeros((1, n), np.uint8))[0]
-        return zero, (self.bytewise(unit.reshape(n * 256, n)) ^ zero).reshape(n, 256)
-
-    def rows(self, data: np.ndarray) -> np.ndarray:
-        """CRC of every row of `data` (N, n) uint8, all rows at once -> (N,) uint32."""
-        zero, table = self.positional(data.shape[1])
-        if data.shape[0] == 0:
-            return np.zeros(0, np.uint32)
-        return np.bitwise_xor.reduce(table[np.arange(data.shape[1]), data], axis=1) ^ zero
-
-    def of(self, data: bytes) -> int:
-        """CRC of one byte string."""
-        return int(self.rows(np.frombuffer(data, dtype=np.uint8)[None, :])[0])
-
-
-CRCS = {
-    "crc16-ccitt-false": Crc(16, 0x1021, 0xFFFF, False, 0x0000),
-    "crc16-xmodem": Crc(16, 0x1021, 0x0000, False, 0x0000),
-    "crc16-modbus": Crc(16, 0x8005, 0xFFFF, True, 0x0000),
-    "crc32": Crc(32, 0x04C11DB7, 0xFFFFFFFF, True, 0xFFFFFFFF),
-}
+from drivers.wire import Decoded, SerialStats
+from drivers.wire.crc import CRCS
 
 INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4", "int8": "i1", "int16": "i2", "int32": "i4"}
-
-
-# --------------------------------------------------------------------------------------------------
-# Counters
-
-
-@dataclass
-class LinkStats:
-    """Counters of one link, cumulative over reconnects.
-
-    bytes         : bytes received
-    frames        : frames (binary) or lines (ASCII) accepted
-    crc_failures  : sync candidates outside accepted frames whose CRC did not match
-    bad_lines     : complete ASCII lines that did not parse
-    gaps          : places where the sequence number jumped (one or more frames missing)
-    dropped       : sequence numbers missing in those gaps (frames dropped or destroyed)
-    resyncs       : times alignment was lost and found again (bytes skipped between two frames)
-    skipped_bytes : bytes that belong to no accepted frame (garbage, partial and corrupted frames)
-    """
-
-    bytes: int = 0
-    frames: int = 0
-    crc_failures: int = 0
-    bad_lines: int = 0
-    gaps: int = 0
-    dropped: int = 0
-    resyncs: int = 0
-    skipped_bytes: int = 0
-
-
-# --------------------------------------------------------------------------------------------------
-# Binary frames
+"""Profile integer type name -> numpy type code."""
 
 
 def frame_dtype(fmt, n_channels: int) -> np.dtype:
@@ -218,7 +102,8 @@ class _HostTimes:
 class BinaryFrameParser:
     """Incremental bulk parser of a binary frame stream (rules in the module docstring).
 
-    `feed(data, host_time)` returns the frames accepted so far as a SampleBlock. A CRC-valid
+    `decode(data, host_time)` returns the frames accepted by the call (the wire package's
+    contract: `Decoded(used, block)`). A CRC-valid
     candidate whose previous neighbour does not vouch for it waits until the next CRC-valid
     candidate starting within `horizon` bytes has arrived (or cannot arrive any more); its bytes
     stay buffered meanwhile.
@@ -234,7 +119,7 @@ class BinaryFrameParser:
         self.sync = np.frombuffer(fmt.sync, dtype=np.uint8)
         self.seq_modulus = 1 << 8 * self.dtype["seq"].itemsize
         self.time_modulus = 1 << 8 * self.dtype["time"].itemsize if "time" in fmt.layout else 0
-        self.stats = LinkStats()
+        self.stats = SerialStats()
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
         self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
@@ -248,9 +133,9 @@ class BinaryFrameParser:
         self._context = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
         self._host = _HostTimes()
 
-    def feed(self, data: bytes, host_time: float, final: bool = False) -> SampleBlock:
-        """Add received bytes; return the frames accepted by this call (possibly none).
-        `final`: no more bytes will come (device lost): decide everything now."""
+    def decode(self, data: bytes, host_time: float, final: bool = False) -> Decoded:
+        """Add received bytes; the bytes decided and the frames accepted by this call (possibly
+        none). `final`: no more bytes will come (device lost): decide everything now."""
         self.stats.bytes += len(data)
         self._host.add(self._base + len(self._buf) + len(data), host_time)
         buf = np.frombuffer(self._buf + bytes(data), dtype=np.uint8)
@@ -278,7 +163,7 @@ class BinaryFrameParser:
         failed = complete[~crc_ok]
         self._count_crc_failures(failed[failed < cut], pos[accept])
         self._keep(pos, seq, accept, decided, cut, buf)
-        return block
+        return Decoded(int(cut), block)
 
     def _sync_positions(self, buf: np.ndarray) -> np.ndarray:
         """Every offset where the whole sync word starts."""
@@ -377,7 +262,7 @@ class BinaryFrameParser:
                 ticks = np.zeros(k, np.int64)
                 device_time = np.full(k, np.nan)
             self._last = (int(ends[-1]), int(seq_raw[-1]), int(seq[-1]), int(ticks_raw[-1]), int(ticks[-1]))
-            stats.frames += k
+            stats.samples += k
         return SampleBlock(
             counts=records["counts"].astype(np.int64).reshape(k, len(self.channels)),
             seq=seq,
@@ -404,119 +289,3 @@ class BinaryFrameParser:
         self._buf = bytes(buf[cut:])
         self._base += cut
         self._host.drop_before(self._base)
-
-
-# --------------------------------------------------------------------------------------------------
-# ASCII lines
-
-
-def encode_lines(fmt, times, counts) -> bytes:
-    """Text lines of samples: optional timestamp (in the profile's time unit) and the counts,
-    written with `fmt.decimals` decimals (counts / 10**decimals)."""
-    sep = fmt.delimiter
-    lines = []
-    for t, row in zip(np.asarray(times, float), np.asarray(counts, np.int64)):
-        values = [_fixed(int(c), fmt.decimals) for c in row]
-        if fmt.timestamp == "first":
-            values.insert(0, repr(float(t) / fmt.time_scale))
-        elif fmt.timestamp == "last":
-            values.append(repr(float(t) / fmt.time_scale))
-        lines.append(sep.join(values) + "\r\n")
-    return "".join(lines).encode("ascii")
-
-
-def _fixed(count: int, decimals: int) -> str:
-    """count / 10**decimals written exactly."""
-    if decimals == 0:
-        return str(count)
-    sign, digits = ("-" if count < 0 else ""), str(abs(count)).rjust(decimals + 1, "0")
-    return f"{sign}{digits[:-decimals]}.{digits[-decimals:]}"
-
-
-def _parse_fixed(token: str, decimals: int) -> int:
-    """Exact count from a decimal token with at most `decimals` decimals; ValueError otherwise."""
-    sign = -1 if token[:1] == "-" else 1
-    body = token[1:] if token[:1] in "+-" else token
-    whole, dot, frac = body.partition(".")
-    digits = whole.isascii() and whole.isdigit() and (not dot or frac.isascii() and frac.isdigit())
-    if not digits or len(frac) > decimals:
-        raise ValueError(f"not a number with at most {decimals} decimals: {token!r}")
-    return sign * int(whole + frac.ljust(decimals, "0"))
-
-
-class AsciiLineParser:
-    """Incremental parser of one-sample-per-line text streams.
-
-    Lines whose field count or values are wrong are counted in `bad_lines` and skipped; a line
-    longer than `max_line` bytes is discarded (a resync). The sequence number is the host's count
-    of accepted lines: text protocols carry none, so gaps cannot be detected.
-    """
-
-    max_line = 4096
-
-    def __init__(self, fmt, channels):
-        self.fmt = fmt
-        self.channels = tuple(channels)
-        self.fields = len(self.channels) + (fmt.timestamp != "none")
-        self.stats = LinkStats()
-        self._next_seq = 0
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget buffered bytes; the next line is discarded as probably partial."""
-        self._buf = b""
-        self._partial = True
-
-    def feed(self, data: bytes, host_time: float, final: bool = False) -> SampleBlock:
-        """Add received bytes; return the samples of the lines completed by them. `final`: no more
-        bytes will come; an unterminated last line is dropped."""
-        self.stats.bytes += len(data)
-        *lines, self._buf = (self._buf + bytes(data)).split(b"\n")
-        if final:
-            self.stats.skipped_bytes += len(self._buf)
-            self._buf = b""
-        if self._partial and lines:
-            self.stats.skipped_bytes += len(lines[0]) + 1
-            lines, self._partial = lines[1:], False
-        if len(self._buf) > self.max_line:
-            self.stats.skipped_bytes += len(self._buf)
-            self.stats.resyncs += 1
-            self._buf, self._partial = b"", True
-        rows = [row for row in map(self._parse, lines) if row is not None]
-        k = len(rows)
-        values = np.array([r[0] for r in rows], dtype=np.int64).reshape(k, len(self.channels))
-        seq = self._next_seq + np.arange(k, dtype=np.int64)
-        self._next_seq += k
-        self.stats.frames += k
-        return SampleBlock(
-            counts=values,
-            seq=seq,
-            device_time=np.array([r[1] for r in rows], dtype=float),
-            host_time=np.full(k, float(host_time)),
-            channels=self.channels,
-        )
-
-    def _parse(self, line: bytes):
-        """(counts, device time) of one line, or None (counted) if the line is not a sample."""
-        if not line.strip():
-            return None
-        try:
-            text = line.decode("ascii")
-            tokens = text.split() if self.fmt.delimiter.isspace() else text.split(self.fmt.delimiter)
-            tokens = [t.strip() for t in tokens]
-            if len(tokens) != self.fields:
-                raise ValueError(f"{len(tokens)} fields, expected {self.fields}")
-            time = np.nan
-            if self.fmt.timestamp == "first":
-                time, tokens = float(tokens[0]) * self.fmt.time_scale, tokens[1:]
-            elif self.fmt.timestamp == "last":
-                time, tokens = float(tokens[-1]) * self.fmt.time_scale, tokens[:-1]
-            if self.fmt.timestamp != "none" and not np.isfinite(time):
-                raise ValueError("timestamp is not finite")
-            counts = [_parse_fixed(t, self.fmt.decimals) for t in tokens]
-            if any(abs(c) >= 2**63 for c in counts):
-                raise ValueError("count does not fit 64 bits")
-        except (UnicodeDecodeError, ValueError):
-            self.stats.bad_lines += 1
-            return None
-        return counts, time

@@ -1,0 +1,324 @@
+"""Reading a session file: `Session`, also while a writer appends to it (SWMR read).
+
+Every file is untrusted: the format and version are checked first, then the type and shape of
+everything read; nothing is evaluated or unpickled, JSON is the only text decoded. The reader
+imports no driver (the reduction reads sessions and never touches devices).
+"""
+
+import dataclasses
+import json
+import os
+
+import h5py
+import numpy as np
+
+from station.files.session._repair import open_flags
+from station.files.session.format import (
+    ALLOWED_FILTERS,
+    EVENT_COLUMNS,
+    FORMAT,
+    LIBVER,
+    MAX_JSON_BYTES,
+    STREAM_COLUMNS,
+    SUPPORTED_VERSIONS,
+    TABLE_COLUMNS,
+    Event,
+    SessionFormatError,
+    SessionResults,
+    StreamData,
+    StreamSpec,
+    TableData,
+    complete_events,
+    float_matrix,
+    last_completed_position,
+)
+from station.solve.calibrate import CalibrationResult
+from station.errors import InputError
+
+
+class Session:
+    """A session file opened for reading, also while a writer appends to it (SWMR read).
+
+    Every accessor refreshes its datasets first, so repeated calls see the rows flushed since.
+    Results groups added after opening are seen only after reopening.
+    """
+
+    def __init__(self, path, h5file):
+        """Internal: use `Session.open`."""
+        self.path = os.fspath(path)
+        self._file = h5file
+        attrs = h5file.attrs
+        self.format_version = _check_format(self.path, attrs)
+        self.software_version = _attr(attrs, "software_version", str, self.path)
+        self.created = _attr(attrs, "created", str, self.path)
+        self.protocol = _attr(attrs, "protocol", str, self.path)
+        self.unit_serial = _attr(attrs, "unit_serial", str, self.path)
+        self.metadata = _read_metadata(h5file, self.path)
+        streams = _child(h5file, "streams", h5py.Group, self.path)
+        self.specs = {n: read_spec(_child(streams, n, h5py.Group, self.path), self.path)
+                      for n in streams if n != "table"}
+
+    @classmethod
+    def open(cls, path) -> "Session":
+        """Open a session file; `SessionFormatError` if it is not one this software reads.
+
+        A file a writer has open (or left open when killed) is read in SWMR mode, a closed one
+        in plain read-only mode."""
+        live = open_flags(path) != 0
+        try:
+            f = h5py.File(path, "r", swmr=live, libver=LIBVER)
+        except OSError as e:
+            raise SessionFormatError(f"{path} is not a readable HDF5 file ({e})") from None
+        try:
+            return cls(path, f)
+        except BaseException:
+            f.close()
+            raise
+
+    @property
+    def closed_cleanly(self) -> bool:
+        """False while a writer is live or after it was killed (superblock flags still set)."""
+        return open_flags(self.path) == 0
+
+    def stream(self, name: str) -> StreamData:
+        """All samples of a stream flushed so far (the common length of its columns)."""
+        if name not in self.specs:
+            raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
+        spec = self.specs[name]
+        g = self._file["streams"][name]
+        counts, seq, device_time, host_time = _columns(g, STREAM_COLUMNS, self.path, {
+            "counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
+            "device_time": ("f", ()), "host_time": ("f", ())})
+        return StreamData(counts, seq.astype(np.int64), device_time.astype(np.float64),
+                          host_time.astype(np.float64), spec)
+
+    def table(self) -> TableData:
+        """The rotary-table states flushed so far."""
+        g = _child(self._file["streams"], "table", h5py.Group, self.path)
+        kinds = {c: ("f", ()) for c in TABLE_COLUMNS}
+        kinds["status"] = ("u", ())
+        cols = _columns(g, TABLE_COLUMNS, self.path, kinds)
+        return TableData(*(c.astype(np.float64) for c in cols[:-1]), cols[-1].astype(np.uint8))
+
+    def events(self) -> list:
+        """Protocol events flushed so far, in order."""
+        return read_events(_child(self._file, "events", h5py.Group, self.path), self.path)
+
+    def last_completed_position(self) -> int | None:
+        """Position of the last `position_done` event (None: no position completed)."""
+        return last_completed_position(self.events())
+
+    @property
+    def result_names(self) -> tuple:
+        return tuple(_child(self._file, "results", h5py.Group, self.path))
+
+    def results(self, name: str) -> SessionResults:
+        """The `results/<name>` group: readings, their sigma and the calibration if stored."""
+        g = _child(_child(self._file, "results", h5py.Group, self.path), name, h5py.Group,
+                   self.path)
+        where = f"{self.path}:results/{name}"
+        stream = _attr(g.attrs, "stream", str, where)
+        spec = self.specs.get(stream)
+        if spec is None:
+            raise SessionFormatError(f"{where} names stream {stream!r}, which the file lacks")
+        m = len(spec.channels)
+        readings = _matrix(g, "readings", where, rows=m)
+        sigma = _matrix(g, "readings_sigma", where, shape=readings.shape) if "readings_sigma" in g \
+            else None
+        cal = _read_calibration(g, where, readings.shape) if "calibration" in g else None
+        settings = _json_object(_attr(g.attrs, "settings", str, where), f"{where} settings") \
+            if "settings" in g.attrs else None
+        return SessionResults(name, stream, tuple(_attr(g.attrs, "units", list, where)), readings,
+                              sigma, cal, _attr(g.attrs, "created", str, where), settings)
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _check_format(path, attrs) -> int:
+    """The file's format version; `SessionFormatError` unless ours and a supported version."""
+    fmt = attrs.get("format")
+    if fmt != FORMAT:
+        raise SessionFormatError(f"{path} is not an IMU station session file (format attribute "
+                                 f"{fmt!r}, expected {FORMAT!r})")
+    version = attrs.get("format_version")
+    version = version.item() if isinstance(version, np.generic) else version
+    if type(version) is not int or version not in SUPPORTED_VERSIONS:
+        raise SessionFormatError(
+            f"{path} has session format_version {version!r}; this software reads versions "
+            f"{', '.join(map(str, SUPPORTED_VERSIONS))} (newer files need newer station software)")
+    return int(version)
+
+
+def _attr(attrs, key, kind, where):
+    """An attribute of the expected Python type (str, float or list of str)."""
+    value = attrs.get(key)
+    # an empty list written as a plain array comes back as float64 (files of early version-1 writers)
+    if kind is list and isinstance(value, np.ndarray) and value.ndim == 1 and (
+        value.dtype == object or value.size == 0
+    ):
+        value = list(value)
+        if all(isinstance(v, str) for v in value):
+            return value
+    elif kind is float and isinstance(value, np.floating | float):
+        return float(value)
+    elif isinstance(value, kind):
+        return value
+    raise SessionFormatError(f"{where}: attribute {key!r} is missing or not a {kind.__name__}")
+
+
+def _child(group, name, kind, where):
+    """A member of `group` that is a plain (hard-linked) group or dataset of this file."""
+    link = group.get(name, getlink=True)
+    if not isinstance(link, h5py.HardLink):
+        raise SessionFormatError(f"{where}: {group.name}/{name} is missing or an external link")
+    obj = group[name]
+    if not isinstance(obj, kind):
+        raise SessionFormatError(f"{where}: {obj.name} is not a {kind.__name__}")
+    if kind is h5py.Dataset:
+        plist = obj.id.get_create_plist()
+        filters = {plist.get_filter(i)[0] for i in range(plist.get_nfilters())}
+        if obj.external or obj.is_virtual or not filters <= ALLOWED_FILTERS:
+            raise SessionFormatError(f"{where}: {obj.name} uses external storage or unknown "
+                                     "filters; refusing to read it")
+    return obj
+
+
+def _read_metadata(f, where) -> dict:
+    ds = _child(f, "metadata", h5py.Dataset, where)
+    if ds.shape != () or ds.dtype.kind not in "OS":
+        raise SessionFormatError(f"{where}: /metadata must be one JSON string")
+    return _json_object(ds[()], f"{where}: /metadata")
+
+
+def _json_object(raw, what: str) -> dict:
+    """A JSON object from untrusted text, size-limited; SessionFormatError naming `what`."""
+    if len(raw) > MAX_JSON_BYTES:
+        raise SessionFormatError(f"{what} is over {MAX_JSON_BYTES} bytes")
+    try:
+        value = json.loads(raw)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise SessionFormatError(f"{what} is not valid JSON ({e})") from None
+    if not isinstance(value, dict):
+        raise SessionFormatError(f"{what} must be a JSON object")
+    return value
+
+
+def read_spec(g, where="") -> StreamSpec:
+    """The StreamSpec of a stream group, validated."""
+    try:
+        return StreamSpec(tuple(_attr(g.attrs, "channels", list, where)),
+                          tuple(_attr(g.attrs, "units", list, where)),
+                          tuple(np.asarray(g.attrs.get("counts_per_unit"), dtype=float).ravel()),
+                          _attr(g.attrs, "rate_hz", float, where),
+                          np.dtype(_child(g, "counts", h5py.Dataset, where).dtype).name,
+                          _attr(g.attrs, "device", str, where))
+    except (TypeError, ValueError) as e:
+        if isinstance(e, SessionFormatError):
+            raise
+        raise SessionFormatError(f"{where}: stream {g.name} is malformed ({e})") from None
+
+
+def _columns(g, names, where, kinds) -> list:
+    """Datasets `names` of `g` read to their common length, each checked for dtype kind and
+    trailing shape."""
+    datasets = [_child(g, n, h5py.Dataset, where) for n in names]
+    for ds, n in zip(datasets, names):
+        ds.refresh()
+        dtype_kinds, tail = kinds[n]
+        if ds.dtype.kind not in dtype_kinds or ds.shape[1:] != tail:
+            raise SessionFormatError(f"{where}: {ds.name} has dtype {ds.dtype} and shape "
+                                     f"{ds.shape}; expected kind {dtype_kinds!r}, rows x {tail}")
+    k = min(ds.shape[0] for ds in datasets)
+    return [ds[:k] for ds in datasets]
+
+
+def read_events(g, where="") -> list:
+    kinds = {"time": ("f", ()), "position": ("i", ()), "kind": ("S", ()), "detail_end": ("i", ())}
+    times, positions, kind_bytes, ends = _columns(g, EVENT_COLUMNS, where, kinds)
+    detail = _child(g, "detail", h5py.Dataset, where)
+    detail.refresh()
+    if detail.dtype != np.uint8 or detail.ndim != 1:
+        raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
+    k = complete_events(ends, detail.shape[0], where)
+    starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
+    text = detail[:int(ends[k - 1])].tobytes() if k else b""
+    events = []
+    for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k]):
+        try:
+            kind = kb.decode("ascii")
+            info = json.loads(text[s:e])
+        except (UnicodeDecodeError, ValueError) as err:
+            raise SessionFormatError(f"{where}: an event is not valid ASCII/JSON ({err})") from None
+        if not isinstance(info, dict):
+            raise SessionFormatError(f"{where}: event detail must be a JSON object")
+        events.append(Event(float(t), None if p < 0 else int(p), kind, info))
+    return events
+
+
+def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
+    ds = _child(g, name, h5py.Dataset, where)
+    if ds.dtype.kind != "f":
+        raise SessionFormatError(f"{where}/{name} must be floating point, got {ds.dtype}")
+    try:
+        return float_matrix(ds[()], f"{where}/{name}", rows, shape)
+    except ValueError as e:
+        raise SessionFormatError(str(e)) from None
+
+
+LATER_FIELDS = ("parameter_covariance",)
+"""CalibrationResult fields added after format version 1 was first written: None when absent."""
+
+
+def _read_calibration(g, where, readings_shape) -> CalibrationResult:
+    """A `CalibrationResult` from its group; every field present or listed as None, arrays float,
+    shapes consistent with the readings (m x n)."""
+    g = _child(g, "calibration", h5py.Group, where)
+    where = f"{where}/calibration"
+    none = set(_attr(g.attrs, "none_fields", list, where))
+    m, n = readings_shape
+    values = {}
+    for field in dataclasses.fields(CalibrationResult):
+        key = field.name
+        if key in none:
+            values[key] = None
+        elif key in g:
+            ds = _child(g, key, h5py.Dataset, where)
+            if ds.dtype.kind != "f" or ds.ndim > 2:
+                raise SessionFormatError(f"{where}/{key} must be a float array, got {ds.dtype}")
+            values[key] = ds[()]
+        elif key in g.attrs:
+            value = g.attrs[key]
+            if not isinstance(value, str | np.generic):
+                raise SessionFormatError(f"{where}: attribute {key!r} must be a scalar")
+            values[key] = value if isinstance(value, str) else value.item()
+        elif key in LATER_FIELDS:
+            values[key] = None  # written before the field existed
+        else:
+            raise SessionFormatError(f"{where}: field {key!r} is missing")
+    a = values["a"]
+    if a.ndim != 2 or a.shape[1] != m:
+        raise SessionFormatError(f"{where}/a has shape {a.shape}, expected (d, {m})")
+    expected = {"v": (a.shape[0], n), "residuals": (m, n), "sigma": (m, n),
+                "a_sigma": a.shape, "scale_factors": (m,), "axis_angles": (m, m),
+                "axis_angles_sigma": (m, m), "scale_factors_sigma": (m,), "bias": (m,),
+                "bias_sigma": (m,)}
+    for key, shape in expected.items():
+        if values[key] is not None and values[key].shape != shape:
+            raise SessionFormatError(f"{where}/{key} has shape {values[key].shape}, expected "
+                                     f"{shape}")
+    cov = values["covariance"]
+    if cov.ndim != 2 or cov.shape[0] != cov.shape[1]:
+        raise SessionFormatError(f"{where}/covariance must be square, got {cov.shape}")
+    pc = values["parameter_covariance"]
+    k = a.size + (m if values["bias_estimated"] else 0)
+    if pc is not None and pc.shape != (k, k):
+        raise SessionFormatError(f"{where}/parameter_covariance has shape {pc.shape}, expected "
+                                 f"({k}, {k})")
+    return CalibrationResult(**values)

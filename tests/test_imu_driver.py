@@ -1,0 +1,126 @@
+"""The declared IMU interface (drivers.ImuDriver): both drivers satisfy it, and one recorder code
+path reconnects a lost serial device and a lost CAN adapter (virtual devices: the pty twin and a
+python-can virtual bus; no mocks)."""
+
+import dataclasses
+import time
+import uuid
+
+import numpy as np
+import pytest
+
+from drivers import ImuDriver, LinkStats, driver_class, open_imu
+from drivers.can_imu import CanBusError, CanProfile, replay
+from drivers.clock import ScaledClock, WallClock
+from drivers.profile import SerialImuProfile
+from drivers.serial_imu import DeviceLostError
+from drivers.twins.can import CanImuTwin
+from drivers.twins.serial import SENT, SerialTwin
+from station.acquire.recorder import Recorder, RecordingError
+from station.files.session import Session, SessionWriter, StreamSpec
+
+SERIAL = SerialImuProfile.load("imu12_serial")
+CAN = CanProfile.load("imu12_can")
+CAN_200HZ = dataclasses.replace(CAN, imu=dataclasses.replace(CAN.imu, rate_hz=200.0))
+"""200 Hz: an outage of up to 1.2 s stays within the 8-bit counter's unwrapping."""
+
+
+def serial_counts(times):
+    """Deterministic full-range counts, a known function of time (microsecond resolution)."""
+    n = np.round(np.asarray(times) * 1e6).astype(np.int64)
+    return (n[:, None] * 2654435761 + np.arange(12) * 40503) % 2**32 - 2**31
+
+
+def can_pattern(k):
+    """Known 14-bit counts of sample number k."""
+    return (np.asarray(k)[:, None] * 7919 + 1013 * np.arange(len(CAN.imu.channels))) % 16384 - 8192
+
+
+def wait_for(condition, limit: float = 20.0) -> None:
+    deadline = time.monotonic() + limit
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def record_through_a_loss(path, imu, profile, clock, unplug, plug, enough: int):
+    """Record `enough` samples, lose the device, reconnect through `Recorder.reconnect` and record
+    `enough` more; (the driver's loss error, the recorded stream, the clock time of the `resume`
+    event)."""
+    spec = StreamSpec.from_profile(profile.imu)
+    with SessionWriter.create(path, {"protocol": "rotary", "unit_serial": "T"}, {"imu": spec},
+                              clock=clock) as writer:
+        with Recorder(writer, imu, clock=clock) as recorder:
+            wait_for(lambda: recorder.samples >= enough)
+            unplug()
+            wait_for(lambda: recorder.error is not None)
+            with pytest.raises(RecordingError) as info:
+                recorder.check(stale=1e9)
+            before = recorder.samples
+            plug()
+            recorder.event("resume", None, {"after": "imu lost"})
+            recorder.reconnect()
+            wait_for(lambda: recorder.samples >= before + enough)
+            recorder.check(stale=1e9)
+    with Session.open(path) as session:
+        resume = [e.time for e in session.events() if e.kind == "resume"]
+        return info.value.__cause__, session.stream("imu"), resume[0]
+
+
+def test_both_drivers_are_imu_drivers():
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(SERIAL, serial_counts, clock=clock, seed=1)
+    name = f"imu-driver-{uuid.uuid4().hex}-bus"
+    with twin, open_imu("serial", twin.port, SERIAL, clock) as serial_imu, \
+            open_imu("can", {"interface": "virtual", "channel": name}, CAN) as can_imu:
+        for imu in (serial_imu, can_imu):
+            assert isinstance(imu, ImuDriver) and isinstance(imu.stats, LinkStats)
+    assert not isinstance(object(), ImuDriver)
+    with pytest.raises(ValueError, match="serial, can"):
+        driver_class("usb")
+
+
+def test_recorder_reconnects_a_lost_serial_device(tmp_path):
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(SERIAL, serial_counts, clock=clock, seed=4)
+    with twin, open_imu("serial", twin.port, SERIAL, clock) as imu:
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, SERIAL, clock,
+                                                    twin.unplug, twin.plug, enough=1000)
+    assert isinstance(error, DeviceLostError) and error.port == twin.port
+    assert imu.connections == 2
+    assert np.all(np.diff(data.seq) > 0)
+    assert np.array_equal(data.counts, serial_counts(twin.time_of(data.seq)))
+    before, after = data.seq[data.host_time < resume], data.seq[data.host_time > resume]
+    assert len(before) >= 1000 and len(after) >= 1000 and len(before) + len(after) == len(data.seq)
+    seq, fate = twin.log()
+    sent = seq[(fate == SENT) & (seq >= data.seq[0]) & (seq <= data.seq[-1])]
+    missing = np.setdiff1d(sent, data.seq)  # only frames in flight when the cable was pulled
+    assert np.all((missing > before[-1]) & (missing < after[0]))
+
+
+def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
+    name = f"imu-driver-{uuid.uuid4().hex}-bus"
+    state = {"k": 0}
+
+    def source(times):
+        k = state["k"] + np.arange(len(times))
+        state["k"] += len(times)
+        return can_pattern(k)
+
+    clock, log = WallClock(), tmp_path / "raw.log"
+    twin = CanImuTwin(name, CAN_200HZ, source, clock=clock)
+    with open_imu("can", {"interface": "virtual", "channel": name}, CAN_200HZ, clock,
+                  log_path=log) as imu, twin:
+        lost_bus = imu.bus
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, CAN_200HZ, clock,
+                                                    lost_bus.shutdown, lambda: None, enough=100)
+        assert imu.bus is not lost_bus and imu.connections == 2
+    assert isinstance(error, CanBusError) and name in error.channel
+    assert imu.stats.errors == 1 and "closed bus" in imu.stats.last_error
+    assert np.all(np.diff(data.seq) > 0) and np.array_equal(data.counts, can_pattern(data.seq))
+    before, after = data.seq[data.host_time < resume], data.seq[data.host_time > resume]
+    assert len(before) >= 100 and len(after) >= 100
+    assert np.all(np.diff(before) == 1) and np.all(np.diff(after) == 1)  # lost only in the outage
+    assert imu.stats.dropped == after[0] - before[-1] - 1
+    replayed, _ = replay(log, CAN_200HZ)  # one raw log across the reconnection
+    assert np.array_equal(replayed.seq[:len(data.seq)], data.seq)
