@@ -23,7 +23,6 @@ from station.files.session.format import (
     SUPPORTED_VERSIONS,
     TABLE_COLUMNS,
     Event,
-    SessionFormatError,
     SessionResults,
     StreamData,
     StreamSpec,
@@ -32,6 +31,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
+from station.errors import SessionFormatError
 from station.solve.calibrate import CalibrationResult
 from station.errors import InputError
 

@@ -40,12 +40,12 @@ from station.files.session.format import (
     TABLE_STATUS_BITS,
     TABLE_UNITS,
     TIME_SCALES,
-    SessionLockedError,
     StreamSpec,
     complete_events,
     float_matrix,
     last_completed_position,
 )
+from station.errors import SessionLockedError
 from station.files.session.reader import Session, read_events, read_spec
 from station.solve.calibrate import CalibrationResult
 from station.errors import InputError
