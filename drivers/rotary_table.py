@@ -13,6 +13,7 @@ does not match the table). After any failure the driver tries to stop the table;
 manager it stops the table on exit, whatever happened.
 """
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -25,6 +26,8 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 from drivers.clock import WallClock
 from drivers.errors import TableBusy, TableError, TableFault, TableTimeout
 from drivers.profile import ProfileError, Section, load_profile
+
+log = logging.getLogger(__name__)
 
 INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
@@ -261,6 +264,8 @@ class RotaryTable:
                                    "check its power and network")
                 continue
             if not response.isError():
+                if attempt:
+                    log.info("%s: %s answered after %d retries", what, where, attempt)
                 return response
             code = response.exception_code
             if code == ExcCodes.DEVICE_BUSY:
@@ -274,4 +279,5 @@ class RotaryTable:
             raise TableError(f"{what}: the {where} answered Modbus exception {code} "
                              f"({exception_name(code)}); "
                              "check the register map and device id in the device profile")
+        log.warning("%s", error)
         raise error

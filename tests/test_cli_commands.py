@@ -11,7 +11,7 @@ from serial.tools import list_ports
 import station
 from station import cli
 from station.files.calfile import load
-from station.commands.record import BenchProfile, record
+from station.acquire.bench import BenchProfile, record
 from station.twin.served import BenchTwin
 from station.model.frames import align_to
 from station.acquire.operator import ConsoleOperator

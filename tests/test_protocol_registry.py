@@ -15,7 +15,7 @@ import pytest
 
 from drivers.samples import SampleBlock
 from station import cli
-from station.commands.record import BenchProfile, record
+from station.acquire.bench import BenchProfile, record
 from station.files.calfile import load
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.protocols import KINDS, Kind, UnknownKind, kinds_with, lookup

@@ -15,7 +15,8 @@ from scipy import stats
 
 import station
 from station.files.calfile import load
-from station.commands.record import BenchProfile, record, resume, solve
+from station.acquire.bench import BenchProfile, record, resume
+from station.commands.record import solve
 from station.twin.served import BenchTwin
 from station.acquire.operator import ConsoleOperator, OperatorAbort
 from station.reduce.rotary import rotary_readings

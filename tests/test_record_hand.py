@@ -11,7 +11,7 @@ from scipy import stats
 from drivers.profile import ProfileError
 from station import cli
 from station.files.calfile import load
-from station.commands.record import BenchProfile, record
+from station.acquire.bench import BenchProfile, record
 from station.twin.hand_bench import ACC4, TRIAD, HandBench
 from station.files.session import Session
 

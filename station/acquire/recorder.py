@@ -19,6 +19,7 @@ the stream: the sequence numbers may jump or restart, so sample times are worked
 `session_resumed` events).
 """
 
+import logging
 import threading
 import time
 from typing import Self
@@ -28,6 +29,8 @@ from station.errors import RecordingError
 
 from drivers.clock import WallClock
 from station.reduce.timeline import arrival_offset
+
+log = logging.getLogger(__name__)
 
 
 class Recorder:
@@ -87,6 +90,7 @@ class Recorder:
         ConnectionError while the device is still missing (then call it again later)."""
         self.stop()
         self.imu.open()
+        log.info("IMU reopened after %r; a new segment of stream %s", self.error, self.stream)
         self.error = None
         self._offset, self._last_seq = np.inf, None
         self.start()

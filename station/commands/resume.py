@@ -5,7 +5,7 @@ completed one are recorded, and the file is closed cleanly. Sessions recorded on
 (`bench` in their metadata) resume on a new virtual bench built from it. Sessions recorded with
 real devices (`station record`) resume with the devices of a bench profile: `--profile`, by
 default the one the session was recorded with (its path is in the metadata); it must be for the
-same unit and stream (`station.commands.record.resume`). The table is stopped first.
+same unit and stream (`station.acquire.bench.resume`). The table is stopped first.
 """
 
 import json
@@ -82,7 +82,7 @@ def _recorded_profile(path) -> Path | None:
 
 def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
     """Resume `path` with the devices of the bench profile, prompting on the console."""
-    from station.commands.record import BenchProfile, resume
+    from station.acquire.bench import BenchProfile, resume
     from station.acquire.operator import ConsoleOperator
 
     bench = BenchProfile.load(profile)

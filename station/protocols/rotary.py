@@ -39,6 +39,7 @@ positions end with `position_done`; `run(first=...)` continues after the last on
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
+import logging
 import contextlib
 import dataclasses
 import math
@@ -50,6 +51,8 @@ from drivers.rotary_table import TableTimeout
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError
+
+log = logging.getLogger(__name__)
 
 class ProtocolError(RuntimeError):
     """The bench did not behave as the protocol needs; the message says what and what to do."""
@@ -188,6 +191,7 @@ class RotaryProtocol:
             while self.state != "done":
                 try:  # the one place where the state changes
                     self.state = self._handlers[self.state]()
+                    log.debug("position %d: %s", self.position + 1, self.state)
                 except RecordingError as exc:
                     if not isinstance(exc.__cause__, ConnectionError):
                         raise
@@ -197,6 +201,7 @@ class RotaryProtocol:
         except SessionPaused:
             raise  # table stopped and `pause` recorded already
         except BaseException as exc:
+            log.warning("position %d aborted in state %s: %r", self.position + 1, self.state, exc)
             self._abort(exc)
             raise
 

@@ -235,7 +235,7 @@ def resume_rotary(path, watch=None, **overrides) -> int:
     positions when none was left). overrides: VirtualBench arguments, e.g. speed."""
     with Session.open(path) as session:
         metadata = session.metadata
-        end = last_instant(session)
+        end = session.last_instant()
     name = metadata.get("protocol")
     lookup(name, "resume", f"{path} holds a {name!r} session", "station resume")
     described = metadata.get("virtual_bench", metadata.get("bench"))
@@ -248,10 +248,3 @@ def resume_rotary(path, watch=None, **overrides) -> int:
         if watch is not None:
             watch(writer)
         return continue_session(writer, metadata, imu, table, bench.technician, bench.clock)
-
-
-def last_instant(session) -> float:
-    """The latest clock time recorded in a session (events, table states, sample arrivals)."""
-    times = [e.time for e in session.events()] + [session.table().time.max(initial=-np.inf)]
-    times += [session.stream(name).host_time.max(initial=-np.inf) for name in session.specs]
-    return float(max(times))

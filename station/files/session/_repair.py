@@ -6,10 +6,13 @@ consistency flags at byte 11, four addresses, then a Jenkins lookup3 checksum of
 bytes (superblock versions 2 and 3).
 """
 
+import logging
 import os
 import struct
 
 from station.errors import SessionFormatError
+
+log = logging.getLogger(__name__)
 
 
 def _superblock(path) -> tuple[bytearray, int]:
@@ -49,6 +52,7 @@ def clear_open_flags(path) -> None:
                                  "written with version 3 (libver v110)")
     if head[11] == 0:
         return
+    log.info("%s: clearing the open-for-write flags a killed writer left", path)
     head[11] = 0
     struct.pack_into("<I", head, 44, _lookup3(bytes(head[:44])))
     with open(path, "r+b") as fh:

@@ -108,6 +108,13 @@ class Session:
         """Position of the last `position_done` event (None: no position completed)."""
         return last_completed_position(self.events())
 
+    def last_instant(self) -> float:
+        """The latest clock time recorded (events, table states, sample arrivals): where a resumed
+        session's clock continues."""
+        times = [e.time for e in self.events()] + [self.table().time.max(initial=-np.inf)]
+        times += [self.stream(name).host_time.max(initial=-np.inf) for name in self.specs]
+        return float(max(times))
+
     @property
     def result_names(self) -> tuple:
         return tuple(_child(self._file, "results", h5py.Group, self.path))

@@ -1,0 +1,256 @@
+"""A calibration bench: its profile (TOML, described in `station record --help` and
+docs/protocols.md), its devices opened from it, and a session recorded or resumed on it.
+
+`BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem);
+`record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
+into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
+The rotary table is stopped whenever its driver is closed (`table_driver`).
+"""
+
+import contextlib
+import dataclasses
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import InputError
+
+
+@dataclass(frozen=True)
+class BenchProfile:
+    """A parsed bench profile; `imu` is a SerialImuProfile or CanProfile with the rate applied."""
+
+    source: str
+    unit_serial: str
+    clock_speed: float
+    link: str
+    imu: object
+    imu_address: str | dict  # serial: the port; can: {"interface", "channel", "bitrate"?}
+    protocol: str  # a kind of station.protocols.KINDS that records (acquire)
+    positions: int  # table kinds (rotary): positions; others: the settings' poses
+    settings: object  # the kind's settings (RotarySettings, IronSettings, StaticSettings, ...)
+    tables: dict  # the TOML tables, recorded in the session's metadata
+    table_host: str | None = None  # kinds with a table (rotary) only
+    table_port: int | None = None
+    table_map: object = None
+    table_source: str | None = None  # the register map's profile file
+    layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
+
+    @classmethod
+    def load(cls, path) -> "BenchProfile":
+        """Read and check a bench profile; `drivers.profile.ProfileError` names any problem."""
+        from drivers import driver_class
+        from drivers.profile import ProfileError, Section, load_profile
+        from drivers.rotary_table import TableRegisterMap
+        from station.protocols import KINDS, kinds_with
+
+        profile = load_profile(path)
+        base = Path(profile.source).parent
+
+        def device(name: str) -> str:
+            local = base / name
+            return str(local) if local.exists() else name
+
+        def section(name: str) -> Section:
+            table = profile.tables.get(name)
+            if not isinstance(table, dict):
+                raise ProfileError(f"{path}: no [{name}] section; see `station record --help`")
+            return Section(profile.source, name, table)
+
+        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol"})
+        if unknown:
+            raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
+                               "[imu], [table] (rotary) and [protocol]")
+        bench, imu, proto = (section(n) for n in ("bench", "imu", "protocol"))
+        serial = bench.get("unit_serial", str)
+        speed = bench.get("clock_speed", float, default=1.0)
+        if not serial or not speed > 0:
+            raise ProfileError(f"{path}: [bench] needs a non-empty unit_serial and a positive "
+                               "clock_speed")
+        link = imu.get("link", str, choices=("serial", "can"))
+        dev = driver_class(link).profile_type.load(device(imu.get("profile", str)))
+        rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
+        dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
+        if link == "serial":
+            address = imu.get("port", str)
+        else:
+            address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
+            if imu.has("bitrate"):
+                address["bitrate"] = imu.get("bitrate", int)
+        kind = proto.get("kind", str, default="rotary", choices=tuple(kinds_with("acquire")))
+        fields = {"source": profile.source, "unit_serial": serial, "clock_speed": speed,
+                  "link": link, "imu": dev, "imu_address": address, "protocol": kind,
+                  "tables": profile.tables}
+        if KINDS[kind].table:
+            table = section("table")
+            table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
+            fields.update(table_host=table.get("host", str), table_port=table.get("port", int),
+                          table_map=table_profile.section("table", TableRegisterMap.parse),
+                          table_source=table_profile.source,
+                          positions=proto.get("positions", int), **_settings(kind, proto, path))
+            table.finish()
+            if fields["positions"] < 1:
+                raise ProfileError(f"{path}: [protocol] positions must be at least 1")
+        else:
+            if "table" in profile.tables:
+                raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
+                                   "[table] section (or set [protocol] kind = \"rotary\")")
+            fields.update(_settings(kind, proto, path))
+            fields["layout"] = _layout(proto, dev.imu, path)
+            if not KINDS[kind].has("channels") and \
+                    fields["layout"].shape[1] != len(dev.imu.channels):
+                raise ProfileError(f"{path}: the {kind} protocol calibrates every channel of the "
+                                   "stream; use a device profile with accelerometer channels only")
+            fields["positions"] = fields["settings"].poses
+        for s in (bench, imu, proto):
+            s.finish()
+        return cls(**fields)
+
+
+def _settings(kind: str, proto, path) -> dict:
+    """{"settings": the protocol's settings dataclass} from the [protocol] keys named as its
+    fields (lists for tuple fields)."""
+    from drivers.profile import ProfileError
+    from station.protocols import KINDS
+
+    cls = KINDS[kind].entry("settings")
+    given = {}
+    for f in dataclasses.fields(cls):
+        if proto.has(f.name):
+            kind_ = type(f.default)
+            given[f.name] = (proto.get_list(f.name, str) if kind_ is tuple
+                             else proto.get(f.name, kind_))
+    try:
+        return {"settings": cls(**given)}
+    except ValueError as exc:
+        raise ProfileError(f"{path}: [protocol] {exc}") from None
+
+
+def _layout(proto, imu, path) -> np.ndarray:
+    """(3, m_acc) nominal axes of the stream's accelerometer channels: `layout`, default the
+    identity for a triad."""
+    from drivers.profile import ProfileError
+    from station.errors import CalibrationInputError
+    from station.reduce.static import accelerometer_channels
+
+    try:
+        m = len(accelerometer_channels(imu.units))
+    except CalibrationInputError as exc:
+        raise ProfileError(f"{path}: {exc}") from None
+    default = np.eye(3).tolist() if m == 3 else None
+    rows = proto.get_rows("layout", 3, m, default)
+    if rows is None:
+        raise ProfileError(f"{path}: [protocol] layout: missing; the device has {m} "
+                           "accelerometer channels: give their nominal axes, 3 lists of "
+                           f"{m} numbers (a column per channel)")
+    a = np.array(rows, float)
+    if np.linalg.matrix_rank(a) < 3 or np.any(np.linalg.norm(a, axis=0) == 0):
+        raise ProfileError(f"{path}: [protocol] layout: the axes must span 3 dimensions and each "
+                           "column be non-zero")
+    return a
+
+
+def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
+    """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
+    and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
+    while recording, for kinds that have one."""
+    from drivers.profile import load_profile
+    from drivers.clock import ScaledClock, WallClock
+    from station.acquire.live_view import LiveView
+    from station.files.session import Session, StreamSpec
+    from station.protocols import KINDS
+
+    start = time.perf_counter()
+    clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
+    spec = StreamSpec.from_profile(bench.imu.imu)
+    metadata = {"unit_serial": bench.unit_serial,
+                "bench": {"profile": bench.source, "tables": bench.tables},
+                "profiles": {"imu": load_profile(bench.imu.source).tables}}
+    kind = KINDS[bench.protocol]
+    with bench_devices(bench, clock, kind.table) as (imu, table):
+        kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
+                              LiveView(clock) if live else None)
+    with Session.open(out) as session:
+        done = session.last_completed_position()
+        samples = len(session.stream("imu").seq)
+    return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
+            "positions_done": 0 if done is None else done + 1, "samples": samples,
+            "wall_seconds": time.perf_counter() - start}
+
+
+def resume(bench: BenchProfile, path, operator) -> int:
+    """Continue the rotary session `path` (killed, paused or aborted) with the devices of `bench`
+    from the position after its last completed one; returns that position (the number of
+    positions when none was left).
+
+    The session's own protocol settings and axes rule (the profile's [protocol] is not used); the
+    profile must be for the same unit and give the same stream (channels, units, scales, rate),
+    else the resumed counts would not mean what the recorded ones do. The clock continues after
+    the session's last recorded instant (a reboot restarts the host's monotonic time), and the
+    table is commanded to stop before anything else (a killed station may have left it turning).
+    """
+    from drivers.clock import ScaledClock
+    from station.files.session import Session, SessionWriter, StreamSpec
+
+    with Session.open(path) as session:
+        metadata, recorded, end = session.metadata, session.specs.get("imu"), session.last_instant()
+    kind = _check_same_bench(bench, path, metadata, recorded,
+                             StreamSpec.from_profile(bench.imu.imu))
+    clock = ScaledClock(bench.clock_speed, start=end + 1.0)
+    with bench_devices(bench, clock, kind.table) as (imu, table):
+        if table is not None:
+            table.stop()
+        with SessionWriter.resume(path, clock=clock) as writer:
+            return kind.entry("resume")(writer, metadata, imu, table, operator, clock)
+
+
+def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec):
+    """The session's kind (`station.protocols.KINDS`) when the bench profile can continue it; else
+    InputError naming the difference: a kind that does not resume, another protocol, another
+    unit, another stream."""
+    from station.protocols import lookup
+
+    name = metadata.get("protocol")
+    kind = lookup(name, "resume", f"{path} holds a {name!r} session", "station resume")
+    if bench.protocol != name:
+        raise InputError(f"{path} holds a {name!r} session and the profile a "
+                         f"{bench.protocol!r} one: resume with the bench profile of that kind")
+    if metadata.get("unit_serial") != bench.unit_serial:
+        raise InputError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
+                         f"{bench.unit_serial!r}: mount the same unit, or use its bench profile")
+    if recorded is None:
+        raise InputError(f"{path} has no imu stream to continue")
+    differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
+              if getattr(recorded, name) != getattr(spec, name)]
+    if differ:
+        raise InputError(f"the profile's IMU stream differs from the recorded one in {differ}: "
+                         "resume with the device profile and rate the session was recorded with")
+    return kind
+
+
+@contextlib.contextmanager
+def imu_driver(bench: BenchProfile, clock):
+    """The bench's IMU driver, opened; closed on exit."""
+    from drivers import open_imu
+
+    with open_imu(bench.link, bench.imu_address, bench.imu, clock) as imu:
+        yield imu
+
+
+@contextlib.contextmanager
+def bench_devices(bench: BenchProfile, clock, table: bool):
+    """(imu, table) drivers of the bench, opened (table None unless `table`); closed on exit."""
+    with contextlib.ExitStack() as stack:
+        imu = stack.enter_context(imu_driver(bench, clock))
+        yield imu, stack.enter_context(table_driver(bench, clock)) if table else None
+
+
+@contextlib.contextmanager
+def table_driver(bench: BenchProfile, clock):
+    """The bench's rotary table driver, connected; stopped and closed on exit."""
+    from drivers.rotary_table import RotaryTable
+
+    with RotaryTable(bench.table_host, bench.table_port, bench.table_map, clock=clock) as table:
+        yield table
