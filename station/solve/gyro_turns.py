@@ -25,6 +25,7 @@ import numpy as np
 from station.solve.calibrate import CalibrationResult, calibrate
 from station.solve.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
+from station.model import measurement
 from station.model.frames import align_to
 from station.solve.poses import rodrigues
 
@@ -49,9 +50,9 @@ class TurnCalibration:
     integrals: np.ndarray
 
     def apply(self, z) -> np.ndarray:
-        """Angular rates (k, 3) in rad/s, iron frame, from gyro readings z (k, 3)."""
-        z = np.atleast_2d(np.asarray(z, float)) - self.bias
-        return np.linalg.solve(self.a @ self.a.T, self.a @ z.T).T
+        """Angular rates (3,) or (3, k) in rad/s, iron frame, from gyro readings z (3,) or (3, k)
+        (station.model.measurement.fuse)."""
+        return measurement.fuse(self.a, z, self.bias)
 
 
 def integrate(gyro, fs: float, bias) -> np.ndarray:
