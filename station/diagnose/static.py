@@ -28,10 +28,10 @@ from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy
 from station.errors import CalibrationInputError
+from station.model.constants import STANDARD_GRAVITY
 from station.model.earth import OMEGA_EARTH
 from station.reduce.stillness import detect_still
 
-STANDARD_GRAVITY = 9.80665
 BIN_S = 1.0
 """Target bin length, s: each still interval is cut into floor(T / BIN_S) bins (at least 1)."""
 SCALES_S = (0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
@@ -565,8 +565,8 @@ def _gsens_fitted(data: StaticData, p: dict, sig: dict, with_earth: bool) -> Fit
         dof=8 if with_earth else 9,
         notes="gyro bias b + G f, f the specific force of the interval in the accelerometer's "
         "axes (m/s^2); G[i, k] = gyro channel i per f_k, in gyro output units per m/s^2 and in "
-        "deg/s per g (g = 9.80665, for rad/s gyros); the Earth rate's vertical part is the "
-        "special case G = (U / g) I",
+        f"deg/s per g (g = {STANDARD_GRAVITY}, for rad/s gyros); the Earth rate's vertical part "
+        "is the special case G = (U / g) I",
     )
 
 
