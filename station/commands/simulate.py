@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from station.sim import npz
+from station.files import npz
 from station.model.effects import EFFECTS, parse_all
 from station.sim.iron import simulate_iron
 from station.sim.layouts import A_MODEL, TRIAD, accelerometer_triad, gyro_array

@@ -52,6 +52,7 @@ from station.errors import CalibrationInputError
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError, sample_times
 from station.reduce.eq18 import Reduced, reduce_rotary
+from station.files.jsonable import jsonable
 
 SEGMENT_EVENTS = ("resume", "session_resumed")
 """Events after which the IMU stream is a new segment (see `station.acquire.recorder.sample_times`)."""
@@ -432,14 +433,14 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
                 stats = getattr(imu, "stats", None)
                 if stats is not None:
                     recorder.event("note", None, {"text": "link statistics",
-                                                  "link": _plain(vars(stats))})
+                                                  "link": _counters(stats)})
     return first
 
 
-def _plain(values: dict) -> dict:
-    """Counters as JSON numbers."""
-    return {k: (v.item() if hasattr(v, "item") else v) for k, v in values.items()
-            if isinstance(v, int | float | np.integer | np.floating)}
+def _counters(stats) -> dict:
+    """The numeric counters of a link's statistics, as JSON (station.files.jsonable)."""
+    return jsonable({k: v for k, v in vars(stats).items()
+                     if isinstance(v, int | float | np.integer | np.floating)})
 
 
 # ------------------------------------------------------------------------------------ reduction
