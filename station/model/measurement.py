@@ -51,7 +51,8 @@ def fuse(a, z, b=None) -> np.ndarray:
 
 
 def fusion_jacobian(a, z, b) -> np.ndarray:
-    """(k, d, d m + m) Jacobian of v = F (z - b) in (a row-major, then b) at readings z (m,) or (m, k):
+    """(k, d, d m + m) Jacobian of v = F (z - b) in (a row-major, then b) at readings z (m,) or
+    (m, k) (k = 1 for one instant):
 
         dv/db_i = -F[:, i],  dv/da_ri = G^-1[:, r] (y - a^T v)_i - F[:, i] v_r,
 

@@ -39,6 +39,7 @@ from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
 from station.protocols.still import calibrate_still, record_poses
 from station.files.session import Session, StreamSpec, write_results
+from station.model import sensing
 from station.model.earth import normal_gravity
 from station.sim.layouts import accelerometer_triad
 
@@ -63,11 +64,15 @@ class HandRig:
     column is the iron-frame direction pointing up (without an iron: the unit's attitude, mounting
     the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change starts a turn now, lasting `turn_time` clock seconds; the stimulus is
     the specific force g C(t) e_z in the unit frame, C = b W the world -> unit attitude.
+    `effects` {name: parameters}: named sensor effects (station.model.sensing.LIVE_EFFECTS) in
+    the unit's output chain.
     """
 
-    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0):
+    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0, effects=None):
         self.next_turn = None  # clock time the next turn starts at (None: when it is asked for)
         self.unit = unit
+        self.effects = dict(effects or {})
+        sensing.refuse_batch_effects(self.effects)
         self.clock = clock
         self.gravity = float(gravity)
         self.turn_time = float(turn_time)
@@ -107,7 +112,7 @@ class HandRig:
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
         v = self.gravity * self.attitude(times)[:, :, 2]
-        return self.unit.sample(v, times)
+        return self.unit.sample(v, times, self.effects)
 
     def _turn(self) -> None:
         start = max(self.clock.now(), self.next_turn or -np.inf)
