@@ -160,7 +160,8 @@ class Calibration:
         z = np.asarray(z, float)
         if z.ndim not in (1, 2) or z.shape[0] != self.m:
             raise CalibrationFileError(f"readings have shape {z.shape}; this calibration needs "
-                                       f"{self.m} readings per instant (sensors {self.sensors})")
+                                       f"{self.m} readings per instant (sensors {self.sensors}), "
+                                       "one column per instant: (m,) or (m, k)")
         return z
 
     def vector_covariance(self, z) -> np.ndarray:
