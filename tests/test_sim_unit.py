@@ -101,6 +101,12 @@ def test_mounted_unit_streams_the_table_rate_along_its_axis():
     assert source([99.0]).tolist() == [[0, 0, 0]]  # a sample from before the start: at rest
     source.orientation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     assert source([200.0]).tolist() == [[2000, 0, 0]]
+    # named effects go through to the unit's output chain: clipped at the saturation range
+    from station.model.effects import Saturation
+
+    clipped = MountedUnit(SensorUnit(a, counts_per_unit=1000.0, rng=0), table, source.orientation,
+                          effects={"saturation": Saturation(range=1.5)})
+    assert clipped([200.0]).tolist() == [[1500, 0, 0]]
 
 
 def test_live_sample_runs_the_named_sensor_effects_of_the_output_chain():
