@@ -1,7 +1,6 @@
 """The diagnosis as JSON, as text and as an HTML report with a plot of the gap shrinking."""
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from station.diagnose.model import parameters
 from station.diagnose.select import log_sf
@@ -78,6 +77,8 @@ def text(doc: dict) -> str:
 
 def gap_plot(doc: dict) -> html.Plot:
     """Each gap statistic against the model steps (log scale, 1 = explained)."""
+    from matplotlib.figure import Figure  # here: the CLI imports this module, not matplotlib
+
     labels = ["+".join(s["model"][1:]) or "nominal" for s in doc["steps"]]
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
@@ -167,6 +168,7 @@ def _summary(cal):
 
 def whiteness_plot(doc: dict) -> html.Plot:
     """The block-mean scatter ratio against the block length (1 = white noise)."""
+    from matplotlib.figure import Figure
     fig = Figure(figsize=(7, 3.5))
     ax = fig.subplots()
     for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial.transform import Rotation
 
 from station.errors import CalibrationInputError
 
@@ -154,6 +153,8 @@ class RigidGroups:
         return -self.magnitude * self.rot[self.group] @ skew(self.s.T)
 
     def moved(self, step):
+        from scipy.spatial.transform import Rotation  # here: `import station` stays light
+
         turn = Rotation.from_rotvec(step).as_matrix()  # exp([w]_x) per group
         return RigidGroups(self.rot @ turn, self.s, self.group, self.rank, self.magnitude)
 
