@@ -165,7 +165,8 @@ def imucal_ferraris(root: Path) -> dict:
     cal = calibrate_ferraris(rec.acc, rec.gyro, fs, found.sections, g)
     t_path = time.perf_counter() - t0
     overlap = section_overlap(found.sections, read_section_list(root / "example_ferraris_session_list.json"))
-    carry = gravity_carry_errors(cal.apply_acc(rec.acc.T).T, cal.gyro.apply(rec.gyro.T).T, fs, found.still.intervals)
+    acc, rates = cal.apply_acc(rec.acc.T).T, cal.gyro.apply(rec.gyro.T).T
+    carry = gravity_carry_errors(acc, rates, fs, found.still.intervals)
     return {
         "min_coverage_of_hand_made_sections": min(c for c, _ in overlap.values()),
         "accel_scale": cal.accel.scale_factors.tolist(),

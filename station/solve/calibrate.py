@@ -67,7 +67,8 @@ class CalibrationResult:
         return self.residuals / self.sigma
 
     def apply(self, z) -> np.ndarray:
-        """Calibrated vectors (d,) or (d, k) from readings z (m,) or (m, k) (station.model.measurement.fuse)."""
+        """Calibrated vectors (d,) or (d, k) from readings z (m,) or (m, k):
+        v = (a a^T)^-1 a (z - b) (station.model.measurement.fuse)."""
         return measurement.fuse(self.a, z, self.bias)
 
 
