@@ -123,3 +123,29 @@ def test_live_sample_runs_the_named_sensor_effects_of_the_output_chain():
         unit.sample(np.zeros((2, 2)), [0.0, 1.0], {"latency": Latency(0.01)})
     with pytest.raises(ValueError, match="bias_drift heating"):
         unit.sample(np.zeros((2, 2)), [0.0, 1.0], {"bias_drift": BiasDrift(heating=0.1)})
+
+
+def test_virtual_benches_take_named_effects_into_the_output_chain_and_the_session():
+    from station.model.effects import Saturation, from_json, to_json
+    from station.twin.hand_bench import HandBench
+    from station.twin.rotary_bench import VirtualBench
+
+    live = {"saturation": Saturation(range=(0.5,) * 12)}
+    assert from_json({"saturation": {"range": [0.5] * 12}}) == live  # JSON lists back to tuples
+    bench = VirtualBench(effects=to_json(live))
+    try:
+        assert bench.mounted.effects == live
+        again = VirtualBench.from_metadata(bench.metadata())  # as a resumed session rebuilds it
+        try:
+            assert again.mounted.effects == live
+        finally:
+            again.close()
+    finally:
+        bench.close()
+    plain = VirtualBench(seed=2)
+    assert "effects" not in plain.metadata()
+    plain.close()
+    hand = HandBench(effects={"saturation": {"range": 30.0}})
+    assert hand.rig.effects == {"saturation": Saturation(range=30.0)}
+    with pytest.raises(ValueError, match="latency"):
+        VirtualBench(effects={"latency": {"delay": 0.001}})

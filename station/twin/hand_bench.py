@@ -41,6 +41,7 @@ from station.protocols.still import calibrate_still, record_poses
 from station.files.session import Session, StreamSpec, write_results
 from station.model import sensing
 from station.model.earth import normal_gravity
+from station.model.effects import from_json
 from station.sim.layouts import accelerometer_triad
 
 ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
@@ -186,12 +187,14 @@ class HandBench:
     turn_time     : seconds each turn lasts
     placement_deg : how far each turn misses its target (standard deviation per axis), degrees
     latitude_deg  : site latitude (normal gravity)
+    effects       : optional {name: {param: value}}: named effects in the unit's output chain
+                    (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 30.0}}
     """
 
     def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
                  mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
-                 latitude_deg: float = 52.2):
+                 latitude_deg: float = 52.2, effects: dict | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
         self.clock = ScaledClock(speed)
@@ -202,7 +205,8 @@ class HandBench:
                                         counts_per_unit=self.profile.imu.scale)
         if np.ndim(mountings) == 0:
             mountings = Rotation.random(int(mountings), random_state=rng).as_matrix()
-        self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time)
+        self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time,
+                           effects=from_json(effects or {}))
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
