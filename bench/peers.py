@@ -176,16 +176,16 @@ def continuous(root: Path) -> dict:
         "heldout_intervals": int(len(still) - sum(used)),
         "ours": our_model(cal)
         | stream_figures(
-            cal.apply_acc(rec.acc),
-            cal.gyro.apply(rec.gyro),
+            cal.apply_acc(rec.acc.T).T,
+            cal.gyro.apply(rec.gyro.T).T,
             FS_CONTINUOUS,
             found.sections,
             still,
             used,
         ),
         "ours_hand_sections": stream_figures(
-            cal_hand.apply_acc(rec.acc),
-            cal_hand.gyro.apply(rec.gyro),
+            cal_hand.apply_acc(rec.acc.T).T,
+            cal_hand.gyro.apply(rec.gyro.T).T,
             FS_CONTINUOUS,
             hand,
             still,

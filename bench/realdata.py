@@ -25,6 +25,7 @@ from station.reduce.ferraris import (
     section_overlap,
 )
 from station.files.tables import read_table
+from station.model.constants import STANDARD_GRAVITY
 from station.reduce.free_static import calibrate_free_static, leave_one_out
 from station.solve.gyro_turns import gravity_carry_errors
 from station.reduce.stillness import detect_still
@@ -40,7 +41,7 @@ XSENS_MISALIGNMENT = np.array([[1.00, 0.00, -0.01], [0.01, 1.00, 0.01], [0.02, 0
 XSENS_OFFSET = np.array([33123.0, 33276.0, 32360.0])  # counts
 XSENS_GYRO_GAIN = np.array([4778.0, 4758.0, 4766.0])  # counts per rad/s
 XSENS_GYRO_OFFSET = np.array([32768.0, 32466.0, 32485.0])  # counts
-MPU_G = 9.80665  # standard gravity: the MPU-9150 recordings do not state their location
+MPU_G = STANDARD_GRAVITY  # the MPU-9150 recordings do not state their location
 THRESHOLD_SWEEP = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0)  # enter factors, leave = 2 x enter
 
 
@@ -164,7 +165,8 @@ def imucal_ferraris(root: Path) -> dict:
     cal = calibrate_ferraris(rec.acc, rec.gyro, fs, found.sections, g)
     t_path = time.perf_counter() - t0
     overlap = section_overlap(found.sections, read_section_list(root / "example_ferraris_session_list.json"))
-    carry = gravity_carry_errors(cal.apply_acc(rec.acc), cal.gyro.apply(rec.gyro), fs, found.still.intervals)
+    acc, rates = cal.apply_acc(rec.acc.T).T, cal.gyro.apply(rec.gyro.T).T
+    carry = gravity_carry_errors(acc, rates, fs, found.still.intervals)
     return {
         "min_coverage_of_hand_made_sections": min(c for c, _ in overlap.values()),
         "accel_scale": cal.accel.scale_factors.tolist(),

@@ -74,7 +74,7 @@ def test_sigma_columns_from_the_calibrations_covariance(tmp_path, capsys):
     header, values = read_csv(out)
     assert header[3:] == ["sigma_v_x [rad/s]", "sigma_v_y [rad/s]", "sigma_v_z [rad/s]"]
     assert np.allclose(values[:, :3], v, atol=1e-12)
-    expected = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2))
+    expected = np.sqrt(np.diagonal(cal.vector_covariance(z.T), axis1=1, axis2=2))
     assert np.allclose(values[:, 3:], expected, rtol=1e-12)
     # b's own sigma alone: F diag(sb^2) F^T, a lower bound of each component's variance
     f = cal.fusion_matrix()

@@ -162,15 +162,15 @@ def test_apply_is_least_squares_fusion_of_the_conventions():
     cal = make()
     rng = np.random.default_rng(5)
     v = rng.standard_normal((10, 3))
-    z = v @ cal.a + cal.bias  # z_i = a_i . v + b_i, exactly
-    assert np.allclose(cal.apply(z), v, atol=1e-12)
+    z = v @ cal.a + cal.bias  # z_i = a_i . v + b_i, exactly; one row per instant
+    assert np.allclose(cal.apply(z.T), v.T, atol=1e-12)  # one column per instant
     assert np.allclose(cal.apply(z[0]), v[0], atol=1e-12)
     # fusion weighs all sensors: noise on one redundant sensor moves v less than on a lone one
     noisy = z.copy()
     noisy[:, 3] += 0.1
-    assert np.all(np.linalg.norm(cal.apply(noisy) - v, axis=1) < 0.1)
+    assert np.all(np.linalg.norm(cal.apply(noisy.T).T - v, axis=1) < 0.1)
     with pytest.raises(CalibrationFileError, match="4 readings per instant"):
-        cal.apply(np.zeros((2, 3)))
+        cal.apply(np.zeros((3, 2)))
 
 
 def test_from_result_keeps_the_solver_output_and_needs_biases():
@@ -253,14 +253,14 @@ def test_vector_covariance_is_the_first_order_propagation():
     cov = root @ root.T
     sigma = np.sqrt(np.diag(cov))
     cal = make(a_sigma=sigma[:12].reshape(3, 4), bias_sigma=sigma[12:], covariance=cov)
-    z = rng.uniform(-2, 2, (5, 4))
+    z = rng.uniform(-2, 2, (4, 5))
     jac = np.zeros((5, 3, 16))
     for k in range(16):
         h = np.zeros(16)
         h[k] = 1e-6
         plus, minus = (make(a=cal.a + s * h[:12].reshape(3, 4), bias=cal.bias + s * h[12:])
                        for s in (1, -1))
-        jac[:, :, k] = (plus.apply(z) - minus.apply(z)) / 2e-6
+        jac[:, :, k] = (plus.apply(z) - minus.apply(z)).T / 2e-6
     expected = np.einsum("kpi,ij,kqj->kpq", jac, cov, jac)
     np.testing.assert_allclose(cal.vector_covariance(z), expected, rtol=1e-6,
                                atol=1e-9 * np.abs(expected).max())

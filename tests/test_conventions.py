@@ -1,6 +1,7 @@
 """The conventions of docs/conventions.md, checked on the code."""
 
 import numpy as np
+import pytest
 from layouts import A_MODEL, random_directions
 
 import station
@@ -23,7 +24,7 @@ def test_readings_are_sensors_by_positions_and_model_has_bias_after_projection()
     np.testing.assert_allclose(res.a, a, atol=1e-9)  # nominal frame = physical frame here
     # applying the calibration: v = (a a^T)^-1 a (z - b)
     np.testing.assert_allclose(res.apply(readings), v, atol=1e-9)
-    np.testing.assert_allclose(res.apply(readings[:, 0]), v[:, :1], atol=1e-9)
+    np.testing.assert_allclose(res.apply(readings[:, 0]), v[:, 0], atol=1e-9)
 
 
 def test_canonical_frame_is_upper_triangular_with_positive_diagonal():
@@ -65,3 +66,23 @@ def test_unknown_magnitude_fixes_scale_factors_up_to_a_common_factor():
     ratio = res.scale_factors / np.linalg.norm(a, axis=0)
     np.testing.assert_allclose(ratio, ratio[0], rtol=1e-9)
     assert abs(ratio[0] - 7.0) < 1e-8  # the common factor is the unknown magnitude
+
+
+def test_measurement_model_has_one_orientation_instants_are_columns():
+    """station.model.measurement: forward z = a^T v + b and fusion v = (a a^T)^-1 a (z - b) take
+    and return one column per instant; a single instant is a 1-D vector; every apply delegates."""
+    from station.model import measurement
+
+    rng = np.random.default_rng(7)
+    a = A_MODEL + 0.02 * rng.standard_normal(A_MODEL.shape)
+    v = rng.standard_normal((3, 5))
+    b = rng.normal(0, 0.5, 12)
+    z = measurement.forward(a, v, b)
+    np.testing.assert_allclose(z, a.T @ v + b[:, None], atol=1e-12)
+    assert measurement.forward(a, v[:, 0], b).shape == (12,)
+    np.testing.assert_allclose(measurement.fuse(a, z, b), v, atol=1e-12)
+    np.testing.assert_allclose(measurement.fuse(a, z[:, 0], b), v[:, 0], atol=1e-12)
+    np.testing.assert_allclose(measurement.fuse(a, a.T @ v), v, atol=1e-12)  # unbiased
+    np.testing.assert_allclose(measurement.fusion_matrix(a) @ a.T, np.eye(3), atol=1e-12)
+    with pytest.raises(ValueError, match="one column per instant"):
+        measurement.fuse(a, z.T, b)  # rows of samples must be transposed by the caller

@@ -29,7 +29,7 @@ from station.protocols.rotary import RotarySettings, suggested_axes
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import parse
 from station.sim.layouts import A_MODEL, gyro_array
-from station.sim.npz import write
+from station.files.npz import write
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
 from station.twin.rotary_bench import VirtualBench, record_rotary

@@ -79,7 +79,7 @@ def test_apply_gives_rates_in_rad_per_second():
     senses = ("-x", "-y", "-z")
     cal = calibrate_turns(simulate(senses, rng), senses, bias=B_TRUE, sigma=SIGMA_INT)
     omega = np.array([[0.5, -1.0, 2.0]])
-    np.testing.assert_allclose(cal.apply(omega @ A_TRUE + B_TRUE), omega, atol=1e-3)
+    np.testing.assert_allclose(cal.apply((omega @ A_TRUE + B_TRUE).T), omega.T, atol=1e-3)
 
 
 def test_wrong_turn_senses_mirror_the_gyro():

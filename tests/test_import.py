@@ -16,7 +16,7 @@ from station.reduce.rotary import rotary_readings
 from station.solve.still import calibrate_still
 from station.reduce.eq18 import reduce_arrays
 from station.files.session import Session
-from station.sim import npz
+from station.files import npz
 from station.sim.layouts import A_MODEL, accelerometer_triad, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary

@@ -89,7 +89,7 @@ def test_automatic_sections_cover_the_hand_made_ones(continuous):
 @needs_data
 def test_calibrated_gyro_carries_gravity_across_face_to_face_turns(continuous):
     rec, found, cal = continuous
-    acc, rates = cal.apply_acc(rec.acc), cal.gyro.apply(rec.gyro)
+    acc, rates = cal.apply_acc(rec.acc.T).T, cal.gyro.apply(rec.gyro.T).T
     errors = gravity_carry_errors(acc, rates, FS_CONTINUOUS, found.still.intervals)
     assert len(errors) >= 6  # the five face changes of the six faces, and the moves to the turns
     assert np.sqrt(np.mean(errors[:, 2] ** 2)) <= 1.0

@@ -7,7 +7,7 @@ import pytest
 
 from station import cli
 from station.reduce.eq18 import reduce_arrays
-from station.sim import npz
+from station.files import npz
 
 ROTARY_KEYS = {
     "y",

@@ -101,3 +101,51 @@ def test_mounted_unit_streams_the_table_rate_along_its_axis():
     assert source([99.0]).tolist() == [[0, 0, 0]]  # a sample from before the start: at rest
     source.orientation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     assert source([200.0]).tolist() == [[2000, 0, 0]]
+    # named effects go through to the unit's output chain: clipped at the saturation range
+    from station.model.effects import Saturation
+
+    clipped = MountedUnit(SensorUnit(a, counts_per_unit=1000.0, rng=0), table, source.orientation,
+                          effects={"saturation": Saturation(range=1.5)})
+    assert clipped([200.0]).tolist() == [[1500, 0, 0]]
+
+
+def test_live_sample_runs_the_named_sensor_effects_of_the_output_chain():
+    from station.model.effects import BiasDrift, Latency, Saturation, ScaleNonlinearity
+
+    unit = SensorUnit(np.eye(2), bias=[0.1, 0.0], counts_per_unit=1000.0, rng=0)
+    effects = {"scale_nonlinearity": ScaleNonlinearity(k2=(0.1, 0.0)),
+               "bias_drift": BiasDrift(warmup=(0.0, 0.5), warmup_tau=10.0),
+               "saturation": Saturation(range=1.5)}
+    counts = unit.sample(np.array([[1.0, 2.0], [2.0, 1.0]]), [0.0, 10.0], effects)
+    # by hand: s + k2 s^2 + b + warmup exp(-t / tau), clipped at +-1.5, in counts
+    assert counts.tolist() == [[1200, 1500], [1500, round(1000 * (1 + 0.5 * np.exp(-1)))]]
+    with pytest.raises(ValueError, match="latency"):
+        unit.sample(np.zeros((2, 2)), [0.0, 1.0], {"latency": Latency(0.01)})
+    with pytest.raises(ValueError, match="bias_drift heating"):
+        unit.sample(np.zeros((2, 2)), [0.0, 1.0], {"bias_drift": BiasDrift(heating=0.1)})
+
+
+def test_virtual_benches_take_named_effects_into_the_output_chain_and_the_session():
+    from station.model.effects import Saturation, from_json, to_json
+    from station.twin.hand_bench import HandBench
+    from station.twin.rotary_bench import VirtualBench
+
+    live = {"saturation": Saturation(range=(0.5,) * 12)}
+    assert from_json({"saturation": {"range": [0.5] * 12}}) == live  # JSON lists back to tuples
+    bench = VirtualBench(effects=to_json(live))
+    try:
+        assert bench.mounted.effects == live
+        again = VirtualBench.from_metadata(bench.metadata())  # as a resumed session rebuilds it
+        try:
+            assert again.mounted.effects == live
+        finally:
+            again.close()
+    finally:
+        bench.close()
+    plain = VirtualBench(seed=2)
+    assert "effects" not in plain.metadata()
+    plain.close()
+    hand = HandBench(effects={"saturation": {"range": 30.0}})
+    assert hand.rig.effects == {"saturation": Saturation(range=30.0)}
+    with pytest.raises(ValueError, match="latency"):
+        VirtualBench(effects={"latency": {"delay": 0.001}})

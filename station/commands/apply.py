@@ -68,10 +68,10 @@ def run(args) -> int:
         time, z = read_session(data, args.stream, cal)
     else:
         time, z = read_csv(data, cal, args.counts)
-    v = cal.apply(z)
+    v = cal.apply(z.T).T  # rows of the files = instants = columns of the model
     sigma = None
     if args.sigma:
-        sigma = np.sqrt(np.diagonal(cal.vector_covariance(z), axis1=1, axis2=2)) \
+        sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T), axis1=1, axis2=2)) \
             if len(z) else np.zeros_like(v)
     if args.out is None:
         sys.stdout.write(csv_text(time, v, cal.units[0], sigma))

@@ -2,9 +2,9 @@
 
 import numpy as np
 
+from station.files import npz
 from station.model.effects import EFFECTS, parse_all
 from station.protocols import KINDS, kinds_with
-from station.sim import npz
 
 
 def register(p) -> None:

@@ -19,6 +19,7 @@ import numpy as np
 from station.solve.calibrate import CalibrationResult, calibrate
 from station.diagnose import linear, rails, prediction as twin
 from station.diagnose.effects import EXTENSIONS, Fitted
+from station.files.jsonable import jsonable
 
 
 @dataclass(frozen=True)
@@ -106,9 +107,6 @@ def _in_calibration(fitted: dict) -> tuple[dict, dict]:
 
 def parameters(f: Fitted) -> dict:
     """JSON-ready {parameter: {"value", "sigma"}} of a fitted extension."""
-    def plain(x):
-        x = np.asarray(x, float)
-        return None if x.ndim == 0 and not np.isfinite(x) else (
-            x.tolist() if x.ndim else float(x))
-    return {k: {"value": plain(v), "sigma": plain(f.sigma.get(k, np.nan))}
-            for k, v in f.values.items()}
+    return jsonable({k: {"value": np.asarray(v, float),
+                         "sigma": np.asarray(f.sigma.get(k, np.nan), float)}
+                     for k, v in f.values.items()})

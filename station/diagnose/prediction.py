@@ -13,9 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-ORDER = ("rate_error", "axis_wobble", "earth_rate", "scale_nonlinearity", "latency",
-         "bias_drift", "saturation")
-"""Names of the model extensions in the order the twin applies them."""
+from station.model import sensing
+
+ORDER = ("rate_error", "axis_wobble", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
+         *sensing.OUTPUT)
+"""Names of the model extensions in the order the twin applies them: the motion, then the sensor
+output chain's (station.model.sensing)."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,9 @@ def context(data, a, v, sigma) -> Context:
 
 def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
     """The expected series of the model: nominal plus the `fitted` extensions ({name: Fitted}),
-    each applied by extensions[name].apply at its stage."""
+    each at its stage: the motion's by extensions[name].apply, the sensor's through the output
+    chain's stages (station.model.sensing: sensed, offsets) with extensions[name].params, the
+    output's (an expectation over the noise) by extensions[name].apply."""
     data = ctx.data
     active = [name for name in ORDER if name in fitted]
     stage = {name: extensions[name].STAGE for name in active}
@@ -73,13 +78,9 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
         if stage[name] == "motion":
             omega = extensions[name].apply(ctx, fitted[name], omega, rate)
     s = omega @ ctx.a
-    z = s
-    for name in active:
-        if stage[name] == "sensed":
-            z = extensions[name].apply(ctx, fitted[name], z)
-    for name in active:
-        if stage[name] == "offset":
-            z = z + extensions[name].apply(ctx, fitted[name], rate)
+    sensor = {name: extensions[name].params(fitted[name]) for name in active
+              if stage[name] in ("sensed", "offset")}
+    z = sensing.sensed(s, data.t, sensor) + sensing.offsets(data.t_session, rate, sensor)
     b = (data.y - z).mean((0, 1))
     z = mu = z + b
     for name in active:

@@ -28,10 +28,16 @@ from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy
 from station.errors import CalibrationInputError
+from station.model.constants import STANDARD_GRAVITY
+from station.model import measurement, sensing
 from station.model.earth import OMEGA_EARTH
+from station.model.effects import earth_rate, g_sensitivity
+from station.model.effects.bias_drift import BiasDrift
+from station.model.effects.earth_rate import EarthRate
+from station.model.effects.g_sensitivity import GSensitivity
+from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 from station.reduce.stillness import detect_still
 
-STANDARD_GRAVITY = 9.80665
 BIN_S = 1.0
 """Target bin length, s: each still interval is cut into floor(T / BIN_S) bins (at least 1)."""
 SCALES_S = (0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 4.0)
@@ -275,20 +281,21 @@ def predict(data: StaticData, b0: Base, names, p: dict, basis=None) -> np.ndarra
         v = b0.cal.v / np.linalg.norm(b0.cal.v, axis=0)
         v = v + np.einsum("pik,pk->ip", b0.tangents, p["v"].reshape(-1, 2))
         v = data.gravity * v / np.linalg.norm(v, axis=0)
-        s = (a.T @ v).T[data.bin_interval]
+        s = measurement.forward(a, v).T[data.bin_interval]
     if s is not None:
-        out[:, :data.m] = s + p["k2"] * s**2 if "k2" in p else s
+        sensed = {"scale_nonlinearity": ScaleNonlinearity(tuple(p["k2"]))} if "k2" in p else {}
+        out[:, :data.m] = sensing.sensed(s, None, sensed)  # bin means: no latency here
     out += p["b"]
     if "warmup" in p:
         warm, slope = basis
         out += warm[:, None] * p["warmup"] + slope[:, None] * p["slope"]
     if "gsens" in p:
-        out[:, data.m:] += specific_force(data, b0)[data.bin_interval] @ gsens(p).T
+        out[:, data.m:] = g_sensitivity.apply(out[:, data.m:], specific_force(data, b0)[
+            data.bin_interval], GSensitivity(tuple(p["gsens"])))
     if "earth" in p:
         u, north = earth_parts(p)
-        hor = np.stack([np.cos(h := headings(data, b0, u, out)), np.sin(h)], 1)
-        rate = u * b0.up + north * np.einsum("pik,pk->pi", b0.horizontal, hor)
-        out[:, data.m:] += rate[data.bin_interval]
+        out[:, data.m:] += earth_rates(b0, u, north, headings(data, b0, u, out))[
+            data.bin_interval]
     if "saturation" in names:
         out = clipped(out, b0.rails, data.sigma)
     return out
@@ -311,6 +318,17 @@ def earth_parts(p: dict) -> tuple:
     return (0.0, e[0]) if e.size == 1 else (e[0], e[1])
 
 
+def earth_rates(b0: Base, u: float, north: float, h: np.ndarray) -> np.ndarray:
+    """(P, 3) Earth rate of each interval in the unit's axes: vertical part u along up_j,
+    horizontal part north at heading h_j (P,) in the horizontal plane: the simulator's
+    station.model.effects.earth_rate with the interval's frame [horizontal, up] as the table's and
+    latitude atan2(u, north)."""
+    frames = np.concatenate([b0.horizontal, b0.up[:, :, None]], axis=2)
+    p = EarthRate(latitude_deg=float(np.degrees(np.arctan2(u, north))), heading_deg=0.0,
+                  rate=float(np.hypot(u, north)))
+    return earth_rate.apply(np.zeros((len(h), 1, 3)), frames, -h[:, None], p)[:, 0]
+
+
 def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarray:
     """(P,) heading of the Earth rate's horizontal part in each interval, profiled out: the
     direction of the free 2-D weighted fit of the horizontal gyro residual net of the vertical
@@ -327,10 +345,13 @@ def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarr
 
 
 def drift_basis(data: StaticData, tau: float):
-    """Two (B,) bin means of exp(-t / tau) (warm-up, Eq. of station.model.effects.bias_drift) and of
-    t / T (a linear drift over the session of length T)."""
+    """Two (B,) bin means: of the unit warm-up exp(-t / tau) (station.model.effects.bias_drift,
+    through the output chain's offsets) and of t / T (a linear drift over the session of length
+    T)."""
     span = data.t[-1]
-    return data.binmean(np.exp(-data.t / tau)), data.binmean(data.t / span)
+    warm = sensing.offsets(data.t[None], np.zeros((1, data.t.size)),
+                           {"bias_drift": BiasDrift(warmup=1.0, warmup_tau=tau)})[0, :, 0]
+    return data.binmean(warm), data.binmean(data.t / span)
 
 
 def clipped(z: np.ndarray, rail: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -565,8 +586,8 @@ def _gsens_fitted(data: StaticData, p: dict, sig: dict, with_earth: bool) -> Fit
         dof=8 if with_earth else 9,
         notes="gyro bias b + G f, f the specific force of the interval in the accelerometer's "
         "axes (m/s^2); G[i, k] = gyro channel i per f_k, in gyro output units per m/s^2 and in "
-        "deg/s per g (g = 9.80665, for rad/s gyros); the Earth rate's vertical part is the "
-        "special case G = (U / g) I",
+        f"deg/s per g (g = {STANDARD_GRAVITY}, for rad/s gyros); the Earth rate's vertical part "
+        "is the special case G = (U / g) I",
     )
 
 

@@ -15,13 +15,9 @@ import itertools
 import numpy as np
 
 from station.diagnose.select import log_sf
-from station.diagnose.static import (
-    SCALES_S,
-    STANDARD_GRAVITY,
-    StaticData,
-    from_arrays,
-)
+from station.diagnose.static import SCALES_S, StaticData, from_arrays
 from station.errors import CalibrationInputError
+from station.model.constants import STANDARD_GRAVITY
 
 
 def statistics(data: StaticData, model) -> dict:

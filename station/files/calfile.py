@@ -4,7 +4,7 @@
                                   units="rad/s", bias=b, bias_sigma=sb, session={...})
     cal.save("SN42.cal.json")                 # refuses to overwrite unless overwrite=True
     cal = load("SN42.cal.json", unit_serial="SN42")   # refuses another unit's file
-    v = cal.apply(z)                           # (k, m) SI readings -> (k, d) calibrated vectors
+    v = cal.apply(z)                           # (m, k) SI readings -> (d, k) calibrated vectors
 
 The file records everything needed to use the calibration without this software: the format name
 and version, the software version, the conventions (docs/conventions.md: `a` is d x m, column i =
@@ -33,6 +33,7 @@ import numpy as np
 
 from station.files.provenance import software_version, utc_now
 from station.errors import CalibrationFileError
+from station.model import measurement
 
 FORMAT = "imu-station-calibration"
 FORMAT_VERSION = 2
@@ -144,38 +145,31 @@ class Calibration:
 
     def fusion_matrix(self) -> np.ndarray:
         """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""
-        return np.linalg.solve(self.a @ self.a.T, self.a)
+        return measurement.fusion_matrix(self.a)
 
     def apply(self, z) -> np.ndarray:
-        """Calibrated vectors (k, d) from SI readings z (k, m) or (m,): F (z - b) per row."""
-        return (self._readings(z) - self.bias) @ self.fusion_matrix().T
+        """Calibrated vectors (d,) or (d, k) from SI readings z (m,) or (m, k), one column per
+        instant (station.model.measurement.fuse)."""
+        return measurement.fuse(self.a, self._readings(z), self.bias)
 
     def _readings(self, z) -> np.ndarray:
-        """z as floats, refused unless it holds m readings per instant."""
+        """z as floats, refused unless it holds m readings per instant (one column each)."""
         z = np.asarray(z, float)
-        if z.shape[-1:] != (self.m,):
+        if z.ndim not in (1, 2) or z.shape[0] != self.m:
             raise CalibrationFileError(f"readings have shape {z.shape}; this calibration needs "
-                                       f"{self.m} readings per instant (sensors {self.sensors})")
+                                       f"{self.m} readings per instant (sensors {self.sensors}), "
+                                       "one column per instant: (m,) or (m, k)")
         return z
 
     def vector_covariance(self, z) -> np.ndarray:
         """(k, d, d) covariance of each calibrated vector F (z - b) due to the calibration's own
-        uncertainty (`covariance`), for SI readings z (k, m) or (m,), by the Jacobian
-            dv/db_i = -F[:, i],  dv/da_ri = G^-1[:, r] (y - a^T v)_i - F[:, i] v_r,
-        with G = a a^T, F = G^-1 a, y = z - b, v = F y (first order). The readings' own noise is
-        not included."""
+        uncertainty (`covariance`), for SI readings z (m,) or (m, k), by first-order propagation
+        through station.model.measurement.fusion_jacobian. The readings' own noise is not
+        included."""
         if self.covariance is None:
             raise CalibrationFileError("this calibration file has no covariance (format version "
                                        "1); solve the session again for one")
-        y = np.atleast_2d(self._readings(z)) - self.bias
-        g_inv = np.linalg.inv(self.a @ self.a.T)
-        f = g_inv @ self.a
-        v = y @ f.T
-        res = y - v @ self.a
-        d, m = self.a.shape
-        jac_a = (g_inv[None, :, :, None] * res[:, None, None, :]
-                 - f[None, :, None, :] * v[:, None, :, None]).reshape(len(y), d, d * m)
-        jac = np.concatenate([jac_a, np.broadcast_to(-f, (len(y), d, m))], axis=2)
+        jac = measurement.fusion_jacobian(self.a, self._readings(z), self.bias)
         return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
 
     def check_unit(self, unit_serial: str | None = None, sensors=None, units=None,

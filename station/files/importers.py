@@ -34,11 +34,13 @@ from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
 from station.files.tables import read_table
 from station.files.session import SessionWriter, StreamSpec
+from station.model.constants import STANDARD_GRAVITY
 
 FIXED_POINT = 1e6
 """Counts per given unit for numbers that are not raw counts."""
 
-UNITS = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", 9.80665), "rad/s": ("rad/s", 1.0),
+UNITS = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", STANDARD_GRAVITY),
+         "rad/s": ("rad/s", 1.0),
          "deg/s": ("rad/s", math.pi / 180), "T": ("T", 1.0), "uT": ("T", 1e-6),
          "gauss": ("T", 1e-4)}
 """unit -> (SI unit, SI units per unit)."""

@@ -9,6 +9,8 @@ deviation of the bias change after one second (units/sqrt(s)).
 
 import numpy as np
 
+from station.model import sensing
+
 
 def _per_sensor(value, m: int, name: str) -> np.ndarray:
     """Broadcast a scalar or an (m,) sequence to (m,) floats, refusing other shapes."""
@@ -132,21 +134,25 @@ class SensorUnit:
         np.clip(c, info.min, info.max, out=c)
         return c.astype(np.int32)
 
-    def sample(self, v_si: np.ndarray, times=None) -> np.ndarray:
-        """Counts (k, m) for the stimulus v_si (k, d) in SI units, for the live serial/CAN twins.
+    def sample(self, v_si: np.ndarray, times=None, effects=None) -> np.ndarray:
+        """Counts (k, m) for the stimulus v_si (k, d) in SI units, for the live serial/CAN twins:
+        the sensor output chain (station.model.sensing.sense) on one block of samples.
 
-        `times` (k,) are the sample times in seconds (default: consecutive samples at fs); noise,
-        bias and bias walk are included, the walk stepping by the actual time between samples and
-        continuing from call to call.
+        `times` (k,) are the sample times in session seconds (default: consecutive samples at fs
+        from 0); noise, bias and bias walk are included, the walk stepping by the actual time
+        between samples and continuing from call to call. `effects` {name: parameters} are named
+        sensor effects (station.model.effects) a live twin can apply block by block
+        (sensing.LIVE_EFFECTS).
         """
         v = np.asarray(v_si, float)
         if v.ndim != 2 or v.shape[1] != self.d:
             raise ValueError(f"stimulus must have shape (k, {self.d}), got {v.shape}")
+        effects = effects or {}
+        sensing.refuse_batch_effects(effects)
         k = v.shape[0]
-        z = self.project(v) + self.bias + self.noise((k, self.m))
-        if np.any(self.bias_walk):
-            z += self._live_walk(k, times)
-        return self.quantise(z)
+        t = np.arange(k) / self.fs if times is None else np.asarray(times, float)
+        return sensing.sense(self, self.project(v)[None], t, np.zeros(1), np.zeros((1, k)),
+                             effects, walk=lambda: self._live_walk(k, times)[None])[0]
 
     def _live_walk(self, k: int, times) -> np.ndarray:
         """(k, m) bias walk at the sample times, continuing from the previous call."""

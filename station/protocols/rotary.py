@@ -50,17 +50,10 @@ import numpy as np
 from drivers.rotary_table import TableTimeout
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
-from station.errors import InputError
+from station.errors import InputError, ProtocolError, SessionPaused
+from station.files.jsonable import jsonable
 
 log = logging.getLogger(__name__)
-
-class ProtocolError(RuntimeError):
-    """The bench did not behave as the protocol needs; the message says what and what to do."""
-
-
-class SessionPaused(ProtocolError):
-    """The table stopped answering and the operator chose to stop; the session can be resumed."""
-
 
 @dataclass(frozen=True)
 class RotarySettings:
@@ -431,7 +424,7 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
                 stats = getattr(imu, "stats", None)
                 if stats is not None:
                     recorder.event("note", None, {"text": "link statistics",
-                                                  "link": _plain(vars(stats))})
+                                                  "link": _counters(stats)})
     return first
 
 
@@ -452,7 +445,7 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
         continue_session(writer, metadata, imu, table, operator, clock, view)
 
 
-def _plain(values: dict) -> dict:
-    """Counters as JSON numbers."""
-    return {k: (v.item() if hasattr(v, "item") else v) for k, v in values.items()
-            if isinstance(v, int | float | np.integer | np.floating)}
+def _counters(stats) -> dict:
+    """The numeric counters of a link's statistics, as JSON (station.files.jsonable)."""
+    return jsonable({k: v for k, v in vars(stats).items()
+                     if isinstance(v, int | float | np.integer | np.floating)})

@@ -30,6 +30,7 @@ from station.protocols.rotary import ProtocolError
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.errors import InputError
+from station.model.constants import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ class StillSettings:
     poll, timeout, stale : time between checks, longest wait for a still pose, longest IMU silence
     """
 
-    gravity: float = 9.80665
+    gravity: float = STANDARD_GRAVITY
     hold: float = 5.0
     window: float = 1.0
     enter: float = 4.0

@@ -24,6 +24,7 @@ import numpy as np
 from station.solve.calibrate import CalibrationResult, calibrate
 from station.solve.constraints import from_faces
 from station.errors import CalibrationInputError
+from station.model import measurement
 from station.model.frames import align_to
 from station.solve.gyro_turns import TurnCalibration, calibrate_turns, integrate, mirrored, turn_senses
 from station.reduce.stillness import StillIntervals, detect_still
@@ -69,9 +70,9 @@ class FerrarisCalibration:
     gyro: TurnCalibration
 
     def apply_acc(self, z) -> np.ndarray:
-        """Specific force (k, 3), m/s^2, iron frame, from accelerometer readings z (k, 3)."""
-        z = np.atleast_2d(np.asarray(z, float)) - self.accel.bias
-        return np.linalg.solve(self.a_acc @ self.a_acc.T, self.a_acc @ z.T).T
+        """Specific force (3,) or (3, k), m/s^2, iron frame, from accelerometer readings z (3,)
+        or (3, k) (station.model.measurement.fuse)."""
+        return measurement.fuse(self.a_acc, z, self.accel.bias)
 
 
 def read_recording(path) -> Recording:

@@ -1,28 +1,13 @@
 """The diagnosis as JSON, as text and as an HTML report with a plot of the gap shrinking."""
 
-import base64
-import html
-import io
-
 import numpy as np
 
 from station.diagnose.model import parameters
 from station.diagnose.select import log_sf
 from station.diagnose.static import StaticData, untestable
 from station.diagnose.static_report import white_noise_verdict
-
-
-def jsonable(obj):
-    """JSON-ready copy: arrays to lists, numpy scalars to numbers, NaN and inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [jsonable(v) for v in np.asarray(obj, dtype=object).tolist()] if isinstance(
-            obj, np.ndarray) else [jsonable(v) for v in obj]
-    if isinstance(obj, (np.generic, float)):
-        x = obj.item() if isinstance(obj, np.generic) else obj
-        return None if isinstance(x, float) and not np.isfinite(x) else x
-    return obj
+from station.files.jsonable import jsonable
+from station.report import html
 
 
 def calibration_summary(cal) -> dict:
@@ -90,12 +75,13 @@ def text(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_png(doc: dict) -> bytes:
-    """PNG of each gap statistic against the model steps (log scale, 1 = explained)."""
-    plt = pyplot()
+def gap_plot(doc: dict) -> html.Plot:
+    """Each gap statistic against the model steps (log scale, 1 = explained)."""
+    from matplotlib.figure import Figure  # here: the CLI imports this module, not matplotlib
 
     labels = ["+".join(s["model"][1:]) or "nominal" for s in doc["steps"]]
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = Figure(figsize=(7, 4))
+    ax = fig.subplots()
     for stat in doc["steps"][0]["gap"]:
         ax.plot(range(len(labels)), [max(s["gap"][stat], 1e-3) for s in doc["steps"]],
                 marker="o", label=stat)
@@ -105,51 +91,31 @@ def plot_png(doc: dict) -> bytes:
     ax.set_ylabel("gap (1 = explained by the noise)")
     ax.set_title("Gap between the session and its twin")
     ax.legend(fontsize=7)
-    return png(fig)
+    return html.Plot("gap", "Gap per model step", "Each gap statistic of the session against "
+                     "its twin, per model step (1 = explained by the noise).", html.png(fig))
 
 
-def pyplot():
-    """matplotlib.pyplot on the Agg backend, imported when a plot is drawn."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def png(fig) -> bytes:
-    """The figure as PNG bytes (laid out tight), closed."""
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    pyplot().close(fig)
-    return buf.getvalue()
-
-
-def html_report(doc: dict, extra: str = "") -> str:
-    """A self-contained HTML page: summary, plot (and `extra` HTML), evidence tables,
-    parameters."""
-    png = base64.b64encode(plot_png(doc)).decode()
-    rows = []
+def html_report(doc: dict, plots=()) -> str:
+    """The self-contained page (station.report.html): the named effects, the gap plot (and
+    `plots`), one section per model step with its gap and evidence tables, the text summary."""
+    e = html.e
+    steps = []
     for step in doc["steps"]:
-        rows.append(f"<h3>Model: {html.escape(' + '.join(step['model']))}</h3>")
-        rows.append("<table border=1><tr><th>statistic</th><th>gap</th></tr>" + "".join(
-            f"<tr><td>{k}</td><td>{v:.3g}</td></tr>" for k, v in step["gap"].items()) + "</table>")
+        tables = html.table([(k, f"{v:.3g}") for k, v in step["gap"].items()],
+                            ("statistic", "gap"))
         if step["evidence"]:
-            rows.append("<table border=1><tr><th>candidate</th><th>LR</th><th>dof</th>"
-                        "<th>log10 p</th><th>significant</th></tr>" + "".join(
-                            f"<tr><td>{k}</td><td>{e['lr']:.1f}</td><td>{e['dof']}</td>"
-                            f"<td>{e['log10_p']:.1f}</td><td>{e['significant']}</td></tr>"
-                            for k, e in step["evidence"].items()) + "</table>")
-        rows.append(f"<p>chosen: <b>{html.escape(step['chosen'])}</b></p>")
-    return (
-        "<!doctype html><html><head><meta charset='utf-8'><title>station diagnose</title></head>"
-        f"<body><h1>Diagnosis of {html.escape(str(doc['session']))}</h1>"
-        f"<p>Named effects: <b>{html.escape(', '.join(doc['effects']) or 'none')}</b></p>"
-        f"<img src='data:image/png;base64,{png}' alt='gap per step'>{extra}"
-        f"{''.join(rows)}<h2>Summary</h2><pre>{html.escape(text(doc))}</pre></body></html>"
-    )
+            tables += html.table(
+                [(k, f"{v['lr']:.1f}", v["dof"], f"{v['log10_p']:.1f}", v["significant"])
+                 for k, v in step["evidence"].items()],
+                ("candidate", "LR", "dof", "log10 p", "significant"))
+        steps.append(html.section(
+            f"step-{len(steps)}", f"Model: {' + '.join(step['model'])}",
+            f"{tables}<p>chosen: <b>{e(step['chosen'])}</b></p>"))
+    effects = f"<p>Named effects: <b>{e(', '.join(doc['effects']) or 'none')}</b></p>"
+    figures = "".join(html.figure(p) for p in (gap_plot(doc), *plots))
+    summary = html.section("summary", "Summary", f"<pre>{e(text(doc))}</pre>")
+    return html.page(f"Diagnosis of {doc['session']}", str(doc["session"]),
+                     effects + figures + "".join(steps) + summary)
 
 
 # ------------------------------------------------------------------------- free-static sessions
@@ -200,11 +166,11 @@ def _summary(cal):
     return None if cal is None else calibration_summary(cal)
 
 
-def whiteness_png(doc: dict) -> bytes:
-    """PNG of the block-mean scatter ratio against the block length (1 = white noise)."""
-    plt = pyplot()
-
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+def whiteness_plot(doc: dict) -> html.Plot:
+    """The block-mean scatter ratio against the block length (1 = white noise)."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(7, 3.5))
+    ax = fig.subplots()
     for group, ratios in doc["white_noise"]["ratio_by_block_s"].items():
         ax.plot([float(s) for s in ratios], list(ratios.values()), marker="o", label=group)
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
@@ -214,11 +180,11 @@ def whiteness_png(doc: dict) -> bytes:
     ax.set_ylabel("scatter / white noise")
     ax.set_title("Scatter of block means within the still intervals")
     ax.legend(fontsize=7)
-    return png(fig)
+    return html.Plot("white-noise", "Block-mean scatter against block length", "Scatter of the "
+                     "block means within the still intervals over the white-noise expectation "
+                     "(1 = white noise).", html.png(fig))
 
 
 def static_html_report(doc: dict) -> str:
     """The rotary report's page plus the white-noise plot."""
-    png = base64.b64encode(whiteness_png(doc)).decode()
-    return html_report(doc, extra=f"<img src='data:image/png;base64,{png}' "
-                                         "alt='block-mean scatter against block length'>")
+    return html_report(doc, plots=(whiteness_plot(doc),))

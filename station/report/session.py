@@ -21,9 +21,6 @@ results (e.g. a recording that was interrupted) is reduced and solved for the re
 replay` does (`station.replay.solve_recorded`); the report says so. Every text from the file is escaped: the file is untrusted.
 """
 
-import base64
-import html
-import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +34,9 @@ from station.protocols import KINDS
 from station.reduce.rotary import position_windows
 from station.replay import ReplaySettings, solve_recorded
 from station.reduce.timeline import sample_times, segment_breaks
+from station.files.jsonable import jsonable
 from station.files.session import Session
+from station.report import html
 
 FALSE_ALARMS = 0.01
 """Expected number of false outlier flags per report when the model holds."""
@@ -47,17 +46,6 @@ WEAK_EXCITATION = 0.25
 """Smallest accepted ratio of the weakest to the strongest eigenvalue of sum_j v_j v_j^T."""
 EMPTY_CAP_DEG = 60.0
 """Largest accepted angular radius of a region of the sphere with no stimulus direction (+-v_j)."""
-DPI = 100
-
-
-@dataclass(frozen=True)
-class Plot:
-    """One figure: `name` (file suffix), title, caption (plain text) and the PNG bytes."""
-
-    name: str
-    title: str
-    caption: str
-    png: bytes
 
 
 @dataclass
@@ -84,25 +72,14 @@ class Report:
         return [out, *written]
 
     def html(self) -> str:
-        """The whole report as one HTML document (no scripts, no external resources)."""
-        e = html.escape
-        title = f"Calibration report - {self.summary.get('unit_serial', '?')}"
-        warn = ("".join(f"<li>{e(w)}</li>" for w in self.warnings) if self.warnings
+        """The whole report as one HTML document (station.report.html.page)."""
+        warn = ("".join(f"<li>{html.e(w)}</li>" for w in self.warnings) if self.warnings
                 else "<li class=ok>No warning: the data and the model agree.</li>")
-        figures = "".join(
-            f'<figure id="{e(p.name)}"><h2>{e(p.title)}</h2>'
-            f'<img alt="{e(p.title)}" src="data:image/png;base64,'
-            f'{base64.b64encode(p.png).decode("ascii")}"><figcaption>{e(p.caption)}</figcaption>'
-            "</figure>" for p in self.plots)
-        return (
-            "<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8>"
-            '<meta http-equiv="Content-Security-Policy" content="default-src \'none\'; '
-            'img-src data:; style-src \'unsafe-inline\'">'
-            f"<title>{e(title)}</title><style>{CSS}</style></head><body>"
-            f"<h1>{e(title)}</h1><p class=src>{e(self.path)}</p>"
-            f"<section id=warnings><h2>Warnings</h2><ul>{warn}</ul></section>"
-            f"<section id=summary><h2>Summary</h2>{_table(self.summary_rows())}</section>"
-            + "".join(self.sections) + figures + "</body></html>\n")
+        return html.page(f"Calibration report - {self.summary.get('unit_serial', '?')}",
+                         self.path,
+                         html.section("warnings", "Warnings", f"<ul>{warn}</ul>")
+                         + html.section("summary", "Summary", html.table(self.summary_rows()))
+                         + "".join(self.sections) + "".join(html.figure(p) for p in self.plots))
 
     def summary_rows(self) -> list:
         """(label, value) rows of the summary table."""
@@ -119,16 +96,6 @@ class Report:
             "largest direction without a position (deg)"}
         return [(label, _fmt(self.summary[key])) for key, label in labels.items()
                 if key in self.summary]
-
-
-CSS = """
-body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222;line-height:1.4}
-h1{font-size:1.5em}h2{font-size:1.15em;margin-top:1.6em;border-bottom:1px solid #ccc}
-table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ccc;padding:2px 8px;
-text-align:right}th{background:#f3f3f3}td:first-child{text-align:left}
-#warnings li{color:#8a1c00}#warnings li.ok{color:#1c6b00}.src{color:#666;font-size:.85em}
-figure{margin:0}img{max-width:100%;border:1px solid #eee}figcaption{font-size:.9em;color:#444}
-"""
 
 
 # ------------------------------------------------------------------------------------ building
@@ -155,7 +122,7 @@ def build(path, result: str | None = None) -> Report:
         _geometry(report, cal)
         _axes_plot(report, cal, channels)
         _uncertainty(report, cal, channels, units)
-    report.summary = {k: _plain(v) for k, v in report.summary.items()}
+    report.summary = jsonable(report.summary)
     report.summary["warnings"] = report.warnings
     return report
 
@@ -190,8 +157,8 @@ def _protocol_warnings(report, events, metadata) -> None:
     if notable:
         rows = [(f"{e.time:.1f}", e.kind, "" if e.position is None else str(e.position + 1),
                  _short(e.detail)) for e in notable]
-        report.sections.append("<section id=events><h2>Notable events</h2>" + _table(
-            rows, ("time (s)", "event", "position", "detail")) + "</section>")
+        report.sections.append(html.section("events", "Notable events", html.table(
+            rows, ("time (s)", "event", "position", "detail"))))
 
 
 def _calibration(session, name, report):
@@ -257,7 +224,7 @@ def _fit(report, cal, channels) -> None:
         report.warnings.append(f"Residual outliers beyond {limit:.1f} sigma: {listed}{more}. "
                                "Check those positions (mounting, disturbance) or record them again.")
     report.summary["outliers"] = len(outliers)
-    report.plots.append(Plot("residuals", "Residuals against the noise level", (
+    report.plots.append(html.Plot("residuals", "Residuals against the noise level", (
         f"Left: r_ij / sigma_ij for each sensor (row) and position (column); the model predicts "
         f"values of about +-1, cells beyond +-{limit:.1f} are outliers (marked). Right: histogram "
         f"of all {m * n} normalised residuals against the normal law the fit predicts (variance "
@@ -287,7 +254,7 @@ def _residual_png(z, channels, limit, dof) -> bytes:
     hist.set_xlabel("r / sigma")
     hist.set_ylabel("density")
     hist.legend(loc="upper right", fontsize=8)
-    return _png(fig)
+    return html.png(fig)
 
 
 # -------------------------------------------------------------------------------- geometry
@@ -313,7 +280,7 @@ def _geometry(report, cal) -> None:
                                f"({_vec(emptiest)}) or its opposite; a position there would "
                                "spread the orientations better.")
     if d == 3:
-        report.plots.append(Plot("coverage", "Coverage of the orientations", (
+        report.plots.append(html.Plot("coverage", "Coverage of the orientations", (
             f"Stimulus directions v_j / |v_j| of the {n} positions in the frame of a (dots, "
             "numbered) and their opposites (rings: the readings determine a through v v^T, so "
             f"+-v carry the same information). Largest empty region: {cap_deg:.0f} deg around "
@@ -349,7 +316,7 @@ def _coverage_png(u, emptiest) -> bytes:
     ax.grid(True, alpha=0.4)
     ax.set_title("longitude atan2(y, x), latitude asin(z)", fontsize=9)
     ax.legend(loc="lower right", fontsize=8)
-    return _png(fig)
+    return html.png(fig)
 
 
 def _lonlat(u) -> tuple:
@@ -385,9 +352,9 @@ def _axes_plot(report, cal, channels) -> None:
         ax.set_ylabel("xyz"[q])
     frame = ("canonical frame of Eq. (19): sensor 1 along x, sensor 2 in the x-y plane"
              if cal.frame == "canonical" else "frame aligned to the nominal layout")
-    report.plots.append(Plot("axes", "Sensitive axes", (
+    report.plots.append(html.Plot("axes", "Sensitive axes", (
         f"Unit sensitive vectors a_i / |a_i| in the {frame}; 3-D view and projections on the "
-        "x-y, x-z and y-z planes (unit circle dotted)."), _png(fig)))
+        "x-y, x-z and y-z planes (unit circle dotted)."), html.png(fig)))
 
 
 def _circle():
@@ -414,15 +381,16 @@ def _uncertainty(report, cal, channels, units) -> None:
         ("bias b_i", "1 sigma", "unit") if cal.bias is not None else ())
     angle = np.degrees(cal.axis_angles)
     angle_sd = np.degrees(cal.axis_angles_sigma)
-    matrix = [[html.escape(channels[i])] + [f"{angle[i, j]:.3f} &plusmn; {angle_sd[i, j]:.1e}" if j > i else ""
-                               for j in range(m)] for i in range(m)]
+    matrix = [[html.e(channels[i])]
+              + [f"{angle[i, j]:.3f} &plusmn; {angle_sd[i, j]:.1e}" if j > i else ""
+                 for j in range(m)] for i in range(m)]
     scale = "" if cal.scale_known else (" Scale factors are known only up to one common factor "
                                         "(magnitude unknown, Remark 2).")
-    report.sections.append(
-        "<section id=parameters><h2>Parameters and their uncertainty</h2>"
+    report.sections.append(html.section(
+        "parameters", "Parameters and their uncertainty",
         f"<p>One standard deviation from the Fisher information of the fit.{scale}</p>"
-        + _table(rows, head) + "<h3>Angles between sensitive axes (deg, &plusmn; 1 sigma)</h3>"
-        + _table(matrix, ("",) + tuple(channels), escape_cells=False) + "</section>")
+        + html.table(rows, head) + "<h3>Angles between sensitive axes (deg, &plusmn; 1 sigma)</h3>"
+        + html.table(matrix, ("",) + tuple(channels), escape_cells=False)))
     fig = Figure(figsize=(11, 3.8))
     panels = 3 if cal.bias is not None else 2
     ax = fig.add_subplot(1, panels, 1)
@@ -442,9 +410,9 @@ def _uncertainty(report, cal, channels, units) -> None:
     ax.set_xticks(np.arange(m), channels, rotation=90, fontsize=7)
     ax.set_yticks(np.arange(m), channels, fontsize=7)
     fig.colorbar(im, ax=ax, label="1 sigma of angle (arcsec)")
-    report.plots.append(Plot("uncertainty", "Uncertainty of each parameter", (
+    report.plots.append(html.Plot("uncertainty", "Uncertainty of each parameter", (
         "Scale factors (minus their median) and biases with 1-sigma error bars; 1-sigma "
-        "uncertainty of the angle between each pair of sensitive axes."), _png(fig)))
+        "uncertainty of the angle between each pair of sensitive axes."), html.png(fig)))
 
 
 # ------------------------------------------------------------------------- recorded streams
@@ -490,9 +458,9 @@ def _stream_health(report, name, data, events) -> None:
     rows += [(f"link: {key.replace('_', ' ')}", _fmt(value)) for key, value in link.items()]
     note = "" if link else ("<p>The driver's link counters (CRC failures, resyncs) are not "
                             "recorded in this session file.</p>")
-    report.sections.append(f"<section id=stream-{html.escape(name)}><h2>Stream health: "
-                           f"{html.escape(name)}</h2>{_table(rows)}{note}</section>")
-    report.plots.append(Plot(f"stream-{name}", f"Stream health: {name}", (
+    report.sections.append(html.section(f"stream-{name}", f"Stream health: {name}",
+                                        html.table(rows) + note))
+    report.plots.append(html.Plot(f"stream-{name}", f"Stream health: {name}", (
         f"Top: samples received per second of the session clock against the nominal {rate:g} Hz "
         "(the last bin may be partial), "
         "sequence gaps marked in red. Bottom: arrival latency of each sample (host time minus "
@@ -528,7 +496,7 @@ def _stream_png(data, t, latency, gaps) -> bytes:
     bottom.plot(t[::every], latency[::every] * 1e3, ",", color="#444")
     bottom.set_ylabel("arrival latency (ms)")
     bottom.set_xlabel("session clock (s)")
-    return _png(fig)
+    return html.png(fig)
 
 
 def _table_stability(report, table, events, metadata) -> None:
@@ -555,11 +523,11 @@ def _table_stability(report, table, events, metadata) -> None:
             report.warnings.append(f"The table rate left its tolerance (+-{tolerance:g} rad/s) in "
                                    f"the rotating window of position(s) {', '.join(off)}.")
     if rows:
-        report.sections.append(
-            "<section id=table-rate><h2>Table rate in the rotating windows</h2>" + _table(
+        report.sections.append(html.section(
+            "table-rate", "Table rate in the rotating windows", html.table(
                 rows, ("position", "mean rate (rad/s)", "mean error (mrad/s)",
-                       "sd (mrad/s)", "max |error| (mrad/s)")) + "</section>")
-    report.plots.append(Plot("table", "Table rate stability", (
+                       "sd (mrad/s)", "max |error| (mrad/s)"))))
+    report.plots.append(html.Plot("table", "Table rate stability", (
         "Top: measured table rate and setpoint (rotating windows shaded). Bottom: measured minus "
         "commanded rate inside the rotating windows"
         + (f", tolerance +-{tolerance:g} rad/s dashed." if isinstance(tolerance, int | float)
@@ -584,35 +552,10 @@ def _table_png(table, spans, tolerance) -> bytes:
             bottom.axhline(s * tolerance * 1e3, color="#d1495b", ls="--", lw=0.8)
     bottom.set_ylabel("rate error (mrad/s)")
     bottom.set_xlabel("session clock (s)")
-    return _png(fig)
+    return html.png(fig)
 
 
 # ----------------------------------------------------------------------------------- helpers
-
-
-def _png(fig) -> bytes:
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
-    return buf.getvalue()
-
-
-def _table(rows, head=None, escape_cells=True) -> str:
-    """An HTML table; cells escaped unless they are trusted markup built here."""
-    cell = html.escape if escape_cells else str
-    top = "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>" if head else ""
-    body = "".join("<tr>" + "".join(f"<td>{cell(str(c))}</td>" for c in row) + "</tr>"
-                   for row in rows)
-    return f"<table>{top}{body}</table>"
-
-
-def _plain(value):
-    """A summary value as plain JSON: Python numbers, None for NaN or infinity."""
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _fmt(value) -> str:

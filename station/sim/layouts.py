@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from station.model.constants import STANDARD_GRAVITY
 from station.model.unit import SensorUnit
 
 A_MODEL = np.array(
@@ -41,7 +42,7 @@ def gyro_array(rng: np.random.Generator, a_nominal=A_MODEL, fs: float = 200.0, *
 def accelerometer_triad(rng: np.random.Generator, a_nominal=TRIAD, fs: float = 200.0, **kwargs):
     """A MEMS-grade accelerometer unit on `a_nominal` (m/s^2): 100 ug/sqrt(Hz) noise, biases of
     0.05 m/s^2, 4096 counts per g, +-8 g range; keyword arguments override."""
-    g0 = 9.80665
+    g0 = STANDARD_GRAVITY
     m = np.shape(a_nominal)[1]
     params = {
         "bias": 0.05 * rng.standard_normal(m),

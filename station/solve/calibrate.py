@@ -13,6 +13,7 @@ import numpy as np
 
 from station.solve import ml, uncertainty
 from station.errors import CalibrationInputError
+from station.model import measurement
 from station.model.frames import align_to, canonical_rotation
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
@@ -66,12 +67,9 @@ class CalibrationResult:
         return self.residuals / self.sigma
 
     def apply(self, z) -> np.ndarray:
-        """Calibrated vectors (d, k) from readings z (m,) or (m, k): v = (a a^T)^-1 a (z - b)."""
-        z = np.asarray(z, dtype=float)
-        z = z.reshape(self.m, -1)
-        if self.bias is not None:
-            z = z - self.bias[:, None]
-        return np.linalg.solve(self.a @ self.a.T, self.a @ z)
+        """Calibrated vectors (d,) or (d, k) from readings z (m,) or (m, k):
+        v = (a a^T)^-1 a (z - b) (station.model.measurement.fuse)."""
+        return measurement.fuse(self.a, z, self.bias)
 
 
 def calibrate(

@@ -9,6 +9,7 @@ the canonical upper-triangular frame of Eq. (19). Maximum likelihood (station/so
 import numpy as np
 
 from station.errors import CalibrationInputError
+from station.model import measurement
 
 
 def quadric_terms(z: np.ndarray) -> np.ndarray:
@@ -63,5 +64,5 @@ def ellipsoid_calibration(readings, magnitude: float = 1.0):
     # (z - b)^T shape (z - b) = span^2 and (z - b)^T (a^T a)^-1 (z - b) = c^2
     gram = np.linalg.inv(shape) * (span / magnitude) ** 2  # a^T a
     a = np.linalg.cholesky(gram).T  # upper triangular, positive diagonal
-    v = np.linalg.solve(a.T, z - bias[:, None])
+    v = measurement.fuse(a, z, bias)  # a square: a^-T (z - b)
     return a, v * magnitude / np.linalg.norm(v, axis=0), bias

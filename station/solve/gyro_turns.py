@@ -21,12 +21,13 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from station.solve.calibrate import CalibrationResult, calibrate
 from station.solve.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
+from station.model import measurement
 from station.model.frames import align_to
-from station.solve.poses import rodrigues
 
 AXES = "xyz"
 
@@ -49,9 +50,9 @@ class TurnCalibration:
     integrals: np.ndarray
 
     def apply(self, z) -> np.ndarray:
-        """Angular rates (k, 3) in rad/s, iron frame, from gyro readings z (k, 3)."""
-        z = np.atleast_2d(np.asarray(z, float)) - self.bias
-        return np.linalg.solve(self.a @ self.a.T, self.a @ z.T).T
+        """Angular rates (3,) or (3, k) in rad/s, iron frame, from gyro readings z (3,) or (3, k)
+        (station.model.measurement.fuse)."""
+        return measurement.fuse(self.a, z, self.bias)
 
 
 def integrate(gyro, fs: float, bias) -> np.ndarray:
@@ -145,7 +146,7 @@ def carry_gravity(rates, fs: float, f_start) -> np.ndarray:
     Body attitude C (start <- now) follows C_{k+1} = C_k exp([omega_k / fs]_x); a vector fixed in
     the world is seen at the end as C^T f_start.
     """
-    steps = rodrigues(np.asarray(rates, float) / fs)
+    steps = Rotation.from_rotvec(np.asarray(rates, float) / fs).as_matrix()  # exp([w]_x)
     c = np.eye(3)
     for r in steps:
         c = c @ r

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import CalibrationInputError
+from station.model import measurement
 from station.solve.poses import Directions, SoftMagnitudes, rigid_groups
 
 
@@ -67,7 +68,7 @@ def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations,
     n = v.shape[1]
     x = v.T if bias is None else np.hstack([v.T, np.ones((n, 1))])  # d prediction / d theta_i
     local = np.einsum("di,ndk->ink", a, poses.jacobian())  # d prediction_ij / d local_j
-    resid = readings - a.T @ v - (0.0 if bias is None else bias[:, None])
+    resid = readings - measurement.forward(a, v, bias)
     wr = weight * resid
     h_local = _by_group(np.einsum("in,ink,inl->nkl", weight, local, local), poses, 0)
     g_local = _by_group(np.einsum("in,ink->nk", wr, local), poses, 0)

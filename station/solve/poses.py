@@ -45,16 +45,6 @@ def skew(x: np.ndarray) -> np.ndarray:
                      np.stack([-x[..., 1], x[..., 0], z], -1)], -2)
 
 
-def rodrigues(w: np.ndarray) -> np.ndarray:
-    """Rotation matrices exp([w]_x) for rotation vectors w (..., 3)."""
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    k = skew(w)
-    small = theta < 1e-12
-    safe = np.where(small, 1.0, theta)
-    return (np.eye(3) + np.where(small, 1.0, np.sin(safe) / safe) * k
-            + np.where(small, 0.5, (1 - np.cos(safe)) / safe**2) * k @ k)
-
-
 @dataclass(frozen=True)
 class _OnePerPosition:
     """Pose models with one stimulus vector per position (its own pose group)."""
@@ -163,7 +153,10 @@ class RigidGroups:
         return -self.magnitude * self.rot[self.group] @ skew(self.s.T)
 
     def moved(self, step):
-        return RigidGroups(self.rot @ rodrigues(step), self.s, self.group, self.rank, self.magnitude)
+        from scipy.spatial.transform import Rotation  # here: `import station` stays light
+
+        turn = Rotation.from_rotvec(step).as_matrix()  # exp([w]_x) per group
+        return RigidGroups(self.rot @ turn, self.s, self.group, self.rank, self.magnitude)
 
 
 def rigid_groups(constraints, v0: np.ndarray, magnitude: float) -> RigidGroups | None:

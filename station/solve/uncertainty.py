@@ -9,6 +9,7 @@ biases, and a expressed in a frame defined by a itself (the canonical frame of E
 
 import numpy as np
 
+from station.model import measurement
 from station.model.frames import to_canonical
 from station.solve.ml import NormalEquations, check_spread, normal_equations, reduced_system, sigma_matrix
 from station.solve.poses import Directions, SoftMagnitudes
@@ -101,7 +102,7 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
              else Directions.start(v, float(norms[0])))
     sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
-    neq, _ = normal_equations(a, poses, bias, a.T @ v, 1.0 / sig**2)
+    neq, _ = normal_equations(a, poses, bias, measurement.forward(a, v, bias), 1.0 / sig**2)
     p = d + (1 if estimate_bias else 0)
     return propagate(global_covariance(neq, d), frame_jacobian(a, p))
 

@@ -40,7 +40,9 @@ from station.acquire.operator import SimulatedTechnician
 from station.protocols.still import record_poses
 from station.solve.still import calibrate_still
 from station.files.session import Session, StreamSpec, write_results
+from station.model import sensing
 from station.model.earth import normal_gravity
+from station.model.effects import from_json
 from station.sim.layouts import accelerometer_triad
 
 ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
@@ -64,11 +66,15 @@ class HandRig:
     column is the iron-frame direction pointing up (without an iron: the unit's attitude, mounting
     the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change starts a turn now, lasting `turn_time` clock seconds; the stimulus is
     the specific force g C(t) e_z in the unit frame, C = b W the world -> unit attitude.
+    `effects` {name: parameters}: named sensor effects (station.model.sensing.LIVE_EFFECTS) in
+    the unit's output chain.
     """
 
-    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0):
+    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0, effects=None):
         self.next_turn = None  # clock time the next turn starts at (None: when it is asked for)
         self.unit = unit
+        self.effects = dict(effects or {})
+        sensing.refuse_batch_effects(self.effects)
         self.clock = clock
         self.gravity = float(gravity)
         self.turn_time = float(turn_time)
@@ -108,7 +114,7 @@ class HandRig:
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
         v = self.gravity * self.attitude(times)[:, :, 2]
-        return self.unit.sample(v, times)
+        return self.unit.sample(v, times, self.effects)
 
     def _turn(self) -> None:
         start = max(self.clock.now(), self.next_turn or -np.inf)
@@ -182,12 +188,14 @@ class HandBench:
     turn_time     : seconds each turn lasts
     placement_deg : how far each turn misses its target (standard deviation per axis), degrees
     latitude_deg  : site latitude (normal gravity)
+    effects       : optional {name: {param: value}}: named effects in the unit's output chain
+                    (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 30.0}}
     """
 
     def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
                  mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
-                 latitude_deg: float = 52.2):
+                 latitude_deg: float = 52.2, effects: dict | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
         self.clock = ScaledClock(speed)
@@ -198,7 +206,8 @@ class HandBench:
                                         counts_per_unit=self.profile.imu.scale)
         if np.ndim(mountings) == 0:
             mountings = Rotation.random(int(mountings), random_state=rng).as_matrix()
-        self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time)
+        self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time,
+                           effects=from_json(effects or {}))
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None

@@ -38,6 +38,7 @@ from station.acquire.operator import SimulatedTechnician
 from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.files.session import Session, SessionWriter, StreamSpec
+from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
@@ -46,7 +47,8 @@ from station.errors import InputError
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
-BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error"}
+BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error",
+              "effects"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
 HOST_LATENCY = 0.05
 """Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
@@ -106,12 +108,14 @@ class VirtualBench:
     clock_start   : clock time at start (a resumed session continues after its last instant)
     rate_error    : optional {"scale": ..., "spread": ...}: the table's hidden rate error
                     (`station.model.effects.rate_error`), drawn anew at every start
+    effects       : optional {name: {param: value}}: named effects in the unit's output chain
+                    (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 3.0}}
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
                  lifetime: float = 3600.0, clock_start: float = 0.0,
-                 rate_error: dict | None = None):
+                 rate_error: dict | None = None, effects: dict | None = None):
         if imu not in IMU_KINDS:
             raise InputError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -127,7 +131,9 @@ class VirtualBench:
                                  rate_error=RateError(**self.rate_error) if rate_error else None)
         self.table_map = TableRegisterMap.load("table_modbus")
         self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
-        self.mounted = MountedUnit(self.unit, self.table)
+        live = from_json(effects or {})
+        self.effects = to_json(live) or None  # every parameter, for the session's metadata
+        self.mounted = MountedUnit(self.unit, self.table, effects=live)
         self.technician = BenchTechnician(self, remount_time, placement_deg,
                                           np.random.default_rng([seed, 1]))
         self.table_twin = TableTwin(self.table, self.table_map, lifetime)
@@ -143,7 +149,8 @@ class VirtualBench:
 
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
-        hidden = {"rate_error": self.rate_error} if self.rate_error else {}
+        hidden = {k: v for k, v in (("rate_error", self.rate_error), ("effects", self.effects))
+                  if v}
         return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
                 "rate_hz": self.rate_hz, "remount_time": self.remount_time,
                 "placement_deg": self.placement_deg, **hidden}

@@ -4,8 +4,10 @@ Each module exposes
 - `STAGE`: where the twin applies it ("rate", "motion", "sensed", "offset", "output");
 - `fit(ctx, prediction, r) -> Fitted`: its parameters from the residuals r (n, k, m) of the twin
   without it (`prediction`), by weighted least squares on the binned residuals;
-- `apply(ctx, fitted, x, ...)`: its distortion at its stage, through the simulator's own effect
-  function (imported, never copied);
+- at the sensor stages ("sensed", "offset"): `params(fitted)`, the simulator's own parameters
+  (station.model.effects), which the twin runs through the one sensor output chain
+  (station.model.sensing); at the other stages: `apply(ctx, fitted, x, ...)`, its distortion at
+  its stage, through the simulator's own effect function (imported, never copied);
 - optionally `calibration_options(fitted) -> dict | None`: keyword arguments of
   `station.calibrate` when the extension enters the calibration's own model (rate_error: the
   magnitudes' spread) instead of a correction of the readings M; None: corrected for.

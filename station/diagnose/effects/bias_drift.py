@@ -61,10 +61,10 @@ def _span(values) -> float:
     return 0.5 * (max(values) - min(values))
 
 
-def apply(ctx, fitted: Fitted, rate: np.ndarray) -> np.ndarray:
-    """Offsets (n, k, m) of the fitted drift (station.model.effects.bias_drift)."""
-    p = BiasDrift(
+def params(fitted: Fitted) -> BiasDrift:
+    """The simulator's parameters of the fitted drift, for the output chain
+    (station.model.sensing)."""
+    return BiasDrift(
         warmup=tuple(fitted.value("warmup")), warmup_tau=float(fitted.values["warmup_tau"]),
         heating=tuple(fitted.value("heating")), heating_tau=float(fitted.values["heating_tau"]),
     )
-    return bias_drift.apply(ctx.data.t_session, rate, p)

@@ -30,6 +30,7 @@ def fit(ctx, prediction, r) -> Fitted:
     )
 
 
-def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
-    """Sensed signals delayed per channel (station.model.effects.latency)."""
-    return latency.apply(s, ctx.data.t, Latency(tuple(fitted.value("delay"))))
+def params(fitted: Fitted) -> Latency:
+    """The simulator's parameters of the fitted delays, for the output chain
+    (station.model.sensing)."""
+    return Latency(tuple(fitted.value("delay")))

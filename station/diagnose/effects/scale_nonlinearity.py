@@ -28,6 +28,7 @@ def fit(ctx, prediction, r) -> Fitted:
     )
 
 
-def apply(ctx, fitted: Fitted, s: np.ndarray) -> np.ndarray:
-    """Sensed signals with the quadratic term (station.model.effects.scale_nonlinearity)."""
-    return scale_nonlinearity.apply(s, ScaleNonlinearity(tuple(fitted.value("k2"))))
+def params(fitted: Fitted) -> ScaleNonlinearity:
+    """The simulator's parameters of the fitted term, for the output chain
+    (station.model.sensing)."""
+    return ScaleNonlinearity(tuple(fitted.value("k2")))

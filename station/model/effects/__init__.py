@@ -82,3 +82,15 @@ def parse_all(specs) -> dict:
 def to_json(effects: dict) -> dict:
     """{name: {param: value}} for the truth file."""
     return {name: dataclasses.asdict(p) for name, p in effects.items()}
+
+
+def from_json(doc: dict) -> dict:
+    """{name: parameters} from the form of `to_json` (as read back from JSON: per-sensor lists
+    become tuples again)."""
+    out = {}
+    for name, params in doc.items():
+        if name not in EFFECTS:
+            raise ValueError(f"unknown effect {name!r}; choose from {', '.join(EFFECTS)}")
+        out[name] = EFFECTS[name](**{k: tuple(v) if isinstance(v, list) else v
+                                     for k, v in params.items()})
+    return out
