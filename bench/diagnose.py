@@ -23,9 +23,9 @@ import numpy as np
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
-from station.model.frames import eps
 from station.model.effects import parse
 from station.model.effects.saturation import Saturation
+from station.model.frames import eps
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary

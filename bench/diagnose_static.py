@@ -25,9 +25,9 @@ import numpy as np
 
 from station.diagnose.static import diagnose_static, from_arrays
 from station.diagnose.static_report import load
-from station.report.diagnosis import static_to_dict as to_dict
 from station.files.importers import import_csv, import_text
 from station.model.effects import parse_all
+from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 

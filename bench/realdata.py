@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from station.files.tables import read_table
+from station.model.constants import STANDARD_GRAVITY
 from station.reduce.ferraris import (
     calibrate_ferraris,
     find_sections,
@@ -24,11 +26,9 @@ from station.reduce.ferraris import (
     read_section_list,
     section_overlap,
 )
-from station.files.tables import read_table
-from station.model.constants import STANDARD_GRAVITY
 from station.reduce.free_static import calibrate_free_static, leave_one_out
-from station.solve.gyro_turns import gravity_carry_errors
 from station.reduce.stillness import detect_still
+from station.solve.gyro_turns import gravity_carry_errors
 from station.solve.uncertainty import axis_angles
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"

@@ -27,12 +27,12 @@ import time
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from drivers.wire.binary import BinaryFrameParser, encode_frames
-from drivers.wire.crc import CRCS
+from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.serial_imu import SerialImu
 from drivers.twins.serial import OVERFLOW, SENT, SerialTwin, corrupt_frame
-from drivers.clock import ScaledClock
+from drivers.wire.binary import BinaryFrameParser, encode_frames
+from drivers.wire.crc import CRCS
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels

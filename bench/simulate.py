@@ -13,11 +13,11 @@ import time
 import numpy as np
 
 import station
+from station.model.unit import SensorUnit
 from station.reduce.eq18 import reduce_arrays
 from station.sim.layouts import A_MODEL, perturbed
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
-from station.model.unit import SensorUnit
 
 
 def unit_for(seed: int) -> SensorUnit:

@@ -33,9 +33,9 @@ import numpy as np
 
 from drivers import LinkStats
 from drivers.clock import WallClock
+from drivers.errors import CanBusError
 from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
 from drivers.samples import SampleBlock
-from drivers.errors import CanBusError
 
 LOST_BUS_PAUSE = 0.1
 """Wall seconds the listener rests after each error of a lost bus (it raises at once on every

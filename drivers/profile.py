@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.errors import ProfileError
 from drivers.wire.binary import INT_TYPES
 from drivers.wire.crc import CRCS
-from drivers.errors import ProfileError
 
 BUNDLED = Path(__file__).parent / "profiles"
 _REQUIRED = object()

@@ -13,12 +13,11 @@ it has already been returned, and `open()` reconnects.
 import serial
 
 from drivers.clock import WallClock
+from drivers.errors import DeviceLostError, SerialPortError
 from drivers.profile import SerialImuProfile
 from drivers.wire import SerialStats
 from drivers.wire.ascii import AsciiLineParser
 from drivers.wire.binary import BinaryFrameParser
-
-from drivers.errors import DeviceLostError, SerialPortError
 
 
 class SerialImu:

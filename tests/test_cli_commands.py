@@ -10,12 +10,12 @@ from serial.tools import list_ports
 
 import station
 from station import cli
-from station.files.calfile import load
 from station.acquire.bench import BenchProfile, record
-from station.twin.served import BenchTwin
-from station.model.frames import align_to
 from station.acquire.operator import ConsoleOperator
+from station.files.calfile import load
 from station.files.session import Session, SessionWriter, StreamSpec
+from station.model.frames import align_to
+from station.twin.served import BenchTwin
 
 COMMANDS = ("solve", "apply", "export", "devices", "twin", "record")
 POSITIONS = 7

@@ -25,11 +25,11 @@ from station.diagnose.effects.rate_error import encoder_reads
 from station.diagnose.gap import HARMONICS
 from station.errors import CalibrationInputError
 from station.files.importers import import_npz
-from station.protocols.rotary import RotarySettings, suggested_axes
+from station.files.npz import write
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import parse
+from station.protocols.rotary import RotarySettings, suggested_axes
 from station.sim.layouts import A_MODEL, gyro_array
-from station.files.npz import write
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
 from station.twin.rotary_bench import VirtualBench, record_rotary

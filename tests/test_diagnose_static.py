@@ -11,11 +11,11 @@ from scipy.stats import chi2
 
 from station.cli import main
 from station.diagnose.static import diagnose_static, from_arrays
-from station.report.diagnosis import static_to_dict as to_dict
 from station.errors import CalibrationInputError
 from station.files.importers import import_csv, import_text
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse_all
+from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from layouts import random_directions
 
-from station.solve.constraints import Constraints, from_faces, magnitude_constraints
 from station.errors import CalibrationInputError
-from station.solve.factorization import factorize
 from station.model.frames import eps
+from station.solve.constraints import Constraints, from_faces, magnitude_constraints
+from station.solve.factorization import factorize
 from station.solve.uncertainty import crlb
 
 FACE_VECTORS = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0),

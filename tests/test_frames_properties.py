@@ -10,9 +10,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivers.profile import SerialImuProfile
 from drivers.wire.ascii import AsciiLineParser
 from drivers.wire.binary import BinaryFrameParser, encode_frames
-from drivers.profile import SerialImuProfile
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 ASCII = SerialImuProfile.load("imu_ascii")

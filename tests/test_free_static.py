@@ -8,8 +8,8 @@ from test_stillness import A_TRUE, COUNTS, FS, simulated
 
 from station.errors import CalibrationInputError
 from station.files.tables import read_table
-from station.reduce.free_static import calibrate_free_static, leave_one_out
 from station.model.earth import normal_gravity
+from station.reduce.free_static import calibrate_free_static, leave_one_out
 from station.solve.uncertainty import axis_angles
 
 G = normal_gravity(45.4)  # the latitude of `simulated`

@@ -9,18 +9,18 @@ import pytest
 import station
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.reduce.free_static import calibrate_free_static
+from station.files import npz
 from station.files.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
+from station.files.session import Session
+from station.reduce.eq18 import reduce_arrays
+from station.reduce.free_static import calibrate_free_static
 from station.reduce.iron import iron_readings
 from station.reduce.rotary import rotary_readings
-from station.solve.still import calibrate_still
-from station.reduce.eq18 import reduce_arrays
-from station.files.session import Session
-from station.files import npz
 from station.sim.layouts import A_MODEL, accelerometer_triad, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
 from station.sim.static import simulate_static
+from station.solve.still import calibrate_still
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 if not REAL.exists():

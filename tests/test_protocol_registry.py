@@ -171,7 +171,7 @@ def test_station_record_reaches_the_toy_kind(toy, tmp_path):
     finally:
         os.close(master)
         os.close(slave)
-    assert CALLS == [("acquire", "SerialImu", None, ToySettings(poses=9))]
+    assert [("acquire", "SerialImu", None, ToySettings(poses=9))] == CALLS
     assert summary["protocol"] == "toy" and summary["positions_done"] == 0
 
 

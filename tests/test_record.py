@@ -14,14 +14,14 @@ import pytest
 from scipy import stats
 
 import station
-from station.files.calfile import load
 from station.acquire.bench import BenchProfile, record, resume
-from station.commands.record import solve
-from station.twin.served import BenchTwin
 from station.acquire.operator import ConsoleOperator, OperatorAbort
-from station.reduce.rotary import rotary_readings
+from station.commands.record import solve
+from station.files.calfile import load
 from station.files.session import Session
+from station.reduce.rotary import rotary_readings
 from station.solve.uncertainty import eps_tail_probability
+from station.twin.served import BenchTwin
 
 POSITIONS = 8
 STATION = [sys.executable, "-m", "station"]

@@ -10,10 +10,10 @@ from scipy import stats
 
 from drivers.profile import ProfileError
 from station import cli
-from station.files.calfile import load
 from station.acquire.bench import BenchProfile, record
-from station.twin.hand_bench import ACC4, TRIAD, HandBench
+from station.files.calfile import load
 from station.files.session import Session
+from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
 FAMILY_FALSE_ALARM = 1e-3
 
@@ -123,8 +123,8 @@ def test_live_view_is_refused_for_hand_protocols(tmp_path, capsys):
 def test_station_record_against_the_hand_twin_with_a_console_operator(protocol, tmp_path):
     """The twin's technician turns on its own metronome; the console operator only presses Enter:
     the station finds every pose itself and the calibration file matches the truth."""
-    from station.twin.served import HandTwin
     from station.acquire.operator import ConsoleOperator
+    from station.twin.served import HandTwin
 
     with HandTwin(protocol, seed=9, speed=40.0, poses=12, mountings=1) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text("SN-TWIN"))

@@ -5,10 +5,10 @@ import pytest
 
 import station
 from station.errors import CalibrationInputError
+from station.model.unit import SensorUnit
 from station.reduce.eq18 import reduce_arrays, reduce_rotary, whole_revolutions
 from station.sim.layouts import A_MODEL, perturbed
 from station.sim.rotary import simulate_rotary
-from station.model.unit import SensorUnit
 
 
 def test_rotating_minus_static_mean_in_si_units():

@@ -13,9 +13,9 @@ from scipy import stats
 
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.twin.hand_bench import record_iron_session, record_static_session
-from station.replay import ReplaySettings, replay
 from station.files.session import Session, SessionWriter, StreamSpec
+from station.replay import ReplaySettings, replay
+from station.twin.hand_bench import record_iron_session, record_static_session
 
 RECORDINGS = {
     "iron": lambda path: record_iron_session(path, seed=2, speed=40.0, mountings=2),

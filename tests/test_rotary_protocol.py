@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from drivers.rotary_table import TableFault
+from station.acquire.operator import (
+    ConsoleOperator,
+    Instruction,
+    OperatorAbort,
+    SimulatedTechnician,
+)
+from station.acquire.recorder import Recorder, RecordingError
 from station.errors import CalibrationInputError
-from station.acquire.operator import ConsoleOperator, Instruction, OperatorAbort, SimulatedTechnician
+from station.files.session import Event, Session, SessionWriter
 from station.protocols.rotary import (
     ProtocolError,
     RotaryProtocol,
@@ -18,9 +25,7 @@ from station.protocols.rotary import (
     suggested_axes,
 )
 from station.reduce.rotary import position_windows, rotary_readings
-from station.acquire.recorder import Recorder, RecordingError
 from station.reduce.timeline import sample_times
-from station.files.session import Event, Session, SessionWriter
 from station.twin.rotary_bench import VirtualBench
 
 # short windows: one position is about 20 s of clock, half a second of wall time at 40x

@@ -6,11 +6,11 @@ second of wall time."""
 import numpy as np
 import pytest
 
+from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.samples import SampleBlock
 from drivers.serial_imu import DeviceLostError, SerialImu, SerialPortError
 from drivers.twins.serial import PAUSED, SENT, SerialTwin
-from drivers.clock import ScaledClock
 
 BINARY = SerialImuProfile.load("imu12_serial")
 ASCII = SerialImuProfile.load("imu_ascii")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from station import cli
-from station.reduce.eq18 import reduce_arrays
 from station.files import npz
+from station.reduce.eq18 import reduce_arrays
 
 ROTARY_KEYS = {
     "y",

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from station.reduce.eq18 import reduce_arrays
 from station.model.earth import normal_gravity
 from station.model.effects import parse, parse_all
 from station.model.effects.earth_rate import EarthRate
+from station.model.unit import SensorUnit
+from station.reduce.eq18 import reduce_arrays
 from station.sim.layouts import A_MODEL, perturbed
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import random_orientations, simulate_rotary
-from station.model.unit import SensorUnit
 
 LSB = 1e-6
 TIMING = RotaryTiming(rate=np.pi / 2, max_accel=1.0, static=2.0, moving=14.0, settle=0.5)

@@ -5,9 +5,9 @@ import pytest
 
 from station.model.earth import normal_gravity
 from station.model.effects import parse_all
+from station.model.unit import SensorUnit
 from station.sim.iron import simulate_iron
 from station.sim.static import simulate_static
-from station.model.unit import SensorUnit
 
 LSB = 1e-5
 

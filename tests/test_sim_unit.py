@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from station.model.earth import OMEGA_EARTH, earth_rate_enu, earth_rate_table, normal_gravity
-from station.sim.profile import Profile, RotaryTiming
 from station.model.unit import SensorUnit
+from station.sim.profile import Profile, RotaryTiming
 
 
 def test_sample_is_a_transpose_v_plus_bias_in_counts():

@@ -6,9 +6,9 @@ import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 
 from station.errors import CalibrationInputError
-from station.sim.static import simulate_static
 from station.model.unit import SensorUnit
 from station.reduce.stillness import detect_still, hysteresis, moving_variance
+from station.sim.static import simulate_static
 
 FS = 100.0
 COUNTS = 400.0  # counts per m/s^2, about an Xsens MTi

@@ -7,6 +7,7 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
+from drivers.clock import ScaledClock
 from drivers.rotary_table import (
     RotaryTable,
     TableBusy,
@@ -16,7 +17,6 @@ from drivers.rotary_table import (
     TableTimeout,
 )
 from drivers.twins.table import TableTwin
-from drivers.clock import ScaledClock
 from station.sim.table import TablePhysics
 
 MAP = TableRegisterMap.load("table_modbus")

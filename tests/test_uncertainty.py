@@ -2,7 +2,6 @@
 
 import numpy as np
 from layouts import random_directions, section4_gyros
-
 from scipy import stats
 
 import station

@@ -156,8 +156,8 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
     and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
     while recording, for kinds that have one."""
-    from drivers.profile import load_profile
     from drivers.clock import ScaledClock, WallClock
+    from drivers.profile import load_profile
     from station.acquire.live_view import LiveView
     from station.files.session import Session, StreamSpec
     from station.protocols import KINDS

@@ -25,9 +25,9 @@ import time
 from typing import Self
 
 import numpy as np
-from station.errors import RecordingError
 
 from drivers.clock import WallClock
+from station.errors import RecordingError
 from station.reduce.timeline import arrival_offset
 
 log = logging.getLogger(__name__)

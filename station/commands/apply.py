@@ -91,8 +91,8 @@ def run(args) -> int:
 def read_session(path, stream: str, cal) -> tuple:
     """(time (k,), SI readings (k, m)) of a session's stream, checked against the calibration."""
     from station.files.calfile import CalibrationFileError
-    from station.reduce.timeline import sample_times
     from station.files.session import Session
+    from station.reduce.timeline import sample_times
 
     with Session.open(path) as session:
         if stream not in session.specs:

@@ -70,8 +70,8 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     live: show the live view (station.acquire.live_view) while recording."""
     import station
     from station.acquire.live_view import LiveView
-    from station.protocols.rotary import RotarySettings, suggested_axes
     from station.files.session import Session, write_results
+    from station.protocols.rotary import RotarySettings, suggested_axes
     from station.replay import ReplaySettings, solve_recorded
     from station.solve.uncertainty import eps_tail_probability
     from station.twin.rotary_bench import VirtualBench, record_rotary

@@ -4,13 +4,12 @@ its twin."""
 import json
 from pathlib import Path
 
-from station.diagnose import data, diagnose, static_report
-
-from station.report import diagnosis as report
-from station.diagnose.static import diagnose_static
 from station.commands import existing_file
+from station.diagnose import data, diagnose, static_report
+from station.diagnose.static import diagnose_static
 from station.errors import InputError
 from station.files.session import Session
+from station.report import diagnosis as report
 
 
 def register(p) -> None:

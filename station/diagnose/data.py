@@ -15,9 +15,9 @@ import numpy as np
 
 from station.diagnose import recorded
 from station.errors import CalibrationInputError
-from station.reduce.eq18 import reduce_rotary, whole_revolutions
-from station.files.session import Session
 from station.files import npz
+from station.files.session import Session
+from station.reduce.eq18 import reduce_rotary, whole_revolutions
 
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
             "seg_rotating", "seg_spindown")

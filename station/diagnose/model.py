@@ -16,10 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.solve.calibrate import CalibrationResult, calibrate
-from station.diagnose import linear, rails, prediction as twin
+from station.diagnose import linear, rails
+from station.diagnose import prediction as twin
 from station.diagnose.effects import EXTENSIONS, Fitted
 from station.files.jsonable import jsonable
+from station.solve.calibrate import CalibrationResult, calibrate
 
 
 @dataclass(frozen=True)

@@ -22,14 +22,13 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.solve.calibrate import calibrate
 from station.diagnose import rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy
 from station.errors import CalibrationInputError
-from station.model.constants import STANDARD_GRAVITY
 from station.model import measurement, sensing
+from station.model.constants import STANDARD_GRAVITY
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import earth_rate, g_sensitivity
 from station.model.effects.bias_drift import BiasDrift
@@ -37,6 +36,7 @@ from station.model.effects.earth_rate import EarthRate
 from station.model.effects.g_sensitivity import GSensitivity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 from station.reduce.stillness import detect_still
+from station.solve.calibrate import calibrate
 
 BIN_S = 1.0
 """Target bin length, s: each still interval is cut into floor(T / BIN_S) bins (at least 1)."""

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from station.files.provenance import software_version, utc_now
 from station.errors import CalibrationFileError
+from station.files.provenance import software_version, utc_now
 from station.model import measurement
 
 FORMAT = "imu-station-calibration"

@@ -32,8 +32,8 @@ import numpy as np
 from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
-from station.files.tables import read_table
 from station.files.session import SessionWriter, StreamSpec
+from station.files.tables import read_table
 from station.model.constants import STANDARD_GRAVITY
 
 FIXED_POINT = 1e6

@@ -39,9 +39,9 @@ positions end with `position_done`; `run(first=...)` continues after the last on
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
-import logging
 import contextlib
 import dataclasses
+import logging
 import math
 from dataclasses import asdict, dataclass
 

@@ -25,12 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.acquire.recorder import Recorder
+from station.errors import InputError
 from station.files.session import SessionWriter
+from station.model.constants import STANDARD_GRAVITY
 from station.protocols.rotary import ProtocolError
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
-from station.errors import InputError
-from station.model.constants import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

@@ -21,13 +21,19 @@ from pathlib import Path
 
 import numpy as np
 
-from station.solve.calibrate import CalibrationResult, calibrate
-from station.solve.constraints import from_faces
 from station.errors import CalibrationInputError
 from station.model import measurement
 from station.model.frames import align_to
-from station.solve.gyro_turns import TurnCalibration, calibrate_turns, integrate, mirrored, turn_senses
 from station.reduce.stillness import StillIntervals, detect_still
+from station.solve.calibrate import CalibrationResult, calibrate
+from station.solve.constraints import from_faces
+from station.solve.gyro_turns import (
+    TurnCalibration,
+    calibrate_turns,
+    integrate,
+    mirrored,
+    turn_senses,
+)
 
 FACE_SECTIONS = {"x_p": "+x", "x_a": "-x", "y_p": "+y", "y_a": "-y", "z_p": "+z", "z_a": "-z"}
 TURN_SECTIONS = {"x_rot": "x_p", "y_rot": "y_p", "z_rot": "z_p"}  # turn -> face it is done on

@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.solve.calibrate import CalibrationResult, calibrate
 from station.errors import CalibrationInputError
 from station.reduce.stillness import StillIntervals, detect_still
+from station.solve.calibrate import CalibrationResult, calibrate
+
 
 @dataclass(frozen=True)
 class FreeStaticCalibration:

@@ -30,12 +30,12 @@ from matplotlib.figure import Figure
 from scipy import stats
 
 from station.errors import CalibrationInputError, InputError
-from station.protocols import KINDS
-from station.reduce.rotary import position_windows
-from station.replay import ReplaySettings, solve_recorded
-from station.reduce.timeline import sample_times, segment_breaks
 from station.files.jsonable import jsonable
 from station.files.session import Session
+from station.protocols import KINDS
+from station.reduce.rotary import position_windows
+from station.reduce.timeline import sample_times, segment_breaks
+from station.replay import ReplaySettings, solve_recorded
 from station.report import html
 
 FALSE_ALARMS = 0.01

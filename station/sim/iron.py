@@ -12,10 +12,10 @@ from scipy.spatial.transform import Rotation
 
 from station.model.earth import normal_gravity
 from station.model.effects import to_json
-from station.sim.layouts import TRIAD, accelerometer_triad, gyro_array
-from station.sim.rotary import Simulation, random_orientations
 from station.model.sensing import refuse_motion_effects, sense
 from station.model.unit import SensorUnit
+from station.sim.layouts import TRIAD, accelerometer_triad, gyro_array
+from station.sim.rotary import Simulation, random_orientations
 
 FACE_NORMALS = np.array(
     [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float

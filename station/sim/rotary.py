@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation
 from station.model.earth import normal_gravity
 from station.model.effects import axis_wobble, earth_rate, g_sensitivity, to_json
 from station.model.effects.earth_rate import EarthRate
-from station.sim.layouts import A_MODEL, gyro_array
-from station.sim.profile import RotaryTiming
 from station.model.sensing import sense
 from station.model.unit import SensorUnit
+from station.sim.layouts import A_MODEL, gyro_array
+from station.sim.profile import RotaryTiming
 
 
 @dataclass

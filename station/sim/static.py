@@ -9,13 +9,13 @@ in the data file (the station must detect them), only in the truth.
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from station.errors import InputError
 from station.model.earth import earth_rate_enu, normal_gravity
 from station.model.effects import g_sensitivity, to_json
-from station.sim.layouts import TRIAD, accelerometer_triad
-from station.sim.rotary import Simulation
 from station.model.sensing import refuse_motion_effects, sense
 from station.model.unit import SensorUnit
-from station.errors import InputError
+from station.sim.layouts import TRIAD, accelerometer_triad
+from station.sim.rotary import Simulation
 
 
 def attitude_path(rotations: Rotation, still: float, move: float, fs: float):

@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.solve import ml, uncertainty
 from station.errors import CalibrationInputError
 from station.model import measurement
 from station.model.frames import align_to, canonical_rotation
+from station.solve import ml, uncertainty
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
 

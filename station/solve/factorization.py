@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from station.solve.constraints import Constraints, magnitude_constraints
 from station.errors import CalibrationInputError
 from station.model.frames import canonical_rotation
+from station.solve.constraints import Constraints, magnitude_constraints
 
 # Relative size below which a singular value or an eigenvalue counts as zero.
 RANK_TOL = 1e-9

@@ -23,11 +23,11 @@ from itertools import pairwise
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from station.solve.calibrate import CalibrationResult, calibrate
-from station.solve.constraints import FACES, from_faces
 from station.errors import CalibrationInputError
 from station.model import measurement
 from station.model.frames import align_to
+from station.solve.calibrate import CalibrationResult, calibrate
+from station.solve.constraints import FACES, from_faces
 
 AXES = "xyz"
 

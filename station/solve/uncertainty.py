@@ -11,7 +11,13 @@ import numpy as np
 
 from station.model import measurement
 from station.model.frames import to_canonical
-from station.solve.ml import NormalEquations, check_spread, normal_equations, reduced_system, sigma_matrix
+from station.solve.ml import (
+    NormalEquations,
+    check_spread,
+    normal_equations,
+    reduced_system,
+    sigma_matrix,
+)
 from station.solve.poses import Directions, SoftMagnitudes
 
 

@@ -33,17 +33,17 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from drivers import open_imu
+from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.serial import SerialTwin
-from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
-from station.protocols.still import record_poses
-from station.solve.still import calibrate_still
 from station.files.session import Session, StreamSpec, write_results
 from station.model import sensing
 from station.model.earth import normal_gravity
 from station.model.effects import from_json
+from station.protocols.still import record_poses
 from station.sim.layouts import accelerometer_triad
+from station.solve.still import calibrate_still
 
 ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
 """Nominal layout of the bench's default unit: an orthogonal triad and one skew accelerometer."""

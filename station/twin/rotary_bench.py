@@ -28,22 +28,22 @@ from typing import Self
 import numpy as np
 
 from drivers import driver_class, open_imu
+from drivers.clock import ScaledClock
 from drivers.rotary_table import RotaryTable as TableDriver
 from drivers.rotary_table import TableRegisterMap
 from drivers.twins.can import CanImuTwin
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
-from drivers.clock import ScaledClock
 from station.acquire.operator import SimulatedTechnician
-from station.protocols import lookup
-from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
+from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
+from station.protocols import lookup
+from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
 from station.sim.table import TablePhysics
-from station.errors import InputError
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()

@@ -19,8 +19,8 @@ from typing import Self
 
 import numpy as np
 
-from station.protocols.rotary import instruction, suggested_axes
 from station.errors import InputError
+from station.protocols.rotary import instruction, suggested_axes
 
 
 class PortWatch:

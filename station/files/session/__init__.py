@@ -8,6 +8,7 @@
 This namespace is the public interface; the modules' other names are the package's own.
 """
 
+from station.errors import SessionFormatError, SessionLockedError
 from station.files.session.format import (
     EVENT_KINDS,
     FORMAT_VERSION,
@@ -19,7 +20,6 @@ from station.files.session.format import (
     TableData,
     last_completed_position,
 )
-from station.errors import SessionFormatError, SessionLockedError
 from station.files.session.reader import Session
 from station.files.session.writer import SessionWriter, write_results
 

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from station.solve.calibrate import CalibrationResult
 from station.errors import InputError, SessionFormatError
+from station.solve.calibrate import CalibrationResult
 
 FORMAT = "imu-station-session"
 FORMAT_VERSION = 1

@@ -12,6 +12,7 @@ import os
 import h5py
 import numpy as np
 
+from station.errors import InputError, SessionFormatError
 from station.files.session._repair import open_flags
 from station.files.session.format import (
     ALLOWED_FILTERS,
@@ -31,9 +32,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
-from station.errors import SessionFormatError
 from station.solve.calibrate import CalibrationResult
-from station.errors import InputError
 
 
 class Session:

@@ -20,6 +20,7 @@ import time
 import h5py
 import numpy as np
 
+from station.errors import InputError, SessionLockedError
 from station.files.provenance import software_version, utc_now
 from station.files.session._repair import clear_open_flags
 from station.files.session.format import (
@@ -45,10 +46,8 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
-from station.errors import SessionLockedError
 from station.files.session.reader import Session, read_events, read_spec
 from station.solve.calibrate import CalibrationResult
-from station.errors import InputError
 
 
 class SessionWriter:
