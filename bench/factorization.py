@@ -4,8 +4,8 @@ Setup (paper Section V): single-axis accelerometers s1, s2, s3 orthogonal and s4
 between s1 and s3; gains 1 V/g, biases 2.5 V; 20 random orientations x 10 samples; 10-bit style ADC
 of 5 V / 2048 counts, Gaussian noise of 0.7 counts per sample, quantised to counts, averaged per
 orientation. The linear factorization (quartic case, Eq. 29) and the maximum-likelihood refinement
-(station.solve.ml.refine, started from it) are compared over many trials with the paper's columns and
-with the Cramer-Rao bound of each invariant (the 1-sigma of `station.calibrate` on the noiseless
+(station.solve.ml.refine, started from it) are compared over many trials with the paper's columns
+and with the Cramer-Rao bound of each invariant (the 1-sigma of `station.calibrate` on the noiseless
 readings of the same orientations, noise = per-sample sigma with quantisation, over sqrt(samples)).
 Errors are gauge invariant: biases, gains |a_i| and angles between sensor axes.
 

@@ -1,10 +1,11 @@
 """Side by side: imucal's Ferraris calibration and this project's iron path, on imucal's own data.
 
-Data: ../shared/data/real/imucal-ferraris (PROVENANCE.md; never copied into the project). imucal is a
-benchmark extra (`pip install -e .[bench]`), never a runtime dependency. One run prints, for both
+Data: ../shared/data/real/imucal-ferraris (PROVENANCE.md; never copied into the project). imucal is
+a benchmark extra (`pip install -e .[bench]`), never a runtime dependency. One run prints, for both
 tools: parameters (scale factors, misalignments, biases, handedness), wall time, and on the
 continuous recording the face-norm residuals, the held-out residuals (still intervals not used by
-either calibration) and the out-of-sample gyro check (gravity carried across each face-to-face turn).
+either calibration) and the out-of-sample gyro check (gravity carried across each face-to-face
+turn).
 
     .venv/bin/python -P bench/peers.py [--json] [--data DIR]
 """
@@ -213,8 +214,10 @@ def show(report: dict) -> None:
     for tool in ("ours", "imucal"):
         d = a[f"{tool}_minus_reference"]
         print(
-            f"  {tool:7s} accel: scale {d['accel']['scale_rel']:.1e} rel, angles {d['accel']['angle_deg']:.4f} deg, "
-            f"bias {d['accel']['bias_si']:.4f} m/s^2 | gyro: scale {d['gyro']['scale_rel']:.1e} rel, "
+            f"  {tool:7s} accel: scale {d['accel']['scale_rel']:.1e} rel, "
+            f"angles {d['accel']['angle_deg']:.4f} deg, "
+            f"bias {d['accel']['bias_si']:.4f} m/s^2 | "
+            f"gyro: scale {d['gyro']['scale_rel']:.1e} rel, "
             f"angles {d['gyro']['angle_deg']:.4f} deg | mirrored gyro: {a[tool]['gyro_mirrored']}"
         )
     print(
@@ -228,8 +231,10 @@ def show(report: dict) -> None:
     for tool in ("ours", "ours_hand_sections", "imucal"):
         t = c[tool]
         print(
-            f"  {tool:18s} face |a|-g RMS {t['face_norm_rms_ms2']:.4f}, held-out ({c['heldout_intervals']}) "
-            f"{t['heldout_norm_rms_ms2']:.4f} m/s^2, gyro carry RMS {t['gyro_carry_rms_deg']:.2f} deg "
+            f"  {tool:18s} face |a|-g RMS {t['face_norm_rms_ms2']:.4f}, "
+            f"held-out ({c['heldout_intervals']}) "
+            f"{t['heldout_norm_rms_ms2']:.4f} m/s^2, "
+            f"gyro carry RMS {t['gyro_carry_rms_deg']:.2f} deg "
             f"(max {t['gyro_carry_max_deg']:.2f}, {len(t['gyro_carry_deg'])} turns)"
         )
     print(f"  time ms: {c['time_ms']}")

@@ -1,5 +1,6 @@
 """Free-static calibration on real recordings (issue 8): the Xsens MTi of imu_tk and five MPU-9150s;
-and the iron path on imucal's Ferraris recording (six faces, three turns; bench/peers.py adds imucal).
+and the iron path on imucal's Ferraris recording (six faces, three turns; bench/peers.py adds
+imucal).
 
 Data: ../shared/data/real/ (read each PROVENANCE.md; the data are never copied into the project).
 Prints the detector's interval counts (and their robustness to the threshold factor), held-out
@@ -133,7 +134,8 @@ def xsens(root: Path) -> dict:
 
 
 def mpu(root: Path) -> dict:
-    """Each MPU-9150's accelerometer by the same path (quietest rest), and the unit-to-unit spread."""
+    """Each MPU-9150's accelerometer by the same path (quietest rest), and the unit-to-unit
+    spread."""
     units = []
     for path in sorted(root.glob("imu*.log")):
         x = read_table(path, 6)
@@ -157,14 +159,17 @@ def mpu(root: Path) -> dict:
 
 
 def imucal_ferraris(root: Path) -> dict:
-    """imucal's continuous Ferraris recording: automatic sections and the gravity-carry gyro check."""
+    """imucal's continuous Ferraris recording: automatic sections and the gravity-carry gyro
+    check."""
     fs, g = 102.4, 9.81  # PROVENANCE.md; imucal's default gravity
     rec = read_recording(root / "example_ferraris_session.csv")
     t0 = time.perf_counter()
     found = find_sections(rec.acc, rec.gyro, fs, gyro_per_rad=180 / np.pi)
     cal = calibrate_ferraris(rec.acc, rec.gyro, fs, found.sections, g)
     t_path = time.perf_counter() - t0
-    overlap = section_overlap(found.sections, read_section_list(root / "example_ferraris_session_list.json"))
+    overlap = section_overlap(
+        found.sections, read_section_list(root / "example_ferraris_session_list.json")
+    )
     acc, rates = cal.apply_acc(rec.acc.T).T, cal.gyro.apply(rec.gyro.T).T
     carry = gravity_carry_errors(acc, rates, fs, found.still.intervals)
     return {
@@ -185,7 +190,8 @@ def show(report: dict) -> None:
         print(f"Xsens MTi ({x['samples']} samples at {FS:g} Hz)")
         print(
             f"  still intervals: {x['intervals']} (quietest-window rest: "
-            f"{x['intervals_quietest_rest']}, accelerometer only: {x['intervals_accelerometer_only']})"
+            f"{x['intervals_quietest_rest']}, "
+            f"accelerometer only: {x['intervals_accelerometer_only']})"
         )
         print(f"  vs enter factor: {x['intervals_vs_enter_factor']}")
         print(
@@ -227,16 +233,20 @@ def show(report: dict) -> None:
         print(f"MPU-9150 x{len(m['units'])} (g assumed {m['g_assumed']})")
         for u in m["units"]:
             print(
-                f"  {u['unit']}: {u['intervals']} intervals, held-out RMS {u['heldout_rms_ms2']:.4f}, "
-                f"scale {np.round(u['scale'], 4).tolist()}, bias {np.round(u['bias_ms2'], 3).tolist()}"
+                f"  {u['unit']}: {u['intervals']} intervals, "
+                f"held-out RMS {u['heldout_rms_ms2']:.4f}, "
+                f"scale {np.round(u['scale'], 4).tolist()}, "
+                f"bias {np.round(u['bias_ms2'], 3).tolist()}"
             )
         print(
-            f"  unit-to-unit sd: { {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }"
+            "  unit-to-unit sd: "
+            f"{ {k: np.round(v, 4).tolist() for k, v in m['unit_to_unit_sd'].items()} }"
         )
     f = report.get("imucal_ferraris")
     if f:
         print(
-            f"imucal Ferraris: sections cover >= {f['min_coverage_of_hand_made_sections']:.3f} of the "
+            f"imucal Ferraris: sections cover >= "
+            f"{f['min_coverage_of_hand_made_sections']:.3f} of the "
             f"hand-made ones, gyro carry RMS {f['gyro_carry_rms_deg']:.2f} deg "
             f"(max {f['gyro_carry_max_deg']:.2f}), {f['time_ms']:.0f} ms"
         )

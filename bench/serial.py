@@ -102,7 +102,8 @@ def bench_offline(n: int, rng) -> dict:
     blocks, _, stats = parse_all(data.tobytes())
     return {"corrupted_frames": n, "sync_candidates": len(starts),
             "crc16_alone_false_accepts": crc_alone_false,
-            "parser_accepted": int(sum(map(len, blocks))), "parser_false_accepts": false_accepts(blocks),
+            "parser_accepted": int(sum(map(len, blocks))),
+            "parser_false_accepts": false_accepts(blocks),
             "crc_failures": stats.crc_failures}
 
 
@@ -144,7 +145,8 @@ def main(argv=None) -> int:
     parser.add_argument("--frames", type=int, default=1_000_000, help="live frames (default 10**6)")
     parser.add_argument("--offline", type=int, default=1_000_000, help="offline corrupted frames")
     parser.add_argument("--parser-frames", type=int, default=500_000)
-    parser.add_argument("--speed", type=float, default=25.0, help="ScaledClock speed of the live run")
+    parser.add_argument("--speed", type=float, default=25.0,
+                        help="ScaledClock speed of the live run")
     parser.add_argument("--corrupt", type=float, default=0.01)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -159,7 +161,8 @@ def main(argv=None) -> int:
         for section, figures in result.items():
             print(f"[{section}]")
             for key, value in figures.items():
-                print(f"  {key:32s} {value:.6g}" if isinstance(value, float) else f"  {key:32s} {value}")
+                print(f"  {key:32s} {value:.6g}" if isinstance(value, float)
+                      else f"  {key:32s} {value}")
     return 0
 
 

@@ -49,7 +49,8 @@ def exactness(seed: int) -> dict:
             n = int(rng.integers(d * (d + 1) // 2 + 1, 40))
             a = rng.standard_normal((d, m))
             v = random_directions(rng, d, n, rng.uniform(0.5, 5))
-            worst = max(worst, station.eps(a, pca_calibration(a.T @ v, np.linalg.norm(v[:, 0]), d)[0]))
+            worst = max(worst, station.eps(
+                a, pca_calibration(a.T @ v, np.linalg.norm(v[:, 0]), d)[0]))
         out[f"pca_d{d}"] = worst
     faces = ["+x", "-x", "+y", "-y", "+z", "-z"]
     base = np.array([[1, -1, 0, 0, 0, 0], [0, 0, 1, -1, 0, 0], [0, 0, 0, 0, 1, -1]], float)
@@ -95,8 +96,10 @@ def section4(trials: int, seed: int) -> dict:
         eps_slope_n[n] = np.array([
             station.eps(a, pca_calibration(readings, 1.0, 3)[0])
             for a, _, readings in (section4_gyros(rng, n, 0.01) for _ in range(trials))])
-    slope_sigma = np.polyfit(np.log(SIGMAS), np.log([np.median(eps_by_sigma[s]) for s in SIGMAS]), 1)[0]
-    slope_n = np.polyfit(np.log(N_SLOPE), np.log([np.median(eps_slope_n[n]) for n in N_SLOPE]), 1)[0]
+    slope_sigma = np.polyfit(
+        np.log(SIGMAS), np.log([np.median(eps_by_sigma[s]) for s in SIGMAS]), 1)[0]
+    slope_n = np.polyfit(
+        np.log(N_SLOPE), np.log([np.median(eps_slope_n[n]) for n in N_SLOPE]), 1)[0]
     return {
         "trials": trials, "per_n": per_n,
         "median_eps_n20_sigma001": per_n[20]["median_eps_closed_form"],
@@ -121,7 +124,8 @@ def figures(mc: dict, out: Path) -> list[str]:
            title="Fig. 2: four gyro triads, sigma = 0.01")
     paths.append(_save(fig, out / "fig2_eps_boxplot.png"))
     for key, xlabel, name, title in (
-        ("_eps_by_sigma", "noise standard deviation sigma", "fig3_eps_vs_sigma.png", "Fig. 3: n = 20"),
+        ("_eps_by_sigma", "noise standard deviation sigma", "fig3_eps_vs_sigma.png",
+         "Fig. 3: n = 20"),
         ("_eps_slope_n", "number of positions n", "fig4_eps_vs_n.png", "Fig. 4: sigma = 0.01"),
     ):
         xs = np.array(list(mc[key]))
@@ -146,7 +150,8 @@ def _save(fig, path: Path) -> str:
 
 
 def unequal_triad(trials: int, seed: int) -> dict:
-    """Triad with scale factors (1, 0.3, 3), n = 20, sigma = 0.01: closed form vs ML vs the bound."""
+    """Triad with scale factors (1, 0.3, 3), n = 20, sigma = 0.01: closed form vs ML vs the
+    bound."""
     rng = np.random.default_rng(seed)
     a = np.diag([1.0, 0.3, 3.0])
     e_cf, e_ml, bound = np.empty(trials), np.empty(trials), np.empty(trials)
@@ -202,7 +207,8 @@ def speed(seed: int) -> dict:
         return float(np.median(times))
 
     def dense_ml():
-        # the same likelihood with scipy's dense trust-region solver, v as free 3-vectors + |v|=c rows
+        # the same likelihood with scipy's dense trust-region solver, v as free 3-vectors + |v|=c
+        # rows
         def resid(x):
             aa, vv = x[:36].reshape(3, 12), x[36:].reshape(3, 200)
             return np.concatenate([(r200 - aa.T @ vv).ravel(), 100 * (np.sum(vv**2, 0) - 1)])
@@ -230,8 +236,10 @@ def run(trials: int, seed: int, figure_dir: Path) -> dict:
     s4 = result["section4"]
     result["acceptance"] = {
         "noiseless_eps_below_1e-9": max(result["exactness_max_eps"].values()) < 1e-9,
-        "median_eps_n20_within_5pct_of_0.032": abs(s4["median_eps_n20_sigma001"] / 0.032 - 1) <= 0.05,
-        "ratio_in_0.95_1.05_every_n_ml": all(0.95 <= p["ratio_ml"] <= 1.05 for p in s4["per_n"].values()),
+        "median_eps_n20_within_5pct_of_0.032":
+            abs(s4["median_eps_n20_sigma001"] / 0.032 - 1) <= 0.05,
+        "ratio_in_0.95_1.05_every_n_ml": all(
+            0.95 <= p["ratio_ml"] <= 1.05 for p in s4["per_n"].values()),
         "ratio_in_0.95_1.05_every_n_closed_form": all(
             0.95 <= p["ratio_closed_form"] <= 1.05 for p in s4["per_n"].values()),
         "slope_sigma_1.00+-0.02": abs(s4["slope_vs_sigma"] - 1) <= 0.02,

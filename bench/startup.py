@@ -54,7 +54,8 @@ def main() -> None:
     for name, s in figures.items():
         print(f"{name:34s} {s * 1e3:7.1f} ms CPU")
     print(f"station --help over bare Python: {out['over_bare_python_s'] * 1e3:.1f} ms "
-          f"(target <= {TARGET_S * 1e3:.0f} ms in all: {'met' if out['meets_target'] else 'MISSED'})")
+          f"(target <= {TARGET_S * 1e3:.0f} ms in all: "
+          f"{'met' if out['meets_target'] else 'MISSED'})")
 
 
 if __name__ == "__main__":

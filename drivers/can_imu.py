@@ -371,7 +371,8 @@ class CanImu:
         """Samples completed since the last call; waits up to `timeout` clock seconds for the
         first. Raises CanBusError once the bus is lost and its last samples are out."""
         if self.bus is None:
-            raise CanBusError(self.channel, f"CAN bus {self.channel} is not open; call open() first")
+            raise CanBusError(self.channel,
+                              f"CAN bus {self.channel} is not open; call open() first")
         with self._receiver.lock:
             if not self._assembler.ready() and self._receiver.lost is None:
                 self._receiver.data_ready.wait(timeout / self._clock.speed)

@@ -23,7 +23,8 @@ class WallClock:
 
 
 class ScaledClock(WallClock):
-    """Simulated time that advances `speed` times faster than the wall clock, starting at `start`."""
+    """Simulated time that advances `speed` times faster than the wall clock, starting at
+    `start`."""
 
     def __init__(self, speed: float = 1.0, start: float = 0.0):
         if not speed > 0:

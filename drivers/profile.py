@@ -93,8 +93,8 @@ class Section:
         """Raise if the table has keys nobody read."""
         unknown = sorted(set(self.table) - self._read)
         if unknown:
-            raise ProfileError(f"{self.source}: [{self.name}] has unknown keys {unknown}; known keys "
-                               f"are {sorted(self._read)} (see docs/devices.md)")
+            raise ProfileError(f"{self.source}: [{self.name}] has unknown keys {unknown}; "
+                               f"known keys are {sorted(self._read)} (see docs/devices.md)")
 
 
 def _is(value, kind: type) -> bool:
@@ -235,7 +235,8 @@ class BinaryFormat:
             ["counts", "seq"], ["counts", "seq", "time"]
         ):
             raise s.error("layout", "must start with \"sync\", end with \"crc\" and hold \"seq\", "
-                                    f"\"counts\" and optionally \"time\" once each; got {list(layout)}")
+                                    "\"counts\" and optionally \"time\" once each; "
+                                    f"got {list(layout)}")
         unsigned = tuple(t for t in INT_TYPES if t.startswith("u"))
         has_time = "time" in layout
         seq_type = s.get("seq_type", str, choices=unsigned)

@@ -10,7 +10,8 @@ class SampleBlock:
     """k consecutive samples of m channels, as decoded from the wire.
 
     counts      : (k, m) int64   raw integer counts, exactly as sent by the device
-    seq         : (k,)   int64   device sequence number, unwrapped (monotonic, gaps = dropped frames)
+    seq         : (k,)   int64   device sequence number, unwrapped (monotonic, gaps = dropped
+                                 frames)
     device_time : (k,)   float64 device timestamp in seconds (NaN where the device sends none)
     host_time   : (k,)   float64 host clock (drivers.clock) when the bytes were read, seconds
     """

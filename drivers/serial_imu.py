@@ -33,7 +33,8 @@ class SerialImu:
 
     def __init__(self, port: str, profile, clock=None, read_timeout: float = 0.01):
         self.port = str(port)
-        self.profile = profile if isinstance(profile, SerialImuProfile) else SerialImuProfile.load(profile)
+        self.profile = (profile if isinstance(profile, SerialImuProfile)
+                        else SerialImuProfile.load(profile))
         self.clock = clock or WallClock()
         self.read_timeout = read_timeout
         parser = BinaryFrameParser if self.profile.serial.protocol == "binary" else AsciiLineParser
@@ -62,7 +63,8 @@ class SerialImu:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SerialPortError(
                 self.port, f"cannot open serial port {self.port}: {exc}. Check that the device is "
-                "plugged in, that the path is right and that no other program holds the port.") from exc
+                "plugged in, that the path is right and that no other program holds the "
+                "port.") from exc
         self.parser.reset()
         self.connections += 1
         return self
@@ -81,7 +83,8 @@ class SerialImu:
         """The samples completed within `timeout` clock seconds: a SampleBlock as soon as one sample
         is decoded, None if none came. Raises DeviceLostError if the device is lost."""
         if self._serial is None and self._lost is None:
-            raise SerialPortError(self.port, f"serial port {self.port} is not open; call open() first")
+            raise SerialPortError(self.port,
+                                  f"serial port {self.port} is not open; call open() first")
         if self._lost is not None:
             error, self._lost = self._lost, None
             raise error
@@ -109,8 +112,9 @@ class SerialImu:
         except (serial.SerialException, OSError) as exc:
             self._close_port()
             self._lost = DeviceLostError(
-                self.port, f"serial IMU on {self.port} was lost ({exc}). The samples read so far are "
-                "kept; reconnect the device and call open() to continue.")
+                self.port, f"serial IMU on {self.port} was lost ({exc}). "
+                "The samples read so far are kept; reconnect the device and call open() to "
+                "continue.")
             self._lost.__cause__ = exc
             return None
 

@@ -1,8 +1,9 @@
 """IMU calibration station: the calibration core.
 
-Public API (README, "Python API"): `calibrate` -> `CalibrationResult`, `crlb` (Cramer-Rao bound of a in
-the canonical frame), `eps` (error metric of Eq. 19), `CalibrationInputError`, `StationError`. The
-names are imported on first use (PEP 562), so `import station` (and `station --help`) loads no numpy.
+Public API (README, "Python API"): `calibrate` -> `CalibrationResult`, `crlb` (Cramer-Rao bound of a
+in the canonical frame), `eps` (error metric of Eq. 19), `CalibrationInputError`, `StationError`.
+The names are imported on first use (PEP 562), so `import station` (and `station --help`) loads no
+numpy.
 """
 
 import importlib

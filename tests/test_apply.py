@@ -143,7 +143,8 @@ def test_session_to_hdf5(tmp_path, cal_path, capsys):
         assert f["v"].attrs["units"] == "rad/s" and f["time"].attrs["units"] == "s"
         assert f.attrs["unit_serial"] == "SN42"
         assert f.attrs["calibration_checksum"] == make().to_document()["checksum"]
-        assert np.max(np.abs(f["v"][()] - v)) < 0.5e-6 * np.abs(np.linalg.pinv(make().a.T)).sum(1).max()
+        assert (np.max(np.abs(f["v"][()] - v))
+                < 0.5e-6 * np.abs(np.linalg.pinv(make().a.T)).sum(1).max())
         # sampling instants: seq / rate + host time of the least delayed sample
         assert np.allclose(np.diff(f["time"][()]), 1 / RATE)
 

@@ -54,7 +54,8 @@ def test_a_lost_middle_frame_drops_only_its_sample():
             asm.feed(frame(i, counter), host_time=0.0)
     asm.finish()
     assert asm.take().seq.tolist() == [1, 3]
-    assert (asm.stats.incomplete, asm.stats.orphaned, asm.stats.gaps, asm.stats.dropped) == (2, 4, 1, 1)
+    assert (asm.stats.incomplete, asm.stats.orphaned, asm.stats.gaps,
+            asm.stats.dropped) == (2, 4, 1, 1)
 
 
 garbage_frame = st.builds(

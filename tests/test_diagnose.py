@@ -84,7 +84,8 @@ def test_cli_json_and_report(tmp_path):
     path, _ = npz.write(tmp_path / "s.npz", sim)
     html = tmp_path / "r.html"
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path), "--json",
-                          "--report", str(html)], check=False, capture_output=True, text=True, timeout=120)
+                          "--report", str(html)],
+                         check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert doc["effects"] == ["earth_rate"]

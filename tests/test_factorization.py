@@ -1,4 +1,5 @@
-"""Hwangbo & Kanade factorization (station/solve/factorization.py), constraints (station/solve/constraints.py).
+"""Hwangbo & Kanade factorization (station/solve/factorization.py), constraints
+(station/solve/constraints.py).
 
 Truth is generated here from a known layout and known stimuli; the solver sees only readings and
 constraints. Noiseless data must be reproduced exactly (up to the rotation of Remark 1, via Eq. 19).

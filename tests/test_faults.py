@@ -50,7 +50,8 @@ def table_after(table, t):
 def check_readings(s, events, reduced):
     """Eq. (18) readings of every position within 6 sigma of the truth a^T (c u_j), u_j the
     table axis of the position's last mounting (restarts do not re-mount)."""
-    mounts = [e.position for e in events if e.kind == "position_start" and not e.detail.get("again")]
+    mounts = [e.position for e in events
+              if e.kind == "position_start" and not e.detail.get("again")]
     last = [max(i for i, j in enumerate(mounts) if j == p) for p in range(max(mounts) + 1)]
     mounted = np.array(s.protocol.operator.orientations)[last]  # what the technician really did
     expected = s.bench.truth().a.T @ mounted[:, :, 2].T

@@ -78,7 +78,8 @@ def frames_of(seq) -> list:
 
 
 def test_clean_stream_decodes_exactly_in_any_chunking():
-    for chunk, k in ((None, 3000), (1, 40), (7, 300), (SIZE - 1, 3000), (SIZE + 1, 3000), (4096, 3000)):
+    for chunk, k in ((None, 3000), (1, 40), (7, 300), (SIZE - 1, 3000), (SIZE + 1, 3000),
+                     (4096, 3000)):
         seq = np.arange(k)
         block, stats = parse(stream(seq), chunk=chunk)
         assert np.array_equal(block.seq, seq) and np.array_equal(block.counts, pattern(seq))

@@ -74,10 +74,11 @@ def test_mutated_frame_streams_yield_only_frames_that_were_sent(first, k, mutati
     assert_only_true_frames(feed_in_chunks(parser, data, cuts), data)
 
 
-line = st.tuples(st.floats(0, 1e9), st.lists(st.integers(-(2**40), 2**40), min_size=6, max_size=6)).map(
+line = st.tuples(st.floats(0, 1e9),
+                 st.lists(st.integers(-(2**40), 2**40), min_size=6, max_size=6)).map(
     lambda v: (",".join(map(str, [v[0], *v[1]])) + "\n").encode())
-chunk = st.one_of(line, st.binary(max_size=60), st.text(alphabet="0123456789,.-+ \n\re", max_size=60)
-                  .map(str.encode))
+chunk = st.one_of(line, st.binary(max_size=60),
+                  st.text(alphabet="0123456789,.-+ \n\re", max_size=60).map(str.encode))
 
 
 @SETTINGS

@@ -18,7 +18,8 @@ GYRO_NOISE = 25.0  # counts per sample
 
 
 def with_gyro(seed: int):
-    """Accelerometer counts of `simulated` plus a gyro: bias and white noise, large rates in motion."""
+    """Accelerometer counts of `simulated` plus a gyro: bias and white noise, large rates in
+    motion."""
     y, truth, _, _ = simulated(seed)
     rng = np.random.default_rng(100 + seed)
     gyro = GYRO_BIAS + GYRO_NOISE * rng.standard_normal(y.shape)
@@ -47,8 +48,8 @@ def test_recovers_the_simulated_accelerometer_and_gyro_bias():
 
 
 def test_leave_one_out_matches_the_noise():
-    """Held-out |a| - g: a pose mean has noise 3.2 counts / sqrt(~330 samples) / 400 counts per m/s^2
-    = 4.4e-4 m/s^2 along g; a prediction from 14 poses and 9 parameters inflates that by about
+    """Held-out |a| - g: a pose mean has noise 3.2 counts / sqrt(~330 samples) / 400 counts per
+    m/s^2 = 4.4e-4 m/s^2 along g; a prediction from 14 poses and 9 parameters inflates that by about
     sqrt(1 + 9/14): expected RMS ~5.7e-4. The bounds leave room for high-leverage held-out poses."""
     y, _ = with_gyro(seed=8)
     fit = calibrate_free_static(y, FS, G)
@@ -67,14 +68,15 @@ def test_shape_mismatch_is_refused():
 
 
 def test_four_accelerometers_go_through_the_joint_bias_factorization():
-    # a fourth sensor along (1, 1, 1)/sqrt(3) of the triad: axis a w, bias b . w + 500 counts (a bias
-    # in the span of the axes would be unidentifiable: the factorization refuses that case)
+    # a fourth sensor along (1, 1, 1)/sqrt(3) of the triad: axis a w, bias b . w + 500 counts (a
+    # bias in the span of the axes would be unidentifiable: the factorization refuses that case)
     y, _, _, _ = simulated(seed=12)
     w = np.ones(3) / np.sqrt(3)
     fit = calibrate_free_static(np.hstack([y, (y @ w + 500.0)[:, None]]), FS, G)
     assert fit.readings.shape == (4, 15) and fit.accel.method == "factorization"
     true_scale = COUNTS * np.linalg.norm(A_TRUE, axis=0)
-    assert np.all(np.abs(fit.accel.scale_factors[:3] - true_scale) < 4 * fit.accel.scale_factors_sigma[:3])
+    assert np.all(np.abs(fit.accel.scale_factors[:3] - true_scale)
+                  < 4 * fit.accel.scale_factors_sigma[:3])
     expected_fourth = COUNTS * np.linalg.norm(A_TRUE @ w)
     assert abs(fit.accel.scale_factors[3] - expected_fourth) < 4 * fit.accel.scale_factors_sigma[3]
 

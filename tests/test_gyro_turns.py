@@ -1,5 +1,5 @@
-"""Gyro calibration from turns of known angle (station/solve/gyro_turns.py, Hwangbo & Kanade Eq. 31) on
-simulated turns with a known truth: recovery within the noise of the integrals, turn senses,
+"""Gyro calibration from turns of known angle (station/solve/gyro_turns.py, Hwangbo & Kanade Eq. 31)
+on simulated turns with a known truth: recovery within the noise of the integrals, turn senses,
 handedness, and the gravity-carry check."""
 
 import numpy as np

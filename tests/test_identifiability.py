@@ -44,7 +44,8 @@ def test_spin_axes_on_a_common_cone_make_eq7_singular():
     rng = np.random.default_rng(3)
     phi = rng.uniform(0, 2 * np.pi, 15)
     theta = np.radians(50)
-    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.full(15, np.cos(theta))])
+    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                  np.full(15, np.cos(theta))])
     raises_with_advice("cone", "off that cone", readings_for(v), 1.0)
 
 
@@ -65,7 +66,8 @@ def test_bad_shapes_values_and_options():
     bad[0, 0] = np.nan
     raises_with_advice("nan", "redo the positions", bad, 1.0)
     raises_with_advice("not positive", "si units", readings_for(v), -1.0)
-    raises_with_advice("biases given", "one bias per sensor", readings_for(v), 1.0, bias=np.zeros(3))
+    raises_with_advice("biases given", "one bias per sensor", readings_for(v), 1.0,
+                       bias=np.zeros(3))
     raises_with_advice("unknown method", "choose one of", readings_for(v), 1.0, method="magic")
 
 

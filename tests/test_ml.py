@@ -1,5 +1,5 @@
-"""Maximum-likelihood refinement: exact fixed point, bias estimation, and efficiency where the closed
-form is not (a triad with very unequal scale factors)."""
+"""Maximum-likelihood refinement: exact fixed point, bias estimation, and efficiency where the
+closed form is not (a triad with very unequal scale factors)."""
 
 import numpy as np
 import pytest
@@ -16,7 +16,8 @@ def test_tangent_basis_is_orthonormal_and_perpendicular():
         u = random_directions(rng, d, 50)
         u[:, 0] = -np.eye(d)[0]  # the Householder sign switch
         b = tangent_basis(u)
-        np.testing.assert_allclose(np.einsum("ndk,ndl->nkl", b, b), np.broadcast_to(np.eye(d - 1), (50, d - 1, d - 1)), atol=1e-12)
+        np.testing.assert_allclose(np.einsum("ndk,ndl->nkl", b, b),
+                                   np.broadcast_to(np.eye(d - 1), (50, d - 1, d - 1)), atol=1e-12)
         np.testing.assert_allclose(np.einsum("dn,ndk->nk", u, b), 0, atol=1e-12)
 
 
@@ -26,7 +27,8 @@ def test_converges_to_the_truth_from_a_perturbed_start_without_noise():
     v = random_directions(rng, 3, 30, 2.0)
     b = rng.normal(0, 0.3, 12)
     fit = refine(a.T @ v + b[:, None], a + 0.05 * rng.standard_normal(a.shape),
-                 v + 0.1 * rng.standard_normal(v.shape), bias0=b + 0.1, estimate_bias=True, magnitude=2.0)
+                 v + 0.1 * rng.standard_normal(v.shape), bias0=b + 0.1, estimate_bias=True,
+                 magnitude=2.0)
     assert station.eps(a, fit.a) < 1e-9
     np.testing.assert_allclose(fit.bias, b, atol=1e-9)
     assert fit.dof == 12 * 30 - (3 * 12 + 12 + 30 * 2 - 3)
@@ -40,7 +42,8 @@ def test_ml_reaches_the_bound_for_a_triad_with_unequal_scales():
     for _ in range(300):
         v = random_directions(rng, 3, 20)
         readings = a.T @ v + 0.01 * rng.standard_normal((3, 20))
-        e2_cf.append(station.eps(a, station.calibrate(readings, 1.0, sigma=0.01, refine=False).a) ** 2)
+        e2_cf.append(
+            station.eps(a, station.calibrate(readings, 1.0, sigma=0.01, refine=False).a) ** 2)
         e2_ml.append(station.eps(a, station.calibrate(readings, 1.0, sigma=0.01).a) ** 2)
         bound.append(np.trace(station.crlb(a, v, 0.01)))
     bound = np.mean(bound)

@@ -1,6 +1,7 @@
 """Issue 8 acceptance on the real Xsens MTi recording of imu_tk (../shared/data/real/imutk-xsens):
 38 still intervals found with thresholds relative to the measured noise, held-out |a| - g RMS at
-most 0.002 m/s^2, the manufacturer's printed calibration at about 0.0195. Skipped without the data."""
+most 0.002 m/s^2, the manufacturer's printed calibration at about 0.0195. Skipped without the
+data."""
 
 import importlib.util
 import json

@@ -77,7 +77,8 @@ def test_other_settings_give_other_numbers_under_a_new_name(copy):
     assert np.array_equal(kept.readings, original.readings)  # stored results never change
     assert new.readings.shape == (12, 10) and new.calibration.method == "pca"
     # trimming 0.5 s of each window keeps the readings within their standard error
-    assert np.all(np.abs(new.readings - original.readings[:, :10]) < 4 * original.readings_sigma[:, :10])
+    assert np.all(np.abs(new.readings - original.readings[:, :10])
+                  < 4 * original.readings_sigma[:, :10])
     assert not np.array_equal(new.readings, original.readings[:, :10])
     with pytest.raises(ValueError, match="exists"):
         replay_into(copy, "trimmed", settings)
@@ -95,7 +96,8 @@ def test_the_settings_are_stored_with_the_results_and_reproduce_them(copy, capsy
     # --like: the stored settings reproduce the stored results bit for bit ...
     assert main(["replay", str(copy), "--like", "mine", "--json"]) == 0
     same = json.loads(capsys.readouterr().out)
-    assert same["settings"] == {**dataclasses.asdict(settings), "positions": list(settings.positions)}
+    assert same["settings"] == {**dataclasses.asdict(settings),
+                                "positions": list(settings.positions)}
     # ... and the options given change them (here: no trim)
     assert main(["replay", str(copy), "--like", "mine", "--trim", "0", "--json"]) == 0
     untrimmed = json.loads(capsys.readouterr().out)

@@ -80,7 +80,8 @@ def test_trim_shortens_the_windows_and_moves_the_readings_by_the_noise(session):
     assert result.frame == "nominal" and trimmed.M.shape == full.M.shape
 
 
-@pytest.mark.parametrize("keep", [(0, 1, 2, 3, 4, 6, 7, 8, 9, 10), (11, 4, 2, 7, 9, 0, 5, 3, 10, 1)])
+@pytest.mark.parametrize("keep", [(0, 1, 2, 3, 4, 6, 7, 8, 9, 10),
+                                  (11, 4, 2, 7, 9, 0, 5, 3, 10, 1)])
 def test_a_subset_of_poses_gives_its_columns_and_constraints(session, keep):
     protocol, path = session
     full, _ = replay(path)

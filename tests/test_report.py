@@ -31,16 +31,17 @@ from station.twin.rotary_bench import VirtualBench
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--hide-scrollbars")
-PROBE = """<script>
+PROBE = ("""<script>
 window.__errors = [];
 window.addEventListener("error", e => window.__errors.push(
   e.message || ("failed to load " + String(e.target && e.target.src).slice(0, 60))), true);
 const original = console.error;
-console.error = (...a) => { window.__errors.push("console.error: " + a.join(" ")); original(...a); };
+console.error = (...a) => { window.__errors.push("console.error: " + a.join(" ")); """
+         """original(...a); };
 window.addEventListener("load", () => document.documentElement.setAttribute("data-probe",
   JSON.stringify({errors: window.__errors,
                   images: [...document.images].map(i => [i.complete, i.naturalWidth])})));
-</script>"""
+</script>""")
 """Injected first in <head> (before the report's Content-Security-Policy, which would block it):
 records script errors, failed image loads and console errors into the DOM for --dump-dom."""
 POSITIONS = 8

@@ -92,7 +92,8 @@ def test_unplug_names_the_port_keeps_samples_and_reconnects():
         # every sample before the unplug: consecutive, exact, up to the last frame fully written
         seq, fate = twin.log()
         last_written = seq[fate == SENT].max()
-        assert np.setdiff1d(intact_between(twin, before.seq[0], before.seq[-1]), before.seq).size == 0
+        assert np.setdiff1d(intact_between(twin, before.seq[0], before.seq[-1]),
+                            before.seq).size == 0
         assert np.array_equal(before.counts, source(twin.time_of(before.seq)))
         assert before.seq[-1] <= last_written
         with pytest.raises(SerialPortError, match="not open"):

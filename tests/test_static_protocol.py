@@ -1,6 +1,6 @@
-"""The free-static protocol on the virtual hand bench (accelerometers through the real serial driver,
-turned by hand with 5 deg placement errors): poses found without key presses, a repeated pose
-refused, the solution within its uncertainty of the truth; settings and channel checks."""
+"""The free-static protocol on the virtual hand bench (accelerometers through the real serial
+driver, turned by hand with 5 deg placement errors): poses found without key presses, a repeated
+pose refused, the solution within its uncertainty of the truth; settings and channel checks."""
 
 import numpy as np
 import pytest

@@ -73,7 +73,8 @@ def test_finds_every_simulated_pose_inside_its_true_interval():
 
 def test_interval_means_unbiased_and_standard_errors_honest():
     """z = (mean - truth) / stderr is N(0, 1) for unbiased means and honest standard errors:
-    over 6 x 15 x 3 = 270 values, sd(z) has a standard error of 1/sqrt(540) = 0.043, mean(z) 0.061."""
+    over 6 x 15 x 3 = 270 values, sd(z) has a standard error of 1/sqrt(540) = 0.043, mean(z)
+    0.061."""
     z = []
     for seed in range(6):
         y, _, true_mean, _ = simulated(seed)
@@ -86,7 +87,8 @@ def test_interval_means_unbiased_and_standard_errors_honest():
 
 
 def test_thresholds_are_relative_to_the_noise():
-    """Same intervals in counts, in SI units with an offset, and with noise and motion 10x larger."""
+    """Same intervals in counts, in SI units with an offset, and with noise and motion 10x
+    larger."""
     y, _, _, _ = simulated(seed=4, poses=10)
     base = detect_still(y, FS).intervals
     np.testing.assert_array_equal(detect_still(y / COUNTS + 5.0, FS).intervals, base)

@@ -1,4 +1,5 @@
-"""Reported uncertainties are honest: nominal 95 % intervals cover the truth about 95 % of the time."""
+"""Reported uncertainties are honest: nominal 95 % intervals cover the truth about 95 % of the
+time."""
 
 import numpy as np
 from layouts import random_directions, section4_gyros
@@ -25,7 +26,8 @@ def test_95_percent_intervals_of_scales_and_angles_cover_the_truth():
         u = a / true_s
         true_ang = np.arccos(np.clip(u.T @ u, -1, 1))
         cover_s.append(np.abs(res.scale_factors - true_s) < 1.96 * res.scale_factors_sigma)
-        cover_ang.append(np.abs(res.axis_angles - true_ang)[i, k] < 1.96 * res.axis_angles_sigma[i, k])
+        cover_ang.append(
+            np.abs(res.axis_angles - true_ang)[i, k] < 1.96 * res.axis_angles_sigma[i, k])
     lo, hi = binomial_band(0.95, trials)  # conservative: one effective sample per trial
     assert lo < np.mean(cover_s) < hi, np.mean(cover_s)
     assert lo < np.mean(cover_ang) < hi, np.mean(cover_ang)
@@ -46,7 +48,8 @@ def triad_with_unknown_biases(seed: int, trials: int = 300):
 
 
 def test_bias_intervals_cover_the_truth_for_a_triad_with_unknown_biases():
-    cover = [np.abs(res.bias - b) < 1.96 * res.bias_sigma for b, res in triad_with_unknown_biases(8)]
+    cover = [np.abs(res.bias - b) < 1.96 * res.bias_sigma
+             for b, res in triad_with_unknown_biases(8)]
     lo, hi = binomial_band(0.95, len(cover))
     assert lo < np.mean(cover) < hi, np.mean(cover)
 
@@ -78,15 +81,17 @@ def test_crlb_trace_scales_with_sigma_squared_and_inverse_n():
 
 
 def test_eps_tail_probability_matches_the_monte_carlo_of_an_efficient_estimator():
-    # Section IV layout, n = 50: the closed form is efficient there (ratio 1.00 in bench/solvers.py),
-    # so P(eps_trial >= eps_q) over real trials must match the predicted tail at its quantiles
+    # Section IV layout, n = 50: the closed form is efficient there (ratio 1.00 in
+    # bench/solvers.py), so P(eps_trial >= eps_q) over real trials must match the predicted tail at
+    # its quantiles
     from station.solve.uncertainty import eps_tail_probability
 
     rng = np.random.default_rng(12)
     a, v, _ = section4_gyros(rng, 50, 0.0)
     bound = station.crlb(a, v, 0.01)
-    trials = np.array([station.eps(a, station.calibrate(a.T @ v + 0.01 * rng.standard_normal((12, 50)),
-                                                         1.0, sigma=0.01, refine=False).a)
+    trials = np.array([station.eps(a, station.calibrate(
+                           a.T @ v + 0.01 * rng.standard_normal((12, 50)),
+                           1.0, sigma=0.01, refine=False).a)
                        for _ in range(400)])
     for q in (0.5, 0.9):
         level = np.quantile(trials, q)

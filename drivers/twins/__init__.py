@@ -1,1 +1,2 @@
-"""Virtual devices speaking the real wire protocols: serial IMU on a pty, CAN IMU on a virtual bus, Modbus table."""
+"""Virtual devices speaking the real wire protocols: serial IMU on a pty, CAN IMU on a virtual bus,
+Modbus table."""

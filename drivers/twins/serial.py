@@ -6,9 +6,9 @@ udev's /dev/serial/by-id/...) to the pty slave, so the same path works again aft
 one slave fd open so the pty survives the driver closing and reopening the port.
 
 Frames are paced by the shared clock: frame `seq` carries the data `source(times)` at
-`time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes wait
-while the pty is full (like hardware flow control); if the twin falls more than `max_lag` seconds of
-clock time behind, it skips frames like a device whose buffer overflows.
+`time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes
+wait while the pty is full (like hardware flow control); if the twin falls more than `max_lag`
+seconds of clock time behind, it skips frames like a device whose buffer overflows.
 
 Fault knobs (attributes, changeable while streaming):
 - `corrupt`: fraction of frames mutated by `corrupt_frame` (bytes flipped, deleted or inserted);
@@ -52,7 +52,8 @@ def corrupt_frame(frame: bytes, rng: np.random.Generator) -> bytes:
         del data[start : start + int(rng.integers(1, max(2, n // 2 + 1)))]
     else:
         at = int(rng.integers(1, max(2, n)))
-        data[at:at] = rng.integers(0, 256, size=int(rng.integers(1, n + 1)), dtype=np.uint8).tobytes()
+        data[at:at] = rng.integers(0, 256, size=int(rng.integers(1, n + 1)),
+                                   dtype=np.uint8).tobytes()
     return bytes(data)
 
 
@@ -69,7 +70,8 @@ class SerialTwin:
 
     def __init__(self, profile, source, clock=None, rate_hz=None, seed=0, corrupt=0.0, drop=0.0,
                  max_lag=1.0):
-        self.profile = profile if isinstance(profile, SerialImuProfile) else SerialImuProfile.load(profile)
+        self.profile = (profile if isinstance(profile, SerialImuProfile)
+                        else SerialImuProfile.load(profile))
         self.source = source
         self.clock = clock or WallClock()
         self.rate_hz = float(rate_hz or self.profile.imu.rate_hz)
@@ -203,8 +205,8 @@ class SerialTwin:
         counts = np.asarray(self.source(times))
         m = len(self.profile.imu.channels)
         if counts.shape != (len(times), m) or not np.issubdtype(counts.dtype, np.integer):
-            raise ValueError(f"twin source must return integer counts of shape ({len(times)}, {m}); "
-                             f"got {counts.dtype} {counts.shape}")
+            raise ValueError("twin source must return integer counts of shape "
+                             f"({len(times)}, {m}); got {counts.dtype} {counts.shape}")
         fmt = self.profile.serial.frame
         if self.profile.serial.protocol == "ascii":
             return encode_lines(fmt, times, counts).splitlines(keepends=True)

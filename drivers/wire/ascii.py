@@ -104,7 +104,8 @@ class AsciiLineParser:
             return None
         try:
             text = line.decode("ascii")
-            tokens = text.split() if self.fmt.delimiter.isspace() else text.split(self.fmt.delimiter)
+            tokens = (text.split() if self.fmt.delimiter.isspace()
+                      else text.split(self.fmt.delimiter))
             tokens = [t.strip() for t in tokens]
             if len(tokens) != self.fields:
                 raise ValueError(f"{len(tokens)} fields, expected {self.fields}")

@@ -27,7 +27,8 @@ from drivers.samples import SampleBlock
 from drivers.wire import Decoded, SerialStats
 from drivers.wire.crc import CRCS
 
-INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4", "int8": "i1", "int16": "i2", "int32": "i4"}
+INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4",
+             "int8": "i1", "int16": "i2", "int32": "i4"}
 """Profile integer type name -> numpy type code."""
 
 
@@ -143,9 +144,11 @@ class BinaryFrameParser:
 
         starts = self._sync_positions(buf)
         complete = starts[starts + size <= n]
-        rows = sliding_window_view(buf, size)[complete] if n >= size else np.zeros((0, size), np.uint8)
+        rows = (sliding_window_view(buf, size)[complete] if n >= size
+                else np.zeros((0, size), np.uint8))
         records = rows.view(self.dtype).reshape(-1)
-        crc_ok = self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size]) == records["crc"]
+        crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
+                  == records["crc"])
         valid, valid_records = complete[crc_ok], records[crc_ok]
 
         ctx_pos, ctx_seq, ctx_acc = self._context
@@ -199,7 +202,8 @@ class BinaryFrameParser:
         size, new_pos = self.size, pos[n_ctx:]
         waiting = ~links[n_ctx:] & ~near[n_ctx:] & (n < new_pos + self.horizon + size - 1)
         unsettled = new_pos + 2 * size - 1 > n
-        overlapping_waiting = new_pos[new_pos > new_pos[waiting][0] - size][:1] if waiting.any() else []
+        overlapping_waiting = (new_pos[new_pos > new_pos[waiting][0] - size][:1]
+                               if waiting.any() else [])
         incomplete = starts[starts + size > n]
         return max(0, min([n - len(self.sync) + 1, *incomplete[:1], *new_pos[unsettled][:1],
                            *overlapping_waiting]))
@@ -218,7 +222,8 @@ class BinaryFrameParser:
         for i in accepted:
             while kept and pos[i] < pos[kept[-1]] + self.size:
                 j = kept[-1]
-                if j >= n_ctx and _forward(seq[j : j + 1], seq[i : i + 1], self.seq_modulus)[0] <= self.fmt.max_gap:
+                if (j >= n_ctx and _forward(seq[j : j + 1], seq[i : i + 1], self.seq_modulus)[0]
+                        <= self.fmt.max_gap):
                     accept[j] = False
                     kept.pop()
                 else:
@@ -240,9 +245,11 @@ class BinaryFrameParser:
         else:
             if self._last is None:  # the very first frame: sequence 1 step after a virtual one
                 before = (seq_raw[0] - 1) % self.seq_modulus
-                self._last = (self._connection_start, before, seq_raw[0] - 1, ticks_raw[0], ticks_raw[0])
+                self._last = (self._connection_start, before, seq_raw[0] - 1,
+                              ticks_raw[0], ticks_raw[0])
             last_end, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
-            steps = _forward(np.concatenate([[last_seq_raw], seq_raw[:-1]]), seq_raw, self.seq_modulus)
+            steps = _forward(np.concatenate([[last_seq_raw], seq_raw[:-1]]), seq_raw,
+                             self.seq_modulus)
             seq = last_seq + np.cumsum(steps)
             stats.gaps += int(np.count_nonzero(steps > 1))
             stats.dropped += int(np.sum(steps - 1))
@@ -255,13 +262,15 @@ class BinaryFrameParser:
                 resynced[0] = False  # first frame of a new connection
             stats.resyncs += int(np.count_nonzero(resynced))
             if self.time_modulus:
-                dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) % self.time_modulus
+                dt = ((ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]]))
+                      % self.time_modulus)
                 ticks = last_ticks + np.cumsum(dt)
                 device_time = ticks * self.fmt.time_tick
             else:
                 ticks = np.zeros(k, np.int64)
                 device_time = np.full(k, np.nan)
-            self._last = (int(ends[-1]), int(seq_raw[-1]), int(seq[-1]), int(ticks_raw[-1]), int(ticks[-1]))
+            self._last = (int(ends[-1]), int(seq_raw[-1]), int(seq[-1]),
+                          int(ticks_raw[-1]), int(ticks[-1]))
             stats.samples += k
         return SampleBlock(
             counts=records["counts"].astype(np.int64).reshape(k, len(self.channels)),

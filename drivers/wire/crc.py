@@ -46,7 +46,8 @@ class Crc:
         return table
 
     def bytewise(self, data: np.ndarray) -> np.ndarray:
-        """CRC of every row of `data` (N, n) uint8 by the byte-at-a-time algorithm -> (N,) uint32."""
+        """CRC of every row of `data` (N, n) uint8 by the byte-at-a-time algorithm -> (N,)
+        uint32."""
         table, mask, shift = self.table, np.uint32((1 << self.width) - 1), self.width - 8
         crc = np.full(data.shape[0], self.init, dtype=np.uint32)
         for column in np.ascontiguousarray(data.T):

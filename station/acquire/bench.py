@@ -218,8 +218,9 @@ def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec)
         raise InputError(f"{path} holds a {name!r} session and the profile a "
                          f"{bench.protocol!r} one: resume with the bench profile of that kind")
     if metadata.get("unit_serial") != bench.unit_serial:
-        raise InputError(f"{path} recorded unit {metadata.get('unit_serial')!r}, the profile is for "
-                         f"{bench.unit_serial!r}: mount the same unit, or use its bench profile")
+        raise InputError(f"{path} recorded unit {metadata.get('unit_serial')!r}, "
+                         f"the profile is for {bench.unit_serial!r}: mount the same unit, "
+                         "or use its bench profile")
     if recorded is None:
         raise InputError(f"{path} has no imu stream to continue")
     differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")

@@ -1,9 +1,9 @@
 """The recorder: IMU samples, table states and protocol events into one session file.
 
 A reader thread pulls `SampleBlock`s from an opened IMU driver (a `drivers.ImuDriver`: serial or
-CAN, see `drivers.open_imu`) and appends them to a `station.files.session.SessionWriter`. The protocol, in its own thread, records table states and events
-through the same recorder; one lock serialises every access to the writer, which is not
-thread-safe.
+CAN, see `drivers.open_imu`) and appends them to a `station.files.session.SessionWriter`. The
+protocol, in its own thread, records table states and events through the same recorder; one lock
+serialises every access to the writer, which is not thread-safe.
 
 The reader never dies silently: a lost device or a writer failure ends the thread and is kept in
 `error`; `check()` re-raises it in the protocol's thread, and also raises when no sample has
@@ -114,8 +114,9 @@ class Recorder:
             time.sleep(self.interval)
 
     def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
-        """Record a protocol event now (see `station.files.session.EVENT_KINDS`); returns the clock time
-        stored with it (stamped before waiting for the writer, which a block may be holding)."""
+        """Record a protocol event now (see `station.files.session.EVENT_KINDS`); returns the clock
+        time stored with it (stamped before waiting for the writer, which a block may be
+        holding)."""
         time = self.clock.now()
         with self._lock:
             self.writer.event(kind, position, detail, time=time)

@@ -169,7 +169,8 @@ def csv_text(time, v, unit: str, sigma=None) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow((["time [s]"] if time is not None else [])
                     + [f"{axis} [{unit}]" for axis in AXES[:d]]
-                    + ([f"sigma_{axis} [{unit}]" for axis in AXES[:d]] if sigma is not None else []))
+                    + ([f"sigma_{axis} [{unit}]" for axis in AXES[:d]]
+                       if sigma is not None else []))
     rows = np.column_stack([x for x in (time, v, sigma) if x is not None])
     writer.writerows(rows.tolist())
     return out.getvalue()

@@ -85,7 +85,8 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     recorded = time.perf_counter() - start
     with Session.open(path) as session:
         reduced, result = solve_recorded(session, ReplaySettings(), nominal=truth.a_nominal)
-        link = next((e.detail["link"] for e in reversed(session.events()) if "link" in e.detail), {})
+        link = next((e.detail["link"] for e in reversed(session.events())
+                     if "link" in e.detail), {})
     c = abs(settings.rate)
     write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)
     eps = station.eps(truth.a, result.a)
@@ -141,5 +142,6 @@ def _print(s: dict) -> None:
     console.print(angles)
     console.print(
         f"eps = {s['eps']:.3g}, sqrt(trace CRLB) = {s['sqrt_trace_crlb']:.3g}, ratio "
-        f"{s['eps_over_sqrt_crlb']:.2f} (p = {s['eps_p_value']:.2g} for an efficient solver); chi2/dof = {s['chi2_per_dof']:.2f}; {s['samples']} samples "
+        f"{s['eps_over_sqrt_crlb']:.2f} (p = {s['eps_p_value']:.2g} for an efficient solver); "
+        f"chi2/dof = {s['chi2_per_dof']:.2f}; {s['samples']} samples "
         f"used; recorded in {s['record_seconds']:.1f} s, total {s['wall_seconds']:.1f} s wall")

@@ -2,12 +2,16 @@
 
 from pathlib import Path
 
-EXAMPLES = """examples:
-  station import text xsens.h5 --stream accel=xsens_acc.mat --unit accel=counts:m/s^2 \\
-      --stream gyro=xsens_gyro.mat --unit gyro=counts:rad/s
-  station import csv ferraris.h5 example_ferraris_session.csv --fs 102.4 --index n_samples \\
-      --stream acc=acc_x,acc_y,acc_z --unit acc=m/s^2 --stream gyr=gyr_x,gyr_y,gyr_z --unit gyr=deg/s
-  station import npz rotary.h5 recording.npz"""
+EXAMPLES = (
+    "examples:\n"
+    "  station import text xsens.h5 --stream accel=xsens_acc.mat --unit accel=counts:m/s^2 \\\n"
+    "      --stream gyro=xsens_gyro.mat --unit gyro=counts:rad/s\n"
+    "  station import csv ferraris.h5 example_ferraris_session.csv "
+    "--fs 102.4 --index n_samples \\\n"
+    "      --stream acc=acc_x,acc_y,acc_z --unit acc=m/s^2 "
+    "--stream gyr=gyr_x,gyr_y,gyr_z --unit gyr=deg/s\n"
+    "  station import npz rotary.h5 recording.npz"
+)
 
 
 def register(p) -> None:

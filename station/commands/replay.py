@@ -34,11 +34,13 @@ def register(p) -> None:
     p.add_argument("--trim", type=float,
                    help="seconds left out at both ends of every window (rotary: static and "
                         "rotating windows; iron, static: each pose's window; default 0)")
-    p.add_argument("--positions", help="1-based positions (poses) to use, e.g. 1-6,9 (default: all completed)")
+    p.add_argument("--positions",
+                   help="1-based positions (poses) to use, e.g. 1-6,9 (default: all completed)")
     p.add_argument("--method",
                    help="closed-form method: auto (default), pca, ellipsoid, factorization")
     p.add_argument("--no-refine", action="store_true", help="skip the maximum-likelihood step")
-    p.add_argument("--magnitude", type=float, help="stimulus magnitude (default: the recorded table rate, or gravity "
+    p.add_argument("--magnitude", type=float,
+                   help="stimulus magnitude (default: the recorded table rate, or gravity "
                         "for iron and free-static sessions)")
     p.add_argument("--dry-run", action="store_true", help="print the result, store nothing")
     p.add_argument("--raw", type=Path, metavar="OUT",

@@ -1,9 +1,10 @@
 """`station report`: one self-contained HTML report of a session file, plus its figures as PNG.
 
-The report (station/report/session.py) shows the summary, warnings in plain words, the residuals against
-the noise level, the sensitive axes, the coverage of the orientations, the table rate stability,
-the stream health and the uncertainty of each parameter. The figures are embedded in the HTML and
-also written next to it as <stem>-<figure>.png. An existing report of the same name is replaced.
+The report (station/report/session.py) shows the summary, warnings in plain words, the residuals
+against the noise level, the sensitive axes, the coverage of the orientations, the table rate
+stability, the stream health and the uncertainty of each parameter. The figures are embedded in the
+HTML and also written next to it as <stem>-<figure>.png. An existing report of the same name is
+replaced.
 """
 
 import json

@@ -10,8 +10,8 @@ table is commanded to stop, so a technician has nothing to turn: pressing Enter 
 the stops).
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
-(`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who turns
-it on a 20 s metronome through the protocol's sequence (static: the guided poses; iron: a
+(`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who
+turns it on a 20 s metronome through the protocol's sequence (static: the guided poses; iron: a
 re-mounting, then the six faces, per mounting), starting when the station opens the port. The
 technician does not hear the station, so `station record` must keep up (it does with the default
 5 s hold) and records the turns in order.

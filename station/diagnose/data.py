@@ -126,7 +126,8 @@ def load(path, bin_seconds: float = 0.1) -> RotaryData:
 
 
 def is_rotary(session) -> bool:
-    """True when a recorded session (`station.files.session.Session`) holds rotary protocol events."""
+    """True when a recorded session (`station.files.session.Session`) holds rotary protocol
+    events."""
     return recorded.is_rotary(session.events())
 
 

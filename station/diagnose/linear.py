@@ -8,8 +8,8 @@ deviation sigma_i per sample leaves sigma_i / sqrt(bin) per bin). Two parts ente
 - across positions: the static-window means centred on one bias per sensor (static means
   against orientation: warm-up, Earth rate), weighted by their own noise sigma_i / sqrt(N_s).
 The static means share their noise with the first part's static bins, a small double count
-that the selection's significance level absorbs. Parameters are separate per sensor, per position or global, which keeps each
-normal-equation block small.
+that the selection's significance level absorbs. Parameters are separate per sensor, per position or
+global, which keeps each normal-equation block small.
 """
 
 from dataclasses import dataclass

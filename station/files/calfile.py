@@ -15,8 +15,8 @@ unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, their
 measured apart from the fit are independent of `a`), the gauge-invariant scale factors and axis
 angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
 date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's
-shortest round-trip form, so a load gives back bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits
-and damage (it is not a signature).
+shortest round-trip form, so a load gives back bit-identical arrays. A SHA-256 checksum over the
+canonical JSON of the content detects edits and damage (it is not a signature).
 
 Loading treats the file as untrusted: size limit, strict JSON (no NaN/Infinity, no duplicate keys),
 format and version checked first, then the checksum, then every key, type, shape and unit; unknown
@@ -44,8 +44,8 @@ FRAMES = ("canonical", "nominal")
 CONVENTIONS_V1 = {
     "document": "docs/conventions.md",
     "model": "z_i = a_i . v + b_i + noise  (M = a^T v + b 1^T)",
-    "sensitivity": "a is d x m (rows = frame axes, columns = sensors in the order of unit.sensors); "
-                   "column i = sensor i's sensitive axis times its scale factor",
+    "sensitivity": "a is d x m (rows = frame axes, columns = sensors in the order of "
+                   "unit.sensors); column i = sensor i's sensitive axis times its scale factor",
     "bias": "b has one entry per sensor, added after the projection, in the readings' units",
     "apply": "v = (a a^T)^-1 a (z - b), z = the m readings of one instant in SI units",
     "counts": "SI reading = raw counts / counts_per_unit",

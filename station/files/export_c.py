@@ -37,7 +37,8 @@ def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") ->
         (f" * Calibrated {_comment(cal.created)}; calibration file checksum "
          f"{_comment(_checksum(cal))}."),
         f" * Sensors (index i): {_comment(', '.join(cal.sensors))}.",
-        f" * Frame of v: {cal.frame} (docs/conventions.md); fit: {_comment(cal.fit.get('method'))}.",
+        f" * Frame of v: {cal.frame} (docs/conventions.md); "
+        f"fit: {_comment(cal.fit.get('method'))}.",
         " *",
         f" *   z[i] = counts[i] / {prefix}_COUNTS_PER_UNIT[i]                 ({unit})",
         f" *   v[k] = sum_i {prefix}_FUSION[k][i] * (z[i] - {prefix}_BIAS[i])   ({unit})",

@@ -138,8 +138,9 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
         table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2,
                            usecols=[header.index(c) for c in wanted])
     except ValueError as exc:
-        raise CalibrationInputError(f"{path}: the chosen columns are not all numbers ({exc}).",
-                                    "Pick numeric columns; text columns are not imported.") from None
+        raise CalibrationInputError(
+            f"{path}: the chosen columns are not all numbers ({exc}).",
+            "Pick numeric columns; text columns are not imported.") from None
     if not np.all(np.isfinite(table)):
         raise CalibrationInputError(f"{path}: the chosen columns hold NaN or infinite values.",
                                     "Remove or interpolate the invalid rows first.")
@@ -177,7 +178,8 @@ def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX
     spec = StreamSpec([f"g{i + 1}" for i in range(m)], "rad/s", 1.0 / np.broadcast_to(lsb, (m,)),
                       fs, "int64" if y.dtype.itemsize > 4 else "int32", "imported-npz")
     metadata = {"protocol": "rotary", "unit_serial": unit_serial,
-                "a_nominal": arrays["a_nominal"].tolist(), "settings": {"rate": float(arrays["c_cmd"])},
+                "a_nominal": arrays["a_nominal"].tolist(),
+                "settings": {"rate": float(arrays["c_cmd"])},
                 "import": {"format": "npz", "source": str(path), "sha256": _sha256(path)}}
     with SessionWriter.create(out, metadata, {"imu": spec}, clock=_Fixed(start[0] / fs)) as w:
         for j in range(n):

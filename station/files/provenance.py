@@ -1,4 +1,5 @@
-"""Where a file came from: the software version and the creation time, as every file records them."""
+"""Where a file came from: the software version and the creation time, as every file records
+them."""
 
 import importlib.metadata
 from datetime import UTC, datetime

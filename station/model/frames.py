@@ -1,4 +1,5 @@
-"""Frames of a calibration result (docs/conventions.md): canonical Eq. (19) frame and nominal alignment.
+"""Frames of a calibration result (docs/conventions.md): canonical Eq. (19) frame and nominal
+alignment.
 
 A sensitivity matrix `a` (d x m) is known only up to an orthogonal transformation (Remark 1 of
 Rupniewski); these functions pick one representative.
@@ -27,7 +28,8 @@ def to_canonical(a: np.ndarray) -> np.ndarray:
 
 
 def align_to(a: np.ndarray, a_nominal: np.ndarray) -> np.ndarray:
-    """Orthogonal r (reflections allowed) minimising ||r a - a_nominal||_F (orthogonal Procrustes)."""
+    """Orthogonal r (reflections allowed) minimising ||r a - a_nominal||_F (orthogonal
+    Procrustes)."""
     u, _, vt = np.linalg.svd(np.asarray(a_nominal, float) @ np.asarray(a, float).T)
     return u @ vt
 

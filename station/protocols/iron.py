@@ -47,7 +47,8 @@ from station.reduce.still import up_direction
 from station.solve.constraints import FACES
 
 FACE_UP = {f: (1.0 if f[0] == "-" else -1.0) * np.eye(3)[FACES.index(f) // 2] for f in FACES}
-"""Up direction in the iron frame when the iron stands on face f (its outward normal points down)."""
+"""Up direction in the iron frame when the iron stands on face f (its outward normal points
+down)."""
 
 
 @dataclass(frozen=True)

@@ -175,8 +175,8 @@ class RotaryProtocol:
         return cls(table, operator, clock, settings, axes)
 
     def run(self, recorder, first: int = 0) -> None:
-        """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`); the
-        table is stopped whatever happens."""
+        """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
+        the table is stopped whatever happens."""
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
@@ -386,7 +386,8 @@ class RotaryProtocol:
 
 
 class Unwatched:
-    """No live view: the observer interface of `station.acquire.live_view.LiveView`, passing through."""
+    """No live view: the observer interface of `station.acquire.live_view.LiveView`, passing
+    through."""
 
     def follow(self, protocol):
         return protocol
@@ -407,7 +408,8 @@ class Unwatched:
 def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
     """Run the rotary protocol recorded in `metadata` into `writer` (`SessionWriter.create`d or
     `.resume`d), from the position after the last completed one; returns that first position
-    (len(axes) when nothing was left to record). `view`: a `station.acquire.live_view.LiveView` to show.
+    (len(axes) when nothing was left to record). `view`: a `station.acquire.live_view.LiveView` to
+    show.
 
     The IMU link's counters (CRC failures, gaps, ...) are recorded at the end as a `note` event
     with a `link` detail, for the report."""

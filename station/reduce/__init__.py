@@ -1,1 +1,2 @@
-"""Recorded sessions and raw recordings -> averaged readings (Eq. 18, still poses); never imports drivers."""
+"""Recorded sessions and raw recordings -> averaged readings (Eq. 18, still poses); never imports
+drivers."""

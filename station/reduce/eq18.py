@@ -41,7 +41,8 @@ class Reduced:
     def take(self, keep) -> "Reduced":
         """The readings of the positions `keep` (column indices), in that order."""
         keep = list(keep)
-        return Reduced(**{name: getattr(self, name)[..., keep] for name in self.__dataclass_fields__})
+        return Reduced(**{name: getattr(self, name)[..., keep]
+                          for name in self.__dataclass_fields__})
 
 
 def _windows(window, n: int, k: int, name: str) -> np.ndarray:

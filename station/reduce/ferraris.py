@@ -4,12 +4,13 @@ A recording holds the unit still on its six faces (`x_p`: acc x measures +g, `x_
 turning a full turn about x, y and z (`x_rot`, `y_rot`, `z_rot`, each on the face `<axis>_p`).
 
 - `find_sections` finds the nine sections of a continuous recording: still intervals from
-  `station.reduce.stillness.detect_still`, each labelled with the face its gravity points along; a turn is
-  the motion between two still intervals on the same face whose integrated rate is large.
+  `station.reduce.stillness.detect_still`, each labelled with the face its gravity points along; a
+  turn is the motion between two still intervals on the same face whose integrated rate is large.
 - `calibrate_ferraris`: the accelerometer from the six face means with the right-angle iron's
   constraints (`station.calibrate(M, g, bias="estimate", constraints=from_faces(...))`, Hwangbo &
-  Kanade Eq. 15), the gyro from the three turns of known angle (Eq. 31, `station.solve.gyro_turns`), both
-  expressed in the iron frame (face "+x" = +x), and a refusal if the two triads differ in handedness.
+  Kanade Eq. 15), the gyro from the three turns of known angle (Eq. 31, `station.solve.gyro_turns`),
+  both expressed in the iron frame (face "+x" = +x), and a refusal if the two triads differ in
+  handedness.
 
 See docs/realdata.md; `bench/peers.py` runs imucal on the same data.
 """

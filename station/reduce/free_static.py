@@ -1,9 +1,9 @@
 """The free-static calibration path (multi-position method of Tedaldi et al.; DESIGN.md section 5).
 
-A continuous raw recording -> automatically detected still intervals (station.reduce.stillness) -> the
-accelerometer's averaged readings M (3 x P, one column per pose) -> `station.calibrate(M,
-magnitude=g_local, bias="estimate")` (ellipsoid closed form + maximum likelihood); the gyro biases are
-the gyro means over the still interval that holds the rest period.
+A continuous raw recording -> automatically detected still intervals (station.reduce.stillness) ->
+the accelerometer's averaged readings M (3 x P, one column per pose) -> `station.calibrate(M,
+magnitude=g_local, bias="estimate")` (ellipsoid closed form + maximum likelihood); the gyro biases
+are the gyro means over the still interval that holds the rest period.
 """
 
 from dataclasses import dataclass
@@ -39,8 +39,8 @@ class FreeStaticCalibration:
 def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **detector):
     """Calibrate m >= 3 accelerometers from a free-static recording accel (K, m), fs in Hz.
 
-    A triad goes through the ellipsoid closed form, more sensors through the joint-bias factorization
-    (Hwangbo & Kanade p = 4); both are refined by maximum likelihood.
+    A triad goes through the ellipsoid closed form, more sensors through the joint-bias
+    factorization (Hwangbo & Kanade p = 4); both are refined by maximum likelihood.
     gyro     optional (K, k) gyro samples: used for stillness detection too, biases from the rest.
     detector options of `station.reduce.stillness.detect_still` (rest, window, enter, leave, ...).
     """

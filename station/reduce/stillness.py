@@ -5,10 +5,10 @@ that channel's noise variance measured on a rest period and averaged over the ch
 
     s(t) = (1/c) sum_k var_w(x_k)(t) / sigma_k^2        (about 1 at rest, >> 1 in motion)
 
-so every threshold is a multiple of the measured noise, never a value in counts. Hysteresis: the unit
-becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`. Still
-intervals shorter than `min_still` are dropped, and motions longer than `timeout` (the operator took
-too long to put the unit down) are reported. See docs/stillness.md.
+so every threshold is a multiple of the measured noise, never a value in counts. Hysteresis: the
+unit becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`.
+Still intervals shorter than `min_still` are dropped, and motions longer than `timeout` (the
+operator took too long to put the unit down) are reported. See docs/stillness.md.
 """
 
 from dataclasses import dataclass
@@ -24,7 +24,8 @@ class StillIntervals:
 
     intervals : (P, 2) [start, stop) sample indices, in time order.
     mean, stderr : (P, c) mean of each channel over each interval and its standard error
-                   sd / sqrt(N) (white-noise assumption: an underestimate when the noise is coloured).
+                   sd / sqrt(N) (white-noise assumption: an underestimate when the noise is
+                   coloured).
     rest : (2,) [start, stop) of the rest period the noise was measured on.
     noise : (c,) noise standard deviation of each channel on the rest period (window-scale).
     dispersion : (K,) the normalised statistic s(t); inf where the window does not fit.
@@ -95,7 +96,8 @@ def detect_still(
 
 
 def moving_variance(x: np.ndarray, w: int) -> np.ndarray:
-    """(K, c) population variance of x over the centred window of w samples (w odd); inf at the ends.
+    """(K, c) population variance of x over the centred window of w samples (w odd); inf at the
+    ends.
 
     Computed from running sums; x should be roughly centred (e.g. minus its median) for accuracy.
     """
@@ -154,8 +156,8 @@ def _rest_window(mv: np.ndarray, rest, rest_length: float, fs: float, w: int) ->
     n = round(rest_length * fs)
     if n < w or n > k:
         raise CalibrationInputError(
-            f"rest_length {rest_length} s ({n} samples) must span at least one window ({w}) and fit "
-            f"in the recording ({k} samples).",
+            f"rest_length {rest_length} s ({n} samples) must span at least one window ({w}) "
+            f"and fit in the recording ({k} samples).",
             "Adjust rest_length or window, or give the rest period explicitly.",
         )
     centres = n - 2 * h  # windows inside one stretch

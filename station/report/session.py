@@ -18,7 +18,8 @@ The figures:
 
 The calibration is the stored `results/<name>` (the newest by default). A session without stored
 results (e.g. a recording that was interrupted) is reduced and solved for the report as `station
-replay` does (`station.replay.solve_recorded`); the report says so. Every text from the file is escaped: the file is untrusted.
+replay` does (`station.replay.solve_recorded`); the report says so. Every text from the file is
+escaped: the file is untrusted.
 """
 
 import math
@@ -222,7 +223,8 @@ def _fit(report, cal, channels) -> None:
                            for i, j, v in outliers[:8])
         more = f" and {len(outliers) - 8} more" if len(outliers) > 8 else ""
         report.warnings.append(f"Residual outliers beyond {limit:.1f} sigma: {listed}{more}. "
-                               "Check those positions (mounting, disturbance) or record them again.")
+                               "Check those positions (mounting, disturbance) "
+                               "or record them again.")
     report.summary["outliers"] = len(outliers)
     report.plots.append(html.Plot("residuals", "Residuals against the noise level", (
         f"Left: r_ij / sigma_ij for each sensor (row) and position (column); the model predicts "

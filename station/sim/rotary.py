@@ -113,7 +113,8 @@ def simulate_rotary(
         "rate_cmd": rate_cmd,
         "c_cmd": np.float64(timing.rate),
         # the table's reported angle within each position: its encoder's, or the command's
-        "angle": factors[:, None] * angle_cmd if encoder else np.broadcast_to(angle_cmd, (n, k)).copy(),
+        "angle": (factors[:, None] * angle_cmd if encoder
+                  else np.broadcast_to(angle_cmd, (n, k)).copy()),
         **{f"seg_{name}": np.array(seg) for name, seg in segments.items()},
     }
     if a_nominal is not None:

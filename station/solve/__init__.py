@@ -1,1 +1,2 @@
-"""Calibration solvers: arrays in, arrays out, no file or device I/O (closed forms, maximum likelihood, uncertainty)."""
+"""Calibration solvers: arrays in, arrays out, no file or device I/O (closed forms, maximum
+likelihood, uncertainty)."""

@@ -1,5 +1,5 @@
-"""`calibrate`: the public entry point. Chooses a closed-form start, refines it by maximum likelihood,
-and reports the result with 1-sigma uncertainties of the gauge-invariant quantities.
+"""`calibrate`: the public entry point. Chooses a closed-form start, refines it by maximum
+likelihood, and reports the result with 1-sigma uncertainties of the gauge-invariant quantities.
 
 Methods (station/<module>):
 - `pca`           Rupniewski Algorithm 2, unbiased readings (e.g. after the Eq. 18 reduction).
@@ -63,7 +63,8 @@ class CalibrationResult:
 
     @property
     def normalised_residuals(self) -> np.ndarray:
-        """Residuals in units of their noise level: about N(0, 1) when the model explains the data."""
+        """Residuals in units of their noise level: about N(0, 1) when the model explains the
+        data."""
         return self.residuals / self.sigma
 
     def apply(self, z) -> np.ndarray:
@@ -108,10 +109,12 @@ def calibrate(
     scale_known = magnitude is not None
     c = float(magnitude) if scale_known else 1.0
     if not (np.isfinite(c) and c > 0):
-        raise CalibrationInputError(f"magnitude {magnitude!r} is not positive.", "Give |v| in SI units.")
+        raise CalibrationInputError(f"magnitude {magnitude!r} is not positive.",
+                                    "Give |v| in SI units.")
     estimate_bias = isinstance(bias, str)
     if estimate_bias and bias != "estimate":
-        raise CalibrationInputError(f"bias={bias!r} is not understood.", 'Use None, an array or "estimate".')
+        raise CalibrationInputError(f"bias={bias!r} is not understood.",
+                                    'Use None, an array or "estimate".')
     known_bias = None if bias is None or estimate_bias else _as_bias(bias, m)
     method = _choose_method(method, m, d, estimate_bias, constraints)
     if constraints is not None:
@@ -136,7 +139,8 @@ def _as_readings(readings) -> np.ndarray:
         )
     if not np.all(np.isfinite(m_)):
         raise CalibrationInputError(
-            "readings contain NaN or infinite values.", "Drop or redo the positions with invalid data."
+            "readings contain NaN or infinite values.",
+            "Drop or redo the positions with invalid data.",
         )
     return m_
 
@@ -144,14 +148,16 @@ def _as_readings(readings) -> np.ndarray:
 def _as_bias(bias, m: int) -> np.ndarray:
     b = np.asarray(bias, dtype=float).ravel()
     if b.shape != (m,):
-        raise CalibrationInputError(f"{b.size} biases given for {m} sensors.", "Give one bias per sensor.")
+        raise CalibrationInputError(f"{b.size} biases given for {m} sensors.",
+                                    "Give one bias per sensor.")
     return b
 
 
 def _choose_method(method: str, m: int, d: int, estimate_bias: bool, constraints) -> str:
     """The closed form that fits the inputs: constraints or joint biases -> factorization, etc."""
     if method not in METHODS:
-        raise CalibrationInputError(f"unknown method {method!r}.", f"Choose one of {', '.join(METHODS)}.")
+        raise CalibrationInputError(f"unknown method {method!r}.",
+                                    f"Choose one of {', '.join(METHODS)}.")
     if method != "auto":
         return method
     if constraints is not None:
@@ -171,7 +177,8 @@ def _check_magnitudes(constraints, n: int) -> None:
             f"{int(np.sum(~unit))} position(s) have no magnitude constraint |v_j| = c, which the "
             "maximum-likelihood refinement and the uncertainties need.",
             "Add magnitude constraints (station.solve.constraints.magnitude_constraints), or call "
-            "station.solve.factorization.factorize directly for orthogonality-only constraints (Eq. 30).",
+            "station.solve.factorization.factorize directly for orthogonality-only constraints "
+            "(Eq. 30).",
         )
 
 
@@ -183,7 +190,8 @@ def _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d)
         if estimate_bias:
             raise CalibrationInputError(
                 "the PCA closed form needs unbiased readings.",
-                'Subtract the static means first (Eq. 18), or use method="ellipsoid"/"factorization".',
+                "Subtract the static means first (Eq. 18), "
+                'or use method="ellipsoid"/"factorization".',
             )
         z = readings if known_bias is None else readings - known_bias[:, None]
         a, v = pca_calibration(z, c, d)
@@ -239,7 +247,8 @@ def _result(fit: ml.MLFit, method, refined, c, scale_known, estimate_bias, nomin
     parameter_cov = uncertainty.propagate(cov, jac)
     a_var = np.diag(parameter_cov)[: d * m]
 
-    scale_sigma = np.sqrt(np.diag(uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
+    scale_sigma = np.sqrt(np.diag(
+        uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
     (i, k), jac = uncertainty.axis_angle_jacobian(fit.a, p)
     angle_sigma = np.zeros((m, m))
     angle_sigma[i, k] = angle_sigma[k, i] = np.sqrt(np.diag(uncertainty.propagate(cov, jac)))

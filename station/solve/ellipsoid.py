@@ -1,9 +1,10 @@
 """Closed-form start for a triad with unknown biases from arbitrary static orientations.
 
 With m = d sensors, z_j = a^T v_j + b and |v_j| = c give (z_j - b)^T (a^T a)^-1 (z_j - b) = c^2: the
-readings lie on an ellipsoid. An algebraic quadric fit (z^T Q z + l . z + k = 0, least squares on the
-unit-norm coefficient vector) gives its centre b and shape; a Cholesky factor of the shape gives a in
-the canonical upper-triangular frame of Eq. (19). Maximum likelihood (station/solve/ml.py) then refines it.
+readings lie on an ellipsoid. An algebraic quadric fit (z^T Q z + l . z + k = 0, least squares on
+the unit-norm coefficient vector) gives its centre b and shape; a Cholesky factor of the shape gives
+a in the canonical upper-triangular frame of Eq. (19). Maximum likelihood (station/solve/ml.py) then
+refines it.
 """
 
 import numpy as np

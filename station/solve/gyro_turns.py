@@ -5,8 +5,8 @@ full turn). The bias-free gyro readings integrated over the turn are `w_j = a^T 
 theta_j the turn's rotation vector: |theta_j| is the known angle (a magnitude constraint), and
 turns about perpendicular faces are orthogonal (Eq. 15). The turns are thus "positions" of an iron
 calibration whose stimulus is the rotation vector: `station.calibrate` solves them with the face
-constraints of `station.solve.constraints.from_faces`, the face label of a turn naming the direction of
-its rotation vector in the iron frame ("-x": a turn about +x in the negative sense).
+constraints of `station.solve.constraints.from_faces`, the face label of a turn naming the direction
+of its rotation vector in the iron frame ("-x": a turn about +x in the negative sense).
 
 Checks that the gyro frame is the accelerometer's:
 - `mirrored`: the gyro triad has the opposite handedness of the accelerometer triad (a turn sense

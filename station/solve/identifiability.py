@@ -15,7 +15,8 @@ DESIGN_COND_MAX = 1e10
 
 
 def min_positions(m: int, d: int) -> int:
-    """Smallest n satisfying both Eq. (16), n >= d(d+1)/2, and Eq. (17), (n-d)(m-d+1) >= d(d-1)/2."""
+    """Smallest n satisfying both Eq. (16), n >= d(d+1)/2, and Eq. (17),
+    (n-d)(m-d+1) >= d(d-1)/2."""
     n = d * (d + 1) // 2
     while (n - d) * (m - d + 1) < d * (d - 1) // 2:
         n += 1
@@ -26,7 +27,8 @@ def check_positions(shape: tuple[int, int], d: int) -> None:
     """Enough sensors (m >= d) and positions (Eqs. 16 and 17) for the closed form."""
     m, n = shape
     if d < 1:
-        raise CalibrationInputError(f"dimension d = {d} is invalid.", "Use d = 3 (space) or 2 (plane).")
+        raise CalibrationInputError(f"dimension d = {d} is invalid.",
+                                    "Use d = 3 (space) or 2 (plane).")
     if m < d:
         raise CalibrationInputError(
             f"{m} sensor(s) cannot resolve a {d}-dimensional quantity (need m >= d).",
@@ -54,7 +56,8 @@ def check_rank(singular_values: np.ndarray, d: int, shape: tuple[int, int]) -> N
 
 
 def gram_design(b: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
-    """Design matrix of Eq. (7) for the upper-triangular entries of symmetric g, and their indices."""
+    """Design matrix of Eq. (7) for the upper-triangular entries of symmetric g, and their
+    indices."""
     d = b.shape[0]
     rows, cols = np.triu_indices(d)
     factor = np.where(rows == cols, 1.0, 2.0)
@@ -69,7 +72,8 @@ def check_design(design: np.ndarray) -> None:
             "the positions do not determine g of Eq. (7): all stimulus directions lie on one "
             "quadric cone (e.g. every spin axis at the same angle to one direction, or only "
             f"{int(np.sum(s > s[0] / DESIGN_COND_MAX))} independent orientations).",
-            "Add positions whose stimulus points off that cone, e.g. along and perpendicular to it.",
+            "Add positions whose stimulus points off that cone, e.g. along and perpendicular "
+            "to it.",
         )
 
 

@@ -2,10 +2,10 @@
 
 Model (docs/conventions.md): z_ij = a_i . v_j + b_i + noise_ij, noise_ij ~ N(0, sigma_ij^2), with
 |v_j| = c. Unknowns: the sensitivity a (d x m), optionally the biases b (m), and the stimuli v,
-parametrised by station/solve/poses.py (a free direction per position, or one rotation per rigid group of
-positions of a right-angle iron, or a free vector per position whose magnitude is a random effect
-|v_j| = c (1 + delta_j), delta_j ~ N(0, s^2), with one extra residual row (|v_j| - c) / (c s) per
-position: the h-likelihood, whose maximum over a is the marginal-likelihood estimate of the
+parametrised by station/solve/poses.py (a free direction per position, or one rotation per rigid
+group of positions of a right-angle iron, or a free vector per position whose magnitude is a random
+effect |v_j| = c (1 + delta_j), delta_j ~ N(0, s^2), with one extra residual row (|v_j| - c) / (c s)
+per position: the h-likelihood, whose maximum over a is the marginal-likelihood estimate of the
 linearised model). This replaces the constraint cost of Hwangbo & Kanade (ill-posed for m > 3) by
 the likelihood of the readings themselves.
 
@@ -13,7 +13,8 @@ Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_
 with each other directly; the local parameters split per position group. The normal equations are
 solved by eliminating the local blocks (Schur complement), so an iteration costs O(m^2 n d^3)
 instead of a dense solve. The rotation gauge (Remark 1 of Rupniewski) leaves d(d-1)/2 flat
-directions; the Marquardt damping keeps the steps finite and the gradient has no component along them.
+directions; the Marquardt damping keeps the steps finite and the gradient has no component along
+them.
 """
 
 from dataclasses import dataclass
@@ -172,11 +173,12 @@ def refine(
 
     sigma: noise standard deviation of the readings - scalar, per sensor (m,), or per entry (m, n).
     When None, all entries get equal weight and one common sigma is estimated from the residuals.
-    A given bias0 with estimate_bias=False is held fixed (subtracted). constraints (station.solve.constraints)
-    that fix all inner products within groups of positions (a right-angle iron's mountings) make
-    each group rigid; otherwise each position has its own direction. magnitude_spread s > 0: the
-    magnitudes are a random effect, |v_j| = c (1 + delta_j) with delta_j ~ N(0, s^2) (each v_j a
-    free vector with that prior); it needs sigma, since it weighs the readings against the prior.
+    A given bias0 with estimate_bias=False is held fixed (subtracted). constraints
+    (station.solve.constraints) that fix all inner products within groups of positions (a
+    right-angle iron's mountings) make each group rigid; otherwise each position has its own
+    direction. magnitude_spread s > 0: the magnitudes are a random effect, |v_j| = c (1 + delta_j)
+    with delta_j ~ N(0, s^2) (each v_j a free vector with that prior); it needs sigma, since it
+    weighs the readings against the prior.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
@@ -250,7 +252,8 @@ def sigma_matrix(sigma, m: int) -> np.ndarray:
             raise ValueError(f"sigma has {s.shape[0]} entries but there are {m} sensors")
         s = s[:, None]
     if np.any(~np.isfinite(s)) or np.any(s <= 0):
-        raise ValueError("sigma must be positive and finite (noise standard deviation of the readings)")
+        raise ValueError("sigma must be positive and finite "
+                         "(noise standard deviation of the readings)")
     return s
 
 

@@ -18,7 +18,8 @@ from station.solve.identifiability import (
 
 
 def truncated_svd(readings: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """Basis e (m x d) of the dominant column space and coordinates b = s w^T (d x n), Eqs. (13)-(15)."""
+    """Basis e (m x d) of the dominant column space and coordinates b = s w^T (d x n),
+    Eqs. (13)-(15)."""
     u, s, wt = np.linalg.svd(readings, full_matrices=False)
     check_rank(s, d, readings.shape)
     return u[:, :d], s[:d, None] * wt[:d]

@@ -7,8 +7,8 @@
   rotary table that is not exactly the commanded one. The prior adds one residual row
   (|v_j| - c) / (c spread) per position (`prior`); spread -> 0 is the sphere of `Directions`.
 - `RigidGroups` (d = 3): positions whose mutual inner products are all known (one mounting of a
-  right-angle iron, Hwangbo & Kanade Eq. 15) share one rotation: v_j = c R_g s_j, with s_j fixed unit
-  vectors from the constraint Gram matrix. Three rotation coordinates per group.
+  right-angle iron, Hwangbo & Kanade Eq. 15) share one rotation: v_j = c R_g s_j, with s_j fixed
+  unit vectors from the constraint Gram matrix. Three rotation coordinates per group.
 
 Both expose the same small interface: `vectors()`, `jacobian()` (dv_j / d local, (n, d, k)), `group`
 (group of each position), `count`, `null` (local directions with no effect, (count, k) bools),
@@ -117,7 +117,8 @@ class SoftMagnitudes(_OnePerPosition):
 
     def prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Prior rows as (residual (n,), Jacobian of the model side (n, d)), in the sign convention
-        of station/solve/ml.py (residual = observed - model): (c - |v_j|) / (c s) and u_j / (c s)."""
+        of station/solve/ml.py (residual = observed - model): (c - |v_j|) / (c s) and
+        u_j / (c s)."""
         norm = np.linalg.norm(self.v, axis=0)
         scale = self.magnitude * self.spread
         return (self.magnitude - norm) / scale, (self.v / norm).T / scale
@@ -130,7 +131,8 @@ class RigidGroups:
     rot: np.ndarray  # (G, 3, 3)
     s: np.ndarray  # (3, n) unit vectors in each group's frame
     group: np.ndarray  # (n,)
-    rank: np.ndarray  # (G,) rank of each group's Gram matrix (1: one axis, rotation about it is null)
+    # rank: (G,) rank of each group's Gram matrix (1: one axis, rotation about it is null)
+    rank: np.ndarray
     magnitude: float
 
     @property

@@ -1,10 +1,11 @@
 """Uncertainty from the Fisher information, with the rotation gauge handled; the Cramer-Rao bound.
 
-The Fisher information of the readings model (station/solve/ml.py) reduced to the per-sensor parameters
-theta_i = (a_i, b_i) by the Schur complement over the position directions is singular along the
-d(d-1)/2 rotations of Remark 1 (Rupniewski). Its pseudo-inverse over the remaining directions is the
-covariance of every gauge-invariant function of theta: scale factors |a_i|, angles between axes,
-biases, and a expressed in a frame defined by a itself (the canonical frame of Eq. 19).
+The Fisher information of the readings model (station/solve/ml.py) reduced to the per-sensor
+parameters theta_i = (a_i, b_i) by the Schur complement over the position directions is singular
+along the d(d-1)/2 rotations of Remark 1 (Rupniewski). Its pseudo-inverse over the remaining
+directions is the covariance of every gauge-invariant function of theta: scale factors |a_i|, angles
+between axes, biases, and a expressed in a frame defined by a itself (the canonical frame
+of Eq. 19).
 """
 
 import numpy as np
@@ -29,7 +30,8 @@ def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
 
 
 def global_covariance(neq: NormalEquations, d: int) -> np.ndarray:
-    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher matrix."""
+    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher
+    matrix."""
     s, _, _ = reduced_system(neq)
     return gauge_pinv(s, d * (d - 1) // 2)
 
@@ -76,7 +78,8 @@ def bias_jacobian(m: int, p: int) -> np.ndarray:
 
 
 def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7) -> np.ndarray:
-    """d vec(frame(a)) / d theta by central differences, (d m, m p); frame(a) must be gauge-invariant."""
+    """d vec(frame(a)) / d theta by central differences, (d m, m p); frame(a) must be
+    gauge-invariant."""
     d, m = a.shape
     jac = np.zeros((d * m, m, p))
     h = step * max(np.abs(a).max(), 1e-300)
@@ -114,7 +117,8 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
 
 
 def eps_tail_probability(eps: float, bound: np.ndarray, samples: int = 200_000) -> float:
-    """Probability that an efficient estimator's error exceeds `eps` (Eq. 19), given `bound` = crlb(...).
+    """Probability that an efficient estimator's error exceeds `eps` (Eq. 19), given `bound` =
+    crlb(...).
 
     In the small-noise limit an efficient estimate of the canonical a is Gaussian with covariance
     `bound`, so eps^2 is distributed as sum_k lambda_k chi2_1 over the bound's eigenvalues (a

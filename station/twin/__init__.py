@@ -1,1 +1,2 @@
-"""Virtual benches: every device of a bench simulated behind its real wire protocol (rotary, hand)."""
+"""Virtual benches: every device of a bench simulated behind its real wire protocol (rotary,
+hand)."""

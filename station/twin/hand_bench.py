@@ -64,10 +64,10 @@ class HandRig:
 
     `orientation` (set by the technician) is the iron's attitude, world -> iron frame: its third
     column is the iron-frame direction pointing up (without an iron: the unit's attitude, mounting
-    the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change starts a turn now, lasting `turn_time` clock seconds; the stimulus is
-    the specific force g C(t) e_z in the unit frame, C = b W the world -> unit attitude.
-    `effects` {name: parameters}: named sensor effects (station.model.sensing.LIVE_EFFECTS) in
-    the unit's output chain.
+    the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change
+    starts a turn now, lasting `turn_time` clock seconds; the stimulus is the specific force g C(t)
+    e_z in the unit frame, C = b W the world -> unit attitude. `effects` {name: parameters}: named
+    sensor effects (station.model.sensing.LIVE_EFFECTS) in the unit's output chain.
     """
 
     def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0, effects=None):

@@ -130,7 +130,8 @@ class VirtualBench:
         self.table = TablePhysics(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed,
                                  rate_error=RateError(**self.rate_error) if rate_error else None)
         self.table_map = TableRegisterMap.load("table_modbus")
-        self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz, counts_per_unit=self.profile.imu.scale)
+        self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz,
+                               counts_per_unit=self.profile.imu.scale)
         live = from_json(effects or {})
         self.effects = to_json(live) or None  # every parameter, for the session's metadata
         self.mounted = MountedUnit(self.unit, self.table, effects=live)

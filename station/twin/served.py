@@ -202,7 +202,8 @@ class HandTwin:
         if self.protocol == "iron":
             lines.append(f"layout = {json.dumps(b.layout.tolist())}")
         return (f"# Bench profile of the virtual hand bench (station twin), written "
-                f"{time.ctime()}.\n[bench]\nunit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
+                f"{time.ctime()}.\n[bench]\n"
+                f"unit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
                 f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
                 + "\n\n[protocol]\n" + "\n".join(lines) + "\n")

@@ -19,7 +19,8 @@ STAGE = "motion"
 def _tone(ctx, rate, phase_deg: float) -> np.ndarray:
     """(n, k, m) sensed signal of the coning part at sin(beta) = 1 and the given phase."""
     d = ctx.data
-    omega = axis_wobble.apply(rate, d.angle, d.t, ctx.orientation, AxisWobble(90.0, None, phase_deg))
+    omega = axis_wobble.apply(rate, d.angle, d.t, ctx.orientation,
+                              AxisWobble(90.0, None, phase_deg))
     return omega @ ctx.a
 
 

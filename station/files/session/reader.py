@@ -165,7 +165,8 @@ def _check_format(path, attrs) -> int:
 def _attr(attrs, key, kind, where):
     """An attribute of the expected Python type (str, float or list of str)."""
     value = attrs.get(key)
-    # an empty list written as a plain array comes back as float64 (files of early version-1 writers)
+    # an empty list written as a plain array comes back as float64 (files of early version-1
+    # writers)
     if kind is list and isinstance(value, np.ndarray) and value.ndim == 1 and (
         value.dtype == object or value.size == 0
     ):
