@@ -88,7 +88,7 @@ def acceptance(seeds: int, cases=tuple(CASES)) -> dict:
         want = expected(case)
         first = [r["named"][0] if r["named"] else "none" for r in runs]
         right = [f == want and len(r["named"]) <= 1 + (want != "none")
-                 for f, r in zip(first, runs)]
+                 for f, r in zip(first, runs, strict=True)]
         entry = {"sessions": len(runs), "right_rate": float(np.mean(right)),
                  "exact_rate": float(np.mean([r["named"] == ([] if want == "none" else [want])
                                               for r in runs])),

@@ -130,7 +130,8 @@ def annotated(root: Path) -> dict:
 def stream_figures(acc, rates, fs, faces: dict, still, used) -> dict:
     """Face-norm and held-out |a| - g, and the gravity-carry check, of calibrated streams."""
     face = [np.linalg.norm(acc[slice(*faces[f])].mean(axis=0)) - G for f in FACE_SECTIONS]
-    held = [np.linalg.norm(acc[a:b].mean(axis=0)) - G for (a, b), u in zip(still, used) if not u]
+    held = [np.linalg.norm(acc[a:b].mean(axis=0)) - G
+            for (a, b), u in zip(still, used, strict=True) if not u]
     carry = gravity_carry_errors(acc, rates, fs, still)
     return {
         "face_norm_ms2": face,

@@ -225,7 +225,8 @@ def show(report: dict) -> None:
                 x["gyro"]["bias_manufacturer_counts"],
             ),
         ):
-            pairs = ", ".join(f"{o:.3f}+-{s:.3f} ({m:.3f})" for o, s, m in zip(ours, sig, mfr))
+            pairs = ", ".join(f"{o:.3f}+-{s:.3f} ({m:.3f})"
+                              for o, s, m in zip(ours, sig, mfr, strict=False))
             print(f"  {name}: {pairs}   (manufacturer in brackets)")
         print(f"  time: {x['time_ms']}")
     m = report.get("mpu9150")

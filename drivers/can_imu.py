@@ -133,9 +133,10 @@ class FrameLayout:
         if len(widths) != 1:
             raise ProfileError(f"counter {self.counter!r} must have one width in all frames")
         self.counter_modulus = 1 << widths.pop()
-        self.lo, self.hi = (np.array(r, dtype=np.int64) for r in zip(*ranges))
+        self.lo, self.hi = (np.array(r, dtype=np.int64) for r in zip(*ranges, strict=True))
         self.slots = tuple(_Slot(i, m, tuple(columns[m.name])) for i, m in enumerate(messages))
-        self.by_id = {(m.frame_id, m.is_extended_frame): s for m, s in zip(messages, self.slots)}
+        self.by_id = {(m.frame_id, m.is_extended_frame): s
+                      for m, s in zip(messages, self.slots, strict=True)}
 
 
 def _raw_range(sig) -> tuple:

@@ -33,7 +33,7 @@ def iron_stimuli(rng, faces, mountings, scale=None) -> np.ndarray:
     mounts = {m: rotation(rng) for m in dict.fromkeys(mountings)}
     scale = np.ones(len(faces)) if scale is None else scale
     return np.column_stack([s * mounts[m] @ np.array(FACE_VECTORS[f], float)
-                            for f, m, s in zip(faces, mountings, scale)])
+                            for f, m, s in zip(faces, mountings, scale, strict=True)])
 
 
 def misaligned(rng, m: int) -> np.ndarray:
@@ -292,10 +292,10 @@ def test_bad_magnitude_and_bias():
 
 def test_from_faces_relates_faces_within_a_mounting_only():
     con = from_faces(["+x", "-x", "+y", "+x"], ["a", "a", "a", "b"])
-    got = {(int(j), int(k)): float(h) for j, k, h in zip(con.j, con.k, con.h)}
+    got = {(int(j), int(k)): float(h) for j, k, h in zip(con.j, con.k, con.h, strict=True)}
     assert got == {(0, 0): 1, (0, 1): -1, (0, 2): 0, (1, 1): 1, (1, 2): 0, (2, 2): 1, (3, 3): 1}
     np.testing.assert_array_equal(con.opposite_pairs(), [[0, 1]])
-    assert sorted(zip(con.orthogonal().j, con.orthogonal().k)) == [(0, 2), (1, 2)]
+    assert sorted(zip(con.orthogonal().j, con.orthogonal().k, strict=True)) == [(0, 2), (1, 2)]
 
 
 def test_magnitude_constraints_and_concatenation():

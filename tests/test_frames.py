@@ -157,7 +157,7 @@ def test_frames_in_a_corrupted_stream_are_recovered_and_false_accepts_zero():
     seq = np.arange(20000)
     frames = frames_of(seq)
     hit = rng.random(len(seq)) < 0.05
-    data = b"".join(corrupt_frame(f, rng) if h else f for f, h in zip(frames, hit))
+    data = b"".join(corrupt_frame(f, rng) if h else f for f, h in zip(frames, hit, strict=True))
     block, stats = parse(data, chunk=1000)
     truth = pattern(block.seq)
     assert np.array_equal(block.counts, truth)  # nothing decoded that was not sent

@@ -27,18 +27,18 @@ def frame_bytes(seq_raw: int, ticks_raw: int, counts) -> bytes:
 
 def feed_in_chunks(parser, data: bytes, cuts) -> list:
     bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
-    return [parser.decode(data[a:b], 0.0).block for a, b in zip(bounds, bounds[1:])]
+    return [parser.decode(data[a:b], 0.0).block for a, b in zip(bounds, bounds[1:], strict=False)]
 
 
 def assert_only_true_frames(blocks, data: bytes) -> None:
     """Each accepted frame appears verbatim, with a valid CRC, in the input; seq increases."""
     seq = []
     for block in blocks:
-        for s, t, counts in zip(block.seq, block.device_time, block.counts):
+        for s, t, counts in zip(block.seq, block.device_time, block.counts, strict=True):
             ticks = int(round(t / 1e-6)) % 2**32
             assert frame_bytes(int(s) % 2**16, ticks, counts.tolist()) in data
             seq.append(int(s))
-    assert all(b > a for a, b in zip(seq, seq[1:]))
+    assert all(b > a for a, b in zip(seq, seq[1:], strict=False))
 
 
 @SETTINGS
@@ -62,7 +62,8 @@ def test_mutated_frame_streams_yield_only_frames_that_were_sent(first, k, mutati
     for kind, where, length, payload in mutations:
         at = where % (len(data) + 1)
         if kind == "flip":
-            data[at : at + len(payload)] = bytes(a ^ b for a, b in zip(data[at:], payload))
+            data[at : at + len(payload)] = bytes(
+                a ^ b for a, b in zip(data[at:], payload, strict=False))
         elif kind == "delete":
             del data[at : at + length]
         elif kind == "insert":
@@ -99,5 +100,5 @@ def test_ascii_parser_accepts_only_complete_well_formed_lines(pieces, cuts):
         if len(values) == 7:
             lines.add(values)
     for block in blocks:
-        for t, counts in zip(block.device_time, block.counts):
+        for t, counts in zip(block.device_time, block.counts, strict=True):
             assert (t, *counts.tolist()) in lines

@@ -215,7 +215,7 @@ def copy_positions(source, target, keep: int, serial: str, extra_events=()) -> N
             **{bit: bool(st >> i & 1) for i, bit in enumerate(
                 ("running", "ready", "moving", "at_rate", "fault"))})
             for t, r, a, sp, st in zip(table.time, table.rate, table.angle, table.rate_setpoint,
-                                       table.status)])
+                                       table.status, strict=True)])
         for e in events:
             if e.kind != "session_start" and (e.position is None or e.position < keep):
                 w.event(e.kind, e.position, e.detail, time=e.time)

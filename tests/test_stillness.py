@@ -62,7 +62,7 @@ def test_finds_every_simulated_pose_inside_its_true_interval():
     found = detect_still(y, FS)
     w = 101
     assert len(found.intervals) == len(truth)
-    for (a, b), (ta, tb) in zip(found.intervals, truth):
+    for (a, b), (ta, tb) in zip(found.intervals, truth, strict=True):
         overlap = min(b, tb) - max(a, ta)
         assert overlap >= 0.95 * (
             b - a

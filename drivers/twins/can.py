@@ -86,7 +86,7 @@ class CanImuTwin:
             raise ValueError(f"source must return integer counts of shape {shape}, "
                              f"got {counts.dtype} {counts.shape}")
         counts = np.clip(counts, self.layout.lo, self.layout.hi).astype(np.int64)
-        for seq, row in zip(index + self.first_seq, counts):
+        for seq, row in zip(index + self.first_seq, counts, strict=True):
             if self._send_sample(int(seq), row):
                 self.sent_seq.append(int(seq))
                 self.sent_counts.append(row)

@@ -156,7 +156,7 @@ class SerialTwin:
         or UNPLUGGED."""
         if not self._log:
             return np.zeros(0, np.int64), np.zeros(0, np.int8)
-        seq, fate = zip(*self._log)
+        seq, fate = zip(*self._log, strict=True)
         return np.concatenate(seq), np.concatenate(fate)
 
     # -- streaming -------------------------------------------------------------------------------

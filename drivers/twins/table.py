@@ -139,14 +139,14 @@ class TableTwin:
                  "rate": m.encode(s.rate, m.rate_scale),
                  "angle": m.encode(angle_counts / m.angle_scale, m.angle_scale)}
         for name in FIXED_REGISTERS:
-            image.update(zip(m.addresses(name), fixed[name]))
+            image.update(zip(m.addresses(name), fixed[name], strict=True))
         for address, value in image.items():
             registers[address - start] = value
 
     def _write(self, address: int, values: list) -> ExcCodes | None:
         """Apply a write of `values` at `address` to the physics, as the controller would."""
         m = self.map
-        written = dict(zip(range(address, address + len(values)), values))
+        written = dict(zip(range(address, address + len(values)), values, strict=True))
         setpoint = list(m.addresses("rate_setpoint"))
         if not set(written) <= set(setpoint) | {m.registers["command"]}:
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register

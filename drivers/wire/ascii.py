@@ -16,7 +16,7 @@ def encode_lines(fmt, times, counts) -> bytes:
     written with `fmt.decimals` decimals (counts / 10**decimals)."""
     sep = fmt.delimiter
     lines = []
-    for t, row in zip(np.asarray(times, float), np.asarray(counts, np.int64)):
+    for t, row in zip(np.asarray(times, float), np.asarray(counts, np.int64), strict=False):
         values = [_fixed(int(c), fmt.decimals) for c in row]
         if fmt.timestamp == "first":
             values.insert(0, repr(float(t) / fmt.time_scale))

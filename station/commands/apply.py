@@ -123,7 +123,7 @@ def read_csv(path, cal, counts: bool = False) -> tuple:
         names, units = _parse_header(header, fail)
         body = f.read()
     expected_unit = "counts" if counts else cal.units[0]
-    wrong = {n: u for n, u in zip(names, units) if u is not None and n != "time"
+    wrong = {n: u for n, u in zip(names, units, strict=True) if u is not None and n != "time"
              and u != expected_unit}
     if wrong:
         raise fail(f"columns {wrong} are not in {expected_unit}; convert them (or use --counts "

@@ -130,7 +130,7 @@ def _print(s: dict) -> None:
     for col in ("sensor", "scale factor", "1 sigma", "true"):
         table.add_column(col, justify="right")
     for i, (k, sd, t) in enumerate(zip(s["scale_factors"], s["scale_factors_sigma"],
-                                       s["scale_factors_true"])):
+                                       s["scale_factors_true"], strict=True)):
         table.add_row(str(i + 1), f"{k:.6f}", f"{sd:.6f}", f"{t:.6f}")
     console.print(table)
     angles = Table(title="angles between the axes of each triad (deg)")

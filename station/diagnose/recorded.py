@@ -80,20 +80,22 @@ def arrays(session, stream: str = "imu") -> dict:
         pos[j] = p
     _check_rate(data, t, fs, pos)
     index, windows = _grid(t, fs, list(pos.values()))
-    for j, idx in zip(pos, index):  # within each stretch, seq steps as the stream index
+    # within each stretch, seq steps as the stream index
+    for j, idx in zip(pos, index, strict=True):
         lost = int(np.sum(np.diff(data.seq[idx]) - np.diff(idx)))
         if lost:
             raise _lossy(j, t[idx[0]], t[idx[-1]], lost)
     times = t[index]
     c = _commanded(session.path, table, pos.values())
-    rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values())])
+    rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values(), strict=True)])
     # the table's angle at rest before each spin-up (exact: a still table's angle does not depend
     # on the reading's time stamp)
     start = [_rest_angle(session.path, table, p["s0"], p["s1"], j, "static window")
              for j, p in pos.items()]
-    factors = [_rate_factor(table, p, c, a0) for p, a0 in zip(pos.values(), start)]
+    factors = [_rate_factor(table, p, c, a0) for p, a0 in zip(pos.values(), start, strict=True)]
     angle = np.stack([a0 + c * f * _swept(tj, p)
-                      for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors)])
+                      for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors,
+                                                   strict=True)])
     return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": np.array([sd for _, sd in factors]),

@@ -489,7 +489,7 @@ def _jacobian(fun, cols: list):
     groups, used = [], []
     size = 1 + max(int(r.max()) for r in cols)
     for k, rows in enumerate(cols):
-        for g, u in zip(groups, used):
+        for g, u in zip(groups, used, strict=True):
             if not u[rows].any():
                 g.append(k)
                 u[rows] = True
@@ -507,7 +507,7 @@ def _jacobian(fun, cols: list):
             t = theta.copy()
             t[g] += step
             df = fun(t) - f0
-            for k, h in zip(g, step):
+            for k, h in zip(g, step, strict=True):
                 out[cols[k], k] = df[cols[k]] / h
         return out
 

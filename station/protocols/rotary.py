@@ -124,7 +124,7 @@ def mounting(axis) -> np.ndarray:
 
 def instruction(position: int, n: int, axis) -> Instruction:
     """The technician's instruction for mounting position `position` (0-based) of n."""
-    words = ", ".join(f"{name} {value:+.3f}" for name, value in zip("xyz", axis))
+    words = ", ".join(f"{name} {value:+.3f}" for name, value in zip("xyz", axis, strict=True))
     return Instruction(f"position {position + 1}/{n}: mount the unit so that its direction "
                        f"({words}) points up the table axis", mounting(axis))
 

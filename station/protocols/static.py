@@ -51,7 +51,8 @@ def _guided_poses() -> list:
             for signs in itertools.product((1, -1), repeat=k):
                 up = np.zeros(3)
                 up[list(axes)] = signs
-                name = "".join(("+" if s > 0 else "-") + "xyz"[i] for i, s in zip(axes, signs))
+                name = "".join(("+" if s > 0 else "-") + "xyz"[i]
+                               for i, s in zip(axes, signs, strict=True))
                 what = {1: f"lay the unit down with its {name} axis pointing up",
                         2: f"rest the unit on an edge: {name[:2]} and {name[2:]} pointing up "
                            "about equally (45 degrees), the third axis level",

@@ -234,7 +234,7 @@ def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: fl
     w = np.array(
         [
             integrate(gyro[t], fs, gyro[face_rows[f]].mean(axis=0))
-            for t, f in zip(turns, TURN_SECTIONS.values())
+            for t, f in zip(turns, TURN_SECTIONS.values(), strict=True)
         ]
     ).T
     sigma = noise[:, None] * np.sqrt([t.stop - t.start for t in turns])[None, :] / fs

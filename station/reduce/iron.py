@@ -27,7 +27,7 @@ def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
     near, perp = np.cos(np.radians(tolerance_deg)), np.sin(np.radians(tolerance_deg))
     axes: dict = {}
     labels = []
-    for j, (u, k) in enumerate(zip(directions, mountings)):
+    for j, (u, k) in enumerate(zip(directions, mountings, strict=False)):
         seen = axes.setdefault(k, [])
         cos = np.array([u @ a for a in seen])
         if len(cos) and np.max(np.abs(cos)) > near:

@@ -217,7 +217,7 @@ def _fit(report, cal, channels) -> None:
             report.warnings.append(f"The residuals are {what}; chi2/dof = {ratio:.2f}, expected "
                                    f"1 +- {spread:.2f}.")
     limit = float(stats.norm.isf(FALSE_ALARMS / (2 * m * n)))
-    outliers = [(i, j, z[i, j]) for i, j in zip(*np.nonzero(np.abs(z) > limit))]
+    outliers = [(i, j, z[i, j]) for i, j in zip(*np.nonzero(np.abs(z) > limit), strict=True)]
     if outliers:
         listed = ", ".join(f"{channels[i]} at position {j + 1} ({v:+.1f} sigma)"
                            for i, j, v in outliers[:8])
@@ -310,7 +310,7 @@ def _coverage_png(u, emptiest) -> bytes:
         lon, lat = _lonlat(sign * u)
         ax.scatter(lon, lat, **style)
         if sign == 1:
-            for j, (x, y) in enumerate(zip(lon, lat)):
+            for j, (x, y) in enumerate(zip(lon, lat, strict=True)):
                 ax.annotate(str(j + 1), (x, y), xytext=(4, 3), textcoords="offset points",
                             fontsize=7)
     lon, lat = _lonlat(emptiest[:, None])
@@ -519,7 +519,7 @@ def _table_stability(report, table, events, metadata) -> None:
                          f"{np.max(np.abs(err)) * 1e3:.3f}"))
             spans.append((t0, t1, float(np.max(np.abs(err)))))
     if isinstance(tolerance, int | float):
-        off = [str(j + 1) for (j, _), (_, _, worst) in zip(windows.items(), spans)
+        off = [str(j + 1) for (j, _), (_, _, worst) in zip(windows.items(), spans, strict=False)
                if worst > tolerance]
         if off:
             report.warnings.append(f"The table rate left its tolerance (+-{tolerance:g} rad/s) in "

@@ -75,7 +75,7 @@ def _lookup3(data: bytes, initval: int = 0) -> int:
     padded = data + bytes(-len(data) % 12)
     blocks = [struct.unpack_from("<3I", padded, i) for i in range(0, len(padded), 12)]
     for block in blocks:
-        h = [(x + w) & mask for x, w in zip(h, block)]
+        h = [(x + w) & mask for x, w in zip(h, block, strict=True)]
         if block is blocks[-1]:
             break
         for i, r in enumerate((4, 6, 8, 16, 19, 4)):  # x -= z; x ^= rot(z, r); z += y

@@ -236,7 +236,7 @@ def _columns(g, names, where, kinds) -> list:
     """Datasets `names` of `g` read to their common length, each checked for dtype kind and
     trailing shape."""
     datasets = [_child(g, n, h5py.Dataset, where) for n in names]
-    for ds, n in zip(datasets, names):
+    for ds, n in zip(datasets, names, strict=True):
         ds.refresh()
         dtype_kinds, tail = kinds[n]
         if ds.dtype.kind not in dtype_kinds or ds.shape[1:] != tail:
@@ -257,7 +257,8 @@ def read_events(g, where="") -> list:
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
     text = detail[:int(ends[k - 1])].tobytes() if k else b""
     events = []
-    for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k]):
+    for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
+                              strict=True):
         try:
             kind = kb.decode("ascii")
             info = json.loads(text[s:e])

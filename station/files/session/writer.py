@@ -339,7 +339,7 @@ def _write_layout(f, metadata, metadata_json, streams) -> None:
                        device=spec.device)
         m = len(spec.channels)
         _column(g, "counts", spec.dtype, STREAM_UNITS["counts"], m)
-        for column, dtype in zip(STREAM_COLUMNS[1:], ("int64", "float64", "float64")):
+        for column, dtype in zip(STREAM_COLUMNS[1:], ("int64", "float64", "float64"), strict=True):
             _column(g, column, dtype, STREAM_UNITS[column])
         _channel_scale(g, spec)
         _time_scale(g, TIME_SCALES["streams"], STREAM_COLUMNS)
@@ -350,7 +350,7 @@ def _write_layout(f, metadata, metadata_json, streams) -> None:
     _time_scale(g, TIME_SCALES["table"], TABLE_COLUMNS)
     g = f.create_group("events")
     g.attrs["kinds"] = list(EVENT_KINDS)
-    for column, dtype in zip(EVENT_COLUMNS, ("float64", "int64", KIND_DTYPE, "int64")):
+    for column, dtype in zip(EVENT_COLUMNS, ("float64", "int64", KIND_DTYPE, "int64"), strict=True):
         _column(g, column, dtype, EVENT_UNITS[column])
     _column(g, "detail", "uint8", EVENT_UNITS["detail"])
     _time_scale(g, TIME_SCALES["events"], EVENT_COLUMNS)
