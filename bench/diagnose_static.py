@@ -18,8 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
@@ -31,6 +30,7 @@ from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 
+ROOT = Path(__file__).resolve().parents[1]
 FS = 100.0
 G_TRUE = np.array([[2.0, -1.0, 0.5], [1.0, 3.0, -2.0], [0.0, 1.5, -1.0]]) * 1e-5
 """Hidden g-sensitivity, rad/s per m/s^2 (0.006-0.017 deg/s per g)."""

@@ -10,6 +10,8 @@ complete. A lost device (unplug) raises DeviceLostError naming the port; every s
 it has already been returned, and `open()` reconnects.
 """
 
+import contextlib
+
 import serial
 
 from drivers.clock import WallClock
@@ -120,8 +122,6 @@ class SerialImu:
 
     def _close_port(self) -> None:
         if self._serial is not None:
-            try:
+            with contextlib.suppress(serial.SerialException, OSError):  # the device is already gone
                 self._serial.close()
-            except (serial.SerialException, OSError):
-                pass  # the device is already gone
             self._serial = None

@@ -11,12 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.replay import replay_into
 from station.twin.rotary_bench import VirtualBench, record_rotary
+
+HERE = Path(__file__).resolve().parent
 
 # 12 positions of a 12-gyro unit, 25 Hz, one revolution per position: about 1.2 MB (0.65 MB of it
 # is the fixed 64 KB chunks of the session format)

@@ -49,19 +49,19 @@ def record_through_a_loss(path, imu, profile, clock, unplug, plug, enough: int):
     event)."""
     spec = StreamSpec.from_profile(profile.imu)
     with SessionWriter.create(path, {"protocol": "rotary", "unit_serial": "T"}, {"imu": spec},
-                              clock=clock) as writer:
-        with Recorder(writer, imu, clock=clock) as recorder:
-            wait_for(lambda: recorder.samples >= enough)
-            unplug()
-            wait_for(lambda: recorder.error is not None)
-            with pytest.raises(RecordingError) as info:
-                recorder.check(stale=1e9)
-            before = recorder.samples
-            plug()
-            recorder.event("resume", None, {"after": "imu lost"})
-            recorder.reconnect()
-            wait_for(lambda: recorder.samples >= before + enough)
+                              clock=clock) as writer, \
+            Recorder(writer, imu, clock=clock) as recorder:
+        wait_for(lambda: recorder.samples >= enough)
+        unplug()
+        wait_for(lambda: recorder.error is not None)
+        with pytest.raises(RecordingError) as info:
             recorder.check(stale=1e9)
+        before = recorder.samples
+        plug()
+        recorder.event("resume", None, {"after": "imu lost"})
+        recorder.reconnect()
+        wait_for(lambda: recorder.samples >= before + enough)
+        recorder.check(stale=1e9)
     with Session.open(path) as session:
         resume = [e.time for e in session.events() if e.kind == "resume"]
         return info.value.__cause__, session.stream("imu"), resume[0]

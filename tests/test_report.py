@@ -323,7 +323,7 @@ def test_live_view_windows_stillness_and_instructions():
     rng = np.random.default_rng(4)
 
     def feed(seconds, signal):
-        for k in range(int(seconds * 10)):  # blocks of 20 samples at 200 Hz
+        for _ in range(int(seconds * 10)):  # blocks of 20 samples at 200 Hz
             start = view.samples
             x = signal(np.arange(start, start + 20) / 200.0)
             counts = np.round(1000 * (x[:, None] + rng.standard_normal((20, 3)))).astype(int)

@@ -124,9 +124,9 @@ def test_open_errors_name_the_port(tmp_path):
         SerialImu(missing, BINARY).open()
     twin = SerialTwin(BINARY, source)
     try:
-        with SerialImu(twin.port, BINARY):
-            with pytest.raises(SerialPortError, match="no other program holds the port"):
-                SerialImu(twin.port, BINARY).open()  # exclusive=True
+        with SerialImu(twin.port, BINARY), \
+                pytest.raises(SerialPortError, match="no other program holds the port"):
+            SerialImu(twin.port, BINARY).open()  # exclusive=True
     finally:
         twin.stop()
 

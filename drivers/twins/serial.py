@@ -18,6 +18,7 @@ Fault knobs (attributes, changeable while streaming):
 Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
 """
 
+import contextlib
 import os
 import select
 import shutil
@@ -227,8 +228,6 @@ class SerialTwin:
                     continue
                 except BlockingIOError:
                     master = self._master
-            try:
+            with contextlib.suppress(OSError, ValueError):  # unplugged meanwhile
                 select.select([], [master], [], 0.02)
-            except (OSError, ValueError):  # unplugged meanwhile
-                pass
         return done

@@ -16,6 +16,7 @@ Fault knobs (`inject`), each applied to the next `count` requests:
 
 import asyncio
 import collections
+import contextlib
 import threading
 import time
 from typing import Self
@@ -101,10 +102,8 @@ class TableTwin:
         try:
             self.port = server.transport.sockets[0].getsockname()[1]
             self._ready.set()
-            try:
+            with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stopping.wait(), self.lifetime)
-            except TimeoutError:
-                pass
         finally:
             await server.shutdown()
 

@@ -57,7 +57,9 @@ class Crc:
                 crc = ((crc << 8) & mask) ^ table[((crc >> shift) ^ column) & 0xFF]
         return crc ^ np.uint32(self.xorout)
 
-    @lru_cache(maxsize=8)
+    # Cached per (instance, n): the instances are the module constants of CRCS, alive for the whole
+    # program anyway, so the cache holding them leaks nothing.
+    @lru_cache(maxsize=8)  # noqa: B019
     def positional(self, n: int) -> tuple:
         """(crc of n zero bytes, table (n, 256) of what byte value b at position j adds).
 

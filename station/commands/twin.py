@@ -26,6 +26,7 @@ The CAN twin (a python-can virtual channel) is visible only inside one process:
 `station record`.
 """
 
+import contextlib
 import json
 import signal
 import threading
@@ -89,10 +90,8 @@ def run(args) -> int:
                       + f"bench profile: {info['profile']}\n"
                       f"  station record --profile {args.profile_out}\n"
                       "Ctrl-C stops the twin.", flush=True)
-            try:
+            with contextlib.suppress(KeyboardInterrupt):
                 stop.wait(args.lifetime)
-            except KeyboardInterrupt:
-                pass
             truth = twin.truth()
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -72,12 +72,9 @@ def factorize(readings, constraints: Constraints | None = None, *, magnitude: fl
         b = _checked_bias(bias, m) if bias is not None else bias_from_opposites(M, constraints)
         shape_hat, motion_hat = _factor_readings(M - b[:, None], d, joint=False)
     G = _gram_factor(_solve_gram(motion_hat, constraints, joint, reference, n), d)
-    if joint:
-        # last row of [v; 1] = [G; a4^T] motion_hat: a4 = pinv(motion_hat^T) 1 (Eqs. 17-18), and
-        # motion_hat has orthonormal rows, so the pseudo-inverse is motion_hat itself.
-        T = np.vstack([G, motion_hat.sum(axis=1)])
-    else:
-        T = G
+    # with joint bias, the last row of [v; 1] = [G; a4^T] motion_hat: a4 = pinv(motion_hat^T) 1
+    # (Eqs. 17-18), and motion_hat has orthonormal rows, so the pseudo-inverse is motion_hat itself.
+    T = np.vstack([G, motion_hat.sum(axis=1)]) if joint else G
     if np.linalg.cond(T) > 1 / RANK_TOL:
         raise CalibrationInputError(
             "The constraints give a singular metric upgrade: no calibration explains the readings.",

@@ -195,7 +195,7 @@ def refine(
     neq, resid = normal_equations(a, poses, bias, readings, weight)
     objective = cost(poses, weight, resid)
     damping, it = 1e-6, 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - `it` is returned: the iterations done
         step_g, step_l = lm_step(neq, damping)
         a_t = a + step_g[:, :d].T
         b_t = None if bias is None else bias + step_g[:, d]
