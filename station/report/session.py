@@ -436,11 +436,12 @@ def _stream_health(report, name, data, events) -> None:
     missing = int(np.sum(step[gaps] - 1))
     backwards = int(np.sum((step <= 0) & same_segment))
     t = sample_times(data.seq, data.host_time, rate, breaks)
-    latency = data.host_time - t
-    span = float(t[-1] - t[0])
+    latency = data.host_time - t  # NaN: held back while the station was down (sample_times)
+    span = float(np.nanmax(t) - np.nanmin(t))
     health.update(duration_s=span, gaps=int(gaps.sum()), missing=missing,
-                  out_of_order=backwards, latency_median_ms=float(np.median(latency) * 1e3),
-                  latency_max_ms=float(np.max(latency) * 1e3),
+                  out_of_order=backwards, held_back=int(np.isnan(t).sum()),
+                  latency_median_ms=float(np.nanmedian(latency) * 1e3),
+                  latency_max_ms=float(np.nanmax(latency) * 1e3),
                   longest_silence_s=float(np.max(np.diff(data.host_time))))
     if name == "imu":
         report.summary["duration_s"] = span
