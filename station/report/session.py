@@ -37,11 +37,8 @@ from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, solve_recorded
 from station.report import html
+from station.solve.quality import CHI2_P, check_fit
 
-FALSE_ALARMS = 0.01
-"""Expected number of false outlier flags per report when the model holds."""
-CHI2_P = 1e-3
-"""Two-sided probability below which chi2/dof is reported as inconsistent with the model."""
 WEAK_EXCITATION = 0.25
 """Smallest accepted ratio of the weakest to the strongest eigenvalue of sum_j v_j v_j^T."""
 EMPTY_CAP_DEG = 60.0
@@ -195,28 +192,28 @@ def _calibration(session, name, report):
 
 
 def _fit(report, cal, channels) -> None:
-    """chi2/dof, outliers and the residual figure."""
+    """chi2/dof, outliers (station.solve.quality) and the residual figure."""
     m, n = cal.residuals.shape
     z = cal.normalised_residuals
+    check = check_fit(cal, channels)
     report.summary.update(method=cal.method, frame=cal.frame, magnitude=cal.magnitude,
-                          chi2_per_dof=cal.chi2 / cal.dof if cal.dof else math.nan,
-                          dof=cal.dof, noise_median=float(np.median(cal.sigma)))
+                          chi2_per_dof=check.chi2_per_dof, dof=cal.dof,
+                          noise_median=float(np.median(cal.sigma)), fit_status=check.status)
     if cal.sigma_estimated:
         report.warnings.append("The noise level of the readings was estimated from the residuals, "
                                "so chi2/dof is 1 by construction and cannot test the model.")
-    elif cal.dof > 0:
-        p_high = stats.chi2.sf(cal.chi2, cal.dof)
-        if min(p_high, 1 - p_high) < CHI2_P / 2:
-            ratio = cal.chi2 / cal.dof
-            spread = math.sqrt(2 / cal.dof)
-            what = ("larger than the noise level: the model does not explain the data (an effect "
-                    "the model lacks, a position disturbed during its window, or noise "
-                    "underestimated)" if ratio > 1 else
-                    "smaller than the noise level: the noise of the readings is overestimated")
-            report.warnings.append(f"The residuals are {what}; chi2/dof = {ratio:.2f}, expected "
-                                   f"1 +- {spread:.2f}.")
-    limit = float(stats.norm.isf(FALSE_ALARMS / (2 * m * n)))
-    outliers = [(i, j, z[i, j]) for i, j in zip(*np.nonzero(np.abs(z) > limit))]
+    elif check.p_high is not None and check.p_high < CHI2_P / 2:
+        report.warnings.append(
+            "The residuals are larger than the noise level: the model does not explain the data "
+            "(an effect the model lacks, a position disturbed during its window, readings timed "
+            f"wrongly, or noise underestimated); chi2/dof = {check.chi2_per_dof:.2f}, expected "
+            f"1 +- {math.sqrt(2 / cal.dof):.2f}.")
+    elif check.p_high is not None and 1 - check.p_high < CHI2_P / 2:
+        report.warnings.append(
+            "The residuals are smaller than the noise level: the noise of the readings is "
+            f"overestimated; chi2/dof = {check.chi2_per_dof:.2f}, expected 1 +- "
+            f"{math.sqrt(2 / cal.dof):.2f}.")
+    limit, outliers = check.limit, check.outliers
     if outliers:
         listed = ", ".join(f"{channels[i]} at position {j + 1} ({v:+.1f} sigma)"
                            for i, j, v in outliers[:8])
