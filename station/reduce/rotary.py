@@ -16,6 +16,8 @@ from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.timeline import sample_times, segment_breaks
 
 
+SPIKE = 8.0
+"""Robust standard deviations beyond which a reading in a window is a spike."""
 OVERFULL = 1.01
 """Largest accepted ratio of samples found to samples due in a window (plus one each side)."""
 
@@ -66,6 +68,8 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         for name, (t0, t1) in w.items():
             check_window_count(j, name, int(chosen[name].sum()), (t1 - t0) * rate, coverage)
         static, rotating = chosen["static"], chosen["rotating"]
+        for name, window in chosen.items():
+            check_spikes(j, name, data.counts[window])
         ns, nr = int(static.sum()), int(rotating.sum())
         y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
         angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
@@ -94,6 +98,25 @@ def check_window_count(j: int, name: str, got: int, due: float, coverage: float 
             "The stream's timing is inconsistent (samples recorded twice, or a device clock or "
             "sequence that jumped): check the IMU link and the host clock, then record the "
             "position again; the mounting is not the cause.")
+
+
+def check_spikes(j: int, name: str, counts) -> None:
+    """Refuse a window whose samples hold spikes: readings beyond `SPIKE` robust standard
+    deviations (1.4826 MAD) of the window's own median, per channel. Gaussian noise puts one
+    sample there in about 1e15; a flipped bit, a zeroed block or a glitching sensor puts many, and
+    a window's own scatter would otherwise absorb them into an honest-looking uncertainty."""
+    x = np.asarray(counts, float)
+    median = np.median(x, axis=0)
+    scale = 1.4826 * np.median(np.abs(x - median), axis=0)
+    spikes = np.abs(x - median) > SPIKE * np.maximum(scale, 1.0)  # 1 count: quantisation
+    if spikes.any():
+        channels = np.flatnonzero(spikes.any(axis=0))
+        raise CalibrationInputError(
+            f"position {j + 1}: the {name} window holds {int(spikes.sum())} reading(s) beyond "
+            f"{SPIKE:g} standard deviations of its own noise (channels "
+            f"{', '.join(str(c + 1) for c in channels)}).",
+            "Spikes are corrupted data or a glitching sensor, not noise: check the IMU link and "
+            "the sensor, then record the position again.")
 
 
 def static_bias(reduced: Reduced) -> dict:
