@@ -121,9 +121,12 @@ class BenchTwin:
                 "orientations": t.orientations.tolist(), "mounted": self.mounted}
 
     def _mount(self, advance: bool = True) -> None:
-        """Mount the unit at the next position (or again at the last one)."""
+        """Mount the unit at the next position (or again at the last one). The fixture is
+        repeatable: its placement error belongs to the fixture position (drawn from the seed and
+        the position), so a position mounted again has the orientation it had the first time."""
         self.mounted += 0 if advance or not self.mounted else -1
         j = self.mounted % len(self.axes)
+        self.bench.technician.rng = np.random.default_rng([self.seed, 2, j])
         self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
         self.mounted += 1
 
@@ -144,9 +147,18 @@ class BenchTwin:
                     started, stopped, turned = None, True, abs(state.angle - started)
                 if stopped and not state.moving:
                     stopped = False
-                    self._mount(advance=turned >= 2 * np.pi * RotarySettings().revolutions)
+                    self._mount(advance=_completed(turned))
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
+
+
+def _completed(turned: float) -> bool:
+    """Did a run of the table that turned `turned` rad complete a rotary position? It must have
+    turned the protocol's whole revolutions; a run that turned far more (more than 2 turns
+    beyond them: a station killed while the table turned, stopped only by the resume) or less
+    (a position aborted) is recorded again."""
+    whole = 2 * np.pi * RotarySettings().revolutions
+    return whole <= turned <= whole + 4 * np.pi
 
 
 class HandTwin:
