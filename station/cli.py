@@ -9,7 +9,7 @@ of them with their one-line summaries, so `station --help` imports no command (p
     1    failed (the station could not do what was asked; the message says why)
     2    bad input (a missing or wrong file, a bad option, data the calibration cannot use)
     3    a device failed (IMU link, rotary table, device profile errors are 2)
-    130  interrupted (Ctrl-C); the rotary table has been stopped
+    130  interrupted (Ctrl-C, or SIGTERM: `kill`); the rotary table has been stopped
     141  stdout closed early (e.g. piped into `head`)
 
 Every error the station raises on purpose (`station.errors.StationError`,
@@ -20,7 +20,9 @@ debug logging. Anything else is a bug and keeps its traceback.
 import argparse
 import logging
 import os
+import signal
 import sys
+import threading
 
 # name -> (module under station/commands/, one-line summary for `station --help`)
 COMMANDS = {
@@ -107,6 +109,8 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     configure_logging(args.verbose)
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None  # kill = ^C
     try:
         return int(args.run(args) or 0)
     except KeyboardInterrupt as err:
@@ -121,6 +125,15 @@ def main(argv=None) -> int:
         if not isinstance(err, StationError | DeviceError):
             raise
         return _fail(args, err, err.exit_code)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminated(signum, frame):
+    """SIGTERM: raise KeyboardInterrupt in the main thread, so that every `with` and `finally`
+    on the way out runs (the rotary table is stopped, the session file closed)."""
+    raise KeyboardInterrupt("terminated (SIGTERM)")
 
 
 def _fail(args, err: BaseException, code: int, message: str = "") -> int:

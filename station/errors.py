@@ -16,13 +16,15 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |    +-- RecordingError              3  the IMU stream stopped
      |    +-- ProtocolError               3  the bench did not behave as the protocol needs
      |         +-- SessionPaused          3  the operator stopped; the session can be resumed
-     +-- OperatorAbort                    1  the operator ended the session
+     +-- SuspectFitError                1  a fit inconsistent with its noise: not written as good
+     +-- OperatorAbort                  1  the operator ended the session
 
 Device errors have their own root, `drivers.errors.DeviceError` (exit code 3), because the drivers
 never import the station (the layering contracts in pyproject.toml): ProfileError (ValueError, exit
 code 2), LinkError (ConnectionError: SerialPortError, DeviceLostError, CanBusError) and TableError
 (RuntimeError: TableTimeout, TableBusy, TableFault). The command line catches both roots.
 """
+
 
 class StationError(Exception):
     """Base of the station's errors; `exit_code` is what the command line exits with."""
@@ -85,6 +87,11 @@ class ProtocolError(AcquisitionError):
 
 class SessionPaused(ProtocolError):
     """The table stopped answering and the operator chose to stop; the session can be resumed."""
+
+
+class SuspectFitError(StationError):
+    """The fit disagrees with the noise of its readings (station.solve.quality): the calibration
+    is not written as good; the message says why and what to look at."""
 
 
 class OperatorAbort(StationError):

@@ -60,6 +60,8 @@ def register(p) -> None:
                    "sessions/<unit serial>-<date>.h5)")
     p.add_argument("--solve", action="store_true",
                    help="solve the session afterwards into <session>.cal.json")
+    p.add_argument("--accept-suspect", action="store_true",
+                   help="with --solve: write a fit that fails the quality gate, marked suspect")
     p.add_argument("--live", action="store_true",
                    help="show the live view (phase, windows, table, link) while recording")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -85,7 +87,7 @@ def run(args) -> int:
     try:
         summary = record(bench, out, operator, live=args.live)
         if args.solve:
-            summary["calibration"] = solve(out)
+            summary["calibration"] = solve(out, args.accept_suspect)
     except BaseException as err:
         stopped = "the table was stopped; " if kind.table else ""
         err.add_note(f"{stopped}{out} keeps the completed positions")
@@ -101,11 +103,11 @@ def run(args) -> int:
     return 0
 
 
-def solve(path) -> dict:
+def solve(path, accept_suspect: bool = False) -> dict:
     """Solve the recorded session as `station solve` does; its summary."""
     from station.commands.solve import solve_session, summarise
 
     out = Path(path).with_suffix(".cal.json")
-    cal = solve_session(path)
+    cal = solve_session(path, accept_suspect=accept_suspect)
     cal.save(out)
     return summarise(cal, out)

@@ -53,6 +53,7 @@ def register(p) -> None:
 def run(args) -> int:
     from station.commands import existing_file, new_file
     from station.replay import free_name, replay, replay_into, replay_raw
+    from station.solve.quality import check_fit
 
     existing_file(args.session, "a session file (.h5)")
     if args.raw is not None:
@@ -72,6 +73,8 @@ def run(args) -> int:
                    "settings": dataclasses.asdict(settings),
                    "scale_factors": result.scale_factors.tolist(),
                    "scale_factors_sigma": result.scale_factors_sigma.tolist()}
+        check = check_fit(result)
+        summary.update(status=check.status, status_reasons=check.problems)
     if args.json:
         print(json.dumps(summary))
     elif args.raw is not None:
@@ -82,6 +85,8 @@ def run(args) -> int:
         print(f"{args.session}: {summary['positions']} positions, {summary['method']} "
               f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
         print("scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"]))
+        if summary["status"] == "suspect":
+            print(f"SUSPECT fit: {'; '.join(summary['status_reasons'])}")
     return 0
 
 

@@ -40,6 +40,9 @@ def register(p) -> None:
                    help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
                         "its local gravity in m/s^2)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    p.add_argument("--accept-suspect", action="store_true",
+                   help="write a fit that fails the quality gate (chi2, outliers), marked "
+                        "suspect with the reasons, instead of refusing it")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -50,21 +53,27 @@ def run(args) -> int:
     existing_file(args.session, "a session file (.h5)")
     out = new_file(args.out or args.session.with_suffix(".cal.json"), args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
-    cal = solve_session(args.session, args.stream, nominal, args.magnitude)
+    cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
     return 0
 
 
-def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None):
+def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None,
+                  accept_suspect: bool = False):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
-    `station.protocols.KINDS` says which channels it calibrates and where the biases come from."""
+    `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
+
+    The fit passes the quality gate (`station.solve.quality.check_fit`) or SuspectFitError says
+    why not; with `accept_suspect` it is returned marked suspect (fit status and reasons)."""
+    from station.errors import SuspectFitError
     from station.files.calfile import Calibration
     from station.files.session import Session
     from station.protocols import KINDS
     from station.replay import ReplaySettings, solve_recorded
+    from station.solve.quality import check_fit
 
     with Session.open(path) as session:
         settings = ReplaySettings(stream=stream, magnitude=magnitude)
@@ -80,9 +89,18 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version}
         serial = session.unit_serial
+    names = [spec.channels[i] for i in channels]
+    check = check_fit(result, names)
+    if check.problems and not accept_suspect:
+        raise SuspectFitError(
+            f"{path}: the fit is suspect, so no calibration file was written: "
+            f"{'; '.join(check.problems)}. `station report` shows the positions, `station "
+            "diagnose` the effect; record those positions again, or give --accept-suspect to "
+            "write the file marked suspect")
     return Calibration.from_result(
-        result, serial, [spec.channels[i] for i in channels], [spec.units[i] for i in channels],
-        counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info, **bias)
+        result, serial, names, [spec.units[i] for i in channels],
+        counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info,
+        status=check.status, status_reasons=check.problems, **bias)
 
 
 def read_nominal(path) -> np.ndarray:
@@ -106,6 +124,7 @@ def summarise(cal, out) -> dict:
         "calibration": str(out), "unit_serial": cal.unit_serial, "sensors": list(cal.sensors),
         "units": cal.units[0], "frame": cal.frame, "method": cal.fit["method"],
         "positions": cal.fit["positions"], "chi2_per_dof": cal.fit["chi2"] / cal.fit["dof"],
+        "status": cal.fit.get("status"), "status_reasons": cal.fit.get("status_reasons", []),
         "scale_factors": cal.scale_factors.tolist(),
         "scale_factors_sigma": cal.scale_factors_sigma.tolist(),
         "bias": cal.bias.tolist(), "bias_sigma": cal.bias_sigma.tolist(),
@@ -119,4 +138,5 @@ def _text(s: dict) -> str:
                  s["bias_sigma"], strict=True)]
     title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
              f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in {s['units']})")
-    return "\n".join([title, *rows, f"written to {s['calibration']}"])
+    verdict = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
+    return "\n".join([title, *rows, *verdict, f"written to {s['calibration']}"])

@@ -72,7 +72,9 @@ class Calibration:
     counts_per_unit     : (m,) raw counts per SI unit at the driver edge, or None if unknown
     frame               : "canonical" (Eq. 19) or "nominal" (aligned to a nominal layout)
     magnitude           : |v_j| of the calibration positions; scale_known False: Remark 2
-    fit                 : {"method", "chi2", "dof", "positions", "bias_source"}
+    fit                 : {"method", "chi2", "dof", "positions", "bias_source", "status" ("good"
+                          or "suspect": station.solve.quality), "status_reasons"}; files written
+                          before the quality gate have no status
     session             : where the readings came from (path, stream, ...) or None
     covariance          : (d m + m, d m + m) joint covariance of (a row-major, b) in `frame`, its
                           diagonal the squared sigmas; None when unknown (version-1 files)
@@ -110,13 +112,16 @@ class Calibration:
     @classmethod
     def from_result(cls, result, unit_serial: str, sensors, units, *, bias=None, bias_sigma=None,
                     bias_source: str = "estimated with the calibration", counts_per_unit=None,
-                    session: dict | None = None) -> "Calibration":
+                    session: dict | None = None, status: str = "good",
+                    status_reasons=()) -> "Calibration":
         """A calibration file's content from a `station.solve.calibrate.CalibrationResult`.
 
         bias, bias_sigma : (m,) biases and 1-sigma measured apart from the fit (e.g. the static
                            windows of a rotary session, whose Eq. (18) readings are bias-free);
                            default: the result's own (it must then have estimated them).
         units            : one SI unit for all sensors, or one per sensor.
+        status           : "good", or "suspect" (a fit that failed the quality gate,
+                           station.solve.quality) with `status_reasons` in words.
         """
         m = result.m
         own_bias = bias is None
@@ -136,7 +141,8 @@ class Calibration:
             axis_angles_sigma=result.axis_angles_sigma, frame=result.frame,
             magnitude=float(result.magnitude), scale_known=bool(result.scale_known),
             fit={"method": result.method, "chi2": float(result.chi2), "dof": int(result.dof),
-                 "positions": int(result.v.shape[1]), "bias_source": bias_source},
+                 "positions": int(result.v.shape[1]), "bias_source": bias_source,
+                 "status": status, "status_reasons": list(status_reasons)},
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
             session=session, covariance=_joint_covariance(result, own_bias, bias_sigma))

@@ -180,6 +180,7 @@ class RotaryProtocol:
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
+        self._rotated = None  # the last position whose rotating window ended
         try:
             while self.state != "done":
                 try:  # the one place where the state changes
@@ -251,6 +252,7 @@ class RotaryProtocol:
                                     f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
                                     "window); check the table's encoder")
         self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._rotated = j
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "stop"
@@ -376,13 +378,28 @@ class RotaryProtocol:
             self.clock.sleep(min(self.settings.poll, max(0.0, end - self.clock.now())))
 
     def _abort(self, exc: BaseException) -> None:
-        """Stop the table first, then record why the session ended; failures become notes."""
+        """Stop the table first, complete a position whose rotating window had ended, then record
+        why the session ended; failures become notes."""
         self._stop_table(exc)
+        if self._rotated == self.position:
+            self._complete(exc)
         try:
             self.recorder.event("abort", self.position, {
                 "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
         except Exception as record_error:  # noqa: BLE001
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
+
+
+    def _complete(self, exc: BaseException) -> None:
+        """The position's windows are all recorded: let the table come to rest and record
+        `position_done`, so that a resume goes on with the next position, as a fixture or a
+        technician who saw the table finish its turns does."""
+        try:
+            self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
+            self.recorder.drain(self.clock.now(), self.settings.stale)
+            self.recorder.event("position_done", self.position, {"interrupted": True})
+        except Exception as failed:  # noqa: BLE001 - the position is then recorded again
+            exc.add_note(f"position {self.position + 1} is recorded again on resume: {failed}")
 
 
 class Unwatched:

@@ -15,6 +15,11 @@ from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.timeline import sample_times, segment_breaks
 
+SPIKE = 8.0
+"""Robust standard deviations beyond which a reading in a window is a spike."""
+OVERFULL = 1.01
+"""Largest accepted ratio of samples found to samples due in a window (plus one each side)."""
+
 
 def position_windows(events) -> dict:
     """{position: {"static": (t0, t1), "rotating": (t0, t1)}} in clock seconds for every completed
@@ -60,12 +65,10 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     for j, w in windows.items():
         chosen = {name: (t >= t0) & (t <= t1) for name, (t0, t1) in w.items()}
         for name, (t0, t1) in w.items():
-            due, got = (t1 - t0) * rate, int(chosen[name].sum())
-            if got < coverage * due:
-                raise CalibrationInputError(
-                    f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} "
-                    "were due.", "The IMU link lost data: check it and record the position again.")
+            check_window_count(j, name, int(chosen[name].sum()), (t1 - t0) * rate, coverage)
         static, rotating = chosen["static"], chosen["rotating"]
+        for name, window in chosen.items():
+            check_spikes(j, name, data.counts[window])
         ns, nr = int(static.sum()), int(rotating.sum())
         y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
         angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
@@ -76,6 +79,43 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
             raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
     return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
                       for name in Reduced.__dataclass_fields__})
+
+
+def check_window_count(j: int, name: str, got: int, due: float, coverage: float = 0.9) -> None:
+    """Refuse a window whose sample count does not match its length times the sample rate: fewer
+    than `coverage` of the samples due is a lossy link; more than due (beyond one sample each
+    side, and `OVERFULL`) means two stretches of the stream were timed onto the same window (a
+    resumed or reconnected stream, a device whose clock jumped, samples recorded twice)."""
+    if got < coverage * due:
+        raise CalibrationInputError(
+            f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} were due.",
+            "The IMU link lost data: check it and record the position again.")
+    if got > OVERFULL * due + 2:
+        raise CalibrationInputError(
+            f"position {j + 1}: the {name} window holds {got} samples where {due:.0f} were due "
+            f"({got / due:.2f}x): the samples' times overlap.",
+            "The stream's timing is inconsistent (samples recorded twice, or a device clock or "
+            "sequence that jumped): check the IMU link and the host clock, then record the "
+            "position again; the mounting is not the cause.")
+
+
+def check_spikes(j: int, name: str, counts) -> None:
+    """Refuse a window whose samples hold spikes: readings beyond `SPIKE` robust standard
+    deviations (1.4826 MAD) of the window's own median, per channel. Gaussian noise puts one
+    sample there in about 1e15; a flipped bit, a zeroed block or a glitching sensor puts many, and
+    a window's own scatter would otherwise absorb them into an honest-looking uncertainty."""
+    x = np.asarray(counts, float)
+    median = np.median(x, axis=0)
+    scale = 1.4826 * np.median(np.abs(x - median), axis=0)
+    spikes = np.abs(x - median) > SPIKE * np.maximum(scale, 1.0)  # 1 count: quantisation
+    if spikes.any():
+        channels = np.flatnonzero(spikes.any(axis=0))
+        raise CalibrationInputError(
+            f"position {j + 1}: the {name} window holds {int(spikes.sum())} reading(s) beyond "
+            f"{SPIKE:g} standard deviations of its own noise (channels "
+            f"{', '.join(str(c + 1) for c in channels)}).",
+            "Spikes are corrupted data or a glitching sensor, not noise: check the IMU link and "
+            "the sensor, then record the position again.")
 
 
 def static_bias(reduced: Reduced) -> dict:

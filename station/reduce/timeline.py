@@ -30,17 +30,23 @@ def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
 
     The stream is cut into segments, each with its own `arrival_offset`: before each clock time
     in `breaks` (a reconnection, a resumed session) and wherever `seq` does not increase (a device
-    that restarted its numbering).
+    that restarted its numbering). A sample received after a break but taken before it (a device
+    or a buffer that held samples back while the station was down: they arrive in a burst after
+    the resume) is NaN: it belongs to no window of either side. On a resumed session's clock,
+    which continues after the file's last instant, such samples would otherwise fall onto the
+    windows recorded before the interruption.
     """
     seq, host_time = np.asarray(seq), np.asarray(host_time, float)
     if seq.size == 0:
         return np.zeros(0)
-    segment = np.searchsorted(np.sort(np.asarray(breaks, float)), host_time, side="right")
-    segment = segment + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
+    starts = np.concatenate([[-np.inf], np.sort(np.asarray(breaks, float))])
+    after = np.searchsorted(starts[1:], host_time, side="right")  # index of the break before
+    segment = after + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
     times = np.empty(len(seq))
     for k in np.unique(segment):
         part = segment == k
         times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
+    times[times < starts[after]] = np.nan
     return times
 
 

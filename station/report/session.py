@@ -38,11 +38,8 @@ from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, solve_recorded
 from station.report import html
+from station.solve.quality import CHI2_P, check_fit
 
-FALSE_ALARMS = 0.01
-"""Expected number of false outlier flags per report when the model holds."""
-CHI2_P = 1e-3
-"""Two-sided probability below which chi2/dof is reported as inconsistent with the model."""
 WEAK_EXCITATION = 0.25
 """Smallest accepted ratio of the weakest to the strongest eigenvalue of sum_j v_j v_j^T."""
 EMPTY_CAP_DEG = 60.0
@@ -196,28 +193,28 @@ def _calibration(session, name, report):
 
 
 def _fit(report, cal, channels) -> None:
-    """chi2/dof, outliers and the residual figure."""
+    """chi2/dof, outliers (station.solve.quality) and the residual figure."""
     m, n = cal.residuals.shape
     z = cal.normalised_residuals
+    check = check_fit(cal, channels)
     report.summary.update(method=cal.method, frame=cal.frame, magnitude=cal.magnitude,
-                          chi2_per_dof=cal.chi2 / cal.dof if cal.dof else math.nan,
-                          dof=cal.dof, noise_median=float(np.median(cal.sigma)))
+                          chi2_per_dof=check.chi2_per_dof, dof=cal.dof,
+                          noise_median=float(np.median(cal.sigma)), fit_status=check.status)
     if cal.sigma_estimated:
         report.warnings.append("The noise level of the readings was estimated from the residuals, "
                                "so chi2/dof is 1 by construction and cannot test the model.")
-    elif cal.dof > 0:
-        p_high = stats.chi2.sf(cal.chi2, cal.dof)
-        if min(p_high, 1 - p_high) < CHI2_P / 2:
-            ratio = cal.chi2 / cal.dof
-            spread = math.sqrt(2 / cal.dof)
-            what = ("larger than the noise level: the model does not explain the data (an effect "
-                    "the model lacks, a position disturbed during its window, or noise "
-                    "underestimated)" if ratio > 1 else
-                    "smaller than the noise level: the noise of the readings is overestimated")
-            report.warnings.append(f"The residuals are {what}; chi2/dof = {ratio:.2f}, expected "
-                                   f"1 +- {spread:.2f}.")
-    limit = float(stats.norm.isf(FALSE_ALARMS / (2 * m * n)))
-    outliers = [(i, j, z[i, j]) for i, j in zip(*np.nonzero(np.abs(z) > limit), strict=True)]
+    elif check.p_high is not None and check.p_high < CHI2_P / 2:
+        report.warnings.append(
+            "The residuals are larger than the noise level: the model does not explain the data "
+            "(an effect the model lacks, a position disturbed during its window, readings timed "
+            f"wrongly, or noise underestimated); chi2/dof = {check.chi2_per_dof:.2f}, expected "
+            f"1 +- {math.sqrt(2 / cal.dof):.2f}.")
+    elif check.p_high is not None and 1 - check.p_high < CHI2_P / 2:
+        report.warnings.append(
+            "The residuals are smaller than the noise level: the noise of the readings is "
+            f"overestimated; chi2/dof = {check.chi2_per_dof:.2f}, expected 1 +- "
+            f"{math.sqrt(2 / cal.dof):.2f}.")
+    limit, outliers = check.limit, check.outliers
     if outliers:
         listed = ", ".join(f"{channels[i]} at position {j + 1} ({v:+.1f} sigma)"
                            for i, j, v in outliers[:8])
@@ -438,11 +435,12 @@ def _stream_health(report, name, data, events) -> None:
     missing = int(np.sum(step[gaps] - 1))
     backwards = int(np.sum((step <= 0) & same_segment))
     t = sample_times(data.seq, data.host_time, rate, breaks)
-    latency = data.host_time - t
-    span = float(t[-1] - t[0])
+    latency = data.host_time - t  # NaN: held back while the station was down (sample_times)
+    span = float(np.nanmax(t) - np.nanmin(t))
     health.update(duration_s=span, gaps=int(gaps.sum()), missing=missing,
-                  out_of_order=backwards, latency_median_ms=float(np.median(latency) * 1e3),
-                  latency_max_ms=float(np.max(latency) * 1e3),
+                  out_of_order=backwards, held_back=int(np.isnan(t).sum()),
+                  latency_median_ms=float(np.nanmedian(latency) * 1e3),
+                  latency_max_ms=float(np.nanmax(latency) * 1e3),
                   longest_silence_s=float(np.max(np.diff(data.host_time))))
     if name == "imu":
         report.summary["duration_s"] = span
@@ -517,10 +515,9 @@ def _table_stability(report, table, events, metadata) -> None:
             rows.append((str(j + 1), f"{np.mean(table.rate[inside]):.5f}",
                          f"{np.mean(err) * 1e3:+.3f}", f"{np.std(err) * 1e3:.3f}",
                          f"{np.max(np.abs(err)) * 1e3:.3f}"))
-            spans.append((t0, t1, float(np.max(np.abs(err)))))
+            spans.append((j, t0, t1, float(np.max(np.abs(err)))))
     if isinstance(tolerance, int | float):
-        off = [str(j + 1) for (j, _), (_, _, worst) in zip(windows.items(), spans, strict=False)
-               if worst > tolerance]
+        off = [str(j + 1) for j, _, _, worst in spans if worst > tolerance]
         if off:
             report.warnings.append(f"The table rate left its tolerance (+-{tolerance:g} rad/s) in "
                                    f"the rotating window of position(s) {', '.join(off)}.")
@@ -541,11 +538,11 @@ def _table_png(table, spans, tolerance) -> bytes:
     top, bottom = fig.subplots(2, 1, sharex=True)
     top.plot(table.time, table.rate, lw=0.8, label="measured")
     top.plot(table.time, table.rate_setpoint, lw=0.8, ls="--", label="setpoint")
-    for t0, t1, _ in spans:
+    for _, t0, t1, _ in spans:
         top.axvspan(t0, t1, color="#cfe3f3", lw=0)
     top.set_ylabel("rate (rad/s)")
     top.legend(loc="upper right", fontsize=8)
-    for t0, t1, _ in spans:
+    for _, t0, t1, _ in spans:
         inside = (table.time >= t0) & (table.time <= t1)
         bottom.plot(table.time[inside], (table.rate - table.rate_setpoint)[inside] * 1e3,
                     ".-", ms=2, lw=0.6, color="C0")

@@ -2,7 +2,8 @@
 on a pty and a Modbus server, and a fixture or technician that follows the protocol by itself.
 
 - `BenchTwin`: the rotary bench (`station.twin.rotary_bench.VirtualBench`) whose motorised
-  fixture re-mounts the unit at each table stop, at the next of `suggested_axes(positions)`;
+  fixture re-mounts the unit once the table has come to rest after a run: at the next of
+  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run;
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence.
 
@@ -20,7 +21,7 @@ from typing import Self
 import numpy as np
 
 from station.errors import InputError
-from station.protocols.rotary import instruction, suggested_axes
+from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
 
 class PortWatch:
@@ -119,25 +120,45 @@ class BenchTwin:
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
                 "orientations": t.orientations.tolist(), "mounted": self.mounted}
 
-    def _mount(self) -> None:
+    def _mount(self, advance: bool = True) -> None:
+        """Mount the unit at the next position (or again at the last one). The fixture is
+        repeatable: its placement error belongs to the fixture position (drawn from the seed and
+        the position), so a position mounted again has the orientation it had the first time."""
+        self.mounted += 0 if advance or not self.mounted else -1
         j = self.mounted % len(self.axes)
+        self.bench.technician.rng = np.random.default_rng([self.seed, 2, j])
         self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
         self.mounted += 1
 
     def _fixture(self) -> None:
-        """Start the serial stream when the station opens the port; re-mount the unit at each
-        running -> stopped transition of the table's run command."""
+        """Start the serial stream when the station opens the port; after each run of the table,
+        once it has come to rest, re-mount the unit: at the next position when the run turned
+        the protocol's whole revolutions (a completed position), else at the same one (the
+        station aborted the position and will record it again, e.g. after a Ctrl-C)."""
         try:
-            running = False
+            started, stopped = None, False  # angle at the run command; run ended, still moving
             while not self._stop.wait(0.002):
                 if self._watch is not None and self._watch.opened():
                     self.bench.imu_twin.start()
-                now = self.bench.table.state().running
-                if running and not now:
-                    self._mount()
-                running = now
+                state = self.bench.table.state()
+                if state.running and started is None:
+                    started = state.angle
+                elif not state.running and started is not None:
+                    started, stopped, turned = None, True, abs(state.angle - started)
+                if stopped and not state.moving:
+                    stopped = False
+                    self._mount(advance=_completed(turned))
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
+
+
+def _completed(turned: float) -> bool:
+    """Did a run of the table that turned `turned` rad complete a rotary position? It must have
+    turned the protocol's whole revolutions; a run that turned far more (more than 2 turns
+    beyond them: a station killed while the table turned, stopped only by the resume) or less
+    (a position aborted) is recorded again."""
+    whole = 2 * np.pi * RotarySettings().revolutions
+    return whole <= turned <= whole + 4 * np.pi
 
 
 class HandTwin:

@@ -1,0 +1,70 @@
+"""Is a fit consistent with the noise of its readings? The quality gate a calibration passes
+before it is written as good (`station solve`, `station record --solve`, `station replay`) and
+the fit warnings of the session report.
+
+Two tests, each at a stated false-alarm level when the model holds:
+- chi2 of the normalised residuals against chi2(dof): the upper tail beyond `CHI2_P` / 2 means the
+  readings disagree with the model by more than their noise (a disturbed window, readings timed
+  wrongly, an effect the model lacks);
+- each normalised residual r_ij / sigma_ij against N(0, 1), Bonferroni over the m n residuals at
+  `FALSE_ALARMS` expected false flags per fit: an outlying sensor reading at one position.
+Neither applies when sigma was estimated from the residuals (chi2/dof is then 1 by construction).
+"""
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+CHI2_P = 1e-3
+"""Two-sided probability below which chi2/dof is inconsistent with the model."""
+FALSE_ALARMS = 0.01
+"""Expected number of false outlier flags per fit when the model holds."""
+
+
+@dataclass(frozen=True)
+class FitCheck:
+    """The verdict on one fit.
+
+    chi2_per_dof, p_high : chi2 / dof and P(chi2 >= observed) under the model (None: untestable)
+    limit                : |r / sigma| beyond which a residual is an outlier
+    outliers             : (sensor index, position index, r / sigma) beyond `limit`
+    problems             : why the fit is suspect, in words; empty when it is good
+    """
+
+    chi2_per_dof: float
+    p_high: float | None
+    limit: float
+    outliers: list = field(default_factory=list)
+    problems: list = field(default_factory=list)
+
+    @property
+    def status(self) -> str:
+        return "suspect" if self.problems else "good"
+
+
+def check_fit(result, names=None) -> FitCheck:
+    """Test `result` (a `station.solve.calibrate.CalibrationResult`); `names` of the sensors for
+    the messages (default s1..sm)."""
+    m, n = result.residuals.shape
+    names = list(names) if names is not None else [f"s{i + 1}" for i in range(m)]
+    ratio = result.chi2 / result.dof if result.dof else math.nan
+    limit = float(stats.norm.isf(FALSE_ALARMS / (2 * m * n)))
+    if result.sigma_estimated or result.dof <= 0:
+        return FitCheck(ratio, None, limit)
+    p_high = float(stats.chi2.sf(result.chi2, result.dof))
+    z = result.normalised_residuals
+    outliers = [(int(i), int(j), float(z[i, j])) for i, j in zip(*np.nonzero(np.abs(z) > limit),
+                                                                  strict=True)]
+    problems = []
+    if p_high < CHI2_P / 2:
+        problems.append(f"chi2/dof = {ratio:.2f} where 1 +- {math.sqrt(2 / result.dof):.2f} is "
+                        f"expected (p = {p_high:.1e}): the readings disagree with the model by "
+                        "more than their noise")
+    if outliers:
+        listed = ", ".join(f"{names[i]} at position {j + 1} ({v:+.1f} sigma)"
+                           for i, j, v in outliers[:8])
+        more = f" and {len(outliers) - 8} more" if len(outliers) > 8 else ""
+        problems.append(f"residual outliers beyond {limit:.1f} sigma: {listed}{more}")
+    return FitCheck(ratio, p_high, limit, outliers, problems)

@@ -1,0 +1,115 @@
+"""The interruption harness (tests/test_interruptions.py, bench/interruptions.py): `station twin` in
+one process, `station record` in another, a signal sent to the recorder the moment the session
+file holds a chosen protocol event, then `station resume` with the same bench profile, as a
+technician would after a Ctrl-C, a `kill` or a crash.
+
+Per interruption point it returns, for every position's static and rotating window, the samples
+found over the samples due, and the Eq. (18) readings with their 1-sigma, to compare with an
+uninterrupted session of the same twin.
+"""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from station.files.session import Session
+from station.reduce.rotary import position_windows, rotary_readings
+from station.reduce.timeline import sample_times, segment_breaks
+
+STATION = [sys.executable, "-m", "station"]
+POSITIONS = 6
+SEED = 3
+SPEED = 40.0
+STATES = ("position_start", "static_start", "static_end", "rotate_start", "rotate_end",
+          "position_done")
+"""Protocol events after which the recorder is interrupted: mounting, static window, spin-up,
+rotating window, spin-down, completed position."""
+
+
+def _twin(workdir: Path):
+    """A running `station twin` process and its bench profile."""
+    profile = workdir / "twin.toml"
+    twin = subprocess.Popen(
+        [*STATION, "twin", "--speed", str(SPEED), "--positions", str(POSITIONS), "--seed",
+         str(SEED), "--profile-out", str(profile), "--lifetime", "600", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    json.loads(twin.stdout.readline())  # the twin is serving
+    return twin, profile
+
+
+def _stop(twin) -> None:
+    twin.send_signal(signal.SIGINT)
+    try:
+        twin.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        twin.kill()
+        twin.communicate()
+
+
+def _events(path: Path) -> list:
+    """(kind, position) of the events flushed so far; [] while the file is not readable yet."""
+    try:
+        with Session.open(path) as s:
+            return [(e.kind, e.position) for e in s.events()]
+    except Exception:  # noqa: BLE001 - the writer may not have created the file yet
+        return []
+
+
+def record(workdir: Path, interrupt=None) -> dict:
+    """One session on a fresh twin; interrupt = (signal name, event kind, position) or None.
+    Returns the exits of record and resume, per-window sample ratios, readings and sigma."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    session = workdir / "session.h5"
+    twin, profile = _twin(workdir)
+    try:
+        enters = workdir / "enter.txt"  # the technician: one Enter per mounting prompt
+        enters.write_text("\n" * POSITIONS)
+        with enters.open() as stdin:
+            rec = subprocess.Popen([*STATION, "record", "--profile", str(profile), "--out",
+                                    str(session), "--json"], stdin=stdin,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        out = {"interrupt": list(interrupt) if interrupt else None}
+        if interrupt is not None:
+            name, kind, position = interrupt
+            deadline = time.monotonic() + 120
+            while (kind, position) not in _events(session):
+                if rec.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"record ended before {kind} of position {position + 1}: "
+                                       f"{rec.stderr.read()[-500:]}")
+                time.sleep(0.01)
+            rec.send_signal(getattr(signal, name))
+        _, err = rec.communicate(timeout=120)
+        out["record_exit"], out["record_stderr"] = rec.returncode, err.strip()[-300:]
+        if interrupt is not None:
+            res = subprocess.run([*STATION, "resume", str(session), "--json"],
+                                 input="\n" * POSITIONS, capture_output=True, text=True,
+                                 timeout=300)
+            out["resume_exit"], out["resume_stderr"] = res.returncode, res.stderr.strip()[-300:]
+    finally:
+        _stop(twin)
+    return {**out, **measure(session)}
+
+
+def measure(path: Path) -> dict:
+    """Samples found / due per window, and the Eq. (18) readings and their 1-sigma."""
+    with Session.open(path) as s:
+        events, data = s.events(), s.stream("imu")
+        rate = data.spec.rate_hz
+        t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
+        ratios = [[float(np.sum((t >= a) & (t <= b)) / ((b - a) * rate))
+                   for a, b in (w["static"], w["rotating"])]
+                  for _, w in sorted(position_windows(events).items())]
+        reduced = rotary_readings(s)
+    return {"ratios": ratios, "M": reduced.M.tolist(), "sigma": reduced.sigma.tolist()}
+
+
+def deviation(run: dict, reference: dict) -> np.ndarray:
+    """(M - M_ref) / sqrt(sigma^2 + sigma_ref^2): independent noise of two sessions of one twin."""
+    m, s = np.array(run["M"]), np.array(run["sigma"])
+    m0, s0 = np.array(reference["M"]), np.array(reference["sigma"])
+    return (m - m0) / np.sqrt(s**2 + s0**2)
