@@ -1,6 +1,7 @@
 """The calibration file (station.files.calfile): exact round trip, refusals of tampered, foreign and
 malformed files, and the least-squares fusion it applies (docs/conventions.md)."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -87,7 +88,8 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
-    with pytest.raises(CalibrationFileError, match=r"format_version 3 .*reads \(1, 2\).*newer"):
+    with pytest.raises(CalibrationFileError,
+                       match=r"format_version 4 .*reads \(1, 2, 3\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -236,14 +238,30 @@ def test_a_version_1_file_still_loads_without_covariance():
     from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
-        del doc["covariance"]
+        del doc["covariance"], doc["verdict"]
         doc.update(format_version=1, conventions=CONVENTIONS_V1)
 
     back = loads(edited(make(), to_v1, True))
-    assert back.covariance is None and back.unit_serial == "SN42"
-    with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance'\\]"):
+    assert back.covariance is None and back.verdict is None and back.unit_serial == "SN42"
+    with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance', 'verdict'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
+
+
+def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
+    from station.files.calfile import CONVENTIONS
+
+    def to_v2(doc):
+        del doc["verdict"]
+        doc.update(format_version=2, conventions=CONVENTIONS)
+
+    assert loads(edited(make(), to_v2, True)).verdict is None
+    judged = dataclasses.replace(make(), verdict={"overall": "FAIL", "parameters": [
+        {"name": "g1 bias", "value": 0.3, "sigma": 0.01, "nominal": 0.0, "limit": 0.1,
+         "verdict": "fail"}], "untested": [], "margin_sigma": 2.0})
+    assert loads(judged.dumps()).verdict == judged.verdict
+    with pytest.raises(CalibrationFileError, match="verdict must be null or an object"):
+        loads(edited(judged, lambda d: d["verdict"].update(overall="OK"), True))
 
 
 def test_vector_covariance_is_the_first_order_propagation():

@@ -45,6 +45,7 @@ class BenchProfile:
         from drivers.profile import ProfileError, Section, load_profile
         from drivers.rotary_table import TableRegisterMap
         from station.protocols import KINDS, kinds_with
+        from station.solve.verdict import Tolerances
 
         profile = load_profile(path)
         base = Path(profile.source).parent
@@ -59,10 +60,15 @@ class BenchProfile:
                 raise ProfileError(f"{path}: no [{name}] section; see `station record --help`")
             return Section(profile.source, name, table)
 
-        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol"})
+        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary) and [protocol]")
+                               "[imu], [table] (rotary), [protocol] and [tolerances]")
+        if "tolerances" in profile.tables:  # refused now, not after the session was recorded
+            try:
+                Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
+            except InputError as exc:
+                raise ProfileError(f"{path}: {exc}") from None
         bench, imu, proto = (section(n) for n in ("bench", "imu", "protocol"))
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)

@@ -11,9 +11,15 @@ import json
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
+from station.solve.verdict import Tolerances
+
+DEMO_TOLERANCES = Tolerances(scale_factor=0.05, bias=0.03, axis_angle_deg=3.0)
+"""The simulated MEMS gyro type's limits (station.sim.layouts.gyro_array: scale factors and axes
+within 1 % sd of nominal, biases of 0.005 rad/s sd), as a datasheet would state them."""
 TRIAD_PAIRS = [(t + i, t + k) for t in range(0, 12, 3) for i, k in ((0, 1), (0, 2), (1, 2))]
 """Sensor pairs within each of the four triads of Rupniewski's layout (nominally 90 deg apart)."""
 
@@ -41,6 +47,7 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.commands import new_file
+    from station.commands.solve import verdict_exit
     from station.errors import InputError
     from station.solve.identifiability import check_positions
 
@@ -61,7 +68,7 @@ def run(args) -> int:
         print(json.dumps(summary, indent=2))
     else:
         _print(summary)
-    return 0
+    return verdict_exit(summary["verdict"])
 
 
 def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, speed: float = 40.0,
@@ -72,8 +79,10 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     from station.acquire.live_view import LiveView
     from station.files.session import Session, write_results
     from station.protocols.rotary import RotarySettings, suggested_axes
+    from station.reduce.rotary import static_bias
     from station.replay import ReplaySettings, solve_recorded
     from station.solve.uncertainty import eps_tail_probability
+    from station.solve.verdict import verdict
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
     start = time.perf_counter()
@@ -89,6 +98,8 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
                      if "link" in e.detail), {})
     c = abs(settings.rate)
     write_results(path, "rotary", "imu", reduced.M, result, reduced.sigma)
+    judged = verdict(SimpleNamespace(**vars(result) | static_bias(reduced)), DEMO_TOLERANCES,
+                     [f"g{i + 1}" for i in range(result.m)], truth.a_nominal)
     eps = station.eps(truth.a, result.a)
     crlb = station.crlb(truth.a, truth.v(c), reduced.sigma)
     bound = float(np.sqrt(np.trace(crlb)))
@@ -109,6 +120,7 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
         "chi2_per_dof": result.chi2 / result.dof, "dof": result.dof,
         "eps": eps, "sqrt_trace_crlb": bound, "eps_over_sqrt_crlb": eps / bound,
         "eps_p_value": eps_tail_probability(eps, crlb),
+        "verdict": judged,
         "record_seconds": recorded, "wall_seconds": time.perf_counter() - start,
     }
 
@@ -122,6 +134,8 @@ def _angles(a) -> np.ndarray:
 def _print(s: dict) -> None:
     from rich.console import Console
     from rich.table import Table
+
+    from station.solve.verdict import words
 
     console = Console()
     title = (f"12-gyro calibration on the virtual bench: {s['positions']} positions, "
@@ -145,3 +159,4 @@ def _print(s: dict) -> None:
         f"{s['eps_over_sqrt_crlb']:.2f} (p = {s['eps_p_value']:.2g} for an efficient solver); "
         f"chi2/dof = {s['chi2_per_dof']:.2f}; {s['samples']} samples "
         f"used; recorded in {s['record_seconds']:.1f} s, total {s['wall_seconds']:.1f} s wall")
+    console.print(words(s["verdict"]), markup=False)

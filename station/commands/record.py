@@ -23,6 +23,11 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     kind = "rotary"               # "rotary" (default), "iron" or "static"
     positions = 20                # rotary; any other key: a field of the protocol's settings
 
+    [tolerances]                  # optional: the unit type's tolerances, for a PASS/FAIL verdict
+    scale_factor = 0.03           # |k_i - 1| (station.solve.verdict)
+    bias = 0.05                   # |b_i|, in the readings' SI unit
+    axis_angle_deg = 2.0          # |angle_ij - nominal angle_ij|, where the layout is known
+
 The three protocols (docs/protocols.md):
 - rotary (`station.protocols.rotary`): gyros on a rotary table, Eq. (18) of Rupniewski; the
   technician re-mounts the unit and presses Enter; Ctrl-D or Ctrl-C aborts and stops the table;
@@ -72,7 +77,9 @@ def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
     from station.commands import existing_file, new_file
+    from station.commands.solve import verdict_exit
     from station.protocols import KINDS
+    from station.solve.verdict import words
 
     bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
     kind = KINDS[bench.protocol]
@@ -100,7 +107,9 @@ def run(args) -> int:
         if args.solve:
             print(f"calibration: {summary['calibration']['calibration']} (chi2/dof "
                   f"{summary['calibration']['chi2_per_dof']:.2f})")
-    return 0
+            if summary["calibration"]["verdict"]:
+                print(words(summary["calibration"]["verdict"]))
+    return verdict_exit(summary["calibration"]["verdict"]) if args.solve else 0
 
 
 def solve(path, accept_suspect: bool = False) -> dict:

@@ -16,6 +16,7 @@ calibrate the accelerometer channels only.
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -27,7 +28,10 @@ def register(p) -> None:
     p.description = __doc__
     p.epilog = (
         "examples:\n  station solve sessions/SN42.h5\n"
-        "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json"
+        "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json\n"
+        "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n\n"
+        "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
+        "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
     p.add_argument("session", type=Path, help="session file (.h5) recorded by `station record`")
     p.add_argument("--out", type=Path,
@@ -43,6 +47,9 @@ def register(p) -> None:
     p.add_argument("--accept-suspect", action="store_true",
                    help="write a fit that fails the quality gate (chi2, outliers), marked "
                         "suspect with the reasons, instead of refusing it")
+    p.add_argument("--tolerances", type=Path, metavar="FILE.toml",
+                   help="judge the unit against the [tolerances] table of this TOML file (e.g. the "
+                        "bench profile); default: the recorded bench profile's, if any")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -53,27 +60,38 @@ def run(args) -> int:
     existing_file(args.session, "a session file (.h5)")
     out = new_file(args.out or args.session.with_suffix(".cal.json"), args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
-    cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect)
+    tolerances = None if args.tolerances is None else read_tolerances(
+        existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
+    cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect,
+                        tolerances)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
-    return 0
+    return verdict_exit(cal.verdict)
+
+
+def verdict_exit(verdict: dict | None) -> int:
+    """0 without a verdict or for PASS; 1 for FAIL or MARGINAL."""
+    return 0 if verdict is None or verdict["overall"] == "PASS" else 1
 
 
 def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None,
-                  accept_suspect: bool = False):
+                  accept_suspect: bool = False, tolerances=None):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
 
     The fit passes the quality gate (`station.solve.quality.check_fit`) or SuspectFitError says
-    why not; with `accept_suspect` it is returned marked suspect (fit status and reasons)."""
+    why not; with `accept_suspect` it is returned marked suspect (fit status and reasons). The
+    verdict (`station.solve.verdict`) judges the unit against `tolerances`, default the
+    `[tolerances]` of the bench profile the session was recorded with; none: no verdict."""
     from station.errors import SuspectFitError
     from station.files.calfile import Calibration
     from station.files.session import Session
     from station.protocols import KINDS
     from station.replay import ReplaySettings, solve_recorded
     from station.solve.quality import check_fit
+    from station.solve.verdict import verdict
 
     with Session.open(path) as session:
         settings = ReplaySettings(stream=stream, magnitude=magnitude)
@@ -89,6 +107,8 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version}
         serial = session.unit_serial
+        tolerances = tolerances or recorded_tolerances(session.metadata, path)
+        layout = nominal if nominal is not None else _layout(session.metadata, len(channels))
     names = [spec.channels[i] for i in channels]
     check = check_fit(result, names)
     if check.problems and not accept_suspect:
@@ -97,10 +117,51 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
             f"{'; '.join(check.problems)}. `station report` shows the positions, `station "
             "diagnose` the effect; record those positions again, or give --accept-suspect to "
             "write the file marked suspect")
-    return Calibration.from_result(
+    cal = Calibration.from_result(
         result, serial, names, [spec.units[i] for i in channels],
         counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info,
         status=check.status, status_reasons=check.problems, **bias)
+    if tolerances is None or tolerances.empty:
+        return cal
+    return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
+
+
+def recorded_tolerances(metadata: dict, path):
+    """The `[tolerances]` of the bench profile a session was recorded with, or None."""
+    from station.solve.verdict import Tolerances
+
+    bench = metadata.get("bench")
+    tables = bench.get("tables") if isinstance(bench, dict) else None
+    if not isinstance(tables, dict) or "tolerances" not in tables:
+        return None
+    return Tolerances.from_table(tables["tolerances"], f"{path}: the bench profile's [tolerances]")
+
+
+def read_tolerances(path):
+    """The `[tolerances]` table of a TOML file (a bench profile, or a file of its own)."""
+    import tomllib
+
+    from station.errors import InputError
+    from station.solve.verdict import Tolerances
+
+    try:
+        table = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"cannot read tolerances from {path} ({exc}); give a TOML file with a "
+                         "[tolerances] table") from None
+    if "tolerances" not in table:
+        raise InputError(f"{path} has no [tolerances] table (scale_factor, bias, "
+                         "axis_angle_deg)")
+    return Tolerances.from_table(table["tolerances"], f"{path}: [tolerances]")
+
+
+def _layout(metadata: dict, m: int):
+    """The recorded nominal layout (3 x m) when the session holds a usable one, else None."""
+    try:
+        a = np.asarray(metadata.get("a_nominal"), dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return a if a.shape == (3, m) and np.all(np.isfinite(a)) else None
 
 
 def read_nominal(path) -> np.ndarray:
@@ -125,6 +186,7 @@ def summarise(cal, out) -> dict:
         "units": cal.units[0], "frame": cal.frame, "method": cal.fit["method"],
         "positions": cal.fit["positions"], "chi2_per_dof": cal.fit["chi2"] / cal.fit["dof"],
         "status": cal.fit.get("status"), "status_reasons": cal.fit.get("status_reasons", []),
+        "verdict": cal.verdict,
         "scale_factors": cal.scale_factors.tolist(),
         "scale_factors_sigma": cal.scale_factors_sigma.tolist(),
         "bias": cal.bias.tolist(), "bias_sigma": cal.bias_sigma.tolist(),
@@ -138,5 +200,8 @@ def _text(s: dict) -> str:
                  s["bias_sigma"], strict=True)]
     title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
              f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in {s['units']})")
-    verdict = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
-    return "\n".join([title, *rows, *verdict, f"written to {s['calibration']}"])
+    from station.solve.verdict import words
+
+    suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
+    judged = [words(s["verdict"])] if s["verdict"] else []
+    return "\n".join([title, *rows, *suspect, f"written to {s['calibration']}", *judged])

@@ -36,8 +36,8 @@ from station.files.provenance import software_version, utc_now
 from station.model import measurement
 
 FORMAT = "imu-station-calibration"
-FORMAT_VERSION = 2
-SUPPORTED_VERSIONS = (1, 2)  # 2 added `covariance`
+FORMAT_VERSION = 3
+SUPPORTED_VERSIONS = (1, 2, 3)  # 2 added `covariance`, 3 `verdict`
 MAX_BYTES = 4 << 20
 SI_UNITS = ("rad/s", "m/s^2", "T")
 FRAMES = ("canonical", "nominal")
@@ -57,8 +57,14 @@ CONVENTIONS = {**CONVENTIONS_V1,
 _KEYS_V1 = ("format", "format_version", "software_version", "created", "conventions", "unit",
             "units", "frame", "magnitude", "scale_known", "sensitivity", "bias", "invariants",
             "fit", "session", "checksum")
-_KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum")}
-_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS}
+CONVENTIONS_V3 = {**CONVENTIONS,
+                  "verdict": "the unit against its type's tolerances (station.solve.verdict): "
+                             "overall PASS, FAIL or MARGINAL and each tested parameter; null "
+                             "when no tolerances were given"}
+_KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum"),
+         3: (*_KEYS_V1[:-1], "covariance", "verdict", "checksum")}
+_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3}
+VERDICTS = ("PASS", "FAIL", "MARGINAL")
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,6 +84,8 @@ class Calibration:
     session             : where the readings came from (path, stream, ...) or None
     covariance          : (d m + m, d m + m) joint covariance of (a row-major, b) in `frame`, its
                           diagonal the squared sigmas; None when unknown (version-1 files)
+    verdict             : station.solve.verdict's verdict against the unit type's tolerances, or
+                          None (none given; files before version 3)
     """
 
     unit_serial: str
@@ -98,6 +106,7 @@ class Calibration:
     counts_per_unit: np.ndarray | None = None
     session: dict | None = None
     covariance: np.ndarray | None = None
+    verdict: dict | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
 
@@ -201,7 +210,7 @@ class Calibration:
         doc = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
-            "conventions": dict(CONVENTIONS),
+            "conventions": dict(CONVENTIONS_V3),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
             "units": {"readings": list(self.units), "stimulus": self.units[0],
                       "sensitivity": "1 (reading unit per stimulus unit)",
@@ -215,7 +224,7 @@ class Calibration:
                            "axis_angles": _list(self.axis_angles),
                            "axis_angles_sigma": _list(self.axis_angles_sigma)},
             "fit": dict(self.fit), "session": self.session,
-            "covariance": _list(self.covariance),
+            "covariance": _list(self.covariance), "verdict": self.verdict,
         }
         doc["checksum"] = checksum(doc)
         return doc
@@ -366,6 +375,12 @@ def _from_document(doc, where: str) -> Calibration:
     bias_sigma = _array(bias, "sigma", fail, shape=(m,), sigma=True)
     covariance = None if doc.get("covariance") is None else \
         _covariance(doc, np.r_[a_sigma.ravel(), bias_sigma], fail)
+    verdict = doc.get("verdict")
+    if verdict is not None and not (isinstance(verdict, dict)
+                                    and verdict.get("overall") in VERDICTS
+                                    and isinstance(verdict.get("parameters"), list)):
+        raise fail(f"verdict must be null or an object with overall in {VERDICTS} and a list of "
+                   "parameters")
     return Calibration(
         unit_serial=serial, sensors=tuple(sensors), units=tuple(readings_units), a=a,
         a_sigma=a_sigma, bias=_array(bias, "b", fail, shape=(m,)), bias_sigma=bias_sigma,
@@ -374,8 +389,8 @@ def _from_document(doc, where: str) -> Calibration:
         axis_angles=_array(inv, "axis_angles", fail, shape=(m, m)),
         axis_angles_sigma=_array(inv, "axis_angles_sigma", fail, shape=(m, m), sigma=True),
         frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
-        counts_per_unit=cpu, session=session, covariance=covariance, created=doc["created"],
-        software_version=doc["software_version"])
+        counts_per_unit=cpu, session=session, covariance=covariance, verdict=verdict,
+        created=doc["created"], software_version=doc["software_version"])
 
 
 def _covariance(doc, sigma: np.ndarray, fail) -> np.ndarray:
