@@ -1,16 +1,15 @@
 """PASS / FAIL / MARGINAL (station.solve.verdict) on simulated units inside and outside their
 tolerances, borderline ones included; and the verdict on the command line.
 
-200 simulated 12-gyro units (Section IV layout, 20 positions, noise 0.003 so that a scale factor's
-1-sigma is about 1e-3), 100 inside their tolerances (a third with one parameter at 90-100 % of
-its limit: borderline) and 100 outside (one scale factor or bias at 1-2 times its tolerance). The
-rule judges with a 2-sigma margin, so a verdict contradicts the truth (PASS for a parameter truly
-out of tolerance, FAIL for one truly inside) only when the estimate errs by more than 2 sigma plus the truth's distance to
-the limit: for parameters more than 2 sigma from their limit, more than 4 sigma (p = 6e-5 per
-parameter; fixed seed), so none may. Such a parameter is MARGINAL when its estimate falls within
-2 sigma of the limit, as often as normal errors predict; within 2 sigma of the limit any verdict
-is excused, and there MARGINAL must be the common one.
-"""
+200 simulated 12-gyro units (Section IV layout, 20 positions, noise 0.003 so that a scale
+factor's 1-sigma is about 1e-3), 100 inside their tolerances (a third with one parameter at
+90-100 % of its limit: borderline) and 100 outside (one scale factor or bias at 1-2 times its
+tolerance). The rule judges with a 2-sigma margin, so a verdict contradicts the truth (PASS for a
+parameter truly out of tolerance, FAIL for one truly inside) only when the estimate errs by more
+than 2 sigma plus the truth's distance to the limit: for parameters more than 2 sigma from their
+limit, more than 4 sigma (p = 6e-5 per parameter; fixed seed), so none may. Such a parameter is
+MARGINAL when its estimate falls within 2 sigma of the limit, as often as normal errors predict;
+within 2 sigma of the limit any verdict is excused, and there MARGINAL must be the common one."""
 
 from types import SimpleNamespace
 
