@@ -354,6 +354,12 @@ def test_live_view_windows_stillness_and_instructions():
     text = render_text(view)
     assert "4.5 of 10 s" in text and "0.75 of 2 turns" in text and "turning" in text
     assert "position 3: rotating window" in text and "recording the rotating window" in text
+    # waiting for the next mounting: the view says what to do now, not what comes after it
+    protocol.position, protocol.state = 3, "mount"
+    view.on_message("position 3: rotating window (2 turns)")  # the last thing printed
+    text = render_text(view)
+    assert "do now" in text and "position 4/8: mount the unit" in text
+    assert "position 5/8" not in text and "rotating window (2 turns)" not in text
 
 
 def test_live_view_survives_a_failing_callback():

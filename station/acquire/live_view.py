@@ -32,6 +32,7 @@ import threading
 import numpy as np
 from rich.console import Console, Group
 from rich.live import Live
+from rich.markup import escape
 from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
@@ -210,9 +211,14 @@ class LiveView:
                             f"{self.seq_gaps} sequence gap(s)")
         grid.add_row("link", self._counter_words())
         grid.add_row("stillness", self._stillness_words())
-        grid.add_row("technician", message or "-")
-        if j + 1 < n:
-            grid.add_row("next", instruction(j + 1, n, p.axes[j + 1]).text)
+        if state == "mount" and j < n:  # the station waits for this mounting: say it, and only it
+            grid.add_row("[bold yellow]do now[/]",
+                         f"[bold yellow]{escape(instruction(j, n, p.axes[j]).text)}[/], then "
+                         "press Enter")
+        else:
+            grid.add_row("technician", escape(message) if message else "-")
+            if j + 1 < n:
+                grid.add_row("next", instruction(j + 1, n, p.axes[j + 1]).text)
         if self.display_error is not None:
             grid.add_row("[red]view error[/]", f"{self.display_error!r} (recording unaffected)")
         return Panel(grid, title="calibration session", border_style="blue")
