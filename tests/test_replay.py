@@ -94,12 +94,12 @@ def test_the_settings_are_stored_with_the_results_and_reproduce_them(copy, capsy
     with pytest.raises(ValueError, match="holds no replay settings"):
         stored_settings(copy, "rotary")
     # --like: the stored settings reproduce the stored results bit for bit ...
-    assert main(["replay", str(copy), "--like", "mine", "--json"]) == 0
+    assert main(["replay", str(copy), "--like", "mine", "--store", "--json"]) == 0
     same = json.loads(capsys.readouterr().out)
     assert same["settings"] == {**dataclasses.asdict(settings),
                                 "positions": list(settings.positions)}
     # ... and the options given change them (here: no trim)
-    assert main(["replay", str(copy), "--like", "mine", "--trim", "0", "--json"]) == 0
+    assert main(["replay", str(copy), "--like", "mine", "--trim", "0", "--store", "--json"]) == 0
     untrimmed = json.loads(capsys.readouterr().out)
     assert untrimmed["settings"] == {**same["settings"], "trim": 0.0}
     with Session.open(copy) as f:
@@ -120,11 +120,15 @@ def test_replay_refuses_bad_settings(copy):
 
 
 def test_station_replay_command(copy, capsys):
-    assert main(["replay", str(copy), "--positions", "1-8,11", "--json"]) == 0
+    with Session.open(copy) as f:
+        before = set(f.result_names)
+    assert main(["replay", str(copy)]) == 0  # prints only: the recording stays as it was
+    assert "not stored" in capsys.readouterr().out
+    with Session.open(copy) as f:
+        assert set(f.result_names) == before
+    assert main(["replay", str(copy), "--positions", "1-8,11", "--store", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["results"] == "replay-1" and summary["positions"] == 9
-    assert main(["replay", str(copy), "--dry-run"]) == 0
-    assert "not stored" in capsys.readouterr().out
     assert main(["replay", str(copy), "--method", "ellipsoid"]) == 2
     assert "ellipsoid fit is for a triad" in capsys.readouterr().err
     with Session.open(copy) as f:

@@ -100,7 +100,7 @@ def test_a_subset_of_poses_gives_its_columns_and_constraints(session, keep):
 
 
 def test_station_replay_command_stores_replay_1_and_prints_json(copy, capsys):
-    assert main(["replay", str(copy), "--json"]) == 0
+    assert main(["replay", str(copy), "--store", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["results"] == "replay-1" and summary["positions"] == 12
     assert summary["frame"] == "nominal"
@@ -109,7 +109,7 @@ def test_station_replay_command_stores_replay_1_and_prints_json(copy, capsys):
         stored, again = f.results("live"), f.results("replay-1")
     assert np.array_equal(again.readings, stored.readings)
     assert_same(again.calibration, stored.calibration)
-    assert main(["replay", str(copy), "--positions", "1-6,9-12", "--trim", "0.5", "--dry-run"]) == 0
+    assert main(["replay", str(copy), "--positions", "1-6,9-12", "--trim", "0.5"]) == 0
     assert "10 positions" in capsys.readouterr().out
 
 

@@ -19,15 +19,18 @@ def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
     p.description = __doc__
     p.epilog = (
-        "examples:\n  station replay sessions/rotary-12gyro.h5\n"
-        "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim\n"
+        "examples:\n  station replay sessions/rotary-12gyro.h5      # print only\n"
+        "  station replay unit.h5 --trim 0.5 --method ellipsoid --name trim   # and store\n"
         "  station replay unit.h5 --positions 1-6,9 --json\n"
         "  station replay unit.h5 --like trim --no-refine\n"
         "  station replay iron.h5 --positions 1-6 --trim 1\n"
         "  station replay unit.h5 --raw again.h5"
     )
     p.add_argument("session", type=Path, help="the session file (.h5)")
-    p.add_argument("--name", help="results name to store under (default: replay-<k>)")
+    p.add_argument("--store", action="store_true",
+                   help="store the results in the session file, as results/replay-<k> (without "
+                        "it, or --name, nothing is written: the recording stays as it was)")
+    p.add_argument("--name", help="store the results under this name (implies --store)")
     p.add_argument("--like", metavar="NAME",
                    help="start from the settings stored with results/NAME (an earlier replay); "
                         "the options given here change them")
@@ -42,7 +45,6 @@ def register(p) -> None:
     p.add_argument("--magnitude", type=float,
                    help="stimulus magnitude (default: the recorded table rate, or gravity "
                         "for iron and free-static sessions)")
-    p.add_argument("--dry-run", action="store_true", help="print the result, store nothing")
     p.add_argument("--raw", type=Path, metavar="OUT",
                    help="replay the raw stream through the serial twin into new session OUT "
                         "(rotary sessions only)")
@@ -61,12 +63,12 @@ def run(args) -> int:
         summary = {"session": str(args.session), "raw_replay": str(args.raw)}
     else:
         settings = _settings(args)
-        if args.dry_run:
-            name = None
-            reduced, result = replay(args.session, settings)
-        else:
+        if args.store or args.name:
             name = args.name or free_name(args.session)
             reduced, result = replay_into(args.session, name, settings)
+        else:
+            name = None
+            reduced, result = replay(args.session, settings)
         summary = {"session": str(args.session), "results": name,
                    "positions": int(reduced.M.shape[1]), "method": result.method,
                    "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
@@ -80,7 +82,7 @@ def run(args) -> int:
     elif args.raw is not None:
         print(f"{args.session}: raw stream replayed through the serial twin into {args.raw}")
     else:
-        where = "not stored (--dry-run)" if summary["results"] is None else \
+        where = "not stored (--store keeps it)" if summary["results"] is None else \
             f"stored as results/{summary['results']}"
         print(f"{args.session}: {summary['positions']} positions, {summary['method']} "
               f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
