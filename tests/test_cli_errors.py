@@ -141,3 +141,29 @@ def test_notes_added_on_the_way_out_are_printed_on_the_same_line(capsys, monkeyp
         "P", (), {"parse_args": staticmethod(lambda argv: args)}))
     assert cli.main(["devices"]) == 130
     assert capsys.readouterr().err == "station devices: interrupted; the table was stopped\n"
+
+
+@pytest.mark.parametrize("name", sorted(cli.COMMANDS))
+def test_every_command_has_examples_one_per_line_and_json(name, capsys):
+    with pytest.raises(SystemExit) as done:
+        cli.main([name, "--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    examples = text.split("examples:")[1].split("\n\n")[0].strip().splitlines()
+    continued = [False] + [line.rstrip().endswith("\\") for line in examples[:-1]]
+    assert examples and all(line.lstrip().startswith("station ") or more
+                            for line, more in zip(examples, continued, strict=True)), examples
+    assert "--json" in text
+
+
+def test_simulate_and_import_print_json(tmp_path, capsys):
+    import json
+
+    assert cli.main(["simulate", "--protocol", "rotary", "--out", str(tmp_path / "s.npz"),
+                     "--json"]) == 0
+    written = json.loads(capsys.readouterr().out)
+    assert written["data"].endswith("s.npz") and written["shape"][0] > 0
+    assert cli.main(["import", "npz", str(tmp_path / "s.h5"), str(tmp_path / "s.npz"),
+                     "--json"]) == 0
+    imported = json.loads(capsys.readouterr().out)
+    assert imported["session"].endswith("s.h5") and imported["streams"]

@@ -217,4 +217,13 @@ def test_bad_effect_specs_are_refused_with_advice(spec, message):
 def test_none_is_no_effect_and_an_effect_given_twice_is_refused():
     assert parse_all(["none"]) == {}
     with pytest.raises(ValueError, match="given twice"):
-        parse_all(["latency", "latency=delay=0.1"])
+        parse_all(["latency=delay=0.2", "latency=delay=0.1"])
+
+
+@pytest.mark.parametrize("spec", ["latency", "bias_drift", "bias_drift=warmup_tau=10",
+                                  "rate_error=encoder=1", "axis_wobble", "scale_nonlinearity",
+                                  "g_sensitivity"])
+def test_an_effect_of_size_zero_is_refused_naming_its_size(spec):
+    with pytest.raises(ValueError, match="changes nothing; give its size, e.g. --effect"):
+        parse(spec)
+    assert parse("earth_rate")[1] is not None and parse("saturation")[1] is not None

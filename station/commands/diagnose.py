@@ -19,6 +19,13 @@ def register(p) -> None:
         "every named effect by its likelihood ratio, add the strongest significant one and "
         "repeat (docs/diagnose.md)."
     )
+    p.epilog = (
+        "examples:\n  station diagnose sessions/rotary-12gyro.h5\n"
+        "  station diagnose unit7.h5 --report unit7-diagnosis.html --json\n"
+        "  station simulate --effect latency=delay=0.002 --out x.npz && station diagnose x.npz\n"
+        "  station import csv hand.h5 hand.csv --stream acc=ax,ay,az --unit acc=g --fs 100 && "
+        "station diagnose hand.h5"
+    )
     p.add_argument("session", metavar="SESSION",
                    help="session (.h5: rotary, or free-static from station import) or rotary "
                    "data file (.npz)")

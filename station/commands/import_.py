@@ -1,5 +1,6 @@
 """`station import`: a foreign recording into a new session file (station/files/importers.py)."""
 
+import json
 from pathlib import Path
 
 EXAMPLES = (
@@ -32,6 +33,7 @@ def register(p) -> None:
     p.add_argument("--index", metavar="COLUMN", help="csv: column of sample numbers (with --fs)")
     p.add_argument("--fs", type=float, help="sample rate, Hz")
     p.add_argument("--unit-serial", default="IMPORTED", help="serial number of the unit")
+    p.add_argument("--json", action="store_true", help="print the session written as JSON")
     p.set_defaults(run=run)
 
 
@@ -56,7 +58,17 @@ def run(args) -> int:
     else:
         out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
                          unit_serial=args.unit_serial)
-    print(f"wrote {out}")
+    if args.json:
+        from station.files.session import Session
+
+        with Session.open(out) as session:
+            streams = {name: {"channels": list(s.channels), "units": list(s.units),
+                              "rate_hz": s.rate_hz, "samples": len(session.stream(name).seq)}
+                       for name, s in session.specs.items()}
+        print(json.dumps({"session": str(out), "unit_serial": args.unit_serial,
+                          "streams": streams}))
+    else:
+        print(f"wrote {out}")
     return 0
 
 

@@ -1,5 +1,7 @@
 """`station simulate`: write a simulated recording (.npz) and its truth (.truth.json)."""
 
+import json
+
 import numpy as np
 
 from station.files import npz
@@ -9,6 +11,11 @@ from station.protocols import KINDS, kinds_with
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    p.epilog = (
+        "examples:\n  station simulate --out x.npz\n"
+        "  station simulate --effect latency=delay=0.002 --seed 3 --out late.npz --json\n"
+        "  station simulate --protocol static --effect bias_drift=warmup=0.02 --out hand.npz"
+    )
     p.description = (
         "Simulate a session of a protocol kind (station.protocols.KINDS): rotary (12-gyro array), "
         "right-angle iron or free static (accelerometer triad); the truth goes to FILE.truth.json."
@@ -39,6 +46,7 @@ def register(p) -> None:
         default=None,
         help="iron: simulate a gyro triad turned by this angle on each face",
     )
+    p.add_argument("--json", action="store_true", help="print what was written as JSON")
     p.set_defaults(run=run)
 
 
@@ -59,5 +67,10 @@ def run(args) -> int:
     except ValueError as err:  # a settings dataclass refusing a value given on the command line
         raise InputError(str(err)) from err
     data, truth = npz.write(args.out, sim)
-    print(f"wrote {data} {sim.arrays['y'].shape} and {truth}")
+    if args.json:
+        print(json.dumps({"data": str(data), "truth": str(truth), "protocol": args.protocol,
+                          "shape": list(sim.arrays["y"].shape),
+                          "effects": [e.partition("=")[0] for e in args.effect]}))
+    else:
+        print(f"wrote {data} {sim.arrays['y'].shape} and {truth}")
     return 0

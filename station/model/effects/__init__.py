@@ -8,6 +8,8 @@ separated by colons (`latency=delay=0:0.001:0.002`).
 
 import dataclasses
 
+import numpy as np
+
 from station.model.effects.axis_wobble import AxisWobble
 from station.model.effects.bias_drift import BiasDrift
 from station.model.effects.earth_rate import EarthRate
@@ -28,6 +30,11 @@ EFFECTS = {
     "latency": Latency,
 }
 """Effect name -> parameter dataclass. `none` means no effect."""
+SIZE = {"bias_drift": ("warmup", "heating"), "scale_nonlinearity": ("k2",),
+        "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
+        "axis_wobble": ("angle_deg",), "latency": ("delay",)}
+"""The parameters that give an effect its size: all zero (their defaults), it changes nothing.
+`earth_rate` and `saturation` act with their defaults (the Earth's rate, the unit's range)."""
 
 
 def _value(text: str):
@@ -64,7 +71,12 @@ def parse(spec: str) -> tuple[str, object | None]:
                 f"in {', '.join(sorted(fields))}"
             )
         kwargs[key] = _value(text)
-    return name, cls(**kwargs)
+    params = cls(**kwargs)
+    if name in SIZE and not any(np.any(np.asarray(getattr(params, f), float))
+                                for f in SIZE[name]):
+        raise ValueError(f"effect {name} with {', '.join(SIZE[name])} = 0 changes nothing; give "
+                         f"its size, e.g. --effect {name}={SIZE[name][0]}=<value>")
+    return name, params
 
 
 def parse_all(specs) -> dict:
