@@ -64,6 +64,8 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
         summary = json.loads(rec.stdout)
         assert summary["positions_done"] == POSITIONS and summary["unit_serial"] == "SIM-3"
         assert rec.stderr.count("press Enter when done") == POSITIONS
+        assert [f"position {j}/{POSITIONS} captured" in rec.stderr
+                for j in range(1, POSITIONS + 1)] == [True] * POSITIONS
     finally:
         twin.send_signal(signal.SIGINT)
         out, err = twin.communicate(timeout=30)

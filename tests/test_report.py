@@ -362,6 +362,23 @@ def test_live_view_windows_stillness_and_instructions():
     assert "position 5/8" not in text and "rotating window (2 turns)" not in text
 
 
+def test_position_progress_counts_the_captured_positions():
+    from station.acquire.progress import PositionProgress
+
+    bar = PositionProgress(Console(file=io.StringIO(), width=100))
+    bar.follow(SimpleNamespace(axes=np.zeros((5, 3))))
+    events = []
+    recorder = bar.observe_recorder(SimpleNamespace(samples=7,
+                                                    event=lambda *e: events.append(e) or 1.0))
+    with bar.show():
+        for j in range(3):
+            recorder.event("position_done", j)
+        recorder.event("static_start", 3)
+        task = bar._progress.tasks[0]
+        assert (task.completed, task.total) == (3, 5)
+    assert recorder.samples == 7 and len(events) == 4  # everything passed through
+
+
 def test_live_view_survives_a_failing_callback():
     clock = StepClock()
     view = LiveView(clock, rate_hz=200.0)

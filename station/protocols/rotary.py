@@ -265,6 +265,7 @@ class RotaryProtocol:
         self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
         self.recorder.drain(self.clock.now(), self.settings.stale)  # spin-down and rest in file
         self.recorder.event("position_done", self.position)
+        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured")
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
