@@ -108,9 +108,14 @@ class Recorder:
         while self.sampled_until() < until:
             self.check(stale)
             if time.monotonic() > deadline:
+                speed = getattr(self.clock, "speed", 1.0)
+                advice = (f"; the virtual bench runs {speed:g}x faster than the wall clock: "
+                          f"give --speed {max(1.0, speed / 4):g} (or close other programs)"
+                          if speed > 1 else "; close other programs or lower the sample rate")
                 raise RecordingError(
                     f"the IMU samples lag {until - self.sampled_until():.1f} s behind after "
-                    f"waiting {self.drain_timeout} s; the host is too busy for this link's rate")
+                    f"waiting {self.drain_timeout} s: the host is too busy for this link's "
+                    f"rate{advice}")
             time.sleep(self.interval)
 
     def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
