@@ -20,8 +20,8 @@ class Silent:
                                            (WallClock(), "close other programs")])
 def test_lagging_samples_name_the_option_that_helps(tmp_path, clock, advice):
     spec = StreamSpec(("g1", "g2", "g3"), "rad/s", 1000.0, 200.0)
-    with SessionWriter.create(tmp_path / "s.h5", {"protocol": "rotary", "unit_serial": "T"},
-                              {"imu": spec}, clock=clock) as writer, \
-            Recorder(writer, Silent(), clock=clock, drain_timeout=0.2) as recorder:
-        with pytest.raises(RecordingError, match=f"too busy.*{advice}"):
-            recorder.drain(clock.now() + 1.0, stale=1e9)
+    metadata = {"protocol": "rotary", "unit_serial": "T"}
+    with SessionWriter.create(tmp_path / "s.h5", metadata, {"imu": spec}, clock=clock) as writer, \
+            Recorder(writer, Silent(), clock=clock, drain_timeout=0.2) as recorder, \
+            pytest.raises(RecordingError, match=f"too busy.*{advice}"):
+        recorder.drain(clock.now() + 1.0, stale=1e9)
