@@ -68,7 +68,7 @@ VERDICTS = ("PASS", "FAIL", "MARGINAL")
 
 
 @dataclass(frozen=True, eq=False)
-class Calibration:
+class Calibration(measurement.Sensitivity):
     """One unit's calibration, as stored in a calibration file (shapes: d axes, m sensors).
 
     a, a_sigma          : (d, m) sensitivity matrix in `frame` and its 1-sigma
@@ -109,14 +109,6 @@ class Calibration:
     verdict: dict | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
-
-    @property
-    def d(self) -> int:
-        return self.a.shape[0]
-
-    @property
-    def m(self) -> int:
-        return self.a.shape[1]
 
     @classmethod
     def from_result(cls, result, unit_serial: str, sensors, units, *, bias=None, bias_sigma=None,

@@ -12,6 +12,21 @@ a stimulus v is (d,) or (d, k), readings z are (m,) or (m, k), a bias b is (m,) 
 import numpy as np
 
 
+class Sensitivity:
+    """The shape of a sensitivity matrix `a` (d x m), for every class that holds one (a sensor
+    unit, a calibration result, a calibration file)."""
+
+    @property
+    def d(self) -> int:
+        """Dimension of the stimulus (rows of a)."""
+        return self.a.shape[0]
+
+    @property
+    def m(self) -> int:
+        """Number of sensors (columns of a)."""
+        return self.a.shape[1]
+
+
 def _columns(x, rows: int, what: str) -> np.ndarray:
     """x as floats of shape (rows,) or (rows, k), refused otherwise."""
     x = np.asarray(x, float)

@@ -9,7 +9,7 @@ deviation of the bias change after one second (units/sqrt(s)).
 
 import numpy as np
 
-from station.model import sensing
+from station.model import measurement, sensing
 
 
 def _per_sensor(value, m: int, name: str) -> np.ndarray:
@@ -24,7 +24,7 @@ def _per_sensor(value, m: int, name: str) -> np.ndarray:
     return arr
 
 
-class SensorUnit:
+class SensorUnit(measurement.Sensitivity):
     """m single-axis sensors; `a` is d x m in output SI units per stimulus SI unit (1 = nominal).
 
     Parameters
@@ -69,14 +69,6 @@ class SensorUnit:
         self.rng = np.random.default_rng(rng)
         self._walk = np.zeros(m)
         self._last_time = None
-
-    @property
-    def d(self) -> int:
-        return self.a.shape[0]
-
-    @property
-    def m(self) -> int:
-        return self.a.shape[1]
 
     @property
     def sigma(self) -> np.ndarray:

@@ -20,7 +20,7 @@ METHODS = ("auto", "pca", "ellipsoid", "factorization")
 
 
 @dataclass(frozen=True)
-class CalibrationResult:
+class CalibrationResult(measurement.Sensitivity):
     """A calibration: model z = a^T v + b (docs/conventions.md), its uncertainty and its fit.
 
     Angles are in radians, every sigma is one standard deviation. `a` and `v` are expressed in
@@ -52,14 +52,6 @@ class CalibrationResult:
     # (d m + m or d m) covariance of (vec(a) row-major in `frame`, then b when estimated): the
     # gauge removed by the frame; None in results stored before it existed
     parameter_covariance: np.ndarray | None = None
-
-    @property
-    def d(self) -> int:
-        return self.a.shape[0]
-
-    @property
-    def m(self) -> int:
-        return self.a.shape[1]
 
     @property
     def normalised_residuals(self) -> np.ndarray:
