@@ -96,6 +96,12 @@ def clean(recorded, tmp_path_factory):
     return built, built.write(tmp_path_factory.mktemp("report") / "report.html")
 
 
+def test_the_uncertainty_caption_promises_only_what_is_drawn(clean):
+    built, _ = clean  # a rotary session: Eq. (18) readings are bias-free, no bias in the fit
+    caption = next(p.caption for p in built.plots if p.name == "uncertainty")
+    assert "biases were not estimated" in caption and "Scale factors" in caption
+
+
 def render(chromium, page: Path, workdir: Path) -> tuple[dict, Path]:
     """Open `page` (with the probe injected) in headless Chromium: the probe's findings and a
     screenshot of the whole report."""

@@ -409,9 +409,11 @@ def _uncertainty(report, cal, channels, units) -> None:
     ax.set_xticks(np.arange(m), channels, rotation=90, fontsize=7)
     ax.set_yticks(np.arange(m), channels, fontsize=7)
     fig.colorbar(im, ax=ax, label="1 sigma of angle (arcsec)")
+    drawn = "Scale factors (minus their median) and biases" if cal.bias is not None else \
+        "Scale factors (minus their median; the biases were not estimated in this fit)"
     report.plots.append(html.Plot("uncertainty", "Uncertainty of each parameter", (
-        "Scale factors (minus their median) and biases with 1-sigma error bars; 1-sigma "
-        "uncertainty of the angle between each pair of sensitive axes."), html.png(fig)))
+        f"{drawn} with 1-sigma error bars; 1-sigma uncertainty of the angle between each pair of "
+        "sensitive axes."), html.png(fig)))
 
 
 # ------------------------------------------------------------------------- recorded streams
