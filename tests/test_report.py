@@ -305,7 +305,7 @@ def test_live_view_followed_the_whole_recording(recorded):
     # motions (spin-up, stop) may fall between two refreshes: see the test fed by hand
     assert "still (dispersion" in printed
     assert "position 2/8: mount the unit" in printed  # the next instruction, while at 1
-    assert "position 8: rotating window (2 turns)" in final  # the last prompt
+    assert "position 8/8 captured" in final  # the last prompt
 
 
 class StepClock:

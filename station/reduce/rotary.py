@@ -15,6 +15,8 @@ from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.timeline import sample_times, segment_breaks
 
+STUCK = 100
+"""Samples in a window from which a channel that never changes is stuck."""
 SPIKE = 8.0
 """Robust standard deviations beyond which a reading in a window is a spike."""
 OVERFULL = 1.01
@@ -68,7 +70,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
             check_window_count(j, name, int(chosen[name].sum()), (t1 - t0) * rate, coverage)
         static, rotating = chosen["static"], chosen["rotating"]
         for name, window in chosen.items():
-            check_spikes(j, name, data.counts[window])
+            check_samples(j, name, data.counts[window])
         ns, nr = int(static.sum()), int(rotating.sum())
         y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
         angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
@@ -99,12 +101,22 @@ def check_window_count(j: int, name: str, got: int, due: float, coverage: float 
             "position again; the mounting is not the cause.")
 
 
-def check_spikes(j: int, name: str, counts) -> None:
-    """Refuse a window whose samples hold spikes: readings beyond `SPIKE` robust standard
-    deviations (1.4826 MAD) of the window's own median, per channel. Gaussian noise puts one
-    sample there in about 1e15; a flipped bit, a zeroed block or a glitching sensor puts many, and
-    a window's own scatter would otherwise absorb them into an honest-looking uncertainty."""
+def check_samples(j: int, name: str, counts) -> None:
+    """Refuse a window whose samples hold spikes or a stuck channel. Spikes: readings beyond
+    `SPIKE` robust standard deviations (1.4826 MAD) of the window's own median, per channel;
+    Gaussian noise puts one sample there in about 1e15, a flipped bit, a zeroed block or a
+    glitching sensor puts many, and a window's own scatter would otherwise absorb them into an
+    honest-looking uncertainty. Stuck: a channel whose counts do not change over a window of
+    `STUCK` samples or more while another channel's do (a noiseless sensor does not exist)."""
     x = np.asarray(counts, float)
+    frozen = np.ptp(x, axis=0) == 0 if len(x) >= STUCK else np.zeros(x.shape[1], bool)
+    if frozen.any() and not frozen.all():
+        raise CalibrationInputError(
+            f"position {j + 1}: channel(s) {', '.join(str(c + 1) for c in np.flatnonzero(frozen))}"
+            f" kept one value through the {name} window ({len(x)} samples) while the others "
+            "varied: a stuck sensor or a frozen field in the frames.",
+            "Check the sensor and the device profile's frame layout, then record the position "
+            "again.")
     median = np.median(x, axis=0)
     scale = 1.4826 * np.median(np.abs(x - median), axis=0)
     spikes = np.abs(x - median) > SPIKE * np.maximum(scale, 1.0)  # 1 count: quantisation
