@@ -2,6 +2,7 @@
 sets `run(args)`. Errors are raised, not printed: `station.cli` turns them into one line and an
 exit code. The checks every command makes on the files it is given live here."""
 
+import contextlib
 from pathlib import Path
 
 from station.errors import InputError, MissingFileError
@@ -24,3 +25,13 @@ def new_file(path, force: bool = False, option: str = "--out") -> Path:
         raise InputError(f"{path} exists; choose another {option}"
                          + (" or add --force" if option == "--out" else ""))
     return path
+
+
+@contextlib.contextmanager
+def working(what: str):
+    """A spinner with `what` on stderr while a long step runs (on a terminal; nothing otherwise,
+    so piped output and one-line errors stay as they are)."""
+    from rich.console import Console
+
+    with Console(stderr=True).status(what):
+        yield

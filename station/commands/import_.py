@@ -38,26 +38,27 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, new_file, working
     from station.errors import InputError
     from station.files.importers import import_csv, import_npz, import_text
 
     new_file(args.out, option="name")
     streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
-    if args.format == "text":
-        for path in streams.values():
-            existing_file(path, "a text recording (--stream NAME=FILE)")
-        out = import_text(args.out, streams, units, unit_serial=args.unit_serial, fs=args.fs)
-    elif args.source is None:
-        raise InputError(f"`import {args.format}` needs the source file")
-    elif args.format == "csv":
-        source = existing_file(args.source, "a CSV recording")
-        columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
-        out = import_csv(args.out, source, columns, units, time_column=args.time,
-                         index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
-    else:
-        out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
-                         unit_serial=args.unit_serial)
+    with working(f"importing into {args.out}"):
+        if args.format == "text":
+            for path in streams.values():
+                existing_file(path, "a text recording (--stream NAME=FILE)")
+            out = import_text(args.out, streams, units, unit_serial=args.unit_serial, fs=args.fs)
+        elif args.source is None:
+            raise InputError(f"`import {args.format}` needs the source file")
+        elif args.format == "csv":
+            source = existing_file(args.source, "a CSV recording")
+            columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
+            out = import_csv(args.out, source, columns, units, time_column=args.time,
+                             index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
+        else:
+            out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
+                             unit_serial=args.unit_serial)
     if args.json:
         from station.files.session import Session
 

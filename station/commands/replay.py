@@ -53,22 +53,25 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, new_file, working
     from station.replay import free_name, replay, replay_into, replay_raw
     from station.solve.quality import check_fit
 
     existing_file(args.session, "a session file (.h5)")
     if args.raw is not None:
-        replay_raw(args.session, new_file(args.raw, option="file for the raw replay"))
+        raw = new_file(args.raw, option="file for the raw replay")
+        with working(f"replaying {args.session} through the serial twin into {raw}"):
+            replay_raw(args.session, raw)
         summary = {"session": str(args.session), "raw_replay": str(args.raw)}
     else:
         settings = _settings(args)
-        if args.store or args.name:
-            name = args.name or free_name(args.session)
-            reduced, result = replay_into(args.session, name, settings)
-        else:
-            name = None
-            reduced, result = replay(args.session, settings)
+        with working(f"reducing and solving {args.session}"):
+            if args.store or args.name:
+                name = args.name or free_name(args.session)
+                reduced, result = replay_into(args.session, name, settings)
+            else:
+                name = None
+                reduced, result = replay(args.session, settings)
         summary = {"session": str(args.session), "results": name,
                    "positions": int(reduced.M.shape[1]), "method": result.method,
                    "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,

@@ -58,10 +58,12 @@ def simulate(args):
 
 def run(args) -> int:
     """Simulate and write; bad effect specs or parameters raise InputError."""
+    from station.commands import working
     from station.errors import InputError
 
     try:
-        sim = simulate(args)
+        with working(f"simulating a {args.protocol} session"):
+            sim = simulate(args)
     except InputError:
         raise
     except ValueError as err:  # a settings dataclass refusing a value given on the command line
