@@ -27,9 +27,13 @@ def spin(stop) -> None:
 
 
 def pytest_counts(output: str) -> dict:
-    """{"passed": n, "failed": n, "errors": n, "skipped": n} from pytest's closing line."""
+    """{"passed": n, "failed": n, "errors": n, "skipped": n} from pytest's closing line (the last
+    line that counts tests; warnings may follow it)."""
     found = {k: 0 for k in ("passed", "failed", "errors", "skipped")}
-    for number, word in re.findall(r"(\d+) (passed|failed|errors?|skipped)", output):
+    closing = [line for line in output.splitlines()
+               if re.search(r"\d+ (passed|failed)", line) and " in " in line]
+    for number, word in re.findall(r"(\d+) (passed|failed|errors?|skipped)",
+                                   closing[-1] if closing else ""):
         found["errors" if word.startswith("error") else word] = int(number)
     return found
 
@@ -66,8 +70,7 @@ def main() -> None:
                     "verdict": (summary.get("verdict") or {}).get("overall"),
                     "stderr_tail": demo.stderr.strip()[-300:]},
            "suite": {"exit": suite.returncode, "seconds": suite_s,
-                     **pytest_counts(suite.stdout.strip().splitlines()[-1] if suite.stdout.strip()
-                                     else ""),
+                     **pytest_counts(suite.stdout),
                      "failures": re.findall(r"^(?:FAILED|ERROR) \S+", suite.stdout, re.M)}}
     if args.json:
         print(json.dumps(out, indent=1))
