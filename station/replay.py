@@ -43,6 +43,7 @@ from station.files.session import (
     Session,
     SessionWriter,
     StreamData,
+    nominal_layout,
     write_results,
 )
 from station.protocols import KINDS, lookup
@@ -132,12 +133,10 @@ def recorded_magnitude(metadata: dict, stimulus: tuple, path) -> float:
 
 
 def recorded_layout(metadata: dict, m: int, path) -> np.ndarray:
-    """The nominal layout (3 x m) the (untrusted) metadata records as `a_nominal`."""
-    try:
-        nominal = np.asarray(metadata.get("a_nominal"), dtype=float)
-    except (TypeError, ValueError):
-        nominal = None
-    if nominal is None or nominal.shape != (3, m) or not np.all(np.isfinite(nominal)):
+    """The nominal layout (3 x m) the (untrusted) metadata records as `a_nominal`; refused when
+    there is none."""
+    nominal = nominal_layout(metadata, m)
+    if nominal is None:
         raise CalibrationInputError(
             f"{path} records no usable nominal layout a_nominal (3 x {m}).",
             "Give one with --nominal (a CSV of 3 rows, a column per sensor), or check that the "

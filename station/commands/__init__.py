@@ -18,12 +18,13 @@ def existing_file(path, what: str, suffixes=()) -> Path:
     return path
 
 
-def new_file(path, force: bool = False, option: str = "--out") -> Path:
-    """`path` as a Path if writing it loses nothing (absent, or `force`)."""
+def new_file(path, option: str = "--out", force: bool | None = None) -> Path:
+    """`path` as a Path if writing it loses nothing: absent, or `force` given. force None: the
+    command has no --force, so the refusal does not offer it."""
     path = Path(path)
     if path.exists() and not force:
         raise InputError(f"{path} exists; choose another {option}"
-                         + (" or add --force" if option == "--out" else ""))
+                         + ("" if force is None else " or add --force"))
     return path
 
 
@@ -35,3 +36,15 @@ def working(what: str):
 
     with Console(stderr=True).status(what):
         yield
+
+
+@contextlib.contextmanager
+def given_values():
+    """A ValueError that a library function raises about values given on the command line (a
+    settings dataclass, a simulated unit, a twin) becomes an InputError: one line, exit 2."""
+    try:
+        yield
+    except InputError:
+        raise
+    except ValueError as err:
+        raise InputError(str(err)) from err

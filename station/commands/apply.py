@@ -61,7 +61,7 @@ def run(args) -> int:
     if args.json and args.out is None:
         raise InputError("--json prints a summary; give --out for the vectors")
     if args.out is not None:
-        new_file(args.out, args.force)
+        new_file(args.out, force=args.force)
     cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"))
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:

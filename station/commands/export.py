@@ -35,7 +35,7 @@ def run(args) -> int:
     from station.files.calfile import load
     from station.files.export_c import c_header
 
-    out = new_file(args.c_header, args.force, "--c-header name or add --force")
+    out = new_file(args.c_header, "--c-header name", args.force)
     cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"),
                unit_serial=args.unit_serial)
     out.write_text(c_header(cal, args.prefix, args.type))

@@ -88,7 +88,7 @@ def run(args) -> int:
         raise InputError(f"the live view shows {shown} sessions; record a {bench.protocol} "
                          "session without --live")
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}.h5"
-    new_file(out, option="--out")
+    new_file(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
     try:

@@ -58,16 +58,10 @@ def simulate(args):
 
 def run(args) -> int:
     """Simulate and write; bad effect specs or parameters raise InputError."""
-    from station.commands import working
-    from station.errors import InputError
+    from station.commands import given_values, working
 
-    try:
-        with working(f"simulating a {args.protocol} session"):
-            sim = simulate(args)
-    except InputError:
-        raise
-    except ValueError as err:  # a settings dataclass refusing a value given on the command line
-        raise InputError(str(err)) from err
+    with given_values(), working(f"simulating a {args.protocol} session"):
+        sim = simulate(args)
     data, truth = npz.write(args.out, sim)
     if args.json:
         print(json.dumps({"data": str(data), "truth": str(truth), "protocol": args.protocol,

@@ -58,7 +58,7 @@ def run(args) -> int:
     from station.commands import existing_file, new_file
 
     existing_file(args.session, "a session file (.h5)")
-    out = new_file(args.out or args.session.with_suffix(".cal.json"), args.force)
+    out = new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
@@ -87,7 +87,7 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
     `[tolerances]` of the bench profile the session was recorded with; none: no verdict."""
     from station.errors import SuspectFitError
     from station.files.calfile import Calibration
-    from station.files.session import Session
+    from station.files.session import Session, nominal_layout
     from station.protocols import KINDS
     from station.replay import ReplaySettings, solve_recorded
     from station.solve.quality import check_fit
@@ -108,7 +108,7 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
                 "software_version": session.software_version}
         serial = session.unit_serial
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
-        layout = nominal if nominal is not None else _layout(session.metadata, len(channels))
+        layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
     names = [spec.channels[i] for i in channels]
     check = check_fit(result, names)
     if check.problems and not accept_suspect:
@@ -153,15 +153,6 @@ def read_tolerances(path):
         raise InputError(f"{path} has no [tolerances] table (scale_factor, bias, "
                          "axis_angle_deg)")
     return Tolerances.from_table(table["tolerances"], f"{path}: [tolerances]")
-
-
-def _layout(metadata: dict, m: int):
-    """The recorded nominal layout (3 x m) when the session holds a usable one, else None."""
-    try:
-        a = np.asarray(metadata.get("a_nominal"), dtype=float)
-    except (TypeError, ValueError):
-        return None
-    return a if a.shape == (3, m) and np.all(np.isfinite(a)) else None
 
 
 def read_nominal(path) -> np.ndarray:

@@ -65,16 +65,13 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    from station.commands import given_values
     from station.errors import InputError, StationError
 
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
-    try:
+    with given_values():
         twin = KINDS[args.protocol].entry("twin")(args)
-    except InputError:
-        raise
-    except ValueError as err:  # the twin refusing a value given on the command line
-        raise InputError(str(err)) from err
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

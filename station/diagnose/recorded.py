@@ -49,6 +49,7 @@ import math
 import numpy as np
 
 from station.errors import CalibrationInputError
+from station.files.session import nominal_layout
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 
@@ -99,7 +100,7 @@ def arrays(session, stream: str = "imu") -> dict:
     return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": np.array([sd for _, sd in factors]),
-            "a_nominal": _nominal(session.metadata, len(data.spec.channels))}
+            "a_nominal": nominal_layout(session.metadata, len(data.spec.channels))}
 
 
 def _spans(path, events) -> dict:
@@ -278,12 +279,3 @@ def _rest_angle(path, table, t0, t1, j, where) -> float:
             f"the session {path} holds no table reading at rest in position {j + 1}'s {where}.",
             "Record the session with the rotary table connected.")
     return float(np.median(table.angle[rest]))
-
-
-def _nominal(metadata: dict, m: int):
-    """The session's nominal layout (3, m) when its metadata hold one, else None."""
-    try:
-        a = np.asarray(metadata.get("a_nominal"), float)
-    except (TypeError, ValueError):
-        return None
-    return a if a.shape == (3, m) and np.all(np.isfinite(a)) else None

@@ -262,12 +262,16 @@ class RotaryProtocol:
         return "rest"
 
     def _rest(self) -> str:
-        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
-        self.recorder.drain(self.clock.now(), self.settings.stale)  # spin-down and rest in file
-        self.recorder.event("position_done", self.position)
+        self._done()
         self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured")
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
+
+    def _done(self, detail: dict | None = None) -> None:
+        """The table at rest, its spin-down and rest in the file: record `position_done`."""
+        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
+        self.recorder.drain(self.clock.now(), self.settings.stale)
+        self.recorder.event("position_done", self.position, detail)
 
     def _restart(self) -> str:
         j = self.position
@@ -396,9 +400,7 @@ class RotaryProtocol:
         `position_done`, so that a resume goes on with the next position, as a fixture or a
         technician who saw the table finish its turns does."""
         try:
-            self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
-            self.recorder.drain(self.clock.now(), self.settings.stale)
-            self.recorder.event("position_done", self.position, {"interrupted": True})
+            self._done({"interrupted": True})
         except Exception as failed:  # noqa: BLE001 - the position is then recorded again
             exc.add_note(f"position {self.position + 1} is recorded again on resume: {failed}")
 

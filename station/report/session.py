@@ -38,7 +38,7 @@ from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, solve_recorded
 from station.report import html
-from station.solve.quality import CHI2_P, check_fit
+from station.solve.quality import CHI2_P, check_fit, outlier_words
 
 WEAK_EXCITATION = 0.25
 """Smallest accepted ratio of the weakest to the strongest eigenvalue of sum_j v_j v_j^T."""
@@ -216,10 +216,8 @@ def _fit(report, cal, channels) -> None:
             f"{math.sqrt(2 / cal.dof):.2f}.")
     limit, outliers = check.limit, check.outliers
     if outliers:
-        listed = ", ".join(f"{channels[i]} at position {j + 1} ({v:+.1f} sigma)"
-                           for i, j, v in outliers[:8])
-        more = f" and {len(outliers) - 8} more" if len(outliers) > 8 else ""
-        report.warnings.append(f"Residual outliers beyond {limit:.1f} sigma: {listed}{more}. "
+        report.warnings.append(f"Residual outliers beyond {limit:.1f} sigma: "
+                               f"{outlier_words(outliers, channels)}. "
                                "Check those positions (mounting, disturbance) "
                                "or record them again.")
     report.summary["outliers"] = len(outliers)

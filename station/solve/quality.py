@@ -63,8 +63,13 @@ def check_fit(result, names=None) -> FitCheck:
                         f"expected (p = {p_high:.1e}): the readings disagree with the model by "
                         "more than their noise")
     if outliers:
-        listed = ", ".join(f"{names[i]} at position {j + 1} ({v:+.1f} sigma)"
-                           for i, j, v in outliers[:8])
-        more = f" and {len(outliers) - 8} more" if len(outliers) > 8 else ""
-        problems.append(f"residual outliers beyond {limit:.1f} sigma: {listed}{more}")
+        problems.append(f"residual outliers beyond {limit:.1f} sigma: "
+                        f"{outlier_words(outliers, names)}")
     return FitCheck(ratio, p_high, limit, outliers, problems)
+
+
+def outlier_words(outliers, names) -> str:
+    """The first 8 outliers in words ("g3 at position 5 (+6.1 sigma), ..."), and how many more."""
+    listed = ", ".join(f"{names[i]} at position {j + 1} ({v:+.1f} sigma)"
+                       for i, j, v in outliers[:8])
+    return listed + (f" and {len(outliers) - 8} more" if len(outliers) > 8 else "")

@@ -19,6 +19,7 @@ from station.files.session.format import (
     StreamSpec,
     TableData,
     last_completed_position,
+    nominal_layout,
 )
 from station.files.session.reader import Session
 from station.files.session.writer import SessionWriter, write_results
@@ -26,5 +27,5 @@ from station.files.session.writer import SessionWriter, write_results
 __all__ = [
     "EVENT_KINDS", "FORMAT_VERSION", "TABLE_STATUS_BITS", "Event", "Session", "SessionFormatError",
     "SessionLockedError", "SessionResults", "SessionWriter", "StreamData", "StreamSpec",
-    "TableData", "last_completed_position", "write_results",
+    "TableData", "last_completed_position", "nominal_layout", "write_results",
 ]

@@ -145,6 +145,16 @@ def last_completed_position(events) -> int | None:
     return done[-1] if done else None
 
 
+def nominal_layout(metadata: dict, m: int) -> np.ndarray | None:
+    """The nominal layout (3 x m) a session's (untrusted) metadata records as `a_nominal`, or
+    None when it records no usable one."""
+    try:
+        nominal = np.asarray(metadata.get("a_nominal"), dtype=float)
+    except (TypeError, ValueError):
+        return None
+    return nominal if nominal.shape == (3, m) and np.all(np.isfinite(nominal)) else None
+
+
 def complete_events(ends, detail_length, where="") -> int:
     """How many events have their whole detail text flushed (`ends` must increase)."""
     if len(ends) and (ends[0] < 0 or np.any(np.diff(ends) < 0)):
