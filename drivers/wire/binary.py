@@ -2,13 +2,13 @@
 
 Binary frame (layout from the device profile, `[serial.binary]`):
 
-    sync word | sequence number | length (optional) | device time (optional) | m channel counts | CRC
+    sync | sequence number | length (optional) | device time (optional) | m channel counts | CRC
 
 The field order between sync and CRC is the profile's `layout`; the "CRC" is any frame check of
 `drivers.wire.crc.CHECKSUMS` (a CRC, or a byte sum), and a length field must carry the profile's
-`length_value` (a frame with another length is refused like one failing its check). Parsing is vectorised with numpy:
-every position where the sync word occurs is a candidate, all candidates' CRCs are computed at once,
-and the frames are decoded through a structured dtype.
+`length_value` (a frame with another length is refused like one failing its check). Parsing is
+vectorised with numpy: every position where the sync word occurs is a candidate, all candidates'
+CRCs are computed at once, and the frames are decoded through a structured dtype.
 
 CRC-16 alone accepts about one corrupted candidate in 65 536. A CRC-valid candidate is therefore
 accepted only if its sequence number is also consistent with a neighbour: the previous or the next
