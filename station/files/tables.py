@@ -12,12 +12,14 @@ Both return a `Table`: the numbers and notes saying how the file was read (the i
 """
 
 import csv
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
 import scipy.io
+from scipy.io.matlab import MatReadError
 
 from station.errors import CalibrationInputError
 from station.files.session.format import ALLOWED_FILTERS
@@ -166,7 +168,8 @@ def _mat5_array(path: Path) -> np.ndarray:
     variables."""
     try:
         variables = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
-    except (ValueError, TypeError, OSError, NotImplementedError) as exc:
+    except (ValueError, TypeError, OSError, EOFError, NotImplementedError, MatReadError,
+            zlib.error) as exc:
         raise CalibrationInputError(
             f"scipy.io cannot read {path} (a MATLAB 5.0 MAT-file by its header, not v7.3/HDF5, "
             f"which is read with h5py): {exc}.",
