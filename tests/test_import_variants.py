@@ -396,3 +396,27 @@ def test_real_mimu4444_dumps(name, tmp_path):
     acc = np.linalg.norm(per_imu[:, :, :3], axis=2).mean(axis=0)
     np.testing.assert_allclose(acc, 9.82, atol=0.1)
     assert np.all(np.abs(np.degrees(per_imu[:, :, 3:].mean(axis=0))) < 3)
+
+
+def test_damaged_dumps_never_crash(tmp_path):
+    """Random cuts, garbage and byte flips of a dump: a session of frames that were sent, or a
+    refusal naming --profile; never another exception."""
+    clean, seq, _ = mimu_dump(60, 0.0, seed=4)
+    rng = np.random.default_rng(5)
+    for i in range(30):
+        data = bytearray(clean[: int(rng.integers(0, len(clean)))])
+        for at in rng.integers(0, max(len(data), 1), size=int(rng.integers(0, 20))):
+            if at < len(data):
+                data[at] ^= int(rng.integers(1, 256))
+        data[int(rng.integers(0, len(data) + 1)):0] = rng.bytes(int(rng.integers(0, 300)))
+        dump = tmp_path / f"d{i}.bin"
+        dump.write_bytes(bytes(data))
+        try:
+            out = import_binary(tmp_path / f"d{i}.h5", dump, "mimu4444")
+        except CalibrationInputError as err:
+            assert "--profile" in str(err) or "time stamps" in str(err)
+            continue
+        with Session.open(out) as s:
+            got = s.stream("imu")
+        assert set(got.seq) <= set(seq)
+        np.testing.assert_array_equal(got.counts, mimu_counts(got.seq))
