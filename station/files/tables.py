@@ -72,8 +72,9 @@ def read_matrix(path, columns: int | None = None, *, delimiter: str | None = Non
                      f"those), variable {name!r} read with h5py")
     elif head.startswith(b"MATLAB"):
         raise CalibrationInputError(
-            f"{path} is a MAT-file whose header says {head[:32].decode('ascii', 'replace')!r}, "
-            "a version neither scipy.io (v5/v7) nor h5py (v7.3) reads.",
+            f"{path} is a MAT-file whose header says {head[:32].decode('ascii', 'replace')!r} "
+            "but is neither a MATLAB 5.0 file (v5/v7, read by scipy.io) nor HDF5 at byte 512 "
+            "(v7.3, read by h5py): another version, or damaged.",
             "Save it again in MATLAB with save -v7 or save -v7.3.")
     else:
         table = _text_array(path, delimiter, skip_rows)
