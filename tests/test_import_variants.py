@@ -158,10 +158,19 @@ def test_csv_refusals_name_the_option_that_fixes_them(recording, tmp_path):
     refused(semi, "--delimiter", delimiter=",")  # header not split: no column found
     refused(micro, "Give --time COLUMN with --time-unit", time_column=None, fs=FS,
             time_unit="us")
-    units_row = tmp_path / "units.csv"
+    words = write_csv(tmp_path / "words.csv", recording).read_text().split("\n")
+    words.insert(5, "1.0,2.0,n/a,4,5,6,7")
+    (tmp_path / "words.csv").write_text("\n".join(words))
+    refused(tmp_path / "words.csv", "not all numbers.*--delimiter and --skip-rows")
+
+
+def test_a_line_of_units_under_the_header_is_skipped(recording, reference, tmp_path):
     text = write_csv(tmp_path / "plain.csv", recording).read_text().split("\n", 1)
-    units_row.write_text(text[0] + "\ns,m/s^2,m/s^2,m/s^2,rad/s,rad/s,rad/s\n" + text[1])
-    refused(units_row, "--skip-rows")  # a units line under the header: not numbers
+    path = tmp_path / "units.csv"
+    path.write_text(PREAMBLE + text[0] + "\ns,m/s^2,m/s^2,m/s^2,rad/s,rad/s,rad/s\n" + text[1])
+    out = import_csv(tmp_path / "v.h5", path, STREAMS, UNITS, time_column="t")
+    notes = assert_same_session(out, reference)["import"]["notes"]
+    assert any("line 6 under the header is not numbers (units?), skipped" in n for n in notes)
 
 
 def text_tables(recording, d: Path, write) -> dict:

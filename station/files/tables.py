@@ -6,7 +6,7 @@
 - `read_csv`: named columns of a delimited text file with a header line; the delimiter is
   sniffed (`csv.Sniffer`) unless given, and lines before the header (a metadata preamble such as
   `Fs,100`) are skipped: the header is the first line holding every wanted column name, or the
-  line after `skip_rows` lines.
+  line after `skip_rows` lines; one line of units right under it is skipped too.
 
 Both return a `Table`: the numbers and notes saying how the file was read (the import's summary).
 """
@@ -124,15 +124,22 @@ def read_csv(path, columns: list, *, delimiter: str | None = None,
             f"{delimiter!r}: {header[:20]}).",
             "Name each column once as spelled in the header; if the header is elsewhere give "
             "--skip-rows N (lines before it), if the split is wrong give --delimiter.")
+    usecols = [header.index(c) for c in columns]
+    first = skip_rows + 1
+    if first + 1 < len(lines) and not _numbers(_fields(lines[first], delimiter), usecols) \
+            and _numbers(_fields(lines[first + 1], delimiter), usecols):
+        notes.append(f"{path.name}: line {first + 1} under the header is not numbers (units?), "
+                     "skipped")
+        first += 1
     try:
         table = np.loadtxt(path, delimiter=None if delimiter == " " else delimiter,
-                           skiprows=skip_rows + 1, ndmin=2, quotechar='"', encoding="utf-8-sig",
-                           usecols=[header.index(c) for c in columns])
+                           skiprows=first, ndmin=2, quotechar='"', encoding="utf-8-sig",
+                           usecols=usecols)
     except ValueError as exc:
         raise CalibrationInputError(
             f"{path}: the chosen columns are not all numbers ({exc}).",
             "Pick numeric columns (text columns are not imported); check --delimiter and "
-            "--skip-rows (a line of units under the header counts as a line to skip).") from None
+            "--skip-rows (lines before the header).") from None
     if not np.all(np.isfinite(table)):
         raise CalibrationInputError(f"{path}: the chosen columns hold NaN or infinite values.",
                                     "Remove or interpolate the invalid rows first.")
@@ -264,6 +271,16 @@ def _header_row(lines: list, columns: list, delimiter: str) -> int | None:
         if set(columns) <= set(_fields(line, delimiter)):
             return i
     return None
+
+
+def _numbers(fields: list, usecols: list) -> bool:
+    """Whether the fields at `usecols` are all numbers (a data line, not a line of units)."""
+    try:
+        for i in usecols:
+            float(fields[i].strip('"'))
+    except (ValueError, IndexError):
+        return False
+    return True
 
 
 def _fields(line: str, delimiter: str) -> list:
