@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.commands import existing_file, new_file
+from station.commands import existing_file, existing_session, new_file
 from station.errors import InputError
 
 AXES = ("v_x", "v_y", "v_z")
@@ -65,6 +65,7 @@ def run(args) -> int:
     cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"))
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:
+        existing_session(data)
         time, z = read_session(data, args.stream, cal)
     else:
         time, z = read_csv(data, cal, args.counts)

@@ -381,7 +381,7 @@ def _column(group, name, dtype, units: str, width=None) -> None:
     tail = () if width is None else (width,)
     rows = max(64, CHUNK_BYTES // (dtype.itemsize * (width or 1)))
     ds = group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
-                              chunks=(rows, *tail), dtype=dtype)
+                              chunks=(rows, *tail), dtype=dtype, fletcher32=True)
     ds.attrs["units"] = units
 
 
