@@ -33,10 +33,10 @@ def run(args) -> int:
     from station.errors import InputError
     from station.report import session as report
 
-    existing_session(args.session)
     out = args.out or args.session.with_suffix(".html")
     if out.resolve() == args.session.resolve():
         raise InputError("--out would overwrite the session file; choose an .html name")
+    existing_session(args.session)
     built = report.build(args.session, args.result)
     files = built.write(out)
     if args.json:

@@ -37,7 +37,10 @@ def checked(path, positions=None, limit: float | None = None) -> None:
     within the time limit (default: `BASE_LIMIT` + its size / 50 MB/s). With `positions` (0-based),
     damaged sample rows are allowed when they belong to other positions only (the reader drops
     them: `Session.stream`)."""
+    from station.files.session._repair import open_flags
+
     path = os.fspath(path)
+    open_flags(path)  # not HDF5 at all, or a damaged superblock: said at once
     limit = limit or BASE_LIMIT + os.path.getsize(path) * SECONDS_PER_BYTE
     cmd = [sys.executable, "-m", "station.files.session.check", path]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
