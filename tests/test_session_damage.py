@@ -102,3 +102,14 @@ def test_a_killed_truncated_file_is_refused_within_the_limit(tmp_path):
     with pytest.raises(SessionFormatError, match="is damaged"):
         checked(path, limit=3.0)
     assert time.monotonic() - t0 < 6.0
+
+
+def test_changed_metadata_text_is_refused(tmp_path):
+    """The metadata JSON lives in HDF5's global heap, which has no checksum of its own."""
+    path = write_session(tmp_path / "s.h5")
+    data = bytearray(path.read_bytes())
+    at = data.index(b'"unit_serial": "D1"')
+    data[at + len('"unit_serial": "D')] = ord("7")
+    path.write_bytes(bytes(data))
+    with pytest.raises(SessionFormatError, match="does not match its checksum"):
+        Session.open(path)

@@ -6,6 +6,7 @@ imports no driver (the reduction reads sessions and never touches devices).
 """
 
 import dataclasses
+import hashlib
 import json
 import os
 
@@ -201,7 +202,13 @@ def _read_metadata(f, where) -> dict:
     ds = _child(f, "metadata", h5py.Dataset, where)
     if ds.shape != () or ds.dtype.kind not in "OS":
         raise SessionFormatError(f"{where}: /metadata must be one JSON string")
-    return _json_object(ds[()], f"{where}: /metadata")
+    text = ds[()]
+    digest = ds.attrs.get("sha256")  # files of earlier writers have none
+    if digest is not None and hashlib.sha256(
+            text if isinstance(text, bytes) else text.encode()).hexdigest().encode() != digest:
+        raise SessionFormatError(f"{where}: /metadata does not match its checksum; the file is "
+                                 "damaged (use an undamaged copy)")
+    return _json_object(text, f"{where}: /metadata")
 
 
 def _json_object(raw, what: str) -> dict:
