@@ -4,7 +4,7 @@ its twin."""
 import json
 from pathlib import Path
 
-from station.commands import existing_file, working
+from station.commands import existing_file, existing_session, working
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
@@ -47,6 +47,7 @@ def run(args) -> int:
     if rotary:
         session = data.load(path)
     else:
+        existing_session(path)
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
             session = data.from_session(recorded) if rotary else None
