@@ -41,6 +41,7 @@ class BenchProfile:
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
+    fixture: object = None  # rotary: station.protocols.planned.FixtureSpec of a [fixture]
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -64,10 +65,12 @@ class BenchProfile:
                 raise ProfileError(f"{path}: no [{name}] section; see `station record --help`")
             return Section(profile.source, name, table)
 
-        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances"})
+        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances",
+                                                "fixture"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary), [protocol] and [tolerances]")
+                               "[imu], [table] (rotary), [protocol], [fixture] (rotary) and "
+                               "[tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -103,11 +106,21 @@ class BenchProfile:
             fields.update(table_host=table.get("host", str), table_port=table.get("port", int),
                           table_map=table_profile.section("table", TableRegisterMap.parse),
                           table_source=table_profile.source,
-                          positions=proto.get("positions", int), **_settings(kind, proto, path))
+                          **_settings(kind, proto, path))
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(section("fixture"),
+                                                             len(dev.imu.channels))
+            fields["positions"] = (proto.get("positions", int, default=40)
+                                   if "fixture" in fields else proto.get("positions", int))
             table.finish()
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
+            if "fixture" in profile.tables:
+                raise ProfileError(f"{path}: the {kind} protocol does not plan fixture poses; "
+                                   "remove the [fixture] section (it serves rotary sessions)")
             if "table" in profile.tables:
                 raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
                                    "[table] section (or set [protocol] kind = \"rotary\")")

@@ -130,6 +130,9 @@ def picture(pose: Pose) -> str:
 
 
 def _face_along(pose: Pose, column: int) -> str:
-    """The face whose outward normal is nearest the bench axis `column` (1: right, 2: up)."""
+    """The face whose outward normal is nearest the bench axis `column` (1: right, 2: up), or
+    the two between which it points ("D/F" on the wedge)."""
     direction = pose.cube[:, column]
-    return max(FACES, key=lambda face: float(np.dot(FACES[face], direction)))
+    dots = {face: float(np.dot(normal, direction)) for face, normal in FACES.items()}
+    best = max(dots.values())
+    return "/".join(face for face, dot in dots.items() if dot > best - 1e-9)
