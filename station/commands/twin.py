@@ -41,7 +41,8 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station twin --profile-out bench.toml\n"
         "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
-        "  station twin --protocol static --speed 20 --profile-out hand.toml"
+        "  station twin --protocol static --speed 20 --profile-out hand.toml\n"
+        "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
@@ -51,6 +52,10 @@ def register(p) -> None:
     p.add_argument("--positions", type=int, default=20,
                    help="positions of the protocol the fixture follows: rotary positions or "
                         "static poses (default 20)")
+    p.add_argument("--cube", action="store_true",
+                   help="rotary: the unit sits in a lettered cube on a 45-degree wedge; the "
+                        "profile gets a [fixture] section and the fixture follows the plan "
+                        "`station record` makes from it (at most --positions positions)")
     p.add_argument("--mountings", type=int, default=2,
                    help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=1.0,

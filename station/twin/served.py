@@ -21,6 +21,8 @@ from typing import Self
 import numpy as np
 
 from station.errors import InputError
+from station.model.fixture import Fixture
+from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
 
@@ -47,16 +49,30 @@ class BenchTwin:
     """A `VirtualBench` whose unit is re-mounted by a fixture at every table stop.
 
     positions : the fixture follows `suggested_axes(positions)`, as the rotary protocol does
+    cube      : the unit sits in a lettered cube with a 45-degree wedge (`station.model.fixture`);
+                the bench profile gets its [fixture] section, the fixture follows the plan
+                `station record` makes from it (`station.protocols.planned.rotary_plan`, at most
+                `positions` positions) in the same words
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
-                 positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0):
+                 positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
+                 cube: bool = False):
         from station.twin.rotary_bench import VirtualBench
 
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime)
         self.seed = seed
-        self.axes = suggested_axes(positions)
+        self.positions = positions
+        self.cube = _cube(self.bench.unit) if cube else None
+        if self.cube is None:
+            self.axes = suggested_axes(positions)
+            self.instructions = [instruction(j, positions, u) for j, u in enumerate(self.axes)]
+        else:
+            steps = rotary_plan(self.cube, RotarySettings(), positions).instructions()
+            self.instructions = [fixture_instruction(j, len(steps), s)
+                                 for j, s in enumerate(steps)]
+            self.axes = np.array([i.orientation[:, 2] for i in self.instructions])
         self.mounted = 0
         self.error = None
         self._watch = None  # the pty watched for the station's open
@@ -112,7 +128,7 @@ class BenchTwin:
         return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
                 f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
                 f"[imu]\n{imu}\n\n[table]\n{table}\n\n"
-                f"[protocol]\npositions = {len(self.axes)}\n")
+                f"[protocol]\npositions = {self.positions}\n" + _fixture_section(self.cube))
 
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
@@ -125,9 +141,9 @@ class BenchTwin:
         repeatable: its placement error belongs to the fixture position (drawn from the seed and
         the position), so a position mounted again has the orientation it had the first time."""
         self.mounted += 0 if advance or not self.mounted else -1
-        j = self.mounted % len(self.axes)
+        j = self.mounted % len(self.instructions)
         self.bench.technician.rng = np.random.default_rng([self.seed, 2, j])
-        self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.bench.technician.wait(self.instructions[j])
         self.mounted += 1
 
     def _fixture(self) -> None:
@@ -150,6 +166,23 @@ class BenchTwin:
                     self._mount(advance=_completed(turned))
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
+
+
+def _cube(unit) -> FixtureSpec:
+    """The twin's fixture: a lettered cube holding the unit square, on a 45-degree wedge; the
+    plan's layout and noise are the unit's nominal ones."""
+    from station.sim.layouts import A_MODEL
+
+    return FixtureSpec(Fixture(wedge=True), A_MODEL, float(np.max(unit.noise_density)))
+
+
+def _fixture_section(spec: FixtureSpec | None) -> str:
+    """The [fixture] section of a bench profile ("" without a fixture)."""
+    if spec is None:
+        return ""
+    lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
+             for k, v in spec.table().items()]
+    return "\n[fixture]\n" + "\n".join(lines) + "\n"
 
 
 def _completed(turned: float) -> bool:
@@ -271,9 +304,9 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime)."""
+    rate_hz, lifetime, cube)."""
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
-                     options.lifetime)
+                     options.lifetime, getattr(options, "cube", False))
 
 
 def iron_twin(options) -> HandTwin:
