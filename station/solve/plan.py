@@ -133,7 +133,7 @@ def plan(a, up, sigma, magnitude: float, *, estimate_bias: bool = False,
     info = bound.reduce(position_information(a, up, sigma, magnitude, estimate_bias))
     chosen, expected, total = [], [], np.zeros(info.shape[1:])
     while len(chosen) < most:
-        k = int(np.argmin(bound.scores(total + info)))
+        k = _best(bound.scores(total + info))
         eps = bound.eps(total + info[k])
         if expected and np.isfinite(expected[-1]) and 1 - eps / expected[-1] < threshold:
             break
@@ -157,11 +157,17 @@ def exchange(chosen: np.ndarray, info: np.ndarray, bound: Bound) -> np.ndarray:
         improved = False
         for slot in range(len(chosen)):
             rest = info[np.delete(chosen, slot)].sum(0)
-            k = int(np.argmin(bound.scores(rest + info)))
+            k = _best(bound.scores(rest + info))
             eps = bound.eps(rest + info[k])
             if eps < best * (1 - 1e-9):
                 chosen[slot], best, improved = k, eps, True
     return chosen
+
+
+def _best(scores: np.ndarray) -> int:
+    """The first of the candidates within rounding (1e-6) of the lowest score: symmetric layouts
+    tie, and a plan must not depend on the rounding of the noise's scale."""
+    return int(np.flatnonzero(scores <= scores.min() * (1 + 1e-6))[0])
 
 
 def expected_eps(a, up, sigma, magnitude: float, estimate_bias: bool = False) -> float:
