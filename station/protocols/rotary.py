@@ -187,6 +187,13 @@ class RotaryProtocol:
                              "it was not written by this station") from None
         return cls(table, operator, clock, settings, axes, poses)
 
+    def instruction(self, j: int) -> Instruction:
+        """The technician's instruction for mounting position j: the fixture pose's words and
+        picture, or the direction to point up the table axis."""
+        if self.fixture_poses:
+            return fixture_instruction(j, len(self.axes), self.fixture_poses[j])
+        return instruction(j, len(self.axes), self.axes[j])
+
     def run(self, recorder, first: int = 0) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
         the table is stopped whatever happens."""
@@ -216,8 +223,7 @@ class RotaryProtocol:
 
     def _mount(self) -> str:
         j = self.position
-        self.operator.wait(fixture_instruction(j, len(self.axes), self.fixture_poses[j])
-                           if self.fixture_poses else instruction(j, len(self.axes), self.axes[j]))
+        self.operator.wait(self.instruction(j))
         self.recorder.event("position_start", j, {"axis": self.axes[j].tolist()})
         return "still"
 
