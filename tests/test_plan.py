@@ -246,10 +246,12 @@ def test_record_asks_for_the_planned_poses_and_the_twins_technician_sets_them(tm
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         said = io.StringIO()
-        record(bench, tmp_path / "s.h5",
-               ConsoleOperator(stdin=io.StringIO("\n" * positions), stdout=said))
+        summary = record(bench, tmp_path / "s.h5",
+                         ConsoleOperator(stdin=io.StringIO("\n" * positions), stdout=said))
         truth = twin.truth()
         asked = [i.text for i in twin.instructions]
+    assert summary["positions_done"] == summary["positions_planned"] == positions
+    assert bench.positions == positions  # the twin's [protocol] positions: the plan's largest
     text = said.getvalue()
     assert text.startswith(f"plan: {positions} positions on the fixture, expected eps")
     with Session.open(tmp_path / "s.h5") as s:

@@ -202,8 +202,10 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
+        planned = len(session.metadata.get("axes", ())) or bench.positions  # a fixture's plan
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
-            "positions_done": 0 if done is None else done + 1, "samples": samples,
+            "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
+            "samples": samples,
             "wall_seconds": time.perf_counter() - start}
 
 

@@ -107,7 +107,7 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"recorded {summary['positions_done']} of {bench.positions} positions "
+        print(f"recorded {summary['positions_done']} of {summary['positions_planned']} positions "
               f"({summary['samples']} samples) into {out} in {summary['wall_seconds']:.1f} s")
         if args.solve:
             print(f"calibration: {summary['calibration']['calibration']} (chi2/dof "
