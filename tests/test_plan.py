@@ -19,8 +19,8 @@ from station.errors import CalibrationInputError, InputError
 from station.files.calfile import load
 from station.files.session import Session
 from station.model.fixture import Fixture, picture
-from station.protocols.planned import reading_noise
-from station.protocols.rotary import RotarySettings, suggested_axes
+from station.protocols.planned import FixtureSpec, reading_noise, rotary_plan
+from station.protocols.rotary import RotaryProtocol, RotarySettings, suggested_axes
 from station.solve.plan import expected_eps, plan
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.served import BenchTwin
@@ -276,3 +276,17 @@ def test_record_asks_for_the_planned_poses_and_the_twins_technician_sets_them(tm
     assert expected == pytest.approx(np.sqrt(np.trace(bound)), rel=0.05)
     cal = load(solve(tmp_path / "s.h5", accept_suspect=True)["calibration"])
     assert eps_tail_probability(station.eps(a, cal.a), bound) > 1e-4
+
+
+def test_a_resumed_session_asks_for_the_fixture_poses_it_recorded():
+    # the session metadata keeps the poses (JSON): `station resume` rebuilds the same prompts
+    spec = FixtureSpec(Fixture(wedge=True), A_MODEL, 1.7e-4)
+    steps = rotary_plan(spec, RotarySettings(), 10).instructions()
+    first = RotaryProtocol(None, None, None, fixture_poses=steps)
+    again = RotaryProtocol.from_metadata(json.loads(json.dumps(first.metadata())), None, None,
+                                         None)
+    for j in range(len(steps)):
+        asked, resumed = first.instruction(j), again.instruction(j)
+        assert asked.text == resumed.text and steps[j]["words"] in asked.text
+        np.testing.assert_array_equal(asked.orientation, resumed.orientation)
+    np.testing.assert_allclose(again.axes, [np.array(s["orientation"])[:, 2] for s in steps])

@@ -7,7 +7,9 @@ follow the simulated table's physics. The unit sits in a motorised fixture that 
 next position of the rotary protocol (`station.protocols.rotary.suggested_axes`) each time the
 table is commanded to stop, so a technician has nothing to turn: pressing Enter at each prompt of
 `station record` runs the whole session. Restart the twin for each new session (the fixture counts
-the stops).
+the stops). With `--cube` the unit sits in a lettered cube on a 45-degree wedge instead: the
+bench profile gets a [fixture] section, `station record` plans the fixture poses from it
+(`station plan`) and the twin's fixture sets the same poses.
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who

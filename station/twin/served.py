@@ -3,7 +3,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
 
 - `BenchTwin`: the rotary bench (`station.twin.rotary_bench.VirtualBench`) whose motorised
   fixture re-mounts the unit once the table has come to rest after a run: at the next of
-  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run;
+  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run
+  (with `cube`: at the next planned pose of a lettered cube on a wedge, the profile's [fixture]);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence.
 
