@@ -122,10 +122,22 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
     the frame of the result (d x m), default the recorded layout for kinds solved in it; command:
     who asks, for the error about a kind without a reduction.
     """
+    kind = lookup(session.protocol, "reduce", f"{session.path} records a {session.protocol!r} "
+                  "session", command)
+    magnitude, _ = stimulus(session, settings)
+    readings = reduce_recorded(session, settings, command)
+    if kind.nominal_frame and nominal is None:
+        nominal = recorded_layout(session.metadata, readings.M.shape[0], session.path)
+    return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
+                                         method=settings.method, refine=settings.refine)
+
+
+def reduce_recorded(session, settings: ReplaySettings, command: str = "replay"):
+    """The readings of an open session with the settings: the kind's reduction of the calibrated
+    stream (with the detector's settings for kinds that detect still poses), the positions
+    chosen among the completed ones (every pose of a recording without protocol events)."""
     name, path = session.protocol, session.path
     kind = lookup(name, "reduce", f"{path} records a {name!r} session", command)
-    stream = calibrated_stream(session, settings)
-    magnitude, _ = stimulus(session, settings)
     options = {"trim": settings.trim}
     if settings.still is not None:
         if not kind.still:
@@ -133,13 +145,9 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
                              "detect; --rest, --threshold, --still-channels and --min-still are "
                              "for still-pose sessions (iron, static, import)")
         options["still"] = settings.still
-    readings = kind.entry("reduce")(session, stream, **options)
+    readings = kind.entry("reduce")(session, calibrated_stream(session, settings), **options)
     completed = sorted(_completed(session.events())) or list(range(readings.M.shape[1]))
-    readings = _select(readings, completed, settings.positions, path)
-    if kind.nominal_frame and nominal is None:
-        nominal = recorded_layout(session.metadata, readings.M.shape[0], path)
-    return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
-                                         method=settings.method, refine=settings.refine)
+    return _select(readings, completed, settings.positions, path)
 
 
 def calibrated_stream(session, settings: ReplaySettings) -> str:
