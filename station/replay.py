@@ -228,9 +228,9 @@ def replay_into(path, name: str, settings: ReplaySettings | None = None):
     settings that made them (`SessionResults.settings`; `stored_settings` reads them back)."""
     settings = settings or ReplaySettings()
     with Session.open(path) as session:
-        settings = dataclasses.replace(settings, stream=calibrated_stream(session, settings))
+        stream = calibrated_stream(session, settings)
     reduced, result = replay(path, settings)
-    write_results(path, name, settings.stream, reduced.M, result, reduced.sigma,
+    write_results(path, name, stream, reduced.M, result, reduced.sigma,
                   settings=dataclasses.asdict(settings))
     return reduced, result
 

@@ -35,7 +35,7 @@ from station.model.effects.bias_drift import BiasDrift
 from station.model.effects.earth_rate import EarthRate
 from station.model.effects.g_sensitivity import GSensitivity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
-from station.reduce.stillness import detect_still
+from station.reduce.stillness import StillOptions, detect_still
 from station.solve.calibrate import calibrate
 
 BIN_S = 1.0
@@ -124,9 +124,10 @@ class StaticData:
 
 
 def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
-                units=(), notes=(), **detector) -> StaticData:
+                units=(), notes=(), still: StillOptions | None = None, **detector) -> StaticData:
     """StaticData of accelerometer samples (K, m) and optional gyro samples (K, 3) at fs Hz;
-    `detector`: options of station.reduce.stillness.detect_still."""
+    `still`: the user's detector settings (`StillOptions`, channels "acc" unless given; None:
+    every channel decides), `detector`: options of station.reduce.stillness.detect_still."""
     acc = np.asarray(accel, float)
     if acc.ndim != 2 or acc.shape[1] < 3 or acc.shape[0] < 10:
         raise CalibrationInputError(f"accelerometer samples have shape {acc.shape}.",
@@ -139,6 +140,10 @@ def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVIT
                 f"gyro samples have shape {g.shape}, accelerometer {acc.shape}.",
                 "Give a 3-axis gyro on the same time base (or no gyro).")
         x = np.hstack([acc, g])
+    if still is not None:
+        m = acc.shape[1]
+        detector = {**still.detector(fs, range(m), range(m, x.shape[1]), default="acc"),
+                    **detector}
     still = detect_still(x, fs, **detector)
     if len(still.intervals) < 9 + 1:
         raise CalibrationInputError(

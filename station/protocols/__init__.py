@@ -162,6 +162,5 @@ def lookup(name: str, role: str, subject: str | None = None, command: str = "the
         f" ({name!r} is no registered protocol kind; the kinds are {', '.join(KINDS)})"
     raise UnknownKind(f"{subject}; {command} {VERBS[role]} "
                       f"{', '.join(kinds_with(role)) or 'no'} sessions{unknown}.",
-                      "Use the workflow of that recording (e.g. station.reduce.free_static for an "
-                      "imported continuous recording), or register the kind's part in "
-                      "station.protocols.KINDS.")
+                      "Import a foreign recording with `station import` (solved as an 'import' "
+                      "session), or register the kind's part in station.protocols.KINDS.")
