@@ -12,8 +12,8 @@ from station.commands import existing_file, still_arguments, still_values, worki
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
-from station.reduce.stillness import StillOptions
 from station.files.session import Session
+from station.reduce.stillness import StillOptions
 from station.report import diagnosis as report
 
 

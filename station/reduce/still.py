@@ -90,8 +90,8 @@ def _window(value) -> list:
     return [float(w[0]), float(w[1])]
 
 
-def still_readings(session, stream: str = "imu", trim: float = 0.0, still: StillOptions | None = None,
-                   **detector) -> StillReadings:
+def still_readings(session, stream: str = "imu", trim: float = 0.0,
+                   still: StillOptions | None = None, **detector) -> StillReadings:
     """The completed still poses of a session (`station.files.session.Session`).
 
     The still intervals are detected once on the whole recording (`station.reduce.stillness.

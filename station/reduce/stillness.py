@@ -1,14 +1,19 @@
 """Static-interval detection in a continuous recording, in the style of PX4's still detector.
 
 The dispersion statistic is the moving variance of every channel over a centred window, divided by
-that channel's noise variance measured on a rest period and averaged over the channels:
+that channel's noise variance and averaged over the channels of a group; with several groups (the
+accelerometers, the gyros) the largest group's, so each group can veto stillness:
 
-    s(t) = (1/c) sum_k var_w(x_k)(t) / sigma_k^2        (about 1 at rest, >> 1 in motion)
+    s(t) = max_g (1/c_g) sum_{k in g} var_w(x_k)(t) / sigma_k^2     (about 1 at rest, >> 1 moving)
 
-so every threshold is a multiple of the measured noise, never a value in counts. Hysteresis: the
-unit becomes still when s drops below `enter` and stays still until s exceeds `leave` > `enter`.
-Still intervals shorter than `min_still` are dropped, and motions longer than `timeout` (the
-operator took too long to put the unit down) are reported. See docs/stillness.md.
+so every threshold is a multiple of the measured noise, never a value in counts. The noise
+variance comes from a declared rest period, or robustly from the recording (`noise_level`: the
+median over its still stretches, so one pose quieter than the rest does not set it). Hysteresis:
+the unit becomes still when s drops below `enter` and stays still until s exceeds `leave` >
+`enter`; a pose's settling (s above `enter`) is cut from its start. Still intervals shorter than
+`min_still` are dropped, and motions longer than `timeout` (the operator took too long to put the
+unit down) are reported; every candidate that is no still interval is reported with the reason.
+See docs/stillness.md.
 """
 
 from dataclasses import dataclass, field
@@ -17,9 +22,9 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 
-
 QUANTILE = 0.1
-"""The quantile of the rest-length stretches (by quietness) that gives the provisional noise level."""
+"""The quantile of the rest-length stretches, by quietness, that gives the provisional noise
+level."""
 
 
 @dataclass(frozen=True)
@@ -38,8 +43,8 @@ class StillIntervals:
     overdue : (Q, 2) [start, stop) motions (before or between still intervals) longer than timeout.
     settling : (P,) samples between the end of the motion (s <= leave) and the interval's start
                (s < enter): the settling cut from the start of each pose.
-    rejected : ((start, stop, reason), ...) the candidates (stretches without motion, s <= leave,
-               at least a window long) that are no still interval, each with the reason.
+    rejected : ((start, stop, reason), ...) the candidates (stretches of at least a window where
+               some channel group shows no motion) that hold no still interval, with the reason.
     """
 
     intervals: np.ndarray
@@ -180,30 +185,31 @@ def _groups(groups, c: int) -> dict:
 def _candidates(s, ratio, groups, intervals, short, w, fs, limits) -> tuple:
     """((P,) settling samples of the intervals, the rejected candidates with their reasons).
 
-    A candidate is a run of s <= leave (no motion) of at least a window; it holds a still interval
-    (its start trimmed by the settling), or a still run shorter than min_still (too short), or none
-    (never below enter: still settling, or a group keeps vetoing)."""
+    A candidate is a run of at least a window where some group's statistic is <= leave (no motion
+    on it); it holds a still interval (its start trimmed by the settling: the samples from the
+    last s > leave), or a still run shorter than min_still (too short), or none: a group never got
+    below enter (still settling) or never below leave (moving), and vetoed the pose."""
     enter, leave, min_still = limits
     calm = _runs(s <= leave)
     settling = np.array([a - calm[np.searchsorted(calm[:, 0], a, side="right") - 1, 0]
                          for a, _ in intervals], dtype=np.int64)
+    stats = {name: ratio[:, cols].mean(axis=1) for name, cols in groups.items()}
+    some = _runs(np.min(list(stats.values()), axis=0) <= leave)
     rejected = []
-    for a, b in calm[calm[:, 1] - calm[:, 0] >= w]:
-        inside = intervals[(intervals[:, 0] >= a) & (intervals[:, 1] <= b)]
-        if len(inside):
+    for a, b in some[some[:, 1] - some[:, 0] >= w]:
+        if np.any((intervals[:, 0] < b) & (intervals[:, 1] > a)):
             continue
-        brief = short[(short[:, 0] >= a) & (short[:, 1] <= b)]
+        brief = short[(short[:, 0] < b) & (short[:, 1] > a)]
         if len(brief):
             longest = int((brief[:, 1] - brief[:, 0]).max())
             reason = (f"too short: still {longest / fs:.2f} s (after {(brief[0, 0] - a) / fs:.2f} "
                       f"s settling), less than min_still {min_still:g} s")
         else:
-            lowest = {name: float(ratio[a:b, cols].mean(axis=1).min())
-                      for name, cols in groups.items()}
-            vetoing = [name for name, low in lowest.items() if low >= enter]
-            words = ", ".join(f"{name} {lowest[name]:.1f}" for name in vetoing)
-            reason = (f"settling not finished: {words} x the noise at the quietest, never below "
-                      f"the threshold {enter:g}")
+            lowest = {name: float(stat[a:b].min()) for name, stat in stats.items()}
+            reason = "; ".join(
+                f"{'moving' if low > leave else 'settling not finished'}: {name} at least "
+                f"{low:.1f} x the noise (threshold {enter:g})"
+                for name, low in lowest.items() if low >= enter)
         rejected.append((int(a), int(b), reason))
     return settling, tuple(rejected)
 
