@@ -104,6 +104,11 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0,
     (`StillOptions`; channels None: every channel of the stream decides, as in the live protocol).
     """
     data = session.stream(stream)
+    if len(data.seq) < 3:
+        raise CalibrationInputError(f"{session.path}: the stream {stream!r} holds "
+                                    f"{len(data.seq)} samples.",
+                                    "Record or import the recording again: still poses need "
+                                    "seconds of samples.")
     rate = data.spec.rate_hz
     t = sample_times(data.seq, data.host_time, rate)
     z = data.to_si()
