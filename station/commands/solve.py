@@ -234,7 +234,7 @@ def summarise(cal, out) -> dict:
 
 def _text(s: dict) -> str:
     rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'bias':>12} {'1 sigma':>10}"]
-    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {b:12.4g} {sb:10.2g}" for name, k, sk, b, sb in
+    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {b:12.6g} {sb:10.2g}" for name, k, sk, b, sb in
              zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], s["bias"],
                  s["bias_sigma"], strict=True)]
     title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
