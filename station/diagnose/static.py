@@ -2,8 +2,9 @@
 static session can show (docs/diagnose.md, "Free-static sessions").
 
 Data: the accelerometer stream (m >= 3 channels) and optionally a gyro stream (3 channels), SI
-units, cut into still intervals (station.reduce.stillness.detect_still on all channels) and each
-interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples
+units, cut into still intervals (station.reduce.stillness.detect_still: on all channels, or as the
+user's `StillOptions` say: the command line's default is the accelerometer) and each interval
+into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples
 within the bins (white-noise assumption).
 
 Nominal model (the free-static calibration, station.reduce.free_static): accelerometer bin means
