@@ -18,6 +18,17 @@ def existing_file(path, what: str, suffixes=()) -> Path:
     return path
 
 
+def existing_session(path, positions=None) -> Path:
+    """`path` as a Path if it names a session file that reads back intact: every object and
+    checksummed chunk, in a child process under a time limit (`station.files.session.check`);
+    with `positions` (0-based), damage in other positions' samples is let through."""
+    from station.files.session.check import checked
+
+    path = existing_file(path, "a session file (.h5)")
+    checked(path, positions)
+    return path
+
+
 def new_file(path, option: str = "--out", force: bool | None = None) -> Path:
     """`path` as a Path if writing it loses nothing: absent, or `force` given. force None: the
     command has no --force, so the refusal does not offer it."""

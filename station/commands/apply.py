@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.commands import existing_file, new_file
+from station.commands import existing_file, existing_session, new_file
 from station.errors import InputError
 
 AXES = ("v_x", "v_y", "v_z")
@@ -66,10 +66,19 @@ def run(args) -> int:
     cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"))
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:
+        existing_session(data)
         time, z = read_session(data, args.stream or solved_stream(cal), cal)
     else:
         time, z = read_csv(data, cal, args.counts)
-    v = cal.apply(z.T).T  # rows of the files = instants = columns of the model
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = cal.apply(z.T).T  # rows of the files = instants = columns of the model
+    if not np.all(np.isfinite(v)):
+        from station.files.calfile import CalibrationFileError
+
+        row = int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])
+        raise CalibrationFileError(f"{data}: the readings of row {row + 1} overflow when "
+                                   f"calibrated ({z[row].tolist()}); they are not {cal.units[0]} "
+                                   "a sensor can read: check their unit")
     sigma = None
     if args.sigma:
         sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T), axis1=1, axis2=2)) \
@@ -85,7 +94,8 @@ def run(args) -> int:
         print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],
                           "units": cal.units[0], "frame": cal.frame,
                           "unit_serial": cal.unit_serial,
-                          "norm_mean": float(norm.mean()) if len(v) else None}, indent=2))
+                          "norm_mean": float(norm.mean()) if len(v) else None}, indent=2,
+                         allow_nan=False))
     return 0
 
 

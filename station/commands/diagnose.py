@@ -8,7 +8,13 @@ vetoes with --still-channels acc+gyro); --rest, --threshold and --min-still set 
 import json
 from pathlib import Path
 
-from station.commands import existing_file, still_arguments, still_values, working
+from station.commands import (
+    existing_file,
+    existing_session,
+    still_arguments,
+    still_values,
+    working,
+)
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
@@ -54,6 +60,7 @@ def run(args) -> int:
     if rotary:
         session = data.load(path)
     else:
+        existing_session(path)
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
             session = data.from_session(recorded) if rotary else None

@@ -61,13 +61,13 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, working
+    from station.commands import existing_session, new_file, working
     from station.commands.solve import pose_lines, poses
     from station.files.session import Session
     from station.replay import free_name, replay, replay_into, replay_raw, stimulus
     from station.solve.quality import check_fit
 
-    existing_file(args.session, "a session file (.h5)")
+    existing_session(args.session, None if args.raw else _positions(args.positions))
     if args.raw is not None:
         raw = new_file(args.raw, option="file for the raw replay")
         with working(f"replaying {args.session} through the serial twin into {raw}"):

@@ -71,9 +71,9 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, still_values
+    from station.commands import existing_file, existing_session, new_file, still_values
 
-    existing_file(args.session, "a session file (.h5)")
+    existing_session(args.session)
     out = new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
