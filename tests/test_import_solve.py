@@ -214,3 +214,19 @@ def test_real_mpu9150_on_the_command_line(unit, tmp_path, capsys):
                                  api.accel.scale_factors_sigma),
                                 (summary["bias"], api.accel.bias, api.accel.bias_sigma)):
         assert np.all(np.abs(np.array(ours) - theirs) < 2 * sigma)
+
+
+def test_diagnose_takes_the_detector_options(tmp_path, capsys):
+    """A hobby IMU held by hand, 2.5 s poses, the gyro settling 2.5x longer than the accelerometer:
+    with the gyro's veto (diagnose's default with a gyro) too few poses are left and the refusal
+    offers --still-channels acc; with it every pose is diagnosed."""
+    x, truth = hand_session(seed=1, pose_s=2.5, gyro_settle=2.5)
+    write_csv(tmp_path / "h.csv", x)
+    h5 = import_hand(capsys, tmp_path / "h.csv", tmp_path / "h.h5")
+    code, _, err = station_with_errors(capsys, "diagnose", h5)
+    assert code == 2 and "the gyro vetoing" in err and "--still-channels acc" in err
+    code, out = station(capsys, "diagnose", h5, "--still-channels", "acc", "--min-still", "1",
+                        "--json")
+    assert code == 0 and json.loads(out)["intervals"] == len(truth)
+    code, _, err = station_with_errors(capsys, "diagnose", h5, "--threshold", "0.5")
+    assert code == 2 and "threshold 0.5 is not above 1" in err

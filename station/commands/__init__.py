@@ -71,9 +71,10 @@ def still_arguments(p) -> None:
                    help="still poses: enter threshold in multiples of the noise variance (default "
                         "4; leave = 2 x threshold)")
     p.add_argument("--still-channels", choices=("acc", "acc+gyro"),
-                   help="still poses: the accelerometers decide (acc, the default of imports and "
-                        "diagnose), or the gyros can veto too (acc+gyro); recorded sessions: "
-                        "every channel of the stream, as the live protocol")
+                   help="still poses: the accelerometers decide (acc: the default for imported "
+                        "recordings), or the gyros can veto too (acc+gyro: diagnose's default "
+                        "with a gyro); recorded sessions: every channel of the stream, as the "
+                        "live protocol")
     p.add_argument("--min-still", type=float, metavar="SECONDS",
                    help="still poses: shortest pose kept (default 1.5 s)")
 

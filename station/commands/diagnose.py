@@ -1,9 +1,10 @@
 """`station diagnose SESSION`: name the effects that separate a rotary or free-static session from
 its twin.
 
-Free-static sessions (imported recordings) are cut into still poses on the accelerometer (the gyro
-vetoes with --still-channels acc+gyro); --rest, --threshold and --min-still set the detector
-(docs/stillness.md)."""
+Free-static sessions (imported recordings) are cut into still poses on the accelerometer, with the
+gyro's veto when there is a gyro (the diagnosis models the gyro's still means too;
+--still-channels acc lets the accelerometer alone decide); --rest, --threshold and --min-still set
+the detector (docs/stillness.md)."""
 
 import json
 from pathlib import Path
