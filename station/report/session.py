@@ -22,6 +22,7 @@ replay` does (`station.replay.solve_recorded`); the report says so. Every text f
 escaped: the file is untrusted.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -176,8 +177,7 @@ def _calibration(session, name, report):
             report.warnings.append(f"results/{stored.name} holds readings but no calibration.")
             return None
         if kind is not None and kind.still:
-            settings = ReplaySettings(**{**(stored.settings or {}), "stream": stored.stream})
-            _poses(report, reduce_recorded(session, settings, "the report"))
+            _stored_poses(report, session, stored)
         return stored.calibration, spec.channels, spec.units
     if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
@@ -194,6 +194,19 @@ def _calibration(session, name, report):
     _poses(report, readings)
     spec = session.specs[stream]
     return cal, spec.channels, spec.units
+
+
+def _stored_poses(report, session, stored) -> None:
+    """The still poses of stored results, detected again with the settings stored with them (a
+    replay's or a solve's; the defaults for a recording's own results)."""
+    known = {f.name for f in dataclasses.fields(ReplaySettings)}
+    given = {k: v for k, v in (stored.settings or {}).items() if k in known}
+    try:
+        settings = ReplaySettings(**{**given, "stream": stored.stream})
+        _poses(report, reduce_recorded(session, settings, "the report"))
+    except (InputError, TypeError) as exc:
+        report.warnings.append(f"The still poses of results/{stored.name} could not be detected "
+                               f"again: {exc}")
 
 
 def _poses(report, readings) -> None:
