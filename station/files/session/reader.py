@@ -18,6 +18,7 @@ from station.files.session._repair import open_flags
 from station.files.session.format import (
     ALLOWED_FILTERS,
     EVENT_COLUMNS,
+    EVENT_KINDS,
     FORMAT,
     LIBVER,
     MAX_JSON_BYTES,
@@ -296,6 +297,10 @@ def read_events(g, where="") -> list:
             raise SessionFormatError(f"{where}: an event is not valid ASCII/JSON ({err})") from None
         if not isinstance(info, dict):
             raise SessionFormatError(f"{where}: event detail must be a JSON object")
+        if kind not in EVENT_KINDS:
+            raise SessionFormatError(f"{where}: unknown event kind {kind!r} (this software knows "
+                                     f"{', '.join(EVENT_KINDS)}); the file is damaged or from "
+                                     "newer software")
         events.append(Event(float(t), None if p < 0 else int(p), kind, info))
     return events
 
