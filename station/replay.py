@@ -168,6 +168,11 @@ def stimulus(session, settings: ReplaySettings) -> tuple[float, str]:
     else the kind's default (`Kind.stimulus_default`, e.g. standard gravity for an import)."""
     if settings.magnitude is not None:
         return settings.magnitude, "given (--magnitude)"
+    if "T" in session.specs[calibrated_stream(session, settings)].units:
+        raise CalibrationInputError(
+            f"{session.path}: the magnetometer's field magnitude is not recorded.",
+            "Give --magnitude: the local field strength in T (from a geomagnetic model, e.g. "
+            "4.8e-5 at mid latitudes).")
     kind = lookup(session.protocol, "reduce", f"{session.path} records a {session.protocol!r} "
                   "session")
     words, keys = kind.stimulus

@@ -126,13 +126,14 @@ KINDS = {
         twin="station.twin.served:static_twin",
     ),
     "import": Kind(
-        title="an imported recording's accelerometer in still poses found in the data",
+        title="an imported recording: accelerometer still poses found in the data, or a "
+              "magnetometer turned by hand",
         reduce="station.reduce.imported:imported_readings",
         still=True,
-        stream="station.reduce.imported:accelerometer_stream",
+        stream="station.reduce.imported:default_stream",
         solve="station.solve.still:calibrate_still",
         stimulus_default=("standard gravity", "station.model.constants:STANDARD_GRAVITY"),
-        channels="station.reduce.static:session_channels",
+        channels="station.reduce.imported:imported_channels",
     ),
 }
 """The protocol kinds, by the name a session file records as its `protocol`."""
