@@ -87,3 +87,122 @@ def check_gram(eigenvalues: np.ndarray) -> None:
             "Check that biases were removed (static window subtracted), that all positions use "
             "the same rate or field, and that units are consistent; or add positions.",
         )
+
+
+# Fisher information at a solution (station.solve.calibrate): in natural units (scale factors and
+# axis turns relative, biases relative to the stimulus), a direction whose eigenvalue is below
+# INFO_TOL of the largest carries no information (double precision, with margin), and one whose
+# standard deviation exceeds LOOSE (10 % of a scale factor, 6 degrees, 0.1 of the stimulus) is not
+# determined either when the noise level is known or estimated from spare readings.
+INFO_TOL = 1e-12
+LOOSE = 0.1
+# a sensor whose readings vary by less than this fraction of its range (2 c |a_i|) over the poses
+# sees the stimulus at one angle only: its scale and bias are not separable
+FLAT = 0.02
+
+
+def _norms(a: np.ndarray) -> np.ndarray:
+    """|a_i|, with the largest standing in for a sensor that sees nothing (a_i ~ 0)."""
+    norms = np.linalg.norm(a, axis=0)
+    return np.where(norms > 1e-6 * norms.max(), norms, norms.max())
+
+
+def natural_scale(a: np.ndarray, magnitude: float, bias_estimated: bool) -> np.ndarray:
+    """(m p,) factors D with theta = D theta_natural: a_i in units of |a_i|, b_i of c |a_i|."""
+    norms = _norms(a)
+    per = [np.repeat(norms[:, None], a.shape[0], axis=1)]
+    if bias_estimated:
+        per.append(magnitude * norms[:, None])
+    return np.hstack(per).ravel()
+
+
+def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:
+    """(m p, d(d-1)/2) the rotations of Remark 1 acting on theta = (a_1, b_1, ...): a_i -> R a_i."""
+    d, m = a.shape
+    out = []
+    for r, s in zip(*np.triu_indices(d, 1), strict=True):
+        gen = np.zeros((d, d))
+        gen[r, s], gen[s, r] = -1.0, 1.0
+        theta = np.zeros((m, p))
+        theta[:, :d] = (gen @ a).T
+        out.append(theta.ravel())
+    return np.array(out).T.reshape(m * p, -1)
+
+
+def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estimated: bool,
+                 noise_known: bool) -> np.ndarray:
+    """(k, m p) orthonormal directions of theta, in natural units, that the information does not
+    determine besides the rotation gauge; k = 0 when every invariant is determined."""
+    d, m = a.shape
+    p = fisher.shape[0] // m
+    scale = natural_scale(a, magnitude, bias_estimated)
+    lam, vec = np.linalg.eigh(fisher * np.outer(scale, scale))
+    floor = INFO_TOL * lam[-1]
+    if noise_known:
+        floor = max(floor, 1.0 / LOOSE**2)
+    null = vec[:, lam <= floor]
+    gauge = gauge_directions(a, p) / scale[:, None]
+    q, _ = np.linalg.qr(gauge)
+    rest = null - q @ (q.T @ null)
+    u, s, _ = np.linalg.svd(rest, full_matrices=False)
+    return u[:, s > 0.5].T
+
+
+def named_parts(direction: np.ndarray, a: np.ndarray, bias_estimated: bool, names) -> list:
+    """The parameters a direction (natural units) moves, largest first: "the scale of s3"..."""
+    d, m = a.shape
+    theta = direction.reshape(m, -1)
+    unit = a / _norms(a)
+    along = np.einsum("id,di->i", theta[:, :d], unit)
+    across = np.linalg.norm(theta[:, :d] - along[:, None] * unit.T, axis=1)
+    parts = [(abs(along[i]), f"the scale of {names[i]}") for i in range(m)]
+    parts += [(across[i], f"the axis direction of {names[i]}") for i in range(m)]
+    if bias_estimated:
+        parts += [(abs(theta[i, d]), f"the bias of {names[i]}") for i in range(m)]
+    top = max(w for w, _ in parts)
+    return [label for w, label in sorted(parts, key=lambda x: -x[0]) if w >= 0.3 * top]
+
+
+def check_information(fisher, a, readings, bias, magnitude: float, names, *, noise_known: bool,
+                      free: int, context: CalibrationInputError | None = None) -> None:
+    """Refuse a solution whose Fisher information (m p x m p, theta = (a_1, b_1, ...), the poses
+    eliminated) leaves parameters undetermined, naming them and the poses that would fix them.
+
+    readings (m, n) and bias (m,) or None locate the sensors that see the stimulus at one angle
+    only; free: the number of unknowns (a, b and the poses, the gauge removed); context: the
+    closed forms' own refusal, quoted."""
+    bias_estimated = bias is not None
+    null = undetermined(fisher, a, magnitude, bias_estimated, noise_known)
+    if not len(null):
+        return
+    m, n = readings.shape
+    parts = list(dict.fromkeys(p for w in null for p in named_parts(w, a, bias_estimated, names)))
+    problem = (f"{parts[0]} is not determined by these poses" if len(parts) == 1 else
+               f"{', '.join(parts[:-1])} and {parts[-1]} are not separable by these poses")
+    if m * n < free:
+        problem += f" ({n} poses give {m * n} readings for {free} unknowns)"
+    advice = _pose_advice(a, readings, bias, magnitude, names, parts)
+    if context is not None:
+        problem += f"; the closed form said: {context.problem}"
+        advice += " " + context.advice
+    raise CalibrationInputError(problem + ".", advice)
+
+
+def _pose_advice(a, readings, bias, magnitude, names, parts) -> str:
+    """What pose would separate the named parameters: the flat sensors' opposite, or new faces."""
+    norms = _norms(a)
+    centre = readings.mean(axis=1) if bias is None else bias
+    flat = [i for i, name in enumerate(names) if any(p.endswith(f"of {name}") for p in parts)
+            and np.ptp(readings[i]) < FLAT * 2 * magnitude * norms[i]]
+    if not flat:
+        named = sorted({p.rsplit(" of ", 1)[1] for p in parts})
+        return ("Add poses in new orientations that change the readings of "
+                f"{', '.join(named)} (turn the unit onto other faces, tilt it about other axes).")
+    words = []
+    for i in flat:
+        at = (readings[i].mean() - centre[i]) / (magnitude * norms[i])
+        words.append(f"every pose has {names[i]} at {at:+.2f} of the stimulus along its axis; "
+                     f"add a pose with {names[i]} near {-at if abs(at) > 0.3 else 1.0:+.2f} or "
+                     f"{0.0 if abs(at) > 0.3 else -1.0:+.2f}")
+    text = "; ".join(words)
+    return text[0].upper() + text[1:] + "."

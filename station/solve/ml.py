@@ -51,6 +51,7 @@ class MLFit:
     dof: int  # m n (+ prior rows) - number of free parameters (gauge removed)
     iterations: int
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
+    objective: float  # the minimised cost with the weights used (`cost`)
 
 
 def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
@@ -214,6 +215,7 @@ def refine(
                 break
 
     dof = m * n + prior_rows(poses).size - free_parameters(m, d, estimate_bias, poses)
+    minimised = objective
     estimated = sigma is None
     if estimated:
         scale = np.sqrt(objective / max(dof, 1))
@@ -222,7 +224,8 @@ def refine(
         objective = float(np.sum(resid**2) / scale**2)
     if bias0 is not None and not estimate_bias:
         bias = np.asarray(bias0, float)
-    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq)
+    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq,
+                 minimised)
 
 
 def check_spread(spread, sigma) -> None:
