@@ -182,8 +182,9 @@ def calibrate(
         pose_var = new
         total = refined(total.a, total.v, total.bias, np.sqrt(white_sigma**2 + pose_var))
     white = refined(total.a, total.v, total.bias, sigma, max_iter=0)
+    widen = uncertainty.estimation_widening(pose_var, white_sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
-                   scale_known, estimate_bias, nominal)
+                   scale_known, estimate_bias, nominal, widen)
 
 
 def _best_start(refined, closed_form, fallback):
@@ -272,10 +273,11 @@ def _check_magnitudes(constraints, n: int) -> None:
 
 
 def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined, c,
-            scale_known, estimate_bias, nominal):
+            scale_known, estimate_bias, nominal, widen: float = 1.0):
     """Rotate into the reporting frame and propagate both covariances to the invariants: `total`
-    (the estimate, weighted by the total noise) and `white` (the same estimate, weighted by the
-    readings' stated noise: its residuals, sigma and chi2 are the result's)."""
+    (the estimate, weighted by the total noise; its covariance times `widen`) and `white` (the
+    same estimate, weighted by the readings' stated noise: its residuals, sigma and chi2 are the
+    result's)."""
     d, m = total.a.shape
     if nominal is None:
         frame_name = "canonical"
@@ -295,7 +297,7 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
 
         def frame_fn(x):
             return align_to(x, nominal) @ x
-    honest = _sigmas(total, frame_fn, estimate_bias)
+    honest = _sigmas(total, frame_fn, estimate_bias, widen)
     plain = honest if white is total else _sigmas(white, frame_fn, estimate_bias)
     return CalibrationResult(
         a=rot @ total.a,
@@ -330,12 +332,12 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
     )
 
 
-def _sigmas(fit: ml.MLFit, frame_fn, estimate_bias: bool) -> dict:
+def _sigmas(fit: ml.MLFit, frame_fn, estimate_bias: bool, widen: float = 1.0) -> dict:
     """Covariances (theta, parameters in the frame) and 1-sigma of a, the scale factors, the axis
-    angles and the biases, from the Fisher information of `fit`."""
+    angles and the biases, from the Fisher information of `fit` (the covariance times `widen`)."""
     d, m = fit.a.shape
     p = d + (1 if estimate_bias else 0)
-    cov = uncertainty.global_covariance(fit.normal, d)
+    cov = widen * uncertainty.global_covariance(fit.normal, d)
     jac = uncertainty.frame_jacobian(fit.a, p, frame_fn)
     if estimate_bias:
         jac = np.vstack([jac, uncertainty.bias_jacobian(m, p)])

@@ -75,6 +75,21 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     return float(brentq(excess, 0.0, high, xtol=1e-12 * high, rtol=1e-10))
 
 
+def estimation_widening(pose_var: float, sigma: np.ndarray, dof: int) -> float:
+    """Factor (>= 1) on the total covariance for an estimated sigma_pose^2: its dof spare readings
+    give it the relative variance 2 / dof, so the total variance has nu = dof / f^2 effective
+    degrees of freedom (Welch-Satterthwaite, the white part known; f = the pose term's mean share
+    of each reading's variance), and +-1.96 sigma is a 95 % interval when sigma is widened by
+    t_nu(0.975) / 1.96 (the coverage factor of GUM G.4)."""
+    from scipy import stats
+
+    if pose_var <= 0:
+        return 1.0
+    share = float(np.mean(pose_var / (np.asarray(sigma, float) ** 2 + pose_var)))
+    nu = dof / share**2
+    return float((stats.t.ppf(0.975, nu) / stats.norm.ppf(0.975)) ** 2)
+
+
 def propagate(cov: np.ndarray, jac: np.ndarray) -> np.ndarray:
     """Covariance of f(theta) given the Jacobian of f (k x len(theta))."""
     return jac @ cov @ jac.T
