@@ -30,15 +30,15 @@ def mpu6050_triad(rng: np.random.Generator):
 
 def pose_means(rng, a, b, v, *, duration: float = 3.0, pose_sd: float = 0.0, ar_sd: float = 0.0,
                ar_tau: float = 0.5):
-    """(M (3, n), stderr (3, n)): the sample means of n still poses (gravity G along the unit
+    """(M (m, n), stderr (m, n)): the sample means of n still poses (gravity G along the unit
     vectors v) and their white-noise standard errors sd / sqrt(N), as a reduction computes them."""
-    n, k = v.shape[1], int(round(duration * FS))
-    truth = a.T @ (G * v) + b[:, None] + pose_sd * rng.standard_normal((3, n))
-    samples = WHITE * rng.standard_normal((3, n, k))
+    (m, n), k = (a.shape[1], v.shape[1]), int(round(duration * FS))
+    truth = a.T @ (G * v) + b[:, None] + pose_sd * rng.standard_normal((m, n))
+    samples = WHITE * rng.standard_normal((m, n, k))
     if ar_sd > 0:
         phi = np.exp(-1 / (FS * ar_tau))
-        drive = ar_sd * np.sqrt(1 - phi**2) * rng.standard_normal((3, n, k))
-        drive[..., 0] = ar_sd * rng.standard_normal((3, n))  # start in the stationary state
+        drive = ar_sd * np.sqrt(1 - phi**2) * rng.standard_normal((m, n, k))
+        drive[..., 0] = ar_sd * rng.standard_normal((m, n))  # start in the stationary state
         samples += lfilter([1.0], [1.0, -phi], drive, axis=-1)
     return truth + samples.mean(axis=-1), samples.std(axis=-1, ddof=1) / np.sqrt(k)
 

@@ -216,7 +216,8 @@ def _check_consistent(fit: ml.MLFit, c: float, refusal: CalibrationInputError) -
     if rms.max() > MISFIT_MAX:
         raise CalibrationInputError(
             f"no calibration explains the readings: the best fit misses them by {rms.max():.1%} "
-            f"of the stimulus (RMS), far more than noise; the closed form said: {refusal.problem}",
+            f"of the stimulus (RMS), far more than noise; the closed form said: "
+            f"{refusal.problem}",
             refusal.advice)
 
 

@@ -48,7 +48,8 @@ def ellipsoid_calibration(readings, magnitude: float = 1.0, axis_aligned: bool =
     centre = z.mean(axis=1, keepdims=True)
     span = np.abs(z - centre).max()
     terms = quadric_terms((z - centre) / span, axis_aligned)  # centred, scaled for conditioning
-    _, s, vt = np.linalg.svd(terms, full_matrices=False)
+    _, s, vt = np.linalg.svd(terms)  # full: with n = unknowns - 1 the null vector is vt[-1]
+    s = np.r_[s, np.zeros(unknowns - len(s))]  # the spectrum over all `unknowns` coefficients
     if s[-2] <= 1e-10 * s[0]:
         raise CalibrationInputError(
             "the static orientations do not determine an ellipsoid (they lie on a plane or a "

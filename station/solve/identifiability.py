@@ -96,9 +96,11 @@ def check_gram(eigenvalues: np.ndarray) -> None:
 # determined either when the noise level is known or estimated from spare readings.
 INFO_TOL = 1e-12
 LOOSE = 0.1
-# a sensor whose readings vary by less than this fraction of its range (2 c |a_i|) over the poses
-# sees the stimulus at one angle only: its scale and bias are not separable
-FLAT = 0.02
+# a sensor whose readings vary over the poses by less than this fraction of the widest-varying
+# sensor's sees the stimulus at one angle only: its scale and bias are not separable
+FLAT = 0.05
+# at most this many undetermined parameters are named in a refusal
+NAMED = 4
 
 
 def _norms(a: np.ndarray) -> np.ndarray:
@@ -176,14 +178,22 @@ def check_information(fisher, a, readings, bias, magnitude: float, names, *, noi
     if not len(null):
         return
     m, n = readings.shape
+    d = a.shape[0]
     parts = list(dict.fromkeys(p for w in null for p in named_parts(w, a, bias_estimated, names)))
+    shown = parts[:NAMED] + ([f"{len(parts) - NAMED} more"] if len(parts) > NAMED else [])
     problem = (f"{parts[0]} is not determined by these poses" if len(parts) == 1 else
-               f"{', '.join(parts[:-1])} and {parts[-1]} are not separable by these poses")
-    if m * n < free:
+               f"{', '.join(shown[:-1])} and {shown[-1]} are not separable by these poses")
+    quadric = d * (d + 1) // 2 + d
+    if bias_estimated and n < quadric:
+        problem += (f" ({n} poses: with the biases unknown the poses must fix the stimuli's "
+                    f"quadric, at least {quadric} poses whatever the number of sensors)")
+    elif m * n < free:
         problem += f" ({n} poses give {m * n} readings for {free} unknowns)"
     advice = _pose_advice(a, readings, bias, magnitude, names, parts)
+    if bias_estimated and n < quadric:
+        advice = f"Record {quadric - n} more pose(s) in new orientations. " + advice
     if context is not None:
-        problem += f"; the closed form said: {context.problem}"
+        problem += f"; the closed form said: {context.problem.rstrip('.')}"
         advice += " " + context.advice
     raise CalibrationInputError(problem + ".", advice)
 
@@ -192,12 +202,14 @@ def _pose_advice(a, readings, bias, magnitude, names, parts) -> str:
     """What pose would separate the named parameters: the flat sensors' opposite, or new faces."""
     norms = _norms(a)
     centre = readings.mean(axis=1) if bias is None else bias
+    spread = np.ptp(readings, axis=1)
     flat = [i for i, name in enumerate(names) if any(p.endswith(f"of {name}") for p in parts)
-            and np.ptp(readings[i]) < FLAT * 2 * magnitude * norms[i]]
+            and spread[i] < FLAT * spread.max()]
     if not flat:
-        named = sorted({p.rsplit(" of ", 1)[1] for p in parts})
-        return ("Add poses in new orientations that change the readings of "
-                f"{', '.join(named)} (turn the unit onto other faces, tilt it about other axes).")
+        named = list(dict.fromkeys(p.rsplit(" of ", 1)[1] for p in parts))
+        listed = ", ".join(named[:NAMED]) + (" and the others" if len(named) > NAMED else "")
+        return (f"Add poses in new orientations that change the readings of {listed} (turn the "
+                "unit onto other faces, tilt it about other axes).")
     words = []
     for i in flat:
         at = (readings[i].mean() - centre[i]) / (magnitude * norms[i])

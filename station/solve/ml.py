@@ -219,6 +219,8 @@ def refine(
     estimated = sigma is None
     if estimated:
         scale = np.sqrt(objective / max(dof, 1))
+        if not scale > 0:  # an exact fit: the residuals say nothing about the noise level
+            scale = 1.0
         sig = np.full((m, n), scale)
         neq = _rescale(neq, 1.0 / scale**2)
         objective = float(np.sum(resid**2) / scale**2)
