@@ -89,7 +89,7 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
     with pytest.raises(CalibrationFileError,
-                       match=r"format_version 4 .*reads \(1, 2, 3\).*newer"):
+                       match=r"format_version 5 .*reads \(1, 2, 3, 4\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -238,12 +238,14 @@ def test_a_version_1_file_still_loads_without_covariance():
     from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
-        del doc["covariance"], doc["verdict"]
+        del doc["covariance"], doc["verdict"], doc["uncertainty"]
         doc.update(format_version=1, conventions=CONVENTIONS_V1)
 
     back = loads(edited(make(), to_v1, True))
     assert back.covariance is None and back.verdict is None and back.unit_serial == "SN42"
-    with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance', 'verdict'\\]"):
+    assert back.white is None and back.pose_sigma is None
+    with pytest.raises(CalibrationFileError,
+                       match="unknown keys \\['covariance', 'uncertainty', 'verdict'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
 
@@ -252,7 +254,7 @@ def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
     from station.files.calfile import CONVENTIONS
 
     def to_v2(doc):
-        del doc["verdict"]
+        del doc["verdict"], doc["uncertainty"]
         doc.update(format_version=2, conventions=CONVENTIONS)
 
     assert loads(edited(make(), to_v2, True)).verdict is None
@@ -306,3 +308,38 @@ def test_calibrated_vectors_scatter_as_their_covariance_says():
         err = cal.apply(z) - truth
         d2.append(err @ np.linalg.solve(cal.vector_covariance(z)[0], err))
     assert abs(np.mean(d2) - 3) < 3 * np.sqrt(6 / trials), np.mean(d2)
+
+
+def test_a_version_3_file_loads_without_the_white_noise_figure():
+    from station.files.calfile import CONVENTIONS_V3
+
+    def to_v3(doc):
+        del doc["uncertainty"]
+        doc.update(format_version=3, conventions=CONVENTIONS_V3)
+
+    back = loads(edited(make(), to_v3, True))
+    assert back.white is None and back.pose_sigma is None and back.unit_serial == "SN42"
+
+
+def test_both_figures_of_a_solve_go_into_the_file_and_back():
+    """A triad whose poses carry a per-pose error 5x the stated noise: the file keeps the total
+    1-sigma (the result's), the white-noise figure beside it, and the per-pose term."""
+    rng = np.random.default_rng(5)
+    a = np.diag([1.02, 0.98, 1.01])
+    v = rng.standard_normal((3, 30))
+    v /= np.linalg.norm(v, axis=0)
+    b = np.array([0.1, -0.2, 0.05])
+    z = a.T @ v + b[:, None] + 1e-3 * rng.standard_normal((3, 30)) \
+        + 5e-3 * rng.standard_normal((3, 30))
+    result = station.calibrate(z, 1.0, bias="estimate", sigma=1e-3)
+    cal = loads(Calibration.from_result(result, "SN1", SENSORS[:3], "m/s^2").dumps())
+    assert cal.pose_sigma == result.pose_sigma and 2.5e-3 < cal.pose_sigma < 1e-2
+    assert cal.scale_factors_sigma.tobytes() == result.scale_factors_sigma.tobytes()
+    assert cal.white["scale_factors_sigma"].tobytes() \
+        == result.scale_factors_sigma_white.tobytes()
+    assert np.all(cal.white["bias_sigma"] < cal.bias_sigma / 2)  # sqrt(1 + 25) ~ 5x apart
+    assert cal.fit["start"] == "closed form"
+    with pytest.raises(CalibrationFileError, match="pose_sigma"):
+        loads(edited(cal, lambda d: d["uncertainty"].update(pose_sigma=-1.0), True))
+    with pytest.raises(CalibrationFileError, match="bias_sigma has shape"):
+        loads(edited(cal, lambda d: d["uncertainty"]["white"].update(bias_sigma=[1.0]), True))
