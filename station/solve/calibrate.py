@@ -159,10 +159,10 @@ def calibrate(
         lambda a0, v0, b0: refined(a0, v0, b0, sigma),
         lambda: starts.closed_form(method, readings, known_bias, estimate_bias, constraints, c, d),
         lambda name: starts.fallback(name, readings, known_bias, estimate_bias, c, d, nominal),
+        refine,
     )
     identifiability.check_information(
-        uncertainty.reduced_fisher(fit.normal), fit.a, readings,
-        fit.bias if estimate_bias else None, c, names,
+        uncertainty.reduced_fisher(fit.normal), fit.a, readings, estimate_bias, c, names,
         noise_known=sigma is not None or fit.dof > 0,
         free=m * n + (n if magnitude_spread else 0) - fit.dof,
         context=refusal,
@@ -187,26 +187,28 @@ def calibrate(
                    scale_known, estimate_bias, nominal, widen)
 
 
-def _best_start(refined, closed_form, fallback):
-    """(ML fit, name of its start, the closed form's refusal or None): the closed form's fit, or
-    else the fallback start whose fit has the lowest cost; the closed form's refusal when none
-    works."""
+def _best_start(refined, closed_form, fallback, refine: bool):
+    """(ML fit, name of its start, the closed form's refusal or None): the closed form's fit when
+    it converged, or else the lowest-cost fit among it and the fallback starts; the closed form's
+    refusal when none works."""
+    fits, refusal = {}, None
     try:
-        return refined(*closed_form()), "closed form", None
+        fits["closed form"] = refined(*closed_form())
     except (CalibrationInputError, np.linalg.LinAlgError) as exc:
         refusal = exc if isinstance(exc, CalibrationInputError) else CalibrationInputError(
             f"the closed form failed ({exc}).", "Add poses in new orientations.")
-    best, name = None, None
+    if fits and (fits["closed form"].converged or not refine):
+        return fits["closed form"], "closed form", None
     for candidate in starts.FALLBACKS:
         try:
-            fit = refined(*fallback(candidate))
+            fits[candidate] = refined(*fallback(candidate))
         except (CalibrationInputError, np.linalg.LinAlgError):
             continue
-        if np.isfinite(fit.objective) and (best is None or fit.objective < best.objective):
-            best, name = fit, candidate
-    if best is None:
+    fits = {k: f for k, f in fits.items() if np.isfinite(f.objective)}
+    if not fits:
         raise refusal
-    return best, name, refusal
+    name = min(fits, key=lambda k: fits[k].objective)
+    return fits[name], name, refusal
 
 
 def _check_consistent(fit: ml.MLFit, c: float, refusal: CalibrationInputError) -> None:

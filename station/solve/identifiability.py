@@ -98,7 +98,7 @@ INFO_TOL = 1e-12
 LOOSE = 0.1
 # a sensor whose readings vary over the poses by less than this fraction of the widest-varying
 # sensor's sees the stimulus at one angle only: its scale and bias are not separable
-FLAT = 0.05
+FLAT = 0.1
 # at most this many undetermined parameters are named in a refusal
 NAMED = 4
 
@@ -165,56 +165,65 @@ def named_parts(direction: np.ndarray, a: np.ndarray, bias_estimated: bool, name
     return [label for w, label in sorted(parts, key=lambda x: -x[0]) if w >= 0.3 * top]
 
 
-def check_information(fisher, a, readings, bias, magnitude: float, names, *, noise_known: bool,
-                      free: int, context: CalibrationInputError | None = None) -> None:
+def check_information(fisher, a, readings, bias_estimated: bool, magnitude: float, names, *,
+                      noise_known: bool, free: int,
+                      context: CalibrationInputError | None = None) -> None:
     """Refuse a solution whose Fisher information (m p x m p, theta = (a_1, b_1, ...), the poses
     eliminated) leaves parameters undetermined, naming them and the poses that would fix them.
 
-    readings (m, n) and bias (m,) or None locate the sensors that see the stimulus at one angle
-    only; free: the number of unknowns (a, b and the poses, the gauge removed); context: the
-    closed forms' own refusal, quoted."""
-    bias_estimated = bias is not None
+    readings (m, n) locate the sensors that see the stimulus at one angle only; free: the number
+    of unknowns (a, b and the poses, the gauge removed); context: the closed form's own refusal,
+    quoted."""
     null = undetermined(fisher, a, magnitude, bias_estimated, noise_known)
     if not len(null):
         return
     m, n = readings.shape
     d = a.shape[0]
     parts = list(dict.fromkeys(p for w in null for p in named_parts(w, a, bias_estimated, names)))
-    shown = parts[:NAMED] + ([f"{len(parts) - NAMED} more"] if len(parts) > NAMED else [])
-    problem = (f"{parts[0]} is not determined by these poses" if len(parts) == 1 else
-               f"{', '.join(shown[:-1])} and {shown[-1]} are not separable by these poses")
+    flat = _flat(readings, names, parts)
+    problem = _flat_words(readings, names, flat, parts) if flat else _listed(parts) + (
+        " is not determined by these poses" if len(parts) == 1 else
+        " are not separable by these poses")
     quadric = d * (d + 1) // 2 + d
+    advice = ("Add poses in new orientations that change the readings of "
+              f"{_listed(list(dict.fromkeys(p.rsplit(' of ', 1)[1] for p in parts)), 'others')} "
+              "(turn the unit onto other faces, tilt it about other axes).")
+    if flat:
+        advice = (f"Add a pose with {' and '.join(names[i] for i in flat)} turned the other way "
+                  "or horizontal, so that the reading changes by about the stimulus.")
     if bias_estimated and n < quadric:
         problem += (f" ({n} poses: with the biases unknown the poses must fix the stimuli's "
                     f"quadric, at least {quadric} poses whatever the number of sensors)")
+        advice = f"Record {quadric - n} more pose(s) in new orientations. " + advice
     elif m * n < free:
         problem += f" ({n} poses give {m * n} readings for {free} unknowns)"
-    advice = _pose_advice(a, readings, bias, magnitude, names, parts)
-    if bias_estimated and n < quadric:
-        advice = f"Record {quadric - n} more pose(s) in new orientations. " + advice
     if context is not None:
         problem += f"; the closed form said: {context.problem.rstrip('.')}"
         advice += " " + context.advice
     raise CalibrationInputError(problem + ".", advice)
 
 
-def _pose_advice(a, readings, bias, magnitude, names, parts) -> str:
-    """What pose would separate the named parameters: the flat sensors' opposite, or new faces."""
-    norms = _norms(a)
-    centre = readings.mean(axis=1) if bias is None else bias
+def _listed(items: list, rest: str = "more") -> str:
+    """"x", "x and y", "x, y, z, w and 3 more": at most NAMED items named."""
+    shown = items[:NAMED] + ([f"{len(items) - NAMED} {rest}"] if len(items) > NAMED else [])
+    return shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} and {shown[-1]}"
+
+
+def _flat(readings, names, parts) -> list:
+    """Indices of the named sensors whose readings hardly vary over the poses (< FLAT of the
+    widest-varying sensor's spread): they see the stimulus at one angle only."""
     spread = np.ptp(readings, axis=1)
-    flat = [i for i, name in enumerate(names) if any(p.endswith(f"of {name}") for p in parts)
+    return [i for i, name in enumerate(names) if any(p.endswith(f"of {name}") for p in parts)
             and spread[i] < FLAT * spread.max()]
-    if not flat:
-        named = list(dict.fromkeys(p.rsplit(" of ", 1)[1] for p in parts))
-        listed = ", ".join(named[:NAMED]) + (" and the others" if len(named) > NAMED else "")
-        return (f"Add poses in new orientations that change the readings of {listed} (turn the "
-                "unit onto other faces, tilt it about other axes).")
-    words = []
-    for i in flat:
-        at = (readings[i].mean() - centre[i]) / (magnitude * norms[i])
-        words.append(f"every pose has {names[i]} at {at:+.2f} of the stimulus along its axis; "
-                     f"add a pose with {names[i]} near {-at if abs(at) > 0.3 else 1.0:+.2f} or "
-                     f"{0.0 if abs(at) > 0.3 else -1.0:+.2f}")
-    text = "; ".join(words)
-    return text[0].upper() + text[1:] + "."
+
+
+def _flat_words(readings, names, flat, parts) -> str:
+    """The refusal for sensors stuck at one reading, and the other undetermined parameters."""
+    spread = np.ptp(readings, axis=1)
+    widest = int(np.argmax(spread))
+    words = "; ".join(
+        f"the scale and the bias of {names[i]} are not separable: every pose gives {names[i]} "
+        f"the same reading ({readings[i].mean():.6g}, spread {spread[i]:.2g} against "
+        f"{spread[widest]:.2g} of {names[widest]})" for i in flat)
+    others = [p for p in parts if not any(p.endswith(f"of {names[i]}") for i in flat)]
+    return words + (f" (nor are {_listed(others)} determined)" if others else "")

@@ -52,6 +52,7 @@ class MLFit:
     iterations: int
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
     objective: float  # the minimised cost with the weights used (`cost`)
+    converged: bool  # the cost stopped decreasing before max_iter iterations
 
 
 def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
@@ -195,7 +196,7 @@ def refine(
 
     neq, resid = normal_equations(a, poses, bias, readings, weight)
     objective = cost(poses, weight, resid)
-    damping, it = 1e-6, 0
+    damping, it, converged = 1e-6, 0, False
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` is returned: the iterations done
         step_g, step_l = lm_step(neq, damping)
         a_t = a + step_g[:, :d].T
@@ -204,14 +205,15 @@ def refine(
         neq_t, resid_t = normal_equations(a_t, poses_t, b_t, readings, weight)
         cost_t = cost(poses_t, weight, resid_t)
         if cost_t <= objective:
-            converged = objective - cost_t <= tol * max(objective, 1e-300)
+            converged = bool(objective - cost_t <= tol * max(objective, 1e-300))
             a, poses, bias, neq, resid, objective = a_t, poses_t, b_t, neq_t, resid_t, cost_t
             damping = max(damping / 10, 1e-12)
             if converged:
                 break
         else:
             damping *= 10
-            if damping > 1e12:
+            if damping > 1e12:  # no step lowers the cost: a minimum to machine precision
+                converged = True
                 break
 
     dof = m * n + prior_rows(poses).size - free_parameters(m, d, estimate_bias, poses)
@@ -227,7 +229,7 @@ def refine(
     if bias0 is not None and not estimate_bias:
         bias = np.asarray(bias0, float)
     return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq,
-                 minimised)
+                 minimised, converged)
 
 
 def check_spread(spread, sigma) -> None:
