@@ -161,14 +161,14 @@ def calibrate(
         lambda name: starts.fallback(name, readings, known_bias, estimate_bias, c, d, nominal),
         refine,
     )
+    if refusal is not None:
+        _check_consistent(fit, c, refusal)
     identifiability.check_information(
         uncertainty.reduced_fisher(fit.normal), fit.a, readings, estimate_bias, c, names,
         noise_known=sigma is not None or fit.dof > 0,
         free=m * n + (n if magnitude_spread else 0) - fit.dof,
         context=refusal,
     )
-    if refusal is not None:
-        _check_consistent(fit, c, refusal)
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
                        nominal)
@@ -214,7 +214,8 @@ def _best_start(refined, closed_form, fallback, refine: bool):
 def _check_consistent(fit: ml.MLFit, c: float, refusal: CalibrationInputError) -> None:
     """Refuse a fit from a fallback start that misses its readings by more than MISFIT_MAX of
     their range: no calibration explains them (the closed form's refusal says how)."""
-    rms = np.sqrt(np.mean(fit.residuals**2, axis=1)) / (c * np.linalg.norm(fit.a, axis=0))
+    norms = np.linalg.norm(fit.a, axis=0)
+    rms = np.sqrt(np.mean(fit.residuals**2, axis=1)) / (c * np.maximum(norms, 1e-6 * norms.max()))
     if rms.max() > MISFIT_MAX:
         raise CalibrationInputError(
             f"no calibration explains the readings: the best fit misses them by {rms.max():.1%} "
