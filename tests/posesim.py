@@ -55,3 +55,37 @@ def covered(result, a, b) -> dict:
         < 1.96 * result.axis_angles_sigma[i, k],
         "biases": np.abs(result.bias - b) < 1.96 * result.bias_sigma,
     }
+
+
+CLASSES = ("scale_factors", "misalignments", "biases")
+
+
+def coverage(seed: int, reps: int, poses: int = 20, **errors) -> dict:
+    """Coverage of the total-figure 95 % intervals over `reps` simulated recordings (a new triad
+    and new random poses each), per parameter class, with the same for the white-noise figure:
+    {"total" | "white": {class: (fraction, standard error)}, "pose_sigma_median": ...}. The
+    standard error is that of the mean of the per-recording fractions (the intervals of one
+    recording are not independent). errors: `pose_means` options (pose_sd, ar_sd, ...)."""
+    import dataclasses
+
+    import station
+
+    rng = np.random.default_rng(seed)
+    hits = {"total": {c: [] for c in CLASSES}, "white": {c: [] for c in CLASSES}}
+    pose = []
+    for _ in range(reps):
+        a, b = mpu6050_triad(rng)
+        readings, stderr = pose_means(rng, a, b, random_directions(rng, poses), **errors)
+        result = station.calibrate(readings, G, bias="estimate", sigma=stderr)
+        white = dataclasses.replace(result, scale_factors_sigma=result.scale_factors_sigma_white,
+                                    axis_angles_sigma=result.axis_angles_sigma_white,
+                                    bias_sigma=result.bias_sigma_white)
+        for figure, res in (("total", result), ("white", white)):
+            for name, inside in covered(res, a, b).items():
+                hits[figure][name].append(inside.mean())
+        pose.append(result.pose_sigma)
+    out = {figure: {name: (float(np.mean(x)), float(np.std(x, ddof=1) / np.sqrt(reps)))
+                    for name, x in per.items()} for figure, per in hits.items()}
+    out["pose_sigma_median"] = float(np.median(pose))
+    out["pose_sigma_zero_fraction"] = float(np.mean(np.array(pose) == 0))
+    return out
