@@ -172,19 +172,26 @@ def calibrate(
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
                        nominal)
-    white_sigma = fit.sigma
-    total, pose_var = fit, 0.0
-    for _ in range(POSE_ROUNDS):
-        prior = np.sqrt(max(total.chi2 - np.sum((total.residuals / white_sigma) ** 2), 0.0))
-        new = uncertainty.pose_variance(total.residuals, white_sigma, fit.dof, [prior])
-        if abs(new - pose_var) <= 1e-6 * max(new, pose_var) or new == pose_var:
-            break
-        pose_var = new
-        total = refined(total.a, total.v, total.bias, np.sqrt(white_sigma**2 + pose_var))
+    total, pose_var = _with_pose_term(fit, lambda f, noise: refined(f.a, f.v, f.bias, noise))
     white = refined(total.a, total.v, total.bias, sigma, max_iter=0)
-    widen = uncertainty.estimation_widening(pose_var, white_sigma, fit.dof)
+    widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
                    scale_known, estimate_bias, nominal, widen)
+
+
+def _with_pose_term(fit: ml.MLFit, refit) -> tuple[ml.MLFit, float]:
+    """(the fit weighted by sigma^2 + sigma_pose^2, sigma_pose^2): the per-pose term estimated
+    from the residuals (`uncertainty.pose_variance`) and the fit redone (`refit(fit, sigma)`)
+    until it settles; (fit, 0) when the white noise explains the residuals."""
+    white, total, pose_var = fit.sigma, fit, 0.0
+    for _ in range(POSE_ROUNDS):
+        prior = np.sqrt(max(total.chi2 - np.sum((total.residuals / total.sigma) ** 2), 0.0))
+        new = uncertainty.pose_variance(total.residuals, white, fit.dof, [prior])
+        if new == pose_var or abs(new - pose_var) <= 1e-6 * max(new, pose_var):
+            break
+        pose_var = new
+        total = refit(total, np.sqrt(white**2 + pose_var))
+    return total, pose_var
 
 
 def _best_start(refined, closed_form, fallback, refine: bool):
