@@ -148,11 +148,11 @@ def calibrate(
         _check_magnitudes(constraints, n)
     names = [f"s{i + 1}" for i in range(m)] if names is None else [str(x) for x in names]
 
-    def refined(a0, v0, b0, noise, max_iter=100 if refine else 0):
+    def refined(a0, v0, b0, noise, max_iter=100 if refine else 0, fitted=False):
         return ml.refine(
             readings, a0, v0, bias0=b0 if estimate_bias else known_bias,
             estimate_bias=estimate_bias, magnitude=c, sigma=noise, constraints=constraints,
-            magnitude_spread=magnitude_spread, max_iter=max_iter,
+            magnitude_spread=magnitude_spread, max_iter=max_iter, fitted=fitted,
         )
 
     fit, start, refusal = _best_start(
@@ -172,8 +172,9 @@ def calibrate(
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
                        nominal)
-    total, pose_var = _with_pose_term(fit, lambda f, noise: refined(f.a, f.v, f.bias, noise))
-    white = refined(total.a, total.v, total.bias, sigma, max_iter=0)
+    total, pose_var = _with_pose_term(
+        fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
+    white = refined(total.a, total.v, total.bias, sigma, max_iter=0, fitted=True)
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
                    scale_known, estimate_bias, nominal, widen)

@@ -142,9 +142,10 @@ def free_parameters(m: int, d: int, with_bias: bool, poses) -> int:
     return d * m + (m if with_bias else 0) + poses.free - d * (d - 1) // 2
 
 
-def start_poses(v0, magnitude, constraints=None, spread=None):
+def start_poses(v0, magnitude, constraints=None, spread=None, fitted: bool = False):
     """Pose parametrisation: soft magnitudes when a spread > 0 is given, rigid groups when the
-    constraints describe them, else directions."""
+    constraints describe them, else directions. fitted: v0 is a fit's own (soft magnitudes keep
+    their lengths instead of starting on the prior's mean)."""
     v0 = np.asarray(v0, float)
     if spread:
         if constraints is not None:
@@ -152,6 +153,8 @@ def start_poses(v0, magnitude, constraints=None, spread=None):
                 "a magnitude spread (random table rate) cannot be combined with constraints.",
                 "Give either the constraints of a right-angle iron or magnitude_spread, not both.",
             )
+        if fitted:
+            return SoftMagnitudes(v0, float(magnitude), float(spread))
         return SoftMagnitudes.start(v0, magnitude, spread)
     groups = None if constraints is None else rigid_groups(constraints, v0, magnitude)
     return Directions.start(v0, magnitude) if groups is None else groups
@@ -170,6 +173,7 @@ def refine(
     magnitude_spread: float | None = None,
     max_iter: int = 100,
     tol: float = 1e-12,
+    fitted: bool = False,
 ) -> MLFit:
     """Maximum-likelihood a, v (and b) from a start (a0, v0[, bias0]), e.g. the closed form.
 
@@ -180,14 +184,15 @@ def refine(
     right-angle iron's mountings) make each group rigid; otherwise each position has its own
     direction. magnitude_spread s > 0: the magnitudes are a random effect, |v_j| = c (1 + delta_j)
     with delta_j ~ N(0, s^2) (each v_j a free vector with that prior); it needs sigma, since it
-    weighs the readings against the prior.
+    weighs the readings against the prior. fitted: (a0, v0, bias0) is a fit to go on from (its
+    stimuli's magnitudes kept; `start_poses`), e.g. with other weights.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
     a = np.array(a0, dtype=float)
     d = a.shape[0]
     check_spread(magnitude_spread, sigma)
-    poses = start_poses(v0, magnitude, constraints, magnitude_spread)
+    poses = start_poses(v0, magnitude, constraints, magnitude_spread, fitted)
     if bias0 is not None and not estimate_bias:
         readings = readings - np.asarray(bias0, float)[:, None]
     bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
