@@ -140,3 +140,26 @@ def test_inconsistent_readings_are_still_refused_after_the_fallbacks():
         station.calibrate(readings, G, bias="estimate")
     assert "no calibration explains the readings" in err.value.problem
     assert "not a closed ellipsoid" in err.value.problem
+
+
+def test_fallback_starts_reach_the_closed_forms_maximum():
+    """Each fallback start of a triad (no closed form needed) refines to the same maximum as the
+    ellipsoid: the axis-aligned ellipsoid is exact for an axis-aligned triad, the nominal layout and
+    the principal axes start further off."""
+    from station.solve import starts
+    from station.solve.ellipsoid import ellipsoid_calibration
+
+    rng = np.random.default_rng(21)
+    v = spread_poses(16, rng)
+    aligned, bias = np.diag([1.03, 0.98, 1.01]), np.array([0.4, -0.6, 0.2])
+    a, _, b = ellipsoid_calibration(aligned.T @ (G * v) + bias[:, None], G, axis_aligned=True)
+    np.testing.assert_allclose(a, aligned, atol=1e-12)
+    np.testing.assert_allclose(b, bias, atol=1e-10)
+    a_true, b_true = mpu6050_triad(rng)
+    readings, stderr = pose_means(rng, a_true, b_true, v)
+    best = station.calibrate(readings, G, bias="estimate")
+    for name in starts.FALLBACKS:
+        a0, v0, b0 = starts.fallback(name, readings, None, True, G, 3, np.eye(3))
+        fit = ml.refine(readings, a0, v0, bias0=b0, estimate_bias=True, magnitude=G)
+        np.testing.assert_allclose(to_canonical(fit.a), best.a, atol=1e-6, err_msg=name)
+        np.testing.assert_allclose(fit.bias, best.bias, atol=1e-6, err_msg=name)
