@@ -110,7 +110,12 @@ def xsens(root: Path) -> dict:
         "fit_rms_ms2": rms(np.linalg.norm(a.apply(fit.readings), axis=0) - XSENS_G),
         "manufacturer_rms_ms2": rms(manufacturer_magnitudes(fit.readings) - XSENS_G),
         "residual_over_white_stderr": rms(a.residuals) / rms(fit.readings_stderr),
+        "leave_one_out_refused": {int(j): why for j, why in held_out.refused.items()},
         "accel": {
+            "start": a.start,
+            "pose_sigma_counts": a.pose_sigma,
+            "scale_sigma_white": a.scale_factors_sigma_white.tolist(),
+            "bias_sigma_white_counts": a.bias_sigma_white.tolist(),
             "scale_counts_per_ms2": a.scale_factors.tolist(),
             "scale_sigma": a.scale_factors_sigma.tolist(),
             "scale_manufacturer": np.linalg.norm(kt, axis=1).tolist(),
@@ -232,6 +237,11 @@ def show(report: dict) -> None:
             pairs = ", ".join(f"{o:.3f}+-{s:.3f} ({m:.3f})"
                               for o, s, m in zip(ours, sig, mfr, strict=False))
             print(f"  {name}: {pairs}   (manufacturer in brackets)")
+        print(f"  1 sigma above: white noise + a per-pose error of {a['pose_sigma_counts']:.3g} "
+              f"counts ({a['start']} start); white noise alone: scale "
+              f"{', '.join(f'{s:.3f}' for s in a['scale_sigma_white'])}, accel bias "
+              f"{', '.join(f'{s:.3f}' for s in a['bias_sigma_white_counts'])}; refused "
+              f"leave-one-out folds: {len(x['leave_one_out_refused'])}")
         print(f"  time: {x['time_ms']}")
     m = report.get("mpu9150")
     if m:

@@ -81,7 +81,8 @@ def test_import_solve_apply_on_the_command_line(tmp_path, capsys):
 
     z, a, bias = turning_magnetometer(6)
     t = np.arange(len(z)) / FS
-    rows = "\n".join(",".join(f"{x:.6f}" for x in (ti, *zi * 1e6)) for ti, zi in zip(t, z))
+    rows = "\n".join(",".join(f"{x:.6f}" for x in (ti, *zi * 1e6))
+                      for ti, zi in zip(t, z, strict=True))
     (tmp_path / "mag.csv").write_text("time,mx,my,mz\n" + rows + "\n")
     session, cal = tmp_path / "mag.h5", tmp_path / "mag.cal.json"
     assert main(["import", "csv", str(session), str(tmp_path / "mag.csv"), "--time", "time",

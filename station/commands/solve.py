@@ -229,16 +229,30 @@ def summarise(cal, out) -> dict:
         "magnitude": cal.magnitude,
         **{key: (cal.session or {}).get(key) for key in ("stimulus", "poses", "rejected")
            if key in (cal.session or {})},
+        # the sigmas above are the total figure; the white-noise figure and the per-pose term
+        "start": cal.fit.get("start"), "pose_sigma": cal.pose_sigma,
+        "scale_factors_sigma_white": None if cal.white is None
+        else cal.white["scale_factors_sigma"].tolist(),
+        "bias_sigma_white": None if cal.white is None else cal.white["bias_sigma"].tolist(),
     }
 
 
 def _text(s: dict) -> str:
-    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'bias':>12} {'1 sigma':>10}"]
-    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {b:12.6g} {sb:10.2g}" for name, k, sk, b, sb in
-             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], s["bias"],
-                 s["bias_sigma"], strict=True)]
-    title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
+    m = len(s["sensors"])
+    white_k = s["scale_factors_sigma_white"] or [float("nan")] * m
+    white_b = s["bias_sigma_white"] or [float("nan")] * m
+    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'(white)':>9} {'bias':>12} "
+            f"{'1 sigma':>10} {'(white)':>9}"]
+    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {wk:9.2g} {b:12.6g} {sb:10.2g} {wb:9.2g}"
+             for name, k, sk, wk, b, sb, wb in
+             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], white_k, s["bias"],
+                 s["bias_sigma"], white_b, strict=True)]
+    start = "" if s["start"] in (None, "closed form") else f" from the {s['start']} start"
+    title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}{start}, "
              f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in {s['units']})")
+    if s["pose_sigma"]:
+        title += (f"; 1 sigma = white noise + a per-pose error of {s['pose_sigma']:.2g} "
+                  "(white: the white noise alone)")
     from station.solve.verdict import words
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
