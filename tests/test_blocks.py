@@ -70,3 +70,32 @@ def test_fast_turns_are_dropped_not_averaged():
     z, _, _ = turning_magnetometer(5)
     blocks = block_readings(z, FS, seconds=0.5, max_turn_deg=30)
     assert blocks.dropped > 0 and np.all(blocks.turned_deg <= 30)
+
+
+def test_import_solve_apply_on_the_command_line(tmp_path, capsys):
+    """import csv (uT) -> solve --magnitude -> apply: |B| back at the local field."""
+    import json
+
+    from station.cli import main
+    from station.files.calfile import load
+
+    z, a, bias = turning_magnetometer(6)
+    t = np.arange(len(z)) / FS
+    rows = "\n".join(",".join(f"{x:.6f}" for x in (ti, *zi * 1e6))
+                      for ti, zi in zip(t, z, strict=True))
+    (tmp_path / "mag.csv").write_text("time,mx,my,mz\n" + rows + "\n")
+    session, cal = tmp_path / "mag.h5", tmp_path / "mag.cal.json"
+    assert main(["import", "csv", str(session), str(tmp_path / "mag.csv"), "--time", "time",
+                 "--stream", "mag=mx,my,mz", "--unit", "mag=uT"]) == 0
+    assert main(["solve", str(session), "--out", str(cal)]) == 2
+    assert "Give --magnitude" in capsys.readouterr().err
+    assert main(["solve", str(session), "--out", str(cal), "--magnitude", str(FIELD),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    fit = load(cal)
+    assert fit.units[0] == "T" and summary["positions"] > 500
+    assert np.all(np.abs(fit.bias - bias) < 4.5 * fit.bias_sigma)
+    out = tmp_path / "mag.cal.csv"
+    assert main(["apply", str(cal), str(session), "--out", str(out)]) == 0
+    v = np.loadtxt(out, delimiter=",", skiprows=1)[:, 1:]
+    assert abs(np.median(np.linalg.norm(v, axis=1)) / FIELD - 1) < 0.01

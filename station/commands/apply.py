@@ -44,7 +44,8 @@ def register(p) -> None:
     p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
     p.add_argument("data", type=Path, help="readings: a session file (.h5) or a CSV file")
     p.add_argument("--out", type=Path, help="output .csv or .h5 (default: CSV on stdout)")
-    p.add_argument("--stream", default="imu", help="stream of a session file (default imu)")
+    p.add_argument("--stream", help="stream of a session file (default: the stream the "
+                                    "calibration was solved from, else imu)")
     p.add_argument("--counts", action="store_true",
                    help="CSV readings are raw counts (divided by the calibration's counts per "
                         "unit)")
@@ -66,7 +67,7 @@ def run(args) -> int:
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:
         existing_session(data)
-        time, z = read_session(data, args.stream, cal)
+        time, z = read_session(data, args.stream or solved_stream(cal), cal)
     else:
         time, z = read_csv(data, cal, args.counts)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -96,6 +97,13 @@ def run(args) -> int:
                           "norm_mean": float(norm.mean()) if len(v) else None}, indent=2,
                          allow_nan=False))
     return 0
+
+
+def solved_stream(cal) -> str:
+    """The stream the calibration file says it was solved from (its `session` record; a text
+    from an untrusted file, checked against the session's streams when read), else "imu"."""
+    stream = (cal.session or {}).get("stream")
+    return stream if isinstance(stream, str) else "imu"
 
 
 def read_session(path, stream: str, cal) -> tuple:

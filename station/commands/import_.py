@@ -7,6 +7,8 @@ EXAMPLES = (
     "examples:\n"
     "  station import text xsens.h5 --stream accel=xsens_acc.mat --unit accel=counts:m/s^2 \\\n"
     "      --stream gyro=xsens_gyro.mat --unit gyro=counts:rad/s\n"
+    "  station import text mpu.h5 --no-time --fs 100 --stream acc=imu0.log --columns acc=1-3 \\\n"
+    "      --unit acc=m/s^2 --stream gyro=imu0.log --columns gyro=4-6 --unit gyro=rad/s\n"
     "  station import csv ferraris.h5 example_ferraris_session.csv "
     "--fs 102.4 --index n_samples \\\n"
     "      --stream acc=acc_x,acc_y,acc_z --unit acc=m/s^2 "
@@ -43,6 +45,11 @@ def register(p) -> None:
     p.add_argument("--time-unit", choices=("s", "ms", "us", "ns"),
                    help="text/csv: unit of the time stamps (default s, checked for a plausible "
                         "rate)")
+    p.add_argument("--columns", action="append", default=[], metavar="NAME=COLS",
+                   help="text: a stream's value columns in its file, counted from 1 (e.g. "
+                        "acc=1-3 or acc=2,3,4; default: every column after the time)")
+    p.add_argument("--no-time", action="store_true",
+                   help="text: the files have no time column; the rows are samples at --fs")
     p.add_argument("--index", metavar="COLUMN", help="csv: column of sample numbers (with --fs)")
     p.add_argument("--fs", type=float, help="sample rate, Hz")
     p.add_argument("--delimiter", metavar="CHAR",
@@ -96,9 +103,12 @@ def _import(args, existing_file) -> Path:
     if args.format == "text":
         for path in streams.values():
             existing_file(path, "a text recording (--stream NAME=FILE)")
+        columns = {name: _numbers(cols, f"--columns {name}={cols}")
+                   for name, cols in _pairs(args.columns, "--columns").items()}
         return importers.import_text(args.out, streams, units, unit_serial=args.unit_serial,
                                      fs=args.fs, time_unit=args.time_unit, delimiter=delimiter,
-                                     skip_rows=args.skip_rows or 0)
+                                     skip_rows=args.skip_rows or 0, columns=columns,
+                                     untimed=args.no_time)
     if args.source is None:
         raise InputError(f"`import {args.format}` needs the source file")
     if args.format == "csv":
@@ -129,3 +139,20 @@ def _pairs(items, option: str) -> dict:
                                         f"Write e.g. {option} accel=...")
         out[name] = value
     return out
+
+
+def _numbers(text: str, what: str) -> list:
+    """0-based indices from 1-based numbers and ranges, e.g. "1-3" or "2,3,4"."""
+    from station.errors import CalibrationInputError
+
+    indices = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            indices += range(int(first) - 1, int(last or first))
+    except ValueError:
+        indices = []
+    if not indices or min(indices) < 0:
+        raise CalibrationInputError(f"{what}: not column numbers.",
+                                    "Count the columns from 1, e.g. acc=1-3 or acc=2,3,4.")
+    return indices

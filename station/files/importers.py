@@ -116,33 +116,52 @@ class Unit:
 
 def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED",
                 fs: float | None = None, time_unit: str | None = None,
-                delimiter: str | None = None, skip_rows: int = 0) -> Path:
+                delimiter: str | None = None, skip_rows: int = 0, columns: dict | None = None,
+                untimed: bool = False) -> Path:
     """Import tables `t x y z ...` (one file per stream: name -> path) into a new session `out`.
 
     units : stream name -> unit spec (see the module docstring). Streams must share their time
     stamps when there are several. fs: nominal rate (default: from the median time step).
     time_unit: of the first column (see the module docstring); delimiter and skip_rows: of text
-    files (station.files.tables.read_matrix).
+    files (station.files.tables.read_matrix). columns : stream name -> 0-based indices of its
+    value columns in its file (default: every column but the time), so one file can hold several
+    streams. untimed: the files have no time column; the rows are samples at `fs`.
     """
     _check_names(streams, units)
+    if untimed and fs is None:
+        raise CalibrationInputError("tables without a time column need the sample rate.",
+                                    "Give --fs HZ.")
     read = {name: read_matrix(path, delimiter=delimiter, skip_rows=skip_rows)
             for name, path in streams.items()}
     for name, table in read.items():
-        if table.values.shape[1] < 2:
+        if table.values.shape[1] < 2 and not untimed:
             raise CalibrationInputError(
                 f"{streams[name]} holds one column; a time column and values are expected.",
-                "Give a table t x y z ... (one row or column per sample).")
+                "Give a table t x y z ... (one row or column per sample), or --no-time.")
     notes = [note for table in read.values() for note in table.notes]
     tables = {name: table.values for name, table in read.items()}
-    times = {name: _seconds(t[:, 0], time_unit, str(streams[name])) for name, t in tables.items()}
+    times = {name: np.arange(len(t)) / fs if untimed else
+             _seconds(t[:, 0], time_unit, str(streams[name])) for name, t in tables.items()}
     first = next(iter(times.values()))
     for name, t in times.items():
         if t.shape != first.shape or not np.array_equal(t, first):
             raise CalibrationInputError(f"stream {name!r} has other time stamps than the first.",
                                         "Import streams recorded on different clocks separately.")
-    values = {name: t[:, 1:] for name, t in tables.items()}
+    values = {name: _values(t, (columns or {}).get(name), int(not untimed), streams[name])
+              for name, t in tables.items()}
     sources = {name: str(path) for name, path in streams.items()}
     return _write(out, "text", sources, values, units, first, None, fs, unit_serial, notes)
+
+
+def _values(table, columns, first: int, path) -> np.ndarray:
+    """The value columns of a text table: `columns` (0-based, checked), else from `first` on."""
+    if columns is None:
+        return table[:, first:]
+    if not columns or min(columns) < 0 or max(columns) >= table.shape[1]:
+        raise CalibrationInputError(f"{path} has {table.shape[1]} columns; columns "
+                                    f"{[c + 1 for c in columns]} were asked for.",
+                                    "Count the columns from 1, the time column included.")
+    return table[:, list(columns)]
 
 
 def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None = None,

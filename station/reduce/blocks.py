@@ -18,6 +18,7 @@ from station.errors import CalibrationInputError
 
 SECONDS = 0.1
 """Default block length."""
+MAGNETOMETER = "T"
 MAX_TURN_DEG = 30.0
 """Blocks whose field turned by more than this are left out (centre error above 4e-5)."""
 
@@ -34,6 +35,10 @@ class BlockReadings:
     windows: np.ndarray
     turned_deg: np.ndarray
     dropped: int
+
+    def constraints(self):
+        """No inner-product constraints between blocks: equal magnitudes only (Eq. 8)."""
+        return None
 
     def take(self, keep):
         """The readings of the blocks `keep` (column indices), in that order."""
@@ -70,6 +75,31 @@ def block_readings(samples, fs: float, seconds: float = SECONDS,
     windows = np.stack([np.arange(n) * size, (np.arange(n) + 1) * size], axis=1)
     return BlockReadings(centre[keep].T, sigma[keep].T, windows[keep], turned[keep],
                          int(n - keep.sum()))
+
+
+def magnetometer_readings(session, stream: str, seconds: float = SECONDS) -> BlockReadings:
+    """Block readings of the channels in T of a recorded or imported stream, blocks cut within
+    the runs of consecutive sample numbers (a lost sample ends a run; a block never spans a
+    gap)."""
+    data = session.stream(stream)
+    z, fs = data.to_si()[:, magnetometer_channels(session, stream)], session.specs[stream].rate_hz
+    breaks = np.flatnonzero(np.diff(data.seq) != 1) + 1
+    runs = [(a, b) for a, b in zip(np.r_[0, breaks], np.r_[breaks, len(z)], strict=True)
+            if b - a >= round(seconds * fs)]
+    if not runs:
+        raise CalibrationInputError(f"{session.path}: stream {stream!r} holds no run of "
+                                    f"{seconds:g} s of consecutive samples.",
+                                    "Record the magnetometer turning for a minute or more.")
+    parts = [block_readings(z[a:b], fs, seconds) for a, b in runs]
+    return BlockReadings(np.hstack([p.M for p in parts]), np.hstack([p.sigma for p in parts]),
+                         np.vstack([p.windows + a for p, (a, _) in zip(parts, runs, strict=True)]),
+                         np.concatenate([p.turned_deg for p in parts]),
+                         sum(p.dropped for p in parts))
+
+
+def magnetometer_channels(session, stream: str) -> np.ndarray:
+    """Indices of a stream's channels in T."""
+    return np.flatnonzero([u == MAGNETOMETER for u in session.specs[stream].units])
 
 
 def _turned_deg(first, last) -> np.ndarray:

@@ -315,7 +315,8 @@ def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
         raise SessionFormatError(str(e)) from None
 
 
-LATER_FIELDS = ("parameter_covariance",)
+LATER_FIELDS = ("parameter_covariance", "start", "pose_sigma", "a_sigma_white",
+                "scale_factors_sigma_white", "axis_angles_sigma_white", "bias_sigma_white")
 """CalibrationResult fields added after format version 1 was first written: None when absent."""
 
 
@@ -351,7 +352,8 @@ def _read_calibration(g, where, readings_shape) -> CalibrationResult:
     expected = {"v": (a.shape[0], n), "residuals": (m, n), "sigma": (m, n),
                 "a_sigma": a.shape, "scale_factors": (m,), "axis_angles": (m, m),
                 "axis_angles_sigma": (m, m), "scale_factors_sigma": (m,), "bias": (m,),
-                "bias_sigma": (m,)}
+                "bias_sigma": (m,), "a_sigma_white": a.shape, "scale_factors_sigma_white": (m,),
+                "axis_angles_sigma_white": (m, m), "bias_sigma_white": (m,)}
     for key, shape in expected.items():
         if values[key] is not None and values[key].shape != shape:
             raise SessionFormatError(f"{where}/{key} has shape {values[key].shape}, expected "
