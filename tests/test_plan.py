@@ -198,11 +198,25 @@ def test_a_bad_fixture_section_is_refused_naming_the_key(tmp_path, change, messa
         BenchProfile.load(profile(tmp_path, **change))
 
 
-def test_a_fixture_on_a_static_bench_is_refused(tmp_path):
+HAND = ('[bench]\nunit_serial = "S"\n[imu]\nlink = "serial"\nprofile = "{device}"\n'
+        'port = "/dev/null"\n[protocol]\nkind = "{kind}"\n{protocol}[fixture]\n'
+        "noise_density = 1e-3\nwedge = true\n{fixture}")
+
+
+def test_a_static_bench_takes_the_fixture_and_the_layout_of_its_protocol_section(tmp_path):
     path = tmp_path / "static.toml"
-    path.write_text('[bench]\nunit_serial = "S"\n[imu]\nlink = "serial"\nprofile = "acc3_serial"'
-                    '\nport = "/dev/null"\n[protocol]\nkind = "static"\n[fixture]\n'
-                    "noise_density = 1e-3\n")
+    path.write_text(HAND.format(device="acc3_serial", kind="static", protocol="", fixture=""))
+    np.testing.assert_array_equal(BenchProfile.load(path).fixture.layout, np.eye(3))
+    path.write_text(HAND.format(device="acc3_serial", kind="static", protocol="",
+                                fixture="layout = [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n"))
+    with pytest.raises(ProfileError, match="unknown keys \\['layout'\\]"):
+        BenchProfile.load(path)
+
+
+def test_a_fixture_on_an_iron_bench_is_refused(tmp_path):
+    path = tmp_path / "iron.toml"
+    path.write_text(HAND.format(device="acc4_serial", kind="iron", fixture="", protocol=(
+        "layout = [[1, 0, 0, 0.577], [0, 1, 0, 0.577], [0, 0, 1, 0.577]]\n")))
     with pytest.raises(ProfileError, match="remove the \\[fixture\\]"):
         BenchProfile.load(path)
 
@@ -290,3 +304,39 @@ def test_a_resumed_session_asks_for_the_fixture_poses_it_recorded():
         assert asked.text == resumed.text and steps[j]["words"] in asked.text
         np.testing.assert_array_equal(asked.orientation, resumed.orientation)
     np.testing.assert_allclose(again.axes, [np.array(s["orientation"])[:, 2] for s in steps])
+
+
+def test_a_static_session_on_the_cube_asks_for_each_planned_pose_once(tmp_path):
+    # accelerometers: the same cube set still on the table or the wedge, biases estimated; the
+    # hand twin's technician sets the planned poses (1 deg off) on its metronome
+    from station.twin.served import HandTwin
+
+    with HandTwin("static", seed=9, speed=40.0, cube=True) as twin:
+        (tmp_path / "b.toml").write_text(twin.profile_text("SN-CUBE"))
+        bench = BenchProfile.load(tmp_path / "b.toml")
+        said = io.StringIO()
+        summary = record(bench, tmp_path / "s.h5", ConsoleOperator(io.StringIO("\n" * 50), said))
+        truth = twin.truth()
+        asked = [i.text for i in twin.instructions]
+    assert twin.error is None
+    with Session.open(tmp_path / "s.h5") as s:
+        poses, expected = s.metadata["fixture_poses"], s.metadata["plan"]["expected_eps"]
+    n = len(poses)
+    assert summary["positions_done"] == summary["positions_planned"] == n >= 12
+    words = [p["words"] for p in poses]
+    assert len(set(words)) == n and asked == [f"set the cube {w}" for w in words]
+    assert all(f"pose {j + 1}/{n}: set the cube {w}, and let go" in said.getvalue()
+               for j, w in enumerate(words))
+    up = np.array(truth["up"])[:n]
+    planned = np.array([np.array(p["orientation"])[:, 2] for p in poses])
+    assert np.degrees(np.arccos(np.clip(np.sum(up * planned, axis=1), -1, 1))).max() < 5 * 1.0 * 2
+    # expected eps: the bound at the true layout and poses, for the twin's accelerometer noise
+    # (station.sim.layouts.accelerometer_triad: 100 ug/sqrt(Hz)) averaged over `hold` = 5 s
+    sigma = 100e-6 * 9.80665 / np.sqrt(5.0)
+    bound = station.crlb(np.array(truth["a"]), truth["gravity"] * up.T, sigma, estimate_bias=True)
+    assert expected == pytest.approx(np.sqrt(np.trace(bound)), rel=0.05)
+    cal = load(solve(tmp_path / "s.h5")["calibration"])
+    z = np.concatenate([(cal.bias - truth["bias"]) / cal.bias_sigma,
+                        (cal.scale_factors - np.linalg.norm(truth["a"], axis=0))
+                        / cal.scale_factors_sigma])
+    assert np.all(np.abs(z) < 4.5), z  # 6 normal deviates: a false alarm below 1e-4

@@ -41,7 +41,7 @@ class BenchProfile:
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
-    fixture: object = None  # rotary: station.protocols.planned.FixtureSpec of a [fixture]
+    fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -69,8 +69,8 @@ class BenchProfile:
                                                 "fixture"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary), [protocol], [fixture] (rotary) and "
-                               "[tolerances]")
+                               "[imu], [table] (rotary), [protocol], [fixture] (rotary, static) "
+                               "and [tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -118,9 +118,10 @@ class BenchProfile:
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
-            if "fixture" in profile.tables:
+            if "fixture" in profile.tables and kind != "static":
                 raise ProfileError(f"{path}: the {kind} protocol does not plan fixture poses; "
-                                   "remove the [fixture] section (it serves rotary sessions)")
+                                   "remove the [fixture] section (it serves rotary and static "
+                                   "sessions)")
             if "table" in profile.tables:
                 raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
                                    "[table] section (or set [protocol] kind = \"rotary\")")
@@ -131,6 +132,11 @@ class BenchProfile:
                 raise ProfileError(f"{path}: the {kind} protocol calibrates every channel of the "
                                    "stream; use a device profile with accelerometer channels only")
             fields["positions"] = fields["settings"].poses
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(
+                    section("fixture"), fields["layout"].shape[1], fields["layout"])
         for s in (bench, imu, proto):
             s.finish()
         return cls(**fields)
@@ -202,7 +208,8 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
-        planned = len(session.metadata.get("axes", ())) or bench.positions  # a fixture's plan
+        meta = session.metadata  # a fixture's plan fixes the count
+        planned = len(meta.get("fixture_poses") or meta.get("axes") or ()) or bench.positions
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
             "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
             "samples": samples,

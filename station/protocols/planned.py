@@ -1,6 +1,8 @@
-"""A rotary session planned on a mounting fixture: the bench profile's [fixture] section, the
-plan (`station.solve.plan`) over the fixture's reachable poses (`station.model.fixture`), and
-the technician's instructions in the fixture's words.
+"""A session planned on a mounting fixture: the bench profile's [fixture] section, the plan
+(`station.solve.plan`) over the fixture's reachable poses (`station.model.fixture`), and the
+technician's instructions in the fixture's words. Rotary sessions (gyros) and free-static ones
+(accelerometers: the same cube set still on the table, biases estimated, each pose once since the
+static protocol refuses a pose it has seen).
 
     [fixture]
     layout = [[...], [...], [...]]   # the unit's nominal sensitive axes: 3 rows, a column per
@@ -12,9 +14,11 @@ the technician's instructions in the fixture's words.
     threshold = 0.025                # stop when one more position lowers the eps by less
     # [protocol] positions = 40      # with a fixture: the most positions the plan may use
 
-The noise of one position's Eq. (18) reading is that of a rotating-window mean over the whole
-turns (2 pi revolutions / |c| s) minus a static-window mean (`static` s): for white noise of
-density N, sigma^2 = N^2 (|c| / (2 pi revolutions) + 1 / static).
+For a static session the layout is the [protocol] layout (the accelerometers'), and the count is
+the plan's (`poses` is not used). The noise of one position's Eq. (18) reading is that of a
+rotating-window mean over the whole turns (2 pi revolutions / |c| s) minus a static-window mean
+(`static` s): for white noise of density N, sigma^2 = N^2 (|c| / (2 pi revolutions) + 1 /
+static); a still pose's reading is the mean of `hold` s: sigma^2 = N^2 / hold.
 """
 
 from dataclasses import dataclass
@@ -36,12 +40,14 @@ class FixtureSpec:
     threshold: float = 0.025
 
     @classmethod
-    def from_section(cls, section, channels: int) -> "FixtureSpec":
-        """Parse a `drivers.profile.Section`; `channels`: the IMU stream's channel count."""
+    def from_section(cls, section, channels: int, layout=None) -> "FixtureSpec":
+        """Parse a `drivers.profile.Section`; `channels`: the calibrated channels' count; `layout`:
+        the nominal layout the profile gave elsewhere (static: [protocol] layout)."""
         from drivers.profile import ProfileError
 
-        default = np.eye(3).tolist() if channels == 3 else None
-        layout = section.get_rows("layout", 3, channels, default)
+        if layout is None:
+            default = np.eye(3).tolist() if channels == 3 else None
+            layout = section.get_rows("layout", 3, channels, default)
         if layout is None:
             raise section.error("layout", f"missing; the unit has {channels} channels: give "
                                 f"their nominal axes, 3 lists of {channels} numbers")
@@ -69,19 +75,29 @@ class FixtureSpec:
 
 
 @dataclass(frozen=True)
-class RotaryPlan:
+class FixturePlan:
     """The planned positions: fixture poses in order, the per-count and final expected eps."""
 
     poses: list  # station.model.fixture.Pose
     expected: np.ndarray
     eps: float
-    sigma: float  # one position's Eq. (18) reading noise, SI units
+    sigma: float  # one position's reading noise, SI units
+
+    def prompt(self) -> str:
+        """What the technician is told before the session."""
+        return (f"plan: {len(self.poses)} positions on the fixture, expected eps {self.eps:.3g} "
+                "(Eq. 19, sqrt of the Cramer-Rao bound)")
 
     def instructions(self) -> list:
         """{"words", "picture", "orientation"} per position, as the session metadata keeps them
         (`station.protocols.rotary.RotaryProtocol`, fixture_poses)."""
         return [{"words": p.words, "picture": picture(p), "orientation": p.orientation.tolist()}
                 for p in self.poses]
+
+    def guided(self) -> list:
+        """(name, up, words) per position, as `station.protocols.static.StaticProtocol` asks."""
+        return [(f"{'wedge ' if p.wedge else ''}{p.down}/{p.front}", p.up,
+                 f"set the cube {p.words}") for p in self.poses]
 
 
 def reading_noise(noise_density: float, settings) -> float:
@@ -90,19 +106,29 @@ def reading_noise(noise_density: float, settings) -> float:
     return float(noise_density * np.sqrt(1 / turns + 1 / settings.static))
 
 
-def rotary_plan(spec: FixtureSpec, settings, most: int) -> RotaryPlan:
-    """The plan of a rotary session on the fixture, at most `most` positions."""
+def rotary_plan(spec: FixtureSpec, settings, most: int) -> FixturePlan:
+    """The plan of a rotary session (`RotarySettings`) on the fixture, at most `most` positions."""
+    return _plan(spec, reading_noise(spec.noise_density, settings), abs(settings.rate),
+                 most=most)
+
+
+def static_plan(spec: FixtureSpec, settings) -> FixturePlan:
+    """The plan of a free-static session (`StaticSettings`: gravity, hold) on the fixture: each
+    pose at most once, biases estimated."""
+    return _plan(spec, spec.noise_density / np.sqrt(settings.hold), settings.gravity,
+                 most=len(spec.fixture.poses()), estimate_bias=True, distinct=True)
+
+
+def _plan(spec: FixtureSpec, sigma: float, magnitude: float, **options) -> FixturePlan:
     from station.solve.plan import plan
 
     up, poses = spec.fixture.reachable_up()
-    sigma = reading_noise(spec.noise_density, settings)
-    chosen = plan(spec.layout, up, sigma, abs(settings.rate), threshold=spec.threshold,
-                  most=most)
-    return RotaryPlan([poses[k] for k in chosen.chosen], chosen.expected, chosen.eps, sigma)
+    chosen = plan(spec.layout, up, sigma, magnitude, threshold=spec.threshold, **options)
+    return FixturePlan([poses[k] for k in chosen.chosen], chosen.expected, chosen.eps, sigma)
 
 
 def fixture_instruction(position: int, n: int, pose: dict) -> Instruction:
     """The technician's instruction for position `position` (0-based) of n, a fixture pose of
-    `RotaryPlan.instructions`."""
+    `FixturePlan.instructions`."""
     return Instruction(f"position {position + 1}/{n}: set the cube {pose['words']}\n"
                        f"{pose['picture']}", np.array(pose["orientation"], float))

@@ -138,7 +138,7 @@ class RotaryProtocol:
     clock    : the session clock (shared with the devices)
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
     fixture_poses : instead of axes, the poses of a mounting fixture, {"words", "picture",
-               "orientation"} each (`station.protocols.planned.RotaryPlan.instructions`)
+               "orientation"} each (`station.protocols.planned.FixturePlan.instructions`)
     """
 
     def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None,
@@ -487,8 +487,7 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
         metadata = {**protocol.metadata(), **metadata}
     else:
         plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
-        operator.prompt(f"plan: {len(plan.poses)} positions on the fixture, expected eps "
-                        f"{plan.eps:.3g} (Eq. 19, sqrt of the Cramer-Rao bound)")
+        operator.prompt(plan.prompt())
         protocol = RotaryProtocol(table, operator, clock, bench.settings,
                                   fixture_poses=plan.instructions())
         metadata = {**protocol.metadata(), **metadata,

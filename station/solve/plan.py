@@ -120,11 +120,12 @@ class Bound:
 
 
 def plan(a, up, sigma, magnitude: float, *, estimate_bias: bool = False,
-         threshold: float = 0.025, most: int = 40) -> Plan:
+         threshold: float = 0.025, most: int = 40, distinct: bool = False) -> Plan:
     """The positions (indices into `up`, (k, d) candidate stimulus directions) that minimise the
     expected eps for layout `a` (d, m) and per-position reading noise `sigma` (scalar or (m,));
     see the module docstring. threshold: the smallest relative decrease of the expected eps worth
-    one more position; most: the largest count."""
+    one more position; most: the largest count; distinct: each candidate at most once (a
+    protocol that refuses a pose it has seen)."""
     if not 0 <= threshold < 1 or most < 1:
         raise CalibrationInputError(f"plan threshold {threshold!r} must be in [0, 1) and the "
                                     f"largest count {most!r} at least 1.",
@@ -132,8 +133,9 @@ def plan(a, up, sigma, magnitude: float, *, estimate_bias: bool = False,
     bound = Bound(a, estimate_bias)
     info = bound.reduce(position_information(a, up, sigma, magnitude, estimate_bias))
     chosen, expected, total = [], [], np.zeros(info.shape[1:])
+    most = min(most, len(info)) if distinct else most
     while len(chosen) < most:
-        k = _best(bound.scores(total + info))
+        k = _best(_taken(bound.scores(total + info), chosen if distinct else []))
         eps = bound.eps(total + info[k])
         if expected and np.isfinite(expected[-1]) and 1 - eps / expected[-1] < threshold:
             break
@@ -144,12 +146,14 @@ def plan(a, up, sigma, magnitude: float, *, estimate_bias: bool = False,
         raise CalibrationInputError(
             f"no plan of at most {most} positions of the fixture identifies this layout.",
             "Add the wedge to the fixture (diagonal poses), or allow more positions.")
-    chosen = exchange(np.array(chosen), info, bound)
+    chosen = exchange(np.array(chosen), info, bound, distinct)
     return Plan(chosen, np.array(expected), bound.eps(info[chosen].sum(0)))
 
 
-def exchange(chosen: np.ndarray, info: np.ndarray, bound: Bound) -> np.ndarray:
-    """Swap single positions for other candidates while that lowers the bound (Fedorov)."""
+def exchange(chosen: np.ndarray, info: np.ndarray, bound: Bound,
+             distinct: bool = False) -> np.ndarray:
+    """Swap single positions for other candidates (not in the plan, when `distinct`) while that
+    lowers the bound (Fedorov)."""
     chosen = chosen.copy()
     best = bound.eps(info[chosen].sum(0))
     improved = True
@@ -157,11 +161,18 @@ def exchange(chosen: np.ndarray, info: np.ndarray, bound: Bound) -> np.ndarray:
         improved = False
         for slot in range(len(chosen)):
             rest = info[np.delete(chosen, slot)].sum(0)
-            k = _best(bound.scores(rest + info))
+            k = _best(_taken(bound.scores(rest + info), chosen if distinct else []))
             eps = bound.eps(rest + info[k])
             if eps < best * (1 - 1e-9):
                 chosen[slot], best, improved = k, eps, True
     return chosen
+
+
+def _taken(scores: np.ndarray, chosen) -> np.ndarray:
+    """`scores` with the candidates in `chosen` ruled out."""
+    scores = scores.copy()
+    scores[list(chosen)] = np.inf
+    return scores
 
 
 def _best(scores: np.ndarray) -> int:

@@ -23,7 +23,7 @@ import numpy as np
 
 from station.errors import InputError
 from station.model.fixture import Fixture
-from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan
+from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
 
@@ -177,12 +177,13 @@ def _cube(unit) -> FixtureSpec:
     return FixtureSpec(Fixture(wedge=True), A_MODEL, float(np.max(unit.noise_density)))
 
 
-def _fixture_section(spec: FixtureSpec | None) -> str:
-    """The [fixture] section of a bench profile ("" without a fixture)."""
+def _fixture_section(spec: FixtureSpec | None, layout: bool = True) -> str:
+    """The [fixture] section of a bench profile ("" without a fixture); layout False: without
+    the layout (a static profile gives it in [protocol])."""
     if spec is None:
         return ""
     lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
-             for k, v in spec.table().items()]
+             for k, v in spec.table().items() if layout or k != "layout"]
     return "\n[fixture]\n" + "\n".join(lines) + "\n"
 
 
@@ -205,19 +206,34 @@ class HandTwin:
                 it, and the first after the station opened the port. The technician does not
                 hear the station: `station record` must keep up (a pose takes it about
                 `hold` + 3 s), and then records the turns in order.
+    cube      : static: the triad sits in a lettered cube set on the table or a 45-degree wedge
+                (`station.model.fixture`, 1 deg off each pose); the bench profile gets its
+                [fixture] section and the technician sets the poses `station record` plans
+                from it (`station.protocols.planned.static_plan`), in order
     """
 
     def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
                  poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
-                 period: float = 20.0):
+                 period: float = 20.0, cube: bool = False):
         from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
         self.protocol, self.seed = protocol, seed
         self.bench = HandBench(seed, speed, rate_hz, layout=TRIAD if static else ACC4,
                                mountings=[np.eye(3)] if static else mountings, period=period,
-                               placement_deg=5.0 if static else 0.0002)
-        self.instructions = _hand_instructions(protocol, poses, mountings)
+                               placement_deg=(1.0 if cube else 5.0) if static else 0.0002)
+        self.cube = FixtureSpec(Fixture(wedge=True), TRIAD, float(
+            np.max(self.bench.unit.noise_density))) if cube and static else None
+        if self.cube is None:
+            self.instructions = _hand_instructions(protocol, poses, mountings)
+        else:
+            from station.acquire.operator import Instruction
+            from station.protocols.rotary import mounting
+            from station.protocols.static import StaticSettings
+
+            guided = static_plan(self.cube, StaticSettings(gravity=self.bench.gravity)).guided()
+            self.instructions = [Instruction(words, mounting(up)) for _, up, words in guided]
+            poses = len(guided)
         self.settings = {"poses": poses} if static else {"mountings": mountings}
         self.turns = 0
         self.error = None
@@ -261,7 +277,8 @@ class HandTwin:
                 f"unit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
                 f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
-                + "\n\n[protocol]\n" + "\n".join(lines) + "\n")
+                + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
+                + _fixture_section(self.cube, layout=False))
 
     def addresses(self) -> dict:
         b = self.bench
@@ -319,11 +336,12 @@ def iron_twin(options) -> HandTwin:
 
 def static_twin(options) -> HandTwin:
     """`station twin --protocol static`: a triad turned through `options.positions` (12 to 26)
-    guided poses; ValueError outside that range."""
+    guided poses, or with `options.cube` the planned poses of a lettered cube; ValueError outside
+    that range."""
     if not 12 <= options.positions <= 26:
         raise InputError("a static session has 12 to 26 poses (--positions)")
     return HandTwin("static", options.seed, options.speed, options.positions, options.mountings,
-                    options.rate_hz)
+                    options.rate_hz, cube=getattr(options, "cube", False))
 
 
 def _toml(value) -> str:
