@@ -340,3 +340,17 @@ def test_a_static_session_on_the_cube_asks_for_each_planned_pose_once(tmp_path):
                         (cal.scale_factors - np.linalg.norm(truth["a"], axis=0))
                         / cal.scale_factors_sigma])
     assert np.all(np.abs(z) < 4.5), z  # 6 normal deviates: a false alarm below 1e-4
+
+
+def test_station_plan_of_a_static_bench_uses_each_pose_once(tmp_path):
+    path = tmp_path / "static.toml"
+    path.write_text(HAND.format(device="acc3_serial", kind="static", protocol="", fixture=""))
+    got = json.loads(subprocess.run([*STATION, "plan", "--profile", str(path), "--json"],
+                                    check=True, capture_output=True, text=True).stdout)
+    up = np.array([p["up"] for p in got["poses"]])
+    assert len({p["words"] for p in got["poses"]}) == got["positions"] >= 12
+    assert len(np.unique(np.round(up, 9), axis=0)) == got["positions"]
+    # a still pose's reading: the mean of hold = 5 s of white noise of density 1e-3
+    assert got["reading_sigma"] == pytest.approx(1e-3 / np.sqrt(5.0))
+    assert got["expected_eps"] == pytest.approx(np.sqrt(np.trace(station.crlb(
+        np.eye(3), 9.80665 * up.T, 1e-3 / np.sqrt(5.0), estimate_bias=True))), rel=1e-9)

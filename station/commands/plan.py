@@ -1,5 +1,6 @@
-"""`station plan`: the positions of a rotary session on the bench's mounting fixture, chosen before
-the session (`station.protocols.planned`, `station.solve.plan`), with their expected error.
+"""`station plan`: the positions of a rotary (or free-static) session on the bench's mounting
+fixture, chosen before the session (`station.protocols.planned`, `station.solve.plan`), with their
+expected error.
 
 The bench profile's [fixture] section describes the fixture (a cube with lettered faces A-F,
 optionally a 45-degree wedge), how the unit sits in it, the unit's nominal layout and its noise
@@ -33,13 +34,14 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile
     from station.commands import existing_file
-    from station.protocols.planned import rotary_plan
+    from station.protocols.planned import rotary_plan, static_plan
 
     bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
     if bench.fixture is None:
         raise InputError(f"{args.profile} describes no fixture: add a [fixture] section "
-                         "(docs/protocols.md, \"Fixture and plan\") to plan a rotary session")
-    plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
+                         "(docs/protocols.md, \"Fixture and plan\") to plan a session")
+    plan = (static_plan(bench.fixture, bench.settings) if bench.protocol == "static" else
+            rotary_plan(bench.fixture, bench.settings, bench.positions))
     steps = plan.instructions()
     if args.json:
         print(json.dumps({

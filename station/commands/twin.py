@@ -55,9 +55,10 @@ def register(p) -> None:
                    help="positions of the protocol the fixture follows: rotary positions or "
                         "static poses (default 20)")
     p.add_argument("--cube", action="store_true",
-                   help="rotary: the unit sits in a lettered cube on a 45-degree wedge; the "
-                        "profile gets a [fixture] section and the fixture follows the plan "
-                        "`station record` makes from it (at most --positions positions)")
+                   help="rotary or static: the unit sits in a lettered cube, set on the table "
+                        "or a 45-degree wedge; the profile gets a [fixture] section and the "
+                        "fixture (or technician) follows the plan `station record` makes from it "
+                        "(rotary: at most --positions positions)")
     p.add_argument("--mountings", type=int, default=2,
                    help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=1.0,
