@@ -64,6 +64,7 @@ def run(args) -> int:
     from station.commands import existing_session, new_file, working
     from station.commands.solve import pose_lines, poses
     from station.files.session import Session
+    from station.protocols import KINDS
     from station.replay import free_name, replay, replay_into, replay_raw, stimulus
     from station.solve.quality import check_fit
 
@@ -91,7 +92,8 @@ def run(args) -> int:
                    "magnitude": result.magnitude, **poses(reduced)}
         with Session.open(args.session) as session:
             summary["stimulus"] = stimulus(session, settings)[1]
-        check = check_fit(result)
+            hand = KINDS[session.protocol].still
+        check = check_fit(result, pose_term=hand)
         summary.update(status=check.status, status_reasons=check.problems)
     if args.json:
         print(json.dumps(summary))

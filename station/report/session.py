@@ -111,6 +111,7 @@ def build(path, result: str | None = None) -> Report:
                 "The session file was not closed cleanly (the recording is still running or was "
                 "killed): the report shows the data flushed so far.")
         events = session.events()
+        hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
         calibration = _calibration(session, result, report)
         for name in session.specs:
@@ -118,7 +119,7 @@ def build(path, result: str | None = None) -> Report:
         _table_stability(report, session.table(), events, session.metadata)
     if calibration is not None:
         cal, channels, units = calibration
-        _fit(report, cal, channels)
+        _fit(report, cal, channels, hand)
         _geometry(report, cal)
         _axes_plot(report, cal, channels)
         _uncertainty(report, cal, channels, units)
@@ -178,7 +179,9 @@ def _calibration(session, name, report):
             return None
         if kind is not None and kind.still:
             _stored_poses(report, session, stored)
-        return stored.calibration, spec.channels, spec.units
+        rows = stored.channels or range(len(spec.channels))
+        return (stored.calibration, [spec.channels[i] for i in rows],
+                [spec.units[i] for i in rows])
     if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
@@ -193,7 +196,9 @@ def _calibration(session, name, report):
     report.summary["result"] = "computed for this report (no stored result)"
     _poses(report, readings)
     spec = session.specs[stream]
-    return cal, spec.channels, spec.units
+    rows = kind.entry("channels")(session, stream) if kind.has("channels") else \
+        range(len(spec.channels))
+    return cal, [spec.channels[i] for i in rows], [spec.units[i] for i in rows]
 
 
 def _stored_poses(report, session, stored) -> None:
@@ -241,17 +246,20 @@ def _poses(report, readings) -> None:
 # --------------------------------------------------------------------------------- the fit
 
 
-def _fit(report, cal, channels) -> None:
-    """chi2/dof, outliers (station.solve.quality) and the residual figure."""
+def _fit(report, cal, channels, hand: bool = False) -> None:
+    """chi2/dof, outliers (station.solve.quality; `hand`: poses placed by hand, judged with their
+    per-pose error term) and the residual figure."""
     m, n = cal.residuals.shape
     z = cal.normalised_residuals
-    check = check_fit(cal, channels)
+    check = check_fit(cal, channels, pose_term=hand)
     report.summary.update(method=cal.method, frame=cal.frame, magnitude=cal.magnitude,
                           chi2_per_dof=check.chi2_per_dof, dof=cal.dof,
                           noise_median=float(np.median(cal.sigma)), fit_status=check.status)
     if cal.sigma_estimated:
         report.warnings.append("The noise level of the readings was estimated from the residuals, "
                                "so chi2/dof is 1 by construction and cannot test the model.")
+    elif check.notes:
+        report.warnings.extend(note[0].upper() + note[1:] + "." for note in check.notes)
     elif check.p_high is not None and check.p_high < CHI2_P / 2:
         report.warnings.append(
             "The residuals are larger than the noise level: the model does not explain the data "
