@@ -4,7 +4,7 @@ its twin."""
 import json
 from pathlib import Path
 
-from station.commands import existing_file, working
+from station.commands import existing_file, progress
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
@@ -50,16 +50,16 @@ def run(args) -> int:
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
             session = data.from_session(recorded) if rotary else None
-    with working(f"diagnosing {path.name}: fitting the model, testing each named effect "
-                 f"(at most {args.max_effects})"):
+    with progress(f"diagnosing {path.name}: testing the named effects (at most "
+                  f"{args.max_effects} kept)", "fits") as advance:
         if rotary:
-            doc = report.to_dict(diagnose(session, alpha=args.alpha,
-                                          max_effects=args.max_effects), session, str(path))
+            doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
+                                          progress=advance), session, str(path))
         else:
             static = static_report.load(path)
             doc = report.static_to_dict(
-                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
-                static, str(path))
+                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
+                                progress=advance), static, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

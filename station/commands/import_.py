@@ -38,13 +38,13 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, working
+    from station.commands import existing_file, new_file, progress
     from station.errors import InputError
     from station.files.importers import import_csv, import_npz, import_text
 
     new_file(args.out, option="name")
     streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
-    with working(f"importing into {args.out}"):
+    with progress(f"importing into {args.out}", "bytes") as advance:
         if args.format == "text":
             for path in streams.values():
                 existing_file(path, "a text recording (--stream NAME=FILE)")
@@ -55,7 +55,8 @@ def run(args) -> int:
             source = existing_file(args.source, "a CSV recording")
             columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
             out = import_csv(args.out, source, columns, units, time_column=args.time,
-                             index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
+                             index_column=args.index, fs=args.fs, unit_serial=args.unit_serial,
+                             progress=advance)
         else:
             out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
                              unit_serial=args.unit_serial)

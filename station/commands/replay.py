@@ -53,15 +53,16 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, working
+    from station.commands import existing_file, new_file, progress, working
     from station.replay import free_name, replay, replay_into, replay_raw
     from station.solve.quality import check_fit
 
     existing_file(args.session, "a session file (.h5)")
     if args.raw is not None:
         raw = new_file(args.raw, option="file for the raw replay")
-        with working(f"replaying {args.session} through the serial twin into {raw}"):
-            replay_raw(args.session, raw)
+        with progress(f"replaying {args.session} through the serial twin into {raw}",
+                      "samples") as advance:
+            replay_raw(args.session, raw, progress=advance)
         summary = {"session": str(args.session), "raw_replay": str(args.raw)}
     else:
         settings = _settings(args)

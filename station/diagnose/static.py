@@ -643,8 +643,9 @@ def untestable(data: StaticData, b0: Base) -> dict:
 
 
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
-                    candidates=None) -> Diagnosis:
-    """The evidence loop of station.diagnose.select on a free-static session."""
+                    candidates=None, progress=None) -> Diagnosis:
+    """The evidence loop of station.diagnose.select on a free-static session; `progress` as
+    `greedy`'s."""
     from station.diagnose import static_report
 
     b0 = base(data)
@@ -652,4 +653,4 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
     return greedy(fit(data, b0), candidates, lambda current, names: fit(data, b0, names, current),
                   lambda m: static_report.statistics(data, m), alpha=alpha,
-                  max_effects=max_effects)
+                  max_effects=max_effects, progress=progress)

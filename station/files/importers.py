@@ -110,12 +110,13 @@ def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED
 
 def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None = None,
                index_column: str | None = None, fs: float | None = None,
-               unit_serial: str = "IMPORTED") -> Path:
+               unit_serial: str = "IMPORTED", progress=None) -> Path:
     """Import a CSV file with a header row into a new session `out`.
 
     streams : stream name -> list of column names (e.g. {"acc": ["acc_x", "acc_y", "acc_z"]})
     units   : stream name -> unit spec
     Time: `time_column` (seconds), or `index_column` (sample numbers) with `fs`, or rows at `fs`.
+    progress : optional callable(characters read, characters in the file) while the rows are read
     """
     _check_names(streams, units)
     path = Path(path)
@@ -135,8 +136,9 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     if index_column is not None and fs is None:
         raise CalibrationInputError("an index column needs the sample rate fs.", "Give --fs HZ.")
     try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2,
-                           usecols=[header.index(c) for c in wanted])
+        with path.open(encoding="utf-8", errors="replace") as f:
+            table = np.loadtxt(_counted(f, path.stat().st_size, progress), delimiter=",",
+                               skiprows=1, ndmin=2, usecols=[header.index(c) for c in wanted])
     except ValueError as exc:
         raise CalibrationInputError(
             f"{path}: the chosen columns are not all numbers ({exc}).",
@@ -156,6 +158,19 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     values = {name: np.column_stack([by_name[c] for c in cols]) for name, cols in streams.items()}
     return _write(out, "csv", {name: str(path) for name in streams}, values, units, t, seq, fs,
                   unit_serial)
+
+
+def _counted(lines, size: int, progress, every: int = 50_000):
+    """The `lines`, telling `progress(characters so far, size)` every `every` lines (and at the
+    end) when given."""
+    done = 0
+    for i, line in enumerate(lines):
+        done += len(line)
+        if progress is not None and i % every == 0:
+            progress(done, size)
+        yield line
+    if progress is not None:
+        progress(size, size)
 
 
 def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:

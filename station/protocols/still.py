@@ -27,10 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.acquire.recorder import Recorder
-from station.errors import InputError
+from station.errors import InputError, ProtocolError
 from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
-from station.errors import ProtocolError
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import WindowQuality, describe, window_quality
