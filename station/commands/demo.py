@@ -89,6 +89,7 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     start = time.perf_counter()
     settings = settings or RotarySettings()
     with VirtualBench(imu, seed=seed, speed=speed) as bench:
+        bench.technician.period = bench.metronome(settings)  # positions on a seeded grid
         view = LiveView(bench.clock) if live else PositionProgress()
         record_rotary(bench, path, settings, suggested_axes(positions), view=view)
         truth = bench.truth()
