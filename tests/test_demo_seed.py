@@ -15,6 +15,7 @@ from station.reduce.timeline import sample_times
 
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
 POSITIONS = 8
+RATE_HZ = 200.0  # the virtual bench's default IMU rate
 FALSE_ALARM = 1e-3
 
 
@@ -40,8 +41,9 @@ def twice(tmp_path_factory):
 def test_the_same_sample_numbers_carry_the_same_counts(twice):
     (_, a), (_, b) = twice
     common = sorted(set(a) & set(b))
-    # the windows start when the host polls: most of their samples are common to both runs
-    assert len(common) > 0.5 * min(len(a), len(b)), (len(common), len(a), len(b))
+    # the windows start when the host polls, the positions on the technician's metronome: many
+    # samples are common to both runs (54 to 80 % measured on a loaded host); at least a window's
+    assert len(common) >= FAST.static * RATE_HZ, (len(common), len(a), len(b))
     assert all(np.array_equal(a[n], b[n]) for n in common)
 
 
