@@ -15,7 +15,6 @@ import numpy as np
 
 from station.model import measurement, sensing
 
-
 NOISE_CHUNK = 4096
 """Samples per block of the indexed noise streams (`SensorUnit.indexed_normals`)."""
 
