@@ -191,16 +191,15 @@ class VirtualBench:
         try:
             self.table_twin.start()
             if self.kind == "serial":
-                # frame n is sampled at clock_start + n / rate_hz, whenever the host gets round
-                # to it, and the unit's noise is indexed by that instant: a seeded bench repeats
-                # its samples (frames before the driver opens the port are lost)
                 self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
                                            max_lag=np.inf)  # flow control: never skip frames
-                self.imu_twin.start(self.clock_start)
             else:
                 self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
                                            self.clock)
-                self.imu_twin.start()
+            # sample n is taken at clock_start + n / rate_hz, whenever the host gets round to it,
+            # and the unit's noise is indexed by that instant: a seeded bench repeats its samples
+            # (those sent before the driver listens are lost)
+            self.imu_twin.start(self.clock_start)
         except BaseException:
             self.close()
             raise
