@@ -94,7 +94,13 @@ def test_solve_refuses_what_it_cannot_solve(tmp_path, capsys):
         pass
     assert cli.main(["solve", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "records a 'import' session" in err and "station.reduce.free_static" in err
+    assert "stream 'imu' holds 0 samples" in err and "import the recording again" in err
+    other = tmp_path / "other.h5"
+    with SessionWriter.create(other, {"protocol": "other", "unit_serial": "X"}, {"imu": spec}):
+        pass
+    assert cli.main(["solve", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "records a 'other' session" in err and "station import" in err
     iron = tmp_path / "iron.h5"  # a still-pose session without its gravity
     with SessionWriter.create(iron, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
         pass

@@ -39,6 +39,12 @@ FORMAT = "imu-station-calibration"
 FORMAT_VERSION = 3
 SUPPORTED_VERSIONS = (1, 2, 3)  # 2 added `covariance`, 3 `verdict`
 MAX_BYTES = 4 << 20
+LIMITS = {"a": (1e-9, 1e12), "b": (0.0, 1e9), "magnitude": (1e-12, 1e9), "condition": (0.0, 1e8)}
+"""Plausible ranges of finite numbers, wide enough for any unit in SI or raw counts: column norms
+of a (scale factors: counts per SI unit of a magnetometer reach 1e7), |b| in SI units, the stimulus
+magnitude, the condition number of a (sensitive axes nearly in one plane beyond it)."""
+LIMIT_WORDS = {"a": "scale factor (a column norm)", "b": "bias", "magnitude": "magnitude",
+               "condition": "condition number of a"}
 SI_UNITS = ("rad/s", "m/s^2", "T")
 FRAMES = ("canonical", "nominal")
 CONVENTIONS_V1 = {
@@ -343,7 +349,7 @@ def _from_document(doc, where: str) -> Calibration:
     if units.get("stimulus") != readings_units[0]:
         raise fail(f"units.stimulus {units.get('stimulus')!r} differs from the readings' unit")
     sens, bias, inv = (_dict(doc, k, fail) for k in ("sensitivity", "bias", "invariants"))
-    a = _array(sens, "a", fail, ndim=2, cols=m)
+    a = _array(sens, "a", fail, ndim=2, cols=m, bound=LIMITS["a"][1])
     d = a.shape[0]
     if not 1 <= d <= m or np.linalg.matrix_rank(a) < d:
         raise fail(f"sensitivity.a of shape {a.shape} must be d x m with rank d <= m")
@@ -352,6 +358,7 @@ def _from_document(doc, where: str) -> Calibration:
         raise fail(f"frame {frame!r} is not one of {FRAMES}")
     if type(magnitude) not in (int, float) or not magnitude > 0:
         raise fail(f"magnitude {magnitude!r} must be a positive number")
+    _plausible(a, _array(bias, "b", fail, shape=(m,), bound=LIMITS["b"][1]), magnitude, fail)
     if type(doc["scale_known"]) is not bool:
         raise fail("scale_known must be true or false")
     fit, session = _dict(doc, "fit", fail), doc["session"]
@@ -421,8 +428,25 @@ def _strings(doc, key, fail) -> list:
     return value
 
 
-def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positive=False):
-    """A float64 array from nested lists of JSON numbers (bool refused), checked."""
+def _plausible(a, b, magnitude, fail) -> None:
+    """Refuse finite numbers no sensor unit has (`LIMITS`): a file crafted or damaged so that
+    applying it overflows or divides by almost nothing (the fusion (a a^T)^-1 a of Eq. 7)."""
+    scale = np.linalg.norm(a, axis=0)
+    singular = np.linalg.svd(a, compute_uv=False)
+    checks = {"a": scale, "b": np.abs(b), "magnitude": np.array([magnitude]),
+              "condition": np.array([singular[0] / singular[-1]])}
+    for name, values in checks.items():
+        low, high = LIMITS[name]
+        worst = values.max() if np.any(values > high) else values.min()
+        if not low <= worst <= high:
+            raise fail(f"its {LIMIT_WORDS[name]} {worst:.3g} lies outside [{low:g}, {high:g}]; "
+                       "no sensor unit has that")
+
+
+def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positive=False,
+           bound=1e100):
+    """A float64 array from nested lists of JSON numbers (bool refused), checked; every
+    |value| <= bound (no overflow when squared or multiplied)."""
     value = doc.get(key)
 
     def numbers(x):
@@ -435,13 +459,15 @@ def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positi
         arr = np.array(value, dtype=np.float64)
     except ValueError:
         raise fail(f"{key} is a ragged list; give a full matrix") from None
+    except OverflowError:
+        raise fail(f"{key} holds an integer too large for a float") from None
     if (ndim is not None and arr.ndim != ndim) or (cols is not None and arr.shape[-1:] != (cols,)) \
             or (shape is not None and arr.shape != shape):
         want = shape if shape is not None else f"{ndim}-D with {cols} columns"
         raise fail(f"{key} has shape {arr.shape}, expected {want}")
-    if not np.all(np.isfinite(arr)) or (sigma and np.any(arr < 0)) \
+    if not np.all(np.abs(arr) <= bound) or (sigma and np.any(arr < 0)) \
             or (positive and np.any(arr <= 0)):
-        raise fail(f"{key} must be finite{' and non-negative' if sigma else ''}"
+        raise fail(f"{key} must be finite (|x| <= {bound:g}){' and non-negative' if sigma else ''}"
                    f"{' and positive' if positive else ''}")
     return arr
 

@@ -22,6 +22,7 @@ replay` does (`station.replay.solve_recorded`); the report says so. Every text f
 escaped: the file is untrusted.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,7 @@ from station.files.session import Session
 from station.protocols import KINDS
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
-from station.replay import ReplaySettings, solve_recorded
+from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
 from station.report import html
 from station.solve.quality import CHI2_P, check_fit, outlier_words
 
@@ -91,7 +92,8 @@ class Report:
             "magnitude": "stimulus magnitude c", "chi2_per_dof": "chi2 / dof", "dof": "dof",
             "noise_median": "median noise of a reading", "excitation_ratio":
             "weakest / strongest excitation", "largest_empty_cap_deg":
-            "largest direction without a position (deg)"}
+            "largest direction without a position (deg)", "still_poses": "still poses found",
+            "rejected_candidates": "still candidates rejected"}
         return [(label, _fmt(self.summary[key])) for key, label in labels.items()
                 if key in self.summary]
 
@@ -165,6 +167,7 @@ def _calibration(session, name, report):
     if name is not None and name not in names:
         raise InputError(f"{session.path} has no results named {name!r}; it has "
                          f"{', '.join(names) or 'none'} (omit --result to use the newest)")
+    kind = KINDS.get(session.protocol)
     if names:
         chosen = [session.results(n) for n in names]
         stored = session.results(name) if name else max(chosen, key=lambda r: r.created)
@@ -173,20 +176,66 @@ def _calibration(session, name, report):
         if stored.calibration is None:
             report.warnings.append(f"results/{stored.name} holds readings but no calibration.")
             return None
+        if kind is not None and kind.still:
+            _stored_poses(report, session, stored)
         return stored.calibration, spec.channels, spec.units
-    kind = KINDS.get(session.protocol)
-    if kind is None or not kind.has("reduce") or "imu" not in session.specs:
+    if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
         return None
     try:
-        _, cal = solve_recorded(session, ReplaySettings(), command="the report")
+        settings = ReplaySettings()
+        stream = calibrated_stream(session, settings)
+        readings, cal = solve_recorded(session, settings, command="the report")
     except CalibrationInputError as exc:
         report.warnings.append(f"No calibration could be computed from this session: {exc}")
         return None
     report.summary["result"] = "computed for this report (no stored result)"
-    spec = session.specs["imu"]
+    _poses(report, readings)
+    spec = session.specs[stream]
     return cal, spec.channels, spec.units
+
+
+def _stored_poses(report, session, stored) -> None:
+    """The still poses of stored results, detected again with the settings stored with them (a
+    replay's or a solve's; the defaults for a recording's own results)."""
+    known = {f.name for f in dataclasses.fields(ReplaySettings)}
+    given = {k: v for k, v in (stored.settings or {}).items() if k in known}
+    try:
+        settings = ReplaySettings(**{**given, "stream": stored.stream})
+        _poses(report, reduce_recorded(session, settings, "the report"))
+    except (InputError, TypeError) as exc:
+        report.warnings.append(f"The still poses of results/{stored.name} could not be detected "
+                               f"again: {exc}")
+
+
+def _poses(report, readings) -> None:
+    """The still poses found by the detector and every candidate it rejected, with the reason
+    (readings that kept their detection: iron, free-static, imported recordings)."""
+    still = getattr(readings, "detection", None)
+    if still is None:
+        return
+    t = readings.times - readings.times[0]
+    rows = [(j + 1, f"{t[a]:.2f}", f"{t[b - 1]:.2f}", f"{t[b - 1] - t[a]:.2f}",
+             f"{t[a] - t[a - settling]:.2f}", "pose")
+            for j, ((a, b), settling) in enumerate(zip(still.intervals, still.settling,
+                                                       strict=True))]
+    rows += [("-", f"{t[a]:.2f}", f"{t[b - 1]:.2f}", f"{t[b - 1] - t[a]:.2f}", "-",
+              f"rejected: {why}") for a, b, why in still.rejected]
+    rows.sort(key=lambda row: float(row[1]))
+    report.summary.update(still_poses=len(still.intervals), rejected_candidates=len(
+        still.rejected))
+    if still.rejected:
+        report.warnings.append(f"{len(still.rejected)} still candidate(s) were rejected: see "
+                               "Still poses (a declared --rest, --threshold or --min-still may "
+                               "keep them).")
+    report.sections.append(html.section("poses", "Still poses", (
+        f"<p>{len(still.intervals)} still poses found and {len(still.rejected)} candidates (no "
+        "motion for at least a window) rejected, seconds from the first sample; settling: the "
+        "quieting motion cut from the start of the pose. Noise level per channel: "
+        f"{html.e(', '.join(f'{x:.3g}' for x in still.noise))}.</p>")
+        + html.table(rows, ["pose", "start (s)", "end (s)", "length (s)", "settling (s)",
+                            "verdict"])))
 
 
 # --------------------------------------------------------------------------------- the fit

@@ -11,6 +11,7 @@ reopens such a file and continues it. Results are written after the acquisition,
 
 import dataclasses
 import fcntl
+import hashlib
 import json
 import numbers
 import os
@@ -331,7 +332,10 @@ def _write_layout(f, metadata, metadata_json, streams) -> None:
                    software_version=software_version(), created=utc_now(),
                    protocol=metadata["protocol"], unit_serial=metadata["unit_serial"],
                    units=json.dumps(units, sort_keys=True))
-    f.create_dataset("metadata", data=metadata_json, dtype=h5py.string_dtype())
+    ds = f.create_dataset("metadata", data=metadata_json, dtype=h5py.string_dtype())
+    # fixed-length, so held in the checksummed object header (the text itself is in the global
+    # heap, which HDF5 does not checksum)
+    ds.attrs["sha256"] = np.bytes_(hashlib.sha256(metadata_json.encode()).hexdigest())
     for name, spec in streams.items():
         g = f.create_group(f"streams/{name}")
         g.attrs.update(channels=list(spec.channels), units=list(spec.units),
@@ -381,7 +385,7 @@ def _column(group, name, dtype, units: str, width=None) -> None:
     tail = () if width is None else (width,)
     rows = max(64, CHUNK_BYTES // (dtype.itemsize * (width or 1)))
     ds = group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
-                              chunks=(rows, *tail), dtype=dtype)
+                              chunks=(rows, *tail), dtype=dtype, fletcher32=True)
     ds.attrs["units"] = units
 
 
