@@ -43,7 +43,9 @@ class CanImuTwin:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"CanImuTwin {channel}", daemon=True)
 
-    def start(self) -> "CanImuTwin":
+    def start(self, start_time=None) -> "CanImuTwin":
+        """Start streaming; sample 0 is at `start_time` (default: now)."""
+        self.start_time = self.clock.now() if start_time is None else float(start_time)
         self._thread.start()
         return self
 
@@ -66,7 +68,7 @@ class CanImuTwin:
         self.stop()
 
     def _run(self) -> None:
-        t0, sent = self.clock.now(), 0
+        t0, sent = self.start_time, 0
         total = self.samples if self.samples is not None else float("inf")
         try:
             while sent < total and not self._stop.is_set():

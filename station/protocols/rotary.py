@@ -36,6 +36,12 @@ Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
 
+Each captured position is confirmed to the operator with its quality when the protocol reads a
+copy of the stream (`run(..., tap=StreamTap)`, as `continue_session` does): the samples found and
+due in the static and rotating windows through the reduction's own checks, and the static noise
+against the median of the earlier positions' static windows
+(`station.reduce.window_quality`).
+
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
@@ -52,6 +58,8 @@ from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
+from station.protocols.still import StillSettings, StreamTap
+from station.reduce.window_quality import describe, window_quality
 
 log = logging.getLogger(__name__)
 
@@ -174,12 +182,14 @@ class RotaryProtocol:
                              "it was not written by this station") from None
         return cls(table, operator, clock, settings, axes)
 
-    def run(self, recorder, first: int = 0) -> None:
+    def run(self, recorder, first: int = 0, tap: StreamTap | None = None) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
-        the table is stopped whatever happens."""
+        the table is stopped whatever happens. `tap`: the StreamTap the recorder reads, for the
+        quality of each captured position (None: confirmations without it)."""
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
+        self.tap, self._windows, self._static_noise = tap, {}, []
         self._rotated = None  # the last position whose rotating window ended
         try:
             while self.state != "done":
@@ -214,9 +224,9 @@ class RotaryProtocol:
     def _static(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: static window ({s.static:g} s)")
-        self.recorder.event("static_start", j)
+        start = self.recorder.event("static_start", j)
         self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
-        self.recorder.event("static_end", j)
+        self._windows["static"] = (start, self.recorder.event("static_end", j))
         self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "spin_up"
@@ -236,7 +246,7 @@ class RotaryProtocol:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._poll()
-        self.recorder.event("rotate_start", j, {"angle": start.angle})
+        begun = self.recorder.event("rotate_start", j, {"angle": start.angle})
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
@@ -251,7 +261,8 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
                                     "window); check the table's encoder")
-        self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._windows["rotating"] = (begun, self.recorder.event("rotate_end", j,
+                                                                 {"angle": reading.angle}))
         self._rotated = j
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
         self.recorder.drain(self.clock.now(), s.stale)
@@ -263,7 +274,8 @@ class RotaryProtocol:
 
     def _rest(self) -> str:
         self._done()
-        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured")
+        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured"
+                             + self._quality())
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
@@ -272,6 +284,27 @@ class RotaryProtocol:
         self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
         self.recorder.drain(self.clock.now(), self.settings.stale)
         self.recorder.event("position_done", self.position, detail)
+
+    def _quality(self) -> str:
+        """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
+        position just captured; "" without a tap. The static noise is compared with the median of
+        the earlier positions' (the same unit at rest), out of line beyond the stillness
+        detector's `enter`; the tap then forgets the position's samples."""
+        if self.tap is None:
+            return ""
+        t, z = self.tap.samples(self._windows["static"][0])
+        unit = self.recorder.writer.specs[self.recorder.stream].units[0]
+        reference = np.median(self._static_noise, axis=0) if self._static_noise else None
+        words = []
+        for name, window in self._windows.items():
+            q = window_quality(t, z, window, self.tap.rate_hz, self.tap.lsb,
+                               reference if name == "static" else None, StillSettings.enter, name,
+                               self.position)
+            words.append(f"{name} {describe(q, unit, 'the earlier static windows')}")
+            if name == "static":
+                self._static_noise.append(q.noise)
+        self.tap.forget(self.clock.now())
+        return ": " + "; ".join(words)
 
     def _restart(self) -> str:
         j = self.position
@@ -439,9 +472,11 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        with Recorder(writer, view.observe_imu(imu), clock=clock) as recorder, view.show():
+        spec = writer.specs["imu"]
+        tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
+        with Recorder(writer, tap, clock=clock) as recorder, view.show():
             try:
-                protocol.run(view.observe_recorder(recorder), first)
+                protocol.run(view.observe_recorder(recorder), first, tap)
             finally:
                 stats = getattr(imu, "stats", None)
                 if stats is not None:
