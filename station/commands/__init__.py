@@ -48,3 +48,9 @@ def given_values():
         raise
     except ValueError as err:
         raise InputError(str(err)) from err
+
+
+def table_words(err: BaseException) -> str:
+    """"the table was stopped; " when a stop command got through after `err`, "" otherwise (no
+    table, or the driver's note already tells the operator to stop it by hand)."""
+    return "the table was stopped; " if getattr(err, "table_stopped", None) else ""

@@ -32,7 +32,7 @@ def register(p) -> None:
 
 def run(args) -> int:
     from drivers.errors import DeviceError
-    from station.commands import existing_file
+    from station.commands import existing_file, table_words
     from station.errors import AcquisitionError, OperatorAbort
     from station.files.session import Session
     from station.twin.rotary_bench import resume_rotary
@@ -46,7 +46,7 @@ def run(args) -> int:
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
-        err.add_note("the table was stopped; resume again to go on")
+        err.add_note(f"{table_words(err)}resume again to go on")
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()
