@@ -138,3 +138,54 @@ def test_twin_refuses_a_source_of_the_wrong_shape():
     clock.sleep(0.05)
     with pytest.raises(ValueError, match=r"shape \(\d+, 12\)"):
         twin.stop()
+
+
+def test_duplicated_frames_are_dropped_and_counted_never_a_forward_jump():
+    """At least 300 frames sent twice byte for byte (a CRC-valid repeat): each is dropped and
+    counted; the numbering has no jump (without the check each became +65536: 32.8 s at 2 kHz)."""
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=4, duplicate=0.05)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        got = read_until(imu, 8000)
+    repeated = np.array(twin.duplicated)
+    assert np.count_nonzero(repeated < got.seq[-1]) >= 300
+    np.testing.assert_array_equal(got.seq, np.arange(got.seq[0], got.seq[-1] + 1))
+    assert np.array_equal(got.counts, source(twin.time_of(got.seq)))
+    assert imu.stats.gaps == 0 and imu.stats.restarts == 0
+    assert (np.count_nonzero(repeated < got.seq[-1]) <= imu.stats.duplicates
+            <= np.count_nonzero(repeated <= got.seq[-1]))
+
+
+def test_a_restarted_device_starts_a_new_segment_and_earlier_samples_keep_their_times():
+    """The device resets mid-stream (numbering and device time from 0): the samples after it are
+    a new segment (numbering goes back, not a forward jump), those before keep their numbers, and
+    the timeline gives both sides their true sampling instants."""
+    from station.reduce.timeline import sample_times
+
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=6)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        before = read_until(imu, 3000)
+        twin.restart()
+        blocks = [before]
+        while not twin.restarts or blocks[-1].seq[-1] >= before.seq[-1] or \
+                blocks[-1].seq[-1] < 3000:
+            blocks.append(imu.read_block(timeout=5.0))
+            assert blocks[-1] is not None, "the twin stopped streaming"
+    got = SampleBlock.concat(blocks)
+    cut = int(np.flatnonzero(np.diff(got.seq) <= 0)[0]) + 1  # the one place it does not increase
+    assert np.all(np.diff(got.seq[cut:]) == 1) and np.all(np.diff(got.seq[:cut]) == 1)
+    assert imu.stats.restarts == 1 and imu.stats.gaps == 0
+    origin = twin.restarts[0]
+    frames = np.r_[got.seq[:cut], origin + got.seq[cut:] - got.seq[cut]]  # the twin's numbering
+    assert got.seq[cut] == 0 and got.device_time[cut] == 0.0  # the device's own 0
+    assert np.array_equal(got.counts, source(twin.time_of(frames)))
+    rate = BINARY.imu.rate_hz
+    times = sample_times(got.seq, got.host_time, rate)
+    np.testing.assert_array_equal(times[:cut], sample_times(got.seq[:cut], got.host_time[:cut],
+                                                            rate))
+    # each side's instants: the true ones, late by the least arrival latency (a few ms of wall
+    # time at 10x: well under 0.2 s of clock)
+    late = times - twin.time_of(frames)
+    assert np.all((late[:cut] >= -1e-9) & (late[:cut] < 0.2))
+    assert np.all((late[cut:] >= -1e-9) & (late[cut:] < 0.2))

@@ -5,7 +5,8 @@ completed one are recorded, and the file is closed cleanly. Sessions recorded on
 (`bench` in their metadata) resume on a new virtual bench built from it. Sessions recorded with
 real devices (`station record`) resume with the devices of a bench profile: `--profile`, by
 default the one the session was recorded with (its path is in the metadata); it must be for the
-same unit and stream (`station.acquire.bench.resume`). The table is stopped first.
+same unit and stream (`station.acquire.bench.resume`). The table is commanded to stop first of
+all, within a second of the command's start (`station.acquire.bench.stop_table`).
 """
 
 import json
@@ -81,9 +82,11 @@ def _recorded_profile(path) -> Path | None:
 
 
 def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
-    """Resume `path` with the devices of the bench profile, prompting on the console."""
-    from station.acquire.bench import BenchProfile, resume
+    """Resume `path` with the devices of the bench profile, prompting on the console; its table
+    is commanded to stop first of all."""
+    from station.acquire.bench import BenchProfile, resume, stop_table
     from station.acquire.operator import ConsoleOperator
 
+    stop_table(profile)
     bench = BenchProfile.load(profile)
     return resume(bench, path, ConsoleOperator(stdout=sys.stderr if quiet else sys.stdout))
