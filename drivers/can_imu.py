@@ -165,9 +165,10 @@ def _signal(message, name: str, dbc: Path):
 
 @dataclass
 class CanStats(LinkStats):
-    """Counters of what the decoder saw (LinkStats' samples, gaps, dropped, and the frames). Every
-    frame lands in exactly one of `used`, `unknown`, `short` (fewer data bytes than the DBC says)
-    and `orphaned` (part of an incomplete sample). `dropped` counts the samples missing between
+    """Counters of what the decoder saw (LinkStats' samples, gaps, dropped, duplicates, restarts,
+    and the frames). Every frame lands in exactly one of `used` (including a repeated sample's),
+    `unknown`, `short` (fewer data bytes than the DBC says) and `orphaned` (part of an incomplete
+    sample). `dropped` counts the samples missing between
     consecutive counters, whether all their frames were lost or only some (`incomplete`)."""
 
     frames: int = 0
