@@ -32,18 +32,26 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from drivers.errors import DeviceError
+    """Stop the table first (nothing else is imported before: `stop_table`), then resume."""
     from station.commands import existing_file, table_words
-    from station.errors import AcquisitionError, OperatorAbort
-    from station.files.session import Session
-    from station.twin.rotary_bench import resume_rotary
 
     existing_file(args.session, "a session file (.h5)")
-    overrides = {} if args.speed is None else {"speed": args.speed}
     profile = args.profile or _recorded_profile(args.session)
+    if profile is not None:
+        from station.acquire.bench import stop_table
+
+        stop_table(profile)
+
+    from drivers.errors import DeviceError
+    from station.errors import AcquisitionError, OperatorAbort
+    from station.files.session import Session
+
     try:
         if profile is None:
-            first = resume_rotary(args.session, **overrides)
+            from station.twin.rotary_bench import resume_rotary
+
+            first = resume_rotary(args.session, **({} if args.speed is None
+                                                    else {"speed": args.speed}))
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
@@ -82,11 +90,9 @@ def _recorded_profile(path) -> Path | None:
 
 
 def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
-    """Resume `path` with the devices of the bench profile, prompting on the console; its table
-    is commanded to stop first of all."""
-    from station.acquire.bench import BenchProfile, resume, stop_table
+    """Resume `path` with the devices of the bench profile, prompting on the console."""
+    from station.acquire.bench import BenchProfile, resume
     from station.acquire.operator import ConsoleOperator
 
-    stop_table(profile)
     bench = BenchProfile.load(profile)
     return resume(bench, path, ConsoleOperator(stdout=sys.stderr if quiet else sys.stdout))
