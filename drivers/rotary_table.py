@@ -56,8 +56,11 @@ def link_words(exc: OSError | ConnectionException) -> str:
         return "connection refused (is the controller running, and the port right?)"
     if isinstance(exc, BrokenPipeError | ConnectionAbortedError):
         return "connection broken by the controller (is it powered? did it restart?)"
+    if isinstance(exc, ConnectionException) and "failed to connect" in str(exc).lower():
+        # pymodbus' words when the client could not (re)connect
+        return "cannot connect (is the controller running and powered, the port right?)"
     if isinstance(exc, ConnectionException):
-        return "no connection (is it powered and on the network?)"
+        return "connection lost (is it powered? did its controller restart?)"
     return f"network error ({exc.strerror or exc}); check its power, cable and IP address"
 
 
@@ -282,6 +285,7 @@ class RotaryTable:
         try:
             return self._request(what, call, repeat)
         except TableError as error:
+            log.warning("%s", error)
             self._emergency_stop(error)
             raise
 
@@ -344,5 +348,4 @@ class RotaryTable:
             raise TableError(f"{where}: answered {what} with Modbus exception {code} "
                              f"({exception_name(code)}); "
                              "check the register map and device id in the device profile")
-        log.warning("%s", error)
         raise error

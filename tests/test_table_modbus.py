@@ -263,7 +263,7 @@ def test_a_controller_that_dies_mid_rotation_leaves_the_table_turning_and_says_s
         assert caught.value.table_stopped is False
         assert any("stop the table by hand" in n for n in caught.value.__notes__)
         assert physics.state().running and physics.state().rate == pytest.approx(3.0, abs=1e-3)
-        with pytest.raises(TableLinkError, match="cannot connect|no connection"):
+        with pytest.raises(TableLinkError, match="cannot connect"):
             table.stop()
     finally:
         table.close()
