@@ -225,7 +225,8 @@ def serial_sequence(duplicate: float, restart: bool, seed: int) -> tuple:
         n = np.round(np.asarray(times) * 1e6).astype(np.int64)
         return (n[:, None] * 2654435761 + np.arange(12) * 40503) % 2**32 - 2**31
     clock = ScaledClock(speed=10)
-    twin = SerialTwin(profile, source, clock=clock, seed=seed, duplicate=duplicate)
+    twin = SerialTwin(profile, source, clock=clock, seed=seed, duplicate=duplicate,
+                      max_lag=np.inf)  # flow control only: no frame skipped when behind
     blocks = []
     with twin, SerialImu(twin.port, profile, clock=clock) as imu:
         while sum(map(len, blocks)) < 4000:

@@ -142,9 +142,10 @@ def test_twin_refuses_a_source_of_the_wrong_shape():
 
 def test_duplicated_frames_are_dropped_and_counted_never_a_forward_jump():
     """At least 300 frames sent twice byte for byte (a CRC-valid repeat): each is dropped and
-    counted; the numbering has no jump (without the check each became +65536: 32.8 s at 2 kHz)."""
+    counted; the numbering has no jump (without the check each became +65536: 32.8 s at 2 kHz).
+    The twins here never skip frames when they fall behind (max_lag inf: flow control only)."""
     clock = ScaledClock(speed=10)
-    twin = SerialTwin(BINARY, source, clock=clock, seed=4, duplicate=0.05)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=4, duplicate=0.05, max_lag=np.inf)
     with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
         got = read_until(imu, 8000)
     repeated = np.array(twin.duplicated)
@@ -163,7 +164,7 @@ def test_a_restarted_device_starts_a_new_segment_and_earlier_samples_keep_their_
     from station.reduce.timeline import sample_times
 
     clock = ScaledClock(speed=10)
-    twin = SerialTwin(BINARY, source, clock=clock, seed=6)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=6, max_lag=np.inf)
     with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
         before = read_until(imu, 3000)
         twin.restart()
@@ -189,3 +190,28 @@ def test_a_restarted_device_starts_a_new_segment_and_earlier_samples_keep_their_
     late = times - twin.time_of(frames)
     assert np.all((late[:cut] >= -1e-9) & (late[:cut] < 0.2))
     assert np.all((late[cut:] >= -1e-9) & (late[cut:] < 0.2))
+
+
+def test_the_recorder_follows_a_restarted_device_into_the_session(tmp_path):
+    """Recording through a device restart: `drain` sees the newest samples at once (it waited for
+    the restarted numbering to catch up with the old one), and the file holds one new segment."""
+    from station.acquire.recorder import Recorder
+    from station.files.session import Session, SessionWriter, StreamSpec
+
+    clock = ScaledClock(speed=10)
+    spec = StreamSpec.from_profile(BINARY.imu)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=8, max_lag=np.inf)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu, \
+            SessionWriter.create(tmp_path / "s.h5", {"protocol": "rotary", "unit_serial": "T"},
+                                 {"imu": spec}, clock=clock) as writer, \
+            Recorder(writer, imu, clock=clock, drain_timeout=2.0) as recorder:
+        clock.sleep(40.0)  # 4 s of wall time
+        recorder.drain(clock.now(), stale=10.0)
+        twin.restart()
+        # 1 s of clock is 0.1 s of wall time: 20x margin; the old numbering is 40 s ahead: if
+        # `drain` waited for it to catch up (the restart taken for the old count), 4 s of wall
+        recorder.drain(clock.now() + 1.0, stale=10.0)
+    with Session.open(tmp_path / "s.h5") as s:
+        seq = s.stream("imu").seq
+    assert np.count_nonzero(np.diff(seq) <= 0) == 1 == imu.stats.restarts
+    assert np.count_nonzero(np.diff(seq) > 1) == 0
