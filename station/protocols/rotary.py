@@ -343,10 +343,10 @@ class RotaryProtocol:
         exc.table_stopped = True
         return True
 
-    def _lost_devices(self, exc: BaseException) -> list:
-        """The devices lost, in words ("rotary table at host:port", "IMU on /dev/ttyUSB0"): the
-        table if `exc` or its cause is a table error or no stop got through, the IMU if `exc`, its
-        cause or the IMU reader's own failure is a lost link."""
+    def _failed_devices(self, exc: BaseException) -> list:
+        """The devices that failed, in words ("rotary table at host:port", "IMU on
+        /dev/ttyUSB0"): the table if `exc` or its cause is a table error or no stop got through,
+        the IMU if `exc`, its cause or the IMU reader's own failure is a lost link."""
         devices = []
         causes = [exc, exc.__cause__, self.recorder.error]
         if (any(isinstance(e, TableError) for e in causes)
@@ -405,12 +405,12 @@ class RotaryProtocol:
 
     def _abort(self, exc: BaseException) -> None:
         """Stop the table first, complete a position whose rotating window had ended, then record
-        why the session ended: the state, the devices lost, whether the table was stopped and the
-        error with its notes (what the operator was told); failures become notes."""
+        why the session ended: the state, the devices that failed, whether the table was stopped
+        and the error with its notes (what the operator was told); failures become notes."""
         stopped = self._stop_table(exc)
         if self._rotated == self.position:
             self._complete(exc)
-        devices = self._lost_devices(exc)
+        devices = self._failed_devices(exc)
         if any(d not in str(exc) for d in devices):
             exc.add_note(f"lost: {' and '.join(devices)}")
         words = "; ".join([str(exc), *getattr(exc, "__notes__", ())])
