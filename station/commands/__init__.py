@@ -119,3 +119,9 @@ def still_values(args) -> dict:
                              "sample, e.g. --rest 0:50")
     return {"rest": rest, "threshold": args.threshold, "still_channels": args.still_channels,
             "min_still": args.min_still}
+
+
+def table_words(err: BaseException) -> str:
+    """"the table was stopped; " when a stop command got through after `err`, "" otherwise (no
+    table, or the driver's note already tells the operator to stop it by hand)."""
+    return "the table was stopped; " if getattr(err, "table_stopped", None) else ""

@@ -53,7 +53,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from drivers.rotary_table import TableTimeout
+from drivers.errors import CanBusError, SerialPortError, TableError
+from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
@@ -362,13 +363,33 @@ class RotaryProtocol:
                                 "fix the bench, then resume the session") from exc
 
     def _stop_table(self, exc: BaseException) -> bool:
-        """Command the table to stop; False (and a note on `exc`) if it does not answer."""
+        """Command the table to stop; False if it does not answer. `exc.table_stopped` says which,
+        and a note on `exc` tells the operator to stop the table by hand (once)."""
         try:
             self.table.stop()
-            return True
         except Exception as stop_error:  # noqa: BLE001 - the original error goes on
-            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+            if getattr(exc, "table_stopped", None) is not False:
+                not_stopped(exc, stop_error)
             return False
+        if getattr(exc, "table_stopped", None) is False:
+            exc.add_note("a later stop command got through: the table was stopped")
+        exc.table_stopped = True
+        return True
+
+    def _failed_devices(self, exc: BaseException) -> list:
+        """The devices that failed, in words ("rotary table at host:port", "IMU on
+        /dev/ttyUSB0"): the table if `exc` or its cause is a table error or no stop got through,
+        the IMU if `exc`, its cause or the IMU reader's own failure is a lost link."""
+        devices = []
+        causes = [exc, exc.__cause__, self.recorder.error]
+        if (any(isinstance(e, TableError) for e in causes)
+                or getattr(exc, "table_stopped", None) is False):
+            devices.append(getattr(self.table, "where", "rotary table"))
+        for e in causes:
+            if isinstance(e, SerialPortError | CanBusError):
+                devices.append(f"IMU on {getattr(e, 'port', None) or e.channel}")
+                break
+        return devices
 
     # -- helpers ---------------------------------------------------------------------------------
 
@@ -417,13 +438,19 @@ class RotaryProtocol:
 
     def _abort(self, exc: BaseException) -> None:
         """Stop the table first, complete a position whose rotating window had ended, then record
-        why the session ended; failures become notes."""
-        self._stop_table(exc)
+        why the session ended: the state, the devices that failed, whether the table was stopped
+        and the error with its notes (what the operator was told); failures become notes."""
+        stopped = self._stop_table(exc)
         if self._rotated == self.position:
             self._complete(exc)
+        devices = self._failed_devices(exc)
+        if any(d not in str(exc) for d in devices):
+            exc.add_note(f"lost: {' and '.join(devices)}")
+        words = "; ".join([str(exc), *getattr(exc, "__notes__", ())])
         try:
             self.recorder.event("abort", self.position, {
-                "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
+                "state": self.state, "devices": devices, "table_stopped": stopped,
+                "error": f"{type(exc).__name__}: {words}"})
         except Exception as record_error:  # noqa: BLE001
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
 
