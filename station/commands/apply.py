@@ -117,10 +117,17 @@ def read_session(path, stream: str, cal) -> tuple:
             raise CalibrationFileError(f"{path} has no stream {stream!r}; choose one of "
                                        f"{sorted(session.specs)} with --stream")
         spec = session.specs[stream]
-        cal.check_unit(session.unit_serial, spec.channels, spec.units, where=str(path))
+        missing = [s for s in cal.sensors if s not in spec.channels]
+        if missing:
+            raise CalibrationFileError(f"{path}: stream {stream!r} lacks the calibration's "
+                                       f"sensors {missing}; give the session (and --stream) it "
+                                       "was solved from")
+        cols = [spec.channels.index(s) for s in cal.sensors]  # e.g. the accelerometers of a
+        cal.check_unit(session.unit_serial, cal.sensors,  # stream that holds gyros too
+                       [spec.units[i] for i in cols], where=str(path))
         data = session.stream(stream)
     time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
-    return time, data.to_si()
+    return time, data.to_si()[:, cols]
 
 
 def read_csv(path, cal, counts: bool = False) -> tuple:

@@ -81,7 +81,7 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, new_file, table_words
     from station.commands.solve import verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
@@ -101,8 +101,7 @@ def run(args) -> int:
         if args.solve:
             summary["calibration"] = solve(out, args.accept_suspect)
     except BaseException as err:
-        stopped = "the table was stopped; " if kind.table else ""
-        err.add_note(f"{stopped}{out} keeps the completed positions")
+        err.add_note(f"{table_words(err)}{out} keeps the completed positions")
         raise
     if args.json:
         print(json.dumps(summary, indent=2))

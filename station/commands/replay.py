@@ -61,17 +61,19 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_session, new_file, working
+    from station.commands import existing_session, new_file, progress, working
     from station.commands.solve import pose_lines, poses
     from station.files.session import Session
+    from station.protocols import KINDS
     from station.replay import free_name, replay, replay_into, replay_raw, stimulus
     from station.solve.quality import check_fit
 
     existing_session(args.session, None if args.raw else _positions(args.positions))
     if args.raw is not None:
         raw = new_file(args.raw, option="file for the raw replay")
-        with working(f"replaying {args.session} through the serial twin into {raw}"):
-            replay_raw(args.session, raw)
+        with progress(f"replaying {args.session} through the serial twin into {raw}",
+                      "samples") as advance:
+            replay_raw(args.session, raw, progress=advance)
         summary = {"session": str(args.session), "raw_replay": str(args.raw)}
     else:
         settings = _settings(args)
@@ -91,7 +93,8 @@ def run(args) -> int:
                    "magnitude": result.magnitude, **poses(reduced)}
         with Session.open(args.session) as session:
             summary["stimulus"] = stimulus(session, settings)[1]
-        check = check_fit(result)
+            hand = KINDS[session.protocol].still
+        check = check_fit(result, pose_term=hand)
         summary.update(status=check.status, status_reasons=check.problems)
     if args.json:
         print(json.dumps(summary))

@@ -5,7 +5,8 @@ completed one are recorded, and the file is closed cleanly. Sessions recorded on
 (`bench` in their metadata) resume on a new virtual bench built from it. Sessions recorded with
 real devices (`station record`) resume with the devices of a bench profile: `--profile`, by
 default the one the session was recorded with (its path is in the metadata); it must be for the
-same unit and stream (`station.acquire.bench.resume`). The table is stopped first.
+same unit and stream (`station.acquire.bench.resume`). The table is commanded to stop first of
+all, within a second of the command's start (`station.acquire.bench.stop_table`).
 """
 
 import json
@@ -31,22 +32,32 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    """Stop the table first (nothing else is imported before: `stop_table`), then check the
+    file (`existing_session`, about 0.5 s in a child process) and resume."""
+    from station.commands import existing_file, existing_session, table_words
+
+    existing_file(args.session, "a session file (.h5)")
+    profile = args.profile or _recorded_profile(args.session)
+    if profile is not None:
+        from station.acquire.bench import stop_table
+
+        stop_table(profile)
+    existing_session(args.session)
+
     from drivers.errors import DeviceError
-    from station.commands import existing_session
     from station.errors import AcquisitionError, OperatorAbort
     from station.files.session import Session
-    from station.twin.rotary_bench import resume_rotary
 
-    existing_session(args.session)
-    overrides = {} if args.speed is None else {"speed": args.speed}
-    profile = args.profile or _recorded_profile(args.session)
     try:
         if profile is None:
-            first = resume_rotary(args.session, **overrides)
+            from station.twin.rotary_bench import resume_rotary
+
+            first = resume_rotary(args.session, **({} if args.speed is None
+                                                    else {"speed": args.speed}))
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
-        err.add_note("the table was stopped; resume again to go on")
+        err.add_note(f"{table_words(err)}resume again to go on")
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()

@@ -132,7 +132,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
     names = [spec.channels[i] for i in channels]
-    check = check_fit(result, names)
+    check = check_fit(result, names, pose_term=kind.still)
     if check.problems and not accept_suspect:
         raise SuspectFitError(
             f"{path}: the fit is suspect, so no calibration file was written: "
@@ -144,7 +144,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info,
         status=check.status, status_reasons=check.problems, **bias)
     if store:
-        _store(path, readings, result, settings)
+        _store(path, readings, result, settings, channels)
     if tolerances is None or tolerances.empty:
         return cal
     return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
@@ -162,13 +162,15 @@ def poses(readings) -> dict:
                          for a, b, why in still.rejected]}
 
 
-def _store(path, readings, result, settings) -> None:
-    """The result stored in the session as results/solve-<k>, with the settings that made it."""
+def _store(path, readings, result, settings, channels) -> None:
+    """The result stored in the session as results/solve-<k>, with the settings that made it and
+    the stream's channels it calibrates."""
     from station.files.session import write_results
     from station.replay import free_name
 
     write_results(path, free_name(path, "solve"), settings.stream, readings.M, result,
-                  readings.sigma, settings=dataclasses.asdict(settings))
+                  readings.sigma, settings=dataclasses.asdict(settings),
+                  channels=[int(i) for i in channels])
 
 
 def recorded_tolerances(metadata: dict, path):

@@ -67,6 +67,9 @@ def register(p) -> None:
     p.add_argument("--rate-hz", type=float, default=200.0, help="IMU sample rate (default 200)")
     p.add_argument("--lifetime", type=float, default=3600.0,
                    help="wall seconds after which the twin stops by itself (default 3600)")
+    p.add_argument("--table-log", type=Path,
+                   help="rotary: append each write the table accepts to this file, one line "
+                        "'<CLOCK_MONOTONIC s> <address> <values>' (to time a station's commands)")
     p.add_argument("--json", action="store_true",
                    help="machine-readable addresses, and the truth when stopping")
     p.set_defaults(run=run)
@@ -78,8 +81,12 @@ def run(args) -> int:
 
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
+    if args.table_log and not KINDS[args.protocol].table:
+        raise InputError(f"--table-log: a {args.protocol} bench has no rotary table")
     with given_values():
         twin = KINDS[args.protocol].entry("twin")(args)
+    if args.table_log:
+        twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
     previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

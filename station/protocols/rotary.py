@@ -36,6 +36,12 @@ Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
 
+Each captured position is confirmed to the operator with its quality when the protocol reads a
+copy of the stream (`run(..., tap=StreamTap)`, as `continue_session` does): the samples found and
+due in the static and rotating windows through the reduction's own checks, and the static noise
+against the median of the earlier positions' static windows
+(`station.reduce.window_quality`).
+
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
@@ -47,12 +53,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from drivers.rotary_table import TableTimeout
+from drivers.errors import CanBusError, SerialPortError, TableError
+from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.protocols.planned import fixture_instruction, rotary_plan
+from station.protocols.still import StillSettings, StreamTap
+from station.reduce.window_quality import describe, window_quality
 
 log = logging.getLogger(__name__)
 
@@ -194,12 +203,14 @@ class RotaryProtocol:
             return fixture_instruction(j, len(self.axes), self.fixture_poses[j])
         return instruction(j, len(self.axes), self.axes[j])
 
-    def run(self, recorder, first: int = 0) -> None:
+    def run(self, recorder, first: int = 0, tap: StreamTap | None = None) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
-        the table is stopped whatever happens."""
+        the table is stopped whatever happens. `tap`: the StreamTap the recorder reads, for the
+        quality of each captured position (None: confirmations without it)."""
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
+        self.tap, self._windows, self._static_noise = tap, {}, []
         self._rotated = None  # the last position whose rotating window ended
         try:
             while self.state != "done":
@@ -234,9 +245,9 @@ class RotaryProtocol:
     def _static(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: static window ({s.static:g} s)")
-        self.recorder.event("static_start", j)
+        start = self.recorder.event("static_start", j)
         self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
-        self.recorder.event("static_end", j)
+        self._windows["static"] = (start, self.recorder.event("static_end", j))
         self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "spin_up"
@@ -256,7 +267,7 @@ class RotaryProtocol:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._poll()
-        self.recorder.event("rotate_start", j, {"angle": start.angle})
+        begun = self.recorder.event("rotate_start", j, {"angle": start.angle})
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
@@ -271,7 +282,8 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
                                     "window); check the table's encoder")
-        self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._windows["rotating"] = (begun, self.recorder.event("rotate_end", j,
+                                                                 {"angle": reading.angle}))
         self._rotated = j
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
         self.recorder.drain(self.clock.now(), s.stale)
@@ -283,7 +295,8 @@ class RotaryProtocol:
 
     def _rest(self) -> str:
         self._done()
-        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured")
+        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured"
+                             + self._quality())
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
@@ -292,6 +305,27 @@ class RotaryProtocol:
         self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
         self.recorder.drain(self.clock.now(), self.settings.stale)
         self.recorder.event("position_done", self.position, detail)
+
+    def _quality(self) -> str:
+        """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
+        position just captured; "" without a tap. The static noise is compared with the median of
+        the earlier positions' (the same unit at rest), out of line beyond the stillness
+        detector's `enter`; the tap then forgets the position's samples."""
+        if self.tap is None:
+            return ""
+        t, z = self.tap.samples(self._windows["static"][0])
+        unit = self.recorder.writer.specs[self.recorder.stream].units[0]
+        reference = np.median(self._static_noise, axis=0) if self._static_noise else None
+        words = []
+        for name, window in self._windows.items():
+            q = window_quality(t, z, window, self.tap.rate_hz, self.tap.lsb,
+                               reference if name == "static" else None, StillSettings.enter, name,
+                               self.position)
+            words.append(f"{name} {describe(q, unit, 'the earlier static windows')}")
+            if name == "static":
+                self._static_noise.append(q.noise)
+        self.tap.forget(self.clock.now())
+        return ": " + "; ".join(words)
 
     def _restart(self) -> str:
         j = self.position
@@ -349,13 +383,33 @@ class RotaryProtocol:
                                 "fix the bench, then resume the session") from exc
 
     def _stop_table(self, exc: BaseException) -> bool:
-        """Command the table to stop; False (and a note on `exc`) if it does not answer."""
+        """Command the table to stop; False if it does not answer. `exc.table_stopped` says which,
+        and a note on `exc` tells the operator to stop the table by hand (once)."""
         try:
             self.table.stop()
-            return True
         except Exception as stop_error:  # noqa: BLE001 - the original error goes on
-            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+            if getattr(exc, "table_stopped", None) is not False:
+                not_stopped(exc, stop_error)
             return False
+        if getattr(exc, "table_stopped", None) is False:
+            exc.add_note("a later stop command got through: the table was stopped")
+        exc.table_stopped = True
+        return True
+
+    def _failed_devices(self, exc: BaseException) -> list:
+        """The devices that failed, in words ("rotary table at host:port", "IMU on
+        /dev/ttyUSB0"): the table if `exc` or its cause is a table error or no stop got through,
+        the IMU if `exc`, its cause or the IMU reader's own failure is a lost link."""
+        devices = []
+        causes = [exc, exc.__cause__, self.recorder.error]
+        if (any(isinstance(e, TableError) for e in causes)
+                or getattr(exc, "table_stopped", None) is False):
+            devices.append(getattr(self.table, "where", "rotary table"))
+        for e in causes:
+            if isinstance(e, SerialPortError | CanBusError):
+                devices.append(f"IMU on {getattr(e, 'port', None) or e.channel}")
+                break
+        return devices
 
     # -- helpers ---------------------------------------------------------------------------------
 
@@ -404,13 +458,19 @@ class RotaryProtocol:
 
     def _abort(self, exc: BaseException) -> None:
         """Stop the table first, complete a position whose rotating window had ended, then record
-        why the session ended; failures become notes."""
-        self._stop_table(exc)
+        why the session ended: the state, the devices that failed, whether the table was stopped
+        and the error with its notes (what the operator was told); failures become notes."""
+        stopped = self._stop_table(exc)
         if self._rotated == self.position:
             self._complete(exc)
+        devices = self._failed_devices(exc)
+        if any(d not in str(exc) for d in devices):
+            exc.add_note(f"lost: {' and '.join(devices)}")
+        words = "; ".join([str(exc), *getattr(exc, "__notes__", ())])
         try:
             self.recorder.event("abort", self.position, {
-                "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
+                "state": self.state, "devices": devices, "table_stopped": stopped,
+                "error": f"{type(exc).__name__}: {words}"})
         except Exception as record_error:  # noqa: BLE001
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
 
@@ -459,9 +519,11 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        with Recorder(writer, view.observe_imu(imu), clock=clock) as recorder, view.show():
+        spec = writer.specs["imu"]
+        tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
+        with Recorder(writer, tap, clock=clock) as recorder, view.show():
             try:
-                protocol.run(view.observe_recorder(recorder), first)
+                protocol.run(view.observe_recorder(recorder), first, tap)
             finally:
                 stats = getattr(imu, "stats", None)
                 if stats is not None:

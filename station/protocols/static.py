@@ -133,7 +133,8 @@ class StaticProtocol:
         """Record every pose into `recorder` (started, reading `tap`); an error is recorded as an
         `abort` event and raised."""
         self.recorder, self.position = recorder, 0
-        self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap)
+        self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap,
+                                   self.channels)
         run_states(self, recorder, "pose")
 
     # -- states ----------------------------------------------------------------------------------
@@ -153,9 +154,10 @@ class StaticProtocol:
 
     def _hold(self) -> str:
         j = self.position
-        z = self.watcher.hold(j)
-        if z is None:
+        held = self.watcher.hold(j)
+        if held is None:
             return "settle"
+        z, quality = held
         u = up_direction(z[self.channels, None], self.a_nominal)[0]
         if self.directions:
             angles = np.degrees(np.arccos(np.clip(np.array(self.directions) @ u, -1, 1)))
@@ -169,6 +171,7 @@ class StaticProtocol:
                 return "pose"
         self.directions.append(u)
         self.recorder.event("position_done", j, {"up": u.tolist()})
+        self.watcher.confirm(f"pose {j + 1}/{self.settings.poses} captured", quality, "m/s^2")
         self.position += 1
         return "done" if self.position == self.settings.poses else "pose"
 

@@ -112,6 +112,7 @@ def build(path, result: str | None = None) -> Report:
                 "The session file was not closed cleanly (the recording is still running or was "
                 "killed): the report shows the data flushed so far.")
         events = session.events()
+        hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
         _fixture_poses(report, session.metadata)
         calibration = _calibration(session, result, report)
@@ -120,7 +121,7 @@ def build(path, result: str | None = None) -> Report:
         _table_stability(report, session.table(), events, session.metadata)
     if calibration is not None:
         cal, channels, units = calibration
-        _fit(report, cal, channels)
+        _fit(report, cal, channels, hand)
         _geometry(report, cal)
         _axes_plot(report, cal, channels)
         _uncertainty(report, cal, channels, units)
@@ -200,7 +201,9 @@ def _calibration(session, name, report):
             return None
         if kind is not None and kind.still:
             _stored_poses(report, session, stored)
-        return stored.calibration, spec.channels, spec.units
+        rows = stored.channels or range(len(spec.channels))
+        return (stored.calibration, [spec.channels[i] for i in rows],
+                [spec.units[i] for i in rows])
     if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
@@ -215,7 +218,9 @@ def _calibration(session, name, report):
     report.summary["result"] = "computed for this report (no stored result)"
     _poses(report, readings)
     spec = session.specs[stream]
-    return cal, spec.channels, spec.units
+    rows = kind.entry("channels")(session, stream) if kind.has("channels") else \
+        range(len(spec.channels))
+    return cal, [spec.channels[i] for i in rows], [spec.units[i] for i in rows]
 
 
 def _stored_poses(report, session, stored) -> None:
@@ -263,17 +268,20 @@ def _poses(report, readings) -> None:
 # --------------------------------------------------------------------------------- the fit
 
 
-def _fit(report, cal, channels) -> None:
-    """chi2/dof, outliers (station.solve.quality) and the residual figure."""
+def _fit(report, cal, channels, hand: bool = False) -> None:
+    """chi2/dof, outliers (station.solve.quality; `hand`: poses placed by hand, judged with their
+    per-pose error term) and the residual figure."""
     m, n = cal.residuals.shape
     z = cal.normalised_residuals
-    check = check_fit(cal, channels)
+    check = check_fit(cal, channels, pose_term=hand)
     report.summary.update(method=cal.method, frame=cal.frame, magnitude=cal.magnitude,
                           chi2_per_dof=check.chi2_per_dof, dof=cal.dof,
                           noise_median=float(np.median(cal.sigma)), fit_status=check.status)
     if cal.sigma_estimated:
         report.warnings.append("The noise level of the readings was estimated from the residuals, "
                                "so chi2/dof is 1 by construction and cannot test the model.")
+    elif check.notes:
+        report.warnings.extend(note[0].upper() + note[1:] + "." for note in check.notes)
     elif check.p_high is not None and check.p_high < CHI2_P / 2:
         report.warnings.append(
             "The residuals are larger than the noise level: the model does not explain the data "
@@ -395,12 +403,31 @@ def _axes_plot(report, cal, channels) -> None:
     """The sensitive axes, 3-D and projected on the coordinate planes."""
     if cal.d != 3:
         return
-    unit = cal.a / np.linalg.norm(cal.a, axis=0)
+    frame = ("canonical frame of Eq. (19): sensor 1 along x, sensor 2 in the x-y plane"
+             if cal.frame == "canonical" else "frame aligned to the nominal layout")
+    report.plots.append(html.Plot("axes", "Sensitive axes", (
+        f"Unit sensitive vectors a_i / |a_i| in the {frame}; 3-D view and projections on the "
+        "x-y, x-z and y-z planes (unit circle dotted). Axes pointing the same way share one label; "
+        f"an axis within {np.degrees(np.arcsin(SHORT_PROJECTION)):.0f} deg of a plane's normal "
+        "is left unlabelled in that projection."),
+        html.png(axes_figure(cal.a / np.linalg.norm(cal.a, axis=0), channels))))
+
+
+SHORT_PROJECTION = 0.25
+"""Projected length below which an axis is not labelled in a projection (it points at the
+viewer: its label would sit on the origin, on top of every other such label)."""
+LABEL_SEPARATION = 0.2
+"""Distance (in units of the unit circle) within which arrow tips share one label."""
+
+
+def axes_figure(unit, channels) -> Figure:
+    """The figure of `_axes_plot` for unit vectors `unit` (3, m) named `channels`."""
     fig = Figure(figsize=(11, 8.5))
     ax3 = fig.add_subplot(2, 2, 1, projection="3d")
-    for i, name in enumerate(channels):
+    for i in range(unit.shape[1]):
         ax3.quiver(0, 0, 0, *unit[:, i], color=f"C{i % 10}", arrow_length_ratio=0.08)
-        ax3.text(*(1.08 * unit[:, i]), name, fontsize=8)
+    for tip, names in _label_groups(unit, channels):
+        ax3.text(*(1.12 * tip), names, fontsize=8, ha="center", va="center")
     for lim in (ax3.set_xlim, ax3.set_ylim, ax3.set_zlim):
         lim(-1, 1)
     ax3.set_xlabel("x")
@@ -409,20 +436,41 @@ def _axes_plot(report, cal, channels) -> None:
     for k, (p, q) in enumerate(((0, 1), (0, 2), (1, 2))):
         ax = fig.add_subplot(2, 2, k + 2)
         ax.add_patch(_circle())
-        for i, name in enumerate(channels):
-            ax.annotate("", (unit[p, i], unit[q, i]), (0, 0),
+        flat = unit[[p, q]]
+        for i in range(unit.shape[1]):
+            ax.annotate("", tuple(flat[:, i]), (0, 0),
                         arrowprops={"arrowstyle": "->", "color": f"C{i % 10}"})
-            ax.annotate(name, (unit[p, i], unit[q, i]), fontsize=8)
-        ax.set_xlim(-1.15, 1.15)
-        ax.set_ylim(-1.15, 1.15)
+        long = np.linalg.norm(flat, axis=0) >= SHORT_PROJECTION
+        for tip, names in _label_groups(flat[:, long], np.asarray(channels)[long]):
+            _outward_label(ax, tip, names)
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_ylim(-1.6, 1.6)
         ax.set_aspect("equal")
         ax.set_xlabel("xyz"[p])
         ax.set_ylabel("xyz"[q])
-    frame = ("canonical frame of Eq. (19): sensor 1 along x, sensor 2 in the x-y plane"
-             if cal.frame == "canonical" else "frame aligned to the nominal layout")
-    report.plots.append(html.Plot("axes", "Sensitive axes", (
-        f"Unit sensitive vectors a_i / |a_i| in the {frame}; 3-D view and projections on the "
-        "x-y, x-z and y-z planes (unit circle dotted)."), html.png(fig)))
+    return fig
+
+
+def _label_groups(tips, names) -> list:
+    """[(mean tip, "g1, g4, g10")]: the arrow tips (d, m) within `LABEL_SEPARATION` of a group's
+    first tip share its label, so that labels of axes pointing the same way do not overprint."""
+    groups = []
+    for i in range(tips.shape[1]):
+        for group in groups:
+            if np.linalg.norm(tips[:, group[0]] - tips[:, i]) < LABEL_SEPARATION:
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return [(tips[:, g].mean(axis=1), ", ".join(str(names[i]) for i in g)) for g in groups]
+
+
+def _outward_label(ax, tip, text: str) -> None:
+    """`text` just beyond the arrow tip `tip` (2,), aligned away from the origin."""
+    direction = tip / np.linalg.norm(tip)
+    ha = "left" if direction[0] > 0.5 else "right" if direction[0] < -0.5 else "center"
+    va = "bottom" if direction[1] > 0.5 else "top" if direction[1] < -0.5 else "center"
+    ax.annotate(text, tuple(tip + 0.06 * direction), fontsize=8, ha=ha, va=va)
 
 
 def _circle():

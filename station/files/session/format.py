@@ -140,6 +140,7 @@ class SessionResults:
     calibration: "CalibrationResult | None"
     created: str
     settings: dict | None = None  # what reduced and solved them (replay), None: the recording's
+    channels: tuple | None = None  # the stream's channels the rows are; None: all, in order
 
 
 def last_completed_position(events) -> int | None:

@@ -129,7 +129,8 @@ class Session:
         spec = self.specs.get(stream)
         if spec is None:
             raise SessionFormatError(f"{where} names stream {stream!r}, which the file lacks")
-        m = len(spec.channels)
+        channels = _result_channels(g.attrs, len(spec.channels), where)
+        m = len(spec.channels) if channels is None else len(channels)
         readings = _matrix(g, "readings", where, rows=m)
         sigma = _matrix(g, "readings_sigma", where, shape=readings.shape) if "readings_sigma" in g \
             else None
@@ -137,7 +138,8 @@ class Session:
         settings = _json_object(_attr(g.attrs, "settings", str, where), f"{where} settings") \
             if "settings" in g.attrs else None
         return SessionResults(name, stream, tuple(_attr(g.attrs, "units", list, where)), readings,
-                              sigma, cal, _attr(g.attrs, "created", str, where), settings)
+                              sigma, cal, _attr(g.attrs, "created", str, where), settings,
+                              channels)
 
     def close(self) -> None:
         self._file.close()
@@ -147,6 +149,18 @@ class Session:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _result_channels(attrs, m: int, where) -> tuple | None:
+    """The stream channels a result's rows are (None: all of them), checked."""
+    if "channels" not in attrs:
+        return None
+    rows = np.asarray(attrs["channels"])
+    if rows.ndim != 1 or rows.dtype.kind not in "iu" or len(set(rows.tolist())) != len(rows) \
+            or not np.all((rows >= 0) & (rows < m)):
+        raise SessionFormatError(f"{where}: channels {rows.tolist()} are not distinct channels "
+                                 f"of the stream's {m}")
+    return tuple(int(i) for i in rows)
 
 
 def _check_format(path, attrs) -> int:
