@@ -42,6 +42,7 @@ class BenchProfile:
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
+    fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -62,10 +63,12 @@ class BenchProfile:
                 raise ProfileError(f"{path}: no [{name}] section; see `station record --help`")
             return Section(profile.source, name, table)
 
-        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances"})
+        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances",
+                                                "fixture"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary), [protocol] and [tolerances]")
+                               "[imu], [table] (rotary), [protocol], [fixture] (rotary, static) "
+                               "and [tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -97,12 +100,22 @@ class BenchProfile:
                   "tables": profile.tables}
         if KINDS[kind].table:
             table = section("table")
-            fields.update(_table_fields(profile, table), positions=proto.get("positions", int),
-                          **_settings(kind, proto, path))
+            fields.update(_table_fields(profile, table), **_settings(kind, proto, path))
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(section("fixture"),
+                                                             len(dev.imu.channels))
+            fields["positions"] = (proto.get("positions", int, default=40)
+                                   if "fixture" in fields else proto.get("positions", int))
             table.finish()
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
+            if "fixture" in profile.tables and kind != "static":
+                raise ProfileError(f"{path}: the {kind} protocol does not plan fixture poses; "
+                                   "remove the [fixture] section (it serves rotary and static "
+                                   "sessions)")
             if "table" in profile.tables:
                 raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
                                    "[table] section (or set [protocol] kind = \"rotary\")")
@@ -113,6 +126,11 @@ class BenchProfile:
                 raise ProfileError(f"{path}: the {kind} protocol calibrates every channel of the "
                                    "stream; use a device profile with accelerometer channels only")
             fields["positions"] = fields["settings"].poses
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(
+                    section("fixture"), fields["layout"].shape[1], fields["layout"])
         for s in (bench, imu, proto):
             s.finish()
         return cls(**fields)
@@ -227,8 +245,11 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
+        meta = session.metadata  # a fixture's plan fixes the count
+        planned = len(meta.get("fixture_poses") or meta.get("axes") or ()) or bench.positions
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
-            "positions_done": 0 if done is None else done + 1, "samples": samples,
+            "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
+            "samples": samples,
             "wall_seconds": time.perf_counter() - start}
 
 

@@ -59,6 +59,7 @@ from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
+from station.protocols.planned import fixture_instruction, rotary_plan
 from station.protocols.still import StillSettings, StreamTap
 from station.reduce.window_quality import describe, window_quality
 
@@ -145,14 +146,20 @@ class RotaryProtocol:
     operator : `station.acquire.operator` ConsoleOperator or SimulatedTechnician
     clock    : the session clock (shared with the devices)
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
+    fixture_poses : instead of axes, the poses of a mounting fixture, {"words", "picture",
+               "orientation"} each (`station.protocols.planned.FixturePlan.instructions`)
     """
 
-    def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None):
+    def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None,
+                 fixture_poses=None):
         self.table = table
         self.recorder = None
         self.operator = operator
         self.clock = clock
         self.settings = settings or RotarySettings()
+        self.fixture_poses = fixture_poses
+        if fixture_poses:
+            axes = [np.asarray(p["orientation"], float)[:, 2] for p in fixture_poses]
         self.axes = suggested_axes(20) if axes is None else np.asarray(axes, float)
         if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
             raise InputError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
@@ -166,8 +173,9 @@ class RotaryProtocol:
 
     def metadata(self) -> dict:
         """What a session file should record about this protocol run."""
+        fixture = {"fixture_poses": self.fixture_poses} if self.fixture_poses else {}
         return {"protocol": "rotary", "settings": asdict(self.settings),
-                "axes": self.axes.tolist()}
+                "axes": self.axes.tolist(), **fixture}
 
     @classmethod
     def from_metadata(cls, metadata: dict, table, operator, clock) -> "RotaryProtocol":
@@ -178,10 +186,22 @@ class RotaryProtocol:
         try:
             settings = RotarySettings(**metadata["settings"])
             axes = np.asarray(metadata["axes"], float)
+            poses = metadata.get("fixture_poses")
+            if poses is not None:
+                poses = [{"words": str(p["words"]), "picture": str(p["picture"]),
+                          "orientation": np.asarray(p["orientation"], float).reshape(3, 3).tolist()}
+                         for p in poses]
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"the session's rotary settings or axes are unusable ({exc}); "
                              "it was not written by this station") from None
-        return cls(table, operator, clock, settings, axes)
+        return cls(table, operator, clock, settings, axes, poses)
+
+    def instruction(self, j: int) -> Instruction:
+        """The technician's instruction for mounting position j: the fixture pose's words and
+        picture, or the direction to point up the table axis."""
+        if self.fixture_poses:
+            return fixture_instruction(j, len(self.axes), self.fixture_poses[j])
+        return instruction(j, len(self.axes), self.axes[j])
 
     def run(self, recorder, first: int = 0, tap: StreamTap | None = None) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
@@ -214,7 +234,7 @@ class RotaryProtocol:
 
     def _mount(self) -> str:
         j = self.position
-        self.operator.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.operator.wait(self.instruction(j))
         self.recorder.event("position_start", j, {"axis": self.axes[j].tolist()})
         return "still"
 
@@ -515,15 +535,25 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
 def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
                    view=None) -> None:
     """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
-    the bench profile's settings at `suggested_axes(bench.positions)`, run with the opened `imu`
-    and `table` drivers into the new session file `out` (stream `spec`, `metadata` with the table's
-    register map added to its device profiles); `view` a LiveView to show, or None."""
+    the bench profile's settings at `suggested_axes(bench.positions)`, or, when the profile
+    describes a fixture, at the planned fixture poses (`station.protocols.planned`, its expected
+    eps told before the session), run with the opened `imu` and `table` drivers into the new
+    session file `out` (stream `spec`, `metadata` with the table's register map added to its
+    device profiles); `view` a LiveView to show, or None."""
     from drivers.profile import load_profile
     from station.files.session import SessionWriter
 
-    protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                              suggested_axes(bench.positions))
-    metadata = {**protocol.metadata(), **metadata}
+    if bench.fixture is None:
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  suggested_axes(bench.positions))
+        metadata = {**protocol.metadata(), **metadata}
+    else:
+        plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
+        operator.prompt(plan.prompt())
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  fixture_poses=plan.instructions())
+        metadata = {**protocol.metadata(), **metadata,
+                    "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     metadata["profiles"]["table"] = load_profile(bench.table_source).tables
     with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
         continue_session(writer, metadata, imu, table, operator, clock, view)

@@ -24,6 +24,7 @@ Kanade's joint-bias factorization for m > 3, then maximum likelihood with each m
 error.
 """
 
+import dataclasses
 import itertools
 from dataclasses import asdict, dataclass
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from station.acquire.operator import Instruction
 from station.errors import CalibrationInputError, InputError
+from station.protocols.planned import static_plan
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
@@ -97,9 +99,12 @@ class StaticProtocol:
     clock     : the session clock (shared with the devices)
     a_nominal : (3, m_acc) nominal layout of the accelerometers (SI readings), for the up direction
     units     : the stream's channel units (the accelerometers are the m/s^2 ones)
+    poses     : (name, up, words) asked in order; default `GUIDED_POSES` (a fixture's plan:
+                `station.protocols.planned.FixturePlan.guided`)
     """
 
-    def __init__(self, operator, clock, a_nominal, units, settings: StaticSettings | None = None):
+    def __init__(self, operator, clock, a_nominal, units, settings: StaticSettings | None = None,
+                 poses=None):
         self.operator = operator
         self.clock = clock
         self.a_nominal = np.asarray(a_nominal, float)
@@ -110,6 +115,9 @@ class StaticProtocol:
                 f"{len(self.channels)} accelerometer channels.",
                 f"Give 3 rows and {len(self.channels)} columns, one per accelerometer.")
         self.settings = settings or StaticSettings()
+        self.poses = GUIDED_POSES if poses is None else poses
+        if len(self.poses) < self.settings.poses:
+            raise InputError(f"{self.settings.poses} poses asked for, {len(self.poses)} given")
         self.recorder = self.watcher = None
         self.position, self.state = 0, "pose"
         self.directions = []
@@ -133,7 +141,7 @@ class StaticProtocol:
 
     def _pose(self) -> str:
         j = self.position
-        name, up, words = GUIDED_POSES[j]
+        name, up, words = self.poses[j]
         self.watcher.request()
         self.operator.wait(Instruction(f"pose {j + 1}/{self.settings.poses}: {words}, and let go",
                                        mounting(up)))
@@ -157,7 +165,7 @@ class StaticProtocol:
             if angles[i] < self.settings.separation_deg:
                 self.operator.prompt(
                     f"pose {j + 1} is {angles[i]:.0f} deg from pose {i + 1}; it adds little. "
-                    f"Turn the unit further ({GUIDED_POSES[j][2]}).")
+                    f"Turn the unit further ({self.poses[j][2]}).")
                 self.recorder.event("note", j, {"text": f"refused: {angles[i]:.1f} deg from "
                                                         f"pose {i + 1}"})
                 return "pose"
@@ -172,6 +180,16 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
                    view=None) -> None:
     """`station record`'s free-static session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
-    the new session file `out`; no table, no live view."""
-    protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    the new session file `out`; no table, no live view. With a fixture in the profile, the poses
+    are its planned ones (`station.protocols.planned.static_plan`), the expected eps told first."""
+    if bench.fixture is None:
+        protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    else:
+        plan = static_plan(bench.fixture, bench.settings)
+        operator.prompt(plan.prompt())
+        settings = dataclasses.replace(bench.settings, poses=len(plan.poses))
+        protocol = StaticProtocol(operator, clock, bench.layout, spec.units, settings,
+                                  plan.guided())
+        metadata = {**metadata, "fixture_poses": plan.instructions(),
+                    "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})

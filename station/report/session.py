@@ -88,6 +88,7 @@ class Report:
             "device": "IMU", "sensors": "sensors m", "rate_hz": "sample rate (Hz)",
             "positions": "positions completed", "positions_planned": "positions planned",
             "samples": "samples recorded", "duration_s": "recording (s of session clock)",
+            "expected_eps": "expected eps before the session (Eq. 19, CRLB)",
             "result": "calibration", "method": "method", "frame": "frame of a",
             "magnitude": "stimulus magnitude c", "chi2_per_dof": "chi2 / dof", "dof": "dof",
             "noise_median": "median noise of a reading", "excitation_ratio":
@@ -113,6 +114,7 @@ def build(path, result: str | None = None) -> Report:
         events = session.events()
         hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
+        _fixture_poses(report, session.metadata)
         calibration = _calibration(session, result, report)
         for name in session.specs:
             _stream_health(report, name, session.stream(name), events)
@@ -138,6 +140,26 @@ def _session_summary(session) -> dict:
         "closed_cleanly": session.closed_cleanly,
         **({"positions_planned": len(planned)} if isinstance(planned, list) else {}),
     }
+
+
+def _fixture_poses(report, metadata) -> None:
+    """The planned fixture poses of a rotary session (`station.protocols.planned`): a section
+    with each position's words and picture, and the expected eps told before the session."""
+    poses = metadata.get("fixture_poses")
+    if not isinstance(poses, list):
+        return
+    plan = metadata.get("plan")
+    if isinstance(plan, dict) and isinstance(plan.get("expected_eps"), int | float):
+        report.summary["expected_eps"] = float(plan["expected_eps"])
+    rows = [(j + 1, str(p.get("words", "?")) if isinstance(p, dict) else "?",
+             f"<pre>{html.e(str(p.get('picture', '')))}</pre>" if isinstance(p, dict) else "")
+            for j, p in enumerate(poses)]
+    rows = [(html.e(str(j)), html.e(words), pic) for j, words, pic in rows]
+    report.sections.append(html.section(
+        "fixture", "Fixture poses (planned)",
+        "<p>Face letters of the mounting cube; the first face named is down on the table (or on "
+        "the wedge's slope), the second toward the technician (docs/protocols.md).</p>"
+        + html.table(rows, ("position", "pose", "picture"), escape_cells=False)))
 
 
 def _protocol_warnings(report, events, metadata) -> None:
