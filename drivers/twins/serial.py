@@ -210,9 +210,12 @@ class SerialTwin:
                              f"({len(times)}, {m}); got {counts.dtype} {counts.shape}")
         fmt = self.profile.serial.frame
         if self.profile.serial.protocol == "ascii":
-            return encode_lines(fmt, times, counts).splitlines(keepends=True)
-        ticks = np.round(times / fmt.time_tick).astype(np.int64) if "time" in fmt.layout else seq
-        data = encode_frames(fmt, seq, ticks, counts)
+            return encode_lines(fmt, times, counts,
+                                self.profile.imu.channels).splitlines(keepends=True)
+        imu = self.profile.imu
+        ticks = (np.round(times / fmt.time_tick).astype(np.int64) if np.isfinite(fmt.time_tick)
+                 else seq)
+        data = encode_frames(fmt, seq, ticks, counts, imu.channels, imu.scale)
         size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
 

@@ -300,7 +300,7 @@ def import_binary(out, path, profile, *, unit_serial: str = "IMPORTED") -> Path:
         raise CalibrationInputError(f"profile {prof.source} describes text lines, not binary "
                                     "frames.", "Give a binary device profile (--profile), or "
                                     "import the text with `station import csv`.")
-    parser = BinaryFrameParser(prof.serial.frame, prof.imu.channels)
+    parser = BinaryFrameParser(prof.serial.frame, prof.imu.channels, prof.imu.scale)
     blocks = []
     with open(path, "rb") as f:
         while data := f.read(DUMP_CHUNK):
