@@ -398,7 +398,7 @@ class AsciiFormat:
             time_scale=time_scale,
             decimals=decimals,
             sentence=s.get("sentence", str, default=""),
-            columns=s.get_list("columns", str, default=()),
+            columns=s.get_list("columns", str, default=[]),
         )
         if fmt.sentence and not (fmt.sentence.isascii() and fmt.sentence.isalnum()):
             raise s.error("sentence", "must be the sentence address, letters and digits (e.g. "
