@@ -146,7 +146,8 @@ def load_profile(path_or_name) -> Profile:
 # --------------------------------------------------------------------------------------------------
 # [imu]
 
-SI_UNITS = {"angular_rate": "rad/s", "acceleration": "m/s^2", "magnetic_field": "T"}
+SI_UNITS = {"angular_rate": "rad/s", "acceleration": "m/s^2", "magnetic_field": "T",
+            "temperature": "K"}
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,7 @@ class ImuSection:
 
     name     : device model name
     channels : channel names, in column order of the samples
-    units    : SI unit of each channel (rad/s, m/s^2 or T)
+    units    : SI unit of each channel (rad/s, m/s^2, T, or K for a temperature channel)
     scale    : counts per SI unit of each channel (positive; axis signs belong to the calibration)
     rate_hz  : nominal sample rate
     """

@@ -35,6 +35,7 @@ from drivers.wire import Decoded, SerialStats
 from drivers.wire.crc import CHECKSUMS
 from drivers.wire.fields import FrameLayout
 
+
 def encode_frames(fmt, seq, ticks, counts, channels=None, scale=None) -> bytes:
     """Bytes of consecutive frames: raw sequence numbers, raw device-time ticks, counts (k, m).
 
