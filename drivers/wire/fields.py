@@ -143,8 +143,11 @@ class FrameLayout:
     def _raw(self, records: np.ndarray, i: int) -> np.ndarray:
         """Values (k, count) of field i: int64 for integers, float64 for floats."""
         f, data = self.fields[i], records[f"f{i}"]
+        if f.type.startswith("float"):
+            with np.errstate(invalid="ignore"):  # signalling NaNs of damaged frames
+                return data.astype(np.float64)
         if not f.type.endswith("24"):
-            return data.astype(np.float64 if f.type.startswith("float") else np.int64)
+            return data.astype(np.int64)
         b = data.reshape(len(records), f.count, 3).astype(np.int64)
         big = {"little": False, "big": True}.get(f.byte_order, self.fmt.byte_order == "big")
         value = (b[..., 0] << 16 | b[..., 1] << 8 | b[..., 2]) if big else (
