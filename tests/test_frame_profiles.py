@@ -114,7 +114,7 @@ def test_xsens_status_rule_and_other_messages_skipped():
     counts = np.array([[50000, 0, 980000, 0, 50000, 0, 30315]])
     assert encode_frames(XSENS.serial.frame, [5], [125], counts, XSENS.imu.channels,
                          XSENS.imu.scale) == xsens_message(5, 125, (0.5, 0, 9.8), (0, 0.05, 0),
-                                                           np.float32(303.15 - 273.15), 1)
+                                                           np.float32(303.15 - 273.15), 0)
 
 
 # -- VectorNav binary ------------------------------------------------------------------------------
