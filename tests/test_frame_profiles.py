@@ -360,3 +360,25 @@ def test_real_mimu4444_packets_through_a_pty_and_the_driver():
     assert len(got) == len(expected) and np.all(np.diff(got.seq) == 1)
     assert np.array_equal(got.counts, np.array([p[4:52] for p in expected]))
     assert [p[1] for p in expected] == list((got.seq - got.seq[0] + expected[0][1]) % 65536)
+
+
+def test_a_dump_of_typed_frames_imports_with_device_time_and_kelvin(tmp_path):
+    """`station import binary` reads a typed-field profile through the same parser: SI values
+    of the float fields, the temperature in kelvin, times from SampleTimeFine (not from the
+    packet counter: the stamps below run 14 % faster than the nominal 400 Hz)."""
+    from station.files.importers import import_binary
+    from station.files.session import Session
+
+    n = 500
+    stf = np.arange(n) * 22  # 10 kHz ticks, 454.5 Hz
+    msgs = [xsens_message(i, int(stf[i]), (0.0, 0.0, 9.80665), (0.0, 0.0, 0.5), 21.5, 0)
+            for i in range(n)]
+    (tmp_path / "x.bin").write_bytes(b"".join(msgs))
+    out = import_binary(tmp_path / "x.h5", tmp_path / "x.bin", "xsens_mtdata2")
+    with Session.open(out) as s:
+        data, link = s.stream("imu"), s.metadata["import"]["link"]
+    si = data.to_si()
+    assert data.spec.units[-1] == "K" and si[0, -1] == pytest.approx(294.65, abs=0.005)
+    assert si[0, 2] == pytest.approx(9.80665, abs=1e-5) and si[0, 5] == pytest.approx(0.5)
+    assert np.diff(data.device_time) == pytest.approx(2.2e-3, abs=1e-9)
+    assert link["rate_hz"] == pytest.approx(1 / 2.2e-3)

@@ -313,7 +313,7 @@ def import_binary(out, path, profile, *, unit_serial: str = "IMPORTED") -> Path:
             f"bytes ({stats.crc_failures} sync candidates failed their check).",
             "Check that --profile describes the device that wrote the dump (sync, layout, byte "
             "order, checksum, channel count).")
-    timed = "time" in prof.serial.frame.layout
+    timed = math.isfinite(prof.serial.frame.time_tick)  # a "time" field, in any profile style
     t = block.device_time if timed else block.seq / prof.imu.rate_hz
     if np.any(np.diff(t) <= 0):
         raise CalibrationInputError(f"{path}: the device time stamps do not increase.",
