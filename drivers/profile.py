@@ -221,6 +221,9 @@ class BinaryFormat:
     crc_byte_order  : byte order of the check when it differs from `byte_order` ("" = the same)
     seq_step        : without a "seq" field, device-time ticks per frame (the frame counter is
                       the device time counted in steps)
+    length_field    : name of the (unsigned) field holding a message's length, so that messages
+                      of other ids are skipped by their length ("" for none)
+    length_adds     : bytes of a message beyond its length field's value (header and check)
     """
 
     sync: bytes
@@ -238,6 +241,8 @@ class BinaryFormat:
     fields: tuple = ()
     crc_byte_order: str = ""
     seq_step: int = 0
+    length_field: str = ""
+    length_adds: int = 0
 
     @classmethod
     def parse(cls, s: Section) -> "BinaryFormat":
@@ -320,6 +325,16 @@ def _parse_fields(cls, s: Section, sync: bytes) -> BinaryFormat:
               crc_covers_sync=s.get("crc_covers_sync", bool, default=False), max_gap=1,
               fields=fields, seq_step=seq_step,
               crc_byte_order=s.get("crc_byte_order", str, default="", choices=("little", "big")))
+    length_field = s.get("length_field", str, default="")
+    length_adds = s.get("length_adds", int) if length_field else 0
+    named = {f.name: f for f in fields}
+    if length_field and (length_field not in named or named[length_field].type not in (
+            "uint8", "uint16", "uint32")):
+        raise s.error("length_field", "must name a uint8, uint16 or uint32 field of the frame")
+    if length_field and not 1 <= length_adds <= 64:
+        raise s.error("length_adds", "must be the bytes of a message beyond its length value "
+                                     "(header and check), 1..64")
+    fmt = dataclasses.replace(fmt, length_field=length_field, length_adds=length_adds)
     modulus = seq_modulus(fmt)
     max_gap = s.get("max_gap", int, default=min(32, modulus // 8))
     if not 1 <= max_gap <= modulus // 8:

@@ -108,6 +108,16 @@ def test_xsens_status_rule_and_other_messages_skipped():
     block, stats = decode_all(XSENS, stream)
     assert list(block.seq) == [i for i in range(20) if i != 5]
     assert stats.invalid == 1 and stats.dropped == 0
+    # the two other messages are skipped by their LEN (FA FF MID LEN ... CS), not as garbage
+    assert (stats.other_messages, stats.skipped_bytes, stats.resyncs) == (2, 0, 0)
+    parser = parser_of(XSENS)  # the same when the bytes arrive 7 at a time
+    chunks = [parser.decode(stream[i : i + 7], 0.0).block for i in range(0, len(stream), 7)]
+    chunked = SampleBlock.concat([*chunks, parser.decode(b"", 0.0, final=True).block])
+    assert np.array_equal(chunked.counts, block.counts) and parser.stats == stats
+    # a damaged other message is garbage again: skipped and a resync
+    broken = stream.replace(error_msg, error_msg[:-1] + bytes([error_msg[-1] ^ 1]))
+    _, stats = decode_all(XSENS, broken)
+    assert (stats.other_messages, stats.skipped_bytes, stats.resyncs) == (0, 67, 1)
     assert block.counts[:, 0].tolist() == [round(float(np.float32(0.1 * i)) * 1e5)
                                           for i in range(20) if i != 5]
     # encode_frames writes the same bytes as the manual's table
@@ -219,6 +229,8 @@ def test_24_bit_fields_byte_orders_scale_offset_and_int64(tmp_path):
      ["fields[0]] value", "0..255"]),
     (('name = "seq"', 'name = "tick"'), ["need a \"seq\" field"]),
     (('type = "int24"', 'type = "int23"'), ["fields[1]] type"]),
+    (('crc_byte_order = "big"', 'crc_byte_order = "big"\nlength_field = "d"\nlength_adds = 3'),
+     ["length_field", "uint8, uint16 or uint32"]),
 ])
 def test_bad_fields_are_refused_naming_the_field(tmp_path, change, words):
     path = tmp_path / "p.toml"

@@ -32,6 +32,8 @@ class SerialStats(LinkStats):
     resyncs       : times alignment was lost and found again (bytes skipped between two frames)
     skipped_bytes : bytes that belong to no accepted frame (garbage, partial and corrupted frames)
     invalid       : accepted frames whose status flags mark the sample invalid (not returned)
+    other_messages: messages of other ids skipped by their length (their check held), between
+                    accepted frames; their bytes are not skipped_bytes and not a resync
     """
 
     bytes: int = 0
@@ -40,6 +42,7 @@ class SerialStats(LinkStats):
     resyncs: int = 0
     skipped_bytes: int = 0
     invalid: int = 0
+    other_messages: int = 0
 
 
 class Decoded(NamedTuple):

@@ -104,6 +104,8 @@ class BinaryFrameParser:
         self.sync = np.frombuffer(fmt.sync, dtype=np.uint8)
         self.seq_modulus = self.layout.seq_modulus
         self.time_modulus = self.layout.time_modulus
+        self.length_rule = self.layout.length_rule()
+        self._others = {}  # absolute position -> bytes of checked other messages not yet passed
         self.stats = SerialStats()
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
@@ -143,6 +145,8 @@ class BinaryFrameParser:
         links, near = self._links(pos, seq)
         accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
         cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
+        if self.length_rule:
+            cut = self._other_messages(buf, np.setdiff1d(starts, valid), cut, final)
         decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
         accept &= decided
 
@@ -160,6 +164,49 @@ class BinaryFrameParser:
         out["seq"], out["time"] = self.layout.seq(records), self.layout.ticks(records)
         out["counts"], out["valid"] = self.layout.samples(records)
         return out
+
+    def _other_messages(self, buf: np.ndarray, starts: np.ndarray, cut: int, final: bool) -> int:
+        """Remember the messages of other ids before `cut` whose check holds over the length their
+        length field gives (absolute position -> bytes); the cut, moved back to the first one not
+        complete yet (so that its bytes stay buffered until it is)."""
+        offset, code, adds = self.length_rule
+        n, first, check = len(buf), _crc_start(self.fmt), self.crc
+        width = np.dtype(code).itemsize
+        known = starts[starts + offset + width <= n]
+        total = np.zeros(len(known), np.int64)
+        if len(known):
+            fields = sliding_window_view(buf, width)[known + offset]
+            total = fields.copy().view(code).reshape(-1).astype(np.int64) + adds
+        complete = known + total <= n
+        if not final:
+            waiting = [*starts[starts + offset + width > n][:1], *known[~complete][:1]]
+            cut = min([cut, *waiting])
+        order = "<" if (self.fmt.crc_byte_order or self.fmt.byte_order) == "little" else ">"
+        for length in np.unique(total[complete & (known < cut) & (total > first + check.size)]):
+            at = known[complete & (known < cut) & (total == length)]
+            rows = sliding_window_view(buf, int(length))[at]
+            sent = rows[:, length - check.size :].copy().view(f"{order}u{check.size}").reshape(-1)
+            ok = check.rows(rows[:, first : length - check.size]) == sent
+            self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
+                                    strict=True))
+        return cut
+
+    def _tiled(self, previous_ends: np.ndarray, starts: np.ndarray) -> np.ndarray:
+        """Whether the bytes between each accepted frame and the one before are exactly a chain of
+        other messages (skipped by their length, counted in `other_messages`, not a resync)."""
+        tiled = np.zeros(len(starts), bool)
+        if not self.length_rule:
+            return tiled
+        for i in np.flatnonzero(starts > previous_ends):
+            at, chain = int(previous_ends[i]), 0
+            while at < starts[i] and at in self._others:
+                at, chain = at + self._others[at], chain + 1
+            if at == starts[i]:
+                tiled[i] = True
+                self.stats.other_messages += chain
+        if len(starts):
+            self._others = {p: t for p, t in self._others.items() if p >= starts[-1]}
+        return tiled
 
     def _sync_positions(self, buf: np.ndarray) -> np.ndarray:
         """Every offset where the whole sync word starts."""
@@ -248,7 +295,7 @@ class BinaryFrameParser:
             stats.dropped += int(np.sum(steps - 1))
             starts = ends - self.size
             previous_ends = np.concatenate([[max(last_end, self._connection_start)], ends[:-1]])
-            skipped = starts - previous_ends
+            skipped = np.where(self._tiled(previous_ends, starts), 0, starts - previous_ends)
             stats.skipped_bytes += int(np.sum(np.maximum(skipped, 0)))
             resynced = skipped != 0
             if last_end <= self._connection_start:

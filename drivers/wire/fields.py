@@ -154,6 +154,19 @@ class FrameLayout:
             b[..., 2] << 16 | b[..., 1] << 8 | b[..., 0])
         return value - (value & 0x800000) * 2 if f.type == "int24" else value
 
+    def length_rule(self):
+        """(byte offset of the length field in a frame, its numpy type, bytes of a message beyond
+        its length value), or None when the profile names no `length_field`."""
+        if not self.fmt.length_field:
+            return None
+        offset = len(self.fmt.sync)
+        for i, f in enumerate(self.fields):
+            if f.name == self.fmt.length_field:
+                return offset, self.dtype[f"f{i}"].base.str, self.fmt.length_adds
+            offset += f.size
+        raise ProfileError(f"[serial.binary] length_field: no field named "
+                           f"{self.fmt.length_field!r}")
+
     def constants_hold(self, records: np.ndarray) -> np.ndarray:
         """Whether each record holds every constant field's value."""
         ok = np.ones(len(records), bool)
