@@ -146,7 +146,7 @@ class BinaryFrameParser:
         accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
         cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
         if self.length_rule:
-            cut = self._other_messages(buf, np.setdiff1d(starts, valid), cut, final)
+            cut = self._other_messages(buf, self._outside(starts, valid), cut, final)
         decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
         accept &= decided
 
@@ -190,6 +190,14 @@ class BinaryFrameParser:
             self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
                                     strict=True))
         return cut
+
+    def _outside(self, starts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """The sync positions that lie in no frame passing its check and constants (only those
+        can begin other messages between accepted frames)."""
+        if not len(valid):
+            return starts
+        i = np.searchsorted(valid, starts, side="right") - 1
+        return starts[(i < 0) | (starts >= valid[np.maximum(i, 0)] + self.size)]
 
     def _tiled(self, previous_ends: np.ndarray, starts: np.ndarray) -> np.ndarray:
         """Whether the bytes between each accepted frame and the one before are exactly a chain of
