@@ -189,6 +189,8 @@ class BinaryFrameParser:
             ok = check.rows(rows[:, first : length - check.size]) == sent
             self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
                                     strict=True))
+        if len(self._others) > 100_000:  # a long run of other messages only: its gap is skipped
+            self._others.clear()
         return cut
 
     def _outside(self, starts: np.ndarray, valid: np.ndarray) -> np.ndarray:
