@@ -9,6 +9,7 @@ Another device adds its section as a dataclass with a `parse(section: Section)` 
 reads it with `profile.section("name", TheSection.parse)`.
 """
 
+import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass
@@ -17,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from drivers.errors import ProfileError
-from drivers.wire.binary import INT_TYPES
 from drivers.wire.crc import CHECKSUMS
+from drivers.wire.fields import INT_TYPES, SPECIAL, TYPES, Field, FrameLayout, seq_modulus
 
 BUNDLED = Path(__file__).parent / "profiles"
 _REQUIRED = object()
@@ -145,7 +146,8 @@ def load_profile(path_or_name) -> Profile:
 # --------------------------------------------------------------------------------------------------
 # [imu]
 
-SI_UNITS = {"angular_rate": "rad/s", "acceleration": "m/s^2", "magnetic_field": "T"}
+SI_UNITS = {"angular_rate": "rad/s", "acceleration": "m/s^2", "magnetic_field": "T",
+            "temperature": "K"}
 
 
 @dataclass(frozen=True)
@@ -154,7 +156,7 @@ class ImuSection:
 
     name     : device model name
     channels : channel names, in column order of the samples
-    units    : SI unit of each channel (rad/s, m/s^2 or T)
+    units    : SI unit of each channel (rad/s, m/s^2, T, or K for a temperature channel)
     scale    : counts per SI unit of each channel (positive; axis signs belong to the calibration)
     rate_hz  : nominal sample rate
     """
@@ -214,6 +216,14 @@ class BinaryFormat:
     length_type     : unsigned type of the length field, or None without a "length" field
     length_value    : the value every frame carries in its length field (a frame with another
                       value is refused like one failing its CRC)
+    fields          : typed fields between sync and check (drivers/wire/fields.py), given instead
+                      of `layout` and the *_type keys as `[[serial.binary.fields]]` tables
+    crc_byte_order  : byte order of the check when it differs from `byte_order` ("" = the same)
+    seq_step        : without a "seq" field, device-time ticks per frame (the frame counter is
+                      the device time counted in steps)
+    length_field    : name of the (unsigned) field holding a message's length, so that messages
+                      of other ids are skipped by their length ("" for none)
+    length_adds     : bytes of a message beyond its length field's value (header and check)
     """
 
     sync: bytes
@@ -228,12 +238,19 @@ class BinaryFormat:
     max_gap: int
     length_type: object = None
     length_value: int = 0
+    fields: tuple = ()
+    crc_byte_order: str = ""
+    seq_step: int = 0
+    length_field: str = ""
+    length_adds: int = 0
 
     @classmethod
     def parse(cls, s: Section) -> "BinaryFormat":
         sync = s.get_list("sync", int)
         if not 1 <= len(sync) <= 4 or not all(0 <= b <= 255 for b in sync):
             raise s.error("sync", "must be 1 to 4 byte values (0-255), e.g. [0xA5, 0x5A]")
+        if s.has("fields"):
+            return _parse_fields(cls, s, bytes(sync))
         layout = s.get_list("layout", str)
         middle = layout[1:-1]
         optional = set(middle) - {"counts", "seq"}
@@ -273,9 +290,91 @@ class BinaryFormat:
             max_gap=max_gap,
             length_type=length_type,
             length_value=length_value,
+            crc_byte_order=s.get("crc_byte_order", str, default="", choices=("little", "big")),
         )
         s.finish()
         return fmt
+
+
+def _parse_fields(cls, s: Section, sync: bytes) -> BinaryFormat:
+    """A BinaryFormat given as typed fields (`[[serial.binary.fields]]`)."""
+    tables = s.get("fields", list)
+    if not tables or not all(isinstance(t, dict) for t in tables):
+        raise s.error("fields", "must be a list of [[serial.binary.fields]] tables")
+    fields = tuple(_parse_field(Section(s.source, f"{s.name}.fields[{i}]", t))
+                   for i, t in enumerate(tables))
+    names = [f.name for f in fields if f.name in SPECIAL]
+    if len(set(names)) != len(names):
+        raise s.error("fields", "\"seq\" and \"time\" may each be given once")
+    has_time = "time" in names
+    time_tick = s.get("time_tick", float) if has_time else math.nan
+    if has_time and not (math.isfinite(time_tick) and time_tick > 0):
+        raise s.error("time_tick", "must be the positive duration of one device-time tick, s")
+    seq_step = 0
+    if "seq" not in names:
+        if not has_time:
+            raise s.error("fields", "need a \"seq\" field, or a \"time\" field and `seq_step` "
+                                    "(device-time ticks per frame) to count frames by")
+        seq_step = s.get("seq_step", int)
+        time_field = next(f for f in fields if f.name == "time")
+        if not 1 <= seq_step <= time_field.modulus // 64:
+            raise s.error("seq_step", "must be the positive number of device-time ticks per frame")
+    fmt = cls(sync=sync, layout=(), byte_order=s.get("byte_order", str, choices=("little", "big")),
+              seq_type="", time_type=None, time_tick=time_tick, count_type="",
+              crc=s.get("crc", str, choices=tuple(CHECKSUMS)),
+              crc_covers_sync=s.get("crc_covers_sync", bool, default=False), max_gap=1,
+              fields=fields, seq_step=seq_step,
+              crc_byte_order=s.get("crc_byte_order", str, default="", choices=("little", "big")))
+    length_field = s.get("length_field", str, default="")
+    length_adds = s.get("length_adds", int) if length_field else 0
+    named = {f.name: f for f in fields}
+    if length_field and (length_field not in named or named[length_field].type not in (
+            "uint8", "uint16", "uint32")):
+        raise s.error("length_field", "must name a uint8, uint16 or uint32 field of the frame")
+    if length_field and not 1 <= length_adds <= 64:
+        raise s.error("length_adds", "must be the bytes of a message beyond its length value "
+                                     "(header and check), 1..64")
+    fmt = dataclasses.replace(fmt, length_field=length_field, length_adds=length_adds)
+    modulus = seq_modulus(fmt)
+    max_gap = s.get("max_gap", int, default=min(32, modulus // 8))
+    if not 1 <= max_gap <= modulus // 8:
+        raise s.error("max_gap", f"must be 1..{modulus // 8} (an eighth of the sequence range) "
+                                 "for the sequence check to mean anything")
+    s.finish()
+    return dataclasses.replace(fmt, max_gap=max_gap)
+
+
+def _parse_field(s: Section) -> Field:
+    """One `[[serial.binary.fields]]` table."""
+    name = s.get("name", str)
+    kind = s.get("type", str, choices=tuple(TYPES))
+    if name in ("sync", "crc", "counts") or not name:
+        raise s.error("name", f"{name!r} is not a field name: the sync word and the check are "
+                              "keys of [serial.binary]; name a channel of [imu], \"seq\", "
+                              "\"time\" or anything else")
+    is_float, unsigned = kind.startswith("float"), kind.startswith("uint")
+    if name in SPECIAL and not unsigned:
+        raise s.error("type", f"the {name} field must be an unsigned integer type")
+    value = s.get("value", int, default=None)
+    mask = s.get("valid_mask", int, default=None)
+    valid_value = s.get("valid_value", int, default=0)
+    if (value is not None or mask is not None) and not unsigned:
+        raise s.error("value" if value is not None else "valid_mask",
+                      "constants and status words must be unsigned integer fields")
+    bits = 24 if kind.endswith("24") else 8 * np.dtype(TYPES[kind]).itemsize
+    for key, v in (("value", value), ("valid_mask", mask), ("valid_value", valid_value)):
+        if v is not None and not 0 <= v < 1 << bits:
+            raise s.error(key, f"must fit the {kind} field (0..{(1 << bits) - 1})")
+    converted = is_float or s.has("scale") or s.has("offset")
+    scale = s.get("scale", float, default=1.0)
+    offset = s.get("offset", float, default=0.0)
+    if not (math.isfinite(scale) and scale != 0 and math.isfinite(offset)):
+        raise s.error("scale", "scale must be finite and non-zero, offset finite (SI = raw * "
+                               "scale + offset)")
+    field = Field(name, kind, s.get("byte_order", str, default="", choices=("little", "big")),
+                  value, scale, offset, converted, mask, valid_value)
+    s.finish()
+    return field
 
 
 @dataclass(frozen=True)
@@ -285,13 +384,21 @@ class AsciiFormat:
     delimiter  : "," ";" "\\t" or " " (" " means any run of spaces and tabs)
     timestamp  : "none", "first" or "last" column
     time_scale : seconds per unit of the timestamp column (0.001 for milliseconds)
-    decimals   : counts are the printed values times 10**decimals (exact fixed point)
+    decimals   : counts are the printed values times 10**decimals (exact fixed point); values
+                 with fewer decimals are exact too
+    sentence   : NMEA-style sentences: the address ("VNIMU" for `$VNIMU,...*hh`); each line must
+                 end in `*hh`, the XOR of the bytes between `$` and `*` (NMEA 0183); sentences
+                 with another address are skipped. "" for plain lines
+    columns    : what each value column is, in order: a channel name of [imu], or "" for a
+                 column the station does not record; default: the channels in order
     """
 
     delimiter: str
     timestamp: str
     time_scale: float
     decimals: int
+    sentence: str = ""
+    columns: tuple = ()
 
     @classmethod
     def parse(cls, s: Section) -> "AsciiFormat":
@@ -306,7 +413,12 @@ class AsciiFormat:
             timestamp=s.get("timestamp", str, default="none", choices=("none", "first", "last")),
             time_scale=time_scale,
             decimals=decimals,
+            sentence=s.get("sentence", str, default=""),
+            columns=s.get_list("columns", str, default=[]),
         )
+        if fmt.sentence and not (fmt.sentence.isascii() and fmt.sentence.isalnum()):
+            raise s.error("sentence", "must be the sentence address, letters and digits (e.g. "
+                                      "\"VNIMU\" for $VNIMU,...*hh)")
         s.finish()
         return fmt
 
@@ -345,5 +457,17 @@ class SerialImuProfile:
     def load(cls, path_or_name) -> "SerialImuProfile":
         """Read and check a serial IMU profile (path or bundled name)."""
         profile = load_profile(path_or_name)
-        return cls(profile.source, profile.section("imu", ImuSection.parse),
-                   profile.section("serial", SerialSection.parse))
+        loaded = cls(profile.source, profile.section("imu", ImuSection.parse),
+                     profile.section("serial", SerialSection.parse))
+        frame = loaded.serial.frame
+        if loaded.serial.protocol == "ascii" and frame.columns:
+            named = [c for c in frame.columns if c]
+            if sorted(named) != sorted(loaded.imu.channels):
+                raise ProfileError(f"{loaded.source}: [serial.ascii] columns must name every "
+                                   f"[imu] channel once (\"\" for other columns); got {named}")
+        if loaded.serial.protocol == "binary":
+            try:
+                FrameLayout(loaded.serial.frame, loaded.imu.channels, loaded.imu.scale)
+            except ProfileError as exc:
+                raise ProfileError(f"{loaded.source}: {exc}") from None
+        return loaded

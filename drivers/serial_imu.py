@@ -39,8 +39,10 @@ class SerialImu:
                         else SerialImuProfile.load(profile))
         self.clock = clock or WallClock()
         self.read_timeout = read_timeout
-        parser = BinaryFrameParser if self.profile.serial.protocol == "binary" else AsciiLineParser
-        self.parser = parser(self.profile.serial.frame, self.profile.imu.channels)
+        imu, serial_section = self.profile.imu, self.profile.serial
+        self.parser = (BinaryFrameParser(serial_section.frame, imu.channels, imu.scale)
+                       if serial_section.protocol == "binary"
+                       else AsciiLineParser(serial_section.frame, imu.channels))
         self.connections = 0
         self._serial = None
         self._lost = None  # DeviceLostError to raise once the last samples are handed out

@@ -53,8 +53,9 @@ def manual_frame(seq: int, ticks: int, counts) -> bytes:
 
 def test_crc_catalogue_check_values():
     # check values of "123456789" from the CRC catalogue (reveng), and the stdlib implementations
-    expected = {"crc16-ccitt-false": 0x29B1, "crc16-xmodem": 0x31C3, "crc16-modbus": 0x4B37,
-                "crc32": 0xCBF43926}
+    expected = {"crc8": 0xF4, "crc8-maxim": 0xA1, "crc16-ccitt-false": 0x29B1,
+                "crc16-kermit": 0x2189, "crc16-arc": 0xBB3D, "crc16-xmodem": 0x31C3,
+                "crc16-modbus": 0x4B37, "crc32": 0xCBF43926, "crc32c": 0xE3069283}
     assert {name: crc.of(b"123456789") for name, crc in CRCS.items()} == expected
     data = np.random.default_rng(0).integers(0, 256, 300, dtype=np.uint8).tobytes()
     assert CRCS["crc16-ccitt-false"].of(data) == binascii.crc_hqx(data, 0xFFFF)

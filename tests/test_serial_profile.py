@@ -62,7 +62,7 @@ def test_defaults_and_per_channel_lists(tmp_path):
       'layout = ["seq", "sync", "counts", "crc"]'),
      ["[serial.binary] layout", "start with"]),
     (("sync = [0xA5, 0x5A]", "sync = [0xA5, 300]"), ["[serial.binary] sync"]),
-    (('crc = "crc16-ccitt-false"', 'crc = "crc8"'), ["[serial.binary] crc", "crc16-modbus"]),
+    (('crc = "crc16-ccitt-false"', 'crc = "crc7"'), ["[serial.binary] crc", "crc16-modbus"]),
     (('seq_type = "uint16"', 'seq_type = "int16"'), ["[serial.binary] seq_type"]),
     (('crc = "crc16-ccitt-false"', 'crc = "crc16-ccitt-false"\nmax_gap = 9000'),
      ["[serial.binary] max_gap", "1..8192"]),

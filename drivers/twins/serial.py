@@ -225,15 +225,17 @@ class SerialTwin:
                              f"({len(times)}, {m}); got {counts.dtype} {counts.shape}")
         fmt = self.profile.serial.frame
         if self.profile.serial.protocol == "ascii":
-            return encode_lines(fmt, times, counts).splitlines(keepends=True)
+            return encode_lines(fmt, times, counts,
+                                self.profile.imu.channels).splitlines(keepends=True)
         if self._origin is None:  # restarted: this frame is the device's number 0
             self._origin = int(seq[0])
             self.restarts.append(self._origin)
         wire = seq - self._origin
         zero = self.time_of(self._origin) if self.restarts else 0.0  # the device clock's 0
+        imu = self.profile.imu
         ticks = (np.round((times - zero) / fmt.time_tick).astype(np.int64)
-                 if "time" in fmt.layout else wire)
-        data = encode_frames(fmt, wire, ticks, counts)
+                 if np.isfinite(fmt.time_tick) else wire)
+        data = encode_frames(fmt, wire, ticks, counts, imu.channels, imu.scale)
         size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
 

@@ -1,9 +1,11 @@
 """Wire formats of serial IMUs: one module per format, one small decode contract (as pymodbus'
 framer/).
 
-    crc.py     CRCs and byte sums of the binary format (numpy, many frames at once)
-    binary.py  binary frames: sync | seq | time | counts | CRC (BinaryFrameParser, encode_frames)
-    ascii.py   one sample per text line (AsciiLineParser, encode_lines)
+    crc.py     CRCs, byte sums, XOR and Fletcher checks (numpy, many frames at once)
+    fields.py  typed fields of a binary frame (FrameLayout: dtype, constants, status, to counts)
+    binary.py  binary frames: sync | fields | check (BinaryFrameParser, encode_frames)
+    ascii.py   one sample per text line, optionally an NMEA `$...*hh` sentence (AsciiLineParser,
+               encode_lines)
 
 A decoder takes the bytes as they arrive and says how much of the stream it used and what it
 decoded: `decode(data, host_time, final=False) -> Decoded(used, block)`. `used` counts the bytes
@@ -29,6 +31,9 @@ class SerialStats(LinkStats):
     bad_lines     : complete ASCII lines that did not parse
     resyncs       : times alignment was lost and found again (bytes skipped between two frames)
     skipped_bytes : bytes that belong to no accepted frame (garbage, partial and corrupted frames)
+    invalid       : accepted frames whose status flags mark the sample invalid (not returned)
+    other_messages: messages of other ids skipped by their length (their check held), between
+                    accepted frames; their bytes are not skipped_bytes and not a resync
     """
 
     bytes: int = 0
@@ -36,6 +41,8 @@ class SerialStats(LinkStats):
     bad_lines: int = 0
     resyncs: int = 0
     skipped_bytes: int = 0
+    invalid: int = 0
+    other_messages: int = 0
 
 
 class Decoded(NamedTuple):

@@ -1,8 +1,10 @@
 """Text lines of serial IMUs, one sample per line.
 
 Comma-, semicolon-, tab- or space-separated values with an optional timestamp column (layout from
-the device profile, `[serial.ascii]`). The first line after opening is discarded (it is usually
-partial).
+the device profile, `[serial.ascii]`), optionally as NMEA-style sentences `$ADDR,v1,...,vn*hh`
+whose `hh` is the XOR of the bytes between `$` and `*` (NMEA 0183; VectorNav's ASCII outputs).
+Columns the station does not record are named "" in the profile's `columns`. The first line after
+opening is discarded (it is usually partial).
 """
 
 import numpy as np
@@ -11,19 +13,40 @@ from drivers.samples import SampleBlock
 from drivers.wire import Decoded, SerialStats
 
 
-def encode_lines(fmt, times, counts) -> bytes:
+def encode_lines(fmt, times, counts, channels=None) -> bytes:
     """Text lines of samples: optional timestamp (in the profile's time unit) and the counts,
-    written with `fmt.decimals` decimals (counts / 10**decimals)."""
+    written with `fmt.decimals` decimals (counts / 10**decimals); columns the station does not
+    record are written as 0; sentences get their `$ADDR,` and `*hh`."""
     sep = fmt.delimiter
+    where = _column_of(fmt, channels or [f"c{j}" for j in range(np.shape(counts)[1])])
     lines = []
     for t, row in zip(np.asarray(times, float), np.asarray(counts, np.int64), strict=False):
-        values = [_fixed(int(c), fmt.decimals) for c in row]
+        values = [_fixed(int(row[j]), fmt.decimals) if j >= 0 else "0" for j in where]
         if fmt.timestamp == "first":
             values.insert(0, repr(float(t) / fmt.time_scale))
         elif fmt.timestamp == "last":
             values.append(repr(float(t) / fmt.time_scale))
-        lines.append(sep.join(values) + "\r\n")
+        line = sep.join(values)
+        if fmt.sentence:
+            body = f"{fmt.sentence}{sep}{line}"
+            line = f"${body}*{_xor(body.encode('ascii')):02X}"
+        lines.append(line + "\r\n")
     return "".join(lines).encode("ascii")
+
+
+def _column_of(fmt, channels) -> list:
+    """For each value column, the index of its channel, or -1 for a column not recorded."""
+    if not fmt.columns:
+        return list(range(len(channels)))
+    return [channels.index(c) if c else -1 for c in fmt.columns]
+
+
+def _xor(data: bytes) -> int:
+    """XOR of the bytes (the NMEA 0183 checksum)."""
+    value = 0
+    for b in data:
+        value ^= b
+    return value
 
 
 def _fixed(count: int, decimals: int) -> str:
@@ -58,7 +81,8 @@ class AsciiLineParser:
     def __init__(self, fmt, channels):
         self.fmt = fmt
         self.channels = tuple(channels)
-        self.fields = len(self.channels) + (fmt.timestamp != "none")
+        self.where = np.array(_column_of(fmt, self.channels))
+        self.fields = len(self.where) + (fmt.timestamp != "none")
         self.stats = SerialStats()
         self._next_seq = 0
         self.reset()
@@ -104,6 +128,10 @@ class AsciiLineParser:
             return None
         try:
             text = line.decode("ascii")
+            if self.fmt.sentence:
+                text = self._sentence(text.strip())
+                if text is None:
+                    return None
             tokens = (text.split() if self.fmt.delimiter.isspace()
                       else text.split(self.fmt.delimiter))
             tokens = [t.strip() for t in tokens]
@@ -116,10 +144,26 @@ class AsciiLineParser:
                 time, tokens = float(tokens[-1]) * self.fmt.time_scale, tokens[:-1]
             if self.fmt.timestamp != "none" and not np.isfinite(time):
                 raise ValueError("timestamp is not finite")
-            counts = [_parse_fixed(t, self.fmt.decimals) for t in tokens]
-            if any(abs(c) >= 2**63 for c in counts):
+            values = [_parse_fixed(t, self.fmt.decimals) if j >= 0 else 0
+                      for t, j in zip(tokens, self.where, strict=True)]
+            if any(abs(c) >= 2**63 for c in values):
                 raise ValueError("count does not fit 64 bits")
+            counts = [0] * len(self.channels)
+            for value, j in zip(values, self.where, strict=True):
+                if j >= 0:
+                    counts[j] = value
         except (UnicodeDecodeError, ValueError):
             self.stats.bad_lines += 1
             return None
         return counts, time
+
+    def _sentence(self, text: str):
+        """The values part of a `$ADDR,values*hh` sentence of the profile's address; None for
+        another address; ValueError if it is not a sentence or its checksum does not hold."""
+        body, star, check = text[1:].rpartition("*")
+        if text[:1] != "$" or not star or len(check) != 2:
+            raise ValueError("not a $...*hh sentence")
+        address, sep, values = body.partition(self.fmt.delimiter)
+        if int(check, 16) != _xor(body.encode("ascii")):
+            raise ValueError("sentence checksum does not match")
+        return values if address == self.fmt.sentence and sep else None

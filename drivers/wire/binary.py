@@ -1,14 +1,18 @@
 """Binary frames of serial IMUs, parsed in bulk.
 
-Binary frame (layout from the device profile, `[serial.binary]`):
+Binary frame (from the device profile, `[serial.binary]`):
 
-    sync | sequence number | length (optional) | device time (optional) | m channel counts | CRC
+    sync | fields | check
 
-The field order between sync and CRC is the profile's `layout`; the "CRC" is any frame check of
-`drivers.wire.crc.CHECKSUMS` (a CRC, or a byte sum), and a length field must carry the profile's
-`length_value` (a frame with another length is refused like one failing its check). Parsing is
-vectorised with numpy: every position where the sync word occurs is a candidate, all candidates'
-CRCs are computed at once, and the frames are decoded through a structured dtype.
+The fields are typed (drivers/wire/fields.py): channels, sequence number, device time, constants
+(message id, length byte), status words; the one-block layout of earlier profiles
+(sync | sequence number | length | device time | m channel counts | CRC) is a special case. The
+check is any frame check of `drivers.wire.crc.CHECKSUMS` (a CRC, a byte sum, XOR, Fletcher), and
+every constant field must hold its value (a frame with another message id or length is refused
+like one failing its check). Parsing is vectorised with numpy: every position where the sync word
+occurs is a candidate, all candidates' checks are computed at once, and the frames are decoded
+through a structured dtype. Frames without a sequence field count their device time in
+`seq_step` ticks instead.
 
 CRC-16 alone accepts about one corrupted candidate in 65 536. A CRC-valid candidate is therefore
 accepted only if its sequence number is also consistent with a neighbour: the previous or the next
@@ -19,7 +23,8 @@ max_gap / 2**bits. The decision depends only on the byte stream, not on how it w
 
 A candidate whose header (sync, sequence) survived but whose payload was corrupted so that CRC-16
 still matches cannot be told from an intact frame by any check on this format; a profile may choose
-`crc32` to make that 2**16 times rarer.
+`crc32` to make that 2**16 times rarer. Weaker checks (8-bit sums, XOR) make the sequence check
+carry more of the load: `bench/serial.py` measures both.
 """
 
 import numpy as np
@@ -28,49 +33,22 @@ from numpy.lib.stride_tricks import sliding_window_view
 from drivers.samples import SampleBlock, restart_seq
 from drivers.wire import Decoded, SerialStats
 from drivers.wire.crc import CHECKSUMS
-
-INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4",
-             "int8": "i1", "int16": "i2", "int32": "i4"}
-"""Profile integer type name -> numpy type code."""
+from drivers.wire.fields import FrameLayout
 
 
-def frame_dtype(fmt, n_channels: int) -> np.dtype:
-    """Packed structured dtype of one frame of `fmt` (a profile's BinaryFormat)."""
-    order = "<" if fmt.byte_order == "little" else ">"
-    crc = CHECKSUMS[fmt.crc]
-    kinds = {
-        "sync": (f"V{len(fmt.sync)}",),
-        "seq": (order + INT_TYPES[fmt.seq_type],),
-        "length": (order + INT_TYPES[fmt.length_type],) if fmt.length_type else None,
-        "time": (order + INT_TYPES[fmt.time_type],) if fmt.time_type else None,
-        "counts": (order + INT_TYPES[fmt.count_type], (n_channels,)),
-        "crc": (f"{order}u{crc.size}",),
-    }
-    return np.dtype([(name, *kinds[name]) for name in fmt.layout])
-
-
-def encode_frames(fmt, seq, ticks, counts) -> bytes:
+def encode_frames(fmt, seq, ticks, counts, channels=None, scale=None) -> bytes:
     """Bytes of consecutive frames: raw sequence numbers, raw device-time ticks, counts (k, m).
 
-    Values are wrapped to the field widths for seq and ticks; counts must fit the count type.
+    Values are wrapped to the field widths for seq and ticks; counts must fit their fields.
+    `channels` and `scale` are the `[imu]` channel names and counts per SI unit (needed by
+    profiles whose fields name channels or convert them).
     """
     counts = np.asarray(counts)
-    dtype = frame_dtype(fmt, counts.shape[1])
-    info = np.iinfo(dtype["counts"].base)
-    if counts.size and (counts.min() < info.min or counts.max() > info.max):
-        raise ValueError(f"counts outside the {fmt.count_type} range [{info.min}, {info.max}]; "
-                         "scale the source or choose a wider count_type in the profile")
-    frames = np.zeros(len(counts), dtype=dtype)
-    frames["sync"] = np.frombuffer(fmt.sync, dtype=f"V{len(fmt.sync)}")[0]
-    frames["seq"] = np.asarray(seq, dtype=np.int64) % (1 << 8 * dtype["seq"].itemsize)
-    if "time" in fmt.layout:
-        frames["time"] = np.asarray(ticks, dtype=np.int64) % (1 << 8 * dtype["time"].itemsize)
-    if "length" in fmt.layout:
-        frames["length"] = fmt.length_value
-    frames["counts"] = counts
-    raw = frames.view(np.uint8).reshape(len(frames), dtype.itemsize)
+    layout = FrameLayout(fmt, channels or [f"c{j}" for j in range(counts.shape[1])], scale)
+    frames = layout.records(seq, ticks, counts)
+    raw = frames.view(np.uint8).reshape(len(frames), layout.dtype.itemsize)
     crc = CHECKSUMS[fmt.crc]
-    frames["crc"] = crc.rows(raw[:, _crc_start(fmt):dtype.itemsize - crc.size])
+    frames["crc"] = crc.rows(raw[:, _crc_start(fmt):layout.dtype.itemsize - crc.size])
     return frames.tobytes()
 
 
@@ -126,16 +104,19 @@ class BinaryFrameParser:
     stay buffered meanwhile.
     """
 
-    def __init__(self, fmt, channels):
+    def __init__(self, fmt, channels, scale=None):
         self.fmt = fmt
         self.channels = tuple(channels)
-        self.dtype = frame_dtype(fmt, len(self.channels))
+        self.layout = FrameLayout(fmt, self.channels, scale)
+        self.dtype = self.layout.dtype
         self.size = self.dtype.itemsize
         self.horizon = 16 * self.size
         self.crc = CHECKSUMS[fmt.crc]
         self.sync = np.frombuffer(fmt.sync, dtype=np.uint8)
-        self.seq_modulus = 1 << 8 * self.dtype["seq"].itemsize
-        self.time_modulus = 1 << 8 * self.dtype["time"].itemsize if "time" in fmt.layout else 0
+        self.seq_modulus = self.layout.seq_modulus
+        self.time_modulus = self.layout.time_modulus
+        self.length_rule = self.layout.length_rule()
+        self._others = {}  # absolute position -> bytes of checked other messages not yet passed
         self.stats = SerialStats()
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
@@ -166,9 +147,8 @@ class BinaryFrameParser:
         records = rows.view(self.dtype).reshape(-1)
         crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
                   == records["crc"])
-        if self.fmt.length_type:
-            crc_ok &= records["length"] == self.fmt.length_value
-        valid, valid_records = complete[crc_ok], records[crc_ok]
+        crc_ok &= self.layout.constants_hold(records)
+        valid, valid_records = complete[crc_ok], self._decoded(records[crc_ok])
 
         ctx_pos, ctx_seq, ctx_acc = self._context
         n_ctx = len(ctx_pos)
@@ -177,6 +157,8 @@ class BinaryFrameParser:
         links, near = self._links(pos, seq)
         accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
         cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
+        if self.length_rule:
+            cut = self._other_messages(buf, self._outside(starts, valid), cut, final)
         decided = np.concatenate([np.ones(n_ctx, bool), valid < cut])
         accept &= decided
 
@@ -186,6 +168,67 @@ class BinaryFrameParser:
         self._count_crc_failures(failed[failed < cut], pos[accept])
         self._keep(pos, seq, accept, decided, cut, buf)
         return Decoded(int(cut), block)
+
+    def _decoded(self, records: np.ndarray) -> np.ndarray:
+        """Raw sequence numbers, ticks, counts and validity of check-passing records."""
+        out = np.zeros(len(records), [("seq", "i8"), ("time", "i8"),
+                                      ("counts", "i8", (len(self.channels),)), ("valid", "?")])
+        out["seq"], out["time"] = self.layout.seq(records), self.layout.ticks(records)
+        out["counts"], out["valid"] = self.layout.samples(records)
+        return out
+
+    def _other_messages(self, buf: np.ndarray, starts: np.ndarray, cut: int, final: bool) -> int:
+        """Remember the messages of other ids before `cut` whose check holds over the length their
+        length field gives (absolute position -> bytes); the cut, moved back to the first one not
+        complete yet (so that its bytes stay buffered until it is)."""
+        offset, code, adds = self.length_rule
+        n, first, check = len(buf), _crc_start(self.fmt), self.crc
+        width = np.dtype(code).itemsize
+        known = starts[starts + offset + width <= n]
+        total = np.zeros(len(known), np.int64)
+        if len(known):
+            fields = sliding_window_view(buf, width)[known + offset]
+            total = fields.copy().view(code).reshape(-1).astype(np.int64) + adds
+        complete = known + total <= n
+        if not final:
+            waiting = [*starts[starts + offset + width > n][:1], *known[~complete][:1]]
+            cut = min([cut, *waiting])
+        order = "<" if (self.fmt.crc_byte_order or self.fmt.byte_order) == "little" else ">"
+        for length in np.unique(total[complete & (known < cut) & (total > first + check.size)]):
+            at = known[complete & (known < cut) & (total == length)]
+            rows = sliding_window_view(buf, int(length))[at]
+            sent = rows[:, length - check.size :].copy().view(f"{order}u{check.size}").reshape(-1)
+            ok = check.rows(rows[:, first : length - check.size]) == sent
+            self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
+                                    strict=True))
+        if len(self._others) > 100_000:  # a long run of other messages only: its gap is skipped
+            self._others.clear()
+        return cut
+
+    def _outside(self, starts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+        """The sync positions that lie in no frame passing its check and constants (only those
+        can begin other messages between accepted frames)."""
+        if not len(valid):
+            return starts
+        i = np.searchsorted(valid, starts, side="right") - 1
+        return starts[(i < 0) | (starts >= valid[np.maximum(i, 0)] + self.size)]
+
+    def _tiled(self, previous_ends: np.ndarray, starts: np.ndarray) -> np.ndarray:
+        """Whether the bytes between each accepted frame and the one before are exactly a chain of
+        other messages (skipped by their length, counted in `other_messages`, not a resync)."""
+        tiled = np.zeros(len(starts), bool)
+        if not self.length_rule:
+            return tiled
+        for i in np.flatnonzero(starts > previous_ends):
+            at, chain = int(previous_ends[i]), 0
+            while at < starts[i] and at in self._others:
+                at, chain = at + self._others[at], chain + 1
+            if at == starts[i]:
+                tiled[i] = True
+                self.stats.other_messages += chain
+        if len(starts):
+            self._others = {p: t for p, t in self._others.items() if p >= starts[-1]}
+        return tiled
 
     def _sync_positions(self, buf: np.ndarray) -> np.ndarray:
         """Every offset where the whole sync word starts."""
@@ -266,6 +309,7 @@ class BinaryFrameParser:
         ticks_raw = (records["time"].astype(np.int64) if self.time_modulus
                      else np.zeros(len(records), np.int64))
         counts = records["counts"].astype(np.int64).reshape(len(records), len(self.channels))
+        valid = records["valid"]
         if len(records) and self._last is None:  # the very first frame: 1 step after a virtual one
             self._last = (self._connection_start, (seq_raw[0] - 1) % self.seq_modulus,
                           seq_raw[0] - 1, ticks_raw[0], ticks_raw[0], None)
@@ -278,8 +322,9 @@ class BinaryFrameParser:
                       & (np.diff(ticks_raw, prepend=self._last[3]) == 0)
                       & np.all(counts == prev_counts, axis=1))
             stats.duplicates += int(np.count_nonzero(~fresh))
-            ends, seq_raw, ticks_raw, counts = ends[fresh], seq_raw[fresh], ticks_raw[fresh], \
-                counts[fresh]
+            ends, seq_raw, ticks_raw, counts, valid = (ends[fresh], seq_raw[fresh],
+                                                       ticks_raw[fresh], counts[fresh],
+                                                       valid[fresh])
         k = len(seq_raw)
         if k == 0:
             seq, device_time = np.zeros(0, np.int64), np.zeros(0)
@@ -303,12 +348,13 @@ class BinaryFrameParser:
                 device_time = np.full(k, np.nan)
             self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
                           int(ticks_raw[-1]), int(ticks[-1]), counts[-1].copy())
-            stats.samples += k
+        stats.invalid += int(k - np.count_nonzero(valid))
+        stats.samples += int(np.count_nonzero(valid))
         return SampleBlock(
-            counts=counts,
-            seq=seq,
-            device_time=device_time,
-            host_time=self._host.at(ends),
+            counts=counts[valid],
+            seq=seq[valid],
+            device_time=device_time[valid],
+            host_time=self._host.at(ends)[valid],
             channels=self.channels,
         )
 
@@ -318,7 +364,7 @@ class BinaryFrameParser:
         last_end = self._last[0]
         starts = ends - self.size
         previous_ends = np.concatenate([[max(last_end, self._connection_start)], ends[:-1]])
-        skipped = starts - previous_ends
+        skipped = np.where(self._tiled(previous_ends, starts), 0, starts - previous_ends)
         self.stats.skipped_bytes += int(np.sum(np.maximum(skipped, 0)))
         resynced = skipped != 0
         if last_end <= self._connection_start:

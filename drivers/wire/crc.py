@@ -1,8 +1,11 @@
 """CRCs and checksums of the binary wire format, computed for many frames at once (numpy).
 
 `CRCS` names the CRCs (table-driven), `CHECKSUMS` every algorithm a device profile may choose
-(`[serial.binary] crc`): the CRCs and the byte sums some devices send instead (OpenShoe/MIMU
-arrays: the 16-bit sum of the bytes).
+(`[serial.binary] crc`): the CRCs and the simpler checks devices send instead - byte sums
+(OpenShoe/MIMU arrays: the 16-bit sum), the two's-complement sum (Xsens Xbus), XOR and
+Fletcher-16 (both the original modulo-255 form and the modulo-256 form of u-blox UBX and
+MicroStrain MIP). Each check has `size` (bytes in a frame), `rows(data)` (N, n) uint8 -> (N,)
+uint32 and `of(data)` for one byte string.
 """
 
 from dataclasses import dataclass
@@ -85,35 +88,86 @@ class Crc:
 
 
 CRCS = {
+    "crc8": Crc(8, 0x07, 0x00, False, 0x00),  # CRC-8/SMBUS
+    "crc8-maxim": Crc(8, 0x31, 0x00, True, 0x00),  # CRC-8/MAXIM-DOW (1-Wire)
     "crc16-ccitt-false": Crc(16, 0x1021, 0xFFFF, False, 0x0000),
+    "crc16-kermit": Crc(16, 0x1021, 0x0000, True, 0x0000),
+    "crc16-arc": Crc(16, 0x8005, 0x0000, True, 0x0000),
     "crc16-xmodem": Crc(16, 0x1021, 0x0000, False, 0x0000),
     "crc16-modbus": Crc(16, 0x8005, 0xFFFF, True, 0x0000),
     "crc32": Crc(32, 0x04C11DB7, 0xFFFFFFFF, True, 0xFFFFFFFF),
+    "crc32c": Crc(32, 0x1EDC6F41, 0xFFFFFFFF, True, 0xFFFFFFFF),
 }
 
 
-@dataclass(frozen=True)
-class ByteSum:
-    """The sum of the bytes modulo 2**width: the checksum, not a CRC, of devices such as the
-    OpenShoe/MIMU arrays. It misses reordered bytes and errors that cancel, so the parser's
-    sequence check matters more with it."""
+class _Check:
+    """What every simple check shares: its size and `of` (one byte string) from `rows`."""
 
-    width: int
+    width = 8
 
     @property
     def size(self) -> int:
         """Bytes the checksum occupies in a frame."""
         return self.width // 8
 
-    def rows(self, data: np.ndarray) -> np.ndarray:
-        """Checksum of every row of `data` (N, n) uint8 -> (N,) uint32."""
-        total = np.asarray(data, dtype=np.uint8).sum(axis=1, dtype=np.uint64)
-        return (total % (1 << self.width)).astype(np.uint32)
-
     def of(self, data: bytes) -> int:
         """Checksum of one byte string."""
         return int(self.rows(np.frombuffer(data, dtype=np.uint8)[None, :])[0])
 
 
-CHECKSUMS = {**CRCS, "sum16": ByteSum(16)}
-"""Every frame check a profile may choose: the CRCs and the 16-bit byte sum."""
+@dataclass(frozen=True)
+class ByteSum(_Check):
+    """The sum of the bytes modulo 2**width: the checksum, not a CRC, of devices such as the
+    OpenShoe/MIMU arrays. It misses reordered bytes and errors that cancel, so the parser's
+    sequence check matters more with it. `negate`: the two's complement of the sum, so that the
+    bytes and the checksum add up to 0 (Xsens Xbus, MT Low-Level Communication Protocol, section
+    "Checksum")."""
+
+    width: int
+    negate: bool = False
+
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """Checksum of every row of `data` (N, n) uint8 -> (N,) uint32."""
+        total = np.asarray(data, dtype=np.uint8).sum(axis=1, dtype=np.uint64)
+        if self.negate:
+            total = -total.astype(np.int64)
+        return (total % (1 << self.width)).astype(np.uint32)
+
+
+@dataclass(frozen=True)
+class Xor8(_Check):
+    """The XOR of all bytes (NMEA 0183's `*hh`, and binary devices' "XOR checksum"). Any even
+    number of flips of one bit position cancels."""
+
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """Checksum of every row of `data` (N, n) uint8 -> (N,) uint32."""
+        data = np.asarray(data, dtype=np.uint8)
+        if data.shape[1] == 0:
+            return np.zeros(len(data), np.uint32)
+        return np.bitwise_xor.reduce(data, axis=1).astype(np.uint32)
+
+
+@dataclass(frozen=True)
+class Fletcher16(_Check):
+    """Fletcher's checksum of bytes: s1 = sum d_j, s2 = sum of the running s1 = sum (n - j) d_j
+    (j = 0..n-1), both modulo `modulus`. Modulus 255 is Fletcher's original (RFC 1146), sent as
+    s2 << 8 | s1; modulus 256 is the form of u-blox UBX (CK_A, CK_B) and MicroStrain MIP, sent
+    s1 first: s1 << 8 | s2."""
+
+    modulus: int
+    width = 16
+
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """Checksum of every row of `data` (N, n) uint8 -> (N,) uint32."""
+        data = np.asarray(data, dtype=np.uint64)
+        weights = np.arange(data.shape[1], 0, -1, dtype=np.uint64)
+        s1 = data.sum(axis=1, dtype=np.uint64) % self.modulus
+        s2 = (data @ weights) % self.modulus
+        high, low = (s2, s1) if self.modulus == 255 else (s1, s2)
+        return ((high << np.uint64(8)) | low).astype(np.uint32)
+
+
+CHECKSUMS = {**CRCS, "sum8": ByteSum(8), "sum16": ByteSum(16), "sum8-twos": ByteSum(8, True),
+             "xor8": Xor8(), "fletcher16": Fletcher16(255), "fletcher16-mod256": Fletcher16(256)}
+"""Every frame check a profile may choose: the CRCs, byte sums, two's-complement sum, XOR and
+Fletcher-16."""

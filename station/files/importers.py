@@ -320,7 +320,7 @@ def import_binary(out, path, profile, *, unit_serial: str = "IMPORTED") -> Path:
         raise CalibrationInputError(f"profile {prof.source} describes text lines, not binary "
                                     "frames.", "Give a binary device profile (--profile), or "
                                     "import the text with `station import csv`.")
-    parser = BinaryFrameParser(prof.serial.frame, prof.imu.channels)
+    parser = BinaryFrameParser(prof.serial.frame, prof.imu.channels, prof.imu.scale)
     blocks = []
     with open(path, "rb") as f:
         while data := f.read(DUMP_CHUNK):
@@ -333,7 +333,7 @@ def import_binary(out, path, profile, *, unit_serial: str = "IMPORTED") -> Path:
             f"bytes ({stats.crc_failures} sync candidates failed their check).",
             "Check that --profile describes the device that wrote the dump (sync, layout, byte "
             "order, checksum, channel count).")
-    timed = "time" in prof.serial.frame.layout
+    timed = math.isfinite(prof.serial.frame.time_tick)  # a "time" field, in any profile style
     t = block.device_time if timed else block.seq / prof.imu.rate_hz
     if np.any(np.diff(t) <= 0):
         raise CalibrationInputError(f"{path}: the device time stamps do not increase.",
