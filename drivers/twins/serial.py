@@ -105,6 +105,11 @@ class SerialTwin:
             os.symlink(os.ttyname(slave), self.port + ".new")
             os.replace(self.port + ".new", self.port)
 
+    @property
+    def plugged(self) -> bool:
+        """True between `plug()` and `unplug()`."""
+        return self._master is not None
+
     def unplug(self) -> None:
         """Pull the cable: close the pty; a reader then gets an error, as with a real unplug."""
         with self._lock:

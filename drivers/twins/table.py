@@ -12,6 +12,8 @@ Fault knobs (`inject`), each applied to the next `count` requests:
   "exception" -> the given exception `code` (e.g. 4 device failure, 2 illegal address)
   "slow"      -> the reply comes `delay` seconds late (the whole controller stalls, like a real one)
   "drop"      -> no reply at all
+and `silent` (an attribute): while True no request is answered, however many come (a link that is
+down: the cable pulled, the controller's network port dead); the physics go on.
 """
 
 import asyncio
@@ -40,6 +42,7 @@ class TableTwin:
         self.lifetime = lifetime
         self.port = None
         self.requests = 0
+        self.silent = False
         self._faults = collections.deque()
         self._loop = asyncio.new_event_loop()
         self._stopping = None
@@ -109,6 +112,8 @@ class TableTwin:
 
     async def _action(self, func_code, start, address, count, registers, values):
         """pymodbus hook called before each access: faults, then physics."""
+        if self.silent:
+            raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write:
             self._refresh(start, registers)  # part of the same request, no second fault
             return None
