@@ -36,7 +36,9 @@ from station.protocols.still import (
     PoseWatcher,
     StillSettings,
     StreamTap,
+    continue_poses,
     record_poses,
+    recorded_ups,
     run_states,
 )
 from station.reduce.static import accelerometer_channels
@@ -121,10 +123,23 @@ class StaticProtocol:
                 "a_nominal": self.a_nominal.tolist(), "gravity": self.settings.gravity,
                 "channels": self.channels.tolist()}
 
-    def run(self, recorder, tap: StreamTap) -> None:
-        """Record every pose into `recorder` (started, reading `tap`); an error is recorded as an
+    @classmethod
+    def from_metadata(cls, metadata: dict, operator, clock, units) -> "StaticProtocol":
+        """The protocol a session file recorded (`metadata()` of the original run; `units` of its
+        stream)."""
+        try:
+            settings = StaticSettings(**metadata["settings"])
+            return cls(operator, clock, metadata["a_nominal"], units, settings)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"the session's static settings or layout are unusable ({exc}); it "
+                             "was not written by this station") from None
+
+    def run(self, recorder, tap: StreamTap, done=()) -> None:
+        """Record every pose after the completed ones `done` (their `position_done` events, for
+        a resumed session) into `recorder` (started, reading `tap`); an error is recorded as an
         `abort` event and raised."""
-        self.recorder, self.position = recorder, 0
+        self.recorder, self.position = recorder, len(done)
+        self.directions = recorded_ups(done)
         self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap)
         run_states(self, recorder, "pose")
 
@@ -172,3 +187,11 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
     the new session file `out`; no table, no live view."""
     protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
     record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+
+
+def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+    """`station resume`'s free-static session (`station.protocols.KINDS` resume): the protocol the
+    session recorded, from its first pose not completed, with the opened `imu` driver into
+    `writer` (`SessionWriter.resume`d); returns that pose. No table."""
+    protocol = StaticProtocol.from_metadata(metadata, operator, clock, writer.specs["imu"].units)
+    return continue_poses(protocol, writer, imu, clock)

@@ -14,7 +14,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.reduce.stillness import detect_still
-from station.reduce.timeline import sample_times
+from station.reduce.timeline import sample_times, segment_breaks
 from station.solve.constraints import Constraints
 
 
@@ -86,23 +86,26 @@ def _window(value) -> list:
 def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) -> StillReadings:
     """The completed still poses of a session (`station.files.session.Session`).
 
-    The still intervals are detected once on the whole recording (`station.reduce.stillness.
-    detect_still`, one noise level for the session; options: `detector`, default the protocol's
-    settings in the metadata), so the result does not depend on when the live protocol polled.
+    Sample instants are worked out per segment of the stream (`station.reduce.timeline`: a
+    reconnection or a resumed session starts one). The still intervals are detected once on the
+    whole recording (`station.reduce.stillness.detect_still`, one noise level for the session;
+    options: `detector`, default the protocol's settings in the metadata), so the result does not
+    depend on when the live protocol polled.
     With the protocol's events, each completed pose averages the first `hold` seconds of the
     interval that overlaps its recorded window most; without them (an imported recording) every
     interval is a pose, all in one mounting. `trim` seconds (rounded to whole samples) are left
     out at both ends of every averaged window.
     """
-    data = session.stream(stream)
+    data, events = session.stream(stream), session.events()
     rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate)
-    z = data.to_si()
+    t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
+    known = np.isfinite(t)  # a resumed session's burst of samples taken before the resume: none
+    t, z = t[known], data.to_si()[known]
     settings = session.metadata.get("settings", {})
     options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
                if isinstance(settings.get(k), (int, float))}
     still = detect_still(z, rate, **{**options, **detector})
-    windows, mountings = pose_windows(session.events())
+    windows, mountings = pose_windows(events)
     spans = still.intervals
     if len(windows):
         first, last = t[spans[:, 0]], t[spans[:, 1] - 1]
