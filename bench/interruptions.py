@@ -12,6 +12,7 @@ turned after `record` gave up. Prints a table, or one JSON object with --json.
 """
 
 import argparse
+import contextlib
 import json
 import sys
 import tempfile
@@ -29,6 +30,8 @@ def main() -> None:
     parser.add_argument("--signals", default="SIGINT,SIGTERM,SIGKILL")
     parser.add_argument("--devices", default="imu,table", help="devices lost (events: LOSSES)")
     parser.add_argument("--positions", default="0,1", help="0-based positions interrupted")
+    parser.add_argument("--keep", type=Path,
+                        help="keep the sessions in this folder (default: a temporary one)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     positions = [int(j) for j in args.positions.split(",")]
@@ -37,11 +40,16 @@ def main() -> None:
     points += [(d, kind, j) for d in filter(None, args.devices.split(",")) for kind in LOSSES[d]
                for j in positions]
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        reference = record(Path(tmp) / "reference")
+    with contextlib.ExitStack() as stack:
+        tmp = args.keep or Path(stack.enter_context(tempfile.TemporaryDirectory()))
+        reference = record(tmp / "reference")
         for k, point in enumerate(points):
             start = time.perf_counter()
-            run = record(Path(tmp) / f"p{k}", point)
+            try:
+                run = record(tmp / f"p{k}", point)
+            except Exception as exc:
+                exc.add_note(f"interruption point {point}: {tmp / f'p{k}'}")
+                raise
             ratios = np.array(run["ratios"])
             rows.append({"cause": point[0], "after": point[1], "position": point[2] + 1,
                          "record_exit": run["record_exit"], "resume_exit": run["resume_exit"],

@@ -50,7 +50,9 @@ def run(args) -> int:
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
-        err.add_note("the table was stopped; resume again to go on")
+        with Session.open(args.session) as session:
+            rotary = session.protocol == "rotary"
+        err.add_note(f"{'the table was stopped; ' if rotary else ''}resume again to go on")
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()
