@@ -29,6 +29,12 @@ import numpy as np
 from station.errors import InputError
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
+UNREAD_AFTER = 2.0
+"""Wall seconds after which the served IMU counts its port as unread (the station ended or was
+killed: `drivers.twins.serial.SerialTwin`): frames are lost meanwhile, as a real device's are, not
+kept as a backlog for the resume. The recorder itself gives up on a silence that long
+(`Recorder.busy_grace`), so a station that reads at all never loses a frame to it."""
+
 
 class PortWatch:
     """Tells (once) when a program opens the pty `port`: pyserial configures the terminal then."""
@@ -78,7 +84,8 @@ class BenchTwin:
         b = self.bench
         if b.kind == "serial":
             b.table_twin.start()
-            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf)
+            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf,
+                                    unread_after=UNREAD_AFTER)
             self._watch = PortWatch(b.imu_twin.port)
         else:
             b.start()
@@ -211,7 +218,7 @@ class HandTwin:
         from drivers.twins.serial import SerialTwin
 
         b = self.bench
-        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf)
+        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf, unread_after=UNREAD_AFTER)
         self._watch = PortWatch(b.twin.port)
         self._thread.start()
         return self
