@@ -18,7 +18,7 @@ import numpy as np
 
 from drivers.errors import ProfileError
 from drivers.wire.binary import INT_TYPES
-from drivers.wire.crc import CRCS
+from drivers.wire.crc import CHECKSUMS
 
 BUNDLED = Path(__file__).parent / "profiles"
 _REQUIRED = object()
@@ -202,15 +202,18 @@ class BinaryFormat:
 
     sync            : sync word bytes (1-4), e.g. [0xA5, 0x5A]
     layout          : field order, "sync" first and "crc" last; "seq" and "counts" required,
-                      "time" optional
+                      "time" and "length" optional
     byte_order      : "little" or "big" (all multi-byte fields, CRC included)
     seq_type        : unsigned type of the sequence counter (uint8, uint16, uint32)
     time_type       : unsigned type of the device time, or None without a "time" field
-    time_tick       : seconds per device-time tick
+    time_tick       : seconds per device-time tick (1 / the device clock's tick rate)
     count_type      : integer type of each channel count
-    crc             : CRC algorithm (a name in drivers.wire.crc.CRCS)
+    crc             : frame check (a name in drivers.wire.crc.CHECKSUMS: a CRC or "sum16")
     crc_covers_sync : whether the CRC covers the sync word (otherwise it starts after it)
     max_gap         : largest sequence step still counted as consistent (dropped frames + 1)
+    length_type     : unsigned type of the length field, or None without a "length" field
+    length_value    : the value every frame carries in its length field (a frame with another
+                      value is refused like one failing its CRC)
     """
 
     sync: bytes
@@ -223,6 +226,8 @@ class BinaryFormat:
     crc: str
     crc_covers_sync: bool
     max_gap: int
+    length_type: object = None
+    length_value: int = 0
 
     @classmethod
     def parse(cls, s: Section) -> "BinaryFormat":
@@ -231,14 +236,20 @@ class BinaryFormat:
             raise s.error("sync", "must be 1 to 4 byte values (0-255), e.g. [0xA5, 0x5A]")
         layout = s.get_list("layout", str)
         middle = layout[1:-1]
-        if (layout[:1], layout[-1:]) != (("sync",), ("crc",)) or sorted(middle) not in (
-            ["counts", "seq"], ["counts", "seq", "time"]
-        ):
+        optional = set(middle) - {"counts", "seq"}
+        if ((layout[:1], layout[-1:]) != (("sync",), ("crc",)) or len(set(middle)) != len(middle)
+                or not {"counts", "seq"} <= set(middle) or not optional <= {"time", "length"}):
             raise s.error("layout", "must start with \"sync\", end with \"crc\" and hold \"seq\", "
-                                    "\"counts\" and optionally \"time\" once each; "
+                                    "\"counts\" and optionally \"time\" and \"length\" once each; "
                                     f"got {list(layout)}")
         unsigned = tuple(t for t in INT_TYPES if t.startswith("u"))
         has_time = "time" in layout
+        length_type, length_value = None, 0
+        if "length" in layout:
+            length_type = s.get("length_type", str, choices=unsigned)
+            length_value = s.get("length_value", int)
+            if not 0 <= length_value < 1 << 8 * int(INT_TYPES[length_type][1]):
+                raise s.error("length_value", f"must fit the {length_type} length field")
         seq_type = s.get("seq_type", str, choices=unsigned)
         time_type = s.get("time_type", str, choices=unsigned) if has_time else None
         time_tick = s.get("time_tick", float) if has_time else math.nan
@@ -257,9 +268,11 @@ class BinaryFormat:
             time_type=time_type,
             time_tick=time_tick,
             count_type=s.get("count_type", str, choices=tuple(INT_TYPES)),
-            crc=s.get("crc", str, choices=tuple(CRCS)),
+            crc=s.get("crc", str, choices=tuple(CHECKSUMS)),
             crc_covers_sync=s.get("crc_covers_sync", bool, default=False),
             max_gap=max_gap,
+            length_type=length_type,
+            length_value=length_value,
         )
         s.finish()
         return fmt

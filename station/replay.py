@@ -46,7 +46,8 @@ from station.files.session import (
     nominal_layout,
     write_results,
 )
-from station.protocols import KINDS, lookup
+from station.protocols import KINDS, lookup, reference
+from station.reduce.stillness import StillOptions
 from station.reduce.timeline import SEGMENT_EVENTS, arrival_offset
 from station.solve.calibrate import CalibrationResult
 
@@ -57,22 +58,28 @@ METHODS = ("auto", "pca", "ellipsoid", "factorization")
 class ReplaySettings:
     """How to reduce and solve a session again; the defaults are those of the recording's solution.
 
-    stream    : sample stream to calibrate
+    stream    : sample stream to calibrate (None: the kind's, `Kind.stream`, else "imu")
     trim      : seconds left out at both ends of every window (rotary: static and rotating
                 windows; iron, static: each pose's averaged window)
     positions : 0-based positions (poses) to use (None: every completed one)
     method    : closed-form method of `station.calibrate` ("auto", "pca", ...)
     refine    : maximum-likelihood refinement after the closed form
     magnitude : stimulus magnitude |v| (None: the recorded table rate, or gravity for the iron
-                and static protocols)
+                and static protocols, or the kind's default, standard gravity for an import)
+    rest, threshold, still_channels, min_still : the still-pose detector's settings of kinds
+                that detect still poses (`station.reduce.stillness.StillOptions`; None: default)
     """
 
-    stream: str = "imu"
+    stream: str | None = None
     trim: float = 0.0
     positions: tuple | None = None
     method: str = "auto"
     refine: bool = True
     magnitude: float | None = None
+    rest: tuple | None = None
+    threshold: float | None = None
+    still_channels: str | None = None
+    min_still: float | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -87,6 +94,16 @@ class ReplaySettings:
             if len(set(positions)) != len(positions) or min(positions, default=0) < 0:
                 raise InputError(f"positions must be distinct indices >= 0, got {self.positions}")
             object.__setattr__(self, "positions", positions)
+        if self.rest is not None:
+            object.__setattr__(self, "rest", self.still.rest)
+
+    @property
+    def still(self) -> StillOptions | None:
+        """The detector settings given (`StillOptions`), None when none was."""
+        given = (self.rest, self.threshold, self.still_channels, self.min_still)
+        if all(v is None for v in given):
+            return None
+        return StillOptions(*given)
 
 
 def replay(path, settings: ReplaySettings | None = None) -> tuple[object, CalibrationResult]:
@@ -105,27 +122,80 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
     the frame of the result (d x m), default the recorded layout for kinds solved in it; command:
     who asks, for the error about a kind without a reduction.
     """
-    name, path = session.protocol, session.path
-    kind = lookup(name, "reduce", f"{path} records a {name!r} session", command)
-    if settings.stream not in session.specs:
-        raise CalibrationInputError(f"{path} has no stream {settings.stream!r}.",
-                                    f"Choose one of {sorted(session.specs)} with --stream.")
-    magnitude = settings.magnitude or recorded_magnitude(session.metadata, kind.stimulus, path)
-    readings = kind.entry("reduce")(session, settings.stream, trim=settings.trim)
-    readings = _select(readings, sorted(_completed(session.events())), settings.positions, path)
+    kind = lookup(session.protocol, "reduce", f"{session.path} records a {session.protocol!r} "
+                  "session", command)
+    magnitude, _ = stimulus(session, settings)
+    readings = reduce_recorded(session, settings, command)
     if kind.nominal_frame and nominal is None:
-        nominal = recorded_layout(session.metadata, readings.M.shape[0], path)
+        nominal = recorded_layout(session.metadata, readings.M.shape[0], session.path)
     return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
                                          method=settings.method, refine=settings.refine)
+
+
+def reduce_recorded(session, settings: ReplaySettings, command: str = "replay"):
+    """The readings of an open session with the settings: the kind's reduction of the calibrated
+    stream (with the detector's settings for kinds that detect still poses), the positions
+    chosen among the completed ones (every pose of a recording without protocol events)."""
+    name, path = session.protocol, session.path
+    kind = lookup(name, "reduce", f"{path} records a {name!r} session", command)
+    options = {"trim": settings.trim}
+    if settings.still is not None:
+        if not kind.still:
+            raise InputError(f"{path} records a {name!r} session, which has no still poses to "
+                             "detect; --rest, --threshold, --still-channels and --min-still are "
+                             "for still-pose sessions (iron, static, import)")
+        options["still"] = settings.still
+    readings = kind.entry("reduce")(session, calibrated_stream(session, settings), **options)
+    completed = sorted(_completed(session.events())) or list(range(readings.M.shape[1]))
+    return _select(readings, completed, settings.positions, path)
+
+
+def calibrated_stream(session, settings: ReplaySettings) -> str:
+    """The stream the settings calibrate: theirs, else the kind's default (`Kind.stream`), else
+    "imu"; checked against the session's streams."""
+    kind = KINDS.get(session.protocol)
+    stream = settings.stream
+    if stream is None:
+        stream = kind.entry("stream")(session) if kind is not None and kind.has("stream") else "imu"
+    if stream not in session.specs:
+        raise CalibrationInputError(f"{session.path} has no stream {stream!r}.",
+                                    f"Choose one of {sorted(session.specs)} with --stream.")
+    return stream
+
+
+def stimulus(session, settings: ReplaySettings) -> tuple[float, str]:
+    """(stimulus magnitude, where it comes from in words): --magnitude, else the recorded one,
+    else the kind's default (`Kind.stimulus_default`, e.g. standard gravity for an import)."""
+    if settings.magnitude is not None:
+        return settings.magnitude, "given (--magnitude)"
+    if "T" in session.specs[calibrated_stream(session, settings)].units:
+        raise CalibrationInputError(
+            f"{session.path}: the magnetometer's field magnitude is not recorded.",
+            "Give --magnitude: the local field strength in T (from a geomagnetic model, e.g. "
+            "4.8e-5 at mid latitudes).")
+    kind = lookup(session.protocol, "reduce", f"{session.path} records a {session.protocol!r} "
+                  "session")
+    words, keys = kind.stimulus
+    if kind.stimulus_default is not None and _recorded(session.metadata, keys) is None:
+        name, ref = kind.stimulus_default
+        return float(reference(ref)), f"{name}: the session records no {words} (--magnitude " \
+            "gives the local value)"
+    return recorded_magnitude(session.metadata, kind.stimulus, session.path), f"recorded {words}"
+
+
+def _recorded(metadata: dict, keys):
+    """The value at `keys` (outermost first) of the metadata, None when absent."""
+    value = metadata
+    for key in keys:
+        value = value.get(key) if isinstance(value, dict) else None
+    return value
 
 
 def recorded_magnitude(metadata: dict, stimulus: tuple, path) -> float:
     """|stimulus magnitude| recorded in the (untrusted) metadata; stimulus: (words, keys outermost
     first), a `Kind.stimulus`."""
     words, keys = stimulus
-    value = metadata
-    for key in keys:
-        value = value.get(key) if isinstance(value, dict) else None
+    value = _recorded(metadata, keys)
     if type(value) not in (int, float) or not math.isfinite(value) or value == 0:
         raise CalibrationInputError(f"{path} records no usable {words} ({value!r}).",
                                     "Give the stimulus magnitude with --magnitude.")
@@ -162,8 +232,10 @@ def replay_into(path, name: str, settings: ReplaySettings | None = None):
     """Replay the session and store the readings and calibration as `results/<name>`, with the
     settings that made them (`SessionResults.settings`; `stored_settings` reads them back)."""
     settings = settings or ReplaySettings()
+    with Session.open(path) as session:
+        stream = calibrated_stream(session, settings)
     reduced, result = replay(path, settings)
-    write_results(path, name, settings.stream, reduced.M, result, reduced.sigma,
+    write_results(path, name, stream, reduced.M, result, reduced.sigma,
                   settings=dataclasses.asdict(settings))
     return reduced, result
 

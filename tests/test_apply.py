@@ -151,7 +151,7 @@ def test_session_to_hdf5(tmp_path, cal_path, capsys):
 
 @pytest.mark.parametrize("kwargs, message", [
     ({"serial": "SN7"}, "for unit 'SN42' but .* comes from unit 'SN7'"),
-    ({"channels": ("a", "b", "c", "d")}, "has sensors"),
+    ({"channels": ("a", "b", "c", "d")}, "lacks the calibration.s sensors"),
     ({"units": "m/s^2"}, "convert the readings to SI"),
 ])
 def test_a_session_of_another_unit_is_refused(tmp_path, cal_path, capsys, kwargs, message):

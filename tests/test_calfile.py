@@ -62,18 +62,37 @@ def test_save_and_load_round_trip_exactly(tmp_path):
     assert back.dumps() == path.read_text()
 
 
-finite = st.floats(allow_nan=False, allow_infinity=False)  # subnormals and extremes included
-moderate = st.floats(-1e3, 1e3, allow_nan=False)
+finite = st.floats(-1e9, 1e9, allow_nan=False)  # subnormals included; |b| <= LIMITS["b"]
 
 
 @settings(max_examples=60, deadline=None)
-@given(scale=st.floats(1e-150, 1e150), column=arrays(np.float64, (3,), elements=moderate),
+@given(scale=st.floats(1e-5, 1e8), column=arrays(np.float64, (3,), elements=st.floats(1e-3, 1e3)),
        bias=arrays(np.float64, (4,), elements=finite))
-def test_any_finite_float_survives_the_file_bit_for_bit(scale, column, bias):
+def test_any_plausible_float_survives_the_file_bit_for_bit(scale, column, bias):
+    """Every float a unit can have (calfile.LIMITS: column norms 1e-9..1e12, |b| <= 1e9)."""
     a = scale * np.column_stack([np.diag([1.0, 0.5, 0.25]), column])  # rank 3, no overflow
     cal = make(a=a, bias=bias, scale_factors=np.ones(4))
     back = loads(cal.dumps())
     assert back.a.tobytes() == a.tobytes() and back.bias.tobytes() == bias.tobytes()
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda d: d["sensitivity"].update(a=[[x * 1e300 for x in r] for r in d["sensitivity"]["a"]]),
+     "a must be finite"),
+    (lambda d: d["sensitivity"].update(a=[[10 ** 400, *r[1:]] if i == 0 else r
+                                          for i, r in enumerate(d["sensitivity"]["a"])]),
+     "integer too large"),
+    (lambda d: d["bias"].update(b=[1e300] * len(d["bias"]["b"])), "b must be finite"),
+    (lambda d: d.update(magnitude=1e300), "magnitude"),
+    (lambda d: d["sensitivity"].update(a=[[1.0, 0.0, 1.0, 0.6], [0.0, 2.0, 1.0, 0.0],
+                                          [1e-10, 0.0, 0.0, 1e-10]]),  # axes nearly in a plane
+     "condition number"),
+])
+def test_absurd_finite_numbers_are_refused(edit, problem):
+    """A crafted or damaged file whose numbers are finite but no unit has: applying it would
+    overflow (NaN vectors) or divide by almost nothing."""
+    with pytest.raises(CalibrationFileError, match=problem):
+        loads(edited(make(), edit, True))
 
 
 def test_files_are_written_once_unless_overwrite(tmp_path):
@@ -89,7 +108,7 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
     with pytest.raises(CalibrationFileError,
-                       match=r"format_version 4 .*reads \(1, 2, 3\).*newer"):
+                       match=r"format_version 5 .*reads \(1, 2, 3, 4\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -238,12 +257,14 @@ def test_a_version_1_file_still_loads_without_covariance():
     from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
-        del doc["covariance"], doc["verdict"]
+        del doc["covariance"], doc["verdict"], doc["uncertainty"]
         doc.update(format_version=1, conventions=CONVENTIONS_V1)
 
     back = loads(edited(make(), to_v1, True))
     assert back.covariance is None and back.verdict is None and back.unit_serial == "SN42"
-    with pytest.raises(CalibrationFileError, match="unknown keys \\['covariance', 'verdict'\\]"):
+    assert back.white is None and back.pose_sigma is None
+    with pytest.raises(CalibrationFileError,
+                       match="unknown keys \\['covariance', 'uncertainty', 'verdict'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
 
@@ -252,7 +273,7 @@ def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
     from station.files.calfile import CONVENTIONS
 
     def to_v2(doc):
-        del doc["verdict"]
+        del doc["verdict"], doc["uncertainty"]
         doc.update(format_version=2, conventions=CONVENTIONS)
 
     assert loads(edited(make(), to_v2, True)).verdict is None
@@ -306,3 +327,38 @@ def test_calibrated_vectors_scatter_as_their_covariance_says():
         err = cal.apply(z) - truth
         d2.append(err @ np.linalg.solve(cal.vector_covariance(z)[0], err))
     assert abs(np.mean(d2) - 3) < 3 * np.sqrt(6 / trials), np.mean(d2)
+
+
+def test_a_version_3_file_loads_without_the_white_noise_figure():
+    from station.files.calfile import CONVENTIONS_V3
+
+    def to_v3(doc):
+        del doc["uncertainty"]
+        doc.update(format_version=3, conventions=CONVENTIONS_V3)
+
+    back = loads(edited(make(), to_v3, True))
+    assert back.white is None and back.pose_sigma is None and back.unit_serial == "SN42"
+
+
+def test_both_figures_of_a_solve_go_into_the_file_and_back():
+    """A triad whose poses carry a per-pose error 5x the stated noise: the file keeps the total
+    1-sigma (the result's), the white-noise figure beside it, and the per-pose term."""
+    rng = np.random.default_rng(5)
+    a = np.diag([1.02, 0.98, 1.01])
+    v = rng.standard_normal((3, 30))
+    v /= np.linalg.norm(v, axis=0)
+    b = np.array([0.1, -0.2, 0.05])
+    z = a.T @ v + b[:, None] + 1e-3 * rng.standard_normal((3, 30)) \
+        + 5e-3 * rng.standard_normal((3, 30))
+    result = station.calibrate(z, 1.0, bias="estimate", sigma=1e-3)
+    cal = loads(Calibration.from_result(result, "SN1", SENSORS[:3], "m/s^2").dumps())
+    assert cal.pose_sigma == result.pose_sigma and 2.5e-3 < cal.pose_sigma < 1e-2
+    assert cal.scale_factors_sigma.tobytes() == result.scale_factors_sigma.tobytes()
+    assert cal.white["scale_factors_sigma"].tobytes() \
+        == result.scale_factors_sigma_white.tobytes()
+    assert np.all(cal.white["bias_sigma"] < cal.bias_sigma / 2)  # sqrt(1 + 25) ~ 5x apart
+    assert cal.fit["start"] == "closed form"
+    with pytest.raises(CalibrationFileError, match="pose_sigma"):
+        loads(edited(cal, lambda d: d["uncertainty"].update(pose_sigma=-1.0), True))
+    with pytest.raises(CalibrationFileError, match="bias_sigma has shape"):
+        loads(edited(cal, lambda d: d["uncertainty"]["white"].update(bias_sigma=[1.0]), True))

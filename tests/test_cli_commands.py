@@ -54,6 +54,12 @@ def test_solve_writes_a_calibration_file_matching_the_truth(recorded, tmp_path, 
     assert summary["positions"] == POSITIONS and summary["frame"] == cal.frame == "nominal"
     assert cal.session["path"] == str(session.resolve())
     assert cal.fit["method"] == summary["method"]
+    assert summary["start"] == cal.fit["start"] == "closed form"
+    # both figures: the total 1-sigma holds the white-noise one (the per-pose term is >= 0)
+    assert summary["pose_sigma"] == cal.pose_sigma >= 0
+    assert summary["scale_factors_sigma_white"] == cal.white["scale_factors_sigma"].tolist()
+    assert np.all(np.array(summary["scale_factors_sigma"])
+                  >= np.array(summary["scale_factors_sigma_white"]) * (1 - 1e-9))
     assert cal.counts_per_unit.tolist() == [1000.0] * 12  # the CAN profile's scale
     # the nominal frame: the truth rotated as close as possible to the nominal layout
     # (orthogonal Procrustes, docs/conventions.md) is a itself, within the frame's 1-sigma
@@ -94,7 +100,13 @@ def test_solve_refuses_what_it_cannot_solve(tmp_path, capsys):
         pass
     assert cli.main(["solve", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "records a 'import' session" in err and "station.reduce.free_static" in err
+    assert "stream 'imu' holds 0 samples" in err and "import the recording again" in err
+    other = tmp_path / "other.h5"
+    with SessionWriter.create(other, {"protocol": "other", "unit_serial": "X"}, {"imu": spec}):
+        pass
+    assert cli.main(["solve", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "records a 'other' session" in err and "station import" in err
     iron = tmp_path / "iron.h5"  # a still-pose session without its gravity
     with SessionWriter.create(iron, {"protocol": "iron", "unit_serial": "X"}, {"imu": spec}):
         pass

@@ -14,7 +14,7 @@ from drivers.samples import SampleBlock
 from drivers.twins.serial import corrupt_frame
 from drivers.wire.ascii import AsciiLineParser, encode_lines
 from drivers.wire.binary import BinaryFrameParser, encode_frames
-from drivers.wire.crc import CRCS
+from drivers.wire.crc import CHECKSUMS, CRCS
 
 PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels
@@ -247,3 +247,29 @@ def test_truncated_frame_whose_crc_matches_by_chance_yields_to_the_next_frame():
     assert np.array_equal(block.seq, np.concatenate([np.arange(10), np.arange(11, 20)]))
     assert np.array_equal(block.counts, pattern(block.seq))
     assert (stats.gaps, stats.dropped) == (1, 1)
+
+
+def test_byte_sum_checksum_and_length_field():
+    """The OpenShoe-style frame (drivers/profiles/mimu4444.toml's language): a 16-bit byte sum over
+    the sync byte on, and a length field every frame must carry with the profile's value."""
+    assert CHECKSUMS["sum16"].of(b"123456789") == sum(b"123456789")
+    assert CHECKSUMS["sum16"].of(b"\xff" * 300) == (255 * 300) % 65536
+    fmt = dataclasses.replace(FMT, sync=b"\xaa", layout=("sync", "seq", "length", "time", "counts",
+                                                          "crc"),
+                              byte_order="big", count_type="int16", crc="sum16",
+                              crc_covers_sync=True, length_type="uint8", length_value=52)
+    seq = np.arange(40)
+    counts = pattern(seq) % 2**16 - 2**15
+    data = bytearray(encode_frames(fmt, seq, seq * 1000, counts))
+    size = len(data) // 40
+    assert size == 1 + 2 + 1 + 4 + 24 + 2 and data[3] == 52
+    frame = bytes(data[:size])
+    assert frame[-2:] == struct.pack(">H", sum(frame[:-2]) & 0xFFFF)
+    # frame 10 claims another length, its byte sum made valid again: refused all the same
+    bad = 10 * size
+    data[bad + 3] = 53
+    data[bad + size - 2 : bad + size] = struct.pack(">H", sum(data[bad : bad + size - 2]) & 0xFFFF)
+    block, stats = parse(bytes(data), fmt=fmt)
+    assert np.array_equal(block.seq, np.delete(seq, 10))
+    assert np.array_equal(block.counts, np.delete(counts, 10, axis=0))
+    assert stats.crc_failures == 1 and stats.dropped == 1

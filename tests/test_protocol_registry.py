@@ -177,14 +177,15 @@ def test_station_record_reaches_the_toy_kind(toy, tmp_path):
 
 def test_an_unknown_kind_is_refused_naming_the_registered_kinds(tmp_path, capsys):
     with pytest.raises(UnknownKind, match="'nope' is no registered protocol kind; the kinds are "
-                                          "rotary, iron, static"):
+                                          "rotary, iron, static, import"):
         lookup("nope", "reduce")
     _toy_session(tmp_path / "nope.h5", protocol="nope")
     assert cli.main(["solve", str(tmp_path / "nope.h5")]) == 2
     err = capsys.readouterr().err
-    assert "records a 'nope' session; station solve reduces rotary, iron, static sessions" in err
+    assert ("records a 'nope' session; station solve reduces rotary, iron, static, import "
+            "sessions") in err
     assert cli.main(["replay", str(tmp_path / "nope.h5")]) == 2
-    assert "replay reduces rotary, iron, static sessions" in capsys.readouterr().err
+    assert "replay reduces rotary, iron, static, import sessions" in capsys.readouterr().err
 
 
 def test_a_kind_without_a_part_is_refused_naming_the_kinds_that_have_it(toy, tmp_path):

@@ -35,7 +35,8 @@ def test_detector_finds_the_rest_and_37_poses(report):
     start, stop = report["first_interval_s"]
     assert start < 1.0 and stop > 45.0  # the long initial rest (first motion at ~51 s)
     assert report["interval_length_s"]["min"] > 2.0
-    assert report["intervals_quietest_rest"] == 38  # no known rest needed either
+    assert report["intervals_no_rest"] == 38  # no known rest needed either
+    assert report["intervals_gyro_veto"] == 38  # nor does the gyro's veto change them
     # not a lucky threshold: a factor 12 range of the threshold gives the same count
     assert set(report["intervals_vs_enter_factor"].values()) == {38}
 

@@ -141,6 +141,9 @@ def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_pa
     (lambda t: t + "\n[extra]\n", "unknown sections"),
     (lambda t: t.replace("[table]", "[tabel]"), "unknown sections"),
     (lambda t: t.replace('unit_serial = "SIM-1"', ""), "unit_serial: missing"),
+    (lambda t: t.replace('"SIM-1"', '"../../x"'), "it names the session file"),
+    (lambda t: t.replace('port = "/dev/null"', 'port = "/dev/null"\nrate_hz = 0.0'),
+     "give the IMU's output rate in Hz"),
 ])
 def test_bad_bench_profiles_are_refused_with_the_fix(tmp_path, capsys, edit, message):
     from station import cli

@@ -57,9 +57,13 @@ def test_replay_of_an_example_session_reproduces_its_stored_results_exactly(path
     # solved by another numpy/LAPACK build: last-bit differences (seen 2e-16 absolute, on
     # residuals of 1e-4 that are differences of readings near 1; 3e-9 relative on a 1-sigma
     # from the gauge pseudo-inverse). The file predates parameter_covariance: its diagonal must
-    # give the stored 1-sigma of a.
-    assert s.calibration.parameter_covariance is None
-    assert_same(dataclasses.replace(result, parameter_covariance=None), s.calibration, rtol=1e-6)
+    # give the stored 1-sigma of a. It predates the start and the white-noise figure too; its
+    # readings need no per-pose term, so the replayed total figure is the stored one.
+    assert s.calibration.parameter_covariance is None and s.calibration.start is None
+    assert result.start == "closed form" and result.pose_sigma == 0.0
+    later = ("parameter_covariance", "start", "pose_sigma", "a_sigma_white",
+             "scale_factors_sigma_white", "axis_angles_sigma_white", "bias_sigma_white")
+    assert_same(dataclasses.replace(result, **dict.fromkeys(later)), s.calibration, rtol=1e-6)
     np.testing.assert_allclose(np.sqrt(np.diag(result.parameter_covariance)),
                                s.calibration.a_sigma.ravel(), rtol=1e-6,
                                atol=1e-6 * s.calibration.a_sigma.max())  # zeros of Eq. (19)

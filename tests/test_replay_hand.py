@@ -138,9 +138,10 @@ def test_replay_errors_say_what_to_do(session):
 def test_replay_refuses_an_unknown_protocol(tmp_path):
     path = tmp_path / "other.h5"
     spec = StreamSpec(["a1", "a2", "a3"], ["m/s^2"] * 3, 1e4, 100.0, "int64")
-    with SessionWriter.create(path, {"protocol": "import", "unit_serial": "T"}, {"imu": spec}):
+    with SessionWriter.create(path, {"protocol": "other", "unit_serial": "T"}, {"imu": spec}):
         pass
-    with pytest.raises(ValueError, match="'import' session; replay reduces rotary, iron, static"):
+    with pytest.raises(ValueError, match="'other' session; replay reduces rotary, iron, static, "
+                                         "import"):
         replay(path)
     assert main(["replay", str(path)]) == 2
 

@@ -1,6 +1,7 @@
 """Device profiles (drivers/profile.py): the bundled serial profiles load; bad ones are refused with
 a message naming the file, the key and the fix."""
 
+import numpy as np
 import pytest
 
 from drivers.profile import ProfileError, SerialImuProfile, load_profile
@@ -81,3 +82,34 @@ def test_bad_profiles_are_refused_with_the_key_and_the_fix(tmp_path, change, wor
 def test_missing_file_lists_the_bundled_profiles():
     with pytest.raises(ProfileError, match=r"cannot read device profile.*imu12_serial"):
         load_profile("no_such_profile")
+
+
+def test_mimu4444_profile_describes_the_openshoe_packet():
+    """PROVENANCE of the MIMU4444 recordings: 0xAA, packet number uint16 BE, length 100, 64 MHz
+    stamp uint32 BE, 48 int16 BE, byte sum; 2048 counts per g and 16.4 counts per deg/s."""
+    p = SerialImuProfile.load("mimu4444")
+    f = p.serial.frame
+    assert (f.sync, f.byte_order, f.seq_type, f.time_type, f.count_type) == (
+        b"\xaa", "big", "uint16", "uint32", "int16")
+    assert (f.length_type, f.length_value, f.crc, f.crc_covers_sync) == (
+        "uint8", 100, "sum16", True)
+    assert 1 / f.time_tick == pytest.approx(64e6)
+    assert len(p.imu.channels) == 48 and p.imu.channels[-1] == "imu7_gz"
+    assert p.imu.to_si([[2048, 0, 0, 164, 0, 0] * 8])[0, :4] == pytest.approx(
+        [9.80665, 0, 0, np.radians(10.0)])
+
+
+@pytest.mark.parametrize("change, words", [
+    ('layout = ["sync", "seq", "length", "counts", "crc"]', ["[serial.binary] length_type",
+                                                             "missing"]),
+    ('layout = ["sync", "seq", "length", "counts", "crc"]\nlength_type = "uint8"\n'
+     "length_value = 256", ["[serial.binary] length_value", "uint8"]),
+    ('layout = ["sync", "seq", "seq", "counts", "crc"]', ["[serial.binary] layout", "once each"]),
+])
+def test_length_field_keys_are_checked(tmp_path, change, words):
+    text = GOOD.replace('layout = ["sync", "seq", "time", "counts", "crc"]', change)
+    text = text.replace('time_type = "uint32"\ntime_tick = 1e-6\n', "")
+    with pytest.raises(ProfileError) as info:
+        load(tmp_path, text)
+    for word in words:
+        assert word in str(info.value)

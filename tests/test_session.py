@@ -474,11 +474,12 @@ def test_a_damaged_superblock_is_refused(tmp_path, offset, data):
 
 
 def test_results_with_no_empty_field_read_back(tmp_path):
-    """A calibration with every field set (biases estimated) stores an empty `none_fields` list."""
+    """A calibration with every field set (biases estimated, the noise given: a per-pose term and
+    the white-noise figure) stores an empty `none_fields` list."""
     rng = np.random.default_rng(11)
     _, _, readings = section4_gyros(rng, 30, 1e-3)
     readings = readings + rng.normal(0, 0.1, (12, 1))
-    cal = calibrate(readings, 1.0, bias="estimate")
+    cal = calibrate(readings, 1.0, bias="estimate", sigma=1e-3)
     assert all(getattr(cal, f.name) is not None for f in dataclasses.fields(cal))
     path = tmp_path / "s.h5"
     w = new_session(path)

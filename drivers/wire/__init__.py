@@ -1,7 +1,7 @@
 """Wire formats of serial IMUs: one module per format, one small decode contract (as pymodbus'
 framer/).
 
-    crc.py     CRCs of the binary format (numpy, many frames at once)
+    crc.py     CRCs and byte sums of the binary format (numpy, many frames at once)
     binary.py  binary frames: sync | seq | time | counts | CRC (BinaryFrameParser, encode_frames)
     ascii.py   one sample per text line (AsciiLineParser, encode_lines)
 
@@ -24,7 +24,8 @@ class SerialStats(LinkStats):
     """Counters of a serial link (LinkStats' samples, gaps, dropped, and):
 
     bytes         : bytes received
-    crc_failures  : sync candidates outside accepted frames whose CRC did not match
+    crc_failures  : sync candidates outside accepted frames whose CRC (or length field) did not
+                    match
     bad_lines     : complete ASCII lines that did not parse
     resyncs       : times alignment was lost and found again (bytes skipped between two frames)
     skipped_bytes : bytes that belong to no accepted frame (garbage, partial and corrupted frames)

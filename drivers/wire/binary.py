@@ -2,11 +2,13 @@
 
 Binary frame (layout from the device profile, `[serial.binary]`):
 
-    sync word | sequence number | device time (optional) | m channel counts | CRC
+    sync | sequence number | length (optional) | device time (optional) | m channel counts | CRC
 
-The field order between sync and CRC is the profile's `layout`. Parsing is vectorised with numpy:
-every position where the sync word occurs is a candidate, all candidates' CRCs are computed at once,
-and the frames are decoded through a structured dtype.
+The field order between sync and CRC is the profile's `layout`; the "CRC" is any frame check of
+`drivers.wire.crc.CHECKSUMS` (a CRC, or a byte sum), and a length field must carry the profile's
+`length_value` (a frame with another length is refused like one failing its check). Parsing is
+vectorised with numpy: every position where the sync word occurs is a candidate, all candidates'
+CRCs are computed at once, and the frames are decoded through a structured dtype.
 
 CRC-16 alone accepts about one corrupted candidate in 65 536. A CRC-valid candidate is therefore
 accepted only if its sequence number is also consistent with a neighbour: the previous or the next
@@ -25,7 +27,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from drivers.samples import SampleBlock
 from drivers.wire import Decoded, SerialStats
-from drivers.wire.crc import CRCS
+from drivers.wire.crc import CHECKSUMS
 
 INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4",
              "int8": "i1", "int16": "i2", "int32": "i4"}
@@ -35,10 +37,11 @@ INT_TYPES = {"uint8": "u1", "uint16": "u2", "uint32": "u4",
 def frame_dtype(fmt, n_channels: int) -> np.dtype:
     """Packed structured dtype of one frame of `fmt` (a profile's BinaryFormat)."""
     order = "<" if fmt.byte_order == "little" else ">"
-    crc = CRCS[fmt.crc]
+    crc = CHECKSUMS[fmt.crc]
     kinds = {
         "sync": (f"V{len(fmt.sync)}",),
         "seq": (order + INT_TYPES[fmt.seq_type],),
+        "length": (order + INT_TYPES[fmt.length_type],) if fmt.length_type else None,
         "time": (order + INT_TYPES[fmt.time_type],) if fmt.time_type else None,
         "counts": (order + INT_TYPES[fmt.count_type], (n_channels,)),
         "crc": (f"{order}u{crc.size}",),
@@ -62,9 +65,11 @@ def encode_frames(fmt, seq, ticks, counts) -> bytes:
     frames["seq"] = np.asarray(seq, dtype=np.int64) % (1 << 8 * dtype["seq"].itemsize)
     if "time" in fmt.layout:
         frames["time"] = np.asarray(ticks, dtype=np.int64) % (1 << 8 * dtype["time"].itemsize)
+    if "length" in fmt.layout:
+        frames["length"] = fmt.length_value
     frames["counts"] = counts
     raw = frames.view(np.uint8).reshape(len(frames), dtype.itemsize)
-    crc = CRCS[fmt.crc]
+    crc = CHECKSUMS[fmt.crc]
     frames["crc"] = crc.rows(raw[:, _crc_start(fmt):dtype.itemsize - crc.size])
     return frames.tobytes()
 
@@ -116,7 +121,7 @@ class BinaryFrameParser:
         self.dtype = frame_dtype(fmt, len(self.channels))
         self.size = self.dtype.itemsize
         self.horizon = 16 * self.size
-        self.crc = CRCS[fmt.crc]
+        self.crc = CHECKSUMS[fmt.crc]
         self.sync = np.frombuffer(fmt.sync, dtype=np.uint8)
         self.seq_modulus = 1 << 8 * self.dtype["seq"].itemsize
         self.time_modulus = 1 << 8 * self.dtype["time"].itemsize if "time" in fmt.layout else 0
@@ -149,6 +154,8 @@ class BinaryFrameParser:
         records = rows.view(self.dtype).reshape(-1)
         crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
                   == records["crc"])
+        if self.fmt.length_type:
+            crc_ok &= records["length"] == self.fmt.length_value
         valid, valid_records = complete[crc_ok], records[crc_ok]
 
         ctx_pos, ctx_seq, ctx_acc = self._context

@@ -1,6 +1,8 @@
-"""CRCs of the binary wire format, computed for many frames at once (numpy, table-driven).
+"""CRCs and checksums of the binary wire format, computed for many frames at once (numpy).
 
-`CRCS` names the algorithms a device profile may choose (`[serial.binary] crc`).
+`CRCS` names the CRCs (table-driven), `CHECKSUMS` every algorithm a device profile may choose
+(`[serial.binary] crc`): the CRCs and the byte sums some devices send instead (OpenShoe/MIMU
+arrays: the 16-bit sum of the bytes).
 """
 
 from dataclasses import dataclass
@@ -88,3 +90,30 @@ CRCS = {
     "crc16-modbus": Crc(16, 0x8005, 0xFFFF, True, 0x0000),
     "crc32": Crc(32, 0x04C11DB7, 0xFFFFFFFF, True, 0xFFFFFFFF),
 }
+
+
+@dataclass(frozen=True)
+class ByteSum:
+    """The sum of the bytes modulo 2**width: the checksum, not a CRC, of devices such as the
+    OpenShoe/MIMU arrays. It misses reordered bytes and errors that cancel, so the parser's
+    sequence check matters more with it."""
+
+    width: int
+
+    @property
+    def size(self) -> int:
+        """Bytes the checksum occupies in a frame."""
+        return self.width // 8
+
+    def rows(self, data: np.ndarray) -> np.ndarray:
+        """Checksum of every row of `data` (N, n) uint8 -> (N,) uint32."""
+        total = np.asarray(data, dtype=np.uint8).sum(axis=1, dtype=np.uint64)
+        return (total % (1 << self.width)).astype(np.uint32)
+
+    def of(self, data: bytes) -> int:
+        """Checksum of one byte string."""
+        return int(self.rows(np.frombuffer(data, dtype=np.uint8)[None, :])[0])
+
+
+CHECKSUMS = {**CRCS, "sum16": ByteSum(16)}
+"""Every frame check a profile may choose: the CRCs and the 16-bit byte sum."""

@@ -9,6 +9,7 @@ The rotary table is stopped whenever its driver is closed (`table_driver`).
 
 import contextlib
 import dataclasses
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import InputError
+
+SERIAL = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+"""A unit serial: it names files (sessions/<serial>-<date>.h5), so no path separators."""
 
 
 @dataclass(frozen=True)
@@ -72,12 +76,16 @@ class BenchProfile:
         bench, imu, proto = (section(n) for n in ("bench", "imu", "protocol"))
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)
-        if not serial or not speed > 0:
-            raise ProfileError(f"{path}: [bench] needs a non-empty unit_serial and a positive "
-                               "clock_speed")
+        if not SERIAL.fullmatch(serial) or not 0 < speed < 1e4:
+            raise ProfileError(f"{path}: [bench] needs a unit_serial of 1-64 letters, digits, '.', "
+                               f"'_' or '-' (it names the session file; got {serial!r}) and a "
+                               f"clock_speed between 0 and 1e4 (got {speed!r})")
         link = imu.get("link", str, choices=("serial", "can"))
         dev = driver_class(link).profile_type.load(device(imu.get("profile", str)))
         rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
+        if not 0 < rate <= 1e5:
+            raise ProfileError(f"{path}: [imu] rate_hz = {rate!r}; give the IMU's output rate in "
+                               "Hz (0 < rate_hz <= 100000)")
         dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
         if link == "serial":
             address = imu.get("port", str)

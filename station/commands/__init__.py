@@ -18,6 +18,17 @@ def existing_file(path, what: str, suffixes=()) -> Path:
     return path
 
 
+def existing_session(path, positions=None) -> Path:
+    """`path` as a Path if it names a session file that reads back intact: every object and
+    checksummed chunk, in a child process under a time limit (`station.files.session.check`);
+    with `positions` (0-based), damage in other positions' samples is let through."""
+    from station.files.session.check import checked
+
+    path = existing_file(path, "a session file (.h5)")
+    checked(path, positions)
+    return path
+
+
 def new_file(path, option: str = "--out", force: bool | None = None) -> Path:
     """`path` as a Path if writing it loses nothing: absent, or `force` given. force None: the
     command has no --force, so the refusal does not offer it."""
@@ -48,3 +59,38 @@ def given_values():
         raise
     except ValueError as err:
         raise InputError(str(err)) from err
+
+
+def still_arguments(p) -> None:
+    """The still-pose detector's options on parser `p` (solve, replay, diagnose;
+    docs/stillness.md)."""
+    p.add_argument("--rest", metavar="START:END",
+                   help="still poses: a declared rest period, seconds from the first sample, for "
+                        "the noise level (default: the median over the still stretches)")
+    p.add_argument("--threshold", type=float,
+                   help="still poses: enter threshold in multiples of the noise variance (default "
+                        "4; leave = 2 x threshold)")
+    p.add_argument("--still-channels", choices=("acc", "acc+gyro"),
+                   help="still poses: the accelerometers decide (acc: the default for imported "
+                        "recordings), or the gyros can veto too (acc+gyro: diagnose's default "
+                        "with a gyro); recorded sessions: every channel of the stream, as the "
+                        "live protocol")
+    p.add_argument("--min-still", type=float, metavar="SECONDS",
+                   help="still poses: shortest pose kept (default 1.5 s)")
+
+
+def still_values(args) -> dict:
+    """{rest, threshold, still_channels, min_still} of the options `still_arguments` added, the
+    rest period parsed from START:END seconds (None where not given)."""
+    rest = None
+    if args.rest is not None:
+        start, sep, end = args.rest.partition(":")
+        try:
+            rest = (float(start), float(end)) if sep else None
+        except ValueError:
+            rest = None
+        if rest is None:
+            raise InputError(f"--rest {args.rest!r}: give START:END in seconds from the first "
+                             "sample, e.g. --rest 0:50")
+    return {"rest": rest, "threshold": args.threshold, "still_channels": args.still_channels,
+            "min_still": args.min_still}

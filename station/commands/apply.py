@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.commands import existing_file, new_file
+from station.commands import existing_file, existing_session, new_file
 from station.errors import InputError
 
 AXES = ("v_x", "v_y", "v_z")
@@ -44,7 +44,8 @@ def register(p) -> None:
     p.add_argument("calibration", type=Path, help="calibration file (from `station solve`)")
     p.add_argument("data", type=Path, help="readings: a session file (.h5) or a CSV file")
     p.add_argument("--out", type=Path, help="output .csv or .h5 (default: CSV on stdout)")
-    p.add_argument("--stream", default="imu", help="stream of a session file (default imu)")
+    p.add_argument("--stream", help="stream of a session file (default: the stream the "
+                                    "calibration was solved from, else imu)")
     p.add_argument("--counts", action="store_true",
                    help="CSV readings are raw counts (divided by the calibration's counts per "
                         "unit)")
@@ -65,10 +66,19 @@ def run(args) -> int:
     cal = load(existing_file(args.calibration, "a calibration file (.cal.json)"))
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:
-        time, z = read_session(data, args.stream, cal)
+        existing_session(data)
+        time, z = read_session(data, args.stream or solved_stream(cal), cal)
     else:
         time, z = read_csv(data, cal, args.counts)
-    v = cal.apply(z.T).T  # rows of the files = instants = columns of the model
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = cal.apply(z.T).T  # rows of the files = instants = columns of the model
+    if not np.all(np.isfinite(v)):
+        from station.files.calfile import CalibrationFileError
+
+        row = int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])
+        raise CalibrationFileError(f"{data}: the readings of row {row + 1} overflow when "
+                                   f"calibrated ({z[row].tolist()}); they are not {cal.units[0]} "
+                                   "a sensor can read: check their unit")
     sigma = None
     if args.sigma:
         sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T), axis1=1, axis2=2)) \
@@ -84,8 +94,16 @@ def run(args) -> int:
         print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],
                           "units": cal.units[0], "frame": cal.frame,
                           "unit_serial": cal.unit_serial,
-                          "norm_mean": float(norm.mean()) if len(v) else None}, indent=2))
+                          "norm_mean": float(norm.mean()) if len(v) else None}, indent=2,
+                         allow_nan=False))
     return 0
+
+
+def solved_stream(cal) -> str:
+    """The stream the calibration file says it was solved from (its `session` record; a text
+    from an untrusted file, checked against the session's streams when read), else "imu"."""
+    stream = (cal.session or {}).get("stream")
+    return stream if isinstance(stream, str) else "imu"
 
 
 def read_session(path, stream: str, cal) -> tuple:
@@ -99,10 +117,17 @@ def read_session(path, stream: str, cal) -> tuple:
             raise CalibrationFileError(f"{path} has no stream {stream!r}; choose one of "
                                        f"{sorted(session.specs)} with --stream")
         spec = session.specs[stream]
-        cal.check_unit(session.unit_serial, spec.channels, spec.units, where=str(path))
+        missing = [s for s in cal.sensors if s not in spec.channels]
+        if missing:
+            raise CalibrationFileError(f"{path}: stream {stream!r} lacks the calibration's "
+                                       f"sensors {missing}; give the session (and --stream) it "
+                                       "was solved from")
+        cols = [spec.channels.index(s) for s in cal.sensors]  # e.g. the accelerometers of a
+        cal.check_unit(session.unit_serial, cal.sensors,  # stream that holds gyros too
+                       [spec.units[i] for i in cols], where=str(path))
         data = session.stream(stream)
     time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
-    return time, data.to_si()
+    return time, data.to_si()[:, cols]
 
 
 def read_csv(path, cal, counts: bool = False) -> tuple:

@@ -1,14 +1,26 @@
 """`station diagnose SESSION`: name the effects that separate a rotary or free-static session from
-its twin."""
+its twin.
+
+Free-static sessions (imported recordings) are cut into still poses on the accelerometer, with the
+gyro's veto when there is a gyro (the diagnosis models the gyro's still means too;
+--still-channels acc lets the accelerometer alone decide); --rest, --threshold and --min-still set
+the detector (docs/stillness.md)."""
 
 import json
 from pathlib import Path
 
-from station.commands import existing_file, working
+from station.commands import (
+    existing_file,
+    existing_session,
+    still_arguments,
+    still_values,
+    working,
+)
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
 from station.files.session import Session
+from station.reduce.stillness import StillOptions
 from station.report import diagnosis as report
 
 
@@ -33,6 +45,7 @@ def register(p) -> None:
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
     p.add_argument("--max-effects", type=int, default=3, help="at most this many effects")
+    still_arguments(p)
     p.set_defaults(run=run)
 
 
@@ -43,20 +56,25 @@ def run(args) -> int:
                          (".npz", ".h5"))
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha {args.alpha} must lie between 0 and 1")
+    still = StillOptions(*still_values(args).values())
     rotary = path.suffix == ".npz"
     if rotary:
         session = data.load(path)
     else:
+        existing_session(path)
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
             session = data.from_session(recorded) if rotary else None
+    if rotary and still != StillOptions():
+        raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
+                         "--min-still are for still-pose (free-static) sessions")
     with working(f"diagnosing {path.name}: fitting the model, testing each named effect "
                  f"(at most {args.max_effects})"):
         if rotary:
             doc = report.to_dict(diagnose(session, alpha=args.alpha,
                                           max_effects=args.max_effects), session, str(path))
         else:
-            static = static_report.load(path)
+            static = static_report.load(path, still)
             doc = report.static_to_dict(
                 diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
                 static, str(path))

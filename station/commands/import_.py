@@ -7,31 +7,58 @@ EXAMPLES = (
     "examples:\n"
     "  station import text xsens.h5 --stream accel=xsens_acc.mat --unit accel=counts:m/s^2 \\\n"
     "      --stream gyro=xsens_gyro.mat --unit gyro=counts:rad/s\n"
+    "  station import text mpu.h5 --no-time --fs 100 --stream acc=imu0.log --columns acc=1-3 \\\n"
+    "      --unit acc=m/s^2 --stream gyro=imu0.log --columns gyro=4-6 --unit gyro=rad/s\n"
     "  station import csv ferraris.h5 example_ferraris_session.csv "
     "--fs 102.4 --index n_samples \\\n"
     "      --stream acc=acc_x,acc_y,acc_z --unit acc=m/s^2 "
     "--stream gyr=gyr_x,gyr_y,gyr_z --unit gyr=deg/s\n"
-    "  station import npz rotary.h5 recording.npz"
+    "  station import csv logger.h5 logger.csv --time t_us --time-unit us --delimiter ';' \\\n"
+    "      --skip-rows 3 --stream acc=ax,ay,az --unit acc=g\n"
+    "  station import npz rotary.h5 recording.npz\n"
+    "  station import binary exp_1.h5 exp_1.bin --profile mimu4444"
 )
+
+DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " "}
+"""Spellings of delimiters awkward to type."""
 
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
     p.description = (
         __doc__ + " Units: m/s^2, g, rad/s, deg/s, T, uT, gauss, or raw counts "
-        "counts:<SI unit>[@<counts per SI unit>]."
+        "counts:<SI unit>[@<counts per SI unit>]. text/csv: the delimiter is sniffed and lines "
+        "before the header are skipped unless given; .mat files v5/v7 and v7.3 (HDF5) are read, "
+        "arrays in either orientation (the time axis is the long one). binary: a raw dump of "
+        "a serial IMU's frames, decoded by the drivers' parser with a device profile."
     )
     p.epilog = EXAMPLES
-    p.add_argument("format", choices=("text", "csv", "npz"), help="format of the recording")
+    p.add_argument("format", choices=("text", "csv", "npz", "binary"),
+                   help="format of the recording")
     p.add_argument("out", type=Path, help="session file to create (.h5, must not exist)")
-    p.add_argument("source", nargs="?", type=Path, help="the CSV or .npz file")
+    p.add_argument("source", nargs="?", type=Path, help="the CSV, .npz or binary dump file")
     p.add_argument("--stream", action="append", default=[], metavar="NAME=WHAT",
                    help="text: NAME=FILE (columns t x y z ...); csv: NAME=COL,COL,...")
     p.add_argument("--unit", action="append", default=[], metavar="NAME=UNIT",
                    help="unit of a stream's numbers")
-    p.add_argument("--time", metavar="COLUMN", help="csv: column of time stamps in seconds")
+    p.add_argument("--time", metavar="COLUMN", help="csv: column of time stamps")
+    p.add_argument("--time-unit", choices=("s", "ms", "us", "ns"),
+                   help="text/csv: unit of the time stamps (default s, checked for a plausible "
+                        "rate)")
+    p.add_argument("--columns", action="append", default=[], metavar="NAME=COLS",
+                   help="text: a stream's value columns in its file, counted from 1 (e.g. "
+                        "acc=1-3 or acc=2,3,4; default: every column after the time)")
+    p.add_argument("--no-time", action="store_true",
+                   help="text: the files have no time column; the rows are samples at --fs")
     p.add_argument("--index", metavar="COLUMN", help="csv: column of sample numbers (with --fs)")
     p.add_argument("--fs", type=float, help="sample rate, Hz")
+    p.add_argument("--delimiter", metavar="CHAR",
+                   help="text/csv: column delimiter (',', ';', tab, space; csv default: sniffed)")
+    p.add_argument("--skip-rows", type=int, metavar="N",
+                   help="text/csv: lines before the header (csv) or the numbers (text); csv "
+                        "default: the header line is found")
+    p.add_argument("--profile", metavar="PROFILE",
+                   help="binary: device profile (bundled name or TOML path)")
     p.add_argument("--unit-serial", default="IMPORTED", help="serial number of the unit")
     p.add_argument("--json", action="store_true", help="print the session written as JSON")
     p.set_defaults(run=run)
@@ -39,38 +66,66 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.commands import existing_file, new_file, working
-    from station.errors import InputError
-    from station.files.importers import import_csv, import_npz, import_text
 
     new_file(args.out, option="name")
-    streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
     with working(f"importing into {args.out}"):
-        if args.format == "text":
-            for path in streams.values():
-                existing_file(path, "a text recording (--stream NAME=FILE)")
-            out = import_text(args.out, streams, units, unit_serial=args.unit_serial, fs=args.fs)
-        elif args.source is None:
-            raise InputError(f"`import {args.format}` needs the source file")
-        elif args.format == "csv":
-            source = existing_file(args.source, "a CSV recording")
-            columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
-            out = import_csv(args.out, source, columns, units, time_column=args.time,
-                             index_column=args.index, fs=args.fs, unit_serial=args.unit_serial)
-        else:
-            out = import_npz(args.out, existing_file(args.source, "an .npz recording"),
-                             unit_serial=args.unit_serial)
-    if args.json:
-        from station.files.session import Session
+        out = _import(args, existing_file)
+    from station.files.session import Session
 
-        with Session.open(out) as session:
-            streams = {name: {"channels": list(s.channels), "units": list(s.units),
-                              "rate_hz": s.rate_hz, "samples": len(session.stream(name).seq)}
-                       for name, s in session.specs.items()}
+    with Session.open(out) as session:
+        notes = session.metadata.get("import", {}).get("notes", [])
+        streams = {name: {"channels": list(s.channels), "units": list(s.units),
+                          "rate_hz": s.rate_hz, "samples": len(session.stream(name).seq)}
+                   for name, s in session.specs.items()}
+    if args.json:
         print(json.dumps({"session": str(out), "unit_serial": args.unit_serial,
-                          "streams": streams}))
+                          "streams": streams, "notes": notes}))
     else:
         print(f"wrote {out}")
+        for note in notes:
+            print(f"  {note}")
     return 0
+
+
+def _import(args, existing_file) -> Path:
+    """The importer of `args.format` called with the options given."""
+    from station.errors import InputError
+    from station.files import importers
+
+    streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
+    delimiter = DELIMITER_NAMES.get(args.delimiter, args.delimiter)
+    if delimiter is not None and len(delimiter) != 1:
+        raise InputError(f"--delimiter {args.delimiter!r} is not one character; give e.g. "
+                         "--delimiter ';' or --delimiter tab")
+    if args.skip_rows is not None and args.skip_rows < 0:
+        raise InputError(f"--skip-rows {args.skip_rows} is negative; give the number of lines "
+                         "to skip")
+    if args.format == "text":
+        for path in streams.values():
+            existing_file(path, "a text recording (--stream NAME=FILE)")
+        columns = {name: _numbers(cols, f"--columns {name}={cols}")
+                   for name, cols in _pairs(args.columns, "--columns").items()}
+        return importers.import_text(args.out, streams, units, unit_serial=args.unit_serial,
+                                     fs=args.fs, time_unit=args.time_unit, delimiter=delimiter,
+                                     skip_rows=args.skip_rows or 0, columns=columns,
+                                     untimed=args.no_time)
+    if args.source is None:
+        raise InputError(f"`import {args.format}` needs the source file")
+    if args.format == "csv":
+        source = existing_file(args.source, "a CSV recording")
+        columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
+        return importers.import_csv(args.out, source, columns, units, time_column=args.time,
+                                    index_column=args.index, fs=args.fs,
+                                    unit_serial=args.unit_serial, time_unit=args.time_unit,
+                                    delimiter=delimiter, skip_rows=args.skip_rows)
+    if args.format == "npz":
+        return importers.import_npz(args.out, existing_file(args.source, "an .npz recording"),
+                                    unit_serial=args.unit_serial)
+    if args.profile is None:
+        raise InputError("`import binary` needs the device profile of the frames; give "
+                         "--profile NAME_OR_PATH (e.g. --profile mimu4444)")
+    return importers.import_binary(args.out, existing_file(args.source, "a binary dump"),
+                                   args.profile, unit_serial=args.unit_serial)
 
 
 def _pairs(items, option: str) -> dict:
@@ -84,3 +139,20 @@ def _pairs(items, option: str) -> dict:
                                         f"Write e.g. {option} accel=...")
         out[name] = value
     return out
+
+
+def _numbers(text: str, what: str) -> list:
+    """0-based indices from 1-based numbers and ranges, e.g. "1-3" or "2,3,4"."""
+    from station.errors import CalibrationInputError
+
+    indices = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            indices += range(int(first) - 1, int(last or first))
+    except ValueError:
+        indices = []
+    if not indices or min(indices) < 0:
+        raise CalibrationInputError(f"{what}: not column numbers.",
+                                    "Count the columns from 1, e.g. acc=1-3 or acc=2,3,4.")
+    return indices

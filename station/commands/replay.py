@@ -1,5 +1,5 @@
 """`station replay SESSION`: reduce and solve a recorded session (rotary, right-angle iron or
-free-static) again from its raw stream.
+free-static) or an imported recording (`station import`) again from its raw stream.
 
 Settings may differ from the recording's (trimmed windows, a subset of positions or poses, another
 solver method, another magnitude); the result is stored in the session under a new results name
@@ -7,7 +7,9 @@ solver method, another magnitude); the result is stored in the session under a n
 reproduces the results the recording stored (rotary: `station solve`-style solving; iron and
 free-static: `results/live`). `--raw OUT` (rotary sessions only) instead sends the recorded IMU
 stream again over the serial wire protocol (a pty twin) and records it into the new session file
-OUT.
+OUT. Still-pose sessions (iron, free-static, imported) take the detector's settings (--rest,
+--threshold, --still-channels, --min-still; docs/stillness.md) and list the poses found and every
+candidate rejected, with the reason.
 """
 
 import dataclasses
@@ -17,6 +19,8 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import still_arguments
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station replay sessions/rotary-12gyro.h5      # print only\n"
@@ -24,6 +28,7 @@ def register(p) -> None:
         "  station replay unit.h5 --positions 1-6,9 --json\n"
         "  station replay unit.h5 --like trim --no-refine\n"
         "  station replay iron.h5 --positions 1-6 --trim 1\n"
+        "  station replay hand.h5 --still-channels acc+gyro --threshold 6 --min-still 1\n"
         "  station replay unit.h5 --raw again.h5"
     )
     p.add_argument("session", type=Path, help="the session file (.h5)")
@@ -44,7 +49,10 @@ def register(p) -> None:
     p.add_argument("--no-refine", action="store_true", help="skip the maximum-likelihood step")
     p.add_argument("--magnitude", type=float,
                    help="stimulus magnitude (default: the recorded table rate, or gravity "
-                        "for iron and free-static sessions)")
+                        "for iron and free-static sessions, standard gravity for an import)")
+    p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
+                                    "stream in m/s^2)")
+    still_arguments(p)
     p.add_argument("--raw", type=Path, metavar="OUT",
                    help="replay the raw stream through the serial twin into new session OUT "
                         "(rotary sessions only)")
@@ -53,11 +61,14 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, working
-    from station.replay import free_name, replay, replay_into, replay_raw
+    from station.commands import existing_session, new_file, working
+    from station.commands.solve import pose_lines, poses
+    from station.files.session import Session
+    from station.protocols import KINDS
+    from station.replay import free_name, replay, replay_into, replay_raw, stimulus
     from station.solve.quality import check_fit
 
-    existing_file(args.session, "a session file (.h5)")
+    existing_session(args.session, None if args.raw else _positions(args.positions))
     if args.raw is not None:
         raw = new_file(args.raw, option="file for the raw replay")
         with working(f"replaying {args.session} through the serial twin into {raw}"):
@@ -77,8 +88,12 @@ def run(args) -> int:
                    "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
                    "settings": dataclasses.asdict(settings),
                    "scale_factors": result.scale_factors.tolist(),
-                   "scale_factors_sigma": result.scale_factors_sigma.tolist()}
-        check = check_fit(result)
+                   "scale_factors_sigma": result.scale_factors_sigma.tolist(),
+                   "magnitude": result.magnitude, **poses(reduced)}
+        with Session.open(args.session) as session:
+            summary["stimulus"] = stimulus(session, settings)[1]
+            hand = KINDS[session.protocol].still
+        check = check_fit(result, pose_term=hand)
         summary.update(status=check.status, status_reasons=check.problems)
     if args.json:
         print(json.dumps(summary))
@@ -89,6 +104,7 @@ def run(args) -> int:
             f"stored as results/{summary['results']}"
         print(f"{args.session}: {summary['positions']} positions, {summary['method']} "
               f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
+        print("\n".join(pose_lines(summary)))
         print("scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"]))
         if summary["status"] == "suspect":
             print(f"SUSPECT fit: {'; '.join(summary['status_reasons'])}")
@@ -101,8 +117,10 @@ def _settings(args):
     from station.replay import ReplaySettings, stored_settings
 
     base = stored_settings(args.session, args.like) if args.like else ReplaySettings()
+    from station.commands import still_values
+
     given = {"trim": args.trim, "positions": _positions(args.positions), "method": args.method,
-             "magnitude": args.magnitude}
+             "magnitude": args.magnitude, "stream": args.stream, **still_values(args)}
     changes = {k: v for k, v in given.items() if v is not None}
     if args.no_refine:
         changes["refine"] = False

@@ -29,14 +29,14 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file
+    from station.commands import existing_session
     from station.errors import InputError
     from station.report import session as report
 
-    existing_file(args.session, "a session file (.h5)")
     out = args.out or args.session.with_suffix(".html")
     if out.resolve() == args.session.resolve():
         raise InputError("--out would overwrite the session file; choose an .html name")
+    existing_session(args.session)
     built = report.build(args.session, args.result)
     files = built.write(out)
     if args.json:

@@ -36,12 +36,12 @@ def register(p) -> None:
 
 def run(args) -> int:
     from drivers.errors import DeviceError
-    from station.commands import existing_file
+    from station.commands import existing_session
     from station.errors import AcquisitionError, OperatorAbort
     from station.files.session import Session
     from station.twin.rotary_bench import resume_rotary
 
-    existing_file(args.session, "a session file (.h5)")
+    existing_session(args.session)
     overrides = {} if args.speed is None else {"speed": args.speed}
     profile = args.profile or _recorded_profile(args.session)
     try:

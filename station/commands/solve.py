@@ -13,6 +13,13 @@ or the ellipsoid / joint-bias closed form), then maximum likelihood; the magnitu
 local gravity, the frame the recorded nominal layout (or --nominal). Free-static sessions
 calibrate the accelerometer channels only.
 
+Imported recordings (`station import`, protocol "import"): every still pose found in the data is a
+pose of the free-static path (`station.reduce.imported`); the stream calibrated is the one in m/s^2
+(or --stream), the magnitude --magnitude or standard gravity (said in the output), the frame the
+canonical one of Eq. (19). The still-pose detector's settings (--rest, --threshold,
+--still-channels, --min-still; docs/stillness.md) apply to every still-pose session; the output
+lists the poses found and every candidate rejected, with the reason.
+
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
@@ -25,24 +32,33 @@ import numpy as np
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import still_arguments
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station solve sessions/SN42.h5\n"
         "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json\n"
-        "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n\n"
+        "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n"
+        "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
-    p.add_argument("session", type=Path, help="session file (.h5) recorded by `station record`")
+    p.add_argument("session", type=Path,
+                   help="session file (.h5) recorded by `station record` or `station import`")
     p.add_argument("--out", type=Path,
                    help="calibration file to write (default: SESSION with suffix .cal.json)")
-    p.add_argument("--stream", default="imu", help="sample stream to calibrate (default imu)")
+    p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
+                                    "stream in m/s^2)")
     p.add_argument("--nominal", type=Path,
                    help="CSV of the nominal layout (d rows x m columns): report a aligned to it "
                         "(physical frame) instead of the canonical frame of Eq. (19)")
     p.add_argument("--magnitude", type=float,
                    help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
-                        "its local gravity in m/s^2)")
+                        "its local gravity in m/s^2; an import: standard gravity 9.80665)")
+    still_arguments(p)
+    p.add_argument("--store", action="store_true",
+                   help="also store the result in the session as results/solve-<k>, with its "
+                        "settings (`station report` then shows it and its poses)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     p.add_argument("--accept-suspect", action="store_true",
                    help="write a fit that fails the quality gate (chi2, outliers), marked "
@@ -55,15 +71,15 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, existing_session, new_file, still_values
 
-    existing_file(args.session, "a session file (.h5)")
+    existing_session(args.session)
     out = new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
     cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect,
-                        tolerances)
+                        tolerances, still_values(args), store=args.store)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
@@ -75,8 +91,9 @@ def verdict_exit(verdict: dict | None) -> int:
     return 0 if verdict is None or verdict["overall"] == "PASS" else 1
 
 
-def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | None = None,
-                  accept_suspect: bool = False, tolerances=None):
+def solve_session(path, stream: str | None = None, nominal=None, magnitude: float | None = None,
+                  accept_suspect: bool = False, tolerances=None, still: dict | None = None,
+                  store: bool = False):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
@@ -84,17 +101,21 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
     The fit passes the quality gate (`station.solve.quality.check_fit`) or SuspectFitError says
     why not; with `accept_suspect` it is returned marked suspect (fit status and reasons). The
     verdict (`station.solve.verdict`) judges the unit against `tolerances`, default the
-    `[tolerances]` of the bench profile the session was recorded with; none: no verdict."""
+    `[tolerances]` of the bench profile the session was recorded with; none: no verdict.
+    still: the still-pose detector's settings (`station.commands.still_values`); store: the
+    result is also stored in the session as results/solve-<k> with its settings."""
     from station.errors import SuspectFitError
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
     from station.protocols import KINDS
-    from station.replay import ReplaySettings, solve_recorded
+    from station.replay import ReplaySettings, calibrated_stream, solve_recorded, stimulus
     from station.solve.quality import check_fit
     from station.solve.verdict import verdict
 
     with Session.open(path) as session:
-        settings = ReplaySettings(stream=stream, magnitude=magnitude)
+        settings = ReplaySettings(stream=stream, magnitude=magnitude, **(still or {}))
+        stream = calibrated_stream(session, settings)
+        settings = dataclasses.replace(settings, stream=stream)
         readings, result = solve_recorded(session, settings, nominal, command="station solve")
         kind = KINDS[session.protocol]
         spec = session.specs[stream]
@@ -105,12 +126,13 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
                            "still poses)"}
         info = {"path": str(Path(path).resolve()), "stream": stream,
                 "protocol": session.protocol, "created": session.created,
-                "software_version": session.software_version}
+                "software_version": session.software_version,
+                "stimulus": stimulus(session, settings)[1], **poses(readings)}
         serial = session.unit_serial
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
     names = [spec.channels[i] for i in channels]
-    check = check_fit(result, names)
+    check = check_fit(result, names, pose_term=kind.still)
     if check.problems and not accept_suspect:
         raise SuspectFitError(
             f"{path}: the fit is suspect, so no calibration file was written: "
@@ -121,9 +143,34 @@ def solve_session(path, stream: str = "imu", nominal=None, magnitude: float | No
         result, serial, names, [spec.units[i] for i in channels],
         counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info,
         status=check.status, status_reasons=check.problems, **bias)
+    if store:
+        _store(path, readings, result, settings, channels)
     if tolerances is None or tolerances.empty:
         return cal
     return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
+
+
+def poses(readings) -> dict:
+    """{"poses": found, "rejected": [[start s, end s, reason], ...]} of readings that kept their
+    still-pose detection; {} for others. Times from the recording's first sample."""
+    still = getattr(readings, "detection", None)
+    if still is None:
+        return {}
+    t = readings.times - readings.times[0]
+    return {"poses": len(still.intervals),
+            "rejected": [[round(float(t[a]), 2), round(float(t[b - 1]), 2), why]
+                         for a, b, why in still.rejected]}
+
+
+def _store(path, readings, result, settings, channels) -> None:
+    """The result stored in the session as results/solve-<k>, with the settings that made it and
+    the stream's channels it calibrates."""
+    from station.files.session import write_results
+    from station.replay import free_name
+
+    write_results(path, free_name(path, "solve"), settings.stream, readings.M, result,
+                  readings.sigma, settings=dataclasses.asdict(settings),
+                  channels=[int(i) for i in channels])
 
 
 def recorded_tolerances(metadata: dict, path):
@@ -181,18 +228,46 @@ def summarise(cal, out) -> dict:
         "scale_factors": cal.scale_factors.tolist(),
         "scale_factors_sigma": cal.scale_factors_sigma.tolist(),
         "bias": cal.bias.tolist(), "bias_sigma": cal.bias_sigma.tolist(),
+        "magnitude": cal.magnitude,
+        **{key: (cal.session or {}).get(key) for key in ("stimulus", "poses", "rejected")
+           if key in (cal.session or {})},
+        # the sigmas above are the total figure; the white-noise figure and the per-pose term
+        "start": cal.fit.get("start"), "pose_sigma": cal.pose_sigma,
+        "scale_factors_sigma_white": None if cal.white is None
+        else cal.white["scale_factors_sigma"].tolist(),
+        "bias_sigma_white": None if cal.white is None else cal.white["bias_sigma"].tolist(),
     }
 
 
 def _text(s: dict) -> str:
-    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'bias':>12} {'1 sigma':>10}"]
-    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {b:12.4g} {sb:10.2g}" for name, k, sk, b, sb in
-             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], s["bias"],
-                 s["bias_sigma"], strict=True)]
-    title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}, "
+    m = len(s["sensors"])
+    white_k = s["scale_factors_sigma_white"] or [float("nan")] * m
+    white_b = s["bias_sigma_white"] or [float("nan")] * m
+    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'(white)':>9} {'bias':>12} "
+            f"{'1 sigma':>10} {'(white)':>9}"]
+    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {wk:9.2g} {b:12.6g} {sb:10.2g} {wb:9.2g}"
+             for name, k, sk, wk, b, sb, wb in
+             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], white_k, s["bias"],
+                 s["bias_sigma"], white_b, strict=True)]
+    start = "" if s["start"] in (None, "closed form") else f" from the {s['start']} start"
+    title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}{start}, "
              f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in {s['units']})")
+    if s["pose_sigma"]:
+        title += (f"; 1 sigma = white noise + a per-pose error of {s['pose_sigma']:.2g} "
+                  "(white: the white noise alone)")
     from station.solve.verdict import words
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *rows, *suspect, f"written to {s['calibration']}", *judged])
+    return "\n".join([title, *pose_lines(s), *rows, *suspect, f"written to {s['calibration']}",
+                      *judged])
+
+
+def pose_lines(s: dict) -> list:
+    """Lines on the stimulus magnitude and the still poses of a summary (`summarise`)."""
+    lines = [f"magnitude {s['magnitude']:.6g} ({s['stimulus']})"] if s.get("stimulus") else []
+    if "poses" in s:
+        lines.append(f"still poses found: {s['poses']}; candidates rejected: "
+                     f"{len(s['rejected']) or 'none'}")
+        lines += [f"  rejected {a:.2f}-{b:.2f} s: {why}" for a, b, why in s["rejected"]]
+    return lines

@@ -15,7 +15,6 @@ import numpy as np
 
 from station.diagnose import recorded
 from station.errors import CalibrationInputError
-from station.files import npz
 from station.files.session import Session
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
 
@@ -121,8 +120,11 @@ class RotaryData:
 
 
 def load(path, bin_seconds: float = 0.1) -> RotaryData:
-    """A RotaryData from a rotary `.npz` data file (never unpickles)."""
-    return from_arrays(npz.read(path), bin_seconds)
+    """A RotaryData from a rotary `.npz` data file, checked as `station import npz` checks it
+    (headers before loading, never unpickles; types, shapes and values)."""
+    from station.files.importers import read_npz
+
+    return from_arrays(read_npz(path), bin_seconds)
 
 
 def is_rotary(session) -> bool:

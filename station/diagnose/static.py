@@ -2,9 +2,10 @@
 static session can show (docs/diagnose.md, "Free-static sessions").
 
 Data: the accelerometer stream (m >= 3 channels) and optionally a gyro stream (3 channels), SI
-units, cut into still intervals (station.reduce.stillness.detect_still on all channels) and each
-interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples
-within the bins (white-noise assumption).
+units, cut into still intervals (station.reduce.stillness.detect_still: on all channels, or as the
+user's `StillOptions` say: the command line's default is the accelerometer with the gyro's veto)
+and each interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the
+samples within the bins (white-noise assumption).
 
 Nominal model (the free-static calibration, station.reduce.free_static): accelerometer bin means
 a^T v_j + b with |v_j| = g in interval j (ellipsoid closed form + ML, station.calibrate), gyro
@@ -35,7 +36,7 @@ from station.model.effects.bias_drift import BiasDrift
 from station.model.effects.earth_rate import EarthRate
 from station.model.effects.g_sensitivity import GSensitivity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
-from station.reduce.stillness import detect_still
+from station.reduce.stillness import StillOptions, detect_still
 from station.solve.calibrate import calibrate
 
 BIN_S = 1.0
@@ -124,9 +125,12 @@ class StaticData:
 
 
 def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
-                units=(), notes=(), **detector) -> StaticData:
+                units=(), notes=(), still: StillOptions | None = None, **detector) -> StaticData:
     """StaticData of accelerometer samples (K, m) and optional gyro samples (K, 3) at fs Hz;
-    `detector`: options of station.reduce.stillness.detect_still."""
+    `still`: the user's detector settings (`StillOptions`; channels unless given: the
+    accelerometer with the gyro's veto when there is a gyro, whose still means the diagnosis
+    models too; None: every channel decides), `detector`: options of
+    station.reduce.stillness.detect_still."""
     acc = np.asarray(accel, float)
     if acc.ndim != 2 or acc.shape[1] < 3 or acc.shape[0] < 10:
         raise CalibrationInputError(f"accelerometer samples have shape {acc.shape}.",
@@ -139,11 +143,23 @@ def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVIT
                 f"gyro samples have shape {g.shape}, accelerometer {acc.shape}.",
                 "Give a 3-axis gyro on the same time base (or no gyro).")
         x = np.hstack([acc, g])
-    still = detect_still(x, fs, **detector)
-    if len(still.intervals) < 9 + 1:
+    if still is not None:
+        m = acc.shape[1]
+        default = "acc" if gyro is None else "acc+gyro"
+        detector = {**still.detector(fs, range(m), range(m, x.shape[1]), default=default),
+                    **detector}
+    found = detect_still(x, fs, **detector)
+    if len(found.intervals) < 9 + 1:
+        vetoed = "gyro" in detector.get("groups", {})
         raise CalibrationInputError(
-            f"only {len(still.intervals)} still intervals found.",
-            "A free-static diagnosis needs at least 10 poses (9 calibration parameters).")
+            f"only {len(found.intervals)} still intervals found"
+            f"{' (the gyro vetoing)' if vetoed else ''}; {len(found.rejected)} candidates "
+            f"rejected{': ' + found.rejected[0][2] + ', ...' if found.rejected else ''}.",
+            "A free-static diagnosis needs at least 10 poses (9 calibration parameters)"
+            + ("; --still-channels acc lets the accelerometer alone decide (the gyro effects are "
+               "then judged on poses where it may still move)" if vetoed else
+               "; --threshold, --min-still or --rest may keep more") + ".")
+    still = found
     bins, owner = _bins(still.intervals, round(BIN_S * fs))
     return StaticData(x, np.arange(len(x)) / fs, float(fs), acc.shape[1], float(gravity),
                       still.intervals, bins, owner, _lsb(x[still.intervals[0, 0]:]),

@@ -106,10 +106,11 @@ def white_noise_verdict(data: StaticData, step, alpha: float) -> dict:
 # ------------------------------------------------------------------------- session and command
 
 
-def load(path, **detector) -> StaticData:
+def load(path, still=None, **detector) -> StaticData:
     """StaticData of a session: its accelerometer channels (unit m/s^2, one stream) and, when there
     are any, its 3 gyro channels (rad/s; the same or another stream on the same time base): an
-    imported recording or a free-static session. Gravity: metadata `gravity`, else standard."""
+    imported recording or a free-static session. Gravity: metadata `gravity`, else standard.
+    `still`, `detector`: the detector's settings (`from_arrays`)."""
     from station.files.session import Session
 
     with Session.open(path) as s:
@@ -139,7 +140,7 @@ def load(path, **detector) -> StaticData:
     units = [f"{acc_name}: m/s^2"] + ([f"{gyro_name}: rad/s"] if gyro else [])
     return from_arrays(acc.to_si()[:, acc_cols], acc.spec.rate_hz, gyro=gyr,
                        gravity=float(gravity or STANDARD_GRAVITY), units=units, notes=notes,
-                       **detector)
+                       still=still, **detector)
 
 
 def _channels(specs: dict, unit: str) -> dict:

@@ -14,9 +14,12 @@ unit's serial and each sensor's id, `a` and `b` with their 1-sigma values, their
 (version 2: order a row-major, then b; in the frame of `a`, whose gauge it removes; biases
 measured apart from the fit are independent of `a`), the gauge-invariant scale factors and axis
 angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
-date. Version-1 files (no covariance) still load. Floats are written as JSON numbers in Python's
-shortest round-trip form, so a load gives back bit-identical arrays. A SHA-256 checksum over the
-canonical JSON of the content detects edits and damage (it is not a signature).
+date. Version 4 adds `uncertainty`: the sigmas above are the total figure (the readings' white
+noise plus a per-pose error term estimated from the residuals, docs/solvers.md), `uncertainty`
+holds that term and the white-noise figure beside them. Files of versions 1-3 still load.
+Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives back
+bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits and
+damage (it is not a signature).
 
 Loading treats the file as untrusted: size limit, strict JSON (no NaN/Infinity, no duplicate keys),
 format and version checked first, then the checksum, then every key, type, shape and unit; unknown
@@ -36,9 +39,15 @@ from station.files.provenance import software_version, utc_now
 from station.model import measurement
 
 FORMAT = "imu-station-calibration"
-FORMAT_VERSION = 3
-SUPPORTED_VERSIONS = (1, 2, 3)  # 2 added `covariance`, 3 `verdict`
+FORMAT_VERSION = 4
+SUPPORTED_VERSIONS = (1, 2, 3, 4)  # 2 added `covariance`, 3 `verdict`, 4 `uncertainty`
 MAX_BYTES = 4 << 20
+LIMITS = {"a": (1e-9, 1e12), "b": (0.0, 1e9), "magnitude": (1e-12, 1e9), "condition": (0.0, 1e8)}
+"""Plausible ranges of finite numbers, wide enough for any unit in SI or raw counts: column norms
+of a (scale factors: counts per SI unit of a magnetometer reach 1e7), |b| in SI units, the stimulus
+magnitude, the condition number of a (sensitive axes nearly in one plane beyond it)."""
+LIMIT_WORDS = {"a": "scale factor (a column norm)", "b": "bias", "magnitude": "magnitude",
+               "condition": "condition number of a"}
 SI_UNITS = ("rad/s", "m/s^2", "T")
 FRAMES = ("canonical", "nominal")
 CONVENTIONS_V1 = {
@@ -61,9 +70,16 @@ CONVENTIONS_V3 = {**CONVENTIONS,
                   "verdict": "the unit against its type's tolerances (station.solve.verdict): "
                              "overall PASS, FAIL or MARGINAL and each tested parameter; null "
                              "when no tolerances were given"}
+CONVENTIONS_V4 = {**CONVENTIONS_V3,
+                  "uncertainty": "every sigma (and the covariance) is the total figure: the "
+                                 "readings' white noise plus pose_sigma, a per-pose error term "
+                                 "estimated from the residuals (docs/solvers.md); white holds the "
+                                 "white-noise figure of the same quantities; null when unknown"}
 _KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum"),
-         3: (*_KEYS_V1[:-1], "covariance", "verdict", "checksum")}
-_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3}
+         3: (*_KEYS_V1[:-1], "covariance", "verdict", "checksum"),
+         4: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "checksum")}
+_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3, 4: CONVENTIONS_V4}
+WHITE = ("a_sigma", "bias_sigma", "scale_factors_sigma", "axis_angles_sigma")
 VERDICTS = ("PASS", "FAIL", "MARGINAL")
 
 
@@ -86,6 +102,11 @@ class Calibration(measurement.Sensitivity):
                           diagonal the squared sigmas; None when unknown (version-1 files)
     verdict             : station.solve.verdict's verdict against the unit type's tolerances, or
                           None (none given; files before version 3)
+    pose_sigma          : the per-pose error term folded into every sigma (readings' units), or
+                          None (estimated with the noise, or files before version 4)
+    white               : the white-noise figure {name: array} of WHITE (a_sigma, bias_sigma,
+                          scale_factors_sigma, axis_angles_sigma), or None (files before
+                          version 4)
     """
 
     unit_serial: str
@@ -107,6 +128,8 @@ class Calibration(measurement.Sensitivity):
     session: dict | None = None
     covariance: np.ndarray | None = None
     verdict: dict | None = None
+    pose_sigma: float | None = None
+    white: dict | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
 
@@ -141,12 +164,14 @@ class Calibration(measurement.Sensitivity):
             scale_factors_sigma=result.scale_factors_sigma, axis_angles=result.axis_angles,
             axis_angles_sigma=result.axis_angles_sigma, frame=result.frame,
             magnitude=float(result.magnitude), scale_known=bool(result.scale_known),
-            fit={"method": result.method, "chi2": float(result.chi2), "dof": int(result.dof),
-                 "positions": int(result.v.shape[1]), "bias_source": bias_source,
-                 "status": status, "status_reasons": list(status_reasons)},
+            fit={"method": result.method, "start": result.start, "chi2": float(result.chi2),
+                 "dof": int(result.dof), "positions": int(result.v.shape[1]),
+                 "bias_source": bias_source, "status": status,
+                 "status_reasons": list(status_reasons)},
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
-            session=session, covariance=_joint_covariance(result, own_bias, bias_sigma))
+            session=session, covariance=_joint_covariance(result, own_bias, bias_sigma),
+            pose_sigma=result.pose_sigma, white=_white(result, None if own_bias else bias_sigma))
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 
@@ -202,7 +227,7 @@ class Calibration(measurement.Sensitivity):
         doc = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
-            "conventions": dict(CONVENTIONS_V3),
+            "conventions": dict(CONVENTIONS_V4),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
             "units": {"readings": list(self.units), "stimulus": self.units[0],
                       "sensitivity": "1 (reading unit per stimulus unit)",
@@ -217,6 +242,9 @@ class Calibration(measurement.Sensitivity):
                            "axis_angles_sigma": _list(self.axis_angles_sigma)},
             "fit": dict(self.fit), "session": self.session,
             "covariance": _list(self.covariance), "verdict": self.verdict,
+            "uncertainty": {"pose_sigma": self.pose_sigma,
+                            "white": None if self.white is None else
+                            {k: _list(self.white[k]) for k in WHITE}},
         }
         doc["checksum"] = checksum(doc)
         return doc
@@ -250,6 +278,39 @@ def _joint_covariance(result, own_bias: bool, bias_sigma: np.ndarray) -> np.ndar
     joint[:k, :k] = cov[:k, :k]
     joint[k:, k:] = np.diag(bias_sigma**2)
     return joint
+
+
+def _white(result, bias_sigma) -> dict | None:
+    """The white-noise figure of a result for the file; biases measured apart (`bias_sigma`) keep
+    their own sigma. None for a result without one (stored before it existed)."""
+    if result.scale_factors_sigma_white is None:
+        return None
+    bias = result.bias_sigma_white if bias_sigma is None else bias_sigma
+    return {"a_sigma": result.a_sigma_white, "bias_sigma": np.asarray(bias, float),
+            "scale_factors_sigma": result.scale_factors_sigma_white,
+            "axis_angles_sigma": result.axis_angles_sigma_white}
+
+
+def _uncertainty(doc, a_shape, fail):
+    """(pose_sigma, white) of a version-4 document (None, None before), checked."""
+    block = doc.get("uncertainty")
+    if block is None:
+        return None, None
+    if not isinstance(block, dict) or set(block) != {"pose_sigma", "white"}:
+        raise fail("uncertainty must be null or an object with pose_sigma and white")
+    pose = block["pose_sigma"]
+    if pose is not None and not (type(pose) in (int, float) and np.isfinite(pose) and pose >= 0):
+        raise fail(f"uncertainty.pose_sigma {pose!r} must be null or a number >= 0")
+    if block["white"] is None:
+        return pose, None
+    white = _dict(block, "white", fail)
+    if set(white) != set(WHITE):
+        raise fail(f"uncertainty.white must hold exactly {', '.join(WHITE)}")
+    d, m = a_shape
+    shapes = {"a_sigma": (d, m), "bias_sigma": (m,), "scale_factors_sigma": (m,),
+              "axis_angles_sigma": (m, m)}
+    return (None if pose is None else float(pose),
+            {k: _array(white, k, fail, shape=shapes[k], sigma=True) for k in WHITE})
 
 
 def checksum(doc: dict) -> str:
@@ -343,7 +404,7 @@ def _from_document(doc, where: str) -> Calibration:
     if units.get("stimulus") != readings_units[0]:
         raise fail(f"units.stimulus {units.get('stimulus')!r} differs from the readings' unit")
     sens, bias, inv = (_dict(doc, k, fail) for k in ("sensitivity", "bias", "invariants"))
-    a = _array(sens, "a", fail, ndim=2, cols=m)
+    a = _array(sens, "a", fail, ndim=2, cols=m, bound=LIMITS["a"][1])
     d = a.shape[0]
     if not 1 <= d <= m or np.linalg.matrix_rank(a) < d:
         raise fail(f"sensitivity.a of shape {a.shape} must be d x m with rank d <= m")
@@ -352,6 +413,7 @@ def _from_document(doc, where: str) -> Calibration:
         raise fail(f"frame {frame!r} is not one of {FRAMES}")
     if type(magnitude) not in (int, float) or not magnitude > 0:
         raise fail(f"magnitude {magnitude!r} must be a positive number")
+    _plausible(a, _array(bias, "b", fail, shape=(m,), bound=LIMITS["b"][1]), magnitude, fail)
     if type(doc["scale_known"]) is not bool:
         raise fail("scale_known must be true or false")
     fit, session = _dict(doc, "fit", fail), doc["session"]
@@ -367,6 +429,7 @@ def _from_document(doc, where: str) -> Calibration:
     bias_sigma = _array(bias, "sigma", fail, shape=(m,), sigma=True)
     covariance = None if doc.get("covariance") is None else \
         _covariance(doc, np.r_[a_sigma.ravel(), bias_sigma], fail)
+    pose_sigma, white = _uncertainty(doc, a_sigma.shape, fail)
     verdict = doc.get("verdict")
     if verdict is not None and not (isinstance(verdict, dict)
                                     and verdict.get("overall") in VERDICTS
@@ -382,7 +445,8 @@ def _from_document(doc, where: str) -> Calibration:
         axis_angles_sigma=_array(inv, "axis_angles_sigma", fail, shape=(m, m), sigma=True),
         frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
         counts_per_unit=cpu, session=session, covariance=covariance, verdict=verdict,
-        created=doc["created"], software_version=doc["software_version"])
+        pose_sigma=pose_sigma, white=white, created=doc["created"],
+        software_version=doc["software_version"])
 
 
 def _covariance(doc, sigma: np.ndarray, fail) -> np.ndarray:
@@ -421,8 +485,25 @@ def _strings(doc, key, fail) -> list:
     return value
 
 
-def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positive=False):
-    """A float64 array from nested lists of JSON numbers (bool refused), checked."""
+def _plausible(a, b, magnitude, fail) -> None:
+    """Refuse finite numbers no sensor unit has (`LIMITS`): a file crafted or damaged so that
+    applying it overflows or divides by almost nothing (the fusion (a a^T)^-1 a of Eq. 7)."""
+    scale = np.linalg.norm(a, axis=0)
+    singular = np.linalg.svd(a, compute_uv=False)
+    checks = {"a": scale, "b": np.abs(b), "magnitude": np.array([magnitude]),
+              "condition": np.array([singular[0] / singular[-1]])}
+    for name, values in checks.items():
+        low, high = LIMITS[name]
+        worst = values.max() if np.any(values > high) else values.min()
+        if not low <= worst <= high:
+            raise fail(f"its {LIMIT_WORDS[name]} {worst:.3g} lies outside [{low:g}, {high:g}]; "
+                       "no sensor unit has that")
+
+
+def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positive=False,
+           bound=1e100):
+    """A float64 array from nested lists of JSON numbers (bool refused), checked; every
+    |value| <= bound (no overflow when squared or multiplied)."""
     value = doc.get(key)
 
     def numbers(x):
@@ -435,13 +516,15 @@ def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positi
         arr = np.array(value, dtype=np.float64)
     except ValueError:
         raise fail(f"{key} is a ragged list; give a full matrix") from None
+    except OverflowError:
+        raise fail(f"{key} holds an integer too large for a float") from None
     if (ndim is not None and arr.ndim != ndim) or (cols is not None and arr.shape[-1:] != (cols,)) \
             or (shape is not None and arr.shape != shape):
         want = shape if shape is not None else f"{ndim}-D with {cols} columns"
         raise fail(f"{key} has shape {arr.shape}, expected {want}")
-    if not np.all(np.isfinite(arr)) or (sigma and np.any(arr < 0)) \
+    if not np.all(np.abs(arr) <= bound) or (sigma and np.any(arr < 0)) \
             or (positive and np.any(arr <= 0)):
-        raise fail(f"{key} must be finite{' and non-negative' if sigma else ''}"
+        raise fail(f"{key} must be finite (|x| <= {bound:g}){' and non-negative' if sigma else ''}"
                    f"{' and positive' if positive else ''}")
     return arr
 

@@ -1,16 +1,28 @@
 """Foreign recordings into session files (docs/session-format.md), as `station import` does.
 
-Three formats, every file treated as untrusted input (sizes, types and values checked before use,
+Four formats, every file treated as untrusted input (sizes, types and values checked before use,
 nothing unpickled or evaluated; errors are `CalibrationInputError`s naming the problem and the fix):
 
-- `import_text`: whitespace-separated tables `t x y z` (imu_tk's `.mat` files are such text; MATLAB
-  v5 files with one numeric array are read too), one file per stream, time in seconds;
-- `import_csv`: a CSV file with a header of column names (imucal's sessions), one stream per group
-  of named columns, time from a column of seconds or of sample numbers at a given rate;
+- `import_text`: tables `t x y z` without a header (imu_tk's `.mat` files are such text; MATLAB
+  v5/v7 and v7.3 files with one numeric array are read too, in either orientation), one file per
+  stream (station.files.tables.read_matrix);
+- `import_csv`: a delimited text file with a header of column names (imucal's sessions), the
+  delimiter sniffed and a preamble skipped (station.files.tables.read_csv), one stream per group
+  of named columns, time from a column or from sample numbers at a given rate;
 - `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
   `rate_cmd`, `c_cmd`, `seg_*`, `a_nominal`, optional `angle`), loaded with `allow_pickle=False`
   after its array headers were checked. The session holds the counts, the table's angle and rate as
   table states and the protocol's events, so `station.reduce.rotary.rotary_readings` reduces it.
+  Other arrays holding fixed-width strings or one number (a data set name, a version tag) are kept
+  as session metadata;
+- `import_binary`: a raw dump of a serial IMU's binary frames, decoded by the drivers' own parser
+  (drivers.wire.binary, the live link's decoder) with the device profile; bad frames are counted
+  and skipped, the device time stamps (unwrapped) are the sample times.
+
+Time columns are in seconds unless a `time_unit` (s, ms, us, ns) is given; without one, time
+stamps whose median step means a rate outside 2 Hz..100 kHz are refused (probably another unit).
+How each file was read (delimiter, lines skipped, orientation, MATLAB version, bad frames) is kept
+in the metadata's `import.notes` and logged.
 
 Units: each stream's numbers are in a `unit` given by the user: an SI unit (`m/s^2`, `rad/s`, `T`),
 a known other one (`g`, `deg/s`, `uT`, `gauss`), or raw counts of a quantity, `counts:m/s^2`, with
@@ -19,8 +31,8 @@ counts, the calibration's `a` is in counts per SI unit). Numbers that are not ra
 as fixed-point integers, `FIXED_POINT` counts per unit given (an error below 5e-7 of that unit).
 """
 
-import csv
 import hashlib
+import logging
 import math
 import re
 import zipfile
@@ -29,12 +41,17 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.profile import SerialImuProfile, load_profile
 from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
+from drivers.wire.binary import BinaryFrameParser
 from station.errors import CalibrationInputError
+from station.files.jsonable import jsonable
 from station.files.session import SessionWriter, StreamSpec
-from station.files.tables import read_table
+from station.files.tables import MAX_BYTES, read_csv, read_matrix
 from station.model.constants import STANDARD_GRAVITY
+
+log = logging.getLogger(__name__)
 
 FIXED_POINT = 1e6
 """Counts per given unit for numbers that are not raw counts."""
@@ -45,8 +62,17 @@ UNITS = {"m/s^2": ("m/s^2", 1.0), "g": ("m/s^2", STANDARD_GRAVITY),
          "gauss": ("T", 1e-4)}
 """unit -> (SI unit, SI units per unit)."""
 
-MAX_BYTES = 1 << 31
-"""Largest array (uncompressed) an imported file may hold."""
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""Time unit -> seconds per unit."""
+
+PLAUSIBLE_RATE = (2.0, 1e5)
+"""Sample rates (Hz) time stamps in seconds may give without an explicit time unit."""
+
+MAX_TEXT_METADATA = 1 << 20
+"""Largest string array of an .npz kept as metadata, bytes."""
+
+DUMP_CHUNK = 1 << 20
+"""Bytes of a binary dump given to the frame parser at once."""
 
 NPZ_KEYS = {"y": 3, "lsb": None, "fs": 0, "t0": 1, "rate_cmd": 1, "c_cmd": 0, "seg_static": 1,
             "seg_spinup": 1, "seg_settle": 1, "seg_rotating": 1, "seg_spindown": 1,
@@ -89,65 +115,87 @@ class Unit:
 
 
 def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED",
-                fs: float | None = None) -> Path:
+                fs: float | None = None, time_unit: str | None = None,
+                delimiter: str | None = None, skip_rows: int = 0, columns: dict | None = None,
+                untimed: bool = False) -> Path:
     """Import tables `t x y z ...` (one file per stream: name -> path) into a new session `out`.
 
     units : stream name -> unit spec (see the module docstring). Streams must share their time
     stamps when there are several. fs: nominal rate (default: from the median time step).
+    time_unit: of the first column (see the module docstring); delimiter and skip_rows: of text
+    files (station.files.tables.read_matrix). columns : stream name -> 0-based indices of its
+    value columns in its file (default: every column but the time), so one file can hold several
+    streams. untimed: the files have no time column; the rows are samples at `fs`.
     """
     _check_names(streams, units)
-    tables = {name: read_table(path, _columns(path)) for name, path in streams.items()}
-    times = {name: t[:, 0] for name, t in tables.items()}
+    if untimed and fs is None:
+        raise CalibrationInputError("tables without a time column need the sample rate.",
+                                    "Give --fs HZ.")
+    read = {name: read_matrix(path, delimiter=delimiter, skip_rows=skip_rows)
+            for name, path in streams.items()}
+    for name, table in read.items():
+        if table.values.shape[1] < 2 and not untimed:
+            raise CalibrationInputError(
+                f"{streams[name]} holds one column; a time column and values are expected.",
+                "Give a table t x y z ... (one row or column per sample), or --no-time.")
+    notes = [note for table in read.values() for note in table.notes]
+    tables = {name: table.values for name, table in read.items()}
+    times = {name: np.arange(len(t)) / fs if untimed else
+             _seconds(t[:, 0], time_unit, str(streams[name])) for name, t in tables.items()}
     first = next(iter(times.values()))
     for name, t in times.items():
         if t.shape != first.shape or not np.array_equal(t, first):
             raise CalibrationInputError(f"stream {name!r} has other time stamps than the first.",
                                         "Import streams recorded on different clocks separately.")
-    values = {name: t[:, 1:] for name, t in tables.items()}
+    values = {name: _values(t, (columns or {}).get(name), int(not untimed), streams[name])
+              for name, t in tables.items()}
     sources = {name: str(path) for name, path in streams.items()}
-    return _write(out, "text", sources, values, units, first, None, fs, unit_serial)
+    return _write(out, "text", sources, values, units, first, None, fs, unit_serial, notes)
+
+
+def _values(table, columns, first: int, path) -> np.ndarray:
+    """The value columns of a text table: `columns` (0-based, checked), else from `first` on."""
+    if columns is None:
+        return table[:, first:]
+    if not columns or min(columns) < 0 or max(columns) >= table.shape[1]:
+        raise CalibrationInputError(f"{path} has {table.shape[1]} columns; columns "
+                                    f"{[c + 1 for c in columns]} were asked for.",
+                                    "Count the columns from 1, the time column included.")
+    return table[:, list(columns)]
 
 
 def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None = None,
                index_column: str | None = None, fs: float | None = None,
-               unit_serial: str = "IMPORTED") -> Path:
-    """Import a CSV file with a header row into a new session `out`.
+               unit_serial: str = "IMPORTED", time_unit: str | None = None,
+               delimiter: str | None = None, skip_rows: int | None = None) -> Path:
+    """Import a delimited text file with a header row into a new session `out`.
 
     streams : stream name -> list of column names (e.g. {"acc": ["acc_x", "acc_y", "acc_z"]})
     units   : stream name -> unit spec
-    Time: `time_column` (seconds), or `index_column` (sample numbers) with `fs`, or rows at `fs`.
+    Time: `time_column` (in `time_unit`), or `index_column` (sample numbers) with `fs`, or rows
+    at `fs`. delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
+    station.files.tables.read_csv.
     """
     _check_names(streams, units)
     path = Path(path)
-    header = _csv_header(path)
     wanted = [c for cols in streams.values() for c in cols]
     for extra in (time_column, index_column):
         if extra is not None:
             wanted.append(extra)
-    missing = [c for c in wanted if c not in header]
-    if missing or len(set(wanted)) != len(wanted):
-        raise CalibrationInputError(
-            f"{path}: columns {missing or wanted} missing or named twice (header: {header}).",
-            "Name each column once, as spelled in the file's first line.")
     if (time_column is None) == (fs is None) and index_column is None:
         raise CalibrationInputError("give either a time column or a sample rate fs.",
                                     "Use --time COLUMN (seconds) or --fs HZ (with --index COLUMN).")
     if index_column is not None and fs is None:
         raise CalibrationInputError("an index column needs the sample rate fs.", "Give --fs HZ.")
-    try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2,
-                           usecols=[header.index(c) for c in wanted])
-    except ValueError as exc:
-        raise CalibrationInputError(
-            f"{path}: the chosen columns are not all numbers ({exc}).",
-            "Pick numeric columns; text columns are not imported.") from None
-    if not np.all(np.isfinite(table)):
-        raise CalibrationInputError(f"{path}: the chosen columns hold NaN or infinite values.",
-                                    "Remove or interpolate the invalid rows first.")
+    if time_unit is not None and time_column is None:
+        raise CalibrationInputError("a time unit without a time column.",
+                                    "Give --time COLUMN with --time-unit, or drop --time-unit.")
+    read = read_csv(path, wanted, delimiter=delimiter, skip_rows=skip_rows)
+    table = read.values
     by_name = {c: table[:, i] for i, c in enumerate(wanted)}
     seq = None
     if time_column is not None:
-        t = by_name[time_column]
+        t = _seconds(by_name[time_column], time_unit, f"{path}: column {time_column!r}")
     elif index_column is not None:
         seq = _integers(by_name[index_column], f"{path}: column {index_column!r}")
         t = seq / fs
@@ -155,7 +203,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
         t = np.arange(len(table)) / fs
     values = {name: np.column_stack([by_name[c] for c in cols]) for name, cols in streams.items()}
     return _write(out, "csv", {name: str(path) for name in streams}, values, units, t, seq, fs,
-                  unit_serial)
+                  unit_serial, list(read.notes))
 
 
 def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:
@@ -177,10 +225,13 @@ def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX
     angle = angle - angle[:, :1] + np.concatenate([[0.0], np.cumsum(swept)[:-1]])[:, None]
     spec = StreamSpec([f"g{i + 1}" for i in range(m)], "rad/s", 1.0 / np.broadcast_to(lsb, (m,)),
                       fs, "int64" if y.dtype.itemsize > 4 else "int32", "imported-npz")
+    extra, notes = npz_metadata(path, max_bytes)
     metadata = {"protocol": "rotary", "unit_serial": unit_serial,
                 "a_nominal": arrays["a_nominal"].tolist(),
                 "settings": {"rate": float(arrays["c_cmd"])},
-                "import": {"format": "npz", "source": str(path), "sha256": _sha256(path)}}
+                "import": {"format": "npz", "source": str(path), "sha256": _sha256(path),
+                           "metadata": extra, "notes": notes}}
+    _log_notes(notes)
     with SessionWriter.create(out, metadata, {"imu": spec}, clock=_Fixed(start[0] / fs)) as w:
         for j in range(n):
             seq = start[j] + np.arange(k)
@@ -232,6 +283,79 @@ def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
     return arrays
 
 
+def npz_metadata(path, max_bytes: int = MAX_BYTES) -> tuple:
+    """({name: value}, notes) of the arrays of an .npz that are not rotary data: fixed-width
+    strings (as a string or a list of them) and single numbers are kept, loaded without pickle;
+    other numeric arrays are named in the notes and left out."""
+    headers = _npz_headers(path, max_bytes)
+    names = sorted(set(headers) - set(NPZ_KEYS) - {"angle"})
+    kept, notes = {}, []
+    with np.load(path, allow_pickle=False) as f:
+        for name in names:
+            shape, dtype = headers[name]
+            if dtype.kind in "US" and math.prod(shape) * dtype.itemsize <= MAX_TEXT_METADATA:
+                kept[name] = _strings(f[name])
+            elif dtype.kind in "iufb" and math.prod(shape) == 1:
+                kept[name] = f[name].reshape(()).item()
+            else:
+                notes.append(f"{Path(path).name}: array {name!r} {shape} {dtype} left out (only "
+                             "strings and single numbers are kept as metadata)")
+    if kept:
+        notes.append(f"{Path(path).name}: kept as metadata: {', '.join(kept)}")
+    return jsonable(kept), notes
+
+
+def import_binary(out, path, profile, *, unit_serial: str = "IMPORTED") -> Path:
+    """Import a raw dump of a serial IMU's binary frames into a new session `out`, stream "imu"
+    as a live recording with the same device profile writes it (channels, units, scale).
+
+    profile: a SerialImuProfile, a profile path or a bundled name (`[serial] protocol = "binary"`).
+    The drivers' own frame parser decodes the dump (the live link's decoder); frames failing
+    their check, cut short or misaligned are counted and skipped. Sample times are the device
+    time stamps (unwrapped), or sequence number / rate_hz when the frames carry none.
+    """
+    prof = profile if isinstance(profile, SerialImuProfile) else SerialImuProfile.load(profile)
+    if prof.serial.protocol != "binary":
+        raise CalibrationInputError(f"profile {prof.source} describes text lines, not binary "
+                                    "frames.", "Give a binary device profile (--profile), or "
+                                    "import the text with `station import csv`.")
+    parser = BinaryFrameParser(prof.serial.frame, prof.imu.channels)
+    blocks = []
+    with open(path, "rb") as f:
+        while data := f.read(DUMP_CHUNK):
+            blocks.append(parser.decode(data, 0.0).block)
+    blocks.append(parser.decode(b"", 0.0, final=True).block)
+    block, stats = SampleBlock.concat(blocks), parser.stats
+    if len(block) < 2:
+        raise CalibrationInputError(
+            f"{path}: {len(block)} frame(s) of profile {Path(prof.source).name} in {stats.bytes} "
+            f"bytes ({stats.crc_failures} sync candidates failed their check).",
+            "Check that --profile describes the device that wrote the dump (sync, layout, byte "
+            "order, checksum, channel count).")
+    timed = "time" in prof.serial.frame.layout
+    t = block.device_time if timed else block.seq / prof.imu.rate_hz
+    if np.any(np.diff(t) <= 0):
+        raise CalibrationInputError(f"{path}: the device time stamps do not increase.",
+                                    "Check the profile's time field (time_type, its place in the "
+                                    "layout); a device restarted mid-dump needs splitting.")
+    link = _link_figures(block, stats, parser.size, t)
+    notes = [f"{Path(path).name}: {len(block)} frames decoded with {Path(prof.source).name}, "
+             f"{stats.crc_failures} bad frame candidates skipped, {stats.resyncs} resyncs, "
+             f"{stats.dropped} sequence numbers missing, {link['unused_bytes']} bytes unused; "
+             f"{link['duration_s']:.3f} s at {link['rate_hz']:.4f} Hz "
+             f"({'device time stamps' if timed else 'sequence numbers'})"]
+    metadata = {"protocol": "import", "unit_serial": unit_serial,
+                "profiles": {"imu": load_profile(prof.source).tables},
+                "import": {"format": "binary", "profile": prof.source, "link": link,
+                           "sources": {"imu": {"path": str(path), "sha256": _sha256(path)}},
+                           "notes": notes}}
+    _log_notes(notes)
+    spec = StreamSpec.from_profile(prof.imu, "int64")
+    with SessionWriter.create(out, metadata, {"imu": spec}, clock=_Fixed(t[0])) as w:
+        w.append("imu", SampleBlock(block.counts, block.seq, block.device_time, t, spec.channels))
+    return Path(out)
+
+
 # ----------------------------------------------------------------------------------- internals
 
 
@@ -245,8 +369,9 @@ class _Fixed:
         return self.t
 
 
-def _write(out, fmt, sources, values, units, t, seq, fs, unit_serial) -> Path:
-    """One session: a stream per entry of `values` ((K, c) numbers in the units given)."""
+def _write(out, fmt, sources, values, units, t, seq, fs, unit_serial, notes) -> Path:
+    """One session: a stream per entry of `values` ((K, c) numbers in the units given); `notes`
+    (how the files were read) kept in the metadata and logged."""
     t = np.asarray(t, float)
     if len(t) < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise CalibrationInputError("the time stamps are not strictly increasing (or fewer than 2 "
@@ -255,22 +380,64 @@ def _write(out, fmt, sources, values, units, t, seq, fs, unit_serial) -> Path:
     if not (math.isfinite(rate) and rate > 0):
         raise CalibrationInputError(f"sample rate {fs!r} is not positive.", "Give fs in Hz.")
     seq = np.arange(len(t), dtype=np.int64) if seq is None else np.asarray(seq, np.int64)
-    specs, blocks, notes = {}, {}, {}
+    specs, blocks, stream_notes = {}, {}, {}
     for name, v in values.items():
         unit = Unit.parse(units[name])
         counts = _counts(v, unit, name)
         specs[name] = StreamSpec([f"{name}{i + 1}" for i in range(v.shape[1])], unit.si,
                                  unit.counts_per_unit, rate, "int64", f"imported-{fmt}")
         blocks[name] = SampleBlock(counts, seq, t, t, specs[name].channels)
-        notes[name] = {"unit": units[name], "raw_counts": unit.raw}
+        stream_notes[name] = {"unit": units[name], "raw_counts": unit.raw}
     metadata = {"protocol": "import", "unit_serial": unit_serial,
-                "import": {"format": fmt, "streams": notes,
+                "import": {"format": fmt, "streams": stream_notes,
                            "sources": {n: {"path": p, "sha256": _sha256(p)}
-                                       for n, p in sources.items()}}}
+                                       for n, p in sources.items()}, "notes": notes}}
+    _log_notes(notes)
     with SessionWriter.create(out, metadata, specs, clock=_Fixed(t[0])) as w:
         for name, block in blocks.items():
             w.append(name, block)
     return Path(out)
+
+
+def _seconds(t, unit: str | None, what: str) -> np.ndarray:
+    """Time stamps in seconds. Without a unit they are taken as seconds if their median step
+    means a plausible sample rate (PLAUSIBLE_RATE), else refused: probably ms, us or ns."""
+    t = np.asarray(t, float)
+    if unit is not None:
+        if unit not in TIME_UNITS:
+            raise CalibrationInputError(f"unknown time unit {unit!r}.",
+                                        f"Give --time-unit as one of {', '.join(TIME_UNITS)}.")
+        return t * TIME_UNITS[unit]
+    step = float(np.median(np.diff(t))) if len(t) > 1 else math.nan
+    low, high = PLAUSIBLE_RATE
+    if step > 0 and not low <= 1.0 / step <= high:
+        raise CalibrationInputError(
+            f"{what}: the time stamps step by {step:g} (median), {1.0 / step:g} Hz if they are "
+            "seconds.", "Give their unit: --time-unit ms, us or ns (or --time-unit s if that "
+            "rate is right).")
+    return t
+
+
+def _link_figures(block, stats, frame_size: int, t) -> dict:
+    """What decoding a dump found: frames, bad candidates, resyncs, missing sequence numbers,
+    bytes in no frame (garbage, damaged and cut frames), duration and rate of the time stamps."""
+    return {"frames": len(block), "bad_frames": stats.crc_failures, "resyncs": stats.resyncs,
+            "gaps": stats.gaps, "dropped": stats.dropped, "bytes": stats.bytes,
+            "unused_bytes": stats.bytes - len(block) * frame_size,
+            "duration_s": float(t[-1] - t[0]), "rate_hz": 1.0 / float(np.median(np.diff(t)))}
+
+
+def _strings(a: np.ndarray):
+    """A fixed-width string array as a str (0-d) or nested lists of str; bytes decoded as UTF-8
+    (undecodable bytes replaced)."""
+    if a.dtype.kind == "S":
+        a = np.char.decode(a, "utf-8", errors="replace")
+    return a.tolist()
+
+
+def _log_notes(notes) -> None:
+    for note in notes:
+        log.info("import: %s", note)
 
 
 def _counts(values, unit: Unit, name: str) -> np.ndarray:
@@ -305,28 +472,6 @@ def _check_names(streams: dict, units: dict) -> None:
                                         f"Give one, e.g. --unit {name}=m/s^2 or counts:m/s^2.")
 
 
-def _columns(path) -> int:
-    """Number of columns of a text table's first line (MATLAB files: checked by read_table)."""
-    with open(path, "rb") as f:
-        line = f.readline(1 << 16)
-    try:
-        return max(2, len(line.decode("ascii").split()))
-    except UnicodeDecodeError:
-        return 4  # not text: read_table reads it as a MATLAB file and checks the columns
-
-
-def _csv_header(path: Path) -> list:
-    try:
-        with path.open(newline="", encoding="utf-8") as f:
-            header = next(csv.reader(f), None)
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationInputError(f"cannot read {path} as UTF-8 CSV ({exc}).",
-                                    "Give a CSV file with a header line.") from None
-    if not header:
-        raise CalibrationInputError(f"{path} is empty.", "Give a CSV file with a header line.")
-    return [h.strip() for h in header]
-
-
 def _npz_headers(path: Path, max_bytes: int) -> dict:
     """{name: (shape, dtype)} from the .npy headers inside a zip, refusing object arrays and
     arrays larger than max_bytes, before anything is decompressed."""
@@ -342,9 +487,11 @@ def _npz_headers(path: Path, max_bytes: int) -> dict:
                     read = (np.lib.format.read_array_header_1_0 if major == 1
                             else np.lib.format.read_array_header_2_0)
                     shape, _, dtype = read(f)
-                if dtype.hasobject or dtype.kind not in "iuf":
-                    raise CalibrationInputError(f"{path}: {info.filename} is of type {dtype}.",
-                                                "Only integer and float arrays are read.")
+                if dtype.hasobject or dtype.kind not in "iufbUS":
+                    raise CalibrationInputError(
+                        f"{path}: {info.filename} is of type {dtype} (Python objects are never "
+                        "unpickled).", "Save numbers or fixed-width strings (e.g. "
+                        "np.array('v2'), dtype <U2), not object arrays.")
                 if math.prod(shape) * dtype.itemsize > max_bytes:
                     raise CalibrationInputError(f"{path}: {info.filename} {shape} exceeds "
                                                 f"{max_bytes} bytes.", "Split the recording.")

@@ -3,6 +3,7 @@ beside it as `.truth.json` (non-finite values as null, station.files.jsonable), 
 in the data file reveals the answer."""
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -31,9 +32,15 @@ def write(path, simulation) -> tuple[Path, Path]:
 
 
 def read(path) -> dict:
-    """The arrays of a data file (never unpickles)."""
-    with np.load(path, allow_pickle=False) as f:
-        return {k: f[k] for k in f.files}
+    """The arrays of a data file (never unpickles); InputError for anything else."""
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, IndexError,
+            MemoryError) as exc:
+        raise InputError(f"{path} is not a readable .npz data file ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]}); give a file written by `station "
+                         "simulate` or numpy.savez (numeric arrays, no pickled objects)") from None
 
 
 def read_truth(path) -> dict:

@@ -3,7 +3,9 @@ and `KINDS`, the one registry of protocol kinds.
 
 - `rotary` (`station.protocols.rotary`): gyros on a rotary table, Rupniewski Section IV, Eq. 18;
 - `iron` (`station.protocols.iron`): accelerometers in a right-angle iron, Hwangbo & Kanade;
-- `static` (`station.protocols.static`): accelerometers in free still poses, no fixture.
+- `static` (`station.protocols.static`): accelerometers in free still poses, no fixture;
+- `import` (`station import`): a foreign recording, its accelerometer's still poses found in the
+  data (the free-static path); it is solved, replayed and reported, never recorded.
 
 A session file records its kind (`protocol` in its metadata); every command that depends on the
 kind finds what to do in `KINDS` and nowhere else. A `Kind` names its parts as lazy references,
@@ -36,8 +38,13 @@ class Kind:
                 session after a kill, pause or abort (`station resume`; table None unless
                 `table`)
     reduce    : (session, stream, trim=seconds) -> readings with M, sigma (m, n), take(columns)
+    still     : the reduction detects still poses and takes the user's detector settings
+                (`still=station.reduce.stillness.StillOptions`: --rest, --threshold, ...)
+    stream    : session -> name of the stream calibrated by default; None: "imu"
     solve     : (readings, magnitude, nominal=, method=, refine=) -> CalibrationResult
     stimulus  : (words, metadata keys outermost first) of the recorded stimulus magnitude
+    stimulus_default : (words, the magnitude's reference) used when the session records none
+                (the commands say so); None: --magnitude is needed
     nominal_frame : the solution is given in the frame of the recorded nominal layout `a_nominal`
     channels  : (session, stream) -> indices of the calibrated channels; None: every channel
     bias      : readings -> the calibration file's bias terms; None: estimated by `solve`
@@ -55,8 +62,11 @@ class Kind:
     live_view: bool = False
     resume: str | None = None
     reduce: str | None = None
+    still: bool = False
+    stream: str | None = None
     solve: str | None = None
     stimulus: tuple = ("gravity", ("gravity",))
+    stimulus_default: tuple | None = None
     nominal_frame: bool = False
     channels: str | None = None
     bias: str | None = None
@@ -65,12 +75,17 @@ class Kind:
 
     def entry(self, role: str):
         """The object the `role` reference names, imported now (check `has(role)` first)."""
-        module, _, attribute = getattr(self, role).partition(":")
-        return getattr(importlib.import_module(module), attribute)
+        return reference(getattr(self, role))
 
     def has(self, role: str) -> bool:
         """True when the kind has a `role` part."""
         return getattr(self, role) is not None
+
+
+def reference(ref: str):
+    """The object a "module:attribute" reference names, imported now."""
+    module, _, attribute = ref.partition(":")
+    return getattr(importlib.import_module(module), attribute)
 
 
 KINDS = {
@@ -94,6 +109,7 @@ KINDS = {
         acquire="station.protocols.iron:record_session",
         resume="station.protocols.iron:continue_session",
         reduce="station.reduce.iron:iron_readings",
+        still=True,
         solve="station.solve.still:calibrate_still",
         nominal_frame=True,
         simulate="station.sim.iron:simulated_session",
@@ -105,11 +121,22 @@ KINDS = {
         acquire="station.protocols.static:record_session",
         resume="station.protocols.static:continue_session",
         reduce="station.reduce.static:static_readings",
+        still=True,
         solve="station.solve.still:calibrate_still",
         nominal_frame=True,
         channels="station.reduce.static:session_channels",
         simulate="station.sim.static:simulated_session",
         twin="station.twin.served:static_twin",
+    ),
+    "import": Kind(
+        title="an imported recording: accelerometer still poses found in the data, or a "
+              "magnetometer turned by hand",
+        reduce="station.reduce.imported:imported_readings",
+        still=True,
+        stream="station.reduce.imported:default_stream",
+        solve="station.solve.still:calibrate_still",
+        stimulus_default=("standard gravity", "station.model.constants:STANDARD_GRAVITY"),
+        channels="station.reduce.imported:imported_channels",
     ),
 }
 """The protocol kinds, by the name a session file records as its `protocol`."""
@@ -139,6 +166,5 @@ def lookup(name: str, role: str, subject: str | None = None, command: str = "the
         f" ({name!r} is no registered protocol kind; the kinds are {', '.join(KINDS)})"
     raise UnknownKind(f"{subject}; {command} {VERBS[role]} "
                       f"{', '.join(kinds_with(role)) or 'no'} sessions{unknown}.",
-                      "Use the workflow of that recording (e.g. station.reduce.free_static for an "
-                      "imported continuous recording), or register the kind's part in "
-                      "station.protocols.KINDS.")
+                      "Import a foreign recording with `station import` (solved as an 'import' "
+                      "session), or register the kind's part in station.protocols.KINDS.")

@@ -2,8 +2,10 @@
 
 A continuous raw recording -> automatically detected still intervals (station.reduce.stillness) ->
 the accelerometer's averaged readings M (3 x P, one column per pose) -> `station.calibrate(M,
-magnitude=g_local, bias="estimate")` (ellipsoid closed form + maximum likelihood); the gyro biases
-are the gyro means over the still interval that holds the rest period.
+magnitude=g_local, bias="estimate", sigma=stderr)` (ellipsoid closed form or a fallback start +
+maximum likelihood; the 1-sigma figures hold the per-pose error term, docs/solvers.md); the gyro
+biases are the gyro means over the still interval that holds the rest period. `leave_one_out`
+predicts each pose from the others and reports the folds the solver refuses instead of stopping.
 """
 
 from dataclasses import dataclass
@@ -62,7 +64,8 @@ def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **dete
         channels = np.hstack([acc, gyro])
     still = detect_still(channels, fs, **detector)
     readings, stderr = still.mean[:, :m].T, still.stderr[:, :m].T
-    fit = calibrate(readings, g_local, d=3, bias="estimate")  # refuses too few poses, with advice
+    # refuses too few or degenerate poses, naming what they leave undetermined
+    fit = calibrate(readings, g_local, d=3, bias="estimate", sigma=stderr, names=_names(m))
     rest_index = _interval_holding(still.intervals, still.rest)
     return FreeStaticCalibration(
         still=still,
@@ -75,15 +78,48 @@ def calibrate_free_static(accel, fs: float, g_local: float, *, gyro=None, **dete
     )
 
 
-def leave_one_out(readings, g_local: float) -> np.ndarray:
-    """(P,) |a_j| - g_local for each pose j calibrated by the fit on the other P - 1 poses."""
+class HeldOut(np.ndarray):
+    """(P,) |a_j| - g_local for each held-out pose j (an ndarray), NaN where the fit on the other
+    poses was refused; `refused` maps each such pose index to the solver's reason, `starts` names
+    the start of each fold's fit (station.solve.starts; None where refused)."""
+
+    def __new__(cls, errors, refused: dict, starts):
+        obj = np.asarray(errors, dtype=float).view(cls)
+        obj.refused, obj.starts = dict(refused), tuple(starts)
+        return obj
+
+    def __array_finalize__(self, obj):
+        self.refused = getattr(obj, "refused", {})
+        self.starts = getattr(obj, "starts", ())
+
+
+def leave_one_out(readings, g_local: float, *, sigma=None) -> HeldOut:
+    """|a_j| - g_local for each pose j calibrated by the fit on the other P - 1 poses (`HeldOut`).
+
+    sigma: (m, P) standard errors of the readings (e.g. `readings_stderr`), or None: estimated from
+    each fold's residuals. A fold the solver refuses (too few or degenerate poses left) is reported
+    in `refused` with the reason, and the others go on."""
     readings = np.asarray(readings, dtype=float)
     p = readings.shape[1]
-    errors = np.empty(p)
+    errors, refused, starts = np.full(p, np.nan), {}, []
     for j in range(p):
-        fit = calibrate(np.delete(readings, j, axis=1), g_local, d=3, bias="estimate")
+        rest = np.delete(readings, j, axis=1)
+        noise = None if sigma is None else np.delete(np.asarray(sigma, float), j, axis=1)
+        try:
+            fit = calibrate(rest, g_local, d=3, bias="estimate", sigma=noise,
+                            names=_names(readings.shape[0]))
+        except CalibrationInputError as exc:
+            refused[j] = str(exc)
+            starts.append(None)
+            continue
         errors[j] = np.linalg.norm(fit.apply(readings[:, j])) - g_local
-    return errors
+        starts.append(fit.start)
+    return HeldOut(errors, refused, starts)
+
+
+def _names(m: int) -> list:
+    """Channel names for the solver's messages: acc_x, acc_y, acc_z for a triad, else acc_1.."""
+    return ["acc_x", "acc_y", "acc_z"] if m == 3 else [f"acc_{i + 1}" for i in range(m)]
 
 
 def _interval_holding(intervals: np.ndarray, rest: np.ndarray) -> int:

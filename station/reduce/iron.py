@@ -49,7 +49,7 @@ def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
 class IronReadings(StillReadings):
     """`StillReadings` of an iron session and the faces recognised from the data (P labels)."""
 
-    faces: list
+    faces: list = dataclasses.field(default_factory=list)
 
     def take(self, keep):
         """The readings of the poses `keep` (column indices), in that order, with their faces: the
@@ -72,4 +72,5 @@ def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
         a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : still.M.shape[0]].tolist())
     faces = recognise_faces(up_direction(still.M, a_nominal, bias_guess), still.mountings,
                             tolerance_deg)
-    return IronReadings(still.M, still.sigma, still.windows, still.mountings, faces)
+    return IronReadings(**{f.name: getattr(still, f.name) for f in dataclasses.fields(still)},
+                        faces=faces)

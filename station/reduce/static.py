@@ -6,12 +6,12 @@ them (`channels`), else their unit does (`accelerometer_channels`, which the liv
 too).
 """
 
+import dataclasses
+
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.reduce.still import StillReadings, still_readings
-
-ACCELEROMETER = "m/s^2"
+from station.reduce.still import ACCELEROMETER, StillReadings, still_readings
 
 
 def accelerometer_channels(units) -> np.ndarray:
@@ -30,7 +30,7 @@ def static_readings(session, stream: str = "imu", **detector) -> StillReadings:
     its `trim` and detector options)."""
     still = still_readings(session, stream, **detector)
     channels = session_channels(session, stream)
-    return StillReadings(still.M[channels], still.sigma[channels], still.windows, still.mountings)
+    return dataclasses.replace(still, M=still.M[channels], sigma=still.sigma[channels])
 
 
 def session_channels(session, stream: str = "imu") -> np.ndarray:

@@ -13,9 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.reduce.stillness import detect_still
+from station.reduce.stillness import StillOptions, detect_still
 from station.reduce.timeline import sample_times, segment_breaks
 from station.solve.constraints import Constraints
+
+ACCELEROMETER, GYRO = "m/s^2", "rad/s"
 
 
 def up_direction(z, a_nominal, bias_guess=None) -> np.ndarray:
@@ -33,13 +35,18 @@ class StillReadings:
     """Averaged readings of the completed still poses of a session (SI units).
 
     M, sigma : (m, P) means and their standard errors; windows : (P, 2) clock seconds of the
-    first and last sample averaged; mountings : (P,) mounting index (0 without mountings).
+    first and last sample averaged; mountings : (P,) mounting index (0 without mountings);
+    detection : the still intervals detected on the whole recording (every pose found and every
+    candidate rejected, `station.reduce.stillness.StillIntervals`) and their sample times
+    (`times`, (K,) clock seconds), None when not kept.
     """
 
     M: np.ndarray
     sigma: np.ndarray
     windows: np.ndarray
     mountings: np.ndarray
+    detection: object = None
+    times: np.ndarray | None = None
 
     def take(self, keep):
         """The readings of the poses `keep` (column indices), in that order."""
@@ -83,7 +90,8 @@ def _window(value) -> list:
     return [float(w[0]), float(w[1])]
 
 
-def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) -> StillReadings:
+def still_readings(session, stream: str = "imu", trim: float = 0.0,
+                   still: StillOptions | None = None, **detector) -> StillReadings:
     """The completed still poses of a session (`station.files.session.Session`).
 
     Sample instants are worked out per segment of the stream (`station.reduce.timeline`: a
@@ -94,9 +102,15 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) 
     With the protocol's events, each completed pose averages the first `hold` seconds of the
     interval that overlaps its recorded window most; without them (an imported recording) every
     interval is a pose, all in one mounting. `trim` seconds (rounded to whole samples) are left
-    out at both ends of every averaged window.
+    out at both ends of every averaged window. `still`: the user's detector settings
+    (`StillOptions`; channels None: every channel of the stream decides, as in the live protocol).
     """
     data, events = session.stream(stream), session.events()
+    if len(data.seq) < 3:
+        raise CalibrationInputError(f"{session.path}: the stream {stream!r} holds "
+                                    f"{len(data.seq)} samples.",
+                                    "Record or import the recording again: still poses need "
+                                    "seconds of samples.")
     rate = data.spec.rate_hz
     t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
     known = np.isfinite(t)  # a resumed session's burst of samples taken before the resume: none
@@ -104,7 +118,10 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) 
     settings = session.metadata.get("settings", {})
     options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
                if isinstance(settings.get(k), (int, float))}
-    still = detect_still(z, rate, **{**options, **detector})
+    x, acc, gyro = _detection_samples(session, stream, z, still, known)
+    if still is not None:
+        options.update(still.detector(rate, acc, gyro))
+    still = detect_still(x, rate, **{**options, **detector})
     windows, mountings = pose_windows(events)
     spans = still.intervals
     if len(windows):
@@ -128,7 +145,32 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0, **detector) 
     M = np.array([z[a:b].mean(axis=0) for a, b in spans]).T
     sigma = np.array([z[a:b].std(axis=0, ddof=1) / np.sqrt(b - a) for a, b in spans]).T
     return StillReadings(M, sigma, np.column_stack([t[spans[:, 0]], t[spans[:, 1] - 1]]),
-                         mountings)
+                         mountings, still, t)
+
+
+def _detection_samples(session, stream: str, z: np.ndarray, still, known: np.ndarray) -> tuple:
+    """(samples the detector sees, their accelerometer columns, their gyro columns): the stream's
+    SI samples z (its samples `known`, those with a sampling instant); with `--still-channels
+    acc+gyro` and no gyro in the stream, the one other stream in rad/s on the same samples (an
+    imported recording keeps its gyro in a stream of its own)."""
+    units = session.specs[stream].units
+    acc = np.flatnonzero([u == ACCELEROMETER for u in units])
+    gyro = np.flatnonzero([u == GYRO for u in units])
+    if still is None or still.channels != "acc+gyro" or len(gyro):
+        return z, acc, gyro
+    others = [n for n, s in session.specs.items() if n != stream and GYRO in s.units]
+    if len(others) != 1:
+        raise CalibrationInputError(
+            f"{session.path}: --still-channels acc+gyro needs the gyro, but the streams in "
+            f"{GYRO} are {others or 'none'}.", "Use --still-channels acc, or import one gyro "
+            "stream.")
+    data, other = session.stream(stream), session.stream(others[0])
+    if not np.array_equal(data.seq, other.seq):
+        raise CalibrationInputError(
+            f"{session.path}: the gyro stream {others[0]!r} is not on the samples of {stream!r}.",
+            "Import the accelerometer and gyro on one time base, or use --still-channels acc.")
+    g = other.to_si()[known][:, [u == GYRO for u in other.spec.units]]
+    return np.hstack([z, g]), acc, z.shape[1] + np.arange(g.shape[1])
 
 
 def _trimmed(spans, trim: float, rate: float, path):

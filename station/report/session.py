@@ -22,6 +22,7 @@ replay` does (`station.replay.solve_recorded`); the report says so. Every text f
 escaped: the file is untrusted.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +37,7 @@ from station.files.session import Session
 from station.protocols import KINDS
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
-from station.replay import ReplaySettings, solve_recorded
+from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
 from station.report import html
 from station.solve.quality import CHI2_P, check_fit, outlier_words
 
@@ -91,7 +92,8 @@ class Report:
             "magnitude": "stimulus magnitude c", "chi2_per_dof": "chi2 / dof", "dof": "dof",
             "noise_median": "median noise of a reading", "excitation_ratio":
             "weakest / strongest excitation", "largest_empty_cap_deg":
-            "largest direction without a position (deg)"}
+            "largest direction without a position (deg)", "still_poses": "still poses found",
+            "rejected_candidates": "still candidates rejected"}
         return [(label, _fmt(self.summary[key])) for key, label in labels.items()
                 if key in self.summary]
 
@@ -109,6 +111,7 @@ def build(path, result: str | None = None) -> Report:
                 "The session file was not closed cleanly (the recording is still running or was "
                 "killed): the report shows the data flushed so far.")
         events = session.events()
+        hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
         calibration = _calibration(session, result, report)
         for name in session.specs:
@@ -116,7 +119,7 @@ def build(path, result: str | None = None) -> Report:
         _table_stability(report, session.table(), events, session.metadata)
     if calibration is not None:
         cal, channels, units = calibration
-        _fit(report, cal, channels)
+        _fit(report, cal, channels, hand)
         _geometry(report, cal)
         _axes_plot(report, cal, channels)
         _uncertainty(report, cal, channels, units)
@@ -165,6 +168,7 @@ def _calibration(session, name, report):
     if name is not None and name not in names:
         raise InputError(f"{session.path} has no results named {name!r}; it has "
                          f"{', '.join(names) or 'none'} (omit --result to use the newest)")
+    kind = KINDS.get(session.protocol)
     if names:
         chosen = [session.results(n) for n in names]
         stored = session.results(name) if name else max(chosen, key=lambda r: r.created)
@@ -173,36 +177,89 @@ def _calibration(session, name, report):
         if stored.calibration is None:
             report.warnings.append(f"results/{stored.name} holds readings but no calibration.")
             return None
-        return stored.calibration, spec.channels, spec.units
-    kind = KINDS.get(session.protocol)
-    if kind is None or not kind.has("reduce") or "imu" not in session.specs:
+        if kind is not None and kind.still:
+            _stored_poses(report, session, stored)
+        rows = stored.channels or range(len(spec.channels))
+        return (stored.calibration, [spec.channels[i] for i in rows],
+                [spec.units[i] for i in rows])
+    if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
         return None
     try:
-        _, cal = solve_recorded(session, ReplaySettings(), command="the report")
+        settings = ReplaySettings()
+        stream = calibrated_stream(session, settings)
+        readings, cal = solve_recorded(session, settings, command="the report")
     except CalibrationInputError as exc:
         report.warnings.append(f"No calibration could be computed from this session: {exc}")
         return None
     report.summary["result"] = "computed for this report (no stored result)"
-    spec = session.specs["imu"]
-    return cal, spec.channels, spec.units
+    _poses(report, readings)
+    spec = session.specs[stream]
+    rows = kind.entry("channels")(session, stream) if kind.has("channels") else \
+        range(len(spec.channels))
+    return cal, [spec.channels[i] for i in rows], [spec.units[i] for i in rows]
+
+
+def _stored_poses(report, session, stored) -> None:
+    """The still poses of stored results, detected again with the settings stored with them (a
+    replay's or a solve's; the defaults for a recording's own results)."""
+    known = {f.name for f in dataclasses.fields(ReplaySettings)}
+    given = {k: v for k, v in (stored.settings or {}).items() if k in known}
+    try:
+        settings = ReplaySettings(**{**given, "stream": stored.stream})
+        _poses(report, reduce_recorded(session, settings, "the report"))
+    except (InputError, TypeError) as exc:
+        report.warnings.append(f"The still poses of results/{stored.name} could not be detected "
+                               f"again: {exc}")
+
+
+def _poses(report, readings) -> None:
+    """The still poses found by the detector and every candidate it rejected, with the reason
+    (readings that kept their detection: iron, free-static, imported recordings)."""
+    still = getattr(readings, "detection", None)
+    if still is None:
+        return
+    t = readings.times - readings.times[0]
+    rows = [(j + 1, f"{t[a]:.2f}", f"{t[b - 1]:.2f}", f"{t[b - 1] - t[a]:.2f}",
+             f"{t[a] - t[a - settling]:.2f}", "pose")
+            for j, ((a, b), settling) in enumerate(zip(still.intervals, still.settling,
+                                                       strict=True))]
+    rows += [("-", f"{t[a]:.2f}", f"{t[b - 1]:.2f}", f"{t[b - 1] - t[a]:.2f}", "-",
+              f"rejected: {why}") for a, b, why in still.rejected]
+    rows.sort(key=lambda row: float(row[1]))
+    report.summary.update(still_poses=len(still.intervals), rejected_candidates=len(
+        still.rejected))
+    if still.rejected:
+        report.warnings.append(f"{len(still.rejected)} still candidate(s) were rejected: see "
+                               "Still poses (a declared --rest, --threshold or --min-still may "
+                               "keep them).")
+    report.sections.append(html.section("poses", "Still poses", (
+        f"<p>{len(still.intervals)} still poses found and {len(still.rejected)} candidates (no "
+        "motion for at least a window) rejected, seconds from the first sample; settling: the "
+        "quieting motion cut from the start of the pose. Noise level per channel: "
+        f"{html.e(', '.join(f'{x:.3g}' for x in still.noise))}.</p>")
+        + html.table(rows, ["pose", "start (s)", "end (s)", "length (s)", "settling (s)",
+                            "verdict"])))
 
 
 # --------------------------------------------------------------------------------- the fit
 
 
-def _fit(report, cal, channels) -> None:
-    """chi2/dof, outliers (station.solve.quality) and the residual figure."""
+def _fit(report, cal, channels, hand: bool = False) -> None:
+    """chi2/dof, outliers (station.solve.quality; `hand`: poses placed by hand, judged with their
+    per-pose error term) and the residual figure."""
     m, n = cal.residuals.shape
     z = cal.normalised_residuals
-    check = check_fit(cal, channels)
+    check = check_fit(cal, channels, pose_term=hand)
     report.summary.update(method=cal.method, frame=cal.frame, magnitude=cal.magnitude,
                           chi2_per_dof=check.chi2_per_dof, dof=cal.dof,
                           noise_median=float(np.median(cal.sigma)), fit_status=check.status)
     if cal.sigma_estimated:
         report.warnings.append("The noise level of the readings was estimated from the residuals, "
                                "so chi2/dof is 1 by construction and cannot test the model.")
+    elif check.notes:
+        report.warnings.extend(note[0].upper() + note[1:] + "." for note in check.notes)
     elif check.p_high is not None and check.p_high < CHI2_P / 2:
         report.warnings.append(
             "The residuals are larger than the noise level: the model does not explain the data "

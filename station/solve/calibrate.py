@@ -5,6 +5,12 @@ Methods (station/<module>):
 - `pca`           Rupniewski Algorithm 2, unbiased readings (e.g. after the Eq. 18 reduction).
 - `ellipsoid`     a triad (m = d) with unknown biases from arbitrary static orientations.
 - `factorization` Hwangbo & Kanade, with a constraint list and/or biases estimated jointly (m > d).
+
+When the closed form fails, the next start of station/solve/starts.py is refined instead; the fit
+is refused only when its Fisher information leaves a parameter undetermined (named, with the pose
+that would fix it; station/solve/identifiability.py) or no start explains the readings. With the
+readings' noise given, the 1-sigma figures include a per-pose error term estimated from the
+residuals (the total figure), beside the white-noise figure (docs/solvers.md).
 """
 
 from dataclasses import dataclass
@@ -14,9 +20,15 @@ import numpy as np
 from station.errors import CalibrationInputError
 from station.model import measurement
 from station.model.frames import align_to, canonical_rotation
-from station.solve import ml, uncertainty
+from station.solve import identifiability, ml, starts, uncertainty
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
+# RMS misfit of a fit from a fallback start, as a fraction of a sensor's full reading c |a_i|,
+# beyond which the readings are declared inconsistent with a constant magnitude: the noise of a
+# sensor worth calibrating is far below 1 % of its range; wrong units or a moving unit miss more.
+MISFIT_MAX = 0.01
+# rounds of (estimate sigma_pose, re-weight, refine) at most; it settles in 2 to 4
+POSE_ROUNDS = 8
 
 
 @dataclass(frozen=True)
@@ -52,6 +64,19 @@ class CalibrationResult(measurement.Sensitivity):
     # (d m + m or d m) covariance of (vec(a) row-major in `frame`, then b when estimated): the
     # gauge removed by the frame; None in results stored before it existed
     parameter_covariance: np.ndarray | None = None
+    # which start the maximum likelihood was refined from (station.solve.starts): "closed form",
+    # "axis-aligned ellipsoid", "nominal layout" or "principal axes"; None in older results
+    start: str | None = "closed form"
+    # the per-pose error term (readings' units, each reading of each pose) folded into every sigma
+    # above (the total figure): 0 when the white noise explains the residuals; None when sigma
+    # was estimated from the residuals (that figure holds all the scatter) or in older results
+    pose_sigma: float | None = None
+    # the white-noise figure: the same sigmas from the readings' stated noise alone (at the same
+    # estimate); None in older results
+    a_sigma_white: np.ndarray | None = None
+    scale_factors_sigma_white: np.ndarray | None = None
+    axis_angles_sigma_white: np.ndarray | None = None
+    bias_sigma_white: np.ndarray | None = None
 
     @property
     def normalised_residuals(self) -> np.ndarray:
@@ -77,6 +102,7 @@ def calibrate(
     sigma=None,
     nominal=None,
     magnitude_spread: float | None = None,
+    names=None,
 ) -> CalibrationResult:
     """Calibrate m sensors from readings M (m x n) of a stimulus of magnitude `magnitude`.
 
@@ -95,6 +121,14 @@ def calibrate(
                 run; the common part stays in c). The refinement then fits each v_j as a free
                 vector with that prior (docs/conventions.md, "Magnitude"), and the uncertainties
                 include the spread. Needs sigma and no constraints; None or 0: |v_j| = c exactly.
+    names       the sensors' names for the messages (default s1 .. sm).
+
+    The closed form is the first start; when it fails, the fallbacks of station.solve.starts are
+    refined and the best kept (`start` says which). Refused (CalibrationInputError) when the Fisher
+    information at the solution leaves a parameter undetermined (the message names it and the
+    pose that would fix it) or when no start explains the readings. With sigma given, every sigma
+    of the result is the total figure (white noise plus the per-pose term `pose_sigma`), the
+    `*_sigma_white` fields the white-noise figure.
     """
     readings = _as_readings(readings)
     m, n = readings.shape
@@ -109,17 +143,93 @@ def calibrate(
                                     'Use None, an array or "estimate".')
     known_bias = None if bias is None or estimate_bias else _as_bias(bias, m)
     method = _choose_method(method, m, d, estimate_bias, constraints)
+    starts.check_method(method, readings, estimate_bias, d)
     if constraints is not None:
         _check_magnitudes(constraints, n)
+    names = [f"s{i + 1}" for i in range(m)] if names is None else [str(x) for x in names]
 
-    a0, v0, b0 = _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d)
-    start_bias = b0 if estimate_bias else known_bias
-    fit = ml.refine(
-        readings, a0, v0, bias0=start_bias, estimate_bias=estimate_bias, magnitude=c,
-        sigma=sigma, constraints=constraints, magnitude_spread=magnitude_spread,
-        max_iter=100 if refine else 0,
+    def refined(a0, v0, b0, noise, max_iter=100 if refine else 0, fitted=False):
+        return ml.refine(
+            readings, a0, v0, bias0=b0 if estimate_bias else known_bias,
+            estimate_bias=estimate_bias, magnitude=c, sigma=noise, constraints=constraints,
+            magnitude_spread=magnitude_spread, max_iter=max_iter, fitted=fitted,
+        )
+
+    fit, start, refusal = _best_start(
+        lambda a0, v0, b0: refined(a0, v0, b0, sigma),
+        lambda: starts.closed_form(method, readings, known_bias, estimate_bias, constraints, c, d),
+        lambda name: starts.fallback(name, readings, known_bias, estimate_bias, c, d, nominal),
+        refine,
     )
-    return _result(fit, method, refine, c, scale_known, estimate_bias, nominal)
+    if refusal is not None:
+        _check_consistent(fit, c, refusal)
+    identifiability.check_information(
+        uncertainty.reduced_fisher(fit.normal), fit.a, readings, estimate_bias, c, names,
+        noise_known=sigma is not None or fit.dof > 0,
+        free=m * n + (n if magnitude_spread else 0) - fit.dof,
+        context=refusal,
+    )
+    if sigma is None:
+        return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
+                       nominal)
+    total, pose_var = _with_pose_term(
+        fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
+    white = refined(total.a, total.v, total.bias, sigma, max_iter=0, fitted=True)
+    widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
+    return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
+                   scale_known, estimate_bias, nominal, widen)
+
+
+def _with_pose_term(fit: ml.MLFit, refit) -> tuple[ml.MLFit, float]:
+    """(the fit weighted by sigma^2 + sigma_pose^2, sigma_pose^2): the per-pose term estimated
+    from the residuals (`uncertainty.pose_variance`) and the fit redone (`refit(fit, sigma)`)
+    until it settles; (fit, 0) when the white noise explains the residuals."""
+    white, total, pose_var = fit.sigma, fit, 0.0
+    for _ in range(POSE_ROUNDS):
+        prior = np.sqrt(max(total.chi2 - np.sum((total.residuals / total.sigma) ** 2), 0.0))
+        new = uncertainty.pose_variance(total.residuals, white, fit.dof, [prior])
+        if new == pose_var or abs(new - pose_var) <= 1e-6 * max(new, pose_var):
+            break
+        pose_var = new
+        total = refit(total, np.sqrt(white**2 + pose_var))
+    return total, pose_var
+
+
+def _best_start(refined, closed_form, fallback, refine: bool):
+    """(ML fit, name of its start, the closed form's refusal or None): the closed form's fit when
+    it converged, or else the lowest-cost fit among it and the fallback starts; the closed form's
+    refusal when none works."""
+    fits, refusal = {}, None
+    try:
+        fits["closed form"] = refined(*closed_form())
+    except (CalibrationInputError, np.linalg.LinAlgError) as exc:
+        refusal = exc if isinstance(exc, CalibrationInputError) else CalibrationInputError(
+            f"the closed form failed ({exc}).", "Add poses in new orientations.")
+    if fits and (fits["closed form"].converged or not refine):
+        return fits["closed form"], "closed form", None
+    for candidate in starts.FALLBACKS:
+        try:
+            fits[candidate] = refined(*fallback(candidate))
+        except (CalibrationInputError, np.linalg.LinAlgError):
+            continue
+    fits = {k: f for k, f in fits.items() if np.isfinite(f.objective)}
+    if not fits:
+        raise refusal
+    name = min(fits, key=lambda k: fits[k].objective)
+    return fits[name], name, refusal
+
+
+def _check_consistent(fit: ml.MLFit, c: float, refusal: CalibrationInputError) -> None:
+    """Refuse a fit from a fallback start that misses its readings by more than MISFIT_MAX of
+    their range: no calibration explains them (the closed form's refusal says how)."""
+    norms = np.linalg.norm(fit.a, axis=0)
+    rms = np.sqrt(np.mean(fit.residuals**2, axis=1)) / (c * np.maximum(norms, 1e-6 * norms.max()))
+    if rms.max() > MISFIT_MAX:
+        raise CalibrationInputError(
+            f"no calibration explains the readings: the best fit misses them by {rms.max():.1%} "
+            f"of the stimulus (RMS), far more than noise; the closed form said: "
+            f"{refusal.problem}",
+            refusal.advice)
 
 
 def _as_readings(readings) -> np.ndarray:
@@ -174,100 +284,82 @@ def _check_magnitudes(constraints, n: int) -> None:
         )
 
 
-def _closed_form(method, readings, known_bias, estimate_bias, constraints, c, d):
-    """Start values (a, v, b) from the chosen closed-form method."""
-    if method == "pca":
-        from station.solve.pca import pca_calibration
-
-        if estimate_bias:
-            raise CalibrationInputError(
-                "the PCA closed form needs unbiased readings.",
-                "Subtract the static means first (Eq. 18), "
-                'or use method="ellipsoid"/"factorization".',
-            )
-        z = readings if known_bias is None else readings - known_bias[:, None]
-        a, v = pca_calibration(z, c, d)
-        return a, v, None
-    if method == "ellipsoid":
-        from station.solve.ellipsoid import ellipsoid_calibration
-
-        if readings.shape[0] != d:
-            raise CalibrationInputError(
-                f"the ellipsoid fit is for a triad (m = d = {d}), not m = {readings.shape[0]}.",
-                'Use method="factorization" for redundant sensors.',
-            )
-        a, v, b = ellipsoid_calibration(readings, c)
-        return a, v, b
-    from station.solve.factorization import factorize
-
-    m = readings.shape[0]
-    if estimate_bias:  # jointly (p = d + 1) when m > d, else from opposite pairs (Eq. 14)
-        fact = factorize(readings, constraints, magnitude=c, d=d, estimate_bias=m > d or None)
-    else:  # readings unbiased, or biases known
-        given = np.zeros(m) if known_bias is None else known_bias
-        fact = factorize(readings, constraints, magnitude=c, d=d, bias=given, estimate_bias=False)
-    return fact.a, fact.v, fact.bias
-
-
-def _result(fit: ml.MLFit, method, refined, c, scale_known, estimate_bias, nominal):
-    """Rotate into the reporting frame and propagate the covariance to the invariants."""
-    d, m = fit.a.shape
-    p = d + (1 if estimate_bias else 0)
-    cov = uncertainty.global_covariance(fit.normal, d)
-
+def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined, c,
+            scale_known, estimate_bias, nominal, widen: float = 1.0):
+    """Rotate into the reporting frame and propagate both covariances to the invariants: `total`
+    (the estimate, weighted by the total noise; its covariance times `widen`) and `white` (the
+    same estimate, weighted by the readings' stated noise: its residuals, sigma and chi2 are the
+    result's)."""
+    d, m = total.a.shape
     if nominal is None:
         frame_name = "canonical"
-        rot = canonical_rotation(fit.a)
+        rot = canonical_rotation(total.a)
 
         def frame_fn(x):
             return canonical_rotation(x) @ x
     else:
         nominal = np.asarray(nominal, float)
-        if nominal.shape != fit.a.shape:
+        if nominal.shape != total.a.shape:
             raise CalibrationInputError(
-                f"nominal layout has shape {nominal.shape}, expected {fit.a.shape} (d x m).",
+                f"nominal layout has shape {nominal.shape}, expected {total.a.shape} (d x m).",
                 "Give one nominal axis (column) per sensor.",
             )
         frame_name = "nominal"
-        rot = align_to(fit.a, nominal)
+        rot = align_to(total.a, nominal)
 
         def frame_fn(x):
             return align_to(x, nominal) @ x
-    jac = uncertainty.frame_jacobian(fit.a, p, frame_fn)
-    if estimate_bias:
-        jac = np.vstack([jac, uncertainty.bias_jacobian(m, p)])
-    parameter_cov = uncertainty.propagate(cov, jac)
-    a_var = np.diag(parameter_cov)[: d * m]
-
-    scale_sigma = np.sqrt(np.diag(
-        uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
-    (i, k), jac = uncertainty.axis_angle_jacobian(fit.a, p)
-    angle_sigma = np.zeros((m, m))
-    angle_sigma[i, k] = angle_sigma[k, i] = np.sqrt(np.diag(uncertainty.propagate(cov, jac)))
-    bias_sigma = np.sqrt(np.diag(parameter_cov)[d * m:]) if estimate_bias else None
-
+    honest = _sigmas(total, frame_fn, estimate_bias, widen)
+    plain = honest if white is total else _sigmas(white, frame_fn, estimate_bias)
     return CalibrationResult(
-        a=rot @ fit.a,
-        bias=fit.bias,
+        a=rot @ total.a,
+        bias=total.bias,
         bias_estimated=estimate_bias,
-        v=rot @ fit.v,
+        v=rot @ total.v,
         magnitude=c,
         scale_known=scale_known,
         frame=frame_name,
         method=method,
         refined=refined,
-        iterations=fit.iterations,
-        residuals=fit.residuals,
-        sigma=fit.sigma,
-        sigma_estimated=fit.sigma_estimated,
-        chi2=fit.chi2,
-        dof=fit.dof,
-        a_sigma=np.sqrt(np.maximum(a_var, 0)).reshape(d, m),
-        scale_factors=np.linalg.norm(fit.a, axis=0),
-        scale_factors_sigma=scale_sigma,
-        axis_angles=uncertainty.axis_angles(fit.a),
-        axis_angles_sigma=angle_sigma,
-        bias_sigma=bias_sigma,
-        covariance=cov,
-        parameter_covariance=parameter_cov,
+        iterations=total.iterations,
+        residuals=white.residuals,
+        sigma=white.sigma,
+        sigma_estimated=white.sigma_estimated,
+        chi2=white.chi2,
+        dof=white.dof,
+        a_sigma=honest["a"],
+        scale_factors=np.linalg.norm(total.a, axis=0),
+        scale_factors_sigma=honest["scale"],
+        axis_angles=uncertainty.axis_angles(total.a),
+        axis_angles_sigma=honest["angles"],
+        bias_sigma=honest["bias"],
+        covariance=honest["theta"],
+        parameter_covariance=honest["parameters"],
+        start=start,
+        pose_sigma=pose_sigma,
+        a_sigma_white=plain["a"],
+        scale_factors_sigma_white=plain["scale"],
+        axis_angles_sigma_white=plain["angles"],
+        bias_sigma_white=plain["bias"],
     )
+
+
+def _sigmas(fit: ml.MLFit, frame_fn, estimate_bias: bool, widen: float = 1.0) -> dict:
+    """Covariances (theta, parameters in the frame) and 1-sigma of a, the scale factors, the axis
+    angles and the biases, from the Fisher information of `fit` (the covariance times `widen`)."""
+    d, m = fit.a.shape
+    p = d + (1 if estimate_bias else 0)
+    cov = widen * uncertainty.global_covariance(fit.normal, d)
+    jac = uncertainty.frame_jacobian(fit.a, p, frame_fn)
+    if estimate_bias:
+        jac = np.vstack([jac, uncertainty.bias_jacobian(m, p)])
+    parameter_cov = uncertainty.propagate(cov, jac)
+    a_var = np.diag(parameter_cov)[: d * m]
+    scale = np.sqrt(np.diag(
+        uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
+    (i, k), jac = uncertainty.axis_angle_jacobian(fit.a, p)
+    angles = np.zeros((m, m))
+    angles[i, k] = angles[k, i] = np.sqrt(np.diag(uncertainty.propagate(cov, jac)))
+    return {"theta": cov, "parameters": parameter_cov,
+            "a": np.sqrt(np.maximum(a_var, 0)).reshape(d, m), "scale": scale, "angles": angles,
+            "bias": np.sqrt(np.diag(parameter_cov)[d * m:]) if estimate_bias else None}

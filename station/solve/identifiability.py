@@ -87,3 +87,143 @@ def check_gram(eigenvalues: np.ndarray) -> None:
             "Check that biases were removed (static window subtracted), that all positions use "
             "the same rate or field, and that units are consistent; or add positions.",
         )
+
+
+# Fisher information at a solution (station.solve.calibrate): in natural units (scale factors and
+# axis turns relative, biases relative to the stimulus), a direction whose eigenvalue is below
+# INFO_TOL of the largest carries no information (double precision, with margin), and one whose
+# standard deviation exceeds LOOSE (10 % of a scale factor, 6 degrees, 0.1 of the stimulus) is not
+# determined either when the noise level is known or estimated from spare readings.
+INFO_TOL = 1e-12
+LOOSE = 0.1
+# a sensor whose readings vary over the poses by less than this fraction of the widest-varying
+# sensor's sees the stimulus at one angle only: its scale and bias are not separable
+FLAT = 0.1
+# at most this many undetermined parameters are named in a refusal
+NAMED = 4
+
+
+def _norms(a: np.ndarray) -> np.ndarray:
+    """|a_i|, with the largest standing in for a sensor that sees nothing (a_i ~ 0)."""
+    norms = np.linalg.norm(a, axis=0)
+    return np.where(norms > 1e-6 * norms.max(), norms, norms.max())
+
+
+def natural_scale(a: np.ndarray, magnitude: float, bias_estimated: bool) -> np.ndarray:
+    """(m p,) factors D with theta = D theta_natural: a_i in units of |a_i|, b_i of c |a_i|."""
+    norms = _norms(a)
+    per = [np.repeat(norms[:, None], a.shape[0], axis=1)]
+    if bias_estimated:
+        per.append(magnitude * norms[:, None])
+    return np.hstack(per).ravel()
+
+
+def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:
+    """(m p, d(d-1)/2) the rotations of Remark 1 acting on theta = (a_1, b_1, ...): a_i -> R a_i."""
+    d, m = a.shape
+    out = []
+    for r, s in zip(*np.triu_indices(d, 1), strict=True):
+        gen = np.zeros((d, d))
+        gen[r, s], gen[s, r] = -1.0, 1.0
+        theta = np.zeros((m, p))
+        theta[:, :d] = (gen @ a).T
+        out.append(theta.ravel())
+    return np.array(out).T.reshape(m * p, -1)
+
+
+def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estimated: bool,
+                 noise_known: bool) -> np.ndarray:
+    """(k, m p) orthonormal directions of theta, in natural units, that the information does not
+    determine besides the rotation gauge; k = 0 when every invariant is determined."""
+    d, m = a.shape
+    p = fisher.shape[0] // m
+    scale = natural_scale(a, magnitude, bias_estimated)
+    lam, vec = np.linalg.eigh(fisher * np.outer(scale, scale))
+    floor = INFO_TOL * lam[-1]
+    if noise_known:
+        floor = max(floor, 1.0 / LOOSE**2)
+    null = vec[:, lam <= floor]
+    gauge = gauge_directions(a, p) / scale[:, None]
+    q, _ = np.linalg.qr(gauge)
+    rest = null - q @ (q.T @ null)
+    u, s, _ = np.linalg.svd(rest, full_matrices=False)
+    return u[:, s > 0.5].T
+
+
+def named_parts(direction: np.ndarray, a: np.ndarray, bias_estimated: bool, names) -> list:
+    """The parameters a direction (natural units) moves, largest first: "the scale of s3"..."""
+    d, m = a.shape
+    theta = direction.reshape(m, -1)
+    unit = a / _norms(a)
+    along = np.einsum("id,di->i", theta[:, :d], unit)
+    across = np.linalg.norm(theta[:, :d] - along[:, None] * unit.T, axis=1)
+    parts = [(abs(along[i]), f"the scale of {names[i]}") for i in range(m)]
+    parts += [(across[i], f"the axis direction of {names[i]}") for i in range(m)]
+    if bias_estimated:
+        parts += [(abs(theta[i, d]), f"the bias of {names[i]}") for i in range(m)]
+    top = max(w for w, _ in parts)
+    return [label for w, label in sorted(parts, key=lambda x: -x[0]) if w >= 0.3 * top]
+
+
+def check_information(fisher, a, readings, bias_estimated: bool, magnitude: float, names, *,
+                      noise_known: bool, free: int,
+                      context: CalibrationInputError | None = None) -> None:
+    """Refuse a solution whose Fisher information (m p x m p, theta = (a_1, b_1, ...), the poses
+    eliminated) leaves parameters undetermined, naming them and the poses that would fix them.
+
+    readings (m, n) locate the sensors that see the stimulus at one angle only; free: the number
+    of unknowns (a, b and the poses, the gauge removed); context: the closed form's own refusal,
+    quoted."""
+    null = undetermined(fisher, a, magnitude, bias_estimated, noise_known)
+    if not len(null):
+        return
+    m, n = readings.shape
+    d = a.shape[0]
+    parts = list(dict.fromkeys(p for w in null for p in named_parts(w, a, bias_estimated, names)))
+    flat = _flat(readings, names, parts)
+    problem = _flat_words(readings, names, flat, parts) if flat else _listed(parts) + (
+        " is not determined by these poses" if len(parts) == 1 else
+        " are not separable by these poses")
+    quadric = d * (d + 1) // 2 + d
+    advice = ("Add poses in new orientations that change the readings of "
+              f"{_listed(list(dict.fromkeys(p.rsplit(' of ', 1)[1] for p in parts)), 'others')} "
+              "(turn the unit onto other faces, tilt it about other axes).")
+    if flat:
+        advice = (f"Add a pose with {' and '.join(names[i] for i in flat)} turned the other way "
+                  "or horizontal, so that the reading changes by about the stimulus.")
+    if bias_estimated and n < quadric:
+        problem += (f" ({n} poses: with the biases unknown the poses must fix the stimuli's "
+                    f"quadric, at least {quadric} poses whatever the number of sensors)")
+        advice = f"Record {quadric - n} more pose(s) in new orientations. " + advice
+    elif m * n < free:
+        problem += f" ({n} poses give {m * n} readings for {free} unknowns)"
+    if context is not None:
+        problem += f"; the closed form said: {context.problem.rstrip('.')}"
+        advice += " " + context.advice
+    raise CalibrationInputError(problem + ".", advice)
+
+
+def _listed(items: list, rest: str = "more") -> str:
+    """"x", "x and y", "x, y, z, w and 3 more": at most NAMED items named."""
+    shown = items[:NAMED] + ([f"{len(items) - NAMED} {rest}"] if len(items) > NAMED else [])
+    return shown[0] if len(shown) == 1 else f"{', '.join(shown[:-1])} and {shown[-1]}"
+
+
+def _flat(readings, names, parts) -> list:
+    """Indices of the named sensors whose readings hardly vary over the poses (< FLAT of the
+    widest-varying sensor's spread): they see the stimulus at one angle only."""
+    spread = np.ptp(readings, axis=1)
+    return [i for i, name in enumerate(names) if any(p.endswith(f"of {name}") for p in parts)
+            and spread[i] < FLAT * spread.max()]
+
+
+def _flat_words(readings, names, flat, parts) -> str:
+    """The refusal for sensors stuck at one reading, and the other undetermined parameters."""
+    spread = np.ptp(readings, axis=1)
+    widest = int(np.argmax(spread))
+    words = "; ".join(
+        f"the scale and the bias of {names[i]} are not separable: every pose gives {names[i]} "
+        f"the same reading ({readings[i].mean():.6g}, spread {spread[i]:.2g} against "
+        f"{spread[widest]:.2g} of {names[widest]})" for i in flat)
+    others = [p for p in parts if not any(p.endswith(f"of {names[i]}") for i in flat)]
+    return words + (f" (nor are {_listed(others)} determined)" if others else "")

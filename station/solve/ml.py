@@ -51,6 +51,8 @@ class MLFit:
     dof: int  # m n (+ prior rows) - number of free parameters (gauge removed)
     iterations: int
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
+    objective: float  # the minimised cost with the weights used (`cost`)
+    converged: bool  # the cost stopped decreasing before max_iter iterations
 
 
 def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
@@ -140,9 +142,10 @@ def free_parameters(m: int, d: int, with_bias: bool, poses) -> int:
     return d * m + (m if with_bias else 0) + poses.free - d * (d - 1) // 2
 
 
-def start_poses(v0, magnitude, constraints=None, spread=None):
+def start_poses(v0, magnitude, constraints=None, spread=None, fitted: bool = False):
     """Pose parametrisation: soft magnitudes when a spread > 0 is given, rigid groups when the
-    constraints describe them, else directions."""
+    constraints describe them, else directions. fitted: v0 is a fit's own (soft magnitudes keep
+    their lengths instead of starting on the prior's mean)."""
     v0 = np.asarray(v0, float)
     if spread:
         if constraints is not None:
@@ -150,6 +153,8 @@ def start_poses(v0, magnitude, constraints=None, spread=None):
                 "a magnitude spread (random table rate) cannot be combined with constraints.",
                 "Give either the constraints of a right-angle iron or magnitude_spread, not both.",
             )
+        if fitted:
+            return SoftMagnitudes(v0, float(magnitude), float(spread))
         return SoftMagnitudes.start(v0, magnitude, spread)
     groups = None if constraints is None else rigid_groups(constraints, v0, magnitude)
     return Directions.start(v0, magnitude) if groups is None else groups
@@ -168,6 +173,7 @@ def refine(
     magnitude_spread: float | None = None,
     max_iter: int = 100,
     tol: float = 1e-12,
+    fitted: bool = False,
 ) -> MLFit:
     """Maximum-likelihood a, v (and b) from a start (a0, v0[, bias0]), e.g. the closed form.
 
@@ -178,14 +184,15 @@ def refine(
     right-angle iron's mountings) make each group rigid; otherwise each position has its own
     direction. magnitude_spread s > 0: the magnitudes are a random effect, |v_j| = c (1 + delta_j)
     with delta_j ~ N(0, s^2) (each v_j a free vector with that prior); it needs sigma, since it
-    weighs the readings against the prior.
+    weighs the readings against the prior. fitted: (a0, v0, bias0) is a fit to go on from (its
+    stimuli's magnitudes kept; `start_poses`), e.g. with other weights.
     """
     readings = np.asarray(readings, dtype=float)
     m, n = readings.shape
     a = np.array(a0, dtype=float)
     d = a.shape[0]
     check_spread(magnitude_spread, sigma)
-    poses = start_poses(v0, magnitude, constraints, magnitude_spread)
+    poses = start_poses(v0, magnitude, constraints, magnitude_spread, fitted)
     if bias0 is not None and not estimate_bias:
         readings = readings - np.asarray(bias0, float)[:, None]
     bias = (np.zeros(m) if bias0 is None else np.array(bias0, float)) if estimate_bias else None
@@ -194,7 +201,7 @@ def refine(
 
     neq, resid = normal_equations(a, poses, bias, readings, weight)
     objective = cost(poses, weight, resid)
-    damping, it = 1e-6, 0
+    damping, it, converged = 1e-6, 0, False
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` is returned: the iterations done
         step_g, step_l = lm_step(neq, damping)
         a_t = a + step_g[:, :d].T
@@ -203,26 +210,31 @@ def refine(
         neq_t, resid_t = normal_equations(a_t, poses_t, b_t, readings, weight)
         cost_t = cost(poses_t, weight, resid_t)
         if cost_t <= objective:
-            converged = objective - cost_t <= tol * max(objective, 1e-300)
+            converged = bool(objective - cost_t <= tol * max(objective, 1e-300))
             a, poses, bias, neq, resid, objective = a_t, poses_t, b_t, neq_t, resid_t, cost_t
             damping = max(damping / 10, 1e-12)
             if converged:
                 break
         else:
             damping *= 10
-            if damping > 1e12:
+            if damping > 1e12:  # no step lowers the cost: a minimum to machine precision
+                converged = True
                 break
 
     dof = m * n + prior_rows(poses).size - free_parameters(m, d, estimate_bias, poses)
+    minimised = objective
     estimated = sigma is None
     if estimated:
         scale = np.sqrt(objective / max(dof, 1))
+        if not scale > 0:  # an exact fit: the residuals say nothing about the noise level
+            scale = 1.0
         sig = np.full((m, n), scale)
         neq = _rescale(neq, 1.0 / scale**2)
         objective = float(np.sum(resid**2) / scale**2)
     if bias0 is not None and not estimate_bias:
         bias = np.asarray(bias0, float)
-    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq)
+    return MLFit(a, poses.vectors(), bias, resid, np.array(sig), estimated, objective, dof, it, neq,
+                 minimised, converged)
 
 
 def check_spread(spread, sigma) -> None:

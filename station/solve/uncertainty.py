@@ -6,6 +6,12 @@ along the d(d-1)/2 rotations of Remark 1 (Rupniewski). Its pseudo-inverse over t
 directions is the covariance of every gauge-invariant function of theta: scale factors |a_i|, angles
 between axes, biases, and a expressed in a frame defined by a itself (the canonical frame
 of Eq. 19).
+
+The white-noise figure trusts the readings' stated noise (e.g. sd / sqrt(N) of a pose's samples).
+Real poses carry more: coloured noise, settling, re-seating. `pose_variance` estimates that excess
+as one error term per reading of a pose, sigma_pose^2, from the between-pose scatter of the
+residuals (docs/solvers.md, "Honest uncertainties"); the total figure weighs the readings by
+sigma^2 + sigma_pose^2.
 """
 
 import numpy as np
@@ -29,11 +35,59 @@ def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
     return (vec[:, keep] / lam[keep]) @ vec[:, keep].T
 
 
+def reduced_fisher(neq: NormalEquations) -> np.ndarray:
+    """Fisher information (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...), the poses eliminated
+    (Schur complement)."""
+    return reduced_system(neq)[0]
+
+
 def global_covariance(neq: NormalEquations, d: int) -> np.ndarray:
     """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher
     matrix."""
-    s, _, _ = reduced_system(neq)
-    return gauge_pinv(s, d * (d - 1) // 2)
+    return gauge_pinv(reduced_fisher(neq), d * (d - 1) // 2)
+
+
+EXCESS_P = 0.05
+"""A per-pose error term is estimated only when the white-noise chi2 exceeds its upper EXCESS_P
+quantile: honest white-noise data are left alone in 1 - EXCESS_P of the fits (the plain
+estimator, truncated at 0, would inflate half of them)."""
+
+
+def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) -> float:
+    """sigma_pose^2 >= 0 with sum r_ij^2 / (sigma_ij^2 + sigma_pose^2) + sum prior^2 = dof: the
+    variance a per-pose error term must have for chi2 / dof = 1. 0 when the white-noise chi2 is
+    within its chi2(dof) distribution (P(chi2 >= observed) >= EXCESS_P), or no reading is spare.
+    """
+    from scipy import stats  # here: `import station` stays light
+    from scipy.optimize import brentq
+
+    r2, s2 = np.asarray(residuals, float) ** 2, np.asarray(sigma, float) ** 2
+    extra = float(np.sum(np.square(prior)))
+
+    def excess(x: float) -> float:
+        return float(np.sum(r2 / (s2 + x))) + extra - dof
+
+    if dof <= extra or stats.chi2.sf(excess(0.0) + dof, dof) >= EXCESS_P:
+        return 0.0
+    high = max(float(np.mean(r2)), float(s2.max()))
+    while excess(high) > 0:
+        high *= 4
+    return float(brentq(excess, 0.0, high, xtol=1e-12 * high, rtol=1e-10))
+
+
+def estimation_widening(pose_var: float, sigma: np.ndarray, dof: int) -> float:
+    """Factor (>= 1) on the total covariance for an estimated sigma_pose^2: its dof spare readings
+    give it the relative variance 2 / dof, so the total variance has nu = dof / f^2 effective
+    degrees of freedom (Welch-Satterthwaite, the white part known; f = the pose term's mean share
+    of each reading's variance), and +-1.96 sigma is a 95 % interval when sigma is widened by
+    t_nu(0.975) / 1.96 (the coverage factor of GUM G.4)."""
+    from scipy import stats
+
+    if pose_var <= 0:
+        return 1.0
+    share = float(np.mean(pose_var / (np.asarray(sigma, float) ** 2 + pose_var)))
+    nu = dof / share**2
+    return float((stats.t.ppf(0.975, nu) / stats.norm.ppf(0.975)) ** 2)
 
 
 def propagate(cov: np.ndarray, jac: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
     format.py   names, version, columns, units and the data classes (StreamSpec, StreamData, ...)
     writer.py   SessionWriter (create, append, events, resume) and write_results
     reader.py   Session: reads a file, also while a writer is live (SWMR read)
+    check.py    checked: the whole file read back in a child process under a time limit
     _repair.py  the HDF5 superblock's open-for-write flags a killed writer leaves, cleared on resume
 
 This namespace is the public interface; the modules' other names are the package's own.
@@ -21,8 +22,20 @@ from station.files.session.format import (
     last_completed_position,
     nominal_layout,
 )
-from station.files.session.reader import Session
-from station.files.session.writer import SessionWriter, write_results
+
+_LAZY = {"Session": "station.files.session.reader",
+         "SessionWriter": "station.files.session.writer",
+         "write_results": "station.files.session.writer"}
+"""Imported on first use (PEP 562, as `station` itself does): reading and writing results load the
+solver (scipy), which `python -m station.files.session.check` does not need."""
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "EVENT_KINDS", "FORMAT_VERSION", "TABLE_STATUS_BITS", "Event", "Session", "SessionFormatError",

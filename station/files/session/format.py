@@ -4,12 +4,15 @@
 import math
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from station.errors import InputError, SessionFormatError
-from station.solve.calibrate import CalibrationResult
+
+if TYPE_CHECKING:  # the solver (scipy) loads only where a calibration is read or written
+    from station.solve.calibrate import CalibrationResult
 
 FORMAT = "imu-station-session"
 FORMAT_VERSION = 1
@@ -134,9 +137,10 @@ class SessionResults:
     units: tuple  # SI unit of each row of `readings`
     readings: np.ndarray  # (m, n)
     readings_sigma: np.ndarray | None  # (m, n) standard deviation of each entry
-    calibration: CalibrationResult | None
+    calibration: "CalibrationResult | None"
     created: str
     settings: dict | None = None  # what reduced and solved them (replay), None: the recording's
+    channels: tuple | None = None  # the stream's channels the rows are; None: all, in order
 
 
 def last_completed_position(events) -> int | None:

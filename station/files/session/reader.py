@@ -6,6 +6,7 @@ imports no driver (the reduction reads sessions and never touches devices).
 """
 
 import dataclasses
+import hashlib
 import json
 import os
 
@@ -17,6 +18,7 @@ from station.files.session._repair import open_flags
 from station.files.session.format import (
     ALLOWED_FILTERS,
     EVENT_COLUMNS,
+    EVENT_KINDS,
     FORMAT,
     LIBVER,
     MAX_JSON_BYTES,
@@ -87,7 +89,7 @@ class Session:
         g = self._file["streams"][name]
         counts, seq, device_time, host_time = _columns(g, STREAM_COLUMNS, self.path, {
             "counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
-            "device_time": ("f", ()), "host_time": ("f", ())})
+            "device_time": ("f", ()), "host_time": ("f", ())}, drop_damaged=True)
         return StreamData(counts, seq.astype(np.int64), device_time.astype(np.float64),
                           host_time.astype(np.float64), spec)
 
@@ -96,7 +98,7 @@ class Session:
         g = _child(self._file["streams"], "table", h5py.Group, self.path)
         kinds = {c: ("f", ()) for c in TABLE_COLUMNS}
         kinds["status"] = ("u", ())
-        cols = _columns(g, TABLE_COLUMNS, self.path, kinds)
+        cols = _columns(g, TABLE_COLUMNS, self.path, kinds, drop_damaged=True)
         return TableData(*(c.astype(np.float64) for c in cols[:-1]), cols[-1].astype(np.uint8))
 
     def events(self) -> list:
@@ -127,7 +129,8 @@ class Session:
         spec = self.specs.get(stream)
         if spec is None:
             raise SessionFormatError(f"{where} names stream {stream!r}, which the file lacks")
-        m = len(spec.channels)
+        channels = _result_channels(g.attrs, len(spec.channels), where)
+        m = len(spec.channels) if channels is None else len(channels)
         readings = _matrix(g, "readings", where, rows=m)
         sigma = _matrix(g, "readings_sigma", where, shape=readings.shape) if "readings_sigma" in g \
             else None
@@ -135,7 +138,8 @@ class Session:
         settings = _json_object(_attr(g.attrs, "settings", str, where), f"{where} settings") \
             if "settings" in g.attrs else None
         return SessionResults(name, stream, tuple(_attr(g.attrs, "units", list, where)), readings,
-                              sigma, cal, _attr(g.attrs, "created", str, where), settings)
+                              sigma, cal, _attr(g.attrs, "created", str, where), settings,
+                              channels)
 
     def close(self) -> None:
         self._file.close()
@@ -145,6 +149,18 @@ class Session:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _result_channels(attrs, m: int, where) -> tuple | None:
+    """The stream channels a result's rows are (None: all of them), checked."""
+    if "channels" not in attrs:
+        return None
+    rows = np.asarray(attrs["channels"])
+    if rows.ndim != 1 or rows.dtype.kind not in "iu" or len(set(rows.tolist())) != len(rows) \
+            or not np.all((rows >= 0) & (rows < m)):
+        raise SessionFormatError(f"{where}: channels {rows.tolist()} are not distinct channels "
+                                 f"of the stream's {m}")
+    return tuple(int(i) for i in rows)
 
 
 def _check_format(path, attrs) -> int:
@@ -201,7 +217,13 @@ def _read_metadata(f, where) -> dict:
     ds = _child(f, "metadata", h5py.Dataset, where)
     if ds.shape != () or ds.dtype.kind not in "OS":
         raise SessionFormatError(f"{where}: /metadata must be one JSON string")
-    return _json_object(ds[()], f"{where}: /metadata")
+    text = ds[()]
+    digest = ds.attrs.get("sha256")  # files of earlier writers have none
+    if digest is not None and hashlib.sha256(
+            text if isinstance(text, bytes) else text.encode()).hexdigest().encode() != digest:
+        raise SessionFormatError(f"{where}: /metadata does not match its checksum; the file is "
+                                 "damaged (use an undamaged copy)")
+    return _json_object(text, f"{where}: /metadata")
 
 
 def _json_object(raw, what: str) -> dict:
@@ -232,9 +254,12 @@ def read_spec(g, where="") -> StreamSpec:
         raise SessionFormatError(f"{where}: stream {g.name} is malformed ({e})") from None
 
 
-def _columns(g, names, where, kinds) -> list:
+def _columns(g, names, where, kinds, drop_damaged=False) -> list:
     """Datasets `names` of `g` read to their common length, each checked for dtype kind and
-    trailing shape."""
+    trailing shape. A chunk that does not read back (its fletcher32 checksum fails) is a
+    SessionFormatError, or with `drop_damaged` its rows are left out of every column, as samples
+    the link lost (the sequence numbers show the gap; `station.files.session.check` names the
+    positions they belong to)."""
     datasets = [_child(g, n, h5py.Dataset, where) for n in names]
     for ds, n in zip(datasets, names, strict=True):
         ds.refresh()
@@ -243,7 +268,27 @@ def _columns(g, names, where, kinds) -> list:
             raise SessionFormatError(f"{where}: {ds.name} has dtype {ds.dtype} and shape "
                                      f"{ds.shape}; expected kind {dtype_kinds!r}, rows x {tail}")
     k = min(ds.shape[0] for ds in datasets)
-    return [ds[:k] for ds in datasets]
+    columns, intact = zip(*(_rows(ds, k, where, drop_damaged) for ds in datasets), strict=True)
+    keep = np.logical_and.reduce(intact)
+    return list(columns) if keep.all() else [c[keep] for c in columns]
+
+
+def _rows(ds, k: int, where, drop_damaged: bool) -> tuple:
+    """(the first k rows of `ds`, a mask of the rows that read back intact)."""
+    try:
+        return ds[:k], np.ones(k, bool)
+    except OSError as e:
+        if not drop_damaged or ds.chunks is None:
+            raise SessionFormatError(f"{where}: {ds.name} does not read back intact ({e}); the "
+                                     "file is damaged") from None
+    values, intact = np.zeros((k, *ds.shape[1:]), ds.dtype), np.ones(k, bool)
+    for start in range(0, k, ds.chunks[0]):
+        rows = slice(start, min(start + ds.chunks[0], k))
+        try:
+            values[rows] = ds[rows]
+        except OSError:
+            intact[rows] = False
+    return values, intact
 
 
 def read_events(g, where="") -> list:
@@ -255,7 +300,7 @@ def read_events(g, where="") -> list:
         raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
     k = complete_events(ends, detail.shape[0], where)
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
-    text = detail[:int(ends[k - 1])].tobytes() if k else b""
+    text = _rows(detail, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
     events = []
     for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
                               strict=True):
@@ -266,6 +311,10 @@ def read_events(g, where="") -> list:
             raise SessionFormatError(f"{where}: an event is not valid ASCII/JSON ({err})") from None
         if not isinstance(info, dict):
             raise SessionFormatError(f"{where}: event detail must be a JSON object")
+        if kind not in EVENT_KINDS:
+            raise SessionFormatError(f"{where}: unknown event kind {kind!r} (this software knows "
+                                     f"{', '.join(EVENT_KINDS)}); the file is damaged or from "
+                                     "newer software")
         events.append(Event(float(t), None if p < 0 else int(p), kind, info))
     return events
 
@@ -280,7 +329,8 @@ def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
         raise SessionFormatError(str(e)) from None
 
 
-LATER_FIELDS = ("parameter_covariance",)
+LATER_FIELDS = ("parameter_covariance", "start", "pose_sigma", "a_sigma_white",
+                "scale_factors_sigma_white", "axis_angles_sigma_white", "bias_sigma_white")
 """CalibrationResult fields added after format version 1 was first written: None when absent."""
 
 
@@ -316,7 +366,8 @@ def _read_calibration(g, where, readings_shape) -> CalibrationResult:
     expected = {"v": (a.shape[0], n), "residuals": (m, n), "sigma": (m, n),
                 "a_sigma": a.shape, "scale_factors": (m,), "axis_angles": (m, m),
                 "axis_angles_sigma": (m, m), "scale_factors_sigma": (m,), "bias": (m,),
-                "bias_sigma": (m,)}
+                "bias_sigma": (m,), "a_sigma_white": a.shape, "scale_factors_sigma_white": (m,),
+                "axis_angles_sigma_white": (m, m), "bias_sigma_white": (m,)}
     for key, shape in expected.items():
         if values[key] is not None and values[key].shape != shape:
             raise SessionFormatError(f"{where}/{key} has shape {values[key].shape}, expected "

@@ -11,6 +11,7 @@ reopens such a file and continues it. Results are written after the acquisition,
 
 import dataclasses
 import fcntl
+import hashlib
 import json
 import numbers
 import os
@@ -265,10 +266,12 @@ class SessionWriter:
 
 
 def write_results(path, name: str, stream: str, readings, calibration=None,
-                  readings_sigma=None, settings: dict | None = None) -> None:
+                  readings_sigma=None, settings: dict | None = None, channels=None) -> None:
     """Add `results/<name>` to a closed session file (after the recording, or on replay).
 
     readings       : reduced readings M (m x n, SI units of `stream`'s channels, one row each)
+    channels       : indices of the stream's channels the rows are (e.g. the 24 accelerometers of
+                     a 48-channel stream); None: every channel, in order
     calibration    : optional `CalibrationResult` solved from them
     readings_sigma : optional standard deviation of each entry of M (m x n)
     settings       : optional JSON-ready dict of what reduced and solved them (replay settings)
@@ -286,22 +289,27 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
     if not clean:
         raise SessionLockedError(f"{path} was not closed (a writer is live or was killed): close "
                                  "it, or run SessionWriter.resume(path) and close, then retry")
-    m = len(spec.channels)
+    rows = np.arange(len(spec.channels)) if channels is None else np.asarray(channels, np.int64)
+    if rows.ndim != 1 or len(set(rows.tolist())) != len(rows) or not np.all(
+            (rows >= 0) & (rows < len(spec.channels))):
+        raise InputError(f"channels {rows.tolist()} are not distinct channels of {stream!r}")
+    units = [spec.units[i] for i in rows]
     settings_json = None if settings is None else _json(dict(settings), "settings")
-    readings = float_matrix(readings, "readings", rows=m)
+    readings = float_matrix(readings, "readings", rows=len(rows))
     if readings_sigma is not None:
         readings_sigma = float_matrix(readings_sigma, "readings_sigma", shape=readings.shape)
     with _reopen(path) as f:
         if name in f["results"]:
             raise InputError(f"results/{name} exists in {path}; write under a new name")
         g = f["results"].create_group(name)
-        g.attrs.update(stream=stream, units=list(spec.units), created=utc_now())
+        g.attrs.update(stream=stream, units=units, created=utc_now())
+        if channels is not None:
+            g.attrs["channels"] = rows
         if settings_json is not None:
             g.attrs["settings"] = settings_json
-        g.create_dataset("readings", data=readings).attrs["units"] = list(spec.units)
+        g.create_dataset("readings", data=readings).attrs["units"] = units
         if readings_sigma is not None:
-            g.create_dataset("readings_sigma", data=readings_sigma).attrs["units"] = \
-                list(spec.units)
+            g.create_dataset("readings_sigma", data=readings_sigma).attrs["units"] = units
         if calibration is not None:
             _write_calibration(g.create_group("calibration"), calibration)
 
@@ -337,7 +345,10 @@ def _write_layout(f, metadata, metadata_json, streams) -> None:
                    software_version=software_version(), created=utc_now(),
                    protocol=metadata["protocol"], unit_serial=metadata["unit_serial"],
                    units=json.dumps(units, sort_keys=True))
-    f.create_dataset("metadata", data=metadata_json, dtype=h5py.string_dtype())
+    ds = f.create_dataset("metadata", data=metadata_json, dtype=h5py.string_dtype())
+    # fixed-length, so held in the checksummed object header (the text itself is in the global
+    # heap, which HDF5 does not checksum)
+    ds.attrs["sha256"] = np.bytes_(hashlib.sha256(metadata_json.encode()).hexdigest())
     for name, spec in streams.items():
         g = f.create_group(f"streams/{name}")
         g.attrs.update(channels=list(spec.channels), units=list(spec.units),
@@ -387,7 +398,7 @@ def _column(group, name, dtype, units: str, width=None) -> None:
     tail = () if width is None else (width,)
     rows = max(64, CHUNK_BYTES // (dtype.itemsize * (width or 1)))
     ds = group.create_dataset(name, shape=(0, *tail), maxshape=(None, *tail),
-                              chunks=(rows, *tail), dtype=dtype)
+                              chunks=(rows, *tail), dtype=dtype, fletcher32=True)
     ds.attrs["units"] = units
 
 

@@ -1,0 +1,64 @@
+"""An imported recording (`station import`, protocol "import") -> the still poses of its
+accelerometer stream, the free-static path of the command line; or, for a magnetometer stream (in
+T), the block readings of a continuous rotation (`station.reduce.blocks`: hard and soft iron).
+
+The recording carries no protocol events: every still interval the detector finds is a pose
+(`station.reduce.still.still_readings`), detected on the accelerometer channels by default (the
+gyro can veto with `--still-channels acc+gyro`, from the same or its own stream). The stream
+calibrated by default is the one whose channels are in m/s^2.
+"""
+
+import dataclasses
+
+from station.errors import CalibrationInputError
+from station.reduce.blocks import (
+    MAGNETOMETER,
+    BlockReadings,
+    magnetometer_channels,
+    magnetometer_readings,
+)
+from station.reduce.static import session_channels, static_readings
+from station.reduce.still import ACCELEROMETER, StillReadings
+from station.reduce.stillness import StillOptions
+
+
+def default_stream(session) -> str:
+    """The one stream with accelerometer channels (m/s^2), else the one magnetometer stream (T);
+    an error naming them when there are none or several."""
+    for unit in (ACCELEROMETER, MAGNETOMETER):
+        found = [name for name, spec in session.specs.items() if unit in spec.units]
+        if len(found) == 1:
+            return found[0]
+        if found:
+            raise CalibrationInputError(
+                f"{session.path} has {len(found)} streams in {unit}: {', '.join(found)}.",
+                "Choose the stream to calibrate with --stream NAME.")
+    raise CalibrationInputError(
+        f"{session.path} has no stream in {ACCELEROMETER} or {MAGNETOMETER} (streams: "
+        f"{', '.join(session.specs)}).",
+        "Import the accelerometer with a unit in m/s^2 (m/s^2, g, counts:m/s^2) or the "
+        "magnetometer in T (T, uT, gauss, counts:T).")
+
+
+def imported_readings(session, stream: str, trim: float = 0.0,
+                      still: StillOptions | None = None) -> StillReadings | BlockReadings:
+    """The accelerometer rows of every still pose of an imported recording (`static_readings`);
+    `still`: the detector settings, channels "acc" unless given. A magnetometer stream (T) gives
+    its block readings instead (no still poses: the unit turns all the time)."""
+    if MAGNETOMETER in session.specs[stream].units:
+        if still is not None or trim:
+            raise CalibrationInputError(
+                f"stream {stream!r} is a magnetometer (T), calibrated from blocks of a continuous "
+                "rotation, not still poses.",
+                "Leave out --rest, --threshold, --still-channels, --min-still and --trim.")
+        return magnetometer_readings(session, stream)
+    still = still or StillOptions()
+    still = dataclasses.replace(still, channels=still.channels or "acc")
+    return static_readings(session, stream, trim=trim, still=still)
+
+
+def imported_channels(session, stream: str):
+    """The calibrated channels: those in T of a magnetometer stream, else the accelerometer's."""
+    if MAGNETOMETER in session.specs[stream].units:
+        return magnetometer_channels(session, stream)
+    return session_channels(session, stream)
