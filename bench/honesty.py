@@ -19,6 +19,7 @@ units of each figure's 1-sigma (about 1 when the figure is honest across recordi
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -28,14 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from posesim import CLASSES, G, coverage  # noqa: E402
 
-from station.model.constants import STANDARD_GRAVITY  # noqa: E402
+from station.files.importers import import_binary  # noqa: E402
+from station.files.session import Session  # noqa: E402
 from station.reduce.free_static import calibrate_free_static  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 MIMU_RATE = 62.5  # Hz, PROVENANCE.md
-MIMU_PACKET = 106  # bytes: 0xAA, number, size, time, 8 x 6 int16 BE, checksum (PROVENANCE.md)
-MIMU_ACC = STANDARD_GRAVITY / 2048  # m/s^2 per count
-MIMU_GYRO = np.pi / 180 / 16.4  # rad/s per count
 MIMU_G = 9.81  # the authors' value (PROVENANCE.md)
 
 SETTINGS = {
@@ -47,15 +46,12 @@ SETTINGS = {
 
 
 def read_mimu(path: Path) -> np.ndarray:
-    """(samples, 8, 6) counts of one MIMU4444 recording; refused unless every packet's start byte
-    and checksum (byte sum of the first 104 bytes) hold."""
-    raw = np.frombuffer(path.read_bytes()[4:], np.uint8)  # 4 bytes of command acknowledgement
-    packets = raw[: len(raw) // MIMU_PACKET * MIMU_PACKET].reshape(-1, MIMU_PACKET)
-    stated = packets[:, 104].astype(np.int64) << 8 | packets[:, 105]
-    if not (np.all(packets[:, 0] == 0xAA)
-            and np.all(packets[:, :104].astype(np.int64).sum(axis=1) & 0xFFFF == stated)):
-        raise SystemExit(f"{path} is not an intact MIMU4444 recording (start byte or checksum)")
-    return packets[:, 8:104].copy().view(">i2").astype(float).reshape(-1, 8, 6)
+    """(samples, 8, 6) SI readings of one MIMU4444 recording, decoded by `station import binary`
+    (the drivers' frame parser, profile mimu4444)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = import_binary(Path(tmp) / "mimu.h5", path, "mimu4444")
+        with Session.open(out) as s:
+            return s.stream("imu").to_si().reshape(-1, 8, 6)
 
 
 def across_recordings(root: Path) -> dict:
@@ -63,10 +59,10 @@ def across_recordings(root: Path) -> dict:
     their weighted mean, in units of their 1-sigma; and the per-pose terms found."""
     fits = {}
     for exp in (1, 2, 3):
-        counts = read_mimu(root / f"exp_{exp}.bin")
+        si = read_mimu(root / f"exp_{exp}.bin")
         for imu in range(8):
-            fits[exp, imu] = calibrate_free_static(counts[:, imu, :3] * MIMU_ACC, MIMU_RATE,
-                                                   MIMU_G, gyro=counts[:, imu, 3:] * MIMU_GYRO)
+            fits[exp, imu] = calibrate_free_static(si[:, imu, :3], MIMU_RATE, MIMU_G,
+                                                   gyro=si[:, imu, 3:])
     i, k = np.triu_indices(3, 1)
     pick = {"scale_factors": lambda r, w: (r.scale_factors, r.scale_factors_sigma_white if w
                                            else r.scale_factors_sigma),

@@ -33,14 +33,18 @@ LINKS = {
 class LinkStats:
     """Counters every IMU link keeps, cumulative over reconnects.
 
-    samples : samples decoded and handed out
-    gaps    : places where the sequence number jumped (one or more samples missing)
-    dropped : sequence numbers missing in those gaps (samples lost on the way or destroyed)
+    samples    : samples decoded and handed out
+    gaps       : places where the sequence number jumped forward (one or more samples missing)
+    dropped    : sequence numbers missing in those gaps (samples lost on the way or destroyed)
+    duplicates : samples received twice (same sequence number, same payload), dropped
+    restarts   : places where the device restarted its numbering (a reset): new segments
     """
 
     samples: int = 0
     gaps: int = 0
     dropped: int = 0
+    duplicates: int = 0
+    restarts: int = 0
 
 
 @runtime_checkable

@@ -35,7 +35,7 @@ from drivers import LinkStats
 from drivers.clock import WallClock
 from drivers.errors import CanBusError
 from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
-from drivers.samples import SampleBlock
+from drivers.samples import SampleBlock, restart_seq
 
 LOST_BUS_PAUSE = 0.1
 """Wall seconds the listener rests after each error of a lost bus (it raises at once on every
@@ -165,9 +165,10 @@ def _signal(message, name: str, dbc: Path):
 
 @dataclass
 class CanStats(LinkStats):
-    """Counters of what the decoder saw (LinkStats' samples, gaps, dropped, and the frames). Every
-    frame lands in exactly one of `used`, `unknown`, `short` (fewer data bytes than the DBC says)
-    and `orphaned` (part of an incomplete sample). `dropped` counts the samples missing between
+    """Counters of what the decoder saw (LinkStats' samples, gaps, dropped, duplicates, restarts,
+    and the frames). Every frame lands in exactly one of `used` (including a repeated sample's),
+    `unknown`, `short` (fewer data bytes than the DBC says) and `orphaned` (part of an incomplete
+    sample). `dropped` counts the samples missing between
     consecutive counters, whether all their frames were lost or only some (`incomplete`)."""
 
     frames: int = 0
@@ -195,7 +196,7 @@ class SampleAssembler:
         self._row = np.zeros(m, dtype=np.int64)
         self._have = []  # slots filled for the pending counter
         self._counter = None
-        self._last = None  # (counter, seq) of the last emitted sample
+        self._last = None  # (counter, seq, counts) of the last emitted sample
         self._counts, self._seq, self._host = [], [], []
 
     def feed(self, msg: can.Message, host_time: float) -> None:
@@ -230,17 +231,29 @@ class SampleAssembler:
         self._have = []
 
     def _emit(self, host_time: float) -> None:
+        """Hand out the completed sample, unless it repeats the last one (same counter, same
+        counts: a duplicate, counted). The same counter with other counts is a device that
+        restarted its numbering (`restart_seq`: a new segment); a forward step is a gap. Without
+        a device time an 8-bit counter cannot tell a restart to another value from a gap."""
         counter = self._counter
         if self._last is None:
             seq = counter
         else:
-            last_counter, last_seq = self._last
+            last_counter, last_seq, last_row = self._last
             step = (counter - last_counter) % self.layout.counter_modulus
-            seq = last_seq + (step or self.layout.counter_modulus)
-            missing = seq - last_seq - 1
-            self.stats.gaps += missing > 0
-            self.stats.dropped += missing
-        self._last = (counter, seq)
+            if step == 0 and np.array_equal(self._row, last_row):
+                self.stats.duplicates += 1
+                self.stats.used += len(self._have)
+                self._have, self._counter = [], None
+                return
+            if step == 0:
+                self.stats.restarts += 1
+                seq = restart_seq(counter, last_seq, self.layout.counter_modulus)
+            else:
+                seq = last_seq + step
+                self.stats.gaps += step > 1
+                self.stats.dropped += step - 1
+        self._last = (counter, seq, self._row.copy())
         self._counts.append(self._row.copy())
         self._seq.append(seq)
         self._host.append(host_time)

@@ -9,6 +9,8 @@
           +-- TableTimeout                 no reply within the timeout, after the bounded retries
           +-- TableBusy                    'device busy' (Modbus exception 6) after the retries
           +-- TableFault                   a device failure (Modbus exception 4): needs the operator
+          +-- TableLinkError               the TCP connection was refused, reset or broken
+          +-- TableReplyError              a reply that does not answer the request (short, garbled)
 
 The station's own errors are drawn in `station.errors`; the command line catches both roots.
 """
@@ -56,6 +58,14 @@ class TableBusy(TableError):
 
 class TableFault(TableError):
     """The table reported a device failure (Modbus exception 4): it needs the operator."""
+
+
+class TableLinkError(TableError):
+    """The TCP connection to the table was refused, reset or broken (controller off, restarted)."""
+
+
+class TableReplyError(TableError):
+    """The table's reply does not answer the request: fewer registers than asked, or garbled."""
 
 
 class CanBusError(LinkError):

@@ -5,12 +5,17 @@ The table is a set of holding registers described by the device profile's `[tabl
 rate setpoint, the measured rate and the cumulative angle, the last three as signed 32-bit fixed
 point numbers (register integer = SI value * scale) with a configurable word order.
 
-`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop` and `state()`. Modbus
-exception codes and timeouts become `TableError`s that say what happened and what to do: `TableBusy`
-(code 6, retried a bounded number of times first), `TableTimeout` (no reply, also retried),
-`TableFault` (code 4, device failure), `TableError` for the rest (e.g. code 2: the register map
-does not match the table). After any failure the driver tries to stop the table; as a context
-manager it stops the table on exit, whatever happened.
+`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop` and `state()`. Every
+failure of a transaction becomes a `TableError` whose message names the table (`rotary table at
+host:port`), what happened and what to do: `TableBusy` (code 6), `TableTimeout` (no reply),
+`TableLinkError` (connection refused, reset or broken: the client reconnects on the next try),
+`TableReplyError` (fewer registers than asked, a garbled reply), `TableFault` (code 4, device
+failure), `TableError` for the rest (e.g. code 2: the register map does not match the table). A busy
+answer is retried a bounded number of times (the controller did nothing); a timeout, a lost
+connection or a bad reply only where repeating is safe: reads, the setpoint and stop, never a
+start (it may have been executed). After any failure the driver tries to stop the table and notes on
+the error whether it could (`error.table_stopped`); as a context manager it stops the table on exit,
+whatever happened.
 """
 
 import logging
@@ -24,7 +29,14 @@ from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from drivers.clock import WallClock
-from drivers.errors import TableBusy, TableError, TableFault, TableTimeout
+from drivers.errors import (
+    TableBusy,
+    TableError,
+    TableFault,
+    TableLinkError,
+    TableReplyError,
+    TableTimeout,
+)
 from drivers.profile import ProfileError, Section, load_profile
 
 log = logging.getLogger(__name__)
@@ -33,6 +45,23 @@ INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
 WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
+STOP_RETRY_PAUSE = 0.05  # s between two emergency stop attempts
+
+
+def link_words(exc: OSError | ConnectionException) -> str:
+    """What a lost or refused TCP connection means, in words an operator can act on."""
+    if isinstance(exc, ConnectionResetError):
+        return "connection reset by the controller (is it powered? did it restart?)"
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused (is the controller running, and the port right?)"
+    if isinstance(exc, BrokenPipeError | ConnectionAbortedError):
+        return "connection broken by the controller (is it powered? did it restart?)"
+    if isinstance(exc, ConnectionException) and "failed to connect" in str(exc).lower():
+        # pymodbus' words when the client could not (re)connect
+        return "cannot connect (is the controller running and powered, the port right?)"
+    if isinstance(exc, ConnectionException):
+        return "connection lost (is it powered? did its controller restart?)"
+    return f"network error ({exc.strerror or exc}); check its power, cable and IP address"
 
 
 def exception_name(code: int) -> str:
@@ -42,6 +71,13 @@ def exception_name(code: int) -> str:
         return ExcCodes(code).name.lower().replace("_", " ")
     except ValueError:
         return "unknown exception"
+
+
+def not_stopped(error: BaseException, stop_error: BaseException) -> None:
+    """Say on `error` that the table could not be stopped after it: `table_stopped` False and a
+    note telling the operator to stop it by hand."""
+    error.table_stopped = False
+    error.add_note(f"stop command could not be sent ({stop_error}) - stop the table by hand")
 
 
 @dataclass(frozen=True)
@@ -171,18 +207,21 @@ class RotaryTable:
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             self.stop()
+            if exc is not None:
+                exc.table_stopped = True
         except TableError as stop_error:
             if exc is None:
                 raise
-            exc.add_note(f"and the table could not be stopped: {stop_error}; stop it by hand")
+            if getattr(exc, "table_stopped", None) is None:  # not said yet
+                not_stopped(exc, stop_error)
         finally:
             self.close()
 
     def connect(self) -> None:
         """Open the TCP connection, or raise TableError naming the address."""
         if not self._client.connect():
-            raise TableError(f"cannot connect to the rotary table at {self.host}:{self.port}; "
-                             "check its power, cable and IP address")
+            raise TableLinkError(f"{self.where}: cannot connect; check its power, cable and IP "
+                                 "address")
 
     def close(self) -> None:
         self._client.close()
@@ -197,7 +236,7 @@ class RotaryTable:
 
     def start(self) -> None:
         """Command the table to run towards the setpoint."""
-        self._operate("start", lambda: self._write_command(self.map.run))
+        self._operate("start", lambda: self._write_command(self.map.run), repeat=False)
 
     def stop(self) -> None:
         """Command the table to decelerate to rest."""
@@ -207,8 +246,7 @@ class RotaryTable:
         """Read every register in one transaction."""
         first, count = self.map.span
         now = self.clock.now()
-        regs = self._operate("read state", lambda: self._client.read_holding_registers(
-            first, count=count, device_id=self.map.device_id)).registers
+        regs = self._operate("read state", lambda: self._read(first, count)).registers
 
         def words(name):
             return [regs[a - first] for a in self.map.addresses(name)]
@@ -223,45 +261,76 @@ class RotaryTable:
             running=regs[self.map.registers["command"] - first] == self.map.run,
             **{n: bits[n] for n in STATUS_BITS})
 
+    def _read(self, first: int, count: int):
+        """One read of `count` registers; a reply with fewer is refused (TableReplyError)."""
+        response = self._client.read_holding_registers(first, count=count,
+                                                      device_id=self.map.device_id)
+        if not response.isError() and len(response.registers) != count:
+            raise TableReplyError(f"{self.where}: short reply, {len(response.registers)} "
+                                  f"registers of the {count} asked; check the register map "
+                                  "(docs/devices.md) and the controller's firmware")
+        return response
+
+    @property
+    def where(self) -> str:
+        """The table in words, for messages: "rotary table at host:port"."""
+        return f"rotary table at {self.host}:{self.port}"
+
     def _write_command(self, value: int):
         return self._client.write_register(self.map.registers["command"], value,
                                            device_id=self.map.device_id)
 
-    def _operate(self, what: str, call):
+    def _operate(self, what: str, call, repeat: bool = True):
         """`_request`, and on failure try to stop the table before raising."""
         try:
-            return self._request(what, call)
+            return self._request(what, call, repeat)
         except TableError as error:
+            log.warning("%s", error)
             self._emergency_stop(error)
             raise
 
     def _emergency_stop(self, error: TableError) -> None:
         """Keep commanding stop for up to `stop_patience` seconds (a stalled controller may still
-        be working through the requests that timed out); note on `error` if it never succeeded."""
+        be working through the requests that timed out); say on `error` whether it succeeded
+        (`table_stopped`; a note the command line prints when it did not)."""
         deadline = time.monotonic() + self.stop_patience
         while True:
             try:
-                return self.stop()
+                self.stop()
+                error.table_stopped = True
+                return
             except TableError as stop_error:
                 if time.monotonic() >= deadline:
-                    error.add_note(f"and the table could not be stopped: {stop_error}; "
-                                   "stop it by hand")
+                    not_stopped(error, stop_error)
                     return
+            time.sleep(STOP_RETRY_PAUSE)
 
-    def _request(self, what: str, call):
-        """One transaction; busy answers and timeouts are retried `retries` times."""
-        where = f"rotary table at {self.host}:{self.port}"
+    def _request(self, what: str, call, repeat: bool = True):
+        """One transaction. Busy answers are retried `retries` times; timeouts, lost connections
+        and bad replies too if `repeat` (the request is safe to send again), reconnecting first."""
+        where, error = self.where, None
         for attempt in range(self.retries + 1):
+            if attempt and not repeat and not isinstance(error, TableBusy):
+                break
             try:
                 response = call()
-            except ModbusIOException:
-                error = TableTimeout(f"{what}: no reply from the {where} within {self.timeout} s "
+            except ModbusIOException as exc:
+                if "No response" not in str(exc):  # pymodbus' words for a timeout
+                    error = TableReplyError(f"{where}: garbled reply to {what} ({exc}); check "
+                                            "the register map and the device id "
+                                            f"{self.map.device_id}")
+                    continue
+                error = TableTimeout(f"{where}: no reply to {what} within {self.timeout} s "
                                      f"({attempt + 1} tries); check the cable and the device id "
                                      f"{self.map.device_id}")
                 continue
-            except ConnectionException as exc:
-                error = TableError(f"{what}: lost the connection to the {where} ({exc}); "
-                                   "check its power and network")
+            except (OSError, ConnectionException) as exc:
+                self._client.close()  # the next try reconnects
+                error = TableLinkError(f"{where}: {link_words(exc)} during {what}")
+                error.__cause__ = exc
+                continue
+            except TableReplyError as exc:
+                error = exc
                 continue
             if not response.isError():
                 if attempt:
@@ -269,15 +338,14 @@ class RotaryTable:
                 return response
             code = response.exception_code
             if code == ExcCodes.DEVICE_BUSY:
-                error = TableBusy(f"{what}: the {where} stayed busy (Modbus exception 6) after "
+                error = TableBusy(f"{where}: stayed busy (Modbus exception 6) during {what} after "
                                   f"{attempt + 1} tries; wait for it to finish and retry")
                 time.sleep(self.busy_backoff)
                 continue
             if code == ExcCodes.DEVICE_FAILURE:
-                raise TableFault(f"{what}: the {where} reports a device failure (Modbus "
-                                 "exception 4); check the table's fault display and reset it")
-            raise TableError(f"{what}: the {where} answered Modbus exception {code} "
+                raise TableFault(f"{where}: reports a device failure (Modbus exception 4) to "
+                                 f"{what}; check the table's fault display and reset it")
+            raise TableError(f"{where}: answered {what} with Modbus exception {code} "
                              f"({exception_name(code)}); "
                              "check the register map and device id in the device profile")
-        log.warning("%s", error)
         raise error

@@ -22,7 +22,8 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
 Device errors have their own root, `drivers.errors.DeviceError` (exit code 3), because the drivers
 never import the station (the layering contracts in pyproject.toml): ProfileError (ValueError, exit
 code 2), LinkError (ConnectionError: SerialPortError, DeviceLostError, CanBusError) and TableError
-(RuntimeError: TableTimeout, TableBusy, TableFault). The command line catches both roots.
+(RuntimeError: TableTimeout, TableBusy, TableFault, TableLinkError,
+TableReplyError). The command line catches both roots.
 """
 
 

@@ -276,13 +276,14 @@ def as_block(data: StreamData) -> SampleBlock:
 
 
 def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
-               timeout: float = 120.0) -> None:
+               timeout: float = 120.0, progress=None) -> None:
     """Send the IMU stream of session `path` over a serial twin, record it into session `out`.
 
     profile : serial device profile (name or path) whose channels and scale match the stream;
               its rate is set to the stream's
     speed   : clock speed of the replay (simulated s per wall s)
     timeout : wall seconds the re-recording may take
+    progress : optional callable(samples re-recorded, samples to re-record)
     The stream must be one gap-free segment (a session that was never resumed or reconnected).
     """
     from drivers import open_imu
@@ -326,6 +327,8 @@ def replay_raw(path, out, profile="imu12_serial", speed: float = 200.0,
         with Recorder(writer, imu, clock=clock) as recorder:
             deadline = time.monotonic() + timeout
             while recorder.samples < k:
+                if progress is not None:
+                    progress(recorder.samples, k)
                 recorder.check(stale=10.0)
                 if time.monotonic() > deadline:
                     raise AcquisitionError(f"raw replay got {recorder.samples} of {k} samples in "

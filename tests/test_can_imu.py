@@ -139,3 +139,33 @@ def test_twin_rejects_a_source_of_the_wrong_shape():
     with CanImuTwin(name, PROFILE, lambda t: np.zeros((len(t), M - 1), int), samples=5) as twin:
         assert twin.wait(timeout=5)
     assert isinstance(twin.error, ValueError) and "shape" in str(twin.error)
+
+
+def test_duplicated_samples_are_dropped_and_counted_never_a_forward_jump():
+    """500 samples sent twice (all their frames repeated): each dropped once and counted; the
+    numbering has no jump (without the check each became a +256 jump: 128 ms at 2 kHz)."""
+    name, n = channel(), 2000
+    twice = set(np.random.default_rng(7).choice(n - 1, size=500, replace=False).tolist())
+    twin = CanImuTwin(name, PROFILE, counting_source(), samples=n, duplicate=twice)
+    with CanImu(virtual(name), PROFILE) as imu, twin:
+        assert twin.wait(timeout=30) and twin.error is None
+        blocks = read_all(imu, n)
+    seq = np.concatenate([b.seq for b in blocks])
+    np.testing.assert_array_equal(seq, np.arange(n))
+    np.testing.assert_array_equal(np.concatenate([b.counts for b in blocks]),
+                                  pattern(np.arange(n)))
+    assert (imu.stats.duplicates, imu.stats.gaps, imu.stats.dropped) == (500, 0, 0)
+
+
+def test_a_device_restarting_at_the_same_counter_starts_a_new_segment():
+    """The unit resets and counts again from the counter value it had: a new segment (the
+    numbering goes back to the raw counter), not a jump of 256 that would shift every sample."""
+    name, first_run, second_run = channel(), 257, 300  # the first run ends at counter 256 % 256
+    with CanImu(virtual(name), PROFILE) as imu:
+        for samples in (first_run, second_run):
+            with CanImuTwin(name, PROFILE, counting_source(), samples=samples) as twin:
+                assert twin.wait(timeout=30) and twin.error is None
+        blocks = read_all(imu, first_run + second_run)
+    seq = np.concatenate([b.seq for b in blocks])
+    np.testing.assert_array_equal(seq, np.r_[np.arange(first_run), np.arange(second_run)])
+    assert (imu.stats.restarts, imu.stats.gaps, imu.stats.duplicates) == (1, 0, 0)

@@ -87,6 +87,17 @@ def test_g_sensitivity_recovered_within_its_uncertainty(cases):
     assert np.allclose(f.value("G_deg_s_per_g"), f.value("G") * np.degrees(9.80665))
 
 
+def test_the_page_shows_the_fitted_g_sensitivity_as_numbers_with_units(cases):
+    from station.report.diagnosis import static_html_report
+
+    data, result = cases["g_sensitivity"]
+    page = static_html_report(to_dict(result, data))
+    g = result.final.fitted["g_sensitivity"].value("G")
+    row = "; ".join(" ".join(f"{x:.4g}" for x in r) for r in g)  # once shown as {}
+    assert f"<td>G</td><td>{row}</td>" in page
+    assert "<td>output units per m/s^2</td>" in page and "<td>deg/s per g</td>" in page
+
+
 @pytest.mark.parametrize("key", ["none", "none_gyro"])
 def test_an_effect_free_session_is_called_none(cases, key):
     data, result = cases[key]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fixture
 
+from drivers.rotary_table import TableLinkError
 from drivers.twins.serial import SENT, UNPLUGGED
 from station.acquire.operator import SimulatedTechnician
 from station.files.session import Session
@@ -155,7 +156,7 @@ def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):
     assert clean
     pause = next(e for e in events if e.kind == "pause")
     assert pause.position == 1 and pause.detail["table_stopped"] is True
-    assert "no reply from the rotary table" in pause.detail["error"]
+    assert f"rotary table at 127.0.0.1:{s.bench.table_twin.port}: no reply" in pause.detail["error"]
     assert not table.flag("running")[table_after(table, pause.time)]
     kinds = [e.kind for e in events]
     assert "abort" not in kinds and kinds.count("position_done") == 3
@@ -163,3 +164,53 @@ def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):
     # the IMU went on streaming through the pause: not one sample missing
     assert np.all(np.diff(stream.seq) == 1)
     check_readings(s, events, reduced)
+
+
+def abort_of(path):
+    with Session.open(path) as f:
+        return next(e for e in f.events() if e.kind == "abort")
+
+
+def test_a_table_connection_reset_mid_rotation_aborts_naming_the_table_and_the_stop(session):  # noqa: F811 - the fixture
+    """Resets on every try of a table read (the driver's 3): a TableLinkError, not a raw
+    ConnectionResetError; the emergency stop gets through and the abort event says so."""
+    s = session(speed=20.0)
+    act = once(lambda: s.bench.table_twin.inject("reset", count=3))
+    s.protocol.table = Interrupting(s.table, act, run=1)
+    with pytest.raises(TableLinkError, match="connection reset by the controller") as caught:
+        s.protocol.run(s.recorder)
+    assert caught.value.table_stopped is True and not s.bench.table.state().running
+    s.close()
+    abort = abort_of(s.path)
+    where = f"rotary table at 127.0.0.1:{s.bench.table_twin.port}"
+    assert abort.detail["devices"] == [where] and abort.detail["table_stopped"] is True
+    assert abort.detail["error"].startswith(f"TableLinkError: {where}: connection reset")
+
+
+def test_the_whole_bench_lost_mid_rotation_names_both_devices_and_the_unstopped_table(session):  # noqa: F811 - the fixture
+    """IMU unplugged and table controller dead at once: the error names both devices and says the
+    table could not be stopped (it keeps turning: the twin's physics runs on)."""
+    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 0}), speed=20.0)
+    s.bench.technician.fixes_cables = False
+    s.table.stop_patience = 0.2
+
+    def lose_everything():
+        s.bench.imu_twin.unplug()
+        s.bench.table_twin.die()
+    s.protocol.table = Interrupting(s.table, once(lose_everything), run=1)
+    with pytest.raises(Exception) as caught:  # noqa: PT011 - which device is noticed first varies
+        s.protocol.run(s.recorder)
+    words = "; ".join([str(caught.value), *caught.value.__notes__])
+    port = s.bench.imu_twin.port
+    assert f"rotary table at 127.0.0.1:{s.bench.table_twin.port}" in words
+    assert f"IMU on {port}" in words or port in words
+    assert "stop the table by hand" in words and caught.value.table_stopped is False
+    assert s.bench.table.state().running
+    s.closed = True
+    s.recorder.stop()
+    s.writer.close()
+    s.imu.close()
+    s.table.close()
+    s.bench.close()
+    abort = abort_of(s.path)
+    assert abort.detail["table_stopped"] is False and len(abort.detail["devices"]) == 2

@@ -134,6 +134,34 @@ def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_pa
                   < 5 * cal.scale_factors_sigma)
 
 
+def test_station_resume_stops_a_turning_table_before_anything_else(tmp_path):
+    """A station died with the table turning, and the IMU is unplugged too: the `station resume`
+    process cannot go on, but the first thing it did was command the stop (the twin's register
+    log), before it tried the IMU or the session."""
+    import time
+
+    path, profile, log = tmp_path / "s.h5", tmp_path / "b.toml", tmp_path / "writes.log"
+    with BenchTwin(seed=7, speed=40, positions=POSITIONS) as twin:
+        profile.write_text(twin.profile_text())
+        with pytest.raises(OperatorAbort):
+            record(BenchProfile.load(profile), path,
+                   ConsoleOperator(stdin=io.StringIO("\n"), stdout=io.StringIO()))
+        table = twin.bench.table
+        table.set_rate(1.0)
+        table.start()
+        twin.bench.imu_twin.unplug()
+        twin.bench.table_twin.write_log = log
+        launched = time.monotonic()
+        done = subprocess.run([*STATION, "resume", str(path)], stdin=subprocess.DEVNULL,
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 3 and "cannot open serial port" in done.stderr
+        assert not table.state().running
+    first = log.read_text().splitlines()[0].split()
+    command = BenchProfile.load(profile).table_map.registers["command"]
+    assert (int(first[1]), int(first[2])) == (command, 0)  # a stop, nothing before it
+    assert launched < float(first[0]) < launched + 10  # bench/faults.py measures: under 1 s
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda t: t.replace("[protocol]", "[protocol]\nstatic = -1.0"), "must be positive"),
     (lambda t: t.replace("[protocol]", "[protocol]\nstatik = 5.0"), "unknown keys"),

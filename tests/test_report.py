@@ -4,6 +4,7 @@ warnings triggered by sessions made to need them; `station report`. The live vie
 that recording, and fed by hand."""
 
 import base64
+import contextlib
 import html
 import io
 import json
@@ -371,7 +372,13 @@ def test_live_view_windows_stillness_and_instructions():
 def test_position_progress_counts_the_captured_positions():
     from station.acquire.progress import PositionProgress
 
-    bar = PositionProgress(Console(file=io.StringIO(), width=100))
+    drawn = []
+
+    @contextlib.contextmanager
+    def bar_of(what, unit):  # station.commands.progress's interface, recorded
+        yield lambda done, total: drawn.append((what, unit, done, total))
+
+    bar = PositionProgress(bar_of)
     bar.follow(SimpleNamespace(axes=np.zeros((5, 3))))
     events = []
     recorder = bar.observe_recorder(SimpleNamespace(samples=7,
@@ -380,8 +387,8 @@ def test_position_progress_counts_the_captured_positions():
         for j in range(3):
             recorder.event("position_done", j)
         recorder.event("static_start", 3)
-        task = bar._progress.tasks[0]
-        assert (task.completed, task.total) == (3, 5)
+    assert [d[2:] for d in drawn] == [(0, 5), (1, 5), (2, 5), (3, 5)]
+    assert drawn[0][:2] == ("positions captured", "positions")
     assert recorder.samples == 7 and len(events) == 4  # everything passed through
 
 

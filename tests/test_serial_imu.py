@@ -138,3 +138,80 @@ def test_twin_refuses_a_source_of_the_wrong_shape():
     clock.sleep(0.05)
     with pytest.raises(ValueError, match=r"shape \(\d+, 12\)"):
         twin.stop()
+
+
+def test_duplicated_frames_are_dropped_and_counted_never_a_forward_jump():
+    """At least 300 frames sent twice byte for byte (a CRC-valid repeat): each is dropped and
+    counted; the numbering has no jump (without the check each became +65536: 32.8 s at 2 kHz).
+    The twins here never skip frames when they fall behind (max_lag inf: flow control only)."""
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=4, duplicate=0.05, max_lag=np.inf)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        got = read_until(imu, 8000, limit=30.0)
+    repeated = np.array(twin.duplicated)
+    assert np.count_nonzero(repeated < got.seq[-1]) >= 300
+    np.testing.assert_array_equal(got.seq, np.arange(got.seq[0], got.seq[-1] + 1))
+    assert np.array_equal(got.counts, source(twin.time_of(got.seq)))
+    assert imu.stats.gaps == 0 and imu.stats.restarts == 0
+    assert (np.count_nonzero(repeated < got.seq[-1]) <= imu.stats.duplicates
+            <= np.count_nonzero(repeated <= got.seq[-1]))
+
+
+def test_a_restarted_device_starts_a_new_segment_and_earlier_samples_keep_their_times():
+    """The device resets mid-stream (numbering and device time from 0): the samples after it are
+    a new segment (numbering goes back, not a forward jump), those before keep their numbers, and
+    the timeline gives both sides their true sampling instants."""
+    from station.reduce.timeline import sample_times
+
+    clock = ScaledClock(speed=10)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=6, max_lag=np.inf)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu:
+        before = read_until(imu, 3000, limit=30.0)  # 3 s of wall time: a loaded host's hiccup
+        twin.restart()
+        blocks = [before]
+        while not twin.restarts or blocks[-1].seq[-1] >= before.seq[-1] or \
+                blocks[-1].seq[-1] < 3000:
+            blocks.append(imu.read_block(timeout=30.0))
+            assert blocks[-1] is not None, "the twin stopped streaming"
+    got = SampleBlock.concat(blocks)
+    cut = int(np.flatnonzero(np.diff(got.seq) <= 0)[0]) + 1  # the one place it does not increase
+    assert np.all(np.diff(got.seq[cut:]) == 1) and np.all(np.diff(got.seq[:cut]) == 1)
+    assert imu.stats.restarts == 1 and imu.stats.gaps == 0
+    origin = twin.restarts[0]
+    frames = np.r_[got.seq[:cut], origin + got.seq[cut:] - got.seq[cut]]  # the twin's numbering
+    assert got.seq[cut] == 0 and got.device_time[cut] == 0.0  # the device's own 0
+    assert np.array_equal(got.counts, source(twin.time_of(frames)))
+    rate = BINARY.imu.rate_hz
+    times = sample_times(got.seq, got.host_time, rate)
+    np.testing.assert_array_equal(times[:cut], sample_times(got.seq[:cut], got.host_time[:cut],
+                                                            rate))
+    # each side's instants: the true ones, late by the least arrival latency (a few ms of wall
+    # time at 10x: well under 0.2 s of clock)
+    late = times - twin.time_of(frames)
+    assert np.all((late[:cut] >= -1e-9) & (late[:cut] < 0.2))
+    assert np.all((late[cut:] >= -1e-9) & (late[cut:] < 0.2))
+
+
+def test_the_recorder_follows_a_restarted_device_into_the_session(tmp_path):
+    """Recording through a device restart: `drain` sees the newest samples at once (it waited for
+    the restarted numbering to catch up with the old one), and the file holds one new segment."""
+    from station.acquire.recorder import Recorder
+    from station.files.session import Session, SessionWriter, StreamSpec
+
+    clock = ScaledClock(speed=10)
+    spec = StreamSpec.from_profile(BINARY.imu)
+    twin = SerialTwin(BINARY, source, clock=clock, seed=8, max_lag=np.inf)
+    with twin, SerialImu(twin.port, BINARY, clock=clock) as imu, \
+            SessionWriter.create(tmp_path / "s.h5", {"protocol": "rotary", "unit_serial": "T"},
+                                 {"imu": spec}, clock=clock) as writer, \
+            Recorder(writer, imu, clock=clock, drain_timeout=2.0) as recorder:
+        clock.sleep(40.0)  # 4 s of wall time
+        recorder.drain(clock.now(), stale=10.0)
+        twin.restart()
+        # 1 s of clock is 0.1 s of wall time: 20x margin; the old numbering is 40 s ahead: if
+        # `drain` waited for it to catch up (the restart taken for the old count), 4 s of wall
+        recorder.drain(clock.now() + 1.0, stale=10.0)
+    with Session.open(tmp_path / "s.h5") as s:
+        seq = s.stream("imu").seq
+    assert np.count_nonzero(np.diff(seq) <= 0) == 1 == imu.stats.restarts
+    assert np.count_nonzero(np.diff(seq) > 1) == 0

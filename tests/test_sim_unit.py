@@ -72,10 +72,11 @@ def test_rotary_timing_segments_and_refusal_of_impossible_timing():
 def test_live_walk_steps_with_the_actual_sample_times():
     unit = SensorUnit(np.eye(1), bias_walk=0.1, counts_per_unit=1e6, rng=4)
     ends = []
-    for _ in range(400):
+    for i in range(400):  # other instants each time: the same instants repeat their draws
         unit._walk[:] = 0.0
         unit._last_time = None
-        ends.append(unit.sample(np.zeros((3, 1)), times=[0.0, 2.0, 4.0])[-1, 0] * 1e-6)
+        ends.append(unit.sample(np.zeros((3, 1)), times=[10.0 * i, 10.0 * i + 2.0,
+                                                        10.0 * i + 4.0])[-1, 0] * 1e-6)
     expected = 0.1**2 * (4.0 + 1.0 / unit.fs)  # the first sample steps by 1 / fs
     assert abs(np.var(ends) / expected - 1) < 5 * np.sqrt(2 / 400)
 

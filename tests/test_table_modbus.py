@@ -13,7 +13,9 @@ from drivers.rotary_table import (
     TableBusy,
     TableError,
     TableFault,
+    TableLinkError,
     TableRegisterMap,
+    TableReplyError,
     TableTimeout,
 )
 from drivers.twins.table import TableTwin
@@ -186,3 +188,100 @@ def test_unreachable_table_names_its_address():
     table = RotaryTable("127.0.0.1", port, MAP, timeout=TIMEOUT)
     with pytest.raises(TableError, match=f"127.0.0.1:{port}"):
         table.connect()
+
+
+CALLS = {"state": (), "set_rate": (1.0,), "start": (), "stop": ()}
+REPEATED = ("state", "set_rate", "stop")  # safe to send again; a start never is
+
+
+@pytest.mark.parametrize("kind, expected, words", [
+    ("reset", TableLinkError, "connection reset by the controller"),
+    ("short", TableReplyError, "short reply|garbled reply"),
+])
+@pytest.mark.parametrize("call", CALLS)
+def test_a_lost_connection_or_short_reply_is_a_table_error_naming_the_table(bench, kind,
+                                                                            expected, words, call):
+    """Every call, on a reset connection or a cut reply: a TableError naming the table and the
+    cause (never a raw ConnectionResetError or IndexError), the table stopped afterwards."""
+    physics, twin, clock = bench
+    table = spinning(twin, clock)
+    try:
+        twin.inject(kind, count=RETRIES + 1)
+        with pytest.raises(expected, match=words) as caught:
+            getattr(table, call)(*CALLS[call])
+        assert f"rotary table at 127.0.0.1:{twin.port}" in str(caught.value)
+        if call != "stop":  # the driver's emergency stop reached the table
+            assert caught.value.table_stopped is True
+        table.stop()  # the driver reconnects by itself
+        assert wait_for(lambda r: not r.moving, table).rate == 0.0
+    finally:
+        table.close()
+
+
+@pytest.mark.parametrize("kind", ["reset", "short"])
+@pytest.mark.parametrize("call", REPEATED)
+def test_one_lost_connection_or_short_reply_is_absorbed_where_repeating_is_safe(bench, kind, call):
+    physics, twin, clock = bench
+    table = spinning(twin, clock)
+    try:
+        twin.inject(kind, count=1)
+        result = getattr(table, call)(*CALLS[call])
+        if call == "state":  # the retry's reading, complete and current
+            assert result.rate_setpoint == 3.0 and result.running
+        elif call == "set_rate":
+            assert physics.state().rate_setpoint == 1.0 and physics.state().running
+        else:
+            assert not physics.state().running
+    finally:
+        table.close()
+
+
+def test_a_start_is_never_sent_twice(bench):
+    """A start whose connection was reset may have been executed: not repeated; table stopped."""
+    physics, twin, clock = bench
+    with driver(twin, clock) as table:
+        table.set_rate(1.0)
+        twin.inject("reset", count=1)
+        requests = twin.requests
+        with pytest.raises(TableLinkError, match="during start"):
+            table.start()
+        assert twin.requests - requests == 2  # the start, then the stop
+        assert not physics.state().running
+
+
+def test_a_controller_that_dies_mid_rotation_leaves_the_table_turning_and_says_so(bench):
+    """The controller process dies: the physics keeps turning; the error names the table, says
+    the stop could not be sent and tells the operator to stop it by hand; refused reconnections
+    are TableLinkErrors too."""
+    physics, twin, clock = bench
+    table = spinning(twin, clock)
+    table.stop_patience = 0.3
+    try:
+        twin.die()
+        with pytest.raises(TableLinkError, match=f"127.0.0.1:{twin.port}") as caught:
+            table.state()
+        assert caught.value.table_stopped is False
+        assert any("stop the table by hand" in n for n in caught.value.__notes__)
+        assert physics.state().running and physics.state().rate == pytest.approx(3.0, abs=1e-3)
+        with pytest.raises(TableLinkError, match="cannot connect"):
+            table.stop()
+    finally:
+        table.close()
+
+
+def test_the_twin_logs_the_instant_of_every_accepted_write(bench, tmp_path):
+    physics, twin, clock = bench
+    log = tmp_path / "writes.log"
+    twin.write_log = log
+    before = time.monotonic()
+    with driver(twin, clock) as table:
+        table.set_rate(1.0)
+        table.start()
+    after = time.monotonic()
+    rows = [line.split() for line in log.read_text().splitlines()]
+    assert [int(r[1]) for r in rows] == [MAP.registers[n] for n in ("rate_setpoint", "command",
+                                                                   "command")]
+    assert [int(r[2]) for r in rows[1:]] == [MAP.run, MAP.stop]
+    instants = [float(r[0]) for r in rows]
+    assert before <= instants[0] <= instants[1] <= instants[2] <= after
+    assert [w[0] for w in twin.writes] == pytest.approx(instants, abs=1e-6)

@@ -5,7 +5,8 @@ with the same channel name (in the same process) receives exactly what a real un
 Samples come from `source(times) -> counts (k, m) int` (times in seconds of the shared clock,
 e.g. `station.model.unit.SensorUnit.sample`), paced at the profile's rate by the clock, clipped to
 the range of each signal like a saturating ADC, and split into the profile's frames with
-`cantools`. Fault knob: `drop`, the (seq, frame index) pairs that never reach the bus.
+`cantools`. Fault knobs: `drop`, the (seq, frame index) pairs that never reach the bus;
+`duplicate`, the sequence numbers whose frames are all sent twice (the sample repeated).
 """
 
 import threading
@@ -29,7 +30,7 @@ class CanImuTwin:
     """
 
     def __init__(self, channel: str, profile: CanProfile, source, clock=None, samples=None,
-                 first_seq=0, drop=()):
+                 first_seq=0, drop=(), duplicate=()):
         self.layout = FrameLayout(profile)
         self.rate_hz = profile.imu.rate_hz
         self.source = source
@@ -37,13 +38,16 @@ class CanImuTwin:
         self.samples = samples
         self.first_seq = int(first_seq)
         self.drop = set(drop)
+        self.duplicate = set(duplicate)
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self.sent_seq, self.sent_counts = [], []
         self.error = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"CanImuTwin {channel}", daemon=True)
 
-    def start(self) -> "CanImuTwin":
+    def start(self, start_time=None) -> "CanImuTwin":
+        """Start streaming; sample 0 is at `start_time` (default: now)."""
+        self.start_time = self.clock.now() if start_time is None else float(start_time)
         self._thread.start()
         return self
 
@@ -66,7 +70,7 @@ class CanImuTwin:
         self.stop()
 
     def _run(self) -> None:
-        t0, sent = self.clock.now(), 0
+        t0, sent = self.start_time, 0
         total = self.samples if self.samples is not None else float("inf")
         try:
             while sent < total and not self._stop.is_set():
@@ -90,6 +94,8 @@ class CanImuTwin:
             if self._send_sample(int(seq), row):
                 self.sent_seq.append(int(seq))
                 self.sent_counts.append(row)
+            if int(seq) in self.duplicate:
+                self._send_sample(int(seq), row)
 
     def _send_sample(self, seq: int, row: np.ndarray) -> bool:
         """Send the frames of one sample; True if none was dropped."""

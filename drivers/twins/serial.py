@@ -19,7 +19,11 @@ Fault knobs (attributes, changeable while streaming):
 - `corrupt`: fraction of frames mutated by `corrupt_frame` (bytes flipped, deleted or inserted);
 - `drop`: fraction of frames not sent at all (the sequence number jumps);
 - `pause(seconds)`: silence; the frames due meanwhile are lost;
-- `unplug()` / `plug()`: the device disappears (the reader gets an error) and comes back.
+- `unplug()` / `plug()`: the device disappears (the reader gets an error) and comes back;
+- `duplicate`: fraction of frames sent twice in a row, byte for byte (their numbers in
+  `duplicated`), as a USB-serial adapter that repeats a buffer;
+- `restart()`: the device resets: from the next frame its sequence number and device time start
+  again from 0 (the frame numbers of the log go on; `restarts` holds the first of each new run).
 Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
 """
 
@@ -78,13 +82,16 @@ class SerialTwin:
     max_batch = 4096  # frames encoded and written at once
 
     def __init__(self, profile, source, clock=None, rate_hz=None, seed=0, corrupt=0.0, drop=0.0,
-                 max_lag=1.0, unread_after=None):
+                 max_lag=1.0, duplicate=0.0, unread_after=None):
         self.profile = (profile if isinstance(profile, SerialImuProfile)
                         else SerialImuProfile.load(profile))
         self.source = source
         self.clock = clock or WallClock()
         self.rate_hz = float(rate_hz or self.profile.imu.rate_hz)
         self.corrupt, self.drop, self.max_lag = corrupt, drop, max_lag
+        self.duplicate = duplicate
+        self.duplicated, self.restarts = [], []
+        self._origin = 0  # frame number the device counts from (changed by `restart`)
         self.unread_after = unread_after
         self._blocked_since = None  # wall time the pty stopped taking bytes
         self.start_time = None
@@ -129,6 +136,10 @@ class SerialTwin:
             os.close(self._keeper)
             self._master = self._keeper = None
             os.unlink(self.port)
+
+    def restart(self) -> None:
+        """The device resets: its numbering and clock start again from 0 at the next frame."""
+        self._origin = None
 
     def pause(self, seconds: float) -> None:
         """Go silent for `seconds` of clock time; the frames due meanwhile are lost."""
@@ -214,6 +225,10 @@ class SerialTwin:
         frames = self._encode(seq[fate <= CORRUPTED], times[fate <= CORRUPTED])
         for i in np.flatnonzero(fate[fate <= CORRUPTED] == CORRUPTED):
             frames[i] = corrupt_frame(frames[i], self._rng)
+        twice = np.flatnonzero(self._rng.random(len(frames)) < self.duplicate)
+        for i in twice:
+            frames[i] = frames[i] * 2
+        self.duplicated.extend(seq[fate <= CORRUPTED][twice].tolist())
         written = self._write(b"".join(frames))
         ends = np.cumsum([len(f) for f in frames])
         sent = np.flatnonzero(fate <= CORRUPTED)
@@ -232,8 +247,14 @@ class SerialTwin:
         fmt = self.profile.serial.frame
         if self.profile.serial.protocol == "ascii":
             return encode_lines(fmt, times, counts).splitlines(keepends=True)
-        ticks = np.round(times / fmt.time_tick).astype(np.int64) if "time" in fmt.layout else seq
-        data = encode_frames(fmt, seq, ticks, counts)
+        if self._origin is None:  # restarted: this frame is the device's number 0
+            self._origin = int(seq[0])
+            self.restarts.append(self._origin)
+        wire = seq - self._origin
+        zero = self.time_of(self._origin) if self.restarts else 0.0  # the device clock's 0
+        ticks = (np.round((times - zero) / fmt.time_tick).astype(np.int64)
+                 if "time" in fmt.layout else wire)
+        data = encode_frames(fmt, wire, ticks, counts)
         size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
 

@@ -12,15 +12,31 @@ Fault knobs (`inject`), each applied to the next `count` requests:
   "exception" -> the given exception `code` (e.g. 4 device failure, 2 illegal address)
   "slow"      -> the reply comes `delay` seconds late (the whole controller stalls, like a real one)
   "drop"      -> no reply at all
-and `silent` (an attribute): while True no request is answered, however many come (a link that is
+  "reset"     -> no reply: every connection is reset (TCP RST), as when the controller's network
+                 stack restarts; the driver must reconnect
+  "short"     -> a read is answered with one register fewer than asked (a well-formed frame);
+                 a write's reply loses its last two bytes
+
+`die()` is the controller process dying: every connection is reset and the port closed, so that
+later connections are refused; the table's physics goes on (a table left turning keeps turning).
+
+Every write the controller accepts is kept in `writes` as (time.monotonic(), address, values) and,
+when `write_log` names a file, appended to it as one line `<monotonic s> <address> <values...>`
+(CLOCK_MONOTONIC is shared by every process of the machine, so another process can measure when
+its command arrived).
+
+`silent` (an attribute): while True no request is answered, however many come (a link that is
 down: the cable pulled, the controller's network port dead); the physics go on.
 """
 
 import asyncio
 import collections
 import contextlib
+import socket
+import struct
 import threading
 import time
+from pathlib import Path
 from typing import Self
 
 from pymodbus.constants import ExcCodes
@@ -29,19 +45,26 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.rotary_table import FIXED_REGISTERS, TableRegisterMap
 
-KINDS = ("busy", "exception", "slow", "drop")
+KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
+READ_HOLDING = 3  # Modbus function code "read holding registers"
+MBAP = 7  # bytes of the Modbus TCP header: transaction, protocol, length, unit id
 
 
 class TableTwin:
     """Serve `table` (a `station.sim.table.TablePhysics`) with the layout of `register_map`."""
 
-    def __init__(self, table, register_map: TableRegisterMap, lifetime: float = 60.0):
+    def __init__(self, table, register_map: TableRegisterMap, lifetime: float = 60.0,
+                 write_log: str | Path | None = None):
         self.table = table
         self.map = register_map
         self.lifetime = lifetime
+        self.write_log = write_log
         self.port = None
         self.requests = 0
+        self.writes = []
+        self._server = None
+        self._cut = False  # the next reply is sent short
         self.silent = False
         self._faults = collections.deque()
         self._loop = asyncio.new_event_loop()
@@ -63,6 +86,17 @@ class TableTwin:
         if self._thread.is_alive():
             self._loop.call_soon_threadsafe(self._stopping.set)
             self._thread.join(10)
+
+    def die(self) -> None:
+        """The controller process dies: reset every connection, close the port (see the module
+        doc); the physics goes on."""
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._die)
+            self._thread.join(10)
+
+    def _die(self) -> None:
+        self._reset_connections()
+        self._stopping.set()
 
     def __enter__(self) -> Self:
         return self.start()
@@ -100,7 +134,8 @@ class TableTwin:
         first, count = self.map.span
         device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
             SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
-        server = ModbusTcpServer(device, address=("127.0.0.1", 0))
+        server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace)
+        self._server = server
         await server.serve_forever(background=True)
         try:
             self.port = server.transport.sockets[0].getsockname()[1]
@@ -126,11 +161,52 @@ class TableTwin:
                 return ExcCodes(code)
             if kind == "drop":
                 raise asyncio.CancelledError  # the request task ends without a reply
+            if kind == "reset":
+                self._reset_connections()
+                raise asyncio.CancelledError
+            if kind == "short":
+                self._cut = True
+                return self._serve_request(func_code, start, address, registers, values)
             time.sleep(delay)  # noqa: ASYNC251 - "slow": the whole controller stalls
+        return self._serve_request(func_code, start, address, registers, values)
+
+    def _serve_request(self, func_code, start, address, registers, values) -> ExcCodes | None:
+        """Apply a write to the physics, or refresh the register image for a read."""
         if values:
             return self._write(address, values)
         self._refresh(start, registers)
         return None
+
+    def _reset_connections(self) -> None:
+        """Reset every client connection (SO_LINGER 0, then close: the peer gets a TCP RST)."""
+        for connection in list(self._server.active_connections.values()):
+            transport = connection.transport
+            if transport is None:
+                continue
+            sock = transport.get_extra_info("socket")
+            if sock is not None:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            transport.abort()
+
+    def _trace(self, sending: bool, packet: bytes) -> bytes:
+        """pymodbus' packet hook: cut the reply a "short" fault asked for (the MBAP length field
+        follows the cut, so the frame stays well-formed)."""
+        if not (sending and self._cut) or len(packet) < MBAP + 3:
+            return packet
+        self._cut = False
+        body = bytearray(packet[:-2])
+        if body[MBAP] == READ_HOLDING:
+            body[MBAP + 1] -= 2  # the byte count: one register fewer
+        struct.pack_into(">H", body, 4, len(body) - 6)  # length: unit id and PDU
+        return bytes(body)
+
+    def _log_write(self, address: int, values: list) -> None:
+        """Keep an accepted write with its instant (see the module doc)."""
+        now = time.monotonic()
+        self.writes.append((now, address, list(values)))
+        if self.write_log is not None:
+            with open(self.write_log, "a", encoding="ascii") as log:
+                log.write(f"{now:.6f} {address} {' '.join(map(str, values))}\n")
 
     def _refresh(self, start: int, registers: list) -> None:
         """Write the table's present state into the register image (in place)."""
@@ -162,11 +238,12 @@ class TableTwin:
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
         command = written.get(m.registers["command"])
+        if command not in (None, m.run, m.stop):
+            return ExcCodes.ILLEGAL_VALUE
+        self._log_write(address, values)
         if command == m.run:
             if not self.table.start():
                 return ExcCodes.DEVICE_FAILURE
         elif command == m.stop:
             self.table.stop()
-        elif command is not None:
-            return ExcCodes.ILLEGAL_VALUE
         return None

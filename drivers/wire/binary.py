@@ -25,7 +25,7 @@ still matches cannot be told from an intact frame by any check on this format; a
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from drivers.samples import SampleBlock
+from drivers.samples import SampleBlock, restart_seq
 from drivers.wire import Decoded, SerialStats
 from drivers.wire.crc import CHECKSUMS
 
@@ -79,6 +79,17 @@ def _crc_start(fmt) -> int:
     return 0 if fmt.crc_covers_sync else len(fmt.sync)
 
 
+def _unwrap(raw: np.ndarray, steps: np.ndarray, restart: np.ndarray, last: int,
+            modulus: int) -> np.ndarray:
+    """Unwrapped counter values: `last` plus the forward `steps`, except that each `restart`
+    begins a new segment at `restart_seq` (the counter values before are not moved)."""
+    out = last + np.cumsum(steps)
+    for i in np.flatnonzero(restart):  # rare: a device reset
+        before = out[i - 1] if i else last
+        out[i:] += restart_seq(int(raw[i]), int(before), modulus) - out[i]
+    return out
+
+
 def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
     """Steps from counter value a forward to b, modulo the counter width (0 becomes `modulus`)."""
     d = (b.astype(np.int64) - a.astype(np.int64)) % modulus
@@ -128,7 +139,8 @@ class BinaryFrameParser:
         self.stats = SerialStats()
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
-        self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
+        self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks,
+        # counts)
         self.reset()
 
     def reset(self) -> None:
@@ -241,51 +253,78 @@ class BinaryFrameParser:
         return accept
 
     def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
-        """SampleBlock of newly accepted frames; updates unwrapping state and counters."""
-        k = len(rel_pos)
+        """SampleBlock of newly accepted frames; updates unwrapping state and counters.
+
+        Before unwrapping, each frame is compared with the one accepted before it: the same
+        sequence number, device time and counts is a duplicate (dropped, counted); a number that
+        goes back, or a device time that goes back, is a restart of the device (a new segment,
+        `restart_seq`; the frames before keep their numbers); only a forward jump is a gap.
+        """
         stats = self.stats
         ends = self._base + rel_pos + self.size
         seq_raw = records["seq"].astype(np.int64)
-        ticks_raw = records["time"].astype(np.int64) if self.time_modulus else np.zeros(k, np.int64)
+        ticks_raw = (records["time"].astype(np.int64) if self.time_modulus
+                     else np.zeros(len(records), np.int64))
+        counts = records["counts"].astype(np.int64).reshape(len(records), len(self.channels))
+        if len(records) and self._last is None:  # the very first frame: 1 step after a virtual one
+            self._last = (self._connection_start, (seq_raw[0] - 1) % self.seq_modulus,
+                          seq_raw[0] - 1, ticks_raw[0], ticks_raw[0], None)
+        if len(records):
+            self._count_skips(ends)
+            last_counts = self._last[5]
+            prev_counts = np.concatenate([counts[:1] + 1 if last_counts is None
+                                          else last_counts[None], counts[:-1]])
+            fresh = ~((np.diff(seq_raw, prepend=self._last[1]) == 0)
+                      & (np.diff(ticks_raw, prepend=self._last[3]) == 0)
+                      & np.all(counts == prev_counts, axis=1))
+            stats.duplicates += int(np.count_nonzero(~fresh))
+            ends, seq_raw, ticks_raw, counts = ends[fresh], seq_raw[fresh], ticks_raw[fresh], \
+                counts[fresh]
+        k = len(seq_raw)
         if k == 0:
             seq, device_time = np.zeros(0, np.int64), np.zeros(0)
         else:
-            if self._last is None:  # the very first frame: sequence 1 step after a virtual one
-                before = (seq_raw[0] - 1) % self.seq_modulus
-                self._last = (self._connection_start, before, seq_raw[0] - 1,
-                              ticks_raw[0], ticks_raw[0])
-            last_end, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
-            steps = _forward(np.concatenate([[last_seq_raw], seq_raw[:-1]]), seq_raw,
-                             self.seq_modulus)
-            seq = last_seq + np.cumsum(steps)
-            stats.gaps += int(np.count_nonzero(steps > 1))
-            stats.dropped += int(np.sum(steps - 1))
-            starts = ends - self.size
-            previous_ends = np.concatenate([[max(last_end, self._connection_start)], ends[:-1]])
-            skipped = starts - previous_ends
-            stats.skipped_bytes += int(np.sum(np.maximum(skipped, 0)))
-            resynced = skipped != 0
-            if last_end <= self._connection_start:
-                resynced[0] = False  # first frame of a new connection
-            stats.resyncs += int(np.count_nonzero(resynced))
+            _, last_seq_raw, last_seq, last_ticks_raw, last_ticks, _ = self._last
+            steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
+            restart = (steps == 0) | (steps > self.seq_modulus // 2)
             if self.time_modulus:
-                dt = ((ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]]))
-                      % self.time_modulus)
-                ticks = last_ticks + np.cumsum(dt)
+                dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) \
+                    % self.time_modulus
+                restart |= dt > self.time_modulus // 2  # the device clock went back
+            seq = _unwrap(seq_raw, steps, restart, last_seq, self.seq_modulus)
+            stats.restarts += int(np.count_nonzero(restart))
+            stats.gaps += int(np.count_nonzero((steps > 1) & ~restart))
+            stats.dropped += int(np.sum(np.where(restart, 0, steps - 1)))
+            if self.time_modulus:
+                ticks = _unwrap(ticks_raw, dt, restart, last_ticks, self.time_modulus)
                 device_time = ticks * self.fmt.time_tick
             else:
                 ticks = np.zeros(k, np.int64)
                 device_time = np.full(k, np.nan)
-            self._last = (int(ends[-1]), int(seq_raw[-1]), int(seq[-1]),
-                          int(ticks_raw[-1]), int(ticks[-1]))
+            self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
+                          int(ticks_raw[-1]), int(ticks[-1]), counts[-1].copy())
             stats.samples += k
         return SampleBlock(
-            counts=records["counts"].astype(np.int64).reshape(k, len(self.channels)),
+            counts=counts,
             seq=seq,
             device_time=device_time,
             host_time=self._host.at(ends),
             channels=self.channels,
         )
+
+    def _count_skips(self, ends: np.ndarray) -> None:
+        """Count the bytes between accepted frames (ending at `ends`) and the resyncs; the last
+        frame's end is kept in `_last`."""
+        last_end = self._last[0]
+        starts = ends - self.size
+        previous_ends = np.concatenate([[max(last_end, self._connection_start)], ends[:-1]])
+        skipped = starts - previous_ends
+        self.stats.skipped_bytes += int(np.sum(np.maximum(skipped, 0)))
+        resynced = skipped != 0
+        if last_end <= self._connection_start:
+            resynced[0] = False  # first frame of a new connection
+        self.stats.resyncs += int(np.count_nonzero(resynced))
+        self._last = (int(ends[-1]), *self._last[1:])
 
     def _count_crc_failures(self, failed: np.ndarray, accepted: np.ndarray) -> None:
         """Count CRC-failing candidates that do not lie inside an accepted frame."""

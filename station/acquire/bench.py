@@ -4,7 +4,8 @@ docs/protocols.md), its devices opened from it, and a session recorded or resume
 `BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem);
 `record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
 into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
-The rotary table is stopped whenever its driver is closed (`table_driver`).
+The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed
+(`table_driver`); `stop_table` stops it before anything else is loaded (`station resume`).
 """
 
 import contextlib
@@ -41,22 +42,20 @@ class BenchProfile:
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
+    fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
         """Read and check a bench profile; `drivers.profile.ProfileError` names any problem."""
         from drivers import driver_class
         from drivers.profile import ProfileError, Section, load_profile
-        from drivers.rotary_table import TableRegisterMap
         from station.protocols import KINDS, kinds_with
         from station.solve.verdict import Tolerances
 
         profile = load_profile(path)
-        base = Path(profile.source).parent
 
         def device(name: str) -> str:
-            local = base / name
-            return str(local) if local.exists() else name
+            return _device(profile, name)
 
         def section(name: str) -> Section:
             table = profile.tables.get(name)
@@ -64,10 +63,12 @@ class BenchProfile:
                 raise ProfileError(f"{path}: no [{name}] section; see `station record --help`")
             return Section(profile.source, name, table)
 
-        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances"})
+        unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances",
+                                                "fixture"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary), [protocol] and [tolerances]")
+                               "[imu], [table] (rotary), [protocol], [fixture] (rotary, static) "
+                               "and [tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -99,15 +100,22 @@ class BenchProfile:
                   "tables": profile.tables}
         if KINDS[kind].table:
             table = section("table")
-            table_profile = load_profile(device(table.get("profile", str, default="table_modbus")))
-            fields.update(table_host=table.get("host", str), table_port=table.get("port", int),
-                          table_map=table_profile.section("table", TableRegisterMap.parse),
-                          table_source=table_profile.source,
-                          positions=proto.get("positions", int), **_settings(kind, proto, path))
+            fields.update(_table_fields(profile, table), **_settings(kind, proto, path))
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(section("fixture"),
+                                                             len(dev.imu.channels))
+            fields["positions"] = (proto.get("positions", int, default=40)
+                                   if "fixture" in fields else proto.get("positions", int))
             table.finish()
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
+            if "fixture" in profile.tables and kind != "static":
+                raise ProfileError(f"{path}: the {kind} protocol does not plan fixture poses; "
+                                   "remove the [fixture] section (it serves rotary and static "
+                                   "sessions)")
             if "table" in profile.tables:
                 raise ProfileError(f"{path}: a {kind} session uses no rotary table; remove the "
                                    "[table] section (or set [protocol] kind = \"rotary\")")
@@ -118,9 +126,57 @@ class BenchProfile:
                 raise ProfileError(f"{path}: the {kind} protocol calibrates every channel of the "
                                    "stream; use a device profile with accelerometer channels only")
             fields["positions"] = fields["settings"].poses
+            if "fixture" in profile.tables:
+                from station.protocols.planned import FixtureSpec
+
+                fields["fixture"] = FixtureSpec.from_section(
+                    section("fixture"), fields["layout"].shape[1], fields["layout"])
         for s in (bench, imu, proto):
             s.finish()
         return cls(**fields)
+
+
+def _device(profile, name: str) -> str:
+    """A device profile named in the bench profile `profile`: a file next to it, else `name` (a
+    path or a bundled profile)."""
+    local = Path(profile.source).parent / name
+    return str(local) if local.exists() else name
+
+
+def _table_fields(profile, table) -> dict:
+    """The table's address and register map from the bench profile's [table] section `table`."""
+    from drivers.profile import load_profile
+    from drivers.rotary_table import TableRegisterMap
+
+    table_profile = load_profile(_device(profile, table.get("profile", str,
+                                                            default="table_modbus")))
+    return {"table_host": table.get("host", str), "table_port": table.get("port", int),
+            "table_map": table_profile.section("table", TableRegisterMap.parse),
+            "table_source": table_profile.source}
+
+
+def stop_table(path) -> bool:
+    """Command the rotary table of the bench profile `path` to stop, before anything else is
+    loaded or opened: a killed station may have left it turning (`station resume` calls it
+    first). False for a bench without a [table]; TableError if the stop cannot be sent."""
+    from drivers.errors import TableError
+    from drivers.profile import Section, load_profile
+    from drivers.rotary_table import RotaryTable
+
+    profile = load_profile(path)
+    if not isinstance(profile.tables.get("table"), dict):
+        return False
+    fields = _table_fields(profile, Section(profile.source, "table", profile.tables["table"]))
+    table = RotaryTable(fields["table_host"], fields["table_port"], fields["table_map"])
+    try:
+        table.connect()
+        table.stop()
+    except TableError as exc:
+        exc.add_note("the table may still be turning: stop it by hand")
+        raise
+    finally:
+        table.close()
+    return True
 
 
 def _settings(kind: str, proto, path) -> dict:
@@ -189,8 +245,11 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = len(session.stream("imu").seq)
+        meta = session.metadata  # a fixture's plan fixes the count
+        planned = len(meta.get("fixture_poses") or meta.get("axes") or ()) or bench.positions
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
-            "positions_done": 0 if done is None else done + 1, "samples": samples,
+            "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
+            "samples": samples,
             "wall_seconds": time.perf_counter() - start}
 
 
@@ -202,8 +261,9 @@ def resume(bench: BenchProfile, path, operator) -> int:
     The session's own protocol settings and axes rule (the profile's [protocol] is not used); the
     profile must be for the same unit and give the same stream (channels, units, scales, rate),
     else the resumed counts would not mean what the recorded ones do. The clock continues after
-    the session's last recorded instant (a reboot restarts the host's monotonic time), and a rotary
-    table is commanded to stop before anything else (a killed station may have left it turning).
+    the session's last recorded instant (a reboot restarts the host's monotonic time), and a
+    rotary table is commanded to stop as soon as it is connected (a killed station may have left it
+    turning; `station resume` stops it even earlier, `stop_table`).
     """
     from drivers.clock import ScaledClock
     from station.files.session import Session, SessionWriter, StreamSpec
@@ -213,11 +273,9 @@ def resume(bench: BenchProfile, path, operator) -> int:
     kind = _check_same_bench(bench, path, metadata, recorded,
                              StreamSpec.from_profile(bench.imu.imu))
     clock = ScaledClock(bench.clock_speed, start=end + 1.0)
-    with bench_devices(bench, clock, kind.table) as (imu, table):
-        if table is not None:
-            table.stop()
-        with SessionWriter.resume(path, clock=clock) as writer:
-            return kind.entry("resume")(writer, metadata, imu, table, operator, clock)
+    with (bench_devices(bench, clock, kind.table) as (imu, table),
+          SessionWriter.resume(path, clock=clock) as writer):
+        return kind.entry("resume")(writer, metadata, imu, table, operator, clock)
 
 
 def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec):
@@ -256,16 +314,19 @@ def imu_driver(bench: BenchProfile, clock):
 
 @contextlib.contextmanager
 def bench_devices(bench: BenchProfile, clock, table: bool):
-    """(imu, table) drivers of the bench, opened (table None unless `table`); closed on exit."""
+    """(imu, table) drivers of the bench, opened (table None unless `table`), the table first;
+    closed on exit."""
     with contextlib.ExitStack() as stack:
-        imu = stack.enter_context(imu_driver(bench, clock))
-        yield imu, stack.enter_context(table_driver(bench, clock)) if table else None
+        table = stack.enter_context(table_driver(bench, clock)) if table else None
+        yield stack.enter_context(imu_driver(bench, clock)), table
 
 
 @contextlib.contextmanager
 def table_driver(bench: BenchProfile, clock):
-    """The bench's rotary table driver, connected; stopped and closed on exit."""
+    """The bench's rotary table driver, connected and commanded to stop (a killed station may
+    have left it turning); stopped and closed on exit."""
     from drivers.rotary_table import RotaryTable
 
     with RotaryTable(bench.table_host, bench.table_port, bench.table_map, clock=clock) as table:
+        table.stop()
         yield table

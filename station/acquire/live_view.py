@@ -37,8 +37,6 @@ from rich.panel import Panel
 from rich.progress_bar import ProgressBar
 from rich.table import Table
 
-from station.protocols.rotary import instruction
-
 PHASES = {
     "mount": "waiting for the technician to mount the unit",
     "still": "waiting for the table to stand still",
@@ -213,12 +211,12 @@ class LiveView:
         grid.add_row("stillness", self._stillness_words())
         if state == "mount" and j < n:  # the station waits for this mounting: say it, and only it
             grid.add_row("[bold yellow]do now[/]",
-                         f"[bold yellow]{escape(instruction(j, n, p.axes[j]).text)}[/], then "
+                         f"[bold yellow]{escape(p.instruction(j).text)}[/], then "
                          "press Enter")
         else:
             grid.add_row("technician", escape(message) if message else "-")
             if j + 1 < n:
-                grid.add_row("next", instruction(j + 1, n, p.axes[j + 1]).text)
+                grid.add_row("next", escape(p.instruction(j + 1).text))
         if self.display_error is not None:
             grid.add_row("[red]view error[/]", f"{self.display_error!r} (recording unaffected)")
         return Panel(grid, title="calibration session", border_style="blue")

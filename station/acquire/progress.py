@@ -1,22 +1,22 @@
-"""A progress bar of captured positions on stderr, for sessions that run without the live view
+"""A progress bar of captured positions, for sessions that run without the live view
 (`station demo`): the observer interface of `station.acquire.live_view.LiveView`, reduced to the
-`position_done` events."""
+`position_done` events, drawn by the commands' one progress bar (`station.commands.progress`,
+passed in: the acquisition room does not import the commands)."""
 
 import contextlib
-
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from station.protocols.rotary import Unwatched
 
 
 class PositionProgress(Unwatched):
-    """Counts the positions the recorder reports done; shown while `show()` runs."""
+    """Counts the positions the recorder reports done; shown while `show()` runs.
 
-    def __init__(self, console: Console | None = None):
-        self.console = console or Console(stderr=True)
-        self._progress = None
-        self._task = None
+    bar : (what, unit) -> a context manager yielding `advance(done, total)`
+    """
+
+    def __init__(self, bar):
+        self._bar = bar
+        self._advance = None
         self.total = 0
 
     def follow(self, protocol):
@@ -28,17 +28,15 @@ class PositionProgress(Unwatched):
 
     @contextlib.contextmanager
     def show(self):
-        columns = (TextColumn("positions captured"), BarColumn(), MofNCompleteColumn(),
-                   TimeElapsedColumn())
-        with Progress(*columns, console=self.console, transient=True) as progress:
-            self._progress = progress
-            self._task = progress.add_task("positions", total=self.total)
+        with self._bar("positions captured", "positions") as advance:
+            self._advance = advance
+            advance(0, self.total)
             yield self
 
     def done(self, position: int) -> None:
         """Position `position` (0-based) was captured."""
-        if self._progress is not None:
-            self._progress.update(self._task, completed=position + 1)
+        if self._advance is not None:
+            self._advance(position + 1, self.total)
 
 
 class _Counted:

@@ -143,6 +143,18 @@ class Recorder:
             raise RecordingError(f"no IMU sample for {silent:.1f} s (limit {stale} s); check the "
                                  "IMU's power and cable, then record the session again")
 
+    def _follow(self, block) -> None:
+        """Update what `sampled_until` knows from a new block; a device that restarted its
+        numbering (the seq does not increase: `drivers.samples.restart_seq`) starts afresh."""
+        seq = block.seq
+        before = seq[0] - 1 if self._last_seq is None else self._last_seq
+        restarts = np.flatnonzero(np.diff(seq, prepend=before) <= 0)
+        if restarts.size:
+            self._offset, seq = np.inf, seq[restarts[-1]:]
+        self._offset = min(self._offset, arrival_offset(seq, block.host_time[-len(seq):],
+                                                        self.rate_hz))
+        self._last_seq = int(seq[-1])
+
     def _read(self) -> None:
         try:
             while not self._stop.is_set():
@@ -152,9 +164,7 @@ class Recorder:
                     with self._lock:
                         self.writer.append(self.stream, block)
                     self.samples += len(block)
-                    self._offset = min(self._offset, arrival_offset(block.seq, block.host_time,
-                                                                    self.rate_hz))
-                    self._last_seq = int(block.seq[-1])
+                    self._follow(block)
                 time.sleep(self.interval)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc

@@ -50,6 +50,31 @@ def working(what: str):
 
 
 @contextlib.contextmanager
+def progress(what: str, unit: str):
+    """A progress bar with `what` on stderr while countable work runs (on a terminal; nothing
+    otherwise, so JSON and pipes stay clean). Yields `advance(done, total)`, which the work calls
+    with the `unit`s done so far and the total it knows of."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield lambda done, total: None
+        return
+    columns = (TextColumn(what), BarColumn(), MofNCompleteColumn(), TextColumn(unit),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True) as bar:
+        task = bar.add_task(what, total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+
+@contextlib.contextmanager
 def given_values():
     """A ValueError that a library function raises about values given on the command line (a
     settings dataclass, a simulated unit, a twin) becomes an InputError: one line, exit 2."""
@@ -94,3 +119,9 @@ def still_values(args) -> dict:
                              "sample, e.g. --rest 0:50")
     return {"rest": rest, "threshold": args.threshold, "still_channels": args.still_channels,
             "min_still": args.min_still}
+
+
+def table_words(err: BaseException) -> str:
+    """"the table was stopped; " when a stop command got through after `err`, "" otherwise (no
+    table, or the driver's note already tells the operator to stop it by hand)."""
+    return "the table was stopped; " if getattr(err, "table_stopped", None) else ""

@@ -78,6 +78,7 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     import station
     from station.acquire.live_view import LiveView
     from station.acquire.progress import PositionProgress
+    from station.commands import progress
     from station.files.session import Session, write_results
     from station.protocols.rotary import RotarySettings, suggested_axes
     from station.reduce.rotary import static_bias
@@ -89,7 +90,8 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     start = time.perf_counter()
     settings = settings or RotarySettings()
     with VirtualBench(imu, seed=seed, speed=speed) as bench:
-        view = LiveView(bench.clock) if live else PositionProgress()
+        bench.technician.period = bench.metronome(settings)  # positions on a seeded grid
+        view = LiveView(bench.clock) if live else PositionProgress(progress)
         record_rotary(bench, path, settings, suggested_axes(positions), view=view)
         truth = bench.truth()
     recorded = time.perf_counter() - start

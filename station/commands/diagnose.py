@@ -12,9 +12,9 @@ from pathlib import Path
 from station.commands import (
     existing_file,
     existing_session,
+    progress,
     still_arguments,
     still_values,
-    working,
 )
 from station.diagnose import data, diagnose, static_report
 from station.diagnose.static import diagnose_static
@@ -68,16 +68,16 @@ def run(args) -> int:
     if rotary and still != StillOptions():
         raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
                          "--min-still are for still-pose (free-static) sessions")
-    with working(f"diagnosing {path.name}: fitting the model, testing each named effect "
-                 f"(at most {args.max_effects})"):
+    with progress(f"diagnosing {path.name}: testing the named effects (at most "
+                  f"{args.max_effects} kept)", "fits") as advance:
         if rotary:
-            doc = report.to_dict(diagnose(session, alpha=args.alpha,
-                                          max_effects=args.max_effects), session, str(path))
+            doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
+                                          progress=advance), session, str(path))
         else:
             static = static_report.load(path, still)
             doc = report.static_to_dict(
-                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
-                static, str(path))
+                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
+                                progress=advance), static, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

@@ -65,11 +65,11 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file, working
+    from station.commands import existing_file, new_file, progress
 
     new_file(args.out, option="name")
-    with working(f"importing into {args.out}"):
-        out = _import(args, existing_file)
+    with progress(f"importing into {args.out}", "bytes") as advance:
+        out = _import(args, existing_file, advance)
     from station.files.session import Session
 
     with Session.open(out) as session:
@@ -87,8 +87,9 @@ def run(args) -> int:
     return 0
 
 
-def _import(args, existing_file) -> Path:
-    """The importer of `args.format` called with the options given."""
+def _import(args, existing_file, advance) -> Path:
+    """The importer of `args.format` called with the options given; `advance(done, total)` hears
+    of the bytes read where the importer counts them (csv)."""
     from station.errors import InputError
     from station.files import importers
 
@@ -117,7 +118,8 @@ def _import(args, existing_file) -> Path:
         return importers.import_csv(args.out, source, columns, units, time_column=args.time,
                                     index_column=args.index, fs=args.fs,
                                     unit_serial=args.unit_serial, time_unit=args.time_unit,
-                                    delimiter=delimiter, skip_rows=args.skip_rows)
+                                    delimiter=delimiter, skip_rows=args.skip_rows,
+                                    progress=advance)
     if args.format == "npz":
         return importers.import_npz(args.out, existing_file(args.source, "an .npz recording"),
                                     unit_serial=args.unit_serial)

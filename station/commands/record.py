@@ -23,6 +23,11 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     kind = "rotary"               # "rotary" (default), "iron" or "static"
     positions = 20                # rotary; any other key: a field of the protocol's settings
 
+    [fixture]                     # rotary, optional: a lettered cube (and wedge) to mount the
+    layout = [[...], [...], [...]]  # unit in; the positions are then planned fixture poses
+    noise_density = 1.7e-4        # (`station plan`; docs/protocols.md, "Fixture and plan")
+    wedge = true
+
     [tolerances]                  # optional: the unit type's tolerances, for a PASS/FAIL verdict
     scale_factor = 0.03           # |k_i - 1| (station.solve.verdict)
     bias = 0.05                   # |b_i|, in the readings' SI unit
@@ -76,7 +81,7 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, new_file, table_words
     from station.commands.solve import verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
@@ -96,13 +101,12 @@ def run(args) -> int:
         if args.solve:
             summary["calibration"] = solve(out, args.accept_suspect)
     except BaseException as err:
-        stopped = "the table was stopped; " if kind.table else ""
-        err.add_note(f"{stopped}{out} keeps the completed positions")
+        err.add_note(f"{table_words(err)}{out} keeps the completed positions")
         raise
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"recorded {summary['positions_done']} of {bench.positions} positions "
+        print(f"recorded {summary['positions_done']} of {summary['positions_planned']} positions "
               f"({summary['samples']} samples) into {out} in {summary['wall_seconds']:.1f} s")
         if args.solve:
             print(f"calibration: {summary['calibration']['calibration']} (chi2/dof "

@@ -61,7 +61,7 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_session, new_file, working
+    from station.commands import existing_session, new_file, progress, working
     from station.commands.solve import pose_lines, poses
     from station.files.session import Session
     from station.protocols import KINDS
@@ -71,8 +71,9 @@ def run(args) -> int:
     existing_session(args.session, None if args.raw else _positions(args.positions))
     if args.raw is not None:
         raw = new_file(args.raw, option="file for the raw replay")
-        with working(f"replaying {args.session} through the serial twin into {raw}"):
-            replay_raw(args.session, raw)
+        with progress(f"replaying {args.session} through the serial twin into {raw}",
+                      "samples") as advance:
+            replay_raw(args.session, raw, progress=advance)
         summary = {"session": str(args.session), "raw_replay": str(args.raw)}
     else:
         settings = _settings(args)

@@ -3,7 +3,8 @@ ended: rotary, iron or free-static.
 
 The session file is reopened (rows cut by a kill are dropped), the positions after the last
 completed one are recorded, and the file is closed cleanly. A rotary session goes on with the
-position after its last completed one (the table is stopped first); an iron or free-static session
+position after its last completed one (the table is commanded to stop first of all, within a
+second of the command's start: `station.acquire.bench.stop_table`); an iron or free-static session
 keeps the poses already captured and asks the technician for the others (an iron session resumed
 within a mounting goes on with its next face: leave the unit fixed in the iron as it was).
 Rotary sessions recorded on the virtual bench (`bench` in their metadata) resume on a new virtual
@@ -35,24 +36,32 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    """Stop the table first (nothing else is imported before: `stop_table`), then check the
+    file (`existing_session`, about 0.5 s in a child process) and resume."""
+    from station.commands import existing_file, existing_session, table_words
+
+    existing_file(args.session, "a session file (.h5)")
+    profile = args.profile or _recorded_profile(args.session)
+    if profile is not None:
+        from station.acquire.bench import stop_table
+
+        stop_table(profile)
+    existing_session(args.session)
+
     from drivers.errors import DeviceError
-    from station.commands import existing_session
     from station.errors import AcquisitionError, OperatorAbort
     from station.files.session import Session
-    from station.twin.rotary_bench import resume_rotary
 
-    existing_session(args.session)
-    overrides = {} if args.speed is None else {"speed": args.speed}
-    profile = args.profile or _recorded_profile(args.session)
     try:
         if profile is None:
-            first = resume_rotary(args.session, **overrides)
+            from station.twin.rotary_bench import resume_rotary
+
+            first = resume_rotary(args.session, **({} if args.speed is None
+                                                    else {"speed": args.speed}))
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
-        with Session.open(args.session) as session:
-            rotary = session.protocol == "rotary"
-        err.add_note(f"{'the table was stopped; ' if rotary else ''}resume again to go on")
+        err.add_note(f"{table_words(err)}resume again to go on")
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()

@@ -7,7 +7,9 @@ follow the simulated table's physics. The unit sits in a motorised fixture that 
 next position of the rotary protocol (`station.protocols.rotary.suggested_axes`) each time the
 table is commanded to stop, so a technician has nothing to turn: pressing Enter at each prompt of
 `station record` runs the whole session. Restart the twin for each new session (the fixture counts
-the stops).
+the stops). With `--cube` the unit sits in a lettered cube on a 45-degree wedge instead: the
+bench profile gets a [fixture] section, `station record` plans the fixture poses from it
+(`station plan`) and the twin's fixture sets the same poses.
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who
@@ -45,7 +47,8 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station twin --profile-out bench.toml\n"
         "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
-        "  station twin --protocol static --speed 20 --profile-out hand.toml"
+        "  station twin --protocol static --speed 20 --profile-out hand.toml\n"
+        "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
@@ -55,6 +58,11 @@ def register(p) -> None:
     p.add_argument("--positions", type=int, default=20,
                    help="positions of the protocol the fixture follows: rotary positions or "
                         "static poses (default 20)")
+    p.add_argument("--cube", action="store_true",
+                   help="rotary or static: the unit sits in a lettered cube, set on the table "
+                        "or a 45-degree wedge; the profile gets a [fixture] section and the "
+                        "fixture (or technician) follows the plan `station record` makes from it "
+                        "(rotary: at most --positions positions)")
     p.add_argument("--mountings", type=int, default=2,
                    help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=1.0,
@@ -63,6 +71,9 @@ def register(p) -> None:
     p.add_argument("--rate-hz", type=float, default=200.0, help="IMU sample rate (default 200)")
     p.add_argument("--lifetime", type=float, default=3600.0,
                    help="wall seconds after which the twin stops by itself (default 3600)")
+    p.add_argument("--table-log", type=Path,
+                   help="rotary: append each write the table accepts to this file, one line "
+                        "'<CLOCK_MONOTONIC s> <address> <values>' (to time a station's commands)")
     p.add_argument("--json", action="store_true",
                    help="machine-readable addresses, and the truth when stopping")
     p.set_defaults(run=run)
@@ -74,8 +85,12 @@ def run(args) -> int:
 
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
+    if args.table_log and not KINDS[args.protocol].table:
+        raise InputError(f"--table-log: a {args.protocol} bench has no rotary table")
     with given_values():
         twin = KINDS[args.protocol].entry("twin")(args)
+    if args.table_log:
+        twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
     devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
     if not KINDS[args.protocol].table:

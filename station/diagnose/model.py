@@ -107,7 +107,9 @@ def _in_calibration(fitted: dict) -> tuple[dict, dict]:
 
 
 def parameters(f: Fitted) -> dict:
-    """JSON-ready {parameter: {"value", "sigma"}} of a fitted extension."""
+    """JSON-ready {parameter: {"value", "sigma", "unit"}} of a fitted extension ("unit" only
+    where the extension states one)."""
     return jsonable({k: {"value": np.asarray(v, float),
-                         "sigma": np.asarray(f.sigma.get(k, np.nan), float)}
+                         "sigma": np.asarray(f.sigma.get(k, np.nan), float),
+                         **({"unit": f.units[k]} if k in f.units else {})}
                      for k, v in f.values.items()})

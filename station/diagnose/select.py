@@ -73,19 +73,25 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
 
 
 def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int = 3,
-             candidates=tuple(EXTENSIONS)) -> Diagnosis:
-    """Run the workflow on a session (station.diagnose.data.RotaryData)."""
+             candidates=tuple(EXTENSIONS), progress=None) -> Diagnosis:
+    """Run the workflow on a session (station.diagnose.data.RotaryData); `progress` as
+    `greedy`'s."""
     return greedy(model.nominal(data), candidates,
                   lambda current, names: model.fit(data, list(names), current, iterations),
-                  lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects)
+                  lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
+                  progress=progress)
 
 
-def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int) -> Diagnosis:
+def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int,
+           progress=None) -> Diagnosis:
     """The evidence loop from the model `start`: every candidate not yet in the model is added
     (`extend(current, names)` -> the model fitted with those extensions) and its evidence
     measured; the strongest significant one is kept; repeated until none is significant or
-    `max_effects` are in. `statistics(model)` gives each step's gap."""
+    `max_effects` are in. `statistics(model)` gives each step's gap. `progress(done, total)`, if
+    given, hears of each fit: done so far, and at most `total` (every step going on)."""
     current, steps = start, []
+    n = len(candidates)
+    tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
     while True:
         remaining = [c for c in candidates if c not in current.fitted]
         fits, ev = {}, {}
@@ -93,6 +99,9 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
             for name in remaining:
                 fits[name] = extend(current, (*current.fitted, name))
                 ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
+                tried += 1
+                if progress is not None:
+                    progress(tried, total)
         best = min((n for n in ev if ev[n]["significant"]), key=lambda n: ev[n]["log10_p"],
                    default="none")
         steps.append(Step(current, statistics(current), ev, best))

@@ -595,11 +595,13 @@ def _gsens_fitted(data: StaticData, p: dict, sig: dict, with_earth: bool) -> Fit
     one direction of G: U moves into G's trace)."""
     per_g = np.degrees(STANDARD_GRAVITY)  # rad/s per m/s^2 -> deg/s per g
     g, s = gsens(p), sig["gsens"].reshape(3, 3)
+    gyro = _unit(data, data.m)
     return Fitted(
         "g_sensitivity",
         {"G": g, "G_deg_s_per_g": g * per_g},
         {"G": s, "G_deg_s_per_g": s * per_g},
         dof=8 if with_earth else 9,
+        units={"G": f"{gyro} per m/s^2", "G_deg_s_per_g": "deg/s per g"},
         notes="gyro bias b + G f, f the specific force of the interval in the accelerometer's "
         "axes (m/s^2); G[i, k] = gyro channel i per f_k, in gyro output units per m/s^2 and in "
         f"deg/s per g (g = {STANDARD_GRAVITY}, for rad/s gyros); the Earth rate's vertical part "
@@ -631,11 +633,18 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
          / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan},
         dof=len(data.intervals) + 1 + vertical,
         null=(var / (2 * mean), 2 * mean**2 / var),
+        units={"vertical": _unit(data, data.m), "horizontal": _unit(data, data.m),
+               "rate": _unit(data, data.m), "latitude_deg": "deg"},
         notes=f"gyro output units (Earth: {OMEGA_EARTH:.4e} rad/s); heading per interval is "
         "nuisance, profiled out (the unit is turned by hand); latitude = atan2(vertical, "
         "horizontal); a vertical part alone is also g-sensitivity G = (U / g) I, so the two "
         "compete (g_sensitivity); beside G only the horizontal part is fitted",
     )
+
+
+def _unit(data: StaticData, channel: int) -> str:
+    """The unit of a channel, as the session names it ("output units" when it does not)."""
+    return data.units[channel] if channel < len(data.units) else "output units"
 
 
 def untestable(data: StaticData, b0: Base) -> dict:
@@ -650,8 +659,9 @@ def untestable(data: StaticData, b0: Base) -> dict:
 
 
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
-                    candidates=None) -> Diagnosis:
-    """The evidence loop of station.diagnose.select on a free-static session."""
+                    candidates=None, progress=None) -> Diagnosis:
+    """The evidence loop of station.diagnose.select on a free-static session; `progress` as
+    `greedy`'s."""
     from station.diagnose import static_report
 
     b0 = base(data)
@@ -659,4 +669,4 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
     return greedy(fit(data, b0), candidates, lambda current, names: fit(data, b0, names, current),
                   lambda m: static_report.statistics(data, m), alpha=alpha,
-                  max_effects=max_effects)
+                  max_effects=max_effects, progress=progress)

@@ -167,14 +167,15 @@ def _values(table, columns, first: int, path) -> np.ndarray:
 def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None = None,
                index_column: str | None = None, fs: float | None = None,
                unit_serial: str = "IMPORTED", time_unit: str | None = None,
-               delimiter: str | None = None, skip_rows: int | None = None) -> Path:
+               delimiter: str | None = None, skip_rows: int | None = None,
+               progress=None) -> Path:
     """Import a delimited text file with a header row into a new session `out`.
 
     streams : stream name -> list of column names (e.g. {"acc": ["acc_x", "acc_y", "acc_z"]})
     units   : stream name -> unit spec
     Time: `time_column` (in `time_unit`), or `index_column` (sample numbers) with `fs`, or rows
     at `fs`. delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
-    station.files.tables.read_csv.
+    station.files.tables.read_csv (and its `progress`).
     """
     _check_names(streams, units)
     path = Path(path)
@@ -190,7 +191,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     if time_unit is not None and time_column is None:
         raise CalibrationInputError("a time unit without a time column.",
                                     "Give --time COLUMN with --time-unit, or drop --time-unit.")
-    read = read_csv(path, wanted, delimiter=delimiter, skip_rows=skip_rows)
+    read = read_csv(path, wanted, delimiter=delimiter, skip_rows=skip_rows, progress=progress)
     table = read.values
     by_name = {c: table[:, i] for i, c in enumerate(wanted)}
     seq = None

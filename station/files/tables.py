@@ -92,11 +92,12 @@ def read_matrix(path, columns: int | None = None, *, delimiter: str | None = Non
 
 
 def read_csv(path, columns: list, *, delimiter: str | None = None,
-             skip_rows: int | None = None) -> Table:
+             skip_rows: int | None = None, progress=None) -> Table:
     """(K, len(columns)) numbers of the named columns of a delimited text file with a header.
 
     delimiter : None: sniffed from the data lines (csv.Sniffer over ", ; tab | space")
     skip_rows : lines before the header; None: the header is the first line holding every name
+    progress  : optional callable(characters read, bytes in the file) while the rows are read
     """
     path = Path(path)
     lines = _head_lines(path)
@@ -132,10 +133,11 @@ def read_csv(path, columns: list, *, delimiter: str | None = None,
                      "skipped")
         first += 1
     try:
-        table = np.loadtxt(path, delimiter=None if delimiter == " " else delimiter,
-                           skiprows=first, ndmin=2, quotechar='"', encoding="utf-8-sig",
-                           usecols=usecols)
-    except ValueError as exc:
+        with path.open(encoding="utf-8-sig") as f:
+            table = np.loadtxt(_counted(f, path.stat().st_size, progress),
+                               delimiter=None if delimiter == " " else delimiter,
+                               skiprows=first, ndmin=2, quotechar='"', usecols=usecols)
+    except (ValueError, UnicodeDecodeError) as exc:
         raise CalibrationInputError(
             f"{path}: the chosen columns are not all numbers ({exc}).",
             "Pick numeric columns (text columns are not imported); check --delimiter and "
@@ -147,6 +149,19 @@ def read_csv(path, columns: list, *, delimiter: str | None = None,
 
 
 # ----------------------------------------------------------------------------------- internals
+
+
+def _counted(lines, size: int, progress, every: int = 50_000):
+    """The `lines`, telling `progress(characters so far, size)` every `every` lines and at the
+    end, when given."""
+    done = 0
+    for i, line in enumerate(lines):
+        done += len(line)
+        if progress is not None and i % every == 0:
+            progress(done, size)
+        yield line
+    if progress is not None:
+        progress(size, size)
 
 
 def _oriented(table: np.ndarray, columns, name: str) -> tuple:

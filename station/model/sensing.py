@@ -53,18 +53,19 @@ def saturate(z: np.ndarray, effects: dict, output_range: np.ndarray) -> np.ndarr
 
 
 def sense(unit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: np.ndarray, effects: dict,
-          walk=None) -> np.ndarray:
+          walk=None, noise=None) -> np.ndarray:
     """Counts (n, k, m) of `unit` (a station.model.unit.SensorUnit) for the sensed signals
     s = a^T v (n, k, m) sampled at t (k,) per recording.
 
     t0 (n,) are the recordings' start times in session time; rate (n, k) is the table rate that
     heats the unit (zeros when nothing spins). `walk` () -> (n, k, m) draws the bias random walk
-    (default: the batch walk of n recordings, continuing between them).
+    (default: the batch walk of n recordings, continuing between them); `noise` () -> (n, k, m)
+    the white noise (default: `unit.noise`).
     """
     n, k, m = s.shape
     check_per_sensor(effects, m)
     s = sensed(s, t, effects)
-    z = unit.noise((n, k, m))
+    z = unit.noise((n, k, m)) if noise is None else noise()
     z += s
     z += unit.bias
     z += offsets(t0[:, None] + t, rate, effects)

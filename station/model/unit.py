@@ -5,11 +5,18 @@ integer counts with `counts_per_unit` (counts per SI unit). White noise is given
 density N (units/sqrt(Hz)); sampled at fs its standard deviation is N sqrt(fs), so the mean over
 T seconds has standard deviation N / sqrt(T). The bias random walk `bias_walk` is the standard
 deviation of the bias change after one second (units/sqrt(s)).
+
+A live twin's samples (`sample` with their times) draw their noise and walk steps from streams
+indexed by the sample instant (`indexed_normals`): the same instant gets the same draws whatever
+blocks the host's timing cut the stream into, so a seeded twin repeats its samples.
 """
 
 import numpy as np
 
 from station.model import measurement, sensing
+
+NOISE_CHUNK = 4096
+"""Samples per block of the indexed noise streams (`SensorUnit.indexed_normals`)."""
 
 
 def _per_sensor(value, m: int, name: str) -> np.ndarray:
@@ -67,6 +74,7 @@ class SensorUnit(measurement.Sensitivity):
             raise ValueError("counts_per_unit must be positive and noise_density non-negative")
         self.fs = float(fs)
         self.rng = np.random.default_rng(rng)
+        self._chunks = {}  # indexed stream -> (block number, its normals)
         self._walk = np.zeros(m)
         self._last_time = None
 
@@ -118,6 +126,30 @@ class SensorUnit(measurement.Sensitivity):
         self._walk = out[-1, -1].copy()
         return out
 
+    def indexed_normals(self, times, stream: int) -> np.ndarray:
+        """(k, m) standard normals for the samples at `times` (s): sample index i = round(t fs)
+        takes row i mod NOISE_CHUNK of block i // NOISE_CHUNK of stream `stream`, drawn from its
+        own SeedSequence (the unit's seed entropy, spawn key (stream, block)); the same instant
+        gets the same value whatever the calls' block sizes."""
+        index = np.rint(np.asarray(times, float) * self.fs).astype(np.int64)
+        out = np.empty((index.size, self.m))
+        blocks = index // NOISE_CHUNK
+        for block in np.unique(blocks):
+            here = blocks == block
+            out[here] = self._chunk(stream, int(block))[index[here] % NOISE_CHUNK]
+        return out
+
+    def _chunk(self, stream: int, block: int) -> np.ndarray:
+        """Block `block` of indexed stream `stream` (the last one drawn is kept)."""
+        kept = self._chunks.get(stream)
+        if kept is None or kept[0] != block:
+            seed = self.rng.bit_generator.seed_seq
+            key = (*seed.spawn_key, stream, block + 2**62)  # spawn keys are non-negative
+            sequence = np.random.SeedSequence(seed.entropy, spawn_key=key)
+            kept = (block, np.random.default_rng(sequence).standard_normal((NOISE_CHUNK, self.m)))
+            self._chunks[stream] = kept
+        return kept[1]
+
     def quantise(self, z: np.ndarray) -> np.ndarray:
         """Integer counts round(z * counts_per_unit) as int32 (saturating at the int32 limits)."""
         info = np.iinfo(np.int32)
@@ -132,7 +164,8 @@ class SensorUnit(measurement.Sensitivity):
 
         `times` (k,) are the sample times in session seconds (default: consecutive samples at fs
         from 0); noise, bias and bias walk are included, the walk stepping by the actual time
-        between samples and continuing from call to call. `effects` {name: parameters} are named
+        between samples and continuing from call to call; with `times`, the noise and the walk's
+        steps are the indexed streams' (`indexed_normals`). `effects` {name: parameters} are named
         sensor effects (station.model.effects) a live twin can apply block by block
         (sensing.LIVE_EFFECTS).
         """
@@ -143,8 +176,10 @@ class SensorUnit(measurement.Sensitivity):
         sensing.refuse_batch_effects(effects)
         k = v.shape[0]
         t = np.arange(k) / self.fs if times is None else np.asarray(times, float)
+        noise = None if times is None else (lambda: (self.indexed_normals(t, 0) * self.sigma)[None])
         return sensing.sense(self, self.project(v)[None], t, np.zeros(1), np.zeros((1, k)),
-                             effects, walk=lambda: self._live_walk(k, times)[None])[0]
+                             effects, walk=lambda: self._live_walk(k, times)[None],
+                             noise=noise)[0]
 
     def _live_walk(self, k: int, times) -> np.ndarray:
         """(k, m) bias walk at the sample times, continuing from the previous call."""
@@ -155,7 +190,8 @@ class SensorUnit(measurement.Sensitivity):
             prev = t[0] - 1.0 / self.fs if self._last_time is None else self._last_time
             dt = np.maximum(np.diff(t, prepend=prev), 0.0)
             self._last_time = t[-1]
-        inc = self.rng.standard_normal((k, self.m)) * self.bias_walk * np.sqrt(dt)[:, None]
-        out = self._walk + np.cumsum(inc, axis=0)
+        steps = (self.rng.standard_normal((k, self.m)) if times is None
+                 else self.indexed_normals(times, 1))
+        out = self._walk + np.cumsum(steps * self.bias_walk * np.sqrt(dt)[:, None], axis=0)
         self._walk = out[-1].copy()
         return out

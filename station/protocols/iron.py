@@ -164,9 +164,10 @@ class IronProtocol:
 
     def _hold(self) -> str:
         s, j = self.settings, self.position
-        z = self.watcher.hold(j)
-        if z is None:
+        held = self.watcher.hold(j)
+        if held is None:
             return "settle"
+        z, quality = held
         u = up_direction(z[:, None], self.a_nominal, self.bias_guess)[0]
         k = self._mounting()
         mine = [i for i in range(j) if self._mounting(i) == k]
@@ -182,6 +183,7 @@ class IronProtocol:
         self.labels.append(face)
         self.recorder.event("position_done", j, {"mounting": k, "face": face,
                                                  "up": u.tolist()})
+        self.watcher.confirm(f"pose {j + 1}/{self.poses} captured (face {face})", quality, "m/s^2")
         self.position += 1
         if self.position == self.poses:
             return "done"

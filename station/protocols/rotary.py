@@ -41,6 +41,12 @@ Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
 
+Each captured position is confirmed to the operator with its quality when the protocol reads a
+copy of the stream (`run(..., tap=StreamTap)`, as `continue_session` does): the samples found and
+due in the static and rotating windows through the reduction's own checks, and the static noise
+against the median of the earlier positions' static windows
+(`station.reduce.window_quality`).
+
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
@@ -52,11 +58,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from drivers.rotary_table import TableTimeout
+from drivers.errors import CanBusError, SerialPortError, TableError
+from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
+from station.protocols.planned import fixture_instruction, rotary_plan
+from station.protocols.still import StillSettings, StreamTap
+from station.reduce.window_quality import describe, window_quality
 
 log = logging.getLogger(__name__)
 
@@ -141,14 +151,20 @@ class RotaryProtocol:
     operator : `station.acquire.operator` ConsoleOperator or SimulatedTechnician
     clock    : the session clock (shared with the devices)
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
+    fixture_poses : instead of axes, the poses of a mounting fixture, {"words", "picture",
+               "orientation"} each (`station.protocols.planned.FixturePlan.instructions`)
     """
 
-    def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None):
+    def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None,
+                 fixture_poses=None):
         self.table = table
         self.recorder = None
         self.operator = operator
         self.clock = clock
         self.settings = settings or RotarySettings()
+        self.fixture_poses = fixture_poses
+        if fixture_poses:
+            axes = [np.asarray(p["orientation"], float)[:, 2] for p in fixture_poses]
         self.axes = suggested_axes(20) if axes is None else np.asarray(axes, float)
         if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
             raise InputError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
@@ -162,8 +178,9 @@ class RotaryProtocol:
 
     def metadata(self) -> dict:
         """What a session file should record about this protocol run."""
+        fixture = {"fixture_poses": self.fixture_poses} if self.fixture_poses else {}
         return {"protocol": "rotary", "settings": asdict(self.settings),
-                "axes": self.axes.tolist()}
+                "axes": self.axes.tolist(), **fixture}
 
     @classmethod
     def from_metadata(cls, metadata: dict, table, operator, clock) -> "RotaryProtocol":
@@ -174,17 +191,31 @@ class RotaryProtocol:
         try:
             settings = RotarySettings(**metadata["settings"])
             axes = np.asarray(metadata["axes"], float)
+            poses = metadata.get("fixture_poses")
+            if poses is not None:
+                poses = [{"words": str(p["words"]), "picture": str(p["picture"]),
+                          "orientation": np.asarray(p["orientation"], float).reshape(3, 3).tolist()}
+                         for p in poses]
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"the session's rotary settings or axes are unusable ({exc}); "
                              "it was not written by this station") from None
-        return cls(table, operator, clock, settings, axes)
+        return cls(table, operator, clock, settings, axes, poses)
 
-    def run(self, recorder, first: int = 0) -> None:
+    def instruction(self, j: int) -> Instruction:
+        """The technician's instruction for mounting position j: the fixture pose's words and
+        picture, or the direction to point up the table axis."""
+        if self.fixture_poses:
+            return fixture_instruction(j, len(self.axes), self.fixture_poses[j])
+        return instruction(j, len(self.axes), self.axes[j])
+
+    def run(self, recorder, first: int = 0, tap: StreamTap | None = None) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
-        the table is stopped whatever happens."""
+        the table is stopped whatever happens. `tap`: the StreamTap the recorder reads, for the
+        quality of each captured position (None: confirmations without it)."""
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
+        self.tap, self._windows, self._static_noise = tap, {}, []
         self._rotated = None  # (position, clock time) of the last rotating window's end
         try:
             while self.state != "done":
@@ -208,7 +239,7 @@ class RotaryProtocol:
 
     def _mount(self) -> str:
         j = self.position
-        self.operator.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.operator.wait(self.instruction(j))
         self.recorder.event("position_start", j, {"axis": self.axes[j].tolist()})
         return "still"
 
@@ -219,9 +250,9 @@ class RotaryProtocol:
     def _static(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: static window ({s.static:g} s)")
-        self.recorder.event("static_start", j)
+        start = self.recorder.event("static_start", j)
         self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
-        self.recorder.event("static_end", j)
+        self._windows["static"] = (start, self.recorder.event("static_end", j))
         self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "spin_up"
@@ -241,7 +272,7 @@ class RotaryProtocol:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._poll()
-        self.recorder.event("rotate_start", j, {"angle": start.angle})
+        begun = self.recorder.event("rotate_start", j, {"angle": start.angle})
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
@@ -256,7 +287,9 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
                                     "window); check the table's encoder")
-        self._rotated = (j, self.recorder.event("rotate_end", j, {"angle": reading.angle}))
+        end = self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._windows["rotating"] = (begun, end)
+        self._rotated = (j, end)
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "stop"
@@ -267,7 +300,8 @@ class RotaryProtocol:
 
     def _rest(self) -> str:
         self._done()
-        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured")
+        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured"
+                             + self._quality())
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
@@ -284,6 +318,27 @@ class RotaryProtocol:
         file: the position is complete whatever happens to the IMU now."""
         return (self._rotated is not None and self._rotated[0] == self.position
                 and self.recorder.sampled_until() >= self._rotated[1])
+
+    def _quality(self) -> str:
+        """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
+        position just captured; "" without a tap. The static noise is compared with the median of
+        the earlier positions' (the same unit at rest), out of line beyond the stillness
+        detector's `enter`; the tap then forgets the position's samples."""
+        if self.tap is None:
+            return ""
+        t, z = self.tap.samples(self._windows["static"][0])
+        unit = self.recorder.writer.specs[self.recorder.stream].units[0]
+        reference = np.median(self._static_noise, axis=0) if self._static_noise else None
+        words = []
+        for name, window in self._windows.items():
+            q = window_quality(t, z, window, self.tap.rate_hz, self.tap.lsb,
+                               reference if name == "static" else None, StillSettings.enter, name,
+                               self.position)
+            words.append(f"{name} {describe(q, unit, 'the earlier static windows')}")
+            if name == "static":
+                self._static_noise.append(q.noise)
+        self.tap.forget(self.clock.now())
+        return ": " + "; ".join(words)
 
     def _restart(self) -> str:
         j = self.position
@@ -360,13 +415,33 @@ class RotaryProtocol:
                                 "fix the bench, then resume the session") from exc
 
     def _stop_table(self, exc: BaseException) -> bool:
-        """Command the table to stop; False (and a note on `exc`) if it does not answer."""
+        """Command the table to stop; False if it does not answer. `exc.table_stopped` says which,
+        and a note on `exc` tells the operator to stop the table by hand (once)."""
         try:
             self.table.stop()
-            return True
         except Exception as stop_error:  # noqa: BLE001 - the original error goes on
-            exc.add_note(f"and the table could not be stopped ({stop_error}); stop it by hand")
+            if getattr(exc, "table_stopped", None) is not False:
+                not_stopped(exc, stop_error)
             return False
+        if getattr(exc, "table_stopped", None) is False:
+            exc.add_note("a later stop command got through: the table was stopped")
+        exc.table_stopped = True
+        return True
+
+    def _failed_devices(self, exc: BaseException) -> list:
+        """The devices that failed, in words ("rotary table at host:port", "IMU on
+        /dev/ttyUSB0"): the table if `exc` or its cause is a table error or no stop got through,
+        the IMU if `exc`, its cause or the IMU reader's own failure is a lost link."""
+        devices = []
+        causes = [exc, exc.__cause__, self.recorder.error]
+        if (any(isinstance(e, TableError) for e in causes)
+                or getattr(exc, "table_stopped", None) is False):
+            devices.append(getattr(self.table, "where", "rotary table"))
+        for e in causes:
+            if isinstance(e, SerialPortError | CanBusError):
+                devices.append(f"IMU on {getattr(e, 'port', None) or e.channel}")
+                break
+        return devices
 
     # -- helpers ---------------------------------------------------------------------------------
 
@@ -416,13 +491,19 @@ class RotaryProtocol:
 
     def _abort(self, exc: BaseException) -> None:
         """Stop the table first, complete a position whose rotating window had ended, then record
-        why the session ended; failures become notes."""
-        self._stop_table(exc)
+        why the session ended: the state, the devices that failed, whether the table was stopped
+        and the error with its notes (what the operator was told); failures become notes."""
+        stopped = self._stop_table(exc)
         if self._rotated is not None and self._rotated[0] == self.position:
             self._complete(exc)
+        devices = self._failed_devices(exc)
+        if any(d not in str(exc) for d in devices):
+            exc.add_note(f"lost: {' and '.join(devices)}")
+        words = "; ".join([str(exc), *getattr(exc, "__notes__", ())])
         try:
             self.recorder.event("abort", self.position, {
-                "state": self.state, "error": f"{type(exc).__name__}: {exc}"})
+                "state": self.state, "devices": devices, "table_stopped": stopped,
+                "error": f"{type(exc).__name__}: {words}"})
         except Exception as record_error:  # noqa: BLE001
             exc.add_note(f"and the abort could not be recorded in the session ({record_error})")
 
@@ -474,9 +555,11 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        with Recorder(writer, view.observe_imu(imu), clock=clock) as recorder, view.show():
+        spec = writer.specs["imu"]
+        tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
+        with Recorder(writer, tap, clock=clock) as recorder, view.show():
             try:
-                protocol.run(view.observe_recorder(recorder), first)
+                protocol.run(view.observe_recorder(recorder), first, tap)
             finally:
                 stats = getattr(imu, "stats", None)
                 if stats is not None:
@@ -488,15 +571,25 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
 def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
                    view=None) -> None:
     """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
-    the bench profile's settings at `suggested_axes(bench.positions)`, run with the opened `imu`
-    and `table` drivers into the new session file `out` (stream `spec`, `metadata` with the table's
-    register map added to its device profiles); `view` a LiveView to show, or None."""
+    the bench profile's settings at `suggested_axes(bench.positions)`, or, when the profile
+    describes a fixture, at the planned fixture poses (`station.protocols.planned`, its expected
+    eps told before the session), run with the opened `imu` and `table` drivers into the new
+    session file `out` (stream `spec`, `metadata` with the table's register map added to its
+    device profiles); `view` a LiveView to show, or None."""
     from drivers.profile import load_profile
     from station.files.session import SessionWriter
 
-    protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                              suggested_axes(bench.positions))
-    metadata = {**protocol.metadata(), **metadata}
+    if bench.fixture is None:
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  suggested_axes(bench.positions))
+        metadata = {**protocol.metadata(), **metadata}
+    else:
+        plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
+        operator.prompt(plan.prompt())
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  fixture_poses=plan.instructions())
+        metadata = {**protocol.metadata(), **metadata,
+                    "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     metadata["profiles"]["table"] = load_profile(bench.table_source).tables
     with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
         continue_session(writer, metadata, imu, table, operator, clock, view)

@@ -24,6 +24,7 @@ Kanade's joint-bias factorization for m > 3, then maximum likelihood with each m
 error.
 """
 
+import dataclasses
 import itertools
 from dataclasses import asdict, dataclass
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from station.acquire.operator import Instruction
 from station.errors import CalibrationInputError, InputError
+from station.protocols.planned import static_plan
 from station.protocols.rotary import mounting
 from station.protocols.still import (
     PoseWatcher,
@@ -99,9 +101,12 @@ class StaticProtocol:
     clock     : the session clock (shared with the devices)
     a_nominal : (3, m_acc) nominal layout of the accelerometers (SI readings), for the up direction
     units     : the stream's channel units (the accelerometers are the m/s^2 ones)
+    poses     : (name, up, words) asked in order; default `GUIDED_POSES` (a fixture's plan:
+                `station.protocols.planned.FixturePlan.guided`)
     """
 
-    def __init__(self, operator, clock, a_nominal, units, settings: StaticSettings | None = None):
+    def __init__(self, operator, clock, a_nominal, units, settings: StaticSettings | None = None,
+                 poses=None):
         self.operator = operator
         self.clock = clock
         self.a_nominal = np.asarray(a_nominal, float)
@@ -112,6 +117,9 @@ class StaticProtocol:
                 f"{len(self.channels)} accelerometer channels.",
                 f"Give 3 rows and {len(self.channels)} columns, one per accelerometer.")
         self.settings = settings or StaticSettings()
+        self.poses = GUIDED_POSES if poses is None else poses
+        if len(self.poses) < self.settings.poses:
+            raise InputError(f"{self.settings.poses} poses asked for, {len(self.poses)} given")
         self.recorder = self.watcher = None
         self.position, self.state = 0, "pose"
         self.directions = []
@@ -129,8 +137,9 @@ class StaticProtocol:
         stream)."""
         try:
             settings = StaticSettings(**metadata["settings"])
-            return cls(operator, clock, metadata["a_nominal"], units, settings)
-        except (KeyError, TypeError, ValueError) as exc:
+            return cls(operator, clock, metadata["a_nominal"], units, settings,
+                       _fixture_poses(metadata.get("fixture_poses")))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError(f"the session's static settings or layout are unusable ({exc}); it "
                              "was not written by this station") from None
 
@@ -140,14 +149,15 @@ class StaticProtocol:
         `abort` event and raised."""
         self.recorder, self.position = recorder, len(done)
         self.directions = recorded_ups(done)
-        self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap)
+        self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap,
+                                   self.channels)
         run_states(self, recorder, "pose")
 
     # -- states ----------------------------------------------------------------------------------
 
     def _pose(self) -> str:
         j = self.position
-        name, up, words = GUIDED_POSES[j]
+        name, up, words = self.poses[j]
         self.watcher.request()
         self.operator.wait(Instruction(f"pose {j + 1}/{self.settings.poses}: {words}, and let go",
                                        mounting(up)))
@@ -160,9 +170,10 @@ class StaticProtocol:
 
     def _hold(self) -> str:
         j = self.position
-        z = self.watcher.hold(j)
-        if z is None:
+        held = self.watcher.hold(j)
+        if held is None:
             return "settle"
+        z, quality = held
         u = up_direction(z[self.channels, None], self.a_nominal)[0]
         if self.directions:
             angles = np.degrees(np.arccos(np.clip(np.array(self.directions) @ u, -1, 1)))
@@ -170,12 +181,13 @@ class StaticProtocol:
             if angles[i] < self.settings.separation_deg:
                 self.operator.prompt(
                     f"pose {j + 1} is {angles[i]:.0f} deg from pose {i + 1}; it adds little. "
-                    f"Turn the unit further ({GUIDED_POSES[j][2]}).")
+                    f"Turn the unit further ({self.poses[j][2]}).")
                 self.recorder.event("note", j, {"text": f"refused: {angles[i]:.1f} deg from "
                                                         f"pose {i + 1}"})
                 return "pose"
         self.directions.append(u)
         self.recorder.event("position_done", j, {"up": u.tolist()})
+        self.watcher.confirm(f"pose {j + 1}/{self.settings.poses} captured", quality, "m/s^2")
         self.position += 1
         return "done" if self.position == self.settings.poses else "pose"
 
@@ -184,9 +196,29 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
                    view=None) -> None:
     """`station record`'s free-static session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
-    the new session file `out`; no table, no live view."""
-    protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    the new session file `out`; no table, no live view. With a fixture in the profile, the poses
+    are its planned ones (`station.protocols.planned.static_plan`), the expected eps told first."""
+    if bench.fixture is None:
+        protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
+    else:
+        plan = static_plan(bench.fixture, bench.settings)
+        operator.prompt(plan.prompt())
+        settings = dataclasses.replace(bench.settings, poses=len(plan.poses))
+        protocol = StaticProtocol(operator, clock, bench.layout, spec.units, settings,
+                                  plan.guided())
+        metadata = {**metadata, "fixture_poses": plan.instructions(),
+                    "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+
+
+def _fixture_poses(steps) -> list | None:
+    """The poses of a fixture's plan as a session records them (`fixture_poses`:
+    `station.protocols.planned.FixturePlan.instructions`), as the protocol asks them (name, up,
+    words; `FixturePlan.guided`); None for a session without a fixture."""
+    if steps is None:
+        return None
+    return [(f"fixture pose {j + 1}", np.asarray(step["orientation"], float)[:, 2],
+             f"set the cube {step['words']}") for j, step in enumerate(steps)]
 
 
 def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:

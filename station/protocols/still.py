@@ -13,8 +13,10 @@ timeout). `PoseWatcher` does the watching for a protocol:
                  `timeout` s without one is a ProtocolError (`after` says what was asked);
 - `hold(position)`: wait until the first `hold` s of it are recorded and still; records
                  `static_start` / `static_end` (detail `window`, clock seconds, so the averaging
-                 window does not depend on when the host polled) and returns the window's mean;
-                 a motion records a `note`, tells the operator and returns None (settle again).
+                 window does not depend on when the host polled) and returns the window's mean
+                 and its quality (`station.reduce.window_quality`: samples found / due, noise
+                 against the detector's rest noise); a motion records a `note`, tells the
+                 operator and returns None (settle again).
 
 The offline reduction (`station.reduce.still.still_readings`) does not trust the live polling.
 
@@ -34,6 +36,7 @@ from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
+from station.reduce.window_quality import WindowQuality, describe, window_quality
 
 
 @dataclass(frozen=True)
@@ -86,6 +89,12 @@ class StreamTap:
                 self._blocks.append(block)
         return block
 
+    def forget(self, before: float) -> None:
+        """Drop the blocks received before clock time `before` (a long session's samples need
+        not stay in memory once their windows are confirmed)."""
+        with self._lock:
+            self._blocks = [b for b in self._blocks if b.host_time[-1] >= before]
+
     def samples(self, since: float = -np.inf):
         """(times (K,), readings (K, m) in SI units) of the samples taken at or after `since`."""
         with self._lock:
@@ -103,13 +112,15 @@ class PoseWatcher:
     """Finds and holds the still poses of a running Recorder reading a `StreamTap` (see the module
     docstring); `operator` hears about motions during a hold."""
 
-    def __init__(self, settings: StillSettings, clock, operator, recorder, tap: StreamTap):
+    def __init__(self, settings: StillSettings, clock, operator, recorder, tap: StreamTap,
+                 channels=None):
         self.settings = settings
         self.clock = clock
         self.operator = operator
         self.recorder = recorder
         self.tap = tap
-        self._since = self._start = self._last = None
+        self.channels = slice(None) if channels is None else np.asarray(channels)
+        self._since = self._start = self._last = self._noise = None
 
     def request(self) -> None:
         """A new pose is asked for: still intervals that began before the last pose's window
@@ -129,9 +140,10 @@ class PoseWatcher:
         self._start, self._last = start, start + self.settings.window
         return start
 
-    def hold(self, position: int) -> np.ndarray | None:
-        """Mean reading (m,) of the `hold` s window of the pose at `position` after `settle`, or
-        None when the unit moved (the next still interval must begin after the motion)."""
+    def hold(self, position: int) -> tuple[np.ndarray, WindowQuality] | None:
+        """(mean reading (m,), quality of the `channels`) of the `hold` s window of the pose at
+        `position` after `settle`, or None when the unit moved (the next still interval must begin
+        after the motion)."""
         s = self.settings
         self.recorder.event("static_start", position, {"still_since": self._start})
         end = self._start + s.hold
@@ -146,7 +158,15 @@ class PoseWatcher:
         self.recorder.event("static_end", position, {"window": [self._start, end]})
         self._last = end
         t, z = self.tap.samples(self._start)
-        return z[t <= end].mean(axis=0)
+        quality = window_quality(t, z[:, self.channels], (self._start, end), self.tap.rate_hz,
+                                 self.tap.lsb[self.channels], self._noise[self.channels],
+                                 s.enter, "still", position)
+        return z[t <= end].mean(axis=0), quality
+
+    def confirm(self, words: str, quality: WindowQuality, unit: str) -> None:
+        """Tell the operator a pose was captured: `words` ("pose 3/12 captured") and its
+        quality."""
+        self.operator.prompt(f"{words}: still {describe(quality, unit, 'the rest noise')}")
 
     def _still_since(self) -> float | None:
         """Start time of the still interval going on now, if it began after `_since`."""
@@ -161,6 +181,7 @@ class PoseWatcher:
         if not len(still.intervals):
             return None
         start, stop = still.intervals[-1]
+        self._noise = still.noise
         h = round(s.window * self.tap.rate_hz / 2)  # half the detector's window
         if stop < len(t) - h - 1 or start <= h or t[start] < self._since:
             return None  # over, begun before the samples looked at, or before the request

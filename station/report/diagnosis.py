@@ -68,11 +68,26 @@ def text(doc: dict) -> str:
             lines.append(f"  {mark} {name:19s} LR {e['lr']:10.1f}  dof {e['dof']:3d}  "
                          f"log10 p {e['log10_p']:9.1f}")
         lines.append(f"  -> {step['chosen']}")
-    for name, params in doc["steps"][-1]["parameters"].items():
-        shown = {k: v["value"] for k, v in params.items() if not isinstance(v["value"], list)}
-        lines.append(f"{name}: {shown}")
+    for name, key, value, sigma, unit in parameter_rows(doc):
+        lines.append(f"{name} {key} = {value} +- {sigma} {unit}".rstrip())
     lines.extend(doc.get("remarks", []))
     return "\n".join(lines)
+
+
+def parameter_rows(doc: dict) -> list:
+    """(effect, parameter, value, 1 sigma, unit) of the final model's fitted parameters, values
+    as numbers: an array's elements in order, a matrix's rows separated by ";"."""
+    return [(name, key, numbers(p["value"]), numbers(p["sigma"]), p.get("unit", ""))
+            for name, params in doc["steps"][-1]["parameters"].items()
+            for key, p in params.items()]
+
+
+def numbers(value) -> str:
+    """A JSON number, list or list of lists as "1.2e-05", "1 2 3" or "1 2; 3 4"."""
+    if isinstance(value, list):
+        return ("; " if value and isinstance(value[0], list) else " ").join(
+            numbers(v) for v in value)
+    return "nan" if value is None else f"{value:.4g}"
 
 
 def gap_plot(doc: dict) -> html.Plot:
@@ -112,6 +127,10 @@ def html_report(doc: dict, plots=()) -> str:
             f"step-{len(steps)}", f"Model: {' + '.join(step['model'])}",
             f"{tables}<p>chosen: <b>{e(step['chosen'])}</b></p>"))
     effects = f"<p>Named effects: <b>{e(', '.join(doc['effects']) or 'none')}</b></p>"
+    rows = parameter_rows(doc)
+    if rows:
+        effects += html.section("parameters", "Fitted parameters of the final model", html.table(
+            rows, ("effect", "parameter", "value", "1 sigma", "unit")))
     figures = "".join(html.figure(p) for p in (gap_plot(doc), *plots))
     summary = html.section("summary", "Summary", f"<pre>{e(text(doc))}</pre>")
     return html.page(f"Diagnosis of {doc['session']}", str(doc["session"]),

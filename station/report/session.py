@@ -88,6 +88,7 @@ class Report:
             "device": "IMU", "sensors": "sensors m", "rate_hz": "sample rate (Hz)",
             "positions": "positions completed", "positions_planned": "positions planned",
             "samples": "samples recorded", "duration_s": "recording (s of session clock)",
+            "expected_eps": "expected eps before the session (Eq. 19, CRLB)",
             "result": "calibration", "method": "method", "frame": "frame of a",
             "magnitude": "stimulus magnitude c", "chi2_per_dof": "chi2 / dof", "dof": "dof",
             "noise_median": "median noise of a reading", "excitation_ratio":
@@ -113,6 +114,7 @@ def build(path, result: str | None = None) -> Report:
         events = session.events()
         hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
+        _fixture_poses(report, session.metadata)
         calibration = _calibration(session, result, report)
         for name in session.specs:
             _stream_health(report, name, session.stream(name), events)
@@ -138,6 +140,26 @@ def _session_summary(session) -> dict:
         "closed_cleanly": session.closed_cleanly,
         **({"positions_planned": len(planned)} if isinstance(planned, list) else {}),
     }
+
+
+def _fixture_poses(report, metadata) -> None:
+    """The planned fixture poses of a rotary session (`station.protocols.planned`): a section
+    with each position's words and picture, and the expected eps told before the session."""
+    poses = metadata.get("fixture_poses")
+    if not isinstance(poses, list):
+        return
+    plan = metadata.get("plan")
+    if isinstance(plan, dict) and isinstance(plan.get("expected_eps"), int | float):
+        report.summary["expected_eps"] = float(plan["expected_eps"])
+    rows = [(j + 1, str(p.get("words", "?")) if isinstance(p, dict) else "?",
+             f"<pre>{html.e(str(p.get('picture', '')))}</pre>" if isinstance(p, dict) else "")
+            for j, p in enumerate(poses)]
+    rows = [(html.e(str(j)), html.e(words), pic) for j, words, pic in rows]
+    report.sections.append(html.section(
+        "fixture", "Fixture poses (planned)",
+        "<p>Face letters of the mounting cube; the first face named is down on the table (or on "
+        "the wedge's slope), the second toward the technician (docs/protocols.md).</p>"
+        + html.table(rows, ("position", "pose", "picture"), escape_cells=False)))
 
 
 def _protocol_warnings(report, events, metadata) -> None:
@@ -381,12 +403,31 @@ def _axes_plot(report, cal, channels) -> None:
     """The sensitive axes, 3-D and projected on the coordinate planes."""
     if cal.d != 3:
         return
-    unit = cal.a / np.linalg.norm(cal.a, axis=0)
+    frame = ("canonical frame of Eq. (19): sensor 1 along x, sensor 2 in the x-y plane"
+             if cal.frame == "canonical" else "frame aligned to the nominal layout")
+    report.plots.append(html.Plot("axes", "Sensitive axes", (
+        f"Unit sensitive vectors a_i / |a_i| in the {frame}; 3-D view and projections on the "
+        "x-y, x-z and y-z planes (unit circle dotted). Axes pointing the same way share one label; "
+        f"an axis within {np.degrees(np.arcsin(SHORT_PROJECTION)):.0f} deg of a plane's normal "
+        "is left unlabelled in that projection."),
+        html.png(axes_figure(cal.a / np.linalg.norm(cal.a, axis=0), channels))))
+
+
+SHORT_PROJECTION = 0.25
+"""Projected length below which an axis is not labelled in a projection (it points at the
+viewer: its label would sit on the origin, on top of every other such label)."""
+LABEL_SEPARATION = 0.2
+"""Distance (in units of the unit circle) within which arrow tips share one label."""
+
+
+def axes_figure(unit, channels) -> Figure:
+    """The figure of `_axes_plot` for unit vectors `unit` (3, m) named `channels`."""
     fig = Figure(figsize=(11, 8.5))
     ax3 = fig.add_subplot(2, 2, 1, projection="3d")
-    for i, name in enumerate(channels):
+    for i in range(unit.shape[1]):
         ax3.quiver(0, 0, 0, *unit[:, i], color=f"C{i % 10}", arrow_length_ratio=0.08)
-        ax3.text(*(1.08 * unit[:, i]), name, fontsize=8)
+    for tip, names in _label_groups(unit, channels):
+        ax3.text(*(1.12 * tip), names, fontsize=8, ha="center", va="center")
     for lim in (ax3.set_xlim, ax3.set_ylim, ax3.set_zlim):
         lim(-1, 1)
     ax3.set_xlabel("x")
@@ -395,20 +436,41 @@ def _axes_plot(report, cal, channels) -> None:
     for k, (p, q) in enumerate(((0, 1), (0, 2), (1, 2))):
         ax = fig.add_subplot(2, 2, k + 2)
         ax.add_patch(_circle())
-        for i, name in enumerate(channels):
-            ax.annotate("", (unit[p, i], unit[q, i]), (0, 0),
+        flat = unit[[p, q]]
+        for i in range(unit.shape[1]):
+            ax.annotate("", tuple(flat[:, i]), (0, 0),
                         arrowprops={"arrowstyle": "->", "color": f"C{i % 10}"})
-            ax.annotate(name, (unit[p, i], unit[q, i]), fontsize=8)
-        ax.set_xlim(-1.15, 1.15)
-        ax.set_ylim(-1.15, 1.15)
+        long = np.linalg.norm(flat, axis=0) >= SHORT_PROJECTION
+        for tip, names in _label_groups(flat[:, long], np.asarray(channels)[long]):
+            _outward_label(ax, tip, names)
+        ax.set_xlim(-1.6, 1.6)
+        ax.set_ylim(-1.6, 1.6)
         ax.set_aspect("equal")
         ax.set_xlabel("xyz"[p])
         ax.set_ylabel("xyz"[q])
-    frame = ("canonical frame of Eq. (19): sensor 1 along x, sensor 2 in the x-y plane"
-             if cal.frame == "canonical" else "frame aligned to the nominal layout")
-    report.plots.append(html.Plot("axes", "Sensitive axes", (
-        f"Unit sensitive vectors a_i / |a_i| in the {frame}; 3-D view and projections on the "
-        "x-y, x-z and y-z planes (unit circle dotted)."), html.png(fig)))
+    return fig
+
+
+def _label_groups(tips, names) -> list:
+    """[(mean tip, "g1, g4, g10")]: the arrow tips (d, m) within `LABEL_SEPARATION` of a group's
+    first tip share its label, so that labels of axes pointing the same way do not overprint."""
+    groups = []
+    for i in range(tips.shape[1]):
+        for group in groups:
+            if np.linalg.norm(tips[:, group[0]] - tips[:, i]) < LABEL_SEPARATION:
+                group.append(i)
+                break
+        else:
+            groups.append([i])
+    return [(tips[:, g].mean(axis=1), ", ".join(str(names[i]) for i in g)) for g in groups]
+
+
+def _outward_label(ax, tip, text: str) -> None:
+    """`text` just beyond the arrow tip `tip` (2,), aligned away from the origin."""
+    direction = tip / np.linalg.norm(tip)
+    ha = "left" if direction[0] > 0.5 else "right" if direction[0] < -0.5 else "center"
+    va = "bottom" if direction[1] > 0.5 else "top" if direction[1] < -0.5 else "center"
+    ax.annotate(text, tuple(tip + 0.06 * direction), fontsize=8, ha=ha, va=va)
 
 
 def _circle():

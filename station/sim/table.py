@@ -79,7 +79,10 @@ class TablePhysics:
         self.tolerance = float(tolerance)
         self.settle_time = float(settle_time)
         self._rate_error = rate_error or RateError()
-        self._rng = np.random.default_rng(seed)
+        # the reported rate's noise is drawn at every poll, the rate errors at every start: two
+        # streams, so that how often a host polled does not change the errors of a seeded table
+        noise, errors = np.random.SeedSequence(seed).spawn(2)
+        self._rng, self._errors = np.random.default_rng(noise), np.random.default_rng(errors)
         self._lock = threading.Lock()
         self._t = clock.now()
         self._rate = 0.0
@@ -172,7 +175,7 @@ class TablePhysics:
             if self._fault:
                 return False
             self._running = True
-            self._factor = float(self._rate_error.factors(1, self._rng)[0])
+            self._factor = float(self._rate_error.factors(1, self._errors)[0])
             self._command()
             return True
 

@@ -80,14 +80,22 @@ class BenchTruth:
 
 class BenchTechnician(SimulatedTechnician):
     """The simulated technician, who also plugs the IMU's cable back in when asked to do
-    something that is not a mounting (`fixes_cables = False` models one who does not)."""
+    something that is not a mounting (`fixes_cables = False` models one who does not).
+
+    With a `period` (clock s; `VirtualBench.metronome`), the technician works to a metronome:
+    each mounting is done at the first multiple of `period` at least `remount_time` after the
+    request, so every position starts on that grid whatever the host's timing before it."""
 
     def __init__(self, bench, *args):
         super().__init__(bench.mounted, bench.clock, *args)
         self.bench = bench
         self.fixes_cables = True
+        self.period = None
 
     def wait(self, instruction) -> None:
+        if self.period and instruction.orientation is not None:
+            done = self.period * np.ceil((self.clock.now() + self.remount_time) / self.period)
+            self.clock.sleep(done - self.remount_time - self.clock.now())
         super().wait(instruction)
         twin = self.bench.imu_twin
         if instruction.orientation is None and self.fixes_cables and hasattr(twin, "plug"):
@@ -122,6 +130,7 @@ class VirtualBench:
         self.seed, self.rate_hz = int(seed), float(rate_hz)
         self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
         self.clock = ScaledClock(speed, clock_start)
+        self.clock_start = float(clock_start)
         profile = driver_class(imu).profile_type.load(IMU_KINDS[imu])
         self.profile = dataclasses.replace(
             profile, imu=dataclasses.replace(profile.imu, rate_hz=float(rate_hz)))
@@ -147,6 +156,18 @@ class VirtualBench:
         least = HOST_LATENCY * self.clock.speed
         return dataclasses.replace(settings, **{name: max(getattr(settings, name), least)
                                                 for name in ("rest", "guard", "steady")})
+
+    def metronome(self, settings: RotarySettings, slack: float = 0.2) -> float:
+        """A technician's period (clock s) for positions recorded with `settings` on this bench:
+        the longest a position takes (re-mounting, every wait of the protocol with the bench's
+        margins, the table's ramps at its acceleration and its settling, a poll at every step)
+        plus `slack` of it for the host's delays."""
+        s = self.with_margins(settings)
+        ramp = abs(s.rate) / self.table.max_accel + self.table.settle_time
+        turning = 2 * np.pi * (s.revolutions + 0.25) / abs(s.rate)
+        polls = 8 * s.poll
+        return (1 + slack) * (self.remount_time + 2 * s.rest + s.static + 2 * s.guard + s.steady
+                              + 2 * ramp + turning + polls)
 
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
@@ -175,7 +196,10 @@ class VirtualBench:
             else:
                 self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
                                            self.clock)
-            self.imu_twin.start()
+            # sample n is taken at clock_start + n / rate_hz, whenever the host gets round to it,
+            # and the unit's noise is indexed by that instant: a seeded bench repeats its samples
+            # (those sent before the driver listens are lost)
+            self.imu_twin.start(self.clock_start)
         except BaseException:
             self.close()
             raise

@@ -3,7 +3,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
 
 - `BenchTwin`: the rotary bench (`station.twin.rotary_bench.VirtualBench`) whose motorised
   fixture re-mounts the unit once the table has come to rest after a run: at the next of
-  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run;
+  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run
+  (with `cube`: at the next planned pose of a lettered cube on a wedge, the profile's [fixture]);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence.
 
@@ -27,6 +28,8 @@ from typing import Self
 import numpy as np
 
 from station.errors import InputError
+from station.model.fixture import Fixture
+from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
 UNREAD_AFTER = 2.0
@@ -59,16 +62,30 @@ class BenchTwin:
     """A `VirtualBench` whose unit is re-mounted by a fixture at every table stop.
 
     positions : the fixture follows `suggested_axes(positions)`, as the rotary protocol does
+    cube      : the unit sits in a lettered cube with a 45-degree wedge (`station.model.fixture`);
+                the bench profile gets its [fixture] section, the fixture follows the plan
+                `station record` makes from it (`station.protocols.planned.rotary_plan`, at most
+                `positions` positions) in the same words
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
-                 positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0):
+                 positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
+                 cube: bool = False):
         from station.twin.rotary_bench import VirtualBench
 
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime)
         self.seed = seed
-        self.axes = suggested_axes(positions)
+        self.positions = positions
+        self.cube = _cube(self.bench.unit) if cube else None
+        if self.cube is None:
+            self.axes = suggested_axes(positions)
+            self.instructions = [instruction(j, positions, u) for j, u in enumerate(self.axes)]
+        else:
+            steps = rotary_plan(self.cube, RotarySettings(), positions).instructions()
+            self.instructions = [fixture_instruction(j, len(steps), s)
+                                 for j, s in enumerate(steps)]
+            self.axes = np.array([i.orientation[:, 2] for i in self.instructions])
         self.mounted = 0
         self.error = None
         self._watch = None  # the pty watched for the station's open
@@ -134,7 +151,7 @@ class BenchTwin:
         return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
                 f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
                 f"[imu]\n{imu}\n\n[table]\n{table}\n\n"
-                f"[protocol]\npositions = {len(self.axes)}\n")
+                f"[protocol]\npositions = {self.positions}\n" + _fixture_section(self.cube))
 
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
@@ -147,9 +164,9 @@ class BenchTwin:
         repeatable: its placement error belongs to the fixture position (drawn from the seed and
         the position), so a position mounted again has the orientation it had the first time."""
         self.mounted += 0 if advance or not self.mounted else -1
-        j = self.mounted % len(self.axes)
+        j = self.mounted % len(self.instructions)
         self.bench.technician.rng = np.random.default_rng([self.seed, 2, j])
-        self.bench.technician.wait(instruction(j, len(self.axes), self.axes[j]))
+        self.bench.technician.wait(self.instructions[j])
         self.mounted += 1
 
     def _fixture(self) -> None:
@@ -174,6 +191,24 @@ class BenchTwin:
             self.error = exc
 
 
+def _cube(unit) -> FixtureSpec:
+    """The twin's fixture: a lettered cube holding the unit square, on a 45-degree wedge; the
+    plan's layout and noise are the unit's nominal ones."""
+    from station.sim.layouts import A_MODEL
+
+    return FixtureSpec(Fixture(wedge=True), A_MODEL, float(np.max(unit.noise_density)))
+
+
+def _fixture_section(spec: FixtureSpec | None, layout: bool = True) -> str:
+    """The [fixture] section of a bench profile ("" without a fixture); layout False: without
+    the layout (a static profile gives it in [protocol])."""
+    if spec is None:
+        return ""
+    lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
+             for k, v in spec.table().items() if layout or k != "layout"]
+    return "\n[fixture]\n" + "\n".join(lines) + "\n"
+
+
 def _completed(turned: float) -> bool:
     """Did a run of the table that turned `turned` rad complete a rotary position? It must have
     turned the protocol's whole revolutions; a run that turned far more (more than 2 turns
@@ -193,19 +228,34 @@ class HandTwin:
                 it, and the first after the station opened the port. The technician does not
                 hear the station: `station record` must keep up (a pose takes it about
                 `hold` + 3 s), and then records the turns in order.
+    cube      : static: the triad sits in a lettered cube set on the table or a 45-degree wedge
+                (`station.model.fixture`, 1 deg off each pose); the bench profile gets its
+                [fixture] section and the technician sets the poses `station record` plans
+                from it (`station.protocols.planned.static_plan`), in order
     """
 
     def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
                  poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
-                 period: float = 20.0):
+                 period: float = 20.0, cube: bool = False):
         from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
         self.protocol, self.seed = protocol, seed
         self.bench = HandBench(seed, speed, rate_hz, layout=TRIAD if static else ACC4,
                                mountings=[np.eye(3)] if static else mountings, period=period,
-                               placement_deg=5.0 if static else 0.0002)
-        self.instructions = _hand_instructions(protocol, poses, mountings)
+                               placement_deg=(1.0 if cube else 5.0) if static else 0.0002)
+        self.cube = FixtureSpec(Fixture(wedge=True), TRIAD, float(
+            np.max(self.bench.unit.noise_density))) if cube and static else None
+        if self.cube is None:
+            self.instructions = _hand_instructions(protocol, poses, mountings)
+        else:
+            from station.acquire.operator import Instruction
+            from station.protocols.rotary import mounting
+            from station.protocols.static import StaticSettings
+
+            guided = static_plan(self.cube, StaticSettings(gravity=self.bench.gravity)).guided()
+            self.instructions = [Instruction(words, mounting(up)) for _, up, words in guided]
+            poses = len(guided)
         self.settings = {"poses": poses} if static else {"mountings": mountings}
         self.turns = 0
         self.error = None
@@ -249,7 +299,8 @@ class HandTwin:
                 f"unit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
                 f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
-                + "\n\n[protocol]\n" + "\n".join(lines) + "\n")
+                + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
+                + _fixture_section(self.cube, layout=False))
 
     def toggle(self, device: str) -> bool:
         """Unplug the IMU (`device` "imu", the only one) if it is there, else plug it back; True
@@ -309,9 +360,9 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime)."""
+    rate_hz, lifetime, cube)."""
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
-                     options.lifetime)
+                     options.lifetime, getattr(options, "cube", False))
 
 
 def iron_twin(options) -> HandTwin:
@@ -323,11 +374,12 @@ def iron_twin(options) -> HandTwin:
 
 def static_twin(options) -> HandTwin:
     """`station twin --protocol static`: a triad turned through `options.positions` (12 to 26)
-    guided poses; ValueError outside that range."""
+    guided poses, or with `options.cube` the planned poses of a lettered cube; ValueError outside
+    that range."""
     if not 12 <= options.positions <= 26:
         raise InputError("a static session has 12 to 26 poses (--positions)")
     return HandTwin("static", options.seed, options.speed, options.positions, options.mountings,
-                    options.rate_hz)
+                    options.rate_hz, cube=getattr(options, "cube", False))
 
 
 def _toml(value) -> str:

@@ -13,7 +13,7 @@ Each module exposes
   magnitudes' spread) instead of a correction of the readings M; None: corrected for.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,6 +33,8 @@ class Fitted:
         for a variance on the boundary s = 0 of its range (law 1/2 chi2_0 + 1/2 chi2_1).
     penalty : random-effect terms of the model deviance (-2 log marginal likelihood) beyond the
         residual chi2; 0 for fixed effects.
+    units : parameter name -> unit of its value, for the reports ("" dimensionless; a parameter
+        without an entry is shown without a unit).
     """
 
     name: str
@@ -44,6 +46,7 @@ class Fitted:
     null: tuple = ()
     null_mass: float = 1.0
     penalty: float = 0.0
+    units: dict = field(default_factory=dict)
 
     def value(self, key):
         return np.asarray(self.values[key], float)
