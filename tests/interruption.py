@@ -79,16 +79,19 @@ def _answers(interrupt) -> str:
     the table."""
     if interrupt is None or interrupt[0] not in DEVICES:
         return "\n" * POSITIONS
-    device, _, position = interrupt
-    return "\n" * (position + 1) + ("\n" * (RETRIES + 1) if device == "imu" else "n\n")
+    device, _, position = interrupt  # one answer more, for a loss seen after the next mounting
+    return "\n" * (position + 1) + ("\n" * (RETRIES + 2) if device == "imu" else "n\nn\n")
 
 
 def _table_running(profile: Path) -> bool:
-    """Is the twin's table turning? (read over Modbus; the reading stops it)"""
+    """Is the twin's table turning? (read over Modbus; the driver stops it when closed)"""
     from drivers.clock import WallClock
-    from station.acquire.bench import BenchProfile, table_driver
+    from drivers.rotary_table import RotaryTable
+    from station.acquire.bench import BenchProfile
 
-    with table_driver(BenchProfile.load(profile), WallClock()) as table:
+    bench = BenchProfile.load(profile)
+    with RotaryTable(bench.table_host, bench.table_port, bench.table_map,
+                     clock=WallClock()) as table:
         return table.state().running
 
 

@@ -82,6 +82,11 @@ class StreamTap:
         self._blocks = []
         self._lock = threading.Lock()
 
+    def open(self) -> "StreamTap":
+        """Reopen the IMU driver after it was lost (`Recorder.reconnect`)."""
+        self.imu.open()
+        return self
+
     def read_block(self, timeout: float = 0.0):
         block = self.imu.read_block(timeout=timeout)
         if block is not None and len(block):
