@@ -3,6 +3,12 @@ one process, `station record` in another, a signal sent to the recorder the mome
 file holds a chosen protocol event, then `station resume` with the same bench profile, as a
 technician would after a Ctrl-C, a `kill` or a crash.
 
+A device can be lost instead (`DEVICES`): the twin is told to unplug the IMU (its pty is closed)
+or to silence the table (its Modbus server stops answering) at the event. The technician at
+`station record` presses Enter at each reconnection prompt without the cable (the station gives up
+after its retries) or answers 'n' when asked whether to go on without the table; once `record` has
+ended the device comes back and `station resume` continues.
+
 Per interruption point it returns, for every position's static and rotating window, the samples
 found over the samples due, and the Eq. (18) readings with their 1-sigma, to compare with an
 uninterrupted session of the same twin.
@@ -29,6 +35,13 @@ STATES = ("position_start", "static_start", "static_end", "rotate_start", "rotat
           "position_done")
 """Protocol events after which the recorder is interrupted: mounting, static window, spin-up,
 rotating window, spin-down, completed position."""
+DEVICES = {"imu": "SIGUSR1", "table": "SIGUSR2"}
+"""Devices the twin loses (and brings back) on these signals (`station twin`)."""
+LOSSES = {"imu": ("static_start", "rotate_end"), "table": ("static_start", "rotate_start")}
+"""Events after which each device is lost: the IMU with the table at rest and right after the
+rotating window (the position is then complete), the table at rest and while it turns."""
+RETRIES = 3
+"""`RotarySettings.retries` of the twin's profile: reconnections tried before `record` gives up."""
 
 
 def _twin(workdir: Path):
@@ -60,15 +73,38 @@ def _events(path: Path) -> list:
         return []
 
 
+def _answers(interrupt) -> str:
+    """What the technician types into `station record`: Enter at each mounting; after a lost
+    device, Enter at each reconnection prompt (the cable still out) or 'n' to going on without
+    the table."""
+    if interrupt is None or interrupt[0] not in DEVICES:
+        return "\n" * POSITIONS
+    device, _, position = interrupt  # one answer more, for a loss seen after the next mounting
+    return "\n" * (position + 1) + ("\n" * (RETRIES + 2) if device == "imu" else "n\nn\n")
+
+
+def _table_running(profile: Path) -> bool:
+    """Is the twin's table turning? (read over Modbus; the driver stops it when closed)"""
+    from drivers.clock import WallClock
+    from drivers.rotary_table import RotaryTable
+    from station.acquire.bench import BenchProfile
+
+    bench = BenchProfile.load(profile)
+    with RotaryTable(bench.table_host, bench.table_port, bench.table_map,
+                     clock=WallClock()) as table:
+        return table.state().running
+
+
 def record(workdir: Path, interrupt=None) -> dict:
-    """One session on a fresh twin; interrupt = (signal name, event kind, position) or None.
-    Returns the exits of record and resume, per-window sample ratios, readings and sigma."""
+    """One session on a fresh twin; interrupt = (signal name or device, event kind, position) or
+    None. Returns the exits of record and resume, per-window sample ratios, readings and sigma;
+    after a lost device also whether the table still turned when `record` had ended."""
     workdir.mkdir(parents=True, exist_ok=True)
     session = workdir / "session.h5"
     twin, profile = _twin(workdir)
     try:
         enters = workdir / "enter.txt"  # the technician: one Enter per mounting prompt
-        enters.write_text("\n" * POSITIONS)
+        enters.write_text(_answers(interrupt))
         with enters.open() as stdin:
             rec = subprocess.Popen([*STATION, "record", "--profile", str(profile), "--out",
                                     str(session), "--json"], stdin=stdin,
@@ -82,9 +118,14 @@ def record(workdir: Path, interrupt=None) -> dict:
                     raise RuntimeError(f"record ended before {kind} of position {position + 1}: "
                                        f"{rec.stderr.read()[-500:]}")
                 time.sleep(0.01)
-            rec.send_signal(getattr(signal, name))
+            target = twin if name in DEVICES else rec
+            target.send_signal(getattr(signal, DEVICES.get(name, name)))
         _, err = rec.communicate(timeout=120)
         out["record_exit"], out["record_stderr"] = rec.returncode, err.strip()[-300:]
+        out["record"] = _kinds(session)
+        if interrupt is not None and interrupt[0] in DEVICES:
+            twin.send_signal(getattr(signal, DEVICES[interrupt[0]]))  # the device is back
+            out["table_running"] = _table_running(profile)
         if interrupt is not None:
             res = subprocess.run([*STATION, "resume", str(session), "--json"],
                                  input="\n" * POSITIONS, capture_output=True, text=True,
@@ -93,6 +134,14 @@ def record(workdir: Path, interrupt=None) -> dict:
     finally:
         _stop(twin)
     return {**out, **measure(session)}
+
+
+def _kinds(path: Path) -> dict:
+    """What `record` left: the file closed cleanly, and its fault, pause and abort events."""
+    with Session.open(path) as s:
+        kinds = [e.kind for e in s.events()]
+        return {"clean": s.closed_cleanly,
+                **{k: kinds.count(k) for k in ("fault", "pause", "abort")}}
 
 
 def measure(path: Path) -> dict:

@@ -214,3 +214,35 @@ def test_the_whole_bench_lost_mid_rotation_names_both_devices_and_the_unstopped_
     s.bench.close()
     abort = abort_of(s.path)
     assert abort.detail["table_stopped"] is False and len(abort.detail["devices"]) == 2
+
+
+def test_the_stream_tap_a_session_records_through_reopens_a_lost_imu():
+    """`continue_session` records through a StreamTap: `Recorder.reconnect` reopens the IMU
+    through it (it once had no `open`, and every reconnection failed with an AttributeError)."""
+    import time
+
+    from station.protocols.still import StreamTap
+    from station.twin.hand_bench import HandBench
+
+    def blocks(tap, until=5.0):
+        deadline = time.monotonic() + until
+        while time.monotonic() < deadline:
+            block = tap.read_block()
+            if block is not None and len(block):
+                return block
+            time.sleep(0.01)
+        return None
+
+    with HandBench(seed=1, speed=10.0) as bench, bench.driver() as imu:
+        spec = bench.stream_spec
+        tap = StreamTap(imu, spec.rate_hz, spec.counts_per_unit)
+        assert blocks(tap) is not None
+        bench.twin.unplug()
+        with pytest.raises(ConnectionError):
+            for _ in range(500):  # what was in flight, then the loss
+                tap.read_block()
+                time.sleep(0.01)
+        bench.twin.plug()
+        assert tap.open() is tap
+        block = blocks(tap)
+        assert block is not None and len(block) > 0

@@ -189,8 +189,10 @@ def test_an_unknown_kind_is_refused_naming_the_registered_kinds(tmp_path, capsys
 
 
 def test_a_kind_without_a_part_is_refused_naming_the_kinds_that_have_it(toy, tmp_path):
-    assert "toy" not in kinds_with("resume") and kinds_with("resume") == ["rotary"]
-    with pytest.raises(UnknownKind, match="'toy' session; station resume resumes rotary sessions"):
+    assert "toy" not in kinds_with("resume") and kinds_with("resume") == ["rotary", "iron",
+                                                                          "static"]
+    with pytest.raises(UnknownKind,
+                       match="'toy' session; station resume resumes rotary, iron, static sessions"):
         lookup("toy", "resume", "x.h5 holds a 'toy' session", "station resume")
     with pytest.raises(SystemExit):  # argparse: the toy has no twin
         cli.main(["twin", "--protocol", "toy"])

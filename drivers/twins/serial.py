@@ -8,7 +8,12 @@ one slave fd open so the pty survives the driver closing and reopening the port.
 Frames are paced by the shared clock: frame `seq` carries the data `source(times)` at
 `time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes
 wait while the pty is full (like hardware flow control); if the twin falls more than `max_lag`
-seconds of clock time behind, it skips frames like a device whose buffer overflows.
+seconds of clock time behind, it skips frames like a device whose buffer overflows. With
+`unread_after`, a pty that has accepted nothing for that many wall seconds has no reader (the
+station closed the port, or was killed): the frames due are lost, as the bytes of a real device
+whose port nobody reads, until the pty takes bytes again - instead of a backlog of the whole
+absence sent when the station reopens the port, which a loaded host may need the next minutes of
+the session to catch up with.
 
 Fault knobs (attributes, changeable while streaming):
 - `corrupt`: fraction of frames mutated by `corrupt_frame` (bytes flipped, deleted or inserted);
@@ -69,12 +74,15 @@ class SerialTwin:
     clock   : shared clock (WallClock or ScaledClock)
     rate_hz : frame rate in clock time (default: the profile's rate)
     seed    : seed of the fault generator
+    max_lag : clock seconds the twin may fall behind before it skips frames (np.inf: never)
+    unread_after : wall seconds after which a pty that takes no bytes counts as unread (None:
+              never; see the module docstring)
     """
 
     max_batch = 4096  # frames encoded and written at once
 
     def __init__(self, profile, source, clock=None, rate_hz=None, seed=0, corrupt=0.0, drop=0.0,
-                 max_lag=1.0, duplicate=0.0):
+                 max_lag=1.0, duplicate=0.0, unread_after=None):
         self.profile = (profile if isinstance(profile, SerialImuProfile)
                         else SerialImuProfile.load(profile))
         self.source = source
@@ -84,6 +92,8 @@ class SerialTwin:
         self.duplicate = duplicate
         self.duplicated, self.restarts = [], []
         self._origin = 0  # frame number the device counts from (changed by `restart`)
+        self.unread_after = unread_after
+        self._blocked_since = None  # wall time the pty stopped taking bytes
         self.start_time = None
         self.error = None
         self._rng = np.random.default_rng(seed)
@@ -111,6 +121,11 @@ class SerialTwin:
             self._master, self._keeper = master, slave
             os.symlink(os.ttyname(slave), self.port + ".new")
             os.replace(self.port + ".new", self.port)
+
+    @property
+    def plugged(self) -> bool:
+        """True between `plug()` and `unplug()`."""
+        return self._master is not None
 
     def unplug(self) -> None:
         """Pull the cable: close the pty; a reader then gets an error, as with a real unplug."""
@@ -186,6 +201,12 @@ class SerialTwin:
             if due <= next_seq:
                 time.sleep(0.002)
                 continue
+            if self._unread():  # nobody reads the port: the frames due are lost
+                skipped = np.arange(next_seq, due)
+                self._log.append((skipped, np.full(len(skipped), OVERFLOW, np.int8)))
+                next_seq = due
+                time.sleep(0.002)
+                continue
             if due - next_seq > self.max_lag * self.rate_hz:  # buffer overflow: skip the oldest
                 skipped = np.arange(next_seq, due - int(self.max_lag * self.rate_hz))
                 self._log.append((skipped, np.full(len(skipped), OVERFLOW, np.int8)))
@@ -211,7 +232,7 @@ class SerialTwin:
         written = self._write(b"".join(frames))
         ends = np.cumsum([len(f) for f in frames])
         sent = np.flatnonzero(fate <= CORRUPTED)
-        fate[sent[ends > written]] = UNPLUGGED
+        fate[sent[ends > written]] = OVERFLOW if self.plugged else UNPLUGGED
         self._log.append((seq, fate))
 
     def _encode(self, seq: np.ndarray, times: np.ndarray) -> list:
@@ -239,18 +260,31 @@ class SerialTwin:
         size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
 
+    def _unread(self) -> bool:
+        """Has the pty taken no bytes for `unread_after` wall seconds, and still none now?"""
+        if self.unread_after is None or self._blocked_since is None or \
+                time.monotonic() - self._blocked_since < self.unread_after:
+            return False
+        with self._lock, contextlib.suppress(OSError, ValueError):
+            if self._master is not None and select.select([], [self._master], [], 0)[1]:
+                self._blocked_since = None  # a reader is back
+        return self._blocked_since is not None
+
     def _write(self, data: bytes) -> int:
-        """Write while the pty accepts bytes; stop early on unplug or stop. Bytes written."""
+        """Write while the pty accepts bytes; stop early on unplug, stop or no reader. Bytes
+        written."""
         view, done = memoryview(data), 0
-        while done < len(data) and not self._stop.is_set():
+        while done < len(data) and not self._stop.is_set() and not self._unread():
             with self._lock:
                 if self._master is None:
                     break
                 try:
                     done += os.write(self._master, view[done:])
+                    self._blocked_since = None
                     continue
                 except BlockingIOError:
                     master = self._master
+                    self._blocked_since = self._blocked_since or time.monotonic()
             with contextlib.suppress(OSError, ValueError):  # unplugged meanwhile
                 select.select([], [master], [], 0.02)
         return done

@@ -24,6 +24,9 @@ Every write the controller accepts is kept in `writes` as (time.monotonic(), add
 when `write_log` names a file, appended to it as one line `<monotonic s> <address> <values...>`
 (CLOCK_MONOTONIC is shared by every process of the machine, so another process can measure when
 its command arrived).
+
+`silent` (an attribute): while True no request is answered, however many come (a link that is
+down: the cable pulled, the controller's network port dead); the physics go on.
 """
 
 import asyncio
@@ -62,6 +65,7 @@ class TableTwin:
         self.writes = []
         self._server = None
         self._cut = False  # the next reply is sent short
+        self.silent = False
         self._faults = collections.deque()
         self._loop = asyncio.new_event_loop()
         self._stopping = None
@@ -143,6 +147,8 @@ class TableTwin:
 
     async def _action(self, func_code, start, address, count, registers, values):
         """pymodbus hook called before each access: faults, then physics."""
+        if self.silent:
+            raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write:
             self._refresh(start, registers)  # part of the same request, no second fault
             return None

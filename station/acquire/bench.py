@@ -254,15 +254,15 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
 
 
 def resume(bench: BenchProfile, path, operator) -> int:
-    """Continue the rotary session `path` (killed, paused or aborted) with the devices of `bench`
-    from the position after its last completed one; returns that position (the number of
-    positions when none was left).
+    """Continue the session `path` (killed, paused or aborted; a kind of `station.protocols.KINDS`
+    with a `resume`) with the devices of `bench` from the position after its last completed one;
+    returns that position (the number of positions when none was left).
 
     The session's own protocol settings and axes rule (the profile's [protocol] is not used); the
     profile must be for the same unit and give the same stream (channels, units, scales, rate),
     else the resumed counts would not mean what the recorded ones do. The clock continues after
-    the session's last recorded instant (a reboot restarts the host's monotonic time), and the
-    table is commanded to stop as soon as it is connected (a killed station may have left it
+    the session's last recorded instant (a reboot restarts the host's monotonic time), and a
+    rotary table is commanded to stop as soon as it is connected (a killed station may have left it
     turning; `station resume` stops it even earlier, `stop_table`).
     """
     from drivers.clock import ScaledClock

@@ -1,12 +1,16 @@
-"""`station resume SESSION`: continue a rotary session that a kill, a pause or an abort ended.
+"""`station resume SESSION`: continue a session that a kill, a pause, an abort or a lost device
+ended: rotary, iron or free-static.
 
 The session file is reopened (rows cut by a kill are dropped), the positions after the last
-completed one are recorded, and the file is closed cleanly. Sessions recorded on the virtual bench
-(`bench` in their metadata) resume on a new virtual bench built from it. Sessions recorded with
-real devices (`station record`) resume with the devices of a bench profile: `--profile`, by
-default the one the session was recorded with (its path is in the metadata); it must be for the
-same unit and stream (`station.acquire.bench.resume`). The table is commanded to stop first of
-all, within a second of the command's start (`station.acquire.bench.stop_table`).
+completed one are recorded, and the file is closed cleanly. A rotary session goes on with the
+position after its last completed one (the table is commanded to stop first of all, within a
+second of the command's start: `station.acquire.bench.stop_table`); an iron or free-static session
+keeps the poses already captured and asks the technician for the others (an iron session resumed
+within a mounting goes on with its next face: leave the unit fixed in the iron as it was).
+Rotary sessions recorded on the virtual bench (`bench` in their metadata) resume on a new virtual
+bench built from it. Sessions recorded with real devices (`station record`) resume with the devices
+of a bench profile: `--profile`, by default the one the session was recorded with (its path is in
+the metadata); it must be for the same unit and stream (`station.acquire.bench.resume`).
 """
 
 import json
@@ -61,7 +65,7 @@ def run(args) -> int:
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()
-        n = len(session.metadata["axes"])
+        n = _planned(session.metadata)
     summary = {"session": str(args.session), "resumed_at": first, "positions": n,
                "completed": 0 if last is None else last + 1}
     if args.json:
@@ -72,6 +76,15 @@ def run(args) -> int:
         print(f"{args.session}: recorded positions {first + 1}..{n} of {n}; the session is "
               "complete")
     return 0
+
+
+def _planned(metadata: dict) -> int:
+    """The positions (rotary) or poses (iron, static) of a session's protocol run."""
+    if "axes" in metadata:
+        return len(metadata["axes"])
+    settings = metadata["settings"]
+    return settings["poses"] if "poses" in settings else \
+        settings["mountings"] * len(settings["faces"])
 
 
 def _recorded_profile(path) -> Path | None:

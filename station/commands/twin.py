@@ -19,7 +19,11 @@ technician does not hear the station, so `station record` must keep up (it does 
 5 s hold) and records the turns in order.
 
 It prints the devices' addresses and writes a bench profile pointing at them (`--profile-out`),
-then runs until Ctrl-C or `--lifetime` wall seconds. `--speed` makes the twin's clock run faster
+then runs until Ctrl-C or `--lifetime` wall seconds. A device can be lost on the real wire and
+brought back while the twin runs: SIGUSR1 unplugs the IMU (its pty is closed; the same port comes
+back at the next SIGUSR1), SIGUSR2 silences the rotary table (its Modbus server stops answering;
+again at the next SIGUSR2), e.g. `kill -USR1 <twin pid>`: to try `station record`'s reconnection,
+pause and `station resume`. `--speed` makes the twin's clock run faster
 than the wall; the profile tells `station record` to use the same speed. With --json, the truth
 (sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
 
@@ -88,9 +92,15 @@ def run(args) -> int:
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
-    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
+    if not KINDS[args.protocol].table:
+        del devices[signal.SIGUSR2]
+    previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         with twin:
+            for number, device in devices.items():
+                signal.signal(number, lambda *_, device=device: twin.toggle(device))
             args.profile_out.write_text(twin.profile_text(f"SIM-{args.seed}"))
             info = {**twin.addresses(), "profile": str(args.profile_out.resolve())}
             if args.json:
@@ -106,7 +116,8 @@ def run(args) -> int:
                 stop.wait(args.lifetime)
             truth = twin.truth()
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for number, handler in previous.items():
+            signal.signal(number, handler)
     if twin.error is not None:
         raise StationError(f"the fixture failed: {twin.error}")
     if args.json:

@@ -35,7 +35,8 @@ class Kind:
                 the settings (`settings.poses`)
     live_view : acquire can show `station.acquire.live_view.LiveView`
     resume    : (writer, metadata, imu, table, operator, clock) -> first position: continue a
-                session after a kill, pause or abort (`station resume`)
+                session after a kill, pause or abort (`station resume`; table None unless
+                `table`)
     reduce    : (session, stream, trim=seconds) -> readings with M, sigma (m, n), take(columns)
     still     : the reduction detects still poses and takes the user's detector settings
                 (`still=station.reduce.stillness.StillOptions`: --rest, --threshold, ...)
@@ -106,6 +107,7 @@ KINDS = {
         title="accelerometers in a right-angle iron (Hwangbo & Kanade)",
         settings="station.protocols.iron:IronSettings",
         acquire="station.protocols.iron:record_session",
+        resume="station.protocols.iron:continue_session",
         reduce="station.reduce.iron:iron_readings",
         still=True,
         solve="station.solve.still:calibrate_still",
@@ -117,6 +119,7 @@ KINDS = {
         title="accelerometers in free still poses",
         settings="station.protocols.static:StaticSettings",
         acquire="station.protocols.static:record_session",
+        resume="station.protocols.static:continue_session",
         reduce="station.reduce.static:static_readings",
         still=True,
         solve="station.solve.still:calibrate_still",

@@ -39,7 +39,9 @@ from station.protocols.still import (
     PoseWatcher,
     StillSettings,
     StreamTap,
+    continue_poses,
     record_poses,
+    recorded_ups,
     run_states,
 )
 from station.reduce.iron import recognise_faces
@@ -111,12 +113,32 @@ class IronProtocol:
         return {"protocol": "iron", "settings": asdict(self.settings),
                 "a_nominal": self.a_nominal.tolist(), "gravity": self.settings.gravity}
 
-    def run(self, recorder, tap: StreamTap) -> None:
-        """Record every pose into `recorder` (started, reading `tap`); an error is recorded as an
-        `abort` event and raised."""
-        self.recorder, self.position = recorder, 0
+    @classmethod
+    def from_metadata(cls, metadata: dict, operator, clock) -> "IronProtocol":
+        """The protocol a session file recorded (`metadata()` of the original run)."""
+        try:
+            return cls(operator, clock, metadata["a_nominal"], IronSettings(**metadata["settings"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"the session's iron settings or layout are unusable ({exc}); it "
+                             "was not written by this station") from None
+
+    def run(self, recorder, tap: StreamTap, done=()) -> None:
+        """Record every pose after the completed ones `done` (their `position_done` events, for
+        a resumed session) into `recorder` (started, reading `tap`); an error is recorded as an
+        `abort` event and raised. A session resumed within a mounting goes on with its next face:
+        the unit must still be fixed in the iron as it was."""
+        self.recorder, self.position = recorder, len(done)
+        self.directions = recorded_ups(done)
+        self.labels = [e.detail.get("face") for e in done]
+        if self.labels and not set(self.labels) <= set(FACES):
+            raise InputError("the session's completed poses record no iron faces; it was not "
+                             "written by this station")
         self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap)
-        run_states(self, recorder, "mount")
+        first = "mount" if self.position % len(self.settings.faces) == 0 else "face"
+        if first == "face":
+            self.operator.prompt(f"mounting {self._mounting() + 1}/{self.settings.mountings} goes "
+                                 "on: leave the unit fixed in the iron as it was")
+        run_states(self, recorder, first)
 
     # -- states ----------------------------------------------------------------------------------
 
@@ -179,3 +201,10 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
     the new session file `out`; no table, no live view."""
     protocol = IronProtocol(operator, clock, bench.layout, bench.settings)
     record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+
+
+def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+    """`station resume`'s iron session (`station.protocols.KINDS` resume): the protocol the session
+    recorded, from its first pose not completed, with the opened `imu` driver into `writer`
+    (`SessionWriter.resume`d); returns that pose. No table."""
+    return continue_poses(IronProtocol.from_metadata(metadata, operator, clock), writer, imu, clock)

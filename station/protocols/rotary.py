@@ -32,6 +32,11 @@ most `retries` times per position, and the position is recorded again without re
   `pause` event is recorded and the operator is asked whether to go on; 'yes' records `resume`
   and goes on, 'no' ends the run with `SessionPaused` (the file is complete up to the last
   `position_done`; `station resume` continues it).
+A fault after the rotating window, once its samples are all in the file (IMU lost), or while the
+table comes to rest (table silent), does not record the position again: it is completed
+(`position_done` with detail `interrupted`; the table's rest is watched without the IMU, or not at
+all when the table is silent) and the next position follows. A fixture, or a technician who saw the
+table finish its turns, re-mounts the unit then.
 Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C - stops the
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
@@ -211,7 +216,7 @@ class RotaryProtocol:
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
         self.tap, self._windows, self._static_noise = tap, {}, []
-        self._rotated = None  # the last position whose rotating window ended
+        self._rotated = None  # (position, clock time) of the last rotating window's end
         try:
             while self.state != "done":
                 try:  # the one place where the state changes
@@ -282,9 +287,9 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
                                     "window); check the table's encoder")
-        self._windows["rotating"] = (begun, self.recorder.event("rotate_end", j,
-                                                                 {"angle": reading.angle}))
-        self._rotated = j
+        end = self.recorder.event("rotate_end", j, {"angle": reading.angle})
+        self._windows["rotating"] = (begun, end)
+        self._rotated = (j, end)
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "stop"
@@ -300,11 +305,19 @@ class RotaryProtocol:
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
-    def _done(self, detail: dict | None = None) -> None:
-        """The table at rest, its spin-down and rest in the file: record `position_done`."""
-        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop")
-        self.recorder.drain(self.clock.now(), self.settings.stale)
+    def _done(self, detail: dict | None = None, imu: bool = True) -> None:
+        """The table at rest, its spin-down and rest in the file (imu False: the IMU is lost, the
+        table alone is watched): record `position_done`."""
+        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop", imu)
+        if imu:
+            self.recorder.drain(self.clock.now(), self.settings.stale)
         self.recorder.event("position_done", self.position, detail)
+
+    def _windows_in(self) -> bool:
+        """The position's rotating window has ended and every sample up to its end is in the
+        file: the position is complete whatever happens to the IMU now."""
+        return (self._rotated is not None and self._rotated[0] == self.position
+                and self.recorder.sampled_until() >= self._rotated[1])
 
     def _quality(self) -> str:
         """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
@@ -337,12 +350,17 @@ class RotaryProtocol:
 
     def _reconnect(self, exc: RecordingError) -> str:
         """The IMU was lost: stop the table, have the cable reconnected, record the position
-        again (its windows so far are discarded; every sample recorded stays in the file)."""
+        again (its windows so far are discarded; every sample recorded stays in the file) - or,
+        when its windows were all in, complete it once the table rests and go on with the next."""
         j = self.position
         self._stop_table(exc)
         self.recorder.event("fault", j, {"device": "imu", "state": self.state,
                                          "error": f"{type(exc).__name__}: {exc}"})
-        self._count_again(exc)
+        then = self._completed() if self._windows_in() else "restart"
+        if then == "restart":
+            self._count_again(exc)
+        elif then == "done":
+            return then  # nothing left to record: the session is complete without the IMU
         for attempt in range(1, self.settings.retries + 2):
             self.operator.wait(Instruction(
                 f"the IMU was lost during position {j + 1} ({exc.__cause__}); the table was "
@@ -350,7 +368,7 @@ class RotaryProtocol:
             self.recorder.event("resume", j, {"after": "imu lost", "attempt": attempt})
             try:
                 self.recorder.reconnect()
-                return "restart"
+                return then
             except ConnectionError as again:
                 self.operator.prompt(f"the IMU is still missing: {again}")
         raise ProtocolError(f"the IMU did not come back after {self.settings.retries + 1} "
@@ -363,6 +381,8 @@ class RotaryProtocol:
         stopped = self._stop_table(exc)
         self.recorder.event("pause", j, {"state": self.state, "table_stopped": stopped,
                                          "error": f"{type(exc).__name__}: {exc}"})
+        # at rest the windows were drained and the stop commanded: the position is complete
+        then = self._completed(imu=None) if self.state == "rest" else "restart"
         message = (f"the rotary table stopped answering during position {j + 1} ({exc}). "
                    + ("It was commanded to stop" if stopped else
                       "It could not be commanded to stop: STOP IT BY HAND") +
@@ -370,9 +390,21 @@ class RotaryProtocol:
         if not self.operator.confirm(f"{message} Go on once the table answers again?"):
             raise SessionPaused(f"{message} Check the table's cable and power, then run "
                                 "`station resume SESSION` to continue.") from exc
-        self._count_again(exc)
+        if then == "restart":
+            self._count_again(exc)
         self.recorder.event("resume", j, {"after": "table timeout"})
-        return "restart"
+        return then
+
+    def _completed(self, imu: bool | None = False) -> str:
+        """Record `position_done` for a position whose windows are all in the file (imu False:
+        the IMU is lost, once the table rests; None: the table does not answer either, at once:
+        it was commanded to stop) and go on with the next: its state."""
+        if imu is None:
+            self.recorder.event("position_done", self.position, {"interrupted": True})
+        else:
+            self._done({"interrupted": True}, imu)
+        self.position += 1
+        return "mount" if self.position < len(self.axes) else "done"
 
     def _count_again(self, exc: BaseException) -> None:
         """ProtocolError once position j has been recorded again `retries` times."""
@@ -416,10 +448,11 @@ class RotaryProtocol:
     def _on_rate(self, reading) -> bool:
         return abs(reading.rate - self.settings.rate) < self.settings.tolerance
 
-    def _poll(self):
-        """Check the IMU stream, read the table and keep its state, stamped at the middle of the
-        request (the table answered somewhere in between)."""
-        self.recorder.check(self.settings.stale)
+    def _poll(self, imu: bool = True):
+        """Check the IMU stream (unless `imu` is False), read the table and keep its state,
+        stamped at the middle of the request (the table answered somewhere in between)."""
+        if imu:
+            self.recorder.check(self.settings.stale)
         before = self.clock.now()
         reading = self.table.state()
         reading = dataclasses.replace(reading, time=0.5 * (before + self.clock.now()))
@@ -429,13 +462,13 @@ class RotaryProtocol:
                                 "and record the position again")
         return reading
 
-    def _until(self, condition, hold: float, what: str) -> None:
+    def _until(self, condition, hold: float, what: str, imu: bool = True) -> None:
         """Poll until `condition(reading)` has held for `hold` s; ProtocolError after `timeout`."""
         s = self.settings
         deadline = self.clock.now() + s.timeout
         since = None
         while True:
-            reading = self._poll()
+            reading = self._poll(imu)
             now = self.clock.now()
             since = (now if since is None else since) if condition(reading) else None
             if since is not None and now - since >= hold:
@@ -461,7 +494,7 @@ class RotaryProtocol:
         why the session ended: the state, the devices that failed, whether the table was stopped
         and the error with its notes (what the operator was told); failures become notes."""
         stopped = self._stop_table(exc)
-        if self._rotated == self.position:
+        if self._rotated is not None and self._rotated[0] == self.position:
             self._complete(exc)
         devices = self._failed_devices(exc)
         if any(d not in str(exc) for d in devices):
@@ -480,7 +513,10 @@ class RotaryProtocol:
         `position_done`, so that a resume goes on with the next position, as a fixture or a
         technician who saw the table finish its turns does."""
         try:
-            self._done({"interrupted": True})
+            lost = self.recorder.error is not None
+            if lost and not self._windows_in():
+                raise RecordingError("the IMU was lost before the rotating window was all in")
+            self._done({"interrupted": True}, imu=not lost)
         except Exception as failed:  # noqa: BLE001 - the position is then recorded again
             exc.add_note(f"position {self.position + 1} is recorded again on resume: {failed}")
 

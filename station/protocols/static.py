@@ -38,7 +38,9 @@ from station.protocols.still import (
     PoseWatcher,
     StillSettings,
     StreamTap,
+    continue_poses,
     record_poses,
+    recorded_ups,
     run_states,
 )
 from station.reduce.static import accelerometer_channels
@@ -129,10 +131,24 @@ class StaticProtocol:
                 "a_nominal": self.a_nominal.tolist(), "gravity": self.settings.gravity,
                 "channels": self.channels.tolist()}
 
-    def run(self, recorder, tap: StreamTap) -> None:
-        """Record every pose into `recorder` (started, reading `tap`); an error is recorded as an
+    @classmethod
+    def from_metadata(cls, metadata: dict, operator, clock, units) -> "StaticProtocol":
+        """The protocol a session file recorded (`metadata()` of the original run; `units` of its
+        stream)."""
+        try:
+            settings = StaticSettings(**metadata["settings"])
+            return cls(operator, clock, metadata["a_nominal"], units, settings,
+                       _fixture_poses(metadata.get("fixture_poses")))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError(f"the session's static settings or layout are unusable ({exc}); it "
+                             "was not written by this station") from None
+
+    def run(self, recorder, tap: StreamTap, done=()) -> None:
+        """Record every pose after the completed ones `done` (their `position_done` events, for
+        a resumed session) into `recorder` (started, reading `tap`); an error is recorded as an
         `abort` event and raised."""
-        self.recorder, self.position = recorder, 0
+        self.recorder, self.position = recorder, len(done)
+        self.directions = recorded_ups(done)
         self.watcher = PoseWatcher(self.settings, self.clock, self.operator, recorder, tap,
                                    self.channels)
         run_states(self, recorder, "pose")
@@ -193,3 +209,21 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
         metadata = {**metadata, "fixture_poses": plan.instructions(),
                     "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+
+
+def _fixture_poses(steps) -> list | None:
+    """The poses of a fixture's plan as a session records them (`fixture_poses`:
+    `station.protocols.planned.FixturePlan.instructions`), as the protocol asks them (name, up,
+    words; `FixturePlan.guided`); None for a session without a fixture."""
+    if steps is None:
+        return None
+    return [(f"fixture pose {j + 1}", np.asarray(step["orientation"], float)[:, 2],
+             f"set the cube {step['words']}") for j, step in enumerate(steps)]
+
+
+def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+    """`station resume`'s free-static session (`station.protocols.KINDS` resume): the protocol the
+    session recorded, from its first pose not completed, with the opened `imu` driver into
+    `writer` (`SessionWriter.resume`d); returns that pose. No table."""
+    protocol = StaticProtocol.from_metadata(metadata, operator, clock, writer.specs["imu"].units)
+    return continue_poses(protocol, writer, imu, clock)

@@ -19,6 +19,10 @@ timeout). `PoseWatcher` does the watching for a protocol:
                  operator and returns None (settle again).
 
 The offline reduction (`station.reduce.still.still_readings`) does not trust the live polling.
+
+A session that ended early (Ctrl-C, kill, a lost IMU) goes on with `continue_poses` (`station
+resume`): the poses completed (`position_done`) are kept and the protocol asks for the others; the
+protocol's `run(recorder, tap, done)` takes up its state from the completed poses' events.
 """
 
 import threading
@@ -77,6 +81,11 @@ class StreamTap:
         self.lsb = 1.0 / np.asarray(counts_per_unit, float)
         self._blocks = []
         self._lock = threading.Lock()
+
+    def open(self) -> "StreamTap":
+        """Reopen the IMU driver after it was lost (`Recorder.reconnect`)."""
+        self.imu.open()
+        return self
 
     def read_block(self, timeout: float = 0.0):
         block = self.imu.read_block(timeout=timeout)
@@ -203,7 +212,44 @@ def run_states(protocol, recorder, first: str) -> None:
 def record_poses(protocol, imu, spec, clock, path, metadata: dict) -> None:
     """Run a still-pose `protocol` on the opened `imu` driver (stream `spec`) into the new session
     file `path` with `metadata`; the file keeps every sample and event whatever happens."""
+    with SessionWriter.create(path, metadata, {"imu": spec}, clock=clock) as writer:
+        _run_poses(protocol, writer, imu, clock, [])
+
+
+def continue_poses(protocol, writer, imu, clock) -> int:
+    """Run a still-pose `protocol` into `writer` (`SessionWriter.resume`d) from the first pose not
+    completed, on the opened `imu` driver; returns that pose (`settings.poses` when none was
+    left). The completed poses must be 0, 1, ... in order, as the protocols record them."""
+    done = [e for e in writer.events() if e.kind == "position_done"]
+    if [e.position for e in done] != list(range(len(done))):
+        raise InputError(f"{writer.path}: the completed poses are not 0, 1, ... in order; the "
+                         "session was not recorded by this station's still-pose protocols")
+    if len(done) < protocol.settings.poses:
+        _run_poses(protocol, writer, imu, clock, done)
+    return len(done)
+
+
+def _run_poses(protocol, writer, imu, clock, done: list) -> None:
+    """Run `protocol` after the completed poses `done` (their `position_done` events) with a
+    recorder reading `imu` into `writer`."""
+    spec = writer.specs["imu"]
     tap = StreamTap(imu, spec.rate_hz, spec.counts_per_unit)
-    writer = SessionWriter.create(path, metadata, {"imu": spec}, clock=clock)
-    with writer, Recorder(writer, tap, clock=clock) as recorder:
-        protocol.run(recorder, tap)
+    with Recorder(writer, tap, clock=clock) as recorder:
+        protocol.run(recorder, tap, done)
+
+
+def recorded_ups(done: list) -> list:
+    """The up directions (3,) the completed poses' `position_done` events record (untrusted
+    input); InputError naming the pose if one is not a unit vector."""
+    ups = []
+    for e in done:
+        try:
+            u = np.asarray(e.detail.get("up"), dtype=float)
+        except (TypeError, ValueError):
+            u = np.zeros(0)
+        if u.shape != (3,) or not abs(np.linalg.norm(u) - 1) < 1e-6:
+            raise InputError(f"pose {e.position + 1} of the session records no up direction; "
+                             "the session was not recorded by this station's still-pose "
+                             "protocols")
+        ups.append(u)
+    return ups

@@ -14,7 +14,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.reduce.stillness import StillOptions, detect_still
-from station.reduce.timeline import sample_times
+from station.reduce.timeline import sample_times, segment_breaks
 from station.solve.constraints import Constraints
 
 ACCELEROMETER, GYRO = "m/s^2", "rad/s"
@@ -94,32 +94,35 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0,
                    still: StillOptions | None = None, **detector) -> StillReadings:
     """The completed still poses of a session (`station.files.session.Session`).
 
-    The still intervals are detected once on the whole recording (`station.reduce.stillness.
-    detect_still`, one noise level for the session; options: `detector`, default the protocol's
-    settings in the metadata), so the result does not depend on when the live protocol polled.
+    Sample instants are worked out per segment of the stream (`station.reduce.timeline`: a
+    reconnection or a resumed session starts one). The still intervals are detected once on the
+    whole recording (`station.reduce.stillness.detect_still`, one noise level for the session;
+    options: `detector`, default the protocol's settings in the metadata), so the result does not
+    depend on when the live protocol polled.
     With the protocol's events, each completed pose averages the first `hold` seconds of the
     interval that overlaps its recorded window most; without them (an imported recording) every
     interval is a pose, all in one mounting. `trim` seconds (rounded to whole samples) are left
     out at both ends of every averaged window. `still`: the user's detector settings
     (`StillOptions`; channels None: every channel of the stream decides, as in the live protocol).
     """
-    data = session.stream(stream)
+    data, events = session.stream(stream), session.events()
     if len(data.seq) < 3:
         raise CalibrationInputError(f"{session.path}: the stream {stream!r} holds "
                                     f"{len(data.seq)} samples.",
                                     "Record or import the recording again: still poses need "
                                     "seconds of samples.")
     rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate)
-    z = data.to_si()
+    t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
+    known = np.isfinite(t)  # a resumed session's burst of samples taken before the resume: none
+    t, z = t[known], data.to_si()[known]
     settings = session.metadata.get("settings", {})
     options = {k: settings[k] for k in ("window", "enter", "leave", "min_still", "rest_length")
                if isinstance(settings.get(k), (int, float))}
-    x, acc, gyro = _detection_samples(session, stream, z, still)
+    x, acc, gyro = _detection_samples(session, stream, z, still, known)
     if still is not None:
         options.update(still.detector(rate, acc, gyro))
     still = detect_still(x, rate, **{**options, **detector})
-    windows, mountings = pose_windows(session.events())
+    windows, mountings = pose_windows(events)
     spans = still.intervals
     if len(windows):
         first, last = t[spans[:, 0]], t[spans[:, 1] - 1]
@@ -145,10 +148,11 @@ def still_readings(session, stream: str = "imu", trim: float = 0.0,
                          mountings, still, t)
 
 
-def _detection_samples(session, stream: str, z: np.ndarray, still) -> tuple:
+def _detection_samples(session, stream: str, z: np.ndarray, still, known: np.ndarray) -> tuple:
     """(samples the detector sees, their accelerometer columns, their gyro columns): the stream's
-    SI samples z; with `--still-channels acc+gyro` and no gyro in the stream, the one other stream
-    in rad/s on the same samples (an imported recording keeps its gyro in a stream of its own)."""
+    SI samples z (its samples `known`, those with a sampling instant); with `--still-channels
+    acc+gyro` and no gyro in the stream, the one other stream in rad/s on the same samples (an
+    imported recording keeps its gyro in a stream of its own)."""
     units = session.specs[stream].units
     acc = np.flatnonzero([u == ACCELEROMETER for u in units])
     gyro = np.flatnonzero([u == GYRO for u in units])
@@ -165,7 +169,7 @@ def _detection_samples(session, stream: str, z: np.ndarray, still) -> tuple:
         raise CalibrationInputError(
             f"{session.path}: the gyro stream {others[0]!r} is not on the samples of {stream!r}.",
             "Import the accelerometer and gyro on one time base, or use --still-channels acc.")
-    g = other.to_si()[:, [u == GYRO for u in other.spec.units]]
+    g = other.to_si()[known][:, [u == GYRO for u in other.spec.units]]
     return np.hstack([z, g]), acc, z.shape[1] + np.arange(g.shape[1])
 
 

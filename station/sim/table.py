@@ -96,6 +96,11 @@ class TablePhysics:
         # command history (time, rate then, target, true-rate factor): the motion at any past time
         self._history = collections.deque([(self._t, 0.0, 0.0, 1.0)], maxlen=HISTORY)
 
+    @property
+    def clock(self):
+        """The shared clock the physics follow."""
+        return self._clock
+
     def _target(self) -> float:
         return self._setpoint if self._running and not self._fault else 0.0
 

@@ -10,6 +10,12 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
 
 `rotary_twin`, `iron_twin` and `static_twin` build them from `station twin`'s options: the
 kinds' twin entries in `station.protocols.KINDS`.
+
+Both can lose a device on the real wire and get it back (`toggle`; `station twin` on SIGUSR1 for the
+IMU, SIGUSR2 for the table): the IMU's pty is closed (`drivers.twins.serial.SerialTwin.unplug`, the
+station's serial driver gets an I/O error) and reopened behind the same port; the Modbus server
+stops answering (`drivers.twins.table.TableTwin.silent`, the station's requests time out) and
+answers again. The table's physics go on meanwhile: a table turning when its link died turns on.
 """
 
 import json
@@ -25,6 +31,12 @@ from station.errors import InputError
 from station.model.fixture import Fixture
 from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
+
+UNREAD_AFTER = 2.0
+"""Wall seconds after which the served IMU counts its port as unread (the station ended or was
+killed: `drivers.twins.serial.SerialTwin`): frames are lost meanwhile, as a real device's are, not
+kept as a backlog for the resume. The recorder itself gives up on a silence that long
+(`Recorder.busy_grace`), so a station that reads at all never loses a frame to it."""
 
 
 class PortWatch:
@@ -89,7 +101,8 @@ class BenchTwin:
         b = self.bench
         if b.kind == "serial":
             b.table_twin.start()
-            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf)
+            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf,
+                                    unread_after=UNREAD_AFTER)
             self._watch = PortWatch(b.imu_twin.port)
         else:
             b.start()
@@ -119,6 +132,15 @@ class BenchTwin:
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
                           "profile": "table_modbus"},
                 "clock_speed": b.clock.speed}
+
+    def toggle(self, device: str) -> bool:
+        """Lose `device` ("imu": unplugged, "table": silent) if it is there, else bring it back;
+        True when it is now lost."""
+        b = self.bench
+        if device == "table":
+            b.table_twin.silent = not b.table_twin.silent
+            return b.table_twin.silent
+        return _toggle_imu(b.imu_twin)
 
     def profile_text(self, unit_serial: str | None = None) -> str:
         """A bench profile (`station record --profile`) pointing at these devices."""
@@ -246,7 +268,7 @@ class HandTwin:
         from drivers.twins.serial import SerialTwin
 
         b = self.bench
-        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf)
+        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf, unread_after=UNREAD_AFTER)
         self._watch = PortWatch(b.twin.port)
         self._thread.start()
         return self
@@ -280,6 +302,13 @@ class HandTwin:
                 + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
                 + _fixture_section(self.cube, layout=False))
 
+    def toggle(self, device: str) -> bool:
+        """Unplug the IMU (`device` "imu", the only one) if it is there, else plug it back; True
+        when it is now lost."""
+        if device != "imu":
+            raise InputError(f"the hand bench has no {device}; it has an IMU only")
+        return _toggle_imu(self.bench.twin)
+
     def addresses(self) -> dict:
         b = self.bench
         return {"imu": {"link": "serial", "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
@@ -305,6 +334,15 @@ class HandTwin:
                 self.turns += 1
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
+
+
+def _toggle_imu(twin) -> bool:
+    """Unplug the serial IMU twin if it is plugged, else plug it; True when now unplugged."""
+    if twin.plugged:
+        twin.unplug()
+        return True
+    twin.plug()
+    return False
 
 
 def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:

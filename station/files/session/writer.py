@@ -207,6 +207,12 @@ class SessionWriter:
                 self.last_completed_position = position
             self.flush()
 
+    def events(self) -> list:
+        """The events recorded so far (`station.files.session.Event`), this run's included."""
+        with self._mutex:
+            self.flush()
+            return read_events(self._file["events"], self.path)
+
     def flush(self) -> None:
         """Write every buffered row and flush the file: what was appended so far is durable."""
         with self._mutex:
