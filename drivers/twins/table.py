@@ -25,6 +25,10 @@ when `write_log` names a file, appended to it as one line `<monotonic s> <addres
 (CLOCK_MONOTONIC is shared by every process of the machine, so another process can measure when
 its command arrived).
 
+`commands` keeps each run/stop command with the ids of the client connections open when it came:
+a stop from connections none of which was open at the run is a new client's (e.g. `station
+resume` stopping the table a killed station left turning).
+
 `silent` (an attribute): while True no request is answered, however many come (a link that is
 down: the cable pulled, the controller's network port dead); the physics go on.
 """
@@ -63,6 +67,7 @@ class TableTwin:
         self.port = None
         self.requests = 0
         self.writes = []
+        self.commands = []  # (run: bool, ids of the client connections open then), in order
         self._server = None
         self._cut = False  # the next reply is sent short
         self.silent = False
@@ -241,6 +246,8 @@ class TableTwin:
         if command not in (None, m.run, m.stop):
             return ExcCodes.ILLEGAL_VALUE
         self._log_write(address, values)
+        if command is not None:  # who commanded it: the connections open at that moment
+            self.commands.append((command == m.run, frozenset(self._server.active_connections)))
         if command == m.run:
             if not self.table.start():
                 return ExcCodes.DEVICE_FAILURE

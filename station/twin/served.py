@@ -169,6 +169,10 @@ class BenchTwin:
         self.bench.technician.wait(self.instructions[j])
         self.mounted += 1
 
+    def _same_station(self) -> bool:
+        """Was the run that just ended stopped by the station that started it?"""
+        return _stopped_by_its_station(list(self.bench.table_twin.commands))
+
     def _fixture(self) -> None:
         """Start the serial stream when the station opens the port; after each run of the table,
         once it has come to rest, re-mount the unit: at the next position when the run turned
@@ -186,7 +190,7 @@ class BenchTwin:
                     started, stopped, turned = None, True, abs(state.angle - started)
                 if stopped and not state.moving:
                     stopped = False
-                    self._mount(advance=_completed(turned))
+                    self._mount(advance=_completed(turned) and self._same_station())
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
 
@@ -207,6 +211,16 @@ def _fixture_section(spec: FixtureSpec | None, layout: bool = True) -> str:
     lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
              for k, v in spec.table().items() if layout or k != "layout"]
     return "\n[fixture]\n" + "\n".join(lines) + "\n"
+
+
+def _stopped_by_its_station(commands: list) -> bool:
+    """Was the last run stopped by a client connection that was open when it started (the
+    station that ran the position), rather than by a new one (`station resume` after the station
+    was killed: the position was not completed, whatever the table turned)? `commands`:
+    `drivers.twins.table.TableTwin.commands`."""
+    runs = [ids for run, ids in commands if run]
+    stops = [ids for run, ids in commands if not run]
+    return not runs or not stops or bool(runs[-1] & stops[-1])
 
 
 def _completed(turned: float) -> bool:
