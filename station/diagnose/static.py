@@ -561,7 +561,9 @@ def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus
                       notes=f"offset warmup_i exp(-t / tau) + drift_i t per channel (accelerometer "
                       f"then gyro); tau from the grid {np.round(taus, 1).tolist()} s")
     if name == "scale_nonlinearity":
-        return Fitted(name, {"k2": p["k2"]}, {"k2": sig["k2"]}, dof=data.m,
+        peak = np.abs(data.x[:, :data.m]).max(0)
+        return Fitted(name, {"k2": p["k2"], "peak_signal": peak},
+                      {"k2": sig["k2"], "peak_signal": np.full(data.m, np.nan)}, dof=data.m,
                       notes="output s + k2 s^2 per accelerometer channel, s = a_i . v in output "
                       "units; k2 in 1 / output unit")
     if name == "saturation":

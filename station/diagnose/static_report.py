@@ -14,7 +14,7 @@ import itertools
 
 import numpy as np
 
-from station.diagnose.select import log_sf
+from station.diagnose.goodness import log_sf
 from station.diagnose.static import SCALES_S, StaticData, from_arrays
 from station.errors import CalibrationInputError
 from station.model.constants import STANDARD_GRAVITY

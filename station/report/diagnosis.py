@@ -3,7 +3,7 @@
 import numpy as np
 
 from station.diagnose.model import parameters
-from station.diagnose.select import log_sf
+from station.diagnose.goodness import log_sf
 from station.diagnose.static import StaticData, untestable
 from station.diagnose.static_report import white_noise_verdict
 from station.files.jsonable import jsonable

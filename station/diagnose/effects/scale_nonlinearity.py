@@ -21,8 +21,8 @@ def fit(ctx, prediction, r) -> Fitted:
     lf = linear.fit(ctx.data, r, [unit], ctx.sigma, "sensor")
     return Fitted(
         "scale_nonlinearity",
-        {"k2": lf.theta[:, 0]},
-        {"k2": np.sqrt(lf.cov[:, 0, 0])},
+        {"k2": lf.theta[:, 0], "peak_signal": np.abs(s).max((0, 1))},
+        {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(s.shape[-1], np.nan)},
         dof=lf.theta.shape[0],
         reduction=lf.reduction(),
     )
