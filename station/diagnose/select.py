@@ -48,13 +48,15 @@ class Diagnosis:
 
     @property
     def resembles(self) -> list:
-        """[{"effect", "reason", "log10_p", "step"}]: candidates significant at some step whose
-        fit was outside their physical range, so not named (last occurrence of each)."""
+        """[{"effect", "reason", "log10_p", "step"}]: candidates significant at some step but not
+        named: their fit was outside their physical range, or they explain only part of an
+        unexplained gap (`settle`); last occurrence of each."""
         out = {}
         for i, step in enumerate(self.steps):
             for name, e in step.evidence.items():
-                if e["significant"] and e.get("implausible"):
-                    out[name] = {"effect": name, "reason": e["implausible"],
+                reason = e.get("implausible") or e.get("not_named")
+                if e["significant"] and reason:
+                    out[name] = {"effect": name, "reason": reason,
                                  "log10_p": e["log10_p"], "step": i}
         return [v for k, v in out.items() if k not in self.effects]
 
@@ -103,17 +105,45 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
                     lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
                     check=lambda name, f: plausibility.check(name, f, site))
     n = data.shape[0]
-    spec = signature.spectrum(data, result.final)
-    test = goodness.test(result.steps[-1].gap, gap.dofs(data, result.final), alpha,
-                         {"spectrum": signature.test(spec, n)} if spec else None)
+
+    def test_of(step):
+        spec = signature.spectrum(data, step.model)
+        return goodness.test(step.gap, gap.dofs(data, step.model), alpha,
+                             {"spectrum": signature.test(spec, n)} if spec else None), spec
+
+    result, (test, spec) = settle(result, test_of, alpha)
     if spec:
         spec["peaks"] = signature.peaks(spec, n, alpha)
     return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
                    unexplained=[{**test["statistics"][k], "statistic": k,
-                                 "signature": signature.describe(data, result.final, k)}
-                                for k in test["failed"] if k != "spectrum"]
-                   + [{**test["statistics"][k], "statistic": k, "signature": {
-                       "peaks": spec["peaks"]}} for k in test["failed"] if k == "spectrum"])
+                                 "signature": {"peaks": spec["peaks"]} if k == "spectrum"
+                                 else signature.describe(data, result.final, k)}
+                                for k in test["failed"]])
+
+
+def settle(result: Diagnosis, test_of, alpha: float) -> tuple:
+    """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
+    final goodness-of-fit test; when it fails, every
+    named effect's evidence is read again with the LR divided by the dispersion the gap leaves
+    (the largest failed mean-square gap, a quasi-likelihood); the first effect no longer
+    significant then, and those after it, are not named (`not_named` in its evidence): they
+    explain only part of a gap the library does not."""
+    out = test_of(result.steps[-1])
+    test = out[0]
+    dispersion = max([test["statistics"][k]["gap"] for k in test["failed"] if k != "spectrum"],
+                     default=1.0)
+    for i, step in enumerate(result.steps[:-1]):
+        e = step.evidence[step.chosen]
+        quasi = (np.log(e["null_mass"]) + goodness.log_sf(
+            e["lr"] / (e["null_scale"] * dispersion), e["null_dof"])) / np.log(10)
+        if dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence)):
+            note = (f"explains only part of a gap left unexplained (log10 p {quasi:.1f} with "
+                    f"the LR over that gap's dispersion {dispersion:.2f})")
+            evidence = {**step.evidence, step.chosen: {**e, "not_named": note}}
+            last = replace(step, evidence=evidence, chosen="none")
+            result = replace(result, steps=[*result.steps[:i], last])
+            return result, test_of(last)
+    return result, out
 
 
 def correction(data, result: Diagnosis) -> dict | None:

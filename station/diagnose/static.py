@@ -16,16 +16,16 @@ evidence is the deviance decrease (station.diagnose.select).
 """
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import rails
+from station.diagnose import goodness, plausibility, rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
-from station.diagnose.select import Diagnosis, greedy
+from station.diagnose.select import Diagnosis, greedy, settle
 from station.errors import CalibrationInputError
 from station.model import measurement, sensing
 from station.model.constants import STANDARD_GRAVITY
@@ -636,13 +636,25 @@ def untestable(data: StaticData, b0: Base) -> dict:
 
 
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
-                    candidates=None) -> Diagnosis:
-    """The evidence loop of station.diagnose.select on a free-static session."""
+                    candidates=None, latitude_deg: float | None = None) -> Diagnosis:
+    """The evidence loop of station.diagnose.select on a free-static session, each candidate
+    within its physical range (station.diagnose.plausibility; rates are judged only when the
+    gyro is in rad/s, not raw counts), then the final goodness-of-fit test of the gaps
+    (station.diagnose.goodness)."""
     from station.diagnose import static_report
 
     b0 = base(data)
     if candidates is None:
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
-    return greedy(fit(data, b0), candidates, lambda current, names: fit(data, b0, names, current),
-                  lambda m: static_report.statistics(data, m), alpha=alpha,
-                  max_effects=max_effects)
+    site = plausibility.Site(latitude_deg, not any("raw counts" in n for n in data.notes))
+    result = greedy(fit(data, b0), candidates,
+                    lambda current, names: fit(data, b0, names, current),
+                    lambda m: static_report.statistics(data, m), alpha=alpha,
+                    max_effects=max_effects,
+                    check=lambda name, f: plausibility.check(name, f, site))
+    result, (test, _) = settle(result, lambda step: (goodness.test(
+        step.gap, static_report.dofs(data, step.model), alpha), None), alpha)
+    return replace(result, fit_test=test,
+                   unexplained=[{**test["statistics"][k], "statistic": k,
+                                 "signature": static_report.signature(data, result.final, k)}
+                                for k in test["failed"]])

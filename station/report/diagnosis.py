@@ -50,16 +50,38 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "fs": data.fs,
         "noise_sigma": data.sigma,
         "alpha": diagnosis.alpha,
-        "effects": diagnosis.effects,
+        **verdict(diagnosis),
         "steps": steps,
         "calibration_before": calibration_summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": calibration_summary(diagnosis.final.calibration),
+        "calibration_after": calibration_summary(diagnosis.calibration),
+        "spectrum": diagnosis.spectrum,
     })
+
+
+def verdict(diagnosis) -> dict:
+    """The named effects, the unexplained gaps with their signatures, the candidates that
+    resemble the gap with implausible parameters, the final goodness-of-fit test and the
+    held-out check of the correction (station.diagnose.select.Diagnosis)."""
+    return {"effects": diagnosis.effects, "unexplained": diagnosis.unexplained,
+            "resembles": diagnosis.resembles, "fit_test": diagnosis.fit_test,
+            "correction": diagnosis.correction}
 
 
 def text(doc: dict) -> str:
     """A short human-readable summary."""
     lines = [f"effects: {', '.join(doc['effects']) or 'none'} (alpha {doc['alpha']})"]
+    for u in doc.get("unexplained", []):
+        lines.append(f"UNEXPLAINED: {u['statistic']} gap {u['gap']:.3g} on {u['dof']} dof "
+                     f"(log10 p {u['log10_p']:.1f}, threshold "
+                     f"{doc['fit_test']['threshold_log10_p']:.2f}): {_signature_line(u)}")
+    for r in doc.get("resembles", []):
+        lines.append(f"resembles {r['effect']} (log10 p {r['log10_p']:.1f}), parameters "
+                     f"implausible: {r['reason']}")
+    c = doc.get("correction")
+    if c:
+        lines.append(f"correction {'applied' if c['applied'] else 'NOT applied'}: held-out "
+                     f"chi2 {c['held_out_chi2_before']:.1f} uncorrected -> "
+                     f"{c['held_out_chi2_after']:.1f} corrected ({c['positions']} positions)")
     for step in doc["steps"]:
         gap = " ".join(f"{k}={v:.3g}" for k, v in step["gap"].items())
         lines.append(f"model {' + '.join(step['model'])}: gap {gap}")
@@ -73,6 +95,28 @@ def text(doc: dict) -> str:
         lines.append(f"{name}: {shown}")
     lines.extend(doc.get("remarks", []))
     return "\n".join(lines)
+
+
+def _signature_line(u: dict) -> str:
+    """One line of an unexplained gap's signature."""
+    s = u["signature"]
+    if "peaks" in s:
+        return "; ".join(f"{p['power']:.2f} x noise at {p['frequency']:g} x the table rate "
+                         f"({p['sense'].replace('_', ' ')})" for p in s["peaks"][:3])
+    if "by_channel" in s:
+        return (f"worst channel {int(np.argmax(s['by_channel']))}, interval "
+                f"{int(np.argmax(s['by_interval']))}; correlation with time "
+                f"{s['correlation_with_time']:.2f}; gravity direction R2 "
+                f"{s['gravity_direction_r2']:.2f} (noise {s['gravity_direction_r2_noise']:.2f})")
+    if "by_sensor" not in s:
+        return s.get("note", "")
+    comp = max(s["by_component"].items(), key=lambda x: x[1])
+    return (f"worst sensor {int(np.argmax(s['by_sensor']))}, position "
+            f"{int(np.argmax(s['by_position']))}, component {comp[0]} ({comp[1]:.2g}); "
+            f"correlation with the table-axis projection "
+            f"{s['correlation_with_table_axis_projection']:.2f}, time "
+            f"{s['correlation_with_time']:.2f}, rate sign {s['correlation_with_rate_sign']:.2f}; "
+            f"table-angle R2 {s['table_angle_harmonic_r2']:.2f}")
 
 
 def gap_plot(doc: dict) -> html.Plot:
@@ -151,12 +195,12 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
         "gravity": data.gravity,
         "noise_sigma": data.sigma,
         "alpha": diagnosis.alpha,
-        "effects": diagnosis.effects,
+        **verdict(diagnosis),
         "not_testable": not_testable,
         "white_noise": white,
         "steps": steps,
         "calibration_before": _summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": _summary(diagnosis.final.calibration),
+        "calibration_after": _summary(diagnosis.calibration),
         "remarks": remarks,
     })
 
