@@ -111,7 +111,8 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
         return goodness.test(step.gap, gap.dofs(data, step.model), alpha,
                              {"spectrum": signature.test(spec, n)} if spec else None), spec
 
-    result, (test, spec) = settle(result, test_of, alpha)
+    result, (test, spec) = settle(result, test_of, alpha,
+                                  {k: e.GAPS for k, e in EXTENSIONS.items()})
     if spec:
         spec["peaks"] = signature.peaks(spec, n, alpha)
     return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
@@ -121,13 +122,14 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
                                 for k in test["failed"]])
 
 
-def settle(result: Diagnosis, test_of, alpha: float) -> tuple:
+def settle(result: Diagnosis, test_of, alpha: float, own: dict) -> tuple:
     """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
     final goodness-of-fit test; when it fails, every
     named effect's evidence is read again with the LR divided by the dispersion the gap leaves
     (the largest failed mean-square gap, a quasi-likelihood); the first effect no longer
-    significant then, and those after it, are not named (`not_named` in its evidence): they
-    explain only part of a gap the library does not."""
+    significant then, or whose own gap statistics (`own`: {effect: statistics}) still fail,
+    and those after it, are not named (`not_named` in its evidence): they explain only part of a
+    gap the library does not."""
     out = test_of(result.steps[-1])
     test = out[0]
     dispersion = max([test["statistics"][k]["gap"] for k in test["failed"] if k != "spectrum"],
@@ -136,9 +138,12 @@ def settle(result: Diagnosis, test_of, alpha: float) -> tuple:
         e = step.evidence[step.chosen]
         quasi = (np.log(e["null_mass"]) + goodness.log_sf(
             e["lr"] / (e["null_scale"] * dispersion), e["null_dof"])) / np.log(10)
-        if dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence)):
-            note = (f"explains only part of a gap left unexplained (log10 p {quasi:.1f} with "
-                    f"the LR over that gap's dispersion {dispersion:.2f})")
+        left = [k for k in own.get(step.chosen, ()) if k in test["failed"]]
+        weak = dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence))
+        if left or weak:
+            note = (f"leaves its own signature's gap unexplained ({', '.join(left)})" if left
+                    else f"explains only part of a gap left unexplained (log10 p {quasi:.1f} "
+                    f"with the LR over that gap's dispersion {dispersion:.2f})")
             evidence = {**step.evidence, step.chosen: {**e, "not_named": note}}
             last = replace(step, evidence=evidence, chosen="none")
             result = replace(result, steps=[*result.steps[:i], last])

@@ -9,7 +9,8 @@ broken down (each mean of F^2 is 1 under white noise):
 - when in the session: correlation of the per-position gap with the position's start time,
   with the sign of its rate, and its first harmonic in the table angle at the start of turning.
 Plus, once per session, the spectrum of the rotating windows' residual: per position the
-residual rate in the unit frame (least squares through a), its table-plane part as the complex
+residual rate in the unit frame (least squares through a) less its mean over the window (the
+level is the `averaged` statistic's), its table-plane part as the complex
 p + i q and its axial part, Fourier coefficients at f x the table angle for f in FREQUENCIES;
 |C(f)|^2 over its white-noise expectation, averaged over positions (1 = noise). Positive f turns
 with the table in the unit's frame (axis wobble: +1), negative against it (a rate fixed in
@@ -23,7 +24,7 @@ from scipy.stats import chi2
 from station.diagnose import gap
 from station.diagnose.goodness import log_sf
 
-FREQUENCIES = np.round(np.arange(0.05, 4.0001, 0.05), 2)
+FREQUENCIES = np.round(np.arange(0.25, 4.0001, 0.05), 2)
 """Multiples of the table rate at which the residual spectrum is read."""
 COMPONENTS = {"static": ["static mean"], "trend": ["static window", "rotating window"],
               "harmonics": [f"{h:g}x table rate {q}" for h in gap.HARMONICS
@@ -85,6 +86,7 @@ def spectrum(data, model) -> dict:
     for j in range(data.shape[0]):
         sl = slice(r0, data.rot_stop[j])
         omega = (r[j, sl] * w) @ a.T @ cov  # (K, 3) residual rate in the unit frame
+        omega -= omega.mean(0)  # the level is the `averaged` statistic's
         p, q, u = model.ctx.orientation[j].T
         plane = omega @ p + 1j * omega @ q
         theta = data.angle[j, sl] - data.angle[j, r0]

@@ -635,6 +635,11 @@ def untestable(data: StaticData, b0: Base) -> dict:
     return out
 
 
+GAPS = {"bias_drift": ("between", "gyro", "trend"), "scale_nonlinearity": ("between",),
+        "saturation": ("rails",), "earth_rate": ("gyro",), "g_sensitivity": ("gyro",)}
+"""Gap statistics holding each candidate's signature (station.diagnose.select.settle)."""
+
+
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
                     candidates=None, latitude_deg: float | None = None) -> Diagnosis:
     """The evidence loop of station.diagnose.select on a free-static session, each candidate
@@ -653,7 +658,7 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
                     max_effects=max_effects,
                     check=lambda name, f: plausibility.check(name, f, site))
     result, (test, _) = settle(result, lambda step: (goodness.test(
-        step.gap, static_report.dofs(data, step.model), alpha), None), alpha)
+        step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS)
     return replace(result, fit_test=test,
                    unexplained=[{**test["statistics"][k], "statistic": k,
                                  "signature": static_report.signature(data, result.final, k)}

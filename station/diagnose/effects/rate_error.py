@@ -41,6 +41,9 @@ from station.diagnose import linear
 from station.diagnose.effects import Fitted
 from station.model.effects import rate_error
 
+GAPS = ("averaged",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "rate"
 ENCODER_TOL = 1e-9
 """Precision of a rate factor read off an exact angle array (rounding only)."""

@@ -11,6 +11,9 @@ from station.diagnose.effects import Fitted
 from station.model.effects import scale_nonlinearity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
+GAPS = ("averaged",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "sensed"
 
 
