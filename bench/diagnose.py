@@ -106,7 +106,7 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) ->
         "eps_before": eps(a_true, result.steps[0].model.calibration.a),
         "eps_after": eps(a_true, result.calibration.a),
         "crlb": bound,
-        # 1 sd of eps at the bound: eps^2 = |e|^2, e ~ N(0, C): var = 2 tr C^2, d eps = d eps^2 / 2 eps
+        # 1 sd of eps at the bound: eps^2 = |e|^2, e ~ N(0, C): var 2 tr C^2, d eps = d(eps^2)/2eps
         "eps_sd_at_bound": float(np.sqrt(2 * np.trace(cov @ cov)) / (2 * bound)),
         "crlb_random": float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m, spread=spread)))),
         "spread_true": spread,

@@ -14,8 +14,8 @@ from station.diagnose.static import diagnose_static, from_arrays
 from station.errors import CalibrationInputError
 from station.files.importers import import_csv, import_text
 from station.model.earth import OMEGA_EARTH
-from station.model.effects.earth_rate import EarthRate
 from station.model.effects import parse_all
+from station.model.effects.earth_rate import EarthRate
 from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from station.commands import existing_file, existing_session, working
 from station.diagnose import data, diagnose, static_report
+from station.diagnose.plausibility import Site
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
 from station.files.session import Session
@@ -33,6 +34,9 @@ def register(p) -> None:
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
     p.add_argument("--max-effects", type=int, default=3, help="at most this many effects")
+    p.add_argument("--latitude", type=float, metavar="DEG",
+                   help="site latitude, degrees north: an Earth rate is named only when it "
+                   "matches the Earth's there (without it: its magnitude only)")
     p.set_defaults(run=run)
 
 
@@ -43,6 +47,8 @@ def run(args) -> int:
                          (".npz", ".h5"))
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha {args.alpha} must lie between 0 and 1")
+    if args.latitude is not None and not -90 <= args.latitude <= 90:
+        raise InputError(f"--latitude {args.latitude} must lie between -90 and 90 degrees")
     rotary = path.suffix == ".npz"
     if rotary:
         session = data.load(path)
@@ -54,12 +60,13 @@ def run(args) -> int:
     with working(f"diagnosing {path.name}: fitting the model, testing each named effect "
                  f"(at most {args.max_effects})"):
         if rotary:
-            doc = report.to_dict(diagnose(session, alpha=args.alpha,
-                                          max_effects=args.max_effects), session, str(path))
+            doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
+                                          site=Site(args.latitude)), session, str(path))
         else:
             static = static_report.load(path)
             doc = report.static_to_dict(
-                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects),
+                diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
+                                latitude_deg=args.latitude),
                 static, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:

@@ -6,15 +6,17 @@ implausible" (station.diagnose.select) and never named. Each range is declared h
 effect, as a bound on the fitted value allowing for its 1-sigma (a value is out of range when
 it lies more than Z_LIMIT sigma beyond the bound):
 
-| effect | range |
-| --- | --- |
-| earth_rate | horizontal N, vertical U = Omega_E (cos phi, sin phi) within EARTH_TOLERANCE (relative) at the site latitude phi when given; otherwise |(N, U)| = Omega_E within it and 0 <= N <= Omega_E (rad/s gyros only) |
-| latency | 0 <= delay_i <= LATENCY_MAX |
-| rate_error | spread <= RATE_SPREAD_MAX (a table rate error a table's own control would not leave unnoticed); encoder gain within GAIN_TOLERANCE of 1 |
-| scale_nonlinearity | |k2_i| x the largest |signal| <= NONLINEARITY_MAX (datasheets: 0.01-0.5 % of full scale) |
-| axis_wobble | half-angle <= WOBBLE_MAX_DEG |
-| g_sensitivity | |G| <= G_SENSITIVITY_MAX deg/s per g (rad/s gyros only) |
-| bias_drift, saturation | any fitted value |
+- earth_rate: horizontal N, vertical U = Omega_E (cos phi, sin phi) within EARTH_TOLERANCE
+  (relative) at the site latitude phi when given; otherwise |(N, U)| = Omega_E within it and
+  0 <= N <= Omega_E (rad/s gyros only);
+- latency: 0 <= delay_i <= LATENCY_MAX;
+- rate_error: spread <= RATE_SPREAD_MAX (what a table's own servo would not flag); an
+  encoder's gain within GAIN_TOLERANCE of 1;
+- scale_nonlinearity: |k2_i| x the largest |signal| <= NONLINEARITY_MAX (datasheets: 0.01-0.5
+  % of full scale);
+- axis_wobble: half-angle <= WOBBLE_MAX_DEG;
+- g_sensitivity: |G| <= G_SENSITIVITY_MAX deg/s per g (rad/s gyros only);
+- bias_drift, saturation: any fitted value.
 """
 
 from dataclasses import dataclass

@@ -97,9 +97,10 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
 
 
 def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int = 3,
-             candidates=tuple(EXTENSIONS), site=plausibility.Site()) -> Diagnosis:
+             candidates=tuple(EXTENSIONS), site=None) -> Diagnosis:
     """Run the workflow on a session (station.diagnose.data.RotaryData); `site` gives what the
-    physical ranges need (station.diagnose.plausibility)."""
+    physical ranges need (station.diagnose.plausibility.Site; default: latitude unknown)."""
+    site = site or plausibility.Site()
     result = greedy(model.nominal(data), candidates,
                     lambda current, names: model.fit(data, list(names), current, iterations),
                     lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,

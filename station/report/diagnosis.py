@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from station.diagnose.model import parameters
 from station.diagnose.goodness import log_sf
+from station.diagnose.model import parameters
 from station.diagnose.static import StaticData, untestable
 from station.diagnose.static_report import white_noise_verdict
 from station.files.jsonable import jsonable
@@ -139,6 +139,46 @@ def gap_plot(doc: dict) -> html.Plot:
                      "its twin, per model step (1 = explained by the noise).", html.png(fig))
 
 
+def unexplained_plots(doc: dict) -> list:
+    """One figure per unexplained gap statistic: its mean square feature by sensor (channel) and
+    by position (interval); and the residual spectrum when the session has one."""
+    from matplotlib.figure import Figure
+
+    plots = []
+    for u in doc.get("unexplained", []):
+        s = u["signature"]
+        sensors, parts = s.get("by_sensor", s.get("by_channel")), s.get("by_position",
+                                                                         s.get("by_interval"))
+        if sensors is None:
+            continue
+        fig = Figure(figsize=(7, 3))
+        left, right = fig.subplots(1, 2)
+        left.bar(range(len(sensors)), sensors)
+        right.bar(range(len(parts)), parts)
+        for ax, what in ((left, "sensor (channel)"), (right, "position (interval)")):
+            ax.axhline(1.0, color="k", lw=0.8, ls="--")
+            ax.set_xlabel(what)
+        left.set_ylabel("mean square (1 = noise)")
+        fig.suptitle(f"Unexplained: {u['statistic']}")
+        plots.append(html.Plot(f"unexplained-{u['statistic']}", f"Unexplained {u['statistic']}",
+                               "Where the unexplained gap sits: by sensor and by position "
+                               "(1 = white noise).", html.png(fig)))
+    spec = doc.get("spectrum")
+    if spec and doc.get("unexplained"):
+        fig = Figure(figsize=(7, 3.5))
+        ax = fig.subplots()
+        for sense in ("with_table", "against_table", "axial"):
+            ax.plot(spec["frequency"], spec[sense], label=sense.replace("_", " "))
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xlabel("frequency / table rate")
+        ax.set_ylabel("power / white noise")
+        ax.legend(fontsize=7)
+        plots.append(html.Plot("spectrum", "Residual spectrum", "Residual of the rotating "
+                               "windows at multiples of the table rate, turning with or against "
+                               "the table, and along its axis (1 = white noise).", html.png(fig)))
+    return plots
+
+
 def html_report(doc: dict, plots=()) -> str:
     """The self-contained page (station.report.html): the named effects, the gap plot (and
     `plots`), one section per model step with its gap and evidence tables, the text summary."""
@@ -156,7 +196,10 @@ def html_report(doc: dict, plots=()) -> str:
             f"step-{len(steps)}", f"Model: {' + '.join(step['model'])}",
             f"{tables}<p>chosen: <b>{e(step['chosen'])}</b></p>"))
     effects = f"<p>Named effects: <b>{e(', '.join(doc['effects']) or 'none')}</b></p>"
-    figures = "".join(html.figure(p) for p in (gap_plot(doc), *plots))
+    if doc.get("unexplained"):
+        effects += ("<p><b>Unexplained:</b> " + e(", ".join(u["statistic"]
+                                                          for u in doc["unexplained"])) + "</p>")
+    figures = "".join(html.figure(p) for p in (gap_plot(doc), *unexplained_plots(doc), *plots))
     summary = html.section("summary", "Summary", f"<pre>{e(text(doc))}</pre>")
     return html.page(f"Diagnosis of {doc['session']}", str(doc["session"]),
                      effects + figures + "".join(steps) + summary)
