@@ -11,8 +11,9 @@ broken down (each mean of F^2 is 1 under white noise):
 Plus, once per session, the spectrum of the rotating windows' residual: per position the
 residual rate in the unit frame (least squares through a) less its mean over the window (the
 level is the `averaged` statistic's), its table-plane part as the complex
-p + i q and its axial part, Fourier coefficients at f x the table angle for f in FREQUENCIES;
-|C(f)|^2 over its white-noise expectation, averaged over positions (1 = noise). Positive f turns
+p + i q and its axial part, Fourier coefficients at f x the table angle;
+|C(f)|^2 over its white-noise expectation, averaged over positions (1 = noise), on the grid
+of `frequencies`. Positive f turns
 with the table in the unit's frame (axis wobble: +1), negative against it (a rate fixed in
 space, the Earth's: -1); between the table-rate harmonics it shows coning or vibration at other
 frequencies.
@@ -24,8 +25,19 @@ from scipy.stats import chi2
 from station.diagnose import gap
 from station.diagnose.goodness import log_sf
 
-FREQUENCIES = np.round(np.arange(0.25, 4.0001, 0.05), 2)
-"""Multiples of the table rate at which the residual spectrum is read."""
+HIGHEST = 4.0
+"""Highest multiple of the table rate at which the residual spectrum is read."""
+
+
+def frequencies(data) -> np.ndarray:
+    """Multiples of the table rate at which the residual spectrum is read: steps of a quarter
+    of the resolution 1 / R (R the fewest whole revolutions of a position; a tone between two
+    points loses at most 5 % of its power) from one step up to HIGHEST."""
+    r0 = data.windows["rotating"][0]
+    rows = np.arange(data.shape[0])
+    turns = np.abs(data.angle[rows, data.rot_stop - 1] - data.angle[rows, r0]) / (2 * np.pi)
+    step = 0.25 / max(round(float(turns.min())), 1)
+    return np.arange(1, round(HIGHEST / step) + 1) * step
 COMPONENTS = {"static": ["static mean"], "trend": ["static window", "rotating window"],
               "harmonics": [f"{h:g}x table rate {q}" for h in gap.HARMONICS
                             for q in ("cos", "sin")],
@@ -83,6 +95,7 @@ def spectrum(data, model) -> dict:
     r = data.y - model.prediction.z
     r0 = data.windows["rotating"][0]
     out = {"with_table": [], "against_table": [], "axial": []}
+    grid = frequencies(data)
     for j in range(data.shape[0]):
         sl = slice(r0, data.rot_stop[j])
         omega = (r[j, sl] * w) @ a.T @ cov  # (K, 3) residual rate in the unit frame
@@ -91,17 +104,17 @@ def spectrum(data, model) -> dict:
         plane = omega @ p + 1j * omega @ q
         theta = data.angle[j, sl] - data.angle[j, r0]
         k = theta.size
-        phase = np.exp(-1j * np.outer(FREQUENCIES, theta))  # (F, K)
+        phase = np.exp(-1j * np.outer(grid, theta))  # (F, K)
         noise_plane = (p @ cov @ p + q @ cov @ q) / k
         out["with_table"].append(np.abs(phase @ plane) ** 2 / k**2 / noise_plane)
         out["against_table"].append(np.abs(phase.conj() @ plane) ** 2 / k**2 / noise_plane)
         out["axial"].append(np.abs(phase @ (omega @ u)) ** 2 / k**2 / ((u @ cov @ u) / k))
-    return {"frequency": FREQUENCIES, **{key: np.mean(v, 0) for key, v in out.items()}}
+    return {"frequency": grid, **{key: np.mean(v, 0) for key, v in out.items()}}
 
 
-def _senses_points() -> int:
+def _points(spec: dict) -> int:
     """Points of the spectrum: frequencies x (with, against the table, axial)."""
-    return 3 * len(FREQUENCIES)
+    return 3 * len(spec["frequency"])
 
 
 def test(spec: dict, positions: int) -> dict:
@@ -110,7 +123,7 @@ def test(spec: dict, positions: int) -> dict:
     factor of the points (log10 p capped at 0)."""
     top = max(float(np.max(spec[s])) for s in ("with_table", "against_table", "axial"))
     dof = 2 * positions
-    log_p = np.log10(_senses_points()) + log_sf(top * dof, dof) / np.log(10)
+    log_p = np.log10(_points(spec)) + log_sf(top * dof, dof) / np.log(10)
     return {"gap": top, "dof": dof, "log10_p": min(float(log_p), 0.0)}
 
 
@@ -119,7 +132,7 @@ def peaks(spec: dict, positions: int, alpha: float) -> list:
     first: each point's mean over n positions is chi2(2n) / 2n under white noise; the level is
     its 1 - alpha / (points) quantile (Bonferroni)."""
     senses = ("with_table", "against_table", "axial")
-    level = chi2.isf(alpha / _senses_points(), 2 * positions) / (2 * positions)
+    level = chi2.isf(alpha / _points(spec), 2 * positions) / (2 * positions)
     found = [{"sense": sense, "frequency": float(f), "power": float(p)} for sense in senses
              for f, p in zip(spec.get("frequency", ()), spec.get(sense, ()), strict=True)
              if p > level]
