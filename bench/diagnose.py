@@ -54,9 +54,12 @@ output (`rail_below_peak`)."""
 
 LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
 
-UNITS = {"earth_rate": {"noise_density": np.radians(0.01) * OMEGA_EARTH / 2e-4}}
+QUIET = 2e-4 / OMEGA_EARTH
+UNITS = {"earth_rate": {"noise_density": np.radians(0.01) / QUIET,
+                        "counts_per_unit": QUIET * 16.4 / np.radians(1.0)}}
 """Unit overrides per case: the Earth's own rate (a physical one, station.diagnose.plausibility)
-on a gyro 2.7 x quieter than the MEMS default, the signal-to-noise of 2e-4 rad/s on it."""
+on a gyro 2.7 x quieter than the MEMS default (and counts 2.7 x finer, so that the noise keeps
+its size in counts), the signal-to-noise of 2e-4 rad/s on the default one."""
 
 
 def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
