@@ -274,3 +274,14 @@ def test_real_imucal_ferraris(tmp_path, capsys):
     doc = diagnose_file(h5, tmp_path, capsys)
     # six faces: the ellipsoid is not determined, so the shape test is listed as not testable
     assert doc["calibration_before"] is None and "scale_nonlinearity" in doc["not_testable"]
+
+
+@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity"])
+def test_the_correction_is_applied_when_it_predicts_held_out_poses_better(cases, key):
+    data, result = cases[key]
+    c = result.correction
+    assert c["applied"] and c["held_out_chi2_after"] < c["held_out_chi2_before"]
+    # 3 readings per pose, 2 taken by its direction on the sphere: ~1 dof each; the held-out
+    # calibration's own error at most doubles the variance
+    assert c["held_out_chi2_after"] < chi2.isf(1e-3, 2 * len(data.intervals))
+    assert result.calibration is result.final.calibration

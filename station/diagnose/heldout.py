@@ -1,6 +1,7 @@
 """Never a worse calibration: a correction is applied only when it improves a held-out check.
 
-The check is the leave-one-position-out prediction of the Eq. (18) readings M: for each
+The check is the leave-one-position-out prediction of the Eq. (18) readings M (free-static:
+the accelerometer's interval means, less the bias the calibration estimates): for each
 position j the calibration of the other positions (station.calibrate, with the same options)
 predicts M_j = a^T v_j, v_j fitted to M_j under the magnitude constraint |v_j| = c (soft, with
 the spread s, when the calibration models a rate spread). Linearised about the free
@@ -34,13 +35,15 @@ def _predicted_chi2(a: np.ndarray, y: np.ndarray, sigma: np.ndarray, c: float,
 
 def score(readings: np.ndarray, c: float, sigma: np.ndarray, options: dict) -> float:
     """Sum over positions of the held-out chi2 of the readings M (m, n) with standard errors
-    sigma (m, n), each position predicted by the calibration of the others."""
+    sigma (m, n), each position predicted by the calibration of the others (`options` of
+    station.calibrate; with an estimated bias, the readings less it)."""
     n = readings.shape[1]
     spread = float(options.get("magnitude_spread") or 0.0)
     total = 0.0
     for j in range(n):
         keep = np.arange(n) != j
         cal = calibrate(readings[:, keep], c, sigma=sigma[:, keep], **options)
-        total += _predicted_chi2(np.asarray(cal.a, float), readings[:, j], sigma[:, j], c,
-                                 spread)
+        bias = 0.0 if cal.bias is None else cal.bias
+        total += _predicted_chi2(np.asarray(cal.a, float), readings[:, j] - bias, sigma[:, j],
+                                 c, spread)
     return total

@@ -22,7 +22,7 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import goodness, plausibility, rails
+from station.diagnose import goodness, heldout, plausibility, rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy, settle
@@ -533,19 +533,46 @@ def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
     return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis), b0)
 
 
+CALIBRATION = {"d": 3, "bias": "estimate"}
+"""Options of station.calibrate for the accelerometer's interval means."""
+
+
 def _calibration(data: StaticData, b0: Base, names, p: dict, basis):
     """The accelerometer calibration of the interval means once the extensions' part of the
     twin is taken off (before the extensions: the nominal calibration)."""
     if not names or b0.cal is None:
         return b0.cal
+    means, sigma = readings(data, b0, names, p, basis)
+    return calibrate(means, data.gravity, sigma=sigma, **CALIBRATION)
+
+
+def readings(data: StaticData, b0: Base, names, p: dict, basis) -> tuple:
+    """((m, P) accelerometer interval means less what the extensions `names` (parameters p)
+    add to the twin, their (m, P) standard errors)."""
+    means, n = data.interval_means
+    sigma = np.broadcast_to(data.sigma[:data.m, None] / np.sqrt(n)[None], (data.m, n.size))
+    if not names:
+        return means[:, :data.m].T, sigma
     bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
     added = predict(data, b0, names, p, basis) - predict(data, b0, (), bare, basis)
-    means, n = data.interval_means
     extra = np.stack([np.bincount(data.bin_interval, data.lengths * added[:, i])
                       for i in range(data.m)], 1) / n[:, None]
-    sigma = data.sigma[:data.m, None] / np.sqrt(n)[None]
-    return calibrate((means[:, :data.m] - extra).T, data.gravity, d=3, bias="estimate",
-                     sigma=sigma)
+    return (means[:, :data.m] - extra).T, sigma
+
+
+def correction(data: StaticData, model: Model) -> dict | None:
+    """The held-out check of the final model's accelerometer correction (station.diagnose.
+    heldout, an interval left out at a time); None without extensions or calibration."""
+    if not model.fitted or model.base.cal is None:
+        return None
+    basis = drift_basis(data, model.tau) if np.isfinite(model.tau) else None
+    scores = []
+    for names in ((), model.names):
+        means, sigma = readings(data, model.base, names, model.params, basis)
+        scores.append(heldout.score(means, data.gravity, sigma, CALIBRATION))
+    before, after = scores
+    return {"held_out_chi2_before": before, "held_out_chi2_after": after,
+            "positions": len(data.intervals), "applied": bool(after < before)}
 
 
 def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus,
@@ -659,7 +686,7 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
                     check=lambda name, f: plausibility.check(name, f, site))
     result, (test, _) = settle(result, lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS)
-    return replace(result, fit_test=test,
+    return replace(result, fit_test=test, correction=correction(data, result.final),
                    unexplained=[{**test["statistics"][k], "statistic": k,
                                  "signature": static_report.signature(data, result.final, k)}
                                 for k in test["failed"]])
