@@ -8,7 +8,8 @@ to within the white noise" (sigma from the static windows):
 - `trend`: slopes within the static and the rotating windows.
 - `harmonics`: Fourier coefficients of the rotating windows (whole revolutions) at 1, 2 and 3
   times the table rate and half-way between (0.5, 1.5, 2.5).
-- `transients`: mean residuals over spin-up and over spin-down.
+- `transients`: mean residuals over spin-up and over spin-down, each over its null sd (white
+  noise plus the share of the noise of M_j that the fitted level carries into the ramp).
 - `rails`: the rail pile-up deviance (station.diagnose.rails) per sensor and sign that holds the
   rail (about 1 when the twin expects what is seen, thousands for an unmodelled clip).
 
@@ -50,10 +51,21 @@ def features(data, model) -> dict:
         basis = np.concatenate([[np.cos(h * theta), np.sin(h * theta)] for h in HARMONICS])
         coef.append((basis @ rj) * np.sqrt(2 / theta.size) / sig)
     trend = np.stack([_slopes(r[:, s0:s1], data.t[s0:s1], sig), np.array(slopes)], 1)
-    trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig
+    trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig / np.sqrt(1 + _level_noise(data, a, z))
              for a, z in (data.windows["spinup"], data.windows["spindown"])]
     return {"static": static[:, None], "trend": trend, "harmonics": np.array(coef),
             "transients": np.stack(trans, 1)}
+
+
+def _level_noise(data, a: int, z: int) -> np.ndarray:
+    """(n, m) variance a ramp window [a, z)'s mean residual gets from the twin's steady level,
+    in units of its white-noise variance: the calibration fits each position's level to the
+    measured M_j (v_j: d parameters from m readings, a share of about d / m of its noise e_j,
+    at most all of it), and the ramp window sees that level times the mean rate fraction f
+    over the window: f^2 (z - a) sigma_M^2 / sigma^2 x min(1, d / m)."""
+    frac = np.broadcast_to(data.rate, data.angle.shape)[:, a:z].mean(1) / data.c
+    share = min(1.0, 3.0 / data.shape[2])  # d = 3 components of v_j
+    return frac[:, None] ** 2 * (z - a) * (data.sigma_m.T / data.sigma) ** 2 * share
 
 
 def averaged_features(data, model) -> np.ndarray:
