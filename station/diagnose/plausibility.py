@@ -10,8 +10,9 @@ it lies more than Z_LIMIT sigma beyond the bound):
   (relative) at the site latitude phi when given; otherwise |(N, U)| = Omega_E within it and
   0 <= N <= Omega_E (rad/s gyros only);
 - latency: 0 <= delay_i <= LATENCY_MAX;
-- rate_error: spread <= RATE_SPREAD_MAX (what a table's own servo would not flag); an
-  encoder's gain within GAIN_TOLERANCE of 1;
+- rate_error: spread <= RATE_SPREAD_MAX (what a table's own servo would not flag), and its
+  per-position factors independent of the sensor axes (AXES_LOG10_P); an encoder's gain
+  within GAIN_TOLERANCE of 1;
 - scale_nonlinearity: |k2_i| x the largest |signal| <= NONLINEARITY_MAX (datasheets: 0.01-0.5
   % of full scale);
 - axis_wobble: half-angle <= WOBBLE_MAX_DEG;
@@ -33,6 +34,9 @@ LATENCY_MAX = 0.05
 """s: a delay beyond a few samples of any bus is a timestamp fault, not a sensor latency."""
 RATE_SPREAD_MAX = 2e-3
 """Relative spread of a table's rate over positions that its own servo would not flag."""
+AXES_LOG10_P = -3.0
+"""A table rate spread whose factors follow the sensor axes at this log10 p is not the table's
+(station.diagnose.effects.rate_error.axes_log10_p)."""
 GAIN_TOLERANCE = 0.2
 """Encoder gain: 1 when the readings follow the table's encoder."""
 NONLINEARITY_MAX = 0.01
@@ -109,6 +113,10 @@ def rate_error(fitted, site: Site) -> str:
     spread = float(fitted.values["spread"])
     if spread > RATE_SPREAD_MAX:
         return f"rate spread {spread:.3g} above {RATE_SPREAD_MAX:g}"
+    axes = float(fitted.values.get("axes_log10_p", 0.0))
+    if axes < AXES_LOG10_P:
+        return (f"the per-position rate factors follow the sensor axes (log10 p {axes:.1f}): a "
+                "table's rate error cannot know how the unit is mounted")
     return ""
 
 
