@@ -118,3 +118,26 @@ def test_without_extensions_there_is_nothing_to_apply():
     result = diagnose(d)
     assert result.effects == [] and result.correction is None and result.unexplained == []
     assert result.calibration is result.steps[0].model.calibration
+
+
+def test_rate_factors_that_follow_the_sensor_axes_are_not_a_table_rate_error():
+    from station.diagnose.effects.rate_error import axes_design, axes_log10_p, quadratic_design
+
+    rng = np.random.default_rng(5)
+    n, trials = 20, 400
+    a = np.eye(3) + 0.01 * rng.standard_normal((3, 3))
+    random_p, follows_p = [], []
+    for _ in range(trials):
+        u = rng.standard_normal((3, n))
+        u /= np.linalg.norm(u, axis=0)
+        x, z = quadratic_design(u), axes_design(a, u)
+        w = rng.uniform(0.5, 2.0, n) * 1e-8
+        noise = rng.standard_normal(n) * np.sqrt(w + 1e-8)
+        random_p.append(axes_log10_p(x @ rng.standard_normal(6) * 1e-4 + noise, w + 1e-8, x, z))
+        follows_p.append(axes_log10_p(z @ np.array([1.5e-3, -1e-3, 1.5e-3]) + noise, w + 1e-8, x,
+                                      z))
+    # a table's random rate errors: the F test's false alarms at 1e-3 stay within binomial
+    assert sum(p < -3 for p in random_p) <= binom.isf(1e-4, trials, 1e-3)
+    # factors following the axes' cubic pattern (k2-like, about 3 sigma rms over the positions)
+    # are seen nearly always
+    assert np.mean(np.array(follows_p) < -3) > 0.9
