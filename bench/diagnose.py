@@ -23,6 +23,8 @@ import numpy as np
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
+from station.diagnose.effects import EXTENSIONS
+from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse
 from station.model.effects.saturation import Saturation
 from station.model.frames import eps
@@ -40,7 +42,7 @@ CASES = {
     "scale_nonlinearity": "scale_nonlinearity=k2=2e-4",
     "rate_error": "rate_error=spread=1.5e-4",
     "rate_error_encoder": "rate_error=scale=1e-4,spread=1.5e-4,encoder=1",
-    "earth_rate": "earth_rate=rate=2e-4",
+    "earth_rate": "earth_rate",
     "axis_wobble": "axis_wobble=angle_deg=0.004",
     "latency": "latency=delay=3e-4",
     "saturation": "saturation",
@@ -52,6 +54,13 @@ output (`rail_below_peak`)."""
 
 LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
 
+QUIET = 2e-4 / OMEGA_EARTH
+UNITS = {"earth_rate": {"noise_density": np.radians(0.01) / QUIET,
+                        "counts_per_unit": QUIET * 16.4 / np.radians(1.0)}}
+"""Unit overrides per case: the Earth's own rate (a physical one, station.diagnose.plausibility)
+on a gyro 2.7 x quieter than the MEMS default (and counts 2.7 x finer, so that the noise keeps
+its size in counts), the signal-to-noise of 2e-4 rad/s on the default one."""
+
 
 def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
     """(RotaryData, truth) of one simulated session hiding the effect of `case`."""
@@ -60,7 +69,7 @@ def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: in
     if case == "saturation":
         effects = {name: Saturation(rail_below_peak(m, seed, timing, fs, n))}
     rng = np.random.default_rng(seed)
-    unit = gyro_array(rng, LAYOUTS[m], fs=fs)
+    unit = gyro_array(rng, LAYOUTS[m], fs=fs, **UNITS.get(case, {}))
     sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
     return session_data.from_arrays(sim.arrays), sim.truth
 
@@ -74,24 +83,34 @@ def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
     return float(np.abs(steady).max() - sigmas * unit.sigma.max())
 
 
-def run_case(case: str, m: int, seed: int, **kwargs) -> dict:
-    """Diagnose one session; the named effects, gaps and calibration errors."""
+def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) -> dict:
+    """Diagnose one session; the named effects, the verdict, gaps and calibration errors.
+    leave_out: the hidden effect is also removed from the candidates."""
     d, truth = session(case, m, seed, **kwargs)
-    result = diagnose(d)
+    hidden = parse(CASES[case])[0]
+    result = diagnose(d, candidates=tuple(e for e in EXTENSIONS if not (leave_out
+                                                                       and e == hidden)))
     a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
-    bound = float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m))))
+    cov = crlb(a_true, v_true, d.sigma_m)
+    bound = float(np.sqrt(np.trace(cov)))
     spread = truth["effects"].get("rate_error", {}).get("spread")
     rate = result.final.fitted.get("rate_error")
     return {
         "case": case,
         "m": m,
         "seed": seed,
+        "leave_out": leave_out,
         "named": result.effects,
         "first": result.effects[0] if result.effects else "none",
+        "unexplained": [u["statistic"] for u in result.unexplained],
+        "resembles": [r["effect"] for r in result.resembles],
+        "correction_applied": None if result.correction is None else result.correction["applied"],
         "gap": [step.gap for step in result.steps],
         "eps_before": eps(a_true, result.steps[0].model.calibration.a),
-        "eps_after": eps(a_true, result.final.calibration.a),
+        "eps_after": eps(a_true, result.calibration.a),
         "crlb": bound,
+        # 1 sd of eps at the bound: eps^2 = |e|^2, e ~ N(0, C): var 2 tr C^2, d eps = d(eps^2)/2eps
+        "eps_sd_at_bound": float(np.sqrt(2 * np.trace(cov @ cov)) / (2 * bound)),
         "crlb_random": float(np.sqrt(np.trace(crlb(a_true, v_true, d.sigma_m, spread=spread)))),
         "spread_true": spread,
         "spread_fitted": _estimate(rate, "spread"),
@@ -111,17 +130,45 @@ def rms_ratio(runs, key: str, bound: str) -> float:
     return float(np.sqrt(np.mean([(r[key] / r[bound]) ** 2 for r in runs])))
 
 
-def acceptance(seeds: int, cases=tuple(CASES)) -> dict:
-    """Per case: rate of the right call, gaps and eps over m in {3, 6, 12} and `seeds` seeds."""
+def verdicts(runs, effect: str) -> dict:
+    """Counts over the runs: right (the effect named first, or `none` with nothing unexplained
+    for an effect-free case), unexplained with no name, a wrong name (another effect named
+    first), silence (nothing named nor unexplained), sessions whose calibration after is worse
+    than before by more than 1 sd of eps at the bound, sessions with an out-of-range fit."""
+    first = [r["first"] for r in runs]
+    return {
+        "right": sum(f == effect and (effect != "none" or not r["unexplained"])
+                     for f, r in zip(first, runs, strict=True)),
+        "unexplained_unnamed": sum(f == "none" and bool(r["unexplained"])
+                                   for f, r in zip(first, runs, strict=True)),
+        "wrong_name": sum(f not in ("none", effect) for f in first),
+        "silent": sum(f == "none" and not r["unexplained"] for f, r in zip(first, runs,
+                                                                           strict=True)),
+        "worse_by_more_than_1sd": sum(r["eps_after"] > r["eps_before"] + r["eps_sd_at_bound"]
+                                      for r in runs),
+        "out_of_range_not_named": sum(bool(r["resembles"]) for r in runs),
+    }
+
+
+def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
+    """Per case: the verdicts, gaps and eps over m in {3, 6, 12} and `seeds` seeds; leave_out:
+    the hidden effect is removed from the candidates too (then `unexplained` is the right
+    verdict)."""
     out = {}
     for case in cases:
         effect = parse(CASES[case])[0]
-        runs = [run_case(case, m, 1000 * m + s) for m in LAYOUTS for s in range(seeds)]
-        right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none") for r in runs]
+        runs = [run_case(case, m, 1000 * m + s, leave_out) for m in LAYOUTS
+                for s in range(seeds)]
+        right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none")
+                 and (effect != "none" or not r["unexplained"]) for r in runs]
         out[case] = {
             "sessions": len(runs),
             "right_rate": float(np.mean(right)),
+            "verdicts": verdicts(runs, effect),
             "named": [r["named"] for r in runs],
+            "unexplained": [r["unexplained"] for r in runs],
+            "resembles": [r["resembles"] for r in runs],
+            "correction_applied": [r["correction_applied"] for r in runs],
             "gap_before_max": {k: float(np.median([r["gap"][0][k] for r in runs]))
                                for k in runs[0]["gap"][0]},
             "gap_after_max": {k: float(max(r["gap"][-1][k] for r in runs))
@@ -153,8 +200,14 @@ def main() -> None:
     parser.add_argument("--effects", nargs="+", choices=list(CASES), default=list(CASES),
                         help="cases (hidden effects) to run (default: all)")
     parser.add_argument("--no-timing", action="store_true", help="skip the full-session timing")
+    parser.add_argument("--leave-one-out", action="store_true",
+                        help="also hide each effect AND remove it from the candidates")
     args = parser.parse_args()
     out = {"acceptance": acceptance(args.seeds, args.effects)}
+    if args.leave_one_out:
+        out["leave_one_effect_out"] = acceptance(
+            args.seeds, [c for c in args.effects if c not in ("none", "rate_error_encoder")],
+            leave_out=True)
     if not args.no_timing:
         out["timing_full_session"] = timing()
     if args.json:
@@ -162,7 +215,10 @@ def main() -> None:
         return
     if not args.no_timing:
         print(f"full session: {out['timing_full_session']['seconds']:.1f} s")
+    for case, r in out.get("leave_one_effect_out", {}).items():
+        print(f"left out {case:19s} {r['verdicts']}")
     for case, r in out["acceptance"].items():
+        print(f"{case:19s} {r['verdicts']}")
         print(f"{case:19s} right {r['right_rate']:.2f} of {r['sessions']}  eps/bound "
               f"{r['eps_before_over_bound_rms']:.2f} -> {r['eps_after_over_bound_rms']:.2f}  "
               f"eps/random-effects bound {r['eps_before_over_random_bound_rms']:.2f} -> "

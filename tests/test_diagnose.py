@@ -54,8 +54,10 @@ def test_an_effect_free_session_is_called_none(runs, key):
 
 @pytest.mark.parametrize("effect", list(bench.CASES))
 def test_every_gap_is_explained_once_the_effect_is_in_the_model(runs, effect):
-    after = runs[effect]["gap"][-1]
+    after = dict(runs[effect]["gap"][-1])
+    after.pop("rails")  # about 1 dof (the sides holding a rail): read by the fit test below
     assert max(after.values()) < GAP_EXPLAINED, after
+    assert runs[effect]["unexplained"] == []  # the final goodness-of-fit test (issue 21)
 
 
 @pytest.mark.parametrize("effect", ["bias_drift", "saturation", "earth_rate", "rate_error_encoder"])
@@ -78,13 +80,14 @@ def test_scale_nonlinearity_calibration_improves(runs):
 
 def test_cli_json_and_report(tmp_path):
     rng = np.random.default_rng(4242)
-    sim = bench.simulate_rotary(bench.gyro_array(rng, bench.TRIAD, fs=100.0), 20, bench.SHORT,
+    unit = bench.gyro_array(rng, bench.TRIAD, fs=100.0, **bench.UNITS["earth_rate"])
+    sim = bench.simulate_rotary(unit, 20, bench.SHORT,
                                 effects=dict([bench.parse(bench.CASES["earth_rate"])]),
                                 a_nominal=bench.TRIAD)
     path, _ = npz.write(tmp_path / "s.npz", sim)
     html = tmp_path / "r.html"
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path), "--json",
-                          "--report", str(html)],
+                          "--report", str(html), "--latitude", "52.2"],
                          check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
@@ -93,9 +96,20 @@ def test_cli_json_and_report(tmp_path):
     assert set(first["evidence"]) == {hidden(case) for case in bench.CASES} - {"none"}
     assert first["evidence"]["earth_rate"]["significant"]
     fitted = doc["steps"][-1]["parameters"]["earth_rate"]["horizontal_rate"]
-    truth_horizontal = 2e-4 * np.cos(np.radians(52.2))
+    truth_horizontal = bench.OMEGA_EARTH * np.cos(np.radians(52.2))
     assert abs(fitted["value"] - truth_horizontal) < 5 * fitted["sigma"]
     assert "data:image/png;base64," in html.read_text()
+    assert doc["unexplained"] == [] and doc["resembles"] == []
+    assert doc["fit_test"]["failed"] == [] and "correction" in doc
+
+
+def test_cli_refuses_a_latitude_beyond_the_poles(tmp_path):
+    path = tmp_path / "x.npz"
+    np.savez(path, y=np.zeros((2, 10, 3), np.int32))
+    out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path),
+                          "--latitude", "95"], check=False, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2 and "--latitude 95" in out.stderr
 
 
 def test_cli_refuses_what_it_cannot_read(tmp_path):

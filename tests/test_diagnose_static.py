@@ -15,6 +15,7 @@ from station.errors import CalibrationInputError
 from station.files.importers import import_csv, import_text
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse_all
+from station.model.effects.earth_rate import EarthRate
 from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
@@ -57,15 +58,15 @@ def cases():
         "none_gyro": run(seed=3, gyro=True),
         "bias_drift": run(["bias_drift=warmup=0.005,warmup_tau=40"], seed=1),
         "scale_nonlinearity": run(["scale_nonlinearity=k2=1.5e-4"], seed=2),
-        "earth_rate": run(seed=4, gyro_effects=["earth_rate=rate=3e-4"], gyro=True),
+        # 4 x the Earth's rate: no physics allows it (station.diagnose.plausibility)
+        "earth_4x": run(seed=4, gyro_effects=["earth_rate=rate=3e-4"], gyro=True),
         "g_sensitivity": run(seed=5, gyro_effects=[G_SPEC], gyro=True),
         # the true Earth rate, on a gyro 10 x quieter (interval means 1e-5 rad/s)
         "earth_true": run(seed=6, gyro_effects=["earth_rate"], gyro=True, gyro_sigma=2e-4),
     }
 
 
-@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity", "earth_rate",
-                                 "g_sensitivity"])
+@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity", "g_sensitivity"])
 def test_the_hidden_effect_is_named(cases, key):
     assert cases[key][1].effects == [key]
 
@@ -114,9 +115,52 @@ def test_the_fitted_k2_agrees_with_the_truth_within_its_uncertainty(cases):
 
 
 def test_the_earth_rate_magnitude_and_latitude(cases):
-    f = cases["earth_rate"][1].final.fitted["earth_rate"]
-    assert abs(f.values["rate"] - 3e-4) < 4 * f.sigma["rate"]
-    assert abs(f.values["vertical"] - 3e-4 * np.sin(np.radians(52))) < 4 * f.sigma["vertical"]
+    f = cases["earth_true"][1].final.fitted["earth_rate"]
+    want = OMEGA_EARTH * np.sin(np.radians(EarthRate().latitude_deg))
+    assert abs(f.values["vertical"] - want) < 4 * f.sigma["vertical"]
+
+
+def test_an_earth_rate_no_physics_allows_is_not_named(cases):
+    data, result = cases["earth_4x"]
+    assert "earth_rate" not in result.effects
+    (resembles,) = [r for r in result.resembles if r["effect"] == "earth_rate"]
+    assert "the Earth's" in resembles["reason"]
+    doc = to_dict(result, data, "earth_4x")
+    assert doc["resembles"] and "fit_test" in doc
+
+
+def test_the_site_latitude_bounds_the_earth_rate(cases):
+    data, _ = cases["earth_true"]
+    here = diagnose_static(data, latitude_deg=EarthRate().latitude_deg)
+    assert here.effects == ["earth_rate"]
+    # in the south the vertical part has the other sign: the full Earth rate is out of range
+    # (g_sensitivity, whose diagonal is that vertical part, may take it instead)
+    south = diagnose_static(data, latitude_deg=-EarthRate().latitude_deg)
+    assert "latitude" in south.steps[0].evidence["earth_rate"]["implausible"]
+
+
+@pytest.mark.parametrize("key", ["none", "none_gyro", "bias_drift", "scale_nonlinearity",
+                                 "g_sensitivity", "earth_true"])
+def test_the_final_model_passes_the_goodness_of_fit_test(cases, key):
+    data, result = cases[key]
+    assert result.fit_test["failed"] == [] and result.unexplained == []
+    assert set(result.fit_test["statistics"]) == set(result.steps[-1].gap)
+
+
+def test_a_gap_outside_the_library_is_unexplained_with_its_signature(cases):
+    # the drift hidden, bias_drift removed from the candidates: nothing else may be named
+    data, _ = cases["bias_drift"]
+    result = diagnose_static(data, candidates=("scale_nonlinearity", "saturation"))
+    assert result.effects == []
+    failed = {u["statistic"]: u for u in result.unexplained}
+    assert "between" in failed
+    sig = failed["between"]["signature"]
+    assert len(sig["by_channel"]) == data.c and len(sig["by_interval"]) == len(data.intervals)
+    # the breakdown adds up to the gap: sum of squared interval-mean residuals = gap x dof
+    p = len(data.intervals)
+    between = failed["between"]
+    assert np.isclose(np.sum(sig["by_channel"][:data.m]) * p, between["gap"] * between["dof"])
+    assert any(r["effect"] == "scale_nonlinearity" for r in result.resembles)
 
 
 @pytest.mark.parametrize("key", ["none", "bias_drift", "scale_nonlinearity"])
@@ -181,7 +225,9 @@ def test_one_stream_with_accelerometer_and_gyro_channels(tmp_path, capsys):
     assert main(["diagnose", str(path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["accelerometer_channels"] == 3 and doc["gyro_channels"] == 3
-    assert doc["effects"][:1] == ["earth_rate"]
+    # 4 x the Earth's rate is not named earth_rate; its vertical part is a diagonal G
+    found = doc["effects"] + [r["effect"] for r in doc["resembles"]]
+    assert {"earth_rate", "g_sensitivity"} & set(found)
 
 
 # ------------------------------------------------------------------------------ real recordings
@@ -239,3 +285,14 @@ def test_real_imucal_ferraris(tmp_path, capsys):
     doc = diagnose_file(h5, tmp_path, capsys)
     # six faces: the ellipsoid is not determined, so the shape test is listed as not testable
     assert doc["calibration_before"] is None and "scale_nonlinearity" in doc["not_testable"]
+
+
+@pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity"])
+def test_the_correction_is_applied_when_it_predicts_held_out_poses_better(cases, key):
+    data, result = cases[key]
+    c = result.correction
+    assert c["applied"] and c["held_out_chi2_after"] < c["held_out_chi2_before"]
+    # 3 readings per pose, 2 taken by its direction on the sphere: ~1 dof each; the held-out
+    # calibration's own error at most doubles the variance
+    assert c["held_out_chi2_after"] < chi2.isf(1e-3, 2 * len(data.intervals))
+    assert result.calibration is result.final.calibration

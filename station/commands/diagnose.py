@@ -17,6 +17,7 @@ from station.commands import (
     still_values,
 )
 from station.diagnose import data, diagnose, static_report
+from station.diagnose.plausibility import Site
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
 from station.files.session import Session
@@ -45,6 +46,9 @@ def register(p) -> None:
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
     p.add_argument("--max-effects", type=int, default=3, help="at most this many effects")
+    p.add_argument("--latitude", type=float, metavar="DEG",
+                   help="site latitude, degrees north: an Earth rate is named only when it "
+                   "matches the Earth's there (without it: its magnitude only)")
     still_arguments(p)
     p.set_defaults(run=run)
 
@@ -57,6 +61,8 @@ def run(args) -> int:
     if not 0 < args.alpha < 1:
         raise InputError(f"--alpha {args.alpha} must lie between 0 and 1")
     still = StillOptions(*still_values(args).values())
+    if args.latitude is not None and not -90 <= args.latitude <= 90:
+        raise InputError(f"--latitude {args.latitude} must lie between -90 and 90 degrees")
     rotary = path.suffix == ".npz"
     if rotary:
         session = data.load(path)
@@ -72,12 +78,14 @@ def run(args) -> int:
                   f"{args.max_effects} kept)", "fits") as advance:
         if rotary:
             doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
-                                          progress=advance), session, str(path))
+                                          site=Site(args.latitude), progress=advance),
+                                 session, str(path))
         else:
             static = static_report.load(path, still)
             doc = report.static_to_dict(
                 diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
-                                progress=advance), static, str(path))
+                                latitude_deg=args.latitude, progress=advance),
+                static, str(path))
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

@@ -8,9 +8,13 @@ to within the white noise" (sigma from the static windows):
 - `trend`: slopes within the static and the rotating windows.
 - `harmonics`: Fourier coefficients of the rotating windows (whole revolutions) at 1, 2 and 3
   times the table rate and half-way between (0.5, 1.5, 2.5).
-- `transients`: mean residuals over spin-up and over spin-down.
+- `transients`: mean residuals over spin-up and over spin-down, each over its null sd (white
+  noise plus the share of the noise of M_j that the fitted level carries into the ramp).
 - `rails`: the rail pile-up deviance (station.diagnose.rails) per sensor and sign that holds the
   rail (about 1 when the twin expects what is seen, thousands for an unmodelled clip).
+
+Under white noise, statistic x dof is about chi2(dof) (`dofs`): the final goodness-of-fit test
+(station.diagnose.goodness) reads the gaps against that law.
 """
 
 import numpy as np
@@ -27,35 +31,71 @@ def _slopes(r, t, sigma):
     return np.einsum("k,nkm->nm", tc, r) / (sigma * np.sqrt(np.sum(tc**2)))
 
 
-def statistics(data, model) -> dict:
-    """{statistic: normalised gap} of a fitted model (station.diagnose.model.Model)."""
+def features(data, model) -> dict:
+    """{statistic: (n, q, m) normalised residual features (N(0, 1) under white noise)} of the
+    statistics built from features (all but `averaged`'s calibration chi2 and `rails`):
+    static (n, 1, m), trend (n, 2, m: static and rotating window), harmonics (n, 2 x
+    len(HARMONICS), m), transients (n, 2, m: spin-up, spin-down)."""
     sig = data.sigma
     r = data.y - model.prediction.z
-    out = {"averaged": float(model.calibration.chi2 / max(model.calibration.dof, 1))}
-
     s0, s1 = data.windows["static"]
     b = r[:, s0:s1].mean(1)  # (n, m) static means net of the model
-    w = (s1 - s0) / sig**2
-    out["static"] = float(np.sum((b - b.mean(0)) ** 2 * w) / (b.size - b.shape[1]))
-
+    n = b.shape[0]
+    static = (b - b.mean(0)) * np.sqrt((s1 - s0) / sig**2) * np.sqrt(n / max(n - 1, 1))
     r0 = data.windows["rotating"][0]
-    slopes = [_slopes(r[:, s0:s1], data.t[s0:s1], sig)]
-    coef = []
-    for j in range(data.shape[0]):
+    slopes, coef = [], []
+    for j in range(n):
         sl = slice(r0, data.rot_stop[j])
         rj, theta = r[j, sl], data.angle[j, sl] - data.angle[j, r0]
-        slopes.append(_slopes(rj[None], data.t[sl], sig)[0][None])
+        slopes.append(_slopes(rj[None], data.t[sl], sig)[0])
         basis = np.concatenate([[np.cos(h * theta), np.sin(h * theta)] for h in HARMONICS])
         coef.append((basis @ rj) * np.sqrt(2 / theta.size) / sig)
-    out["trend"] = float(np.mean(np.concatenate([s.ravel() for s in slopes]) ** 2))
-    out["harmonics"] = float(np.mean(np.square(coef)))
-
-    trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig
+    trend = np.stack([_slopes(r[:, s0:s1], data.t[s0:s1], sig), np.array(slopes)], 1)
+    trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig / np.sqrt(1 + _level_noise(data, a, z))
              for a, z in (data.windows["spinup"], data.windows["spindown"])]
-    out["transients"] = float(np.mean(np.square(trans)))
+    return {"static": static[:, None], "trend": trend, "harmonics": np.array(coef),
+            "transients": np.stack(trans, 1)}
 
-    n_obs = rails.observed(data)
-    n_exp = rails.expected(data, model.prediction.mu, sig, clipped="saturation" in model.fitted)
-    held = max(int(np.sum(n_obs > 0)), 1)
-    out["rails"] = rails.deviance(n_obs, n_exp) / held
+
+def _level_noise(data, a: int, z: int) -> np.ndarray:
+    """(n, m) variance a ramp window [a, z)'s mean residual gets from the twin's steady level,
+    in units of its white-noise variance: the calibration fits each position's level to the
+    measured M_j (v_j: d parameters from m readings, a share of about d / m of its noise e_j,
+    at most all of it), and the ramp window sees that level times the mean rate fraction f
+    over the window: f^2 (z - a) sigma_M^2 / sigma^2 x min(1, d / m)."""
+    frac = np.broadcast_to(data.rate, data.angle.shape)[:, a:z].mean(1) / data.c
+    share = min(1.0, 3.0 / data.shape[2])  # d = 3 components of v_j
+    return frac[:, None] ** 2 * (z - a) * (data.sigma_m.T / data.sigma) ** 2 * share
+
+
+def averaged_features(data, model) -> np.ndarray:
+    """(n, 1, m) Eq. (18) reduction of the twin's residual series over the standard error of M:
+    where the readings M miss the twin, per position and sensor (the `averaged` statistic's
+    pattern; its value is the calibration's own chi2 / dof)."""
+    return (data.reduce(data.y - model.prediction.z).M / data.sigma_m).T[:, None]
+
+
+def statistics(data, model) -> dict:
+    """{statistic: normalised gap} of a fitted model (station.diagnose.model.Model)."""
+    out = {"averaged": float(model.calibration.chi2 / max(model.calibration.dof, 1))}
+    feats = features(data, model)
+    out.update({k: float(np.mean(f**2)) for k, f in feats.items()})
+    out["rails"] = _rails(data, model)[0]
     return out
+
+
+def _rails(data, model) -> tuple[float, int]:
+    """(rail deviance per held side, sides holding the rail (at least 1))."""
+    n_obs = rails.observed(data)
+    n_exp = rails.expected(data, model.prediction.mu, data.sigma,
+                           clipped="saturation" in model.fitted)
+    held = max(int(np.sum(n_obs > 0)), 1)
+    return rails.deviance(n_obs, n_exp) / held, held
+
+
+def dofs(data, model) -> dict:
+    """{statistic: degrees of freedom}: under white noise, gap x dof ~ chi2(dof)."""
+    n, _, m = data.shape
+    return {"averaged": max(model.calibration.dof, 1), "static": (n - 1) * m,
+            "trend": 2 * n * m, "harmonics": 2 * len(HARMONICS) * n * m,
+            "transients": 2 * n * m, "rails": _rails(data, model)[1]}

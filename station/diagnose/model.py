@@ -48,17 +48,26 @@ class Model:
         return sum(f.dof for f in self.fitted.values())
 
 
-def _calibrate(data, readings, clipped: bool = False, **options) -> CalibrationResult:
-    """Calibrate readings M weighted by their noise; with a clipped output, an entry whose
-    rotating window sat on the rail a fraction f of the time has 1 - f of the information.
-    `options` go to station.calibrate (e.g. magnitude_spread)."""
+def noise(data, clipped: bool = False) -> np.ndarray:
+    """(m, n) standard error of the readings M; with a clipped output, an entry whose rotating
+    window sat on the rail a fraction f of the time has 1 - f of the information."""
     sigma = data.sigma_m
     if clipped:
         r0 = data.windows["rotating"][0]
         on_rail = np.abs(data.counts) == rails.rail(data)
         f = np.array([on_rail[j, r0:stop].mean(0) for j, stop in enumerate(data.rot_stop)]).T
         sigma = sigma / np.sqrt(np.maximum(1 - f, 1e-6))
-    return calibrate(readings, data.c, sigma=sigma, **options)
+    return sigma
+
+
+def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
+    """(M, sigma, options): the Eq. (18) readings corrected by what the extensions `fitted` add
+    to the twin of `ctx` (except those the calibration models itself), their standard error and
+    the options of station.calibrate."""
+    inside, options = _in_calibration(fitted)
+    added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, inside, EXTENSIONS).z
+    return (data.reduced.M - data.reduce(added).M, noise(data, "saturation" in fitted),
+            options)
 
 
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
@@ -73,7 +82,7 @@ def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
 
 def nominal(data) -> Model:
     """The nominal model: Eq. (18) readings calibrated, no extension."""
-    return evaluate(data, _calibrate(data, data.reduced.M), {})
+    return evaluate(data, calibrate(data.reduced.M, data.c, sigma=noise(data)), {})
 
 
 def fit(data, names, start: Model, iterations: int = 3) -> Model:
@@ -86,10 +95,8 @@ def fit(data, names, start: Model, iterations: int = 3) -> Model:
             pred = twin.predict(ctx, others, EXTENSIONS)
             fitted[name] = EXTENSIONS[name].fit(ctx, pred, twin.residual(ctx, pred))
         fitted = {name: fitted[name] for name in names}
-        inside, options = _in_calibration(fitted)
-        added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, inside, EXTENSIONS).z
-        cal = _calibrate(data, data.reduced.M - data.reduce(added).M, "saturation" in fitted,
-                         **options)
+        m_corrected, sigma, options = readings(data, ctx, fitted)
+        cal = calibrate(m_corrected, data.c, sigma=sigma, **options)
     return evaluate(data, cal, fitted)
 
 

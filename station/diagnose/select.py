@@ -6,16 +6,20 @@ station.diagnose.model) when it is added and everything is refitted jointly: a l
 Its p-value comes from the candidate's null law (chi2(dof) for linear parameters, moment-matched
 for the tone fits, 1/2 chi2_0 + 1/2 chi2_1 for a random effect's variance); a candidate is
 significant when p < alpha / (candidates tested in the step) (Bonferroni). Also reported: the AIC
-change, LR - 2 dof.
+change, LR - 2 dof. A significant candidate whose fit lies outside its physical range
+(station.diagnose.plausibility) is not named: it "resembles" the effect.
+
+Once no candidate is significant, the final model's gaps are read against their white-noise law
+(station.diagnose.goodness): a failed statistic is `unexplained`, described by its signature
+(station.diagnose.signature). The calibration of the final model is kept only when its readings
+predict the held-out positions better than the uncorrected ones (station.diagnose.heldout).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.special import gammaln
-from scipy.stats import chi2 as chi2_law
 
-from station.diagnose import gap, model
+from station.diagnose import gap, goodness, heldout, model, plausibility, signature
 from station.diagnose.effects import EXTENSIONS
 
 
@@ -31,8 +35,37 @@ class Step:
 
 @dataclass(frozen=True)
 class Diagnosis:
+    """The sequence of models; the final goodness-of-fit test (`fit_test`, station.diagnose.
+    goodness) with the signature of each failed statistic (`unexplained`); the held-out check
+    of the final model's correction (`correction`: applied or not)."""
+
     steps: list
     alpha: float
+    fit_test: dict | None = None
+    unexplained: list = field(default_factory=list)
+    correction: dict | None = None
+    spectrum: dict | None = None
+
+    @property
+    def resembles(self) -> list:
+        """[{"effect", "reason", "log10_p", "step"}]: candidates significant at some step but not
+        named: their fit was outside their physical range, or they explain only part of an
+        unexplained gap (`settle`); last occurrence of each."""
+        out = {}
+        for i, step in enumerate(self.steps):
+            for name, e in step.evidence.items():
+                reason = e.get("implausible") or e.get("not_named")
+                if e["significant"] and reason:
+                    out[name] = {"effect": name, "reason": reason,
+                                 "log10_p": e["log10_p"], "step": i}
+        return [v for k, v in out.items() if k not in self.effects]
+
+    @property
+    def calibration(self):
+        """The calibration to use: the final model's when its correction is applied (or was not
+        checked), else the nominal one."""
+        applied = self.correction is None or self.correction["applied"]
+        return (self.final if applied else self.steps[0].model).calibration
 
     @property
     def effects(self) -> list:
@@ -44,21 +77,12 @@ class Diagnosis:
         return self.steps[-1].model
 
 
-def log_sf(x: float, nu: float) -> float:
-    """log P(chi2(nu) > x); beyond double precision, the leading term of the incomplete gamma
-    function's asymptotic series (so that overwhelming evidence still ranks)."""
-    out = float(chi2_law.logsf(x, nu))
-    if np.isfinite(out):
-        return out
-    return float((nu / 2 - 1) * np.log(x / 2) - x / 2 - gammaln(nu / 2))
-
-
 def evidence(current: model.Model, extended: model.Model, name: str, tests: int, alpha):
     """The likelihood-ratio evidence for `name` (extended = current + name)."""
     lr = max(current.deviance - extended.deviance, 0.0)
     fitted = extended.fitted[name]
     scale, nu = fitted.null_law
-    log_p = np.log(fitted.null_mass) + log_sf(lr / scale, nu) if lr > 0 else 0.0
+    log_p = np.log(fitted.null_mass) + goodness.log_sf(lr / scale, nu) if lr > 0 else 0.0
     return {
         "lr": lr,
         "dof": fitted.dof,
@@ -73,22 +97,84 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
 
 
 def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int = 3,
-             candidates=tuple(EXTENSIONS), progress=None) -> Diagnosis:
-    """Run the workflow on a session (station.diagnose.data.RotaryData); `progress` as
-    `greedy`'s."""
-    return greedy(model.nominal(data), candidates,
-                  lambda current, names: model.fit(data, list(names), current, iterations),
-                  lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
-                  progress=progress)
+             candidates=tuple(EXTENSIONS), site=None, progress=None) -> Diagnosis:
+    """Run the workflow on a session (station.diagnose.data.RotaryData); `site` gives what the
+    physical ranges need (station.diagnose.plausibility.Site; default: latitude unknown);
+    `progress` as `greedy`'s."""
+    site = site or plausibility.Site()
+    result = greedy(model.nominal(data), candidates,
+                    lambda current, names: model.fit(data, list(names), current, iterations),
+                    lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
+                    check=lambda name, f: plausibility.check(name, f, site), progress=progress)
+    n = data.shape[0]
+
+    def test_of(step):
+        spec = signature.spectrum(data, step.model)
+        return goodness.test(step.gap, gap.dofs(data, step.model), alpha,
+                             {"spectrum": signature.test(spec, n)} if spec else None), spec
+
+    result, (test, spec) = settle(result, test_of, alpha,
+                                  {k: e.GAPS for k, e in EXTENSIONS.items()})
+    if spec:
+        spec["peaks"] = signature.peaks(spec, n, alpha)
+    return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
+                   unexplained=[{**test["statistics"][k], "statistic": k,
+                                 "signature": {"peaks": spec["peaks"]} if k == "spectrum"
+                                 else signature.describe(data, result.final, k)}
+                                for k in test["failed"]])
+
+
+def settle(result: Diagnosis, test_of, alpha: float, own: dict) -> tuple:
+    """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
+    final goodness-of-fit test; when it fails, every
+    named effect's evidence is read again with the LR divided by the dispersion the gap leaves
+    (the largest failed mean-square gap of many features, so not `rails` nor `spectrum`: a
+    quasi-likelihood); the first effect no longer
+    significant then, or whose own gap statistics (`own`: {effect: statistics}) still fail,
+    and those after it, are not named (`not_named` in its evidence): they explain only part of a
+    gap the library does not."""
+    out = test_of(result.steps[-1])
+    test = out[0]
+    dispersion = max([test["statistics"][k]["gap"] for k in test["failed"]
+                      if k not in ("spectrum", "rails")], default=1.0)
+    for i, step in enumerate(result.steps[:-1]):
+        e = step.evidence[step.chosen]
+        quasi = (np.log(e["null_mass"]) + goodness.log_sf(
+            e["lr"] / (e["null_scale"] * dispersion), e["null_dof"])) / np.log(10)
+        left = [k for k in own.get(step.chosen, ()) if k in test["failed"]]
+        weak = dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence))
+        if left or weak:
+            note = (f"leaves its own signature's gap unexplained ({', '.join(left)})" if left
+                    else f"explains only part of a gap left unexplained (log10 p {quasi:.1f} "
+                    f"with the LR over that gap's dispersion {dispersion:.2f})")
+            evidence = {**step.evidence, step.chosen: {**e, "not_named": note}}
+            last = replace(step, evidence=evidence, chosen="none")
+            result = replace(result, steps=[*result.steps[:i], last])
+            return result, test_of(last)
+    return result, out
+
+
+def correction(data, result: Diagnosis) -> dict | None:
+    """The held-out check of the final model's correction (station.diagnose.heldout): its
+    score and the uncorrected readings', and whether it is applied; None without extensions."""
+    final = result.final
+    if not final.fitted:
+        return None
+    before = heldout.score(data.reduced.M, data.c, model.noise(data), {})
+    corrected, sigma, options = model.readings(data, final.ctx, final.fitted)
+    after = heldout.score(corrected, data.c, sigma, options)
+    return {"held_out_chi2_before": before, "held_out_chi2_after": after,
+            "positions": data.shape[0], "applied": bool(after < before)}
 
 
 def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int,
-           progress=None) -> Diagnosis:
+           check=lambda name, fitted: "", progress=None) -> Diagnosis:
     """The evidence loop from the model `start`: every candidate not yet in the model is added
     (`extend(current, names)` -> the model fitted with those extensions) and its evidence
-    measured; the strongest significant one is kept; repeated until none is significant or
-    `max_effects` are in. `statistics(model)` gives each step's gap. `progress(done, total)`, if
-    given, hears of each fit: done so far, and at most `total` (every step going on)."""
+    measured; the strongest significant one whose fit is plausible (`check(name, fitted)` ->
+    "" or why not) is kept; repeated until none is significant or `max_effects` are in.
+    `statistics(model)` gives each step's gap. `progress(done, total)`, if given, hears of each
+    fit: done so far, and at most `total` (every step going on)."""
     current, steps = start, []
     n = len(candidates)
     tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
@@ -99,11 +185,12 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
             for name in remaining:
                 fits[name] = extend(current, (*current.fitted, name))
                 ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
+                ev[name]["implausible"] = check(name, fits[name].fitted[name])
                 tried += 1
                 if progress is not None:
                     progress(tried, total)
-        best = min((n for n in ev if ev[n]["significant"]), key=lambda n: ev[n]["log10_p"],
-                   default="none")
+        best = min((n for n in ev if ev[n]["significant"] and not ev[n]["implausible"]),
+                   key=lambda n: ev[n]["log10_p"], default="none")
         steps.append(Step(current, statistics(current), ev, best))
         if best == "none":
             return Diagnosis(steps, alpha)

@@ -17,16 +17,16 @@ evidence is the deviance decrease (station.diagnose.select).
 """
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import rails
+from station.diagnose import goodness, heldout, plausibility, rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
-from station.diagnose.select import Diagnosis, greedy
+from station.diagnose.select import Diagnosis, greedy, settle
 from station.errors import CalibrationInputError
 from station.model import measurement, sensing
 from station.model.constants import STANDARD_GRAVITY
@@ -549,19 +549,46 @@ def fit(data: StaticData, b0: Base, names=(), start=None) -> Model:
     return Model(fitted, p, tau, pred, chi2, rail, _calibration(data, b0, names, p, basis), b0)
 
 
+CALIBRATION = {"d": 3, "bias": "estimate"}
+"""Options of station.calibrate for the accelerometer's interval means."""
+
+
 def _calibration(data: StaticData, b0: Base, names, p: dict, basis):
     """The accelerometer calibration of the interval means once the extensions' part of the
     twin is taken off (before the extensions: the nominal calibration)."""
     if not names or b0.cal is None:
         return b0.cal
+    means, sigma = readings(data, b0, names, p, basis)
+    return calibrate(means, data.gravity, sigma=sigma, **CALIBRATION)
+
+
+def readings(data: StaticData, b0: Base, names, p: dict, basis) -> tuple:
+    """((m, P) accelerometer interval means less what the extensions `names` (parameters p)
+    add to the twin, their (m, P) standard errors)."""
+    means, n = data.interval_means
+    sigma = np.broadcast_to(data.sigma[:data.m, None] / np.sqrt(n)[None], (data.m, n.size))
+    if not names:
+        return means[:, :data.m].T, sigma
     bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
     added = predict(data, b0, names, p, basis) - predict(data, b0, (), bare, basis)
-    means, n = data.interval_means
     extra = np.stack([np.bincount(data.bin_interval, data.lengths * added[:, i])
                       for i in range(data.m)], 1) / n[:, None]
-    sigma = data.sigma[:data.m, None] / np.sqrt(n)[None]
-    return calibrate((means[:, :data.m] - extra).T, data.gravity, d=3, bias="estimate",
-                     sigma=sigma)
+    return (means[:, :data.m] - extra).T, sigma
+
+
+def correction(data: StaticData, model: Model) -> dict | None:
+    """The held-out check of the final model's accelerometer correction (station.diagnose.
+    heldout, an interval left out at a time); None without extensions or calibration."""
+    if not model.fitted or model.base.cal is None:
+        return None
+    basis = drift_basis(data, model.tau) if np.isfinite(model.tau) else None
+    scores = []
+    for names in ((), model.names):
+        means, sigma = readings(data, model.base, names, model.params, basis)
+        scores.append(heldout.score(means, data.gravity, sigma, CALIBRATION))
+    before, after = scores
+    return {"held_out_chi2_before": before, "held_out_chi2_after": after,
+            "positions": len(data.intervals), "applied": bool(after < before)}
 
 
 def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus,
@@ -577,7 +604,9 @@ def _fitted(name: str, data: StaticData, b0: Base, p: dict, sig: dict, tau, taus
                       notes=f"offset warmup_i exp(-t / tau) + drift_i t per channel (accelerometer "
                       f"then gyro); tau from the grid {np.round(taus, 1).tolist()} s")
     if name == "scale_nonlinearity":
-        return Fitted(name, {"k2": p["k2"]}, {"k2": sig["k2"]}, dof=data.m,
+        peak = np.abs(data.x[:, :data.m]).max(0)
+        return Fitted(name, {"k2": p["k2"], "peak_signal": peak},
+                      {"k2": sig["k2"], "peak_signal": np.full(data.m, np.nan)}, dof=data.m,
                       notes="output s + k2 s^2 per accelerometer channel, s = a_i . v in output "
                       "units; k2 in 1 / output unit")
     if name == "saturation":
@@ -658,15 +687,32 @@ def untestable(data: StaticData, b0: Base) -> dict:
     return out
 
 
+GAPS = {"bias_drift": ("between", "gyro", "trend"), "scale_nonlinearity": ("between",),
+        "saturation": ("rails",), "earth_rate": ("gyro",), "g_sensitivity": ("gyro",)}
+"""Gap statistics holding each candidate's signature (station.diagnose.select.settle)."""
+
+
 def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int = 3,
-                    candidates=None, progress=None) -> Diagnosis:
-    """The evidence loop of station.diagnose.select on a free-static session; `progress` as
-    `greedy`'s."""
+                    candidates=None, latitude_deg: float | None = None,
+                    progress=None) -> Diagnosis:
+    """The evidence loop of station.diagnose.select on a free-static session, each candidate
+    within its physical range (station.diagnose.plausibility; rates are judged only when the
+    gyro is in rad/s, not raw counts), then the final goodness-of-fit test of the gaps
+    (station.diagnose.goodness); `progress` as `greedy`'s."""
     from station.diagnose import static_report
 
     b0 = base(data)
     if candidates is None:
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
-    return greedy(fit(data, b0), candidates, lambda current, names: fit(data, b0, names, current),
-                  lambda m: static_report.statistics(data, m), alpha=alpha,
-                  max_effects=max_effects, progress=progress)
+    site = plausibility.Site(latitude_deg, not any("raw counts" in n for n in data.notes))
+    result = greedy(fit(data, b0), candidates,
+                    lambda current, names: fit(data, b0, names, current),
+                    lambda m: static_report.statistics(data, m), alpha=alpha,
+                    max_effects=max_effects,
+                    check=lambda name, f: plausibility.check(name, f, site), progress=progress)
+    result, (test, _) = settle(result, lambda step: (goodness.test(
+        step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS)
+    return replace(result, fit_test=test, correction=correction(data, result.final),
+                   unexplained=[{**test["statistics"][k], "statistic": k,
+                                 "signature": static_report.signature(data, result.final, k)}
+                                for k in test["failed"]])

@@ -14,8 +14,8 @@ import itertools
 
 import numpy as np
 
-from station.diagnose.select import log_sf
-from station.diagnose.static import SCALES_S, StaticData, from_arrays
+from station.diagnose.goodness import log_sf
+from station.diagnose.static import SCALES_S, StaticData, from_arrays, specific_force
 from station.errors import CalibrationInputError
 from station.model.constants import STANDARD_GRAVITY
 
@@ -38,6 +38,53 @@ def statistics(data: StaticData, model) -> dict:
     out["trend"] = _trend(data, r)
     out["rails"] = model.rails / (2 * c)
     return out
+
+
+def dofs(data: StaticData, model) -> dict:
+    """{statistic: degrees of freedom} of `statistics`: under white noise gap x dof ~
+    chi2(dof) (station.diagnose.goodness)."""
+    m, c, p, nb = data.m, data.c, len(data.intervals), len(data.bins)
+    free = model.base.cal is None
+    nominal = m * (model.base.pose.max() + 1) if free else 3 * m - 3 + m + 2 * p
+    slopes = int(np.sum(np.bincount(data.bin_interval, minlength=p) >= 2)) * c
+    out = {"between": p * m - nominal, "within": max((nb - p) * c, 1), "trend": slopes,
+           "rails": 2 * c}
+    if data.gyro:
+        out["gyro"] = max(p * (c - m) - (c - m), 1)
+    return out
+
+
+def signature(data: StaticData, model, statistic: str) -> dict:
+    """The signature of an unexplained gap statistic (station.diagnose.signature's for
+    free-static sessions): its mean square feature by channel and by interval, the correlation
+    of the per-interval part with time, and how much of the interval means' residual the
+    gravity direction explains (R^2 of a fit on [1, up_j] per channel, mean over the
+    statistic's channels; about 3 / (P - 1) for noise)."""
+    if statistic == "rails":
+        return {"note": "pile-up at the output rails that the twin does not expect"}
+    p, m = len(data.intervals), data.m
+    r = (data.z - model.prediction) * data.weights
+    _, n = data.interval_means
+    big = np.stack([np.bincount(data.bin_interval, np.sqrt(data.lengths) * r[:, i], p)
+                    for i in range(data.c)], 1) / np.sqrt(n)[:, None]
+    if statistic in ("between", "gyro"):
+        per = big**2
+    else:
+        per = np.stack([np.bincount(data.bin_interval, r[:, i] ** 2, p) for i in range(data.c)],
+                       1) / np.maximum(np.bincount(data.bin_interval, minlength=p), 1)[:, None]
+    channels = slice(m, data.c) if statistic == "gyro" else (
+        slice(0, m) if statistic == "between" else slice(0, data.c))
+    f = specific_force(data, model.base)
+    up = np.column_stack([np.ones(p), f / np.linalg.norm(f, axis=1, keepdims=True)])
+    y = big[:, channels]
+    fit = up @ np.linalg.lstsq(up, y, rcond=None)[0]
+    total = np.sum((y - y.mean(0)) ** 2, 0)
+    r2 = 1 - np.sum((y - fit) ** 2, 0) / np.where(total > 0, total, 1)
+    times = data.t[data.intervals[:, 0]]
+    by_interval = per[:, channels].mean(1)
+    return {"by_channel": per.mean(0), "by_interval": by_interval,
+            "correlation_with_time": float(np.corrcoef(by_interval, times)[0, 1]),
+            "gravity_direction_r2": float(r2.mean()), "gravity_direction_r2_noise": 3 / (p - 1)}
 
 
 def _trend(data: StaticData, r: np.ndarray) -> float:

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from station.diagnose.goodness import log_sf
 from station.diagnose.model import parameters
-from station.diagnose.select import log_sf
 from station.diagnose.static import StaticData, untestable
 from station.diagnose.static_report import white_noise_verdict
 from station.files.jsonable import jsonable
@@ -50,16 +50,38 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "fs": data.fs,
         "noise_sigma": data.sigma,
         "alpha": diagnosis.alpha,
-        "effects": diagnosis.effects,
+        **verdict(diagnosis),
         "steps": steps,
         "calibration_before": calibration_summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": calibration_summary(diagnosis.final.calibration),
+        "calibration_after": calibration_summary(diagnosis.calibration),
+        "spectrum": diagnosis.spectrum,
     })
+
+
+def verdict(diagnosis) -> dict:
+    """The named effects, the unexplained gaps with their signatures, the candidates that
+    resemble the gap with implausible parameters, the final goodness-of-fit test and the
+    held-out check of the correction (station.diagnose.select.Diagnosis)."""
+    return {"effects": diagnosis.effects, "unexplained": diagnosis.unexplained,
+            "resembles": diagnosis.resembles, "fit_test": diagnosis.fit_test,
+            "correction": diagnosis.correction}
 
 
 def text(doc: dict) -> str:
     """A short human-readable summary."""
     lines = [f"effects: {', '.join(doc['effects']) or 'none'} (alpha {doc['alpha']})"]
+    for u in doc.get("unexplained", []):
+        lines.append(f"UNEXPLAINED: {u['statistic']} gap {u['gap']:.3g} on {u['dof']} dof "
+                     f"(log10 p {u['log10_p']:.1f}, threshold "
+                     f"{doc['fit_test']['threshold_log10_p']:.2f}): {_signature_line(u)}")
+    for r in doc.get("resembles", []):
+        lines.append(f"resembles {r['effect']} (log10 p {r['log10_p']:.1f}), parameters "
+                     f"implausible: {r['reason']}")
+    c = doc.get("correction")
+    if c:
+        lines.append(f"correction {'applied' if c['applied'] else 'NOT applied'}: held-out "
+                     f"chi2 {c['held_out_chi2_before']:.1f} uncorrected -> "
+                     f"{c['held_out_chi2_after']:.1f} corrected ({c['positions']} positions)")
     for step in doc["steps"]:
         gap = " ".join(f"{k}={v:.3g}" for k, v in step["gap"].items())
         lines.append(f"model {' + '.join(step['model'])}: gap {gap}")
@@ -90,6 +112,28 @@ def numbers(value) -> str:
     return "nan" if value is None else f"{value:.4g}"
 
 
+def _signature_line(u: dict) -> str:
+    """One line of an unexplained gap's signature."""
+    s = u["signature"]
+    if "peaks" in s:
+        return "; ".join(f"{p['power']:.2f} x noise at {p['frequency']:g} x the table rate "
+                         f"({p['sense'].replace('_', ' ')})" for p in s["peaks"][:3])
+    if "by_channel" in s:
+        return (f"worst channel {int(np.argmax(s['by_channel']))}, interval "
+                f"{int(np.argmax(s['by_interval']))}; correlation with time "
+                f"{s['correlation_with_time']:.2f}; gravity direction R2 "
+                f"{s['gravity_direction_r2']:.2f} (noise {s['gravity_direction_r2_noise']:.2f})")
+    if "by_sensor" not in s:
+        return s.get("note", "")
+    comp = max(s["by_component"].items(), key=lambda x: x[1])
+    return (f"worst sensor {int(np.argmax(s['by_sensor']))}, position "
+            f"{int(np.argmax(s['by_position']))}, component {comp[0]} ({comp[1]:.2g}); "
+            f"correlation with the table-axis projection "
+            f"{s['correlation_with_table_axis_projection']:.2f}, time "
+            f"{s['correlation_with_time']:.2f}, rate sign {s['correlation_with_rate_sign']:.2f}; "
+            f"table-angle R2 {s['table_angle_harmonic_r2']:.2f}")
+
+
 def gap_plot(doc: dict) -> html.Plot:
     """Each gap statistic against the model steps (log scale, 1 = explained)."""
     from matplotlib.figure import Figure  # here: the CLI imports this module, not matplotlib
@@ -110,6 +154,46 @@ def gap_plot(doc: dict) -> html.Plot:
                      "its twin, per model step (1 = explained by the noise).", html.png(fig))
 
 
+def unexplained_plots(doc: dict) -> list:
+    """One figure per unexplained gap statistic: its mean square feature by sensor (channel) and
+    by position (interval); and the residual spectrum when the session has one."""
+    from matplotlib.figure import Figure
+
+    plots = []
+    for u in doc.get("unexplained", []):
+        s = u["signature"]
+        sensors, parts = s.get("by_sensor", s.get("by_channel")), s.get("by_position",
+                                                                         s.get("by_interval"))
+        if sensors is None:
+            continue
+        fig = Figure(figsize=(7, 3))
+        left, right = fig.subplots(1, 2)
+        left.bar(range(len(sensors)), sensors)
+        right.bar(range(len(parts)), parts)
+        for ax, what in ((left, "sensor (channel)"), (right, "position (interval)")):
+            ax.axhline(1.0, color="k", lw=0.8, ls="--")
+            ax.set_xlabel(what)
+        left.set_ylabel("mean square (1 = noise)")
+        fig.suptitle(f"Unexplained: {u['statistic']}")
+        plots.append(html.Plot(f"unexplained-{u['statistic']}", f"Unexplained {u['statistic']}",
+                               "Where the unexplained gap sits: by sensor and by position "
+                               "(1 = white noise).", html.png(fig)))
+    spec = doc.get("spectrum")
+    if spec and doc.get("unexplained"):
+        fig = Figure(figsize=(7, 3.5))
+        ax = fig.subplots()
+        for sense in ("with_table", "against_table", "axial"):
+            ax.plot(spec["frequency"], spec[sense], label=sense.replace("_", " "))
+        ax.axhline(1.0, color="k", lw=0.8, ls="--")
+        ax.set_xlabel("frequency / table rate")
+        ax.set_ylabel("power / white noise")
+        ax.legend(fontsize=7)
+        plots.append(html.Plot("spectrum", "Residual spectrum", "Residual of the rotating "
+                               "windows at multiples of the table rate, turning with or against "
+                               "the table, and along its axis (1 = white noise).", html.png(fig)))
+    return plots
+
+
 def html_report(doc: dict, plots=()) -> str:
     """The self-contained page (station.report.html): the named effects, the gap plot (and
     `plots`), one section per model step with its gap and evidence tables, the text summary."""
@@ -127,11 +211,14 @@ def html_report(doc: dict, plots=()) -> str:
             f"step-{len(steps)}", f"Model: {' + '.join(step['model'])}",
             f"{tables}<p>chosen: <b>{e(step['chosen'])}</b></p>"))
     effects = f"<p>Named effects: <b>{e(', '.join(doc['effects']) or 'none')}</b></p>"
+    if doc.get("unexplained"):
+        effects += ("<p><b>Unexplained:</b> " + e(", ".join(u["statistic"]
+                                                          for u in doc["unexplained"])) + "</p>")
     rows = parameter_rows(doc)
     if rows:
         effects += html.section("parameters", "Fitted parameters of the final model", html.table(
             rows, ("effect", "parameter", "value", "1 sigma", "unit")))
-    figures = "".join(html.figure(p) for p in (gap_plot(doc), *plots))
+    figures = "".join(html.figure(p) for p in (gap_plot(doc), *unexplained_plots(doc), *plots))
     summary = html.section("summary", "Summary", f"<pre>{e(text(doc))}</pre>")
     return html.page(f"Diagnosis of {doc['session']}", str(doc["session"]),
                      effects + figures + "".join(steps) + summary)
@@ -170,12 +257,12 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
         "gravity": data.gravity,
         "noise_sigma": data.sigma,
         "alpha": diagnosis.alpha,
-        "effects": diagnosis.effects,
+        **verdict(diagnosis),
         "not_testable": not_testable,
         "white_noise": white,
         "steps": steps,
         "calibration_before": _summary(diagnosis.steps[0].model.calibration),
-        "calibration_after": _summary(diagnosis.final.calibration),
+        "calibration_after": _summary(diagnosis.calibration),
         "remarks": remarks,
     })
 

@@ -1,6 +1,7 @@
 """Model extensions, one module per named effect, mirroring `station/model/effects/<name>.py`.
 
 Each module exposes
+- `GAPS`: the gap statistics that hold its signature (not named while one stays unexplained);
 - `STAGE`: where the twin applies it ("rate", "motion", "sensed", "offset", "output");
 - `fit(ctx, prediction, r) -> Fitted`: its parameters from the residuals r (n, k, m) of the twin
   without it (`prediction`), by weighted least squares on the binned residuals;

@@ -13,6 +13,9 @@ from station.diagnose.effects import Fitted, tone_null
 from station.model.effects import axis_wobble
 from station.model.effects.axis_wobble import AxisWobble
 
+GAPS = ("harmonics",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
 
 

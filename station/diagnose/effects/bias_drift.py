@@ -14,6 +14,9 @@ from station.diagnose.effects import Fitted
 from station.model.effects import bias_drift
 from station.model.effects.bias_drift import BiasDrift
 
+GAPS = ("static", "trend")
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "offset"
 WARMUP_TAUS = np.geomspace(30.0, 3000.0, 7)
 HEATING_TAUS = np.geomspace(10.0, 300.0, 6)

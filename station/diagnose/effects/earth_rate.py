@@ -16,6 +16,9 @@ from station.diagnose.effects import Fitted, tone_null
 from station.model.effects import earth_rate
 from station.model.effects.earth_rate import EarthRate
 
+GAPS = ("static", "harmonics")
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
 
 

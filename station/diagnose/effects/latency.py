@@ -12,6 +12,9 @@ from station.diagnose.effects import Fitted
 from station.model.effects import latency
 from station.model.effects.latency import Latency
 
+GAPS = ("transients",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "sensed"
 
 

@@ -36,11 +36,15 @@ model is that of one variance on the boundary of its range: 1/2 chi2_0 + 1/2 chi
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
+from scipy.stats import f as f_law
 
 from station.diagnose import linear
 from station.diagnose.effects import Fitted
 from station.model.effects import rate_error
 
+GAPS = ("averaged",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "rate"
 ENCODER_TOL = 1e-9
 """Precision of a rate factor read off an exact angle array (rounding only)."""
@@ -86,17 +90,47 @@ def fit(ctx, prediction, r) -> Fitted:
     # per position: the least-squares factor of the signature s_j(t) and its variance w_j; the
     # quadratic forms of the axes that a calibration absorbs
     lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
-    x = quadratic_design(ctx.v / np.linalg.norm(ctx.v, axis=0))
-    random = _fit_random(lf, x)
+    u = ctx.v / np.linalg.norm(ctx.v, axis=0)
+    x = quadratic_design(u)
+    random = _fit_random(lf, x, axes_design(ctx.a, u))
     if not encoder_reads(ctx.data):
         return random
     encoder = _fit_encoder(ctx, prediction, r, ctx.data.rate_factors - 1.0, lf.cov[:, 0, 0], x)
     return encoder if encoder.reduction >= random.reduction - random.penalty else random
 
 
-def _fit_random(lf, x) -> Fitted:
+def axes_design(a: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(n, m) regressors (a_i . u_j / |a_i|)^3: the per-position magnitude change that a
+    per-sensor output nonlinearity k2 s^2 makes (sum_i k2_i s_ij^2 (a_i . u_j) / c), which
+    follows the sensor axes."""
+    return ((a / np.linalg.norm(a, axis=0)).T @ u).T ** 3
+
+
+def axes_log10_p(delta_hat: np.ndarray, v: np.ndarray, x: np.ndarray, z: np.ndarray) -> float:
+    """log10 p of the F test that the per-position factors delta_hat (variances v = s^2 + w)
+    follow the sensor axes (regressors z) beyond what a calibration absorbs (x): a table's rate
+    error cannot know how the unit is mounted. 0 when too few positions remain."""
+    n = delta_hat.size
+    full = np.column_stack([x, z])
+    rank_x, rank_full = np.linalg.matrix_rank(x), np.linalg.matrix_rank(full)
+    q, rest = rank_full - rank_x, n - rank_full
+    if q < 1 or rest < 3:
+        return 0.0
+    sw = 1.0 / np.sqrt(v)
+
+    def rss(design):
+        coef = np.linalg.lstsq(design * sw[:, None], delta_hat * sw, rcond=None)[0]
+        return float(np.sum(((delta_hat - design @ coef) * sw) ** 2))
+
+    small, big = rss(x), rss(full)
+    f = (small - big) / q / max(big / rest, 1e-300)
+    return float(f_law.logsf(f, q, rest) / np.log(10))
+
+
+def _fit_random(lf, x, z) -> Fitted:
     """The spread s by REML, the factors 1 + delta_j (BLUP) and the deviance terms, from the
-    per-position fit `lf` and the absorbed design x."""
+    per-position fit `lf`, the absorbed design x and the sensor-axes design z (`axes_log10_p`,
+    a check of the physical range: station.diagnose.plausibility)."""
     delta_hat, w = lf.theta[:, 0], lf.cov[:, 0, 0]
     t, t_sigma = reml_spread(delta_hat, w, x)
     vinv, p, _ = _projector(t, w, x)
@@ -106,8 +140,10 @@ def _fit_random(lf, x) -> Fitted:
     spread = float(np.sqrt(t))
     return Fitted(
         "rate_error",
-        {"factors": 1.0 + delta, "spread": spread},
-        {"factors": np.sqrt(shrink * w), "spread": float(np.sqrt(t + t_sigma)) - spread},
+        {"factors": 1.0 + delta, "spread": spread,
+         "axes_log10_p": axes_log10_p(delta_hat, t + w, x, z)},
+        {"factors": np.sqrt(shrink * w), "spread": float(np.sqrt(t + t_sigma)) - spread,
+         "axes_log10_p": np.nan},
         dof=1,
         reduction=lf.reduction(delta[:, None]),
         notes="random effect: factors are BLUPs; the common rate error (scale) is not separable "

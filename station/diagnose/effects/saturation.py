@@ -15,6 +15,9 @@ from station.diagnose.effects import Fitted
 from station.model.effects import saturation
 from station.model.effects.saturation import Saturation
 
+GAPS = ("rails",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "output"
 
 

@@ -11,6 +11,9 @@ from station.diagnose.effects import Fitted
 from station.model.effects import scale_nonlinearity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
+GAPS = ("averaged",)
+"""Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
+while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "sensed"
 
 
@@ -21,8 +24,8 @@ def fit(ctx, prediction, r) -> Fitted:
     lf = linear.fit(ctx.data, r, [unit], ctx.sigma, "sensor")
     return Fitted(
         "scale_nonlinearity",
-        {"k2": lf.theta[:, 0]},
-        {"k2": np.sqrt(lf.cov[:, 0, 0])},
+        {"k2": lf.theta[:, 0], "peak_signal": np.abs(s).max((0, 1))},
+        {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(s.shape[-1], np.nan)},
         dof=lf.theta.shape[0],
         reduction=lf.reduction(),
     )
