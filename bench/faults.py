@@ -13,8 +13,11 @@ result (a wrong reading, a forward jump in the numbering). Classes:
   register log (`station twin --table-log`), and how often the table was left turning
 - sequence: serial frames sent twice (pty twin), CAN samples sent twice (virtual bus), serial and
   CAN devices restarting their numbering
+- files (with --files N): damaged session files through `station solve`, N per kind of damage
+  (bench/file_faults.py, run as its own process: truncated killed files, zeroed 4 KB blocks,
+  flipped bytes, killed flags on top, inflated size claims)
 
-    .venv/bin/python -P bench/faults.py [--json] [--kills 10]
+    .venv/bin/python -P bench/faults.py [--json] [--kills 10] [--files 0]
 """
 
 import argparse
@@ -280,6 +283,8 @@ def sequence(seed: int = 3) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--kills", type=int, default=10)
+    parser.add_argument("--files", type=int, default=0,
+                        help="damaged session files per kind (bench/file_faults.py); 0: none")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -288,6 +293,11 @@ def main() -> None:
     result = {"table_reset": table_faults("reset"), "table_short": table_faults("short"),
               "controller_killed": controller_killed(), "kill_resume": kill_resume(args.kills),
               "sequence": sequence()}
+    if args.files:
+        done = subprocess.run([sys.executable, "-P", str(Path(__file__).with_name(
+            "file_faults.py")), "--files", str(args.files), "--json"], capture_output=True,
+            text=True, check=False)
+        result["files"] = json.loads(done.stdout)["classes"]
     result["seconds"] = time.perf_counter() - start
     if args.json:
         print(json.dumps(result, indent=1))
