@@ -13,6 +13,9 @@ result (a wrong reading, a forward jump in the numbering). Classes:
   register log (`station twin --table-log`), and how often the table was left turning
 - sequence: serial frames sent twice (pty twin), CAN samples sent twice (virtual bus), serial and
   CAN devices restarting their numbering
+- corrupted_streams: 10^4 serial byte streams of 100 frames, each damaged one way (bits flipped,
+  a stretch dropped, garbage inserted, a frame cut, 120 bytes repeated), parsed in random chunks:
+  accepted right means every sample is one sent with its number
 - files (with --files N): damaged session files through `station solve`, N per kind of damage
   (bench/file_faults.py, run as its own process: truncated killed files, zeroed 4 KB blocks,
   flipped bytes, killed flags on top, inflated size claims)
@@ -280,9 +283,68 @@ def sequence(seed: int = 3) -> dict:
     return out
 
 
+def corrupted_streams(n: int, seed: int = 5, frames: int = 100) -> dict:
+    """`n` serial streams of `frames` imu12_serial frames, each damaged one way (bytes flipped,
+    a stretch dropped, garbage inserted, a frame cut, frames repeated), parsed in random chunks
+    through the drivers' BinaryFrameParser. A stream ends as a traceback, or accepted right
+    (every sample's counts are those sent with its number, numbers increasing), or accepted with
+    a changed result (a sample never sent, or numbers going back)."""
+    from drivers.wire.binary import BinaryFrameParser, encode_frames
+
+    profile = SerialImuProfile.load("imu12_serial")
+    fmt, channels = profile.serial.frame, profile.imu.channels
+    rng = np.random.default_rng(seed)
+    outcomes = []
+    for _ in range(n):
+        seq = np.arange(frames) + int(rng.integers(0, 60000))
+        counts = rng.integers(-2**31, 2**31, (frames, len(channels)))
+        data = bytearray(encode_frames(fmt, seq % 65536, seq * 500, counts))
+        _damage(data, rng)
+        parser = BinaryFrameParser(fmt, channels)
+        try:
+            blocks, at = [], 0
+            while at < len(data):
+                step = int(rng.integers(1, 300))
+                blocks.append(parser.decode(bytes(data[at:at + step]), float(at)).block)
+                at += step
+            blocks.append(parser.decode(b"", float(at), final=True).block)
+            got = SampleBlock.concat(blocks)
+        except Exception:  # noqa: BLE001 - counted: the bench's purpose
+            outcomes.append("traceback")
+            continue
+        sent = dict(zip((seq % 65536).tolist(), map(tuple, counts.tolist()), strict=True))
+        right = all(sent.get(int(q) % 65536) == tuple(c)
+                    for q, c in zip(got.seq.tolist(), got.counts.tolist(), strict=True))
+        outcomes.append("accepted_right" if right and np.all(np.diff(got.seq) > 0)
+                        else "accepted_changed")
+    return tally(outcomes)
+
+
+def _damage(data: bytearray, rng) -> None:
+    """One kind of damage, at random places of a serial byte stream (in place)."""
+    kind = rng.integers(0, 5)
+    if kind == 0:
+        for at in rng.integers(0, len(data), int(rng.integers(1, 20))):
+            data[at] ^= 1 << int(rng.integers(0, 8))
+    elif kind == 1:
+        at = int(rng.integers(0, len(data) - 100))
+        del data[at:at + int(rng.integers(1, 100))]
+    elif kind == 2:
+        at = int(rng.integers(0, len(data)))
+        data[at:at] = rng.integers(0, 256, int(rng.integers(1, 200)), dtype=np.uint8).tobytes()
+    elif kind == 3:
+        at = int(rng.integers(0, len(data) - 60))
+        del data[at + 10:at + 30]
+    else:
+        at = int(rng.integers(0, len(data) - 120))
+        data[at:at] = data[at:at + 120]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--kills", type=int, default=10)
+    parser.add_argument("--streams", type=int, default=10_000,
+                        help="corrupted serial streams of 100 frames")
     parser.add_argument("--files", type=int, default=0,
                         help="damaged session files per kind (bench/file_faults.py); 0: none")
     parser.add_argument("--json", action="store_true")
@@ -292,7 +354,7 @@ def main() -> None:
     start = time.perf_counter()
     result = {"table_reset": table_faults("reset"), "table_short": table_faults("short"),
               "controller_killed": controller_killed(), "kill_resume": kill_resume(args.kills),
-              "sequence": sequence()}
+              "sequence": sequence(), "corrupted_streams": corrupted_streams(args.streams)}
     if args.files:
         done = subprocess.run([sys.executable, "-P", str(Path(__file__).with_name(
             "file_faults.py")), "--files", str(args.files), "--json"], capture_output=True,

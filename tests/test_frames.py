@@ -274,3 +274,18 @@ def test_byte_sum_checksum_and_length_field():
     assert np.array_equal(block.seq, np.delete(seq, 10))
     assert np.array_equal(block.counts, np.delete(counts, 10, axis=0))
     assert stats.crc_failures == 1 and stats.dropped == 1
+
+
+def test_a_resent_buffer_of_frames_is_dropped_not_a_restart():
+    """A CRC-valid resend of several frames (an adapter repeating its buffer): each repeated frame
+    is a duplicate of one of the last 16, so the numbering goes on without a restart."""
+    seq = np.arange(100, 200)
+    data = stream(seq)
+    frame = len(data) // len(seq)
+    for at, frames in ((10, 2), (40, 5), (80, 15)):  # repeat frames at-frames .. at-1 after at
+        cut = (at + sum(f for a, f in ((10, 2), (40, 5), (80, 15)) if a < at)) * frame
+        data = data[:cut] + data[cut - frames * frame:cut] + data[cut:]
+    got, stats = parse(data, chunk=37)
+    np.testing.assert_array_equal(got.seq, seq)
+    np.testing.assert_array_equal(got.counts, pattern(seq))
+    assert stats.duplicates == 22 and stats.restarts == 0 and stats.gaps == 0

@@ -94,6 +94,10 @@ class _HostTimes:
         self._ends, self._times = self._ends[keep], self._times[keep]
 
 
+REPEATS = 16
+"""A frame equal to one of the last this many (number, device time and counts) is a duplicate."""
+
+
 class BinaryFrameParser:
     """Incremental bulk parser of a binary frame stream (rules in the module docstring).
 
@@ -120,8 +124,8 @@ class BinaryFrameParser:
         self.stats = SerialStats()
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
-        self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks,
-        # counts)
+        self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
+        self._recent = np.zeros((0, 2 + len(self.channels)), np.int64)  # keys of recent frames
         self.reset()
 
     def reset(self) -> None:
@@ -298,8 +302,9 @@ class BinaryFrameParser:
     def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
         """SampleBlock of newly accepted frames; updates unwrapping state and counters.
 
-        Before unwrapping, each frame is compared with the one accepted before it: the same
-        sequence number, device time and counts is a duplicate (dropped, counted); a number that
+        Before unwrapping, each frame is compared with the last `REPEATS` frames accepted before
+        it: the same sequence number, device time and counts as one of them is a duplicate (a
+        CRC-valid resend of a frame or of a buffer of frames: dropped, counted); a number that
         goes back, or a device time that goes back, is a restart of the device (a new segment,
         `restart_seq`; the frames before keep their numbers); only a forward jump is a gap.
         """
@@ -312,15 +317,10 @@ class BinaryFrameParser:
         valid = records["valid"]
         if len(records) and self._last is None:  # the very first frame: 1 step after a virtual one
             self._last = (self._connection_start, (seq_raw[0] - 1) % self.seq_modulus,
-                          seq_raw[0] - 1, ticks_raw[0], ticks_raw[0], None)
+                          seq_raw[0] - 1, ticks_raw[0], ticks_raw[0])
         if len(records):
             self._count_skips(ends)
-            last_counts = self._last[5]
-            prev_counts = np.concatenate([counts[:1] + 1 if last_counts is None
-                                          else last_counts[None], counts[:-1]])
-            fresh = ~((np.diff(seq_raw, prepend=self._last[1]) == 0)
-                      & (np.diff(ticks_raw, prepend=self._last[3]) == 0)
-                      & np.all(counts == prev_counts, axis=1))
+            fresh = self._fresh(np.column_stack([seq_raw, ticks_raw, counts]))
             stats.duplicates += int(np.count_nonzero(~fresh))
             ends, seq_raw, ticks_raw, counts, valid = (ends[fresh], seq_raw[fresh],
                                                        ticks_raw[fresh], counts[fresh],
@@ -329,7 +329,7 @@ class BinaryFrameParser:
         if k == 0:
             seq, device_time = np.zeros(0, np.int64), np.zeros(0)
         else:
-            _, last_seq_raw, last_seq, last_ticks_raw, last_ticks, _ = self._last
+            _, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
             steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
             restart = (steps == 0) | (steps > self.seq_modulus // 2)
             if self.time_modulus:
@@ -347,7 +347,7 @@ class BinaryFrameParser:
                 ticks = np.zeros(k, np.int64)
                 device_time = np.full(k, np.nan)
             self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
-                          int(ticks_raw[-1]), int(ticks[-1]), counts[-1].copy())
+                          int(ticks_raw[-1]), int(ticks[-1]))
         stats.invalid += int(k - np.count_nonzero(valid))
         stats.samples += int(np.count_nonzero(valid))
         return SampleBlock(
@@ -357,6 +357,19 @@ class BinaryFrameParser:
             host_time=self._host.at(ends)[valid],
             channels=self.channels,
         )
+
+    def _fresh(self, keys: np.ndarray) -> np.ndarray:
+        """Which frames (rows of (raw seq, raw ticks, counts...)) repeat none of the `REPEATS`
+        frames before them (earlier blocks' kept in `_recent`)."""
+        rows = np.vstack([self._recent, keys])
+        first = len(self._recent)
+        at = np.arange(first, len(rows))
+        fresh = np.ones(len(keys), bool)
+        for lag in range(1, min(REPEATS, len(rows) - 1) + 1):
+            ok = at >= lag
+            fresh[ok] &= ~np.all(rows[at[ok]] == rows[at[ok] - lag], axis=1)
+        self._recent = rows[-REPEATS:]
+        return fresh
 
     def _count_skips(self, ends: np.ndarray) -> None:
         """Count the bytes between accepted frames (ending at `ends`) and the resyncs; the last
