@@ -18,6 +18,7 @@ units of each figure's 1-sigma (about 1 when the figure is honest across recordi
 
 import argparse
 import json
+import subprocess
 import sys
 import tempfile
 import time
@@ -85,6 +86,47 @@ def across_recordings(root: Path) -> dict:
     return out
 
 
+def next_session(root: Path) -> dict:
+    """Leave one recording out, the command-line way: each of exp_1..3 imported (`station import
+    binary`) and solved as one 24-channel array (`station solve`); the other two combined
+    (`station.files.combined.combine`, what `station combine` writes) predict the third. Per class
+    (biases, scale factors): RMS and median |z| / 0.6745 of z = (x - mean) / sqrt(sigma_next^2 +
+    s^2) over 24 parameters x 3 held-out recordings (about 1 when the next-session figure is
+    honest); beside it the same ratio with one session's own 1-sigma (sigma_next replaced by the
+    other two's median sigma)."""
+    from station.files.calfile import load
+    from station.files.combined import combine
+
+    cals = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for exp in (1, 2, 3):
+            h5, cal = Path(tmp) / f"exp_{exp}.h5", Path(tmp) / f"exp_{exp}.cal.json"
+            for argv in (["import", "binary", str(h5), str(root / f"exp_{exp}.bin"),
+                          "--profile", "mimu4444"],
+                         ["solve", str(h5), "--magnitude", str(MIMU_G), "--accept-suspect"]):
+                subprocess.run([sys.executable, "-m", "station", *argv], check=True,
+                               capture_output=True)
+            cals.append(load(cal))
+    out = {}
+    for name, value, sigma in (("biases", "bias", "bias_sigma"),
+                               ("scale_factors", "scale_factors", "scale_factors_sigma")):
+        z_next, z_own = [], []
+        for held in range(3):
+            rest = [c for k, c in enumerate(cals) if k != held]
+            pooled = combine(rest, [f"exp_{k + 1}" for k in range(3) if k != held])
+            x, s = getattr(cals[held], value), getattr(cals[held], sigma)
+            diff = x - getattr(pooled, value)
+            z_next.append(diff / np.hypot(getattr(pooled, sigma), s))
+            own = np.median([getattr(c, sigma) for c in rest], axis=0) / np.sqrt(2)
+            z_own.append(diff / np.hypot(own, s))
+        out[name] = {figure: {"rms": float(np.sqrt(np.mean(np.square(z)))),
+                              "median": float(np.median(np.abs(z)) / 0.6745)}
+                     for figure, z in (("next_session", z_next), ("one_session", z_own))}
+    out["tau"] = {k: v["tau"] for k, v in combine(cals, ["exp_1", "exp_2", "exp_3"])
+                  .fit["repeatability"].items()}
+    return out
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=400, help="recordings per setting")
@@ -97,6 +139,8 @@ def main(argv=None) -> int:
                for i, (name, options) in enumerate(SETTINGS.items())}
     mimu = args.data / "mimu4444-array"
     real = across_recordings(mimu) if (mimu / "exp_3.bin").is_file() else None
+    if real is not None:
+        real["next_session"] = next_session(mimu)
     report = {"reps": args.reps, "seed": args.seed, "settings": results, "mimu4444": real,
               "seconds": time.perf_counter() - start}
     if args.json:
@@ -117,6 +161,13 @@ def main(argv=None) -> int:
               f"{np.mean(pose == 0):.0%}): spread across recordings / 1-sigma")
         for figure in ("total", "white"):
             print(f"  {figure:>5}: " + ", ".join(f"{c} {real[figure][c]:.2f}" for c in CLASSES))
+        nxt = real["next_session"]
+        print("  24-channel array, each recording predicted by the other two combined (station "
+              "combine): |z| RMS / median ratio")
+        for c in ("biases", "scale_factors"):
+            print(f"    {c}: next-session figure {nxt[c]['next_session']['rms']:.2f} / "
+                  f"{nxt[c]['next_session']['median']:.2f}; one session's 1-sigma "
+                  f"{nxt[c]['one_session']['rms']:.2f} / {nxt[c]['one_session']['median']:.2f}")
     print(f"\n{report['seconds']:.0f} s")
     return 0
 

@@ -35,6 +35,8 @@ COMMANDS = {
     "resume": ("resume", "continue a rotary session after a kill, pause or abort"),
     "replay": ("replay", "re-reduce and re-solve a recorded rotary, iron or free-static session"),
     "solve": ("solve", "solve a recorded session into a calibration file"),
+    "combine": ("combine", "combine the calibration files of several sessions of one unit, with "
+                           "their repeatability"),
     "apply": ("apply", "apply a calibration file to readings (CSV or session) -> calibrated "
                        "vectors"),
     "export": ("export", "export a calibration file as a C header for firmware"),

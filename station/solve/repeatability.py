@@ -1,0 +1,99 @@
+"""Repeatability: what a calibration is worth in the next session, from several sessions of a unit.
+
+One session's 1-sigma says how well that session determined the parameters. A unit re-seated and
+switched on again moves its biases (turn-on bias repeatability), and its mounting and temperature
+move the rest, by more than any scatter inside one session can show (the MIMU4444 array's biases
+moved 8x their per-session 1-sigma between recordings; docs/solvers.md "Repeatability"). With K
+sessions of the same unit, each parameter x_kp (session k, parameter p of one class, e.g. the
+biases) is modelled as
+
+    x_kp = mu_p + delta_kp + e_kp,   delta_kp ~ N(0, tau^2),   e_kp ~ N(0, s_kp^2)
+
+(a random-effects model: s_kp the session's own 1-sigma, tau^2 the between-session variance common
+to a class). tau^2 is the Paule-Mandel estimate (the generalised Q statistic equal to its degrees of
+freedom); mu_p the weighted mean with weights 1 / (s_kp^2 + tau^2). The figure for the next
+session is the prediction sigma sqrt(var(mu_p) + tau^2): the spread a new session's value has about
+mu_p, beside its own estimation noise. tau^2 is estimated from nu = P (K - 1) degrees of freedom;
+its share f of the prediction variance widens the figure by t_nu'(0.975) / 1.96, nu' = nu / f^2
+(Welch-Satterthwaite, as `uncertainty.estimation_widening` does for the per-pose term).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """One class of parameters pooled over K sessions (shapes: P parameters).
+
+    mean, mean_sigma : the weighted mean and its 1-sigma
+    sigma            : the 1-sigma for the next session: sqrt(mean_sigma^2 + tau^2), widened for
+                       the estimated tau^2 (module docstring)
+    tau              : the between-session standard deviation of the class (0: none shown)
+    dof              : degrees of freedom of tau^2, P' (K - 1) over the P' parameters that vary
+    q                : the generalised Q statistic at tau = 0 (chi2 with dof degrees of freedom
+                       when the sessions agree within their own 1-sigma)
+    """
+
+    mean: np.ndarray
+    mean_sigma: np.ndarray
+    sigma: np.ndarray
+    tau: float
+    dof: int
+    q: float
+
+
+def _q(x: np.ndarray, s2: np.ndarray, tau2: float) -> float:
+    """Generalised Q: sum_kp (x_kp - mu_p)^2 / (s_kp^2 + tau^2), mu_p the weighted mean."""
+    w = 1.0 / (s2 + tau2)
+    mu = np.sum(w * x, axis=0) / np.sum(w, axis=0)
+    return float(np.sum(w * (x - mu) ** 2))
+
+
+def between_variance(x, s) -> tuple[float, int, float]:
+    """(tau^2, dof, Q at tau = 0) of estimates x (K, P) with 1-sigma s (K, P) over K sessions.
+
+    Parameters fixed by the frame (every session 0 +- 0, e.g. the canonical frame's zeros of a) are
+    left out. tau^2 = 0 when Q(0) <= dof (the sessions agree within their own noise), else the
+    root of Q(tau^2) = dof (Paule-Mandel). A parameter with s = 0 in a session is given a floor
+    of 1e-12 of its class's largest variance."""
+    from scipy.optimize import brentq  # here: `import station` stays light
+
+    x, s = np.asarray(x, float), np.asarray(s, float)
+    varies = ~((np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0))
+    x, s2 = x[:, varies], s[:, varies] ** 2
+    k, p = x.shape
+    dof = p * (k - 1)
+    if dof == 0:
+        return 0.0, 0, 0.0
+    spread = float(np.max(np.var(x, axis=0))) + float(np.max(s2))
+    s2 = np.maximum(s2, 1e-12 * spread)
+    q0 = _q(x, s2, 0.0)
+    if q0 <= dof:
+        return 0.0, dof, q0
+    high = spread
+    while _q(x, s2, high) > dof:
+        high *= 4
+    return float(brentq(lambda t: _q(x, s2, t) - dof, 0.0, high, xtol=1e-14 * high,
+                        rtol=1e-12)), dof, q0
+
+
+def pool(x, s) -> Pooled:
+    """The parameters of one class (x, s: (K, P) estimates and 1-sigma of K sessions) pooled into
+    their mean and the 1-sigma for the next session (module docstring)."""
+    from scipy import stats
+
+    x, s = np.asarray(x, float), np.asarray(s, float)
+    tau2, dof, q0 = between_variance(x, s)
+    fixed = (np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0)
+    w = 1.0 / np.maximum(s**2 + tau2, 1e-300)
+    mean = np.sum(w * x, axis=0) / np.sum(w, axis=0)
+    mean_var = np.where(fixed, 0.0, 1.0 / np.sum(w, axis=0))
+    total = mean_var + np.where(fixed, 0.0, tau2)
+    widen = 1.0
+    if tau2 > 0:
+        share = float(np.mean(tau2 / total[~fixed]))
+        widen = float(stats.t.ppf(0.975, dof / share**2) / stats.norm.ppf(0.975))
+    return Pooled(mean=mean, mean_sigma=np.sqrt(mean_var), sigma=widen * np.sqrt(total),
+                  tau=float(np.sqrt(tau2)), dof=dof, q=q0)

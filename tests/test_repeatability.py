@@ -1,0 +1,112 @@
+"""Repeatability between sessions (station.solve.repeatability, station combine): the
+between-session variance, the next-session figure's coverage, and the combined calibration file."""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import station
+from station.cli import main
+from station.errors import CalibrationFileError
+from station.files.calfile import Calibration, load
+from station.files.combined import combine
+from station.solve.repeatability import between_variance, pool
+
+TRIALS = 600
+K, P = 3, 24
+
+
+def sessions(rng, tau: float, s: np.ndarray, k: int = K):
+    """Estimates (k, P) of P parameters over k sessions: truth + session shift (tau) + noise (s)."""
+    mu = rng.normal(0, 1, P)
+    x = mu + rng.normal(0, tau, (k, P)) + rng.normal(0, 1, (k, P)) * s
+    return mu, x
+
+
+def test_sessions_that_agree_show_no_spread_at_the_rate_chi2_gives():
+    """Without a between-session spread, Q(0) ~ chi2(P (K-1)): tau^2 = 0 exactly when Q <= dof,
+    at the rate chi2.cdf(dof, dof) (3 binomial standard errors)."""
+    rng = np.random.default_rng(11)
+    s = rng.uniform(0.5, 2.0, (K, P))
+    zero = [between_variance(sessions(rng, 0.0, s)[1], s)[0] == 0 for _ in range(TRIALS)]
+    dof = P * (K - 1)
+    expected = stats.chi2.cdf(dof, dof)
+    assert abs(np.mean(zero) - expected) <= 3 * np.sqrt(expected * (1 - expected) / TRIALS)
+
+
+def test_between_variance_recovers_the_spread():
+    """tau^2 with tau = 3 x the median noise: the mean estimate within 3 standard errors of the
+    truth (Paule-Mandel is nearly unbiased when tau dominates)."""
+    rng = np.random.default_rng(12)
+    s = rng.uniform(0.5, 1.5, (K, P))
+    tau = 3.0
+    est = np.array([between_variance(sessions(rng, tau, s)[1], s)[0] for _ in range(TRIALS)])
+    assert abs(est.mean() - tau**2) <= 3 * est.std() / np.sqrt(TRIALS)
+
+
+@pytest.mark.parametrize("k, tau", [(2, 2.0), (3, 2.0), (3, 0.5)])
+def test_next_session_figure_covers_a_new_session(k, tau):
+    """A new session's estimate lies within +-1.96 sqrt(sigma_next^2 + s_new^2) of the pooled
+    mean in 95 % of the cases: over TRIALS pools, the coverage (mean of per-pool fractions) within
+    the issue's honesty band 92-98 %."""
+    rng = np.random.default_rng(13 + k)
+    fractions = []
+    for _ in range(TRIALS):
+        s = rng.uniform(0.5, 1.5, (k + 1, P))
+        mu, x = sessions(rng, tau, s, k + 1)
+        pooled = pool(x[:k], s[:k])
+        z = (x[k] - pooled.mean) / np.hypot(pooled.sigma, s[k])
+        fractions.append(np.mean(np.abs(z) <= stats.norm.ppf(0.975)))
+    assert 0.92 <= np.mean(fractions) <= 0.98, np.mean(fractions)
+
+
+def test_frame_fixed_entries_stay_exact():
+    """Entries every session fixes at 0 +- 0 (the canonical frame's zeros of a) are left out of
+    tau and stay 0 +- 0."""
+    rng = np.random.default_rng(14)
+    x = rng.normal(0, 1, (3, 5))
+    s = np.ones((3, 5))
+    x[:, 2], s[:, 2] = 0.0, 0.0
+    pooled = pool(x, s)
+    assert pooled.dof == 4 * 2
+    assert pooled.mean[2] == 0 and pooled.sigma[2] == 0
+
+
+def calibration(rng, bias_shift: np.ndarray, sensors=("ax", "ay", "az")) -> Calibration:
+    """A triad's calibration file content from 20 simulated poses (biases estimated)."""
+    a = np.array([[1.01, 0.002, -0.003], [0.0, 0.99, 0.004], [0.0, 0.0, 1.005]])
+    v = rng.normal(size=(3, 20))
+    v *= 9.81 / np.linalg.norm(v, axis=0)
+    b = np.array([0.1, -0.2, 0.05]) + bias_shift
+    z = a.T @ v + b[:, None] + rng.normal(0, 0.002, (3, 20))
+    result = station.calibrate(z, magnitude=9.81, bias="estimate", sigma=0.002)
+    return Calibration.from_result(result, "SN1", sensors, "m/s^2")
+
+
+def test_combined_file_holds_the_next_session_figure(tmp_path):
+    """Three sessions whose biases move by 0.02 m/s^2: the combined file's bias sigma includes
+    that spread (>> one session's), loads with every check, and station combine writes it."""
+    rng = np.random.default_rng(15)
+    cals = [calibration(rng, rng.normal(0, 0.02, 3)) for _ in range(3)]
+    names = ["a.cal.json", "b.cal.json", "c.cal.json"]
+    combined = combine(cals, names)
+    assert combined.fit["repeatability"]["bias"]["tau"] > 0
+    assert np.all(combined.bias_sigma > 5 * np.median([c.bias_sigma for c in cals]))
+    assert np.allclose(np.diag(combined.covariance),
+                       np.r_[combined.a_sigma.ravel(), combined.bias_sigma] ** 2)
+    for cal, name in zip(cals, names, strict=True):
+        cal.save(tmp_path / name)
+    out = tmp_path / "unit.cal.json"
+    assert main(["combine", *(str(tmp_path / n) for n in names), "--out", str(out)]) == 0
+    assert np.allclose(load(out).bias, combined.bias)
+
+
+def test_other_sensors_are_refused_by_name(tmp_path):
+    """Files of other sensors cannot be combined; the message names the file and what differs."""
+    rng = np.random.default_rng(16)
+    cals = [calibration(rng, np.zeros(3)),
+            calibration(rng, np.zeros(3), sensors=("x", "y", "z"))]
+    with pytest.raises(CalibrationFileError, match="two.cal.json has sensors"):
+        combine(cals, ["one.cal.json", "two.cal.json"])
+    with pytest.raises(CalibrationFileError, match="at least 2"):
+        combine(cals[:1], ["one.cal.json"])
