@@ -15,7 +15,9 @@ entry in `station.protocols.KINDS`:
   `station.solve.still.calibrate_still` (biases estimated; the faces' constraints of Eq. 15 for the
   iron, following a subset of poses; Hwangbo & Kanade's factorization or the ellipsoid, then
   maximum likelihood), magnitude = the recorded gravity, reported in the frame of the recorded
-  nominal layout `a_nominal` as the live solution is.
+  nominal layout `a_nominal` as the live solution is;
+- import: the still poses found in the accelerometer stream (`station.reduce.imported`), solved
+  as free-static ones, or as faces of a right-angle block (`ReplaySettings.faces`).
 
 It is deterministic: the same file and settings give bit-identical numbers, so the results stored in
 a session (`results/<name>`) are reproduced exactly by a replay with the settings that made them.
@@ -68,6 +70,8 @@ class ReplaySettings:
                 and static protocols, or the kind's default, standard gravity for an import)
     rest, threshold, still_channels, min_still : the still-pose detector's settings of kinds
                 that detect still poses (`station.reduce.stillness.StillOptions`; None: default)
+    faces     : the still poses are faces of a right-angle block (kinds with `Kind.faces`:
+                an import), solved with the right-angle constraints of Eq. (15)
     """
 
     stream: str | None = None
@@ -80,6 +84,7 @@ class ReplaySettings:
     threshold: float | None = None
     still_channels: str | None = None
     min_still: float | None = None
+    faces: bool = False
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -96,6 +101,8 @@ class ReplaySettings:
             object.__setattr__(self, "positions", positions)
         if self.rest is not None:
             object.__setattr__(self, "rest", self.still.rest)
+        if not isinstance(self.faces, bool):
+            raise InputError(f"faces must be true or false, got {self.faces!r}")
 
     @property
     def still(self) -> StillOptions | None:
@@ -145,6 +152,12 @@ def reduce_recorded(session, settings: ReplaySettings, command: str = "replay"):
                              "detect; --rest, --threshold, --still-channels and --min-still are "
                              "for still-pose sessions (iron, static, import)")
         options["still"] = settings.still
+    if settings.faces:
+        if not kind.faces:
+            raise InputError(f"{path} records a {name!r} session; --faces is for "
+                             f"{', '.join(n for n, k in KINDS.items() if k.faces)} sessions (an "
+                             "iron session recognises its faces always): leave it out")
+        options["faces"] = True
     readings = kind.entry("reduce")(session, calibrated_stream(session, settings), **options)
     completed = sorted(_completed(session.events())) or list(range(readings.M.shape[1]))
     return _select(readings, completed, settings.positions, path)

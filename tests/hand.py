@@ -14,14 +14,16 @@ QUIET = 5  # this pose is 3x quieter than the rest period and the other poses
 
 
 def hand_session(seed: int = 0, poses: int = 14, pose_s: float = POSE, gyro_settle: float = 2.0,
-                 endless_gyro: int | None = None):
+                 endless_gyro: int | None = None, ups=None):
     """(samples (K, 6): accelerometer m/s^2 then gyro rad/s, true [start, stop) of the rest and
     each pose): a rest, then poses held `pose_s` seconds by hand. At the start of pose j the hand
     lets go: the accelerometer wobbles (3 Hz, 0.3 m/s^2, dying out over settle_j, uniform in
     0.5-1.5 s) and the gyro for `gyro_settle` x settle_j (4 Hz, 0.05 rad/s); pose `endless_gyro`
-    (if any) wobbles on the gyro all the time. Between poses a 1.5 s turn, seen by the gyro."""
+    (if any) wobbles on the gyro all the time. Between poses a 1.5 s turn, seen by the gyro.
+    ups: (poses + 1, 3) up directions of the rest and each pose in the unit frame, consecutive
+    ones neither equal nor opposite (default: random)."""
     rng = np.random.default_rng(seed)
-    up = rng.normal(size=(poses + 1, 3))
+    up = rng.normal(size=(poses + 1, 3)) if ups is None else np.array(ups, float)
     up /= np.linalg.norm(up, axis=1, keepdims=True)
     acc, gyro, truth = [], [], []
     k = 0

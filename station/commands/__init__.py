@@ -104,6 +104,16 @@ def still_arguments(p) -> None:
                    help="still poses: shortest pose kept (default 1.5 s)")
 
 
+def faces_argument(p) -> None:
+    """`--faces` on parser `p` (solve, replay): an imported recording's still poses are the faces
+    of a right-angle block."""
+    p.add_argument("--faces", action="store_true", default=None,
+                   help="still poses of an import: they are the faces of a right-angle block in "
+                        "one mounting (repeats allowed), solved with the right-angle "
+                        "constraints of Hwangbo & Kanade Eq. 15; needed when the poses are only "
+                        "the six axis-aligned directions")
+
+
 def still_values(args) -> dict:
     """{rest, threshold, still_channels, min_still} of the options `still_arguments` added, the
     rest period parsed from START:END seconds (None where not given)."""

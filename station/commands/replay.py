@@ -19,7 +19,7 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import still_arguments
+    from station.commands import faces_argument, still_arguments
 
     p.description = __doc__
     p.epilog = (
@@ -53,6 +53,7 @@ def register(p) -> None:
     p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
                                     "stream in m/s^2)")
     still_arguments(p)
+    faces_argument(p)
     p.add_argument("--raw", type=Path, metavar="OUT",
                    help="replay the raw stream through the serial twin into new session OUT "
                         "(rotary sessions only)")
@@ -121,7 +122,8 @@ def _settings(args):
     from station.commands import still_values
 
     given = {"trim": args.trim, "positions": _positions(args.positions), "method": args.method,
-             "magnitude": args.magnitude, "stream": args.stream, **still_values(args)}
+             "magnitude": args.magnitude, "stream": args.stream, "faces": args.faces,
+             **still_values(args)}
     changes = {k: v for k, v in given.items() if v is not None}
     if args.no_refine:
         changes["refine"] = False

@@ -32,14 +32,15 @@ import numpy as np
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import still_arguments
+    from station.commands import faces_argument, still_arguments
 
     p.description = __doc__
     p.epilog = (
         "examples:\n  station solve sessions/SN42.h5\n"
         "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json\n"
         "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n"
-        "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n\n"
+        "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n"
+        "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -56,6 +57,7 @@ def register(p) -> None:
                    help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
                         "its local gravity in m/s^2; an import: standard gravity 9.80665)")
     still_arguments(p)
+    faces_argument(p)
     p.add_argument("--store", action="store_true",
                    help="also store the result in the session as results/solve-<k>, with its "
                         "settings (`station report` then shows it and its poses)")
@@ -79,7 +81,8 @@ def run(args) -> int:
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
     cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect,
-                        tolerances, still_values(args), store=args.store)
+                        tolerances, still_values(args), store=args.store,
+                        faces=bool(args.faces))
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
@@ -93,7 +96,7 @@ def verdict_exit(verdict: dict | None) -> int:
 
 def solve_session(path, stream: str | None = None, nominal=None, magnitude: float | None = None,
                   accept_suspect: bool = False, tolerances=None, still: dict | None = None,
-                  store: bool = False):
+                  store: bool = False, faces: bool = False):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
@@ -103,7 +106,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     verdict (`station.solve.verdict`) judges the unit against `tolerances`, default the
     `[tolerances]` of the bench profile the session was recorded with; none: no verdict.
     still: the still-pose detector's settings (`station.commands.still_values`); store: the
-    result is also stored in the session as results/solve-<k> with its settings."""
+    result is also stored in the session as results/solve-<k> with its settings; faces: an
+    import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`)."""
     from station.errors import SuspectFitError
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
@@ -113,7 +117,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     from station.solve.verdict import verdict
 
     with Session.open(path) as session:
-        settings = ReplaySettings(stream=stream, magnitude=magnitude, **(still or {}))
+        settings = ReplaySettings(stream=stream, magnitude=magnitude, faces=faces,
+                                  **(still or {}))
         stream = calibrated_stream(session, settings)
         settings = dataclasses.replace(settings, stream=stream)
         readings, result = solve_recorded(session, settings, nominal, command="station solve")

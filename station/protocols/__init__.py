@@ -40,6 +40,8 @@ class Kind:
     reduce    : (session, stream, trim=seconds) -> readings with M, sigma (m, n), take(columns)
     still     : the reduction detects still poses and takes the user's detector settings
                 (`still=station.reduce.stillness.StillOptions`: --rest, --threshold, ...)
+    faces     : the reduction takes `faces=True` (--faces): the still poses are the faces of a
+                right-angle block in one mounting, labelled from the data (Eq. 15 constraints)
     stream    : session -> name of the stream calibrated by default; None: "imu"
     solve     : (readings, magnitude, nominal=, method=, refine=) -> CalibrationResult
     stimulus  : (words, metadata keys outermost first) of the recorded stimulus magnitude
@@ -63,6 +65,7 @@ class Kind:
     resume: str | None = None
     reduce: str | None = None
     still: bool = False
+    faces: bool = False
     stream: str | None = None
     solve: str | None = None
     stimulus: tuple = ("gravity", ("gravity",))
@@ -133,6 +136,7 @@ KINDS = {
               "magnetometer turned by hand",
         reduce="station.reduce.imported:imported_readings",
         still=True,
+        faces=True,
         stream="station.reduce.imported:default_stream",
         solve="station.solve.still:calibrate_still",
         stimulus_default=("standard gravity", "station.model.constants:STANDARD_GRAVITY"),

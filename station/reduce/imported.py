@@ -5,10 +5,16 @@ T), the block readings of a continuous rotation (`station.reduce.blocks`: hard a
 The recording carries no protocol events: every still interval the detector finds is a pose
 (`station.reduce.still.still_readings`), detected on the accelerometer channels by default (the
 gyro can veto with `--still-channels acc+gyro`, from the same or its own stream). The stream
-calibrated by default is the one whose channels are in m/s^2.
+calibrated by default is the one whose channels are in m/s^2. With `faces` (`--faces`) the poses
+are the faces of a right-angle block in one mounting: each is labelled with its face
+(`station.reduce.iron.on_faces`), and the solver takes the right-angle constraints of Hwangbo &
+Kanade's Eq. (15), which separate the misalignments from the scale factors when the poses are only
+the six axis-aligned directions (a free ellipsoid cannot).
 """
 
 import dataclasses
+
+import numpy as np
 
 from station.errors import CalibrationInputError
 from station.reduce.blocks import (
@@ -17,8 +23,9 @@ from station.reduce.blocks import (
     magnetometer_channels,
     magnetometer_readings,
 )
+from station.reduce.iron import IronReadings, on_faces
 from station.reduce.static import session_channels, static_readings
-from station.reduce.still import ACCELEROMETER, StillReadings
+from station.reduce.still import ACCELEROMETER, GYRO, StillReadings
 from station.reduce.stillness import StillOptions
 
 
@@ -40,21 +47,44 @@ def default_stream(session) -> str:
         "magnetometer in T (T, uT, gauss, counts:T).")
 
 
-def imported_readings(session, stream: str, trim: float = 0.0,
-                      still: StillOptions | None = None) -> StillReadings | BlockReadings:
+def imported_readings(session, stream: str, trim: float = 0.0, still: StillOptions | None = None,
+                      faces: bool = False) -> StillReadings | IronReadings | BlockReadings:
     """The accelerometer rows of every still pose of an imported recording (`static_readings`);
-    `still`: the detector settings, channels "acc" unless given. A magnetometer stream (T) gives
-    its block readings instead (no still poses: the unit turns all the time)."""
-    if MAGNETOMETER in session.specs[stream].units:
-        if still is not None or trim:
+    `still`: the detector settings, channels "acc" unless given; `faces`: the poses are faces of
+    a right-angle block (`block_faces`). A magnetometer stream (T) gives its block readings
+    instead (no still poses: the unit turns all the time)."""
+    units = session.specs[stream].units
+    if MAGNETOMETER in units:
+        if still is not None or trim or faces:
             raise CalibrationInputError(
                 f"stream {stream!r} is a magnetometer (T), calibrated from blocks of a continuous "
                 "rotation, not still poses.",
-                "Leave out --rest, --threshold, --still-channels, --min-still and --trim.")
+                "Leave out --rest, --threshold, --still-channels, --min-still, --trim and "
+                "--faces.")
         return magnetometer_readings(session, stream)
+    if ACCELEROMETER not in units and GYRO in units:
+        raise CalibrationInputError(
+            f"stream {stream!r} is a gyro ({GYRO}): it has no still poses of its own to "
+            "calibrate.", "`station solve --stream NAME` calibrates an imported gyro from the "
+                          "turns between the accelerometer's still poses (docs/hand-turns.md).")
     still = still or StillOptions()
     still = dataclasses.replace(still, channels=still.channels or "acc")
-    return static_readings(session, stream, trim=trim, still=still)
+    readings = static_readings(session, stream, trim=trim, still=still)
+    return block_faces(readings, stream) if faces else readings
+
+
+def block_faces(readings: StillReadings, stream: str) -> IronReadings:
+    """The still poses of a triad, each labelled with the face of a right-angle block it stands
+    on (`station.reduce.iron.recognise_faces` of its up direction, the nominal axes the
+    identity; one mounting), for the constraints of Eq. (15)."""
+    m = readings.M.shape[0]
+    if m != 3:
+        raise CalibrationInputError(
+            f"--faces labels the poses of one accelerometer triad, but stream {stream!r} has {m} "
+            "accelerometer channels.", "Leave out --faces, or import one triad as its own "
+                                       "stream.")
+    return on_faces(readings, np.eye(3), advice="The poses are not all faces of one right-angle "
+                    "block: leave out --faces to calibrate them as free still poses.")
 
 
 def imported_channels(session, stream: str):

@@ -14,13 +14,16 @@ from station.errors import CalibrationInputError
 from station.reduce.still import StillReadings, still_readings, up_direction
 from station.solve.constraints import from_faces
 
+STAND_ON_A_FACE = "Stand the iron squarely on one of its faces and record that pose again."
 
-def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
+
+def recognise_faces(directions, mountings, tolerance_deg: float = 20.0,
+                    advice: str = STAND_ON_A_FACE) -> list:
     """Face labels of poses with up `directions` (P, 3), relative to the first pose of each
     mounting.
 
     Raises CalibrationInputError for a pose that is neither along nor perpendicular to the faces
-    seen before in its mounting (the iron was not standing on a face).
+    seen before in its mounting (the iron was not standing on a face), with `advice`.
     """
     directions = np.asarray(directions, float)
     mountings = list(mountings)
@@ -41,7 +44,7 @@ def recognise_faces(directions, mountings, tolerance_deg: float = 20.0) -> list:
             raise CalibrationInputError(
                 f"pose {j + 1} (mounting {k}) is {np.round(angles, 1).tolist()} deg from the axes "
                 f"of the faces before it: not on a face of the iron (tolerance {tolerance_deg} "
-                "deg).", "Stand the iron squarely on one of its faces and record that pose again.")
+                "deg).", advice)
     return labels
 
 
@@ -70,7 +73,15 @@ def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
     still = still_readings(session, stream, **detector)
     if a_nominal is None:
         a_nominal = session.metadata.get("a_nominal", np.eye(3)[:, : still.M.shape[0]].tolist())
+    return on_faces(still, a_nominal, bias_guess, tolerance_deg)
+
+
+def on_faces(still: StillReadings, a_nominal, bias_guess=None, tolerance_deg: float = 20.0,
+             advice: str = STAND_ON_A_FACE) -> IronReadings:
+    """`still` with the face of each pose (`recognise_faces` of its up direction through
+    `a_nominal`), so that the solver takes the right-angle constraints of Eq. (15); `advice` for
+    a pose on no face."""
     faces = recognise_faces(up_direction(still.M, a_nominal, bias_guess), still.mountings,
-                            tolerance_deg)
+                            tolerance_deg, advice)
     return IronReadings(**{f.name: getattr(still, f.name) for f in dataclasses.fields(still)},
                         faces=faces)
