@@ -49,6 +49,7 @@ from station.files.session import (
     write_results,
 )
 from station.protocols import KINDS, lookup, reference
+from station.reduce.still import ACCELEROMETER, GYRO
 from station.reduce.stillness import StillOptions
 from station.reduce.timeline import SEGMENT_EVENTS, arrival_offset
 from station.solve.calibrate import CalibrationResult
@@ -137,6 +138,39 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
         nominal = recorded_layout(session.metadata, readings.M.shape[0], session.path)
     return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
                                          method=settings.method, refine=settings.refine)
+
+
+def carried(session, stream: str) -> bool:
+    """True when `stream` is a gyro triad (rad/s, no m/s^2) of a session whose kind calibrates
+    gyros by carrying gravity through the turns (`Kind.carry`: an import)."""
+    kind = KINDS.get(session.protocol)
+    units = session.specs[stream].units
+    return kind is not None and kind.has("carry") and GYRO in units and ACCELEROMETER not in units
+
+
+def solve_carried(session, settings: ReplaySettings, nominal=None,
+                  command: str = "station solve") -> tuple:
+    """(accelerometer stream, its readings, its calibration, the gyro's `CarryCalibration`) of the
+    gyro
+    stream `settings.stream` of an open session (`carried`): the accelerometer calibrated first
+    on its still poses by the one path (`solve_recorded`, the same detector settings), then the
+    gyro by carrying gravity through the turns between those poses (Tedaldi et al.,
+    `station.solve.gyro_carry.calibrate_carry`), in the accelerometer calibration's frame."""
+    from station.solve.gyro_carry import calibrate_carry
+
+    found = [n for n, spec in session.specs.items() if ACCELEROMETER in spec.units]
+    if len(found) != 1:
+        raise CalibrationInputError(
+            f"{session.path}: the gyro stream {settings.stream!r} is calibrated by carrying "
+            f"gravity, measured by one accelerometer, through its turns; the streams in "
+            f"{ACCELEROMETER} are {found or 'none'}.",
+            "Import the accelerometer (one stream with --unit NAME=m/s^2) with the gyro.")
+    acc_settings = dataclasses.replace(settings, stream=found[0])
+    readings, acc = solve_recorded(session, acc_settings, nominal, command)
+    gyro, z, intervals = KINDS[session.protocol].entry("carry")(session, settings.stream,
+                                                                found[0], readings)
+    rate = session.specs[found[0]].rate_hz
+    return found[0], readings, acc, calibrate_carry(gyro, rate, acc.apply(z.T).T, intervals)
 
 
 def reduce_recorded(session, settings: ReplaySettings, command: str = "replay"):

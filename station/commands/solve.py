@@ -108,11 +108,10 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     still: the still-pose detector's settings (`station.commands.still_values`); store: the
     result is also stored in the session as results/solve-<k> with its settings; faces: an
     import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`)."""
-    from station.errors import SuspectFitError
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
     from station.protocols import KINDS
-    from station.replay import ReplaySettings, calibrated_stream, solve_recorded, stimulus
+    from station.replay import ReplaySettings, calibrated_stream, carried, solve_recorded, stimulus
     from station.solve.quality import check_fit
     from station.solve.verdict import verdict
 
@@ -121,38 +120,86 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                                   **(still or {}))
         stream = calibrated_stream(session, settings)
         settings = dataclasses.replace(settings, stream=stream)
-        readings, result = solve_recorded(session, settings, nominal, command="station solve")
         kind = KINDS[session.protocol]
         spec = session.specs[stream]
         channels = (kind.entry("channels")(session, stream) if kind.has("channels")
                     else np.arange(len(spec.channels)))
-        bias = kind.entry("bias")(readings) if kind.has("bias") else {
-            "bias_source": f"estimated with the calibration ({session.protocol} protocol's "
-                           "still poses)"}
+        names = [spec.channels[i] for i in channels]
         info = {"path": str(Path(path).resolve()), "stream": stream,
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version,
-                "stimulus": stimulus(session, settings)[1], **poses(readings)}
-        serial = session.unit_serial
+                "stimulus": stimulus(session, settings)[1]}
+        file = {"unit_serial": session.unit_serial,
+                "counts_per_unit": np.asarray(spec.counts_per_unit)[channels]}
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
-    names = [spec.channels[i] for i in channels]
-    check = check_fit(result, names, pose_term=kind.still)
+        if carried(session, stream):
+            cal = carried_calibration(session, settings, nominal, names, info, file, store,
+                                      accept_suspect)
+        else:
+            readings, result = solve_recorded(session, settings, nominal, command="station solve")
+            bias = kind.entry("bias")(readings) if kind.has("bias") else {
+                "bias_source": f"estimated with the calibration ({session.protocol} protocol's "
+                               "still poses)"}
+            check = gate(check_fit(result, names, pose_term=kind.still), path, accept_suspect)
+            cal = Calibration.from_result(
+                result, file["unit_serial"], names, [spec.units[i] for i in channels],
+                counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
+                status=check.status, status_reasons=check.problems, **bias)
+            if store:
+                _store(path, readings, result, settings, channels)
+    if tolerances is None or tolerances.empty:
+        return cal
+    return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
+
+
+def gate(check, path, accept_suspect: bool):
+    """The quality gate's `check` (`station.solve.quality.check_fit`), or SuspectFitError saying
+    why the fit is suspect unless `accept_suspect`."""
+    from station.errors import SuspectFitError
+
     if check.problems and not accept_suspect:
         raise SuspectFitError(
             f"{path}: the fit is suspect, so no calibration file was written: "
             f"{'; '.join(check.problems)}. `station report` shows the positions, `station "
             "diagnose` the effect; record those positions again, or give --accept-suspect to "
             "write the file marked suspect")
-    cal = Calibration.from_result(
-        result, serial, names, [spec.units[i] for i in channels],
-        counts_per_unit=np.asarray(spec.counts_per_unit)[channels], session=info,
-        status=check.status, status_reasons=check.problems, **bias)
+    return check
+
+
+def carried_calibration(session, settings, nominal, names, info: dict, file: dict, store: bool,
+                        accept_suspect: bool):
+    """The calibration file content of an import's gyro triad (`station.replay.solve_carried`):
+    the accelerometer calibrated first on its still poses (its fit through the quality gate), then
+    the gyro by carrying gravity through the turns between them, in the accelerometer's frame
+    (said in `session.frame`). info, file: the session record and the unit's serial and counts
+    per unit."""
+    from station.errors import InputError
+    from station.files.calfile import Calibration
+    from station.protocols import KINDS
+    from station.replay import solve_carried
+    from station.solve.quality import check_fit
+
     if store:
-        _store(path, readings, result, settings, channels)
-    if tolerances is None or tolerances.empty:
-        return cal
-    return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
+        raise InputError(f"--store keeps a still-pose result for `station report`, but stream "
+                         f"{settings.stream!r} is a gyro calibrated from the turns (its "
+                         "calibration file only): leave out --store (`station solve SESSION "
+                         "--store` stores the accelerometer's)")
+    acc_stream, readings, acc, carry = solve_carried(session, settings, nominal)
+    acc_spec = session.specs[acc_stream]
+    acc_names = [acc_spec.channels[i] for i in KINDS[session.protocol].entry("channels")(session,
+                                                                                 acc_stream)]
+    check = gate(check_fit(acc, acc_names, pose_term=True), session.path, accept_suspect)
+    record = {**info, **poses(readings),
+              "frame": f"the accelerometer's: the {acc.frame} frame of stream {acc_stream!r} "
+                       "calibrated with it",
+              "accelerometer": {"stream": acc_stream, "sensors": acc_names,
+                                "scale_factors": acc.scale_factors.tolist(),
+                                "bias": acc.bias.tolist(), "chi2_per_dof": acc.chi2 / acc.dof}}
+    return Calibration.from_carry(
+        carry, file["unit_serial"], names, frame=acc.frame, magnitude=acc.magnitude,
+        counts_per_unit=file["counts_per_unit"], session=record, status=check.status,
+        status_reasons=[f"accelerometer: {p}" for p in check.problems])
 
 
 def poses(readings) -> dict:
@@ -236,6 +283,8 @@ def summarise(cal, out) -> dict:
         "magnitude": cal.magnitude,
         **{key: (cal.session or {}).get(key) for key in ("stimulus", "poses", "rejected")
            if key in (cal.session or {})},
+        **({"carry": cal.fit["carry"], "frame_words": cal.session["frame"]}
+           if "carry" in cal.fit else {}),
         # the sigmas above are the total figure; the white-noise figure and the per-pose term
         "start": cal.fit.get("start"), "pose_sigma": cal.pose_sigma,
         "scale_factors_sigma_white": None if cal.white is None
@@ -264,8 +313,19 @@ def _text(s: dict) -> str:
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *pose_lines(s), *rows, *suspect, f"written to {s['calibration']}",
-                      *judged])
+    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *suspect,
+                      f"written to {s['calibration']}", *judged])
+
+
+def carry_lines(s: dict) -> list:
+    """Lines on a gyro calibrated by the gravity carry (`summarise`), none for others."""
+    carry = s.get("carry")
+    if carry is None:
+        return []
+    return [f"gyro from {carry['turns']} turns between the still poses, in {s['frame_words']}: "
+            f"gravity carried through them lands {carry['error_rms_deg']:.3g} deg RMS (max "
+            f"{carry['error_max_deg']:.3g}) from where it is measured, "
+            f"{carry['error_start_rms_deg']:.3g} deg with the start (one common scale)"]
 
 
 def pose_lines(s: dict) -> list:

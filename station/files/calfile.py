@@ -175,6 +175,41 @@ class Calibration(measurement.Sensitivity):
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 
+    @classmethod
+    def from_carry(cls, carry, unit_serial: str, sensors, *, frame: str, magnitude: float,
+                   counts_per_unit=None, session: dict | None = None, status: str = "good",
+                   status_reasons=()) -> "Calibration":
+        """A gyro triad's calibration file content from `station.solve.gyro_carry`'s
+        `CarryCalibration` (gravity carried through the turns between still poses, Tedaldi et
+        al.): a and b with their joint covariance, the invariants with their 1-sigma, in the
+        frame of the accelerometer calibration it was carried by (`frame`, its name);
+        `magnitude`: that accelerometer's gravity (the carry needs no rate magnitude); status:
+        "good", or "suspect" with `status_reasons` (the accelerometer's fit, which the carry
+        trusts)."""
+        cal = cls(
+            unit_serial=str(unit_serial), sensors=tuple(str(s) for s in sensors),
+            units=("rad/s",) * 3, a=carry.a, a_sigma=carry.a_sigma, bias=carry.bias,
+            bias_sigma=carry.bias_sigma, scale_factors=carry.scale_factors,
+            scale_factors_sigma=carry.scale_factors_sigma, axis_angles=carry.axis_angles,
+            axis_angles_sigma=carry.axis_angles_sigma, frame=frame, magnitude=float(magnitude),
+            scale_known=True,
+            fit={"method": "gravity carry (Tedaldi et al. 2014)", "start": "common scale (k I)",
+                 "chi2": float(carry.dof), "dof": int(carry.dof),
+                 "positions": int(len(carry.turns)),
+                 "bias_source": "mean of the still poses (the Earth's rate included)",
+                 "status": status, "status_reasons": list(status_reasons),
+                 "noise": "estimated from the residuals (chi2 = dof)",
+                 "carry": {"turns": int(len(carry.turns)),
+                           "residual_sigma": float(carry.residual_sigma),
+                           "error_start_rms_deg": _rms(carry.errors_before_deg),
+                           "error_rms_deg": _rms(carry.errors_after_deg),
+                           "error_max_deg": float(np.max(carry.errors_after_deg))}},
+            counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
+                                                                               float),
+            session=session, covariance=carry.covariance)
+        _from_document(cal.to_document(), "the calibration")  # the same checks as a load
+        return cal
+
     def fusion_matrix(self) -> np.ndarray:
         """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""
         return measurement.fusion_matrix(self.a)
@@ -538,6 +573,10 @@ def _pretty(value, indent: str = "") -> str:
     if isinstance(value, list) and value and isinstance(value[0], list):
         return "[\n" + ",\n".join(inner + _pretty(v, inner) for v in value) + f"\n{indent}]"
     return json.dumps(value, allow_nan=False)
+
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def _list(x):

@@ -42,6 +42,10 @@ class Kind:
                 (`still=station.reduce.stillness.StillOptions`: --rest, --threshold, ...)
     faces     : the reduction takes `faces=True` (--faces): the still poses are the faces of a
                 right-angle block in one mounting, labelled from the data (Eq. 15 constraints)
+    carry     : (session, gyro stream, accelerometer stream, still readings) -> (gyro, acc
+                samples, still intervals): a stream in rad/s alone is a gyro triad calibrated
+                by carrying gravity through the turns between the accelerometer's still poses
+                (`station.replay.solve_carried`, docs/hand-turns.md); None: no such path
     stream    : session -> name of the stream calibrated by default; None: "imu"
     solve     : (readings, magnitude, nominal=, method=, refine=) -> CalibrationResult
     stimulus  : (words, metadata keys outermost first) of the recorded stimulus magnitude
@@ -66,6 +70,7 @@ class Kind:
     reduce: str | None = None
     still: bool = False
     faces: bool = False
+    carry: str | None = None
     stream: str | None = None
     solve: str | None = None
     stimulus: tuple = ("gravity", ("gravity",))
@@ -137,6 +142,7 @@ KINDS = {
         reduce="station.reduce.imported:imported_readings",
         still=True,
         faces=True,
+        carry="station.reduce.imported:carry_samples",
         stream="station.reduce.imported:default_stream",
         solve="station.solve.still:calibrate_still",
         stimulus_default=("standard gravity", "station.model.constants:STANDARD_GRAVITY"),

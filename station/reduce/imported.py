@@ -87,8 +87,32 @@ def block_faces(readings: StillReadings, stream: str) -> IronReadings:
                     "block: leave out --faces to calibrate them as free still poses.")
 
 
+def carry_samples(session, gyro_stream: str, acc_stream: str, readings: StillReadings) -> tuple:
+    """(gyro (K, 3) rad/s, accelerometer (K, 3) m/s^2, still intervals (P, 2) [start, stop)) of
+    an import whose accelerometer's still poses (`readings`, their detection kept) have hand turns
+    between them, for `station.solve.gyro_carry.calibrate_carry`: the gyro triad on the
+    accelerometer's samples."""
+    gyro = imported_channels(session, gyro_stream)
+    if len(gyro) != 3:
+        raise CalibrationInputError(
+            f"stream {gyro_stream!r} has {len(gyro)} channels in {GYRO}; the turns between still "
+            "poses calibrate one gyro triad.", "Import the three gyro axes as one stream.")
+    data, acc = session.stream(gyro_stream), session.stream(acc_stream)
+    if not np.array_equal(data.seq, acc.seq) or len(readings.times) != len(acc.seq):
+        raise CalibrationInputError(
+            f"{session.path}: the gyro stream {gyro_stream!r} is not on the samples of the "
+            f"accelerometer {acc_stream!r}.", "Import the accelerometer and gyro on one time "
+                                             "base (one file, or the same time column).")
+    z = acc.to_si()[:, session_channels(session, acc_stream)]
+    return data.to_si()[:, gyro], z, readings.detection.intervals
+
+
 def imported_channels(session, stream: str):
-    """The calibrated channels: those in T of a magnetometer stream, else the accelerometer's."""
-    if MAGNETOMETER in session.specs[stream].units:
+    """The calibrated channels: those in T of a magnetometer stream, those in rad/s of a gyro
+    stream (no m/s^2), else the accelerometer's."""
+    units = session.specs[stream].units
+    if MAGNETOMETER in units:
         return magnetometer_channels(session, stream)
+    if GYRO in units and ACCELEROMETER not in units:
+        return np.flatnonzero([u == GYRO for u in units])
     return session_channels(session, stream)

@@ -21,10 +21,15 @@ from scipy.spatial.transform import Rotation
 
 from station.errors import CalibrationInputError
 from station.model import measurement
+from station.solve import uncertainty
 from station.solve.gyro_turns import angle_deg
 
 MIN_TURN_DEG = 30.0
 """A motion between two poses counts as a turn when gravity moved by more than this."""
+MAX_LANDING_DEG = 10.0
+"""A calibration whose carried gravity misses by more than this (RMS over the turns) is refused:
+the least squares stopped in a local minimum (a wrong start, axes not nominally the
+accelerometer's, a gyro saturated by fast turns)."""
 
 
 @dataclass(frozen=True)
@@ -32,19 +37,31 @@ class CarryCalibration:
     """A gyro triad calibrated by carrying gravity through the turns between still poses.
 
     a, a_sigma      : (3, 3) sensitivity (input units per rad/s) in the accelerometer's frame
-    bias            : (3,) gyro bias (input units), the mean over the still poses
+    bias, bias_sigma : (3,) gyro bias (input units), the mean over the still poses, and its
+                      standard error (0 when the bias was given)
+    covariance      : (12, 12) joint covariance of (a row-major, then bias): the carry's
+                      s^2 (J^T J)^-1, the bias's error propagated into a, and their correlation
     scale_factors, scale_factors_sigma : (3,) column norms of a and their 1-sigma
+    axis_angles, axis_angles_sigma : (3, 3) angles between the gyro axes (rad) and their 1-sigma
     turns           : indices of the first pose of each turn used
+    residual_sigma, dof : s, the scatter of a landing (unit gravity direction, per component)
+                      estimated from the residuals, and its degrees of freedom (2 per turn - 9)
     errors_before_deg, errors_after_deg : (turns,) angle between carried and measured gravity
-                      with the nominal `a0` and with the calibration
+                      with the start `a0` and with the calibration
     """
 
     a: np.ndarray
     a_sigma: np.ndarray
     bias: np.ndarray
+    bias_sigma: np.ndarray
+    covariance: np.ndarray
     scale_factors: np.ndarray
     scale_factors_sigma: np.ndarray
+    axis_angles: np.ndarray
+    axis_angles_sigma: np.ndarray
     turns: np.ndarray
+    residual_sigma: float
+    dof: int
     errors_before_deg: np.ndarray
     errors_after_deg: np.ndarray
 
@@ -61,7 +78,9 @@ def calibrate_carry(gyro, fs: float, acc, intervals, *, a0=None, bias=None,
     fs        : sample rate, Hz
     acc       : (K, 3) calibrated specific force, the frame the result is given in
     intervals : (P, 2) still intervals [start, stop) in samples, in time order
-    a0        : nominal sensitivity, the start (default identity: readings in rad/s)
+    a0        : nominal sensitivity, the start (default: the common scale k I, the gyro axes
+                nominally along the accelerometer's, that carries gravity best, `_start`; so
+                readings in raw counts need no nominal scale)
     bias      : gyro bias (default the mean over the still intervals)
     """
     gyro, acc = (np.asarray(x, float) for x in (gyro, acc))
@@ -70,7 +89,6 @@ def calibrate_carry(gyro, fs: float, acc, intervals, *, a0=None, bias=None,
         raise CalibrationInputError(f"gyro {gyro.shape} and accelerometer {acc.shape} samples "
                                     "differ.", "Give (samples, 3) arrays of one recording.")
     b = _still_mean(gyro, intervals) if bias is None else np.asarray(bias, float)
-    a0 = np.eye(3) if a0 is None else np.asarray(a0, float)
     turns = _turns(acc, intervals, min_turn_deg)
     if len(turns) < 5:
         raise CalibrationInputError(
@@ -79,15 +97,46 @@ def calibrate_carry(gyro, fs: float, acc, intervals, *, a0=None, bias=None,
             "Record more poses, turning the unit by hand between them.")
     motions = [(gyro[stop:start] - b, _direction(acc, first, stop), _direction(acc, start, last))
                for first, stop, start, last in turns[:, 1:]]
+    a0 = _start(motions, fs) if a0 is None else np.asarray(a0, float)
     fit = least_squares(lambda p: _residuals(p.reshape(3, 3), motions, fs), a0.ravel(),
                         x_scale="jac")
     a = fit.x.reshape(3, 3)
-    cov = _covariance(fit.jac, fit.fun, len(turns))
-    if bias is None:  # the bias is an estimate too: its error moves every turn alike
-        cov = cov + _bias_term(a, motions, fs, fit.jac, _still_sigma(gyro, intervals))
+    _check_landed(_errors(a, motions, fs))
+    dof = max(2 * len(turns) - 9, 1)
+    cov = _covariance(fit.jac, fit.fun, dof)
+    sigma_b = _still_sigma(gyro, intervals) if bias is None else np.zeros(3)
+    joint = _with_bias(cov, _bias_gain(a, motions, fs, fit.jac), sigma_b)
+    scale_sigma, angles, angles_sigma = _invariants(a, joint[:9, :9])
     return CarryCalibration(
-        a, np.sqrt(np.diag(cov)).reshape(3, 3), b, np.linalg.norm(a, axis=0),
-        _scale_sigma(a, cov), turns[:, 0], _errors(a0, motions, fs), _errors(a, motions, fs))
+        a, np.sqrt(np.diag(joint)[:9]).reshape(3, 3), b, sigma_b, joint,
+        np.linalg.norm(a, axis=0), scale_sigma, angles, angles_sigma, turns[:, 0],
+        float(np.sqrt(fit.fun @ fit.fun / dof)), dof, _errors(a0, motions, fs),
+        _errors(a, motions, fs))
+
+
+def _start(motions, fs: float, octaves: float = 3.0, steps: int = 61) -> np.ndarray:
+    """k I, the common scale that carries gravity best over a grid of 2^+-octaves (steps of 7 %)
+    about k0 = the median ratio of a turn's integrated reading |sum (z - b)| / fs to the angle
+    gravity turned by (equal for a turn about one axis perpendicular to gravity)."""
+    ratios = [np.linalg.norm(rates.sum(axis=0)) / fs / np.radians(angle_deg(before, after))
+              for rates, before, after in motions]
+    grid = np.median(ratios) * 2.0 ** np.linspace(-octaves, octaves, steps)
+    cost = [np.sum(_residuals(k * np.eye(3), motions, fs) ** 2) for k in grid]
+    return grid[int(np.argmin(cost))] * np.eye(3)
+
+
+def _check_landed(errors_deg) -> None:
+    """Refuse a fit whose carried gravity still misses by more than MAX_LANDING_DEG RMS: a local
+    minimum, far from the gyro's sensitivity."""
+    rms = float(np.sqrt(np.mean(np.square(errors_deg))))
+    if rms > MAX_LANDING_DEG:
+        raise CalibrationInputError(
+            f"the calibrated gyro carries gravity through the turns to {rms:.3g} deg RMS from "
+            "where the accelerometer measures it (a hand turn carries it to within a degree): "
+            "the fit found no sensitivity that explains the turns.",
+            "Check that the gyro's axes are nominally along the accelerometer's, that the gyro "
+            "is in rad/s (or raw counts) and on the accelerometer's samples, and that the turns "
+            "stay within the gyro's range.")
 
 
 def _still_mean(gyro, intervals) -> np.ndarray:
@@ -107,9 +156,9 @@ def _still_sigma(gyro, intervals) -> np.ndarray:
     return scatter.std(axis=0) / np.sqrt(len(scatter))
 
 
-def _bias_term(a, motions, fs: float, jac, sigma_b) -> np.ndarray:
-    """Covariance of a from the bias's error: G diag(sigma_b^2) G^T, G = -(J^T J)^-1 J^T J_b
-    with J_b the residuals' derivative in the bias (central differences)."""
+def _bias_gain(a, motions, fs: float, jac) -> np.ndarray:
+    """(9, 3) G = d a / d b = -(J^T J)^-1 J^T J_b, J_b the residuals' derivative in the bias
+    (central differences): how an error of the bias moves the estimate of a (every turn alike)."""
     step = 1e-6
     cols = []
     for i in range(3):
@@ -118,8 +167,29 @@ def _bias_term(a, motions, fs: float, jac, sigma_b) -> np.ndarray:
         up = [(r - e, before, after) for r, before, after in motions]
         down = [(r + e, before, after) for r, before, after in motions]
         cols.append((_residuals(a, up, fs) - _residuals(a, down, fs)) / (2 * step))
-    g = -np.linalg.solve(jac.T @ jac, jac.T @ np.column_stack(cols))
-    return g @ np.diag(sigma_b ** 2) @ g.T
+    return -np.linalg.solve(jac.T @ jac, jac.T @ np.column_stack(cols))
+
+
+def _with_bias(cov, gain, sigma_b) -> np.ndarray:
+    """Joint covariance of (a row-major, b) for an estimated bias b of covariance S =
+    diag(sigma_b^2), independent of the landings' noise: [[C + G S G^T, G S], [S G^T, S]]."""
+    s = np.diag(np.asarray(sigma_b, float) ** 2)
+    joint = np.block([[cov + gain @ s @ gain.T, gain @ s], [s @ gain.T, s]])
+    return (joint + joint.T) / 2  # symmetric to rounding: inv(J^T J) is not exactly
+
+
+def _invariants(a, cov) -> tuple:
+    """(1-sigma of the scale factors, axis angles, their 1-sigma) of a from the covariance of a
+    row-major, through the solver's Jacobians (`station.solve.uncertainty`, parameters
+    theta = (a_1, a_2, a_3) sensor by sensor: a column-major)."""
+    order = np.arange(9).reshape(3, 3).T.ravel()
+    theta = cov[np.ix_(order, order)]
+    scale = np.sqrt(np.diag(uncertainty.propagate(theta,
+                                                  uncertainty.scale_factor_jacobian(a, 3))))
+    (i, k), jac = uncertainty.axis_angle_jacobian(a, 3)
+    angles = np.zeros((3, 3))
+    angles[i, k] = angles[k, i] = np.sqrt(np.diag(uncertainty.propagate(theta, jac)))
+    return scale, uncertainty.axis_angles(a), angles
 
 
 def _turns(acc, intervals, min_turn_deg: float) -> np.ndarray:
@@ -164,23 +234,13 @@ def _errors(a, motions, fs: float) -> np.ndarray:
                      for rates, before, after in motions])
 
 
-def _covariance(jac, residuals, turns: int) -> np.ndarray:
-    """s^2 (J^T J)^-1, s^2 from the residuals with 2 equations per turn (unit vectors)."""
+def _covariance(jac, residuals, dof: int) -> np.ndarray:
+    """s^2 (J^T J)^-1, s^2 from the residuals with `dof` degrees of freedom (2 equations per turn:
+    unit vectors)."""
     info = jac.T @ jac
     singular = np.linalg.svd(info, compute_uv=False)
     if singular[-1] <= singular[0] * 1e-12:
         raise CalibrationInputError(
             "the turns do not determine the gyro's sensitivity (they all turn about one axis).",
             "Turn the unit about at least two different axes between the poses.")
-    dof = max(2 * turns - 9, 1)
     return float(residuals @ residuals) / dof * np.linalg.inv(info)
-
-
-def _scale_sigma(a, cov) -> np.ndarray:
-    """1-sigma of the column norms of a (first order: d|a_i| = a_i . da_i / |a_i|)."""
-    out = np.empty(3)
-    for i in range(3):
-        grad = np.zeros((3, 3))
-        grad[:, i] = a[:, i] / np.linalg.norm(a[:, i])
-        out[i] = np.sqrt(grad.ravel() @ cov @ grad.ravel())
-    return out
