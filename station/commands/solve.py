@@ -110,7 +110,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`)."""
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
-    from station.protocols import KINDS
+    from station.protocols import lookup
     from station.replay import ReplaySettings, calibrated_stream, carried, solve_recorded, stimulus
     from station.solve.quality import check_fit
     from station.solve.verdict import verdict
@@ -120,7 +120,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                                   **(still or {}))
         stream = calibrated_stream(session, settings)
         settings = dataclasses.replace(settings, stream=stream)
-        kind = KINDS[session.protocol]
+        kind = lookup(session.protocol, "reduce", f"{path} records a {session.protocol!r} "
+                      "session", "station solve")
         spec = session.specs[stream]
         channels = (kind.entry("channels")(session, stream) if kind.has("channels")
                     else np.arange(len(spec.channels)))
@@ -133,6 +134,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 "counts_per_unit": np.asarray(spec.counts_per_unit)[channels]}
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
+        solved = None
         if carried(session, stream):
             cal = carried_calibration(session, settings, nominal, names, info, file, store,
                                       accept_suspect)
@@ -146,8 +148,9 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 result, file["unit_serial"], names, [spec.units[i] for i in channels],
                 counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
                 status=check.status, status_reasons=check.problems, **bias)
-            if store:
-                _store(path, readings, result, settings, channels)
+            solved = readings, result
+    if store and solved is not None:  # the session closed: it is written now
+        _store(path, *solved, settings, channels)
     if tolerances is None or tolerances.empty:
         return cal
     return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
