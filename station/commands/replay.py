@@ -9,7 +9,8 @@ free-static: `results/live`). `--raw OUT` (rotary sessions only) instead sends t
 stream again over the serial wire protocol (a pty twin) and records it into the new session file
 OUT. Still-pose sessions (iron, free-static, imported) take the detector's settings (--rest,
 --threshold, --still-channels, --min-still; docs/stillness.md) and list the poses found and every
-candidate rejected, with the reason.
+candidate rejected, with the reason; --faces solves an import's poses as the faces of a right-angle
+block (Eq. 15 constraints).
 """
 
 import dataclasses

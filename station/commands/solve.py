@@ -18,7 +18,12 @@ pose of the free-static path (`station.reduce.imported`); the stream calibrated 
 (or --stream), the magnitude --magnitude or standard gravity (said in the output), the frame the
 canonical one of Eq. (19). The still-pose detector's settings (--rest, --threshold,
 --still-channels, --min-still; docs/stillness.md) apply to every still-pose session; the output
-lists the poses found and every candidate rejected, with the reason.
+lists the poses found and every candidate rejected, with the reason. --faces: the poses of an import
+are the faces of a right-angle block (one mounting), solved with the right-angle constraints of
+Eq. (15) (needed when they are only the six axis-aligned directions). --stream GYRO of an import
+(a gyro triad in rad/s): the accelerometer calibrated first, then the gyro from the hand turns
+between its still poses (gravity carried through each turn, Tedaldi et al.; docs/hand-turns.md), in
+the accelerometer's frame.
 
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
@@ -40,7 +45,8 @@ def register(p) -> None:
         "  station solve SN42.h5 --out SN42.cal.json --nominal layout.csv --json\n"
         "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n"
         "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n"
-        "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n\n"
+        "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n"
+        "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -49,7 +55,8 @@ def register(p) -> None:
     p.add_argument("--out", type=Path,
                    help="calibration file to write (default: SESSION with suffix .cal.json)")
     p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
-                                    "stream in m/s^2)")
+                                    "stream in m/s^2; an import's gyro stream: from the turns "
+                                    "between the still poses)")
     p.add_argument("--nominal", type=Path,
                    help="CSV of the nominal layout (d rows x m columns): report a aligned to it "
                         "(physical frame) instead of the canonical frame of Eq. (19)")
