@@ -3,7 +3,8 @@
 their faces, the right-angle constraints of Eq. (15) given to the solver. On a simulated block
 session (six faces with repeats, a misaligned triad) the plain free-static path is refused and
 `--faces` recovers the truth within its sigmas; on the real recording (skipped without ../shared)
-the six faces the API uses give the API's figures."""
+the six faces the API uses give the API's figures, and the gyro calibrated from the turns between
+the poses (`--stream gyro`) integrates the 360-degree turns it did not use within its sigma."""
 
 import json
 
@@ -132,3 +133,20 @@ def test_real_ferraris_recording_on_the_command_line(tmp_path, capsys):
     api = calibrate_ferraris(rec.acc, rec.gyro, 102.4, found.sections, 9.81).accel
     np.testing.assert_array_less(np.abs(np.array(six["scale_factors"]) - api.scale_factors),
                                  0.1 * api.scale_factors_sigma)
+    # the gyro from the 8 face-to-face turns (gravity carried through them, docs/hand-turns.md)
+    # integrates the three 360-degree turns it did not use: each turn's angle error relative to
+    # 360 is the scale error of the gyro along its axis, within 3 of that scale factor's
+    # relative sigma (3 normal errors)
+    code, out = station(capsys, "solve", h5, "--stream", "gyro", "--magnitude", "9.81", "--faces",
+                        "--out", tmp_path / "gyro.cal.json", "--json")
+    assert code == 0
+    gyro = json.loads(out)
+    assert gyro["positions"] == 8 and gyro["sensors"] == ["gyro1", "gyro2", "gyro3"]
+    assert station(capsys, "apply", tmp_path / "gyro.cal.json", h5, "--out",
+                   tmp_path / "w.csv")[0] == 0
+    w = np.loadtxt(tmp_path / "w.csv", delimiter=",", skiprows=1)[:, 1:]
+    relative = np.array(gyro["scale_factors_sigma"]) / np.array(gyro["scale_factors"])
+    for axis, turn in enumerate(("x_rot", "y_rot", "z_rot")):
+        a, b = found.sections[turn]
+        angle = np.linalg.norm(w[a:b].sum(axis=0)) / 102.4
+        assert abs(angle / (2 * np.pi) - 1) < 3 * relative[axis], (turn, angle)
