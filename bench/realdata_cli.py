@@ -1,7 +1,8 @@
 """The command-line figures of docs/realdata.md and docs/hand-turns.md (issue 14): imucal's Ferraris
 recording through `station import` and `station solve --faces` beside the API path
 (`station.reduce.ferraris.calibrate_ferraris`), and the gyros of the Xsens MTi and of the Ferraris
-recording from the turns between their still poses (`station solve --stream gyro`).
+recording and of the five MPU-9150s from the turns between their still poses (`station solve
+--stream gyro`).
 
 Data: ../shared/data/real/ (PROVENANCE.md in each folder; never copied into the project). The
 sessions are written to a temporary folder by the `station` command itself; the held-out figures
@@ -112,6 +113,20 @@ def xsens(root: Path, work: Path) -> dict:
     return {"poses": out["poses"], **gyro_figures(load(out["calibration"]))}
 
 
+def mpu9150(root: Path, work: Path) -> dict:
+    """The five MPU-9150s' gyros from the turns between their still poses (standard gravity)."""
+    figures = {}
+    for i in range(5):
+        h5, log = work / f"mpu{i}.h5", root / f"imu{i}.log"
+        run("import", "text", h5, "--no-time", "--fs", 100, "--stream", f"acc={log}", "--columns",
+            "acc=1-3", "--unit", "acc=m/s^2", "--stream", f"gyro={log}", "--columns", "gyro=4-6",
+            "--unit", "gyro=rad/s")
+        out = json.loads(run("solve", h5, "--stream", "gyro", "--out",
+                             work / f"mpu{i}-gyro.cal.json", "--json"))
+        figures[f"imu{i}"] = {"poses": out["poses"], **gyro_figures(load(out["calibration"]))}
+    return figures
+
+
 def gyro_figures(cal) -> dict:
     """Scale factors, axis angles (deg), biases with their 1-sigma, and the carry's landings."""
     i, k = np.triu_indices(3, 1)
@@ -133,7 +148,8 @@ def main(argv=None) -> int:
         return 1
     with tempfile.TemporaryDirectory() as tmp:
         report = {"ferraris": ferraris(args.data / "imucal-ferraris", Path(tmp)),
-                  "xsens": xsens(args.data / "imutk-xsens", Path(tmp))}
+                  "xsens": xsens(args.data / "imutk-xsens", Path(tmp)),
+                  "mpu9150": mpu9150(args.data / "imucalib-mpu9150x5", Path(tmp))}
     if args.json:
         print(json.dumps(report, indent=1))
         return 0

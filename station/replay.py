@@ -151,10 +151,9 @@ def carried(session, stream: str) -> bool:
 def solve_carried(session, settings: ReplaySettings, nominal=None,
                   command: str = "station solve") -> tuple:
     """(accelerometer stream, its readings, its calibration, the gyro's `CarryCalibration`) of the
-    gyro
-    stream `settings.stream` of an open session (`carried`): the accelerometer calibrated first
-    on its still poses by the one path (`solve_recorded`, the same detector settings), then the
-    gyro by carrying gravity through the turns between those poses (Tedaldi et al.,
+    gyro stream `settings.stream` of an open session (`carried`): the accelerometer calibrated
+    first on its still poses by the one path (`solve_recorded`, the same detector settings), then
+    the gyro by carrying gravity through the turns between those poses (Tedaldi et al.,
     `station.solve.gyro_carry.calibrate_carry`), in the accelerometer calibration's frame."""
     from station.solve.gyro_carry import calibrate_carry
 

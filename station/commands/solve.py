@@ -196,9 +196,8 @@ def carried_calibration(session, settings, nominal, names, info: dict, file: dic
                          "calibration file only): leave out --store (`station solve SESSION "
                          "--store` stores the accelerometer's)")
     acc_stream, readings, acc, carry = solve_carried(session, settings, nominal)
-    acc_spec = session.specs[acc_stream]
-    acc_names = [acc_spec.channels[i] for i in KINDS[session.protocol].entry("channels")(session,
-                                                                                 acc_stream)]
+    acc_channels = KINDS[session.protocol].entry("channels")(session, acc_stream)
+    acc_names = [session.specs[acc_stream].channels[i] for i in acc_channels]
     check = gate(check_fit(acc, acc_names, pose_term=True), session.path, accept_suspect)
     record = {**info, **poses(readings),
               "frame": f"the accelerometer's: the {acc.frame} frame of stream {acc_stream!r} "
