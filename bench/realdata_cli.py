@@ -28,7 +28,10 @@ from station.cli import main as station
 from station.files.calfile import load
 from station.files.session import Session
 from station.reduce.ferraris import FACE_SECTIONS, calibrate_ferraris, find_sections, read_recording
+from station.reduce.imported import carry_samples
 from station.replay import ReplaySettings, solve_recorded
+from station.solve.gyro_carry import calibrate_carry
+from station.solve.gyro_turns import gravity_carry_errors
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 G_FERRARIS, FS_FERRARIS = 9.81, 102.4  # imucal's default gravity; PROVENANCE.md
@@ -110,7 +113,8 @@ def xsens(root: Path, work: Path) -> dict:
         "gyro=counts:rad/s")
     out = json.loads(run("solve", h5, "--stream", "gyro", "--rest", "0:50", "--magnitude",
                          G_XSENS, "--out", work / "xsens-gyro.cal.json", "--json"))
-    return {"poses": out["poses"], **gyro_figures(load(out["calibration"]))}
+    return {"poses": out["poses"], **gyro_figures(load(out["calibration"])),
+            **held_out_turns(h5, ReplaySettings(magnitude=G_XSENS, rest=(0.0, 50.0)))}
 
 
 def mpu9150(root: Path, work: Path) -> dict:
@@ -123,8 +127,28 @@ def mpu9150(root: Path, work: Path) -> dict:
             "--unit", "gyro=rad/s")
         out = json.loads(run("solve", h5, "--stream", "gyro", "--out",
                              work / f"mpu{i}-gyro.cal.json", "--json"))
-        figures[f"imu{i}"] = {"poses": out["poses"], **gyro_figures(load(out["calibration"]))}
+        figures[f"imu{i}"] = {"poses": out["poses"], **gyro_figures(load(out["calibration"])),
+                              **held_out_turns(h5, ReplaySettings())}
     return figures
+
+
+def held_out_turns(h5: Path, settings: ReplaySettings) -> dict:
+    """Two-fold check of the carry: the gyro calibrated on the first half of the still poses
+    carries gravity through the turns of the second half, and the reverse (`gravity_carry_errors`
+    on turns the fit did not see); RMS and max landing error over both halves' held-out turns."""
+    with Session.open(h5) as session:
+        readings, acc = solve_recorded(session, settings)
+        gyro, z, intervals = carry_samples(session, "gyro", "acc", readings)
+        fs = session.specs["acc"].rate_hz
+    f = acc.apply(z.T).T
+    half = len(intervals) // 2
+    errors = []
+    for fit, test in ((intervals[: half + 1], intervals[half:]),
+                      (intervals[half:], intervals[: half + 1])):
+        rates = calibrate_carry(gyro, fs, f, fit).apply(gyro.T).T
+        errors += list(gravity_carry_errors(f, rates, fs, test)[:, 2])
+    return {"held_out_turns": len(errors), "held_out_error_rms_deg": rms(errors),
+            "held_out_error_max_deg": float(np.max(errors))}
 
 
 def gyro_figures(cal) -> dict:
