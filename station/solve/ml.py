@@ -12,9 +12,9 @@ the likelihood of the readings themselves.
 Structure: the global parameters split per sensor into blocks theta_i = (a_i, b_i) that never couple
 with each other directly; the local parameters split per position group. The normal equations are
 solved by eliminating the local blocks (Schur complement), so an iteration costs O(m^2 n d^3)
-instead of a dense solve. The rotation gauge (Remark 1 of Rupniewski) leaves d(d-1)/2 flat
-directions; the Marquardt damping keeps the steps finite and the gradient has no component along
-them.
+instead of a dense solve, its contractions as matrix products (BLAS). The rotation gauge (Remark 1
+of Rupniewski) leaves d(d-1)/2 flat directions; the Marquardt damping keeps the steps finite and
+the gradient has no component along them.
 """
 
 from dataclasses import dataclass
@@ -109,16 +109,26 @@ def _null_identity(poses) -> np.ndarray:
 def reduced_system(neq: NormalEquations, damping: float = 0.0):
     """Schur complement on the global parameters: S = Hgg - Hgl Hll^-1 Hlg and its right side.
 
-    Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks.
+    Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks. The
+    contraction over the local parameters is one matrix product (m p x G k) (G k x m p) through
+    BLAS: O(m^2 p^2 G k), linear in the number of positions.
     """
     m, p = neq.g_global.shape
     h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
-    ch = np.einsum("igpk,gkl->igpl", neq.h_cross, h_local_inv)  # coupling x inverse local block
-    s = -np.einsum("igpl,jgql->ipjq", ch, neq.h_cross)
+    cross = _coupling(neq.h_cross)  # (m p, G k)
+    ch = _coupling(neq.h_cross @ h_local_inv)  # coupling x inverse local block
+    s = -(ch @ cross.T)
+    s4 = s.reshape(m, p, m, p)
     idx = np.arange(m)
-    s[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
-    g = neq.g_global - np.einsum("igpl,gl->ip", ch, neq.g_local)
-    return s.reshape(m * p, m * p), g.reshape(-1), h_local_inv
+    s4[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
+    g = neq.g_global.ravel() - ch @ neq.g_local.ravel()
+    return s, g, h_local_inv
+
+
+def _coupling(h_cross: np.ndarray) -> np.ndarray:
+    """Sensor-group blocks (m, G, p, k) as one matrix (m p, G k)."""
+    m, groups, p, k = h_cross.shape
+    return h_cross.transpose(0, 2, 1, 3).reshape(m * p, groups * k)
 
 
 def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -133,7 +143,7 @@ def lm_step(neq: NormalEquations, damping: float):
     m, p = neq.g_global.shape
     s, g, h_local_inv = reduced_system(neq, damping)
     step_global = np.linalg.solve(s, g).reshape(m, p)
-    rhs = neq.g_local - np.einsum("igpk,ip->gk", neq.h_cross, step_global)
+    rhs = neq.g_local - (step_global.ravel() @ _coupling(neq.h_cross)).reshape(neq.g_local.shape)
     return step_global, np.einsum("gkl,gl->gk", h_local_inv, rhs)
 
 
