@@ -34,8 +34,11 @@ POSE_ROUNDS = 8
 class CalibrationResult(measurement.Sensitivity):
     """A calibration: model z = a^T v + b (docs/conventions.md), its uncertainty and its fit.
 
-    Angles are in radians, every sigma is one standard deviation. `a` and `v` are expressed in
-    `frame` ("canonical" = Eq. 19 upper-triangular, or "nominal" = aligned to a nominal layout).
+    Angles are in radians, every sigma is one standard deviation; where the noise level is
+    estimated (from the residuals, or the per-pose term), widened by t_nu(0.975) / 1.96 for its
+    nu degrees of freedom, so that +-1.96 sigma is a 95 % interval (docs/solvers.md). `a` and `v`
+    are expressed in `frame` ("canonical" = Eq. 19 upper-triangular, or "nominal" = aligned to a
+    nominal layout).
     """
 
     a: np.ndarray  # (d, m)
@@ -170,7 +173,7 @@ def calibrate(
     )
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
-                       nominal)
+                       nominal, uncertainty.t_widening(fit.dof))
     total, pose_var = _with_pose_term(
         fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
     white = refined(total.a, total.v, total.bias, sigma, max_iter=0, fitted=True)

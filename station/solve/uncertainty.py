@@ -32,9 +32,9 @@ from station.solve.poses import Directions, SoftMagnitudes
 def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
     """Pseudo-inverse of a symmetric PSD matrix whose null space is spanned by the columns of
     `gauge`: (S + s Q Q^T)^-1 - Q Q^T / s, Q an orthonormal basis of the gauge, s the mean
-    eigenvalue (one Cholesky inversion, about a tenth of an eigen-decomposition's cost). Falls
-    back to dropping the len(gauge.T) smallest eigen-directions when S + s Q Q^T is not positive
-    definite (S not PSD to rounding, or singular beyond the gauge)."""
+    eigenvalue (one Cholesky inversion, about a tenth of an eigen-decomposition's cost).
+    np.linalg.LinAlgError when S + s Q Q^T is not positive definite (S singular beyond the gauge,
+    which station.solve.identifiability refuses first)."""
     from scipy.linalg import lapack
 
     q = np.linalg.qr(gauge)[0]
@@ -44,9 +44,7 @@ def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
     if info == 0:
         inv, info = lapack.dpotri(chol, lower=True)
     if info != 0:
-        lam, vec = np.linalg.eigh(fisher)
-        keep = slice(q.shape[1], None)
-        return (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+        raise np.linalg.LinAlgError("the information is singular beyond the rotation gauge")
     inv = np.tril(inv) + np.tril(inv, -1).T
     return inv - projector / level
 
@@ -96,14 +94,22 @@ def estimation_widening(pose_var: float, sigma: np.ndarray, dof: int) -> float:
     """Factor (>= 1) on the total covariance for an estimated sigma_pose^2: its dof spare readings
     give it the relative variance 2 / dof, so the total variance has nu = dof / f^2 effective
     degrees of freedom (Welch-Satterthwaite, the white part known; f = the pose term's mean share
-    of each reading's variance), and +-1.96 sigma is a 95 % interval when sigma is widened by
-    t_nu(0.975) / 1.96 (the coverage factor of GUM G.4)."""
-    from scipy import stats
-
+    of each reading's variance), and the factor is `t_widening(nu)`."""
     if pose_var <= 0:
         return 1.0
     share = float(np.mean(pose_var / (np.asarray(sigma, float) ** 2 + pose_var)))
-    nu = dof / share**2
+    return t_widening(dof / share**2)
+
+
+def t_widening(nu: float) -> float:
+    """Factor (>= 1) on a covariance whose scale is estimated with nu degrees of freedom, e.g. the
+    noise level from the residuals of a fit with nu = dof spare readings: (t_nu(0.975) / 1.96)^2,
+    so that +-1.96 sigma is a 95 % interval (Student t; the coverage factor of GUM G.4). 1 for
+    nu <= 0: no spare reading, the estimated sigma says nothing."""
+    from scipy import stats  # here: `import station` stays light
+
+    if nu <= 0:
+        return 1.0
     return float((stats.t.ppf(0.975, nu) / stats.norm.ppf(0.975)) ** 2)
 
 
