@@ -176,7 +176,8 @@ def calibrate(
                        nominal, uncertainty.t_widening(fit.dof))
     total, pose_var = _with_pose_term(
         fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
-    white = refined(total.a, total.v, total.bias, sigma, max_iter=0, fitted=True)
+    white = total if pose_var == 0 else refined(total.a, total.v, total.bias, sigma, max_iter=0,
+                                                fitted=True)
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
                    scale_known, estimate_bias, nominal, widen)

@@ -45,8 +45,10 @@ def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
         inv, info = lapack.dpotri(chol, lower=True)
     if info != 0:
         raise np.linalg.LinAlgError("the information is singular beyond the rotation gauge")
-    inv = np.tril(inv) + np.tril(inv, -1).T
-    return inv - projector / level
+    inv += inv.T  # dpotri fills the lower triangle; dpotrf left the upper one zero
+    inv[np.diag_indices_from(inv)] /= 2
+    inv -= projector / level
+    return inv
 
 
 def reduced_fisher(neq: NormalEquations) -> np.ndarray:
