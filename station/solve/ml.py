@@ -32,7 +32,7 @@ class NormalEquations:
 
     h_global: np.ndarray  # (m, p, p)   per-sensor block, p = d (+1 with bias)
     h_local: np.ndarray  # (G, k, k)   per-group block
-    h_cross: np.ndarray  # (m, G, p, k) sensor-group coupling
+    h_cross: np.ndarray  # (m, p, G, k) sensor-group coupling: rows of a (m p, G k) matrix
     g_global: np.ndarray  # (m, p)
     g_local: np.ndarray  # (G, k)
 
@@ -66,23 +66,26 @@ def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:
 
 
 def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations, np.ndarray]:
-    """Blocks of the Gauss-Newton normal equations and the residuals (readings - model)."""
+    """Blocks of the Gauss-Newton normal equations and the residuals (readings - model); the
+    sums over sensors and positions as matrix products or broadcasts (linear in n)."""
     v = poses.vectors()
     n = v.shape[1]
     x = v.T if bias is None else np.hstack([v.T, np.ones((n, 1))])  # d prediction / d theta_i
     local = np.einsum("di,ndk->ink", a, poses.jacobian())  # d prediction_ij / d local_j
     resid = readings - measurement.forward(a, v, bias)
     wr = weight * resid
-    h_local = _by_group(np.einsum("in,ink,inl->nkl", weight, local, local), poses, 0)
+    wl = weight[..., None] * local
+    h_local = _by_group(wl.transpose(1, 2, 0) @ local.transpose(1, 0, 2), poses, 0)
     g_local = _by_group(np.einsum("in,ink->nk", wr, local), poses, 0)
     if isinstance(poses, SoftMagnitudes):
         prior, jac = poses.prior()
         h_local = h_local + np.einsum("nk,nl->nkl", jac, jac)
         g_local = g_local + prior[:, None] * jac
+    m, p = a.shape[1], x.shape[1]
     neq = NormalEquations(
-        h_global=np.einsum("in,np,nq->ipq", weight, x, x),
+        h_global=(weight @ (x[:, :, None] * x[:, None, :]).reshape(n, p * p)).reshape(m, p, p),
         h_local=h_local + _null_identity(poses),
-        h_cross=_by_group(np.einsum("in,np,ink->inpk", weight, x, local), poses, 1),
+        h_cross=_by_group(_coupling(wl, x), poses, 2),
         g_global=wr @ x,
         g_local=g_local,
     )
@@ -115,8 +118,8 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     """
     m, p = neq.g_global.shape
     h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
-    cross = _coupling(neq.h_cross)  # (m p, G k)
-    ch = _coupling(neq.h_cross @ h_local_inv)  # coupling x inverse local block
+    cross = neq.h_cross.reshape(m * p, -1)
+    ch = _times_blocks(neq.h_cross, h_local_inv).reshape(m * p, -1)  # coupling x Hll^-1
     s = -(ch @ cross.T)
     s4 = s.reshape(m, p, m, p)
     idx = np.arange(m)
@@ -125,10 +128,27 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     return s, g, h_local_inv
 
 
-def _coupling(h_cross: np.ndarray) -> np.ndarray:
-    """Sensor-group blocks (m, G, p, k) as one matrix (m p, G k)."""
-    m, groups, p, k = h_cross.shape
-    return h_cross.transpose(0, 2, 1, 3).reshape(m * p, groups * k)
+def _times_blocks(h_cross: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """Each group's coupling (m, p, G, k) times its (k, k) block; loops over the k <= 3 columns
+    so that every broadcast runs along the G groups (a last axis of length k is slow)."""
+    out = np.empty_like(h_cross)
+    k = blocks.shape[-1]
+    for col in range(k):
+        acc = out[..., col]
+        np.multiply(h_cross[..., 0], blocks[:, 0, col], out=acc)
+        for row in range(1, k):
+            acc += h_cross[..., row] * blocks[:, row, col]
+    return out
+
+
+def _coupling(weighted_local: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """h_cross (m, p, n, k) = w_ij x_jp local_ijk from w local (m, n, k) and x (n, p), one
+    broadcast per local column (along n)."""
+    m, n, k = weighted_local.shape
+    out = np.empty((m, x.shape[1], n, k))
+    for col in range(k):
+        np.multiply(x.T[None], weighted_local[:, None, :, col], out=out[..., col])
+    return out
 
 
 def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -143,7 +163,8 @@ def lm_step(neq: NormalEquations, damping: float):
     m, p = neq.g_global.shape
     s, g, h_local_inv = reduced_system(neq, damping)
     step_global = np.linalg.solve(s, g).reshape(m, p)
-    rhs = neq.g_local - (step_global.ravel() @ _coupling(neq.h_cross)).reshape(neq.g_local.shape)
+    rhs = neq.g_local - (step_global.ravel() @ neq.h_cross.reshape(m * p, -1)).reshape(
+        neq.g_local.shape)
     return step_global, np.einsum("gkl,gl->gk", h_local_inv, rhs)
 
 
