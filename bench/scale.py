@@ -12,7 +12,8 @@ least-squares line through log(figure) against log(size) over the range.
               same child. Targets: time exponent <= 3.0, memory exponent <= 2.0, m = 768 < 8 GB.
 - ml        : seconds per iteration of the ML (`ml.refine`, m = 12 sensors, n = 10^2 .. 10^5
               positions) against `BaselineLM`, a minimal batched Schur-complement
-              Levenberg-Marquardt written here, doing the same iterations from the same start.
+              Levenberg-Marquardt written here, doing the same iterations from the same start
+              (best of max(--repeat, 10^5 / n) runs).
               Targets: exponent <= 1.05, ratio <= 1.2.
 - coverage  : coverage of the 95 % intervals (+-1.96 sigma) of the scale factors, axis angles and
               biases of accelerometer triads at 20-23 random poses, biases estimated, sigma
@@ -197,7 +198,7 @@ def ml_scale(repeat: int) -> dict:
         base = BaselineLM(readings, weight)
         assert np.isclose(base.run(a0, v0, its)[2], fit.objective, rtol=1e-6), "not the same fit"
         station_s, base_s = [], []
-        for _ in range(repeat):
+        for _ in range(max(repeat, 10**5 // n)):  # a second or more of each at every n
             t0 = time.perf_counter()
             ml.refine(readings, a0, v0, sigma=0.01)
             station_s.append((time.perf_counter() - t0) / its)

@@ -99,6 +99,9 @@ LOOSE = 0.1
 # a sensor whose readings vary over the poses by less than this fraction of the widest-varying
 # sensor's sees the stimulus at one angle only: its scale and bias are not separable
 FLAT = 0.1
+# size of the information from which its largest eigenvalue is found by Lanczos (below it all
+# eigenvalues cost less than Lanczos' set-up)
+LANCZOS_FROM = 300
 # at most this many undetermined parameters are named in a refusal
 NAMED = 4
 
@@ -159,7 +162,7 @@ def _largest_eigenvalue(sym: np.ndarray) -> float:
     INFO_TOL of it (Lanczos, O(n^2) per step; deterministic)."""
     from scipy.sparse.linalg import eigsh  # here: `import station` stays light
 
-    if len(sym) < 3:
+    if len(sym) <= LANCZOS_FROM:
         return float(np.linalg.eigvalsh(sym)[-1])
     return float(eigsh(sym, k=1, which="LA", v0=np.ones(len(sym)), tol=1e-6)[0][0])
 

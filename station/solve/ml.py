@@ -32,7 +32,7 @@ class NormalEquations:
 
     h_global: np.ndarray  # (m, p, p)   per-sensor block, p = d (+1 with bias)
     h_local: np.ndarray  # (G, k, k)   per-group block
-    h_cross: np.ndarray  # (m, p, G, k) sensor-group coupling: rows of a (m p, G k) matrix
+    h_cross: np.ndarray  # (m, p, k, G) sensor-group coupling: rows of a (m p, k G) matrix
     g_global: np.ndarray  # (m, p)
     g_local: np.ndarray  # (G, k)
 
@@ -85,7 +85,7 @@ def normal_equations(a, poses, bias, readings, weight) -> tuple[NormalEquations,
     neq = NormalEquations(
         h_global=(weight @ (x[:, :, None] * x[:, None, :]).reshape(n, p * p)).reshape(m, p, p),
         h_local=h_local + _null_identity(poses),
-        h_cross=_by_group(_coupling(wl, x), poses, 2),
+        h_cross=_by_group(_coupling(wl, x), poses, 3),
         g_global=wr @ x,
         g_local=g_local,
     )
@@ -113,7 +113,7 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     """Schur complement on the global parameters: S = Hgg - Hgl Hll^-1 Hlg and its right side.
 
     Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks. The
-    contraction over the local parameters is one matrix product (m p x G k) (G k x m p) through
+    contraction over the local parameters is one matrix product (m p x k G) (k G x m p) through
     BLAS: O(m^2 p^2 G k), linear in the number of positions.
     """
     m, p = neq.g_global.shape
@@ -124,30 +124,30 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     s4 = s.reshape(m, p, m, p)
     idx = np.arange(m)
     s4[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
-    g = neq.g_global.ravel() - ch @ neq.g_local.ravel()
+    g = neq.g_global.ravel() - ch @ neq.g_local.T.ravel()
     return s, g, h_local_inv
 
 
 def _times_blocks(h_cross: np.ndarray, blocks: np.ndarray) -> np.ndarray:
-    """Each group's coupling (m, p, G, k) times its (k, k) block; loops over the k <= 3 columns
-    so that every broadcast runs along the G groups (a last axis of length k is slow)."""
+    """Each group's coupling (m, p, k, G) times its (k, k) block (G, k, k), as k^2 broadcasts
+    along the groups (k <= 3)."""
     out = np.empty_like(h_cross)
     k = blocks.shape[-1]
     for col in range(k):
-        acc = out[..., col]
-        np.multiply(h_cross[..., 0], blocks[:, 0, col], out=acc)
+        acc = out[:, :, col]
+        np.multiply(h_cross[:, :, 0], blocks[:, 0, col], out=acc)
         for row in range(1, k):
-            acc += h_cross[..., row] * blocks[:, row, col]
+            acc += h_cross[:, :, row] * blocks[:, row, col]
     return out
 
 
 def _coupling(weighted_local: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """h_cross (m, p, n, k) = w_ij x_jp local_ijk from w local (m, n, k) and x (n, p), one
+    """h_cross (m, p, k, n) = w_ij x_jp local_ijk from w local (m, n, k) and x (n, p), one
     broadcast per local column (along n)."""
     m, n, k = weighted_local.shape
-    out = np.empty((m, x.shape[1], n, k))
+    out = np.empty((m, x.shape[1], k, n))
     for col in range(k):
-        np.multiply(x.T[None], weighted_local[:, None, :, col], out=out[..., col])
+        np.multiply(x.T[None], weighted_local[:, None, :, col], out=out[:, :, col])
     return out
 
 
@@ -163,8 +163,8 @@ def lm_step(neq: NormalEquations, damping: float):
     m, p = neq.g_global.shape
     s, g, h_local_inv = reduced_system(neq, damping)
     step_global = np.linalg.solve(s, g).reshape(m, p)
-    rhs = neq.g_local - (step_global.ravel() @ neq.h_cross.reshape(m * p, -1)).reshape(
-        neq.g_local.shape)
+    coupled = step_global.ravel() @ neq.h_cross.reshape(m * p, -1)  # (k G,)
+    rhs = neq.g_local - coupled.reshape(neq.g_local.shape[::-1]).T
     return step_global, np.einsum("gkl,gl->gk", h_local_inv, rhs)
 
 
