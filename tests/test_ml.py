@@ -135,3 +135,15 @@ def test_the_blocked_schur_complement_equals_the_dense_one(monkeypatch):
     s, g, _ = ml.reduced_system(neq, damping=0.1)
     np.testing.assert_allclose(s, dense, rtol=1e-10, atol=1e-10 * np.abs(dense).max())
     np.testing.assert_allclose(g, gradient, rtol=1e-10, atol=1e-10 * np.abs(gradient).max())
+
+
+def test_rotation_matrices_equal_scipys_exponential_map():
+    from scipy.spatial.transform import Rotation
+
+    from station.solve.poses import rotation_matrices
+
+    rng = np.random.default_rng(41)
+    for size in (0.0, 1e-9, 1e-4, 1.0, 3.0):
+        w = size * rng.standard_normal((20, 3))
+        np.testing.assert_allclose(rotation_matrices(w), Rotation.from_rotvec(w).as_matrix(),
+                                   rtol=0, atol=4 * np.finfo(float).eps)
