@@ -204,7 +204,7 @@ def ml_scale(repeat: int) -> dict:
         for _ in range(max(repeat, 10**5 // n)):  # a second or more of each at every n
             runs["station"].append(np.array(timed(ml.refine, readings, a0, v0, sigma=0.01)) / its)
             runs["baseline"].append(np.array(timed(base.run, a0, v0, its)) / its)
-        best = {name: np.min(r, axis=0) for name, r in runs.items()}  # (CPU, wall) per iteration
+        best = {name: np.min(r, axis=0).tolist() for name, r in runs.items()}  # (CPU, wall) / it
         rows.append({"n": n, "iterations": its, "station_s_per_iteration": best["station"][0],
                      "baseline_s_per_iteration": best["baseline"][0],
                      "station_wall_s_per_iteration": best["station"][1],
@@ -312,7 +312,7 @@ def verdicts(r: dict) -> dict:
     cal, ml_ = r["calibrate"], r["ml"]
     lo, hi = TARGETS["coverage"]
     cover = r["coverage"]["student_t"]
-    return {
+    return {k: bool(v) for k, v in {
         "calibrate_time_exponent": cal["time_exponent"] <= TARGETS["calibrate_time_exponent"],
         "calibrate_memory_exponent":
             cal["memory_exponent"] <= TARGETS["calibrate_memory_exponent"],
@@ -323,7 +323,7 @@ def verdicts(r: dict) -> dict:
         "coverage_94_96": all(lo <= cover[k] <= hi
                               for k in ("scale_factors", "axis_angles", "biases")),
         "solve_1s": r["startup"]["solve_rotary_12gyro_wall_s"] <= TARGETS["solve_s"],
-    }
+    }.items()}
 
 
 def report(r: dict) -> None:

@@ -7,6 +7,11 @@ directions is the covariance of every gauge-invariant function of theta: scale f
 between axes, biases, and a expressed in a frame defined by a itself (the canonical frame
 of Eq. 19).
 
+Each reported figure is computed from the blocks of the covariance it depends on (a scale factor
+from its sensor's p x p block, an angle from the 2 d x 2 d block of its two axes, a in the reporting
+frame by a gauge transformation onto the frame's conditions), so memory stays O((m p)^2) and time
+O((m p)^3) for m sensors (docs/solvers.md, "Scale").
+
 The white-noise figure trusts the readings' stated noise (e.g. sd / sqrt(N) of a pose's samples).
 Real poses carry more: coloured noise, settling, re-seating. `pose_variance` estimates that excess
 as one error term per reading of a pose, sigma_pose^2, from the between-pose scatter of the
@@ -174,7 +179,8 @@ def sensor_blocks(cov: np.ndarray, d: int, m: int) -> np.ndarray:
 
 
 def scale_factor_sigmas(cov: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """1-sigma of |a_i| (m,): u_i^T cov(a_i, a_i) u_i with u_i = a_i / |a_i|, gauge-invariant."""
+    """1-sigma of |a_i| (m,): sqrt(u_i^T cov(a_i, a_i) u_i), u_i = a_i / |a_i| (gauge-invariant:
+    any gauge-free covariance of theta gives the same)."""
     d, m = a.shape
     u = a / np.linalg.norm(a, axis=0)
     idx = np.arange(m)
