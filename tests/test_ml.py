@@ -3,7 +3,7 @@ closed form is not (a triad with very unequal scale factors)."""
 
 import numpy as np
 import pytest
-from layouts import A_MODEL, random_directions
+from layouts import A_MODEL, random_directions, section4_gyros
 
 import station
 from station.solve.ml import refine
@@ -109,3 +109,41 @@ def test_a_magnitude_spread_needs_a_valid_value_and_sigma(kwargs, match):
     v = random_directions(rng, 3, 20)
     with pytest.raises(station.CalibrationInputError, match=match):
         station.calibrate(A_MODEL.T @ v, 1.0, **kwargs)
+
+
+def test_the_blocked_schur_complement_equals_the_dense_one(monkeypatch):
+    """reduced_system over blocks of SCHUR_CHUNK groups (7 here: blocks end inside the data)
+    equals the Schur complement of the dense normal matrix built from the same blocks."""
+    from scipy.linalg import block_diag
+
+    from station.solve import ml
+
+    rng = np.random.default_rng(40)
+    a, v, readings = section4_gyros(rng, 30, 0.01)
+    bias = rng.normal(0, 0.1, 12)
+    neq, _ = ml.normal_equations(a, ml.start_poses(v, 1.0), bias, readings + bias[:, None],
+                                 rng.uniform(0.5, 2.0, readings.shape))
+    m, p = neq.g_global.shape
+    groups, k = neq.g_local.shape
+    coupling = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)  # (m p, G k)
+    damped = neq.h_local + 0.1 * np.einsum("gkk,kl->gkl", neq.h_local, np.eye(k))
+    h_local_inv = np.linalg.inv(block_diag(*damped))
+    dense = block_diag(*(neq.h_global + 0.1 * np.einsum("ipp,pq->ipq", neq.h_global, np.eye(p))))
+    dense -= coupling @ h_local_inv @ coupling.T
+    gradient = neq.g_global.ravel() - coupling @ h_local_inv @ neq.g_local.ravel()
+    monkeypatch.setattr(ml, "SCHUR_CHUNK", 7)
+    s, g, _ = ml.reduced_system(neq, damping=0.1)
+    np.testing.assert_allclose(s, dense, rtol=1e-10, atol=1e-10 * np.abs(dense).max())
+    np.testing.assert_allclose(g, gradient, rtol=1e-10, atol=1e-10 * np.abs(gradient).max())
+
+
+def test_rotation_matrices_equal_scipys_exponential_map():
+    from scipy.spatial.transform import Rotation
+
+    from station.solve.poses import rotation_matrices
+
+    rng = np.random.default_rng(41)
+    for size in (0.0, 1e-9, 1e-4, 1.0, 3.0):
+        w = size * rng.standard_normal((20, 3))
+        np.testing.assert_allclose(rotation_matrices(w), Rotation.from_rotvec(w).as_matrix(),
+                                   rtol=0, atol=4 * np.finfo(float).eps)

@@ -19,7 +19,6 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.model import measurement
-from station.model.frames import align_to, canonical_rotation
 from station.solve import identifiability, ml, starts, uncertainty
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
@@ -35,8 +34,11 @@ POSE_ROUNDS = 8
 class CalibrationResult(measurement.Sensitivity):
     """A calibration: model z = a^T v + b (docs/conventions.md), its uncertainty and its fit.
 
-    Angles are in radians, every sigma is one standard deviation. `a` and `v` are expressed in
-    `frame` ("canonical" = Eq. 19 upper-triangular, or "nominal" = aligned to a nominal layout).
+    Angles are in radians, every sigma is one standard deviation; where the noise level is
+    estimated (from the residuals, or the per-pose term), widened by t_nu(0.975) / 1.96 for its
+    nu degrees of freedom, so that +-1.96 sigma is a 95 % interval (docs/solvers.md). `a` and `v`
+    are expressed in `frame` ("canonical" = Eq. 19 upper-triangular, or "nominal" = aligned to a
+    nominal layout).
     """
 
     a: np.ndarray  # (d, m)
@@ -171,10 +173,11 @@ def calibrate(
     )
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
-                       nominal)
+                       nominal, uncertainty.t_widening(fit.dof))
     total, pose_var = _with_pose_term(
         fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
-    white = refined(total.a, total.v, total.bias, sigma, max_iter=0, fitted=True)
+    white = total if pose_var == 0 else refined(total.a, total.v, total.bias, sigma, max_iter=0,
+                                                fitted=True)
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
                    scale_known, estimate_bias, nominal, widen)
@@ -290,27 +293,16 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
     (the estimate, weighted by the total noise; its covariance times `widen`) and `white` (the
     same estimate, weighted by the readings' stated noise: its residuals, sigma and chi2 are the
     result's)."""
-    d, m = total.a.shape
-    if nominal is None:
-        frame_name = "canonical"
-        rot = canonical_rotation(total.a)
-
-        def frame_fn(x):
-            return canonical_rotation(x) @ x
-    else:
+    if nominal is not None:
         nominal = np.asarray(nominal, float)
         if nominal.shape != total.a.shape:
             raise CalibrationInputError(
                 f"nominal layout has shape {nominal.shape}, expected {total.a.shape} (d x m).",
                 "Give one nominal axis (column) per sensor.",
             )
-        frame_name = "nominal"
-        rot = align_to(total.a, nominal)
-
-        def frame_fn(x):
-            return align_to(x, nominal) @ x
-    honest = _sigmas(total, frame_fn, estimate_bias, widen)
-    plain = honest if white is total else _sigmas(white, frame_fn, estimate_bias)
+    rot = uncertainty.frame_rotation(total.a, nominal)
+    honest = _sigmas(total, nominal, estimate_bias, widen)
+    plain = honest if white is total else _sigmas(white, nominal, estimate_bias)
     return CalibrationResult(
         a=rot @ total.a,
         bias=total.bias,
@@ -318,7 +310,7 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
         v=rot @ total.v,
         magnitude=c,
         scale_known=scale_known,
-        frame=frame_name,
+        frame="canonical" if nominal is None else "nominal",
         method=method,
         refined=refined,
         iterations=total.iterations,
@@ -344,22 +336,17 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
     )
 
 
-def _sigmas(fit: ml.MLFit, frame_fn, estimate_bias: bool, widen: float = 1.0) -> dict:
+def _sigmas(fit: ml.MLFit, nominal, estimate_bias: bool, widen: float = 1.0) -> dict:
     """Covariances (theta, parameters in the frame) and 1-sigma of a, the scale factors, the axis
-    angles and the biases, from the Fisher information of `fit` (the covariance times `widen`)."""
+    angles and the biases, from the Fisher information of `fit` (the covariance times `widen`):
+    each figure from the blocks of the covariance it depends on, O((m p)^2) memory."""
     d, m = fit.a.shape
     p = d + (1 if estimate_bias else 0)
-    cov = widen * uncertainty.global_covariance(fit.normal, d)
-    jac = uncertainty.frame_jacobian(fit.a, p, frame_fn)
-    if estimate_bias:
-        jac = np.vstack([jac, uncertainty.bias_jacobian(m, p)])
-    parameter_cov = uncertainty.propagate(cov, jac)
-    a_var = np.diag(parameter_cov)[: d * m]
-    scale = np.sqrt(np.diag(
-        uncertainty.propagate(cov, uncertainty.scale_factor_jacobian(fit.a, p))))
-    (i, k), jac = uncertainty.axis_angle_jacobian(fit.a, p)
-    angles = np.zeros((m, m))
-    angles[i, k] = angles[k, i] = np.sqrt(np.diag(uncertainty.propagate(cov, jac)))
-    return {"theta": cov, "parameters": parameter_cov,
-            "a": np.sqrt(np.maximum(a_var, 0)).reshape(d, m), "scale": scale, "angles": angles,
-            "bias": np.sqrt(np.diag(parameter_cov)[d * m:]) if estimate_bias else None}
+    cov = widen * uncertainty.global_covariance(fit.normal, fit.a)
+    order = uncertainty.parameter_order(m, p, d)
+    parameter_cov = uncertainty.frame_covariance(cov, fit.a, nominal)[np.ix_(order, order)]
+    sd = np.sqrt(np.maximum(np.diag(parameter_cov), 0.0))
+    return {"theta": cov, "parameters": parameter_cov, "a": sd[: d * m].reshape(d, m),
+            "scale": uncertainty.scale_factor_sigmas(cov, fit.a),
+            "angles": uncertainty.axis_angle_sigmas(cov, fit.a),
+            "bias": sd[d * m:] if estimate_bias else None}

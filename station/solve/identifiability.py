@@ -99,6 +99,9 @@ LOOSE = 0.1
 # a sensor whose readings vary over the poses by less than this fraction of the widest-varying
 # sensor's sees the stimulus at one angle only: its scale and bias are not separable
 FLAT = 0.1
+# size of the information from which its largest eigenvalue is found by Lanczos (below it all
+# eigenvalues cost less than Lanczos' set-up)
+LANCZOS_FROM = 300
 # at most this many undetermined parameters are named in a refusal
 NAMED = 4
 
@@ -134,20 +137,43 @@ def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:
 def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estimated: bool,
                  noise_known: bool) -> np.ndarray:
     """(k, m p) orthonormal directions of theta, in natural units, that the information does not
-    determine besides the rotation gauge; k = 0 when every invariant is determined."""
+    determine besides the rotation gauge; k = 0 when every invariant is determined (found by one
+    Cholesky factorisation; the eigen-decomposition only when some direction is undetermined)."""
     d, m = a.shape
     p = fisher.shape[0] // m
     scale = natural_scale(a, magnitude, bias_estimated)
-    lam, vec = np.linalg.eigh(fisher * np.outer(scale, scale))
-    floor = INFO_TOL * lam[-1]
+    scaled = fisher * np.outer(scale, scale)
+    q, _ = np.linalg.qr(gauge_directions(a, p) / scale[:, None])
+    top = _largest_eigenvalue(scaled)
+    floor = INFO_TOL * top
     if noise_known:
         floor = max(floor, 1.0 / LOOSE**2)
+    if _positive_definite(scaled + (top + floor) * (q @ q.T) - floor * np.eye(len(scaled))):
+        return np.zeros((0, m * p))  # every eigenvalue beside the gauge's exceeds the floor
+    lam, vec = np.linalg.eigh(scaled)
     null = vec[:, lam <= floor]
-    gauge = gauge_directions(a, p) / scale[:, None]
-    q, _ = np.linalg.qr(gauge)
     rest = null - q @ (q.T @ null)
     u, s, _ = np.linalg.svd(rest, full_matrices=False)
     return u[:, s > 0.5].T
+
+
+def _largest_eigenvalue(sym: np.ndarray) -> float:
+    """The largest eigenvalue of a symmetric matrix, to 1e-6 relative: enough for a floor
+    INFO_TOL of it (Lanczos, O(n^2) per step; deterministic)."""
+    from scipy.sparse.linalg import eigsh  # here: `import station` stays light
+
+    if len(sym) <= LANCZOS_FROM:
+        return float(np.linalg.eigvalsh(sym)[-1])
+    return float(eigsh(sym, k=1, which="LA", v0=np.ones(len(sym)), tol=1e-6)[0][0])
+
+
+def _positive_definite(sym: np.ndarray) -> bool:
+    """Whether a symmetric matrix has a Cholesky factorisation."""
+    try:
+        np.linalg.cholesky(sym)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def named_parts(direction: np.ndarray, a: np.ndarray, bias_estimated: bool, names) -> list:

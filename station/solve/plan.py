@@ -76,7 +76,7 @@ class Bound:
     The reduced information is singular exactly along the rotation gauge of Remark 1 (theta_i ->
     (W a_i, 0) for a skew W) when the plan identifies a; on an orthonormal basis Q of the
     directions orthogonal to the gauge, its pseudo-inverse is Q (Q^T S Q)^-1 Q^T
-    (`station.solve.uncertainty.gauge_pinv` without an eigen-decomposition per candidate).
+    (the pseudo-inverse of `station.solve.uncertainty.gauge_pinv`, one inverse per candidate).
     """
 
     def __init__(self, a, estimate_bias: bool):

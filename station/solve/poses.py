@@ -45,6 +45,15 @@ def skew(x: np.ndarray) -> np.ndarray:
                      np.stack([-x[..., 1], x[..., 0], z], -1)], -2)
 
 
+def rotation_matrices(w: np.ndarray) -> np.ndarray:
+    """exp([w]_x) for rotation vectors w (..., 3): Rodrigues' formula, I + sinc(t) K +
+    (1 - cos t) / t^2 K^2 with t = |w|, K = [w]_x, the second factor as sinc(t / 2)^2 / 2 (no
+    cancellation near t = 0). A few microseconds where scipy's Rotation takes milliseconds."""
+    t = np.linalg.norm(w, axis=-1)[..., None, None] / np.pi
+    k = skew(w)
+    return np.eye(3) + np.sinc(t) * k + 0.5 * np.sinc(t / 2) ** 2 * (k @ k)
+
+
 @dataclass(frozen=True)
 class _OnePerPosition:
     """Pose models with one stimulus vector per position (its own pose group)."""
@@ -155,10 +164,8 @@ class RigidGroups:
         return -self.magnitude * self.rot[self.group] @ skew(self.s.T)
 
     def moved(self, step):
-        from scipy.spatial.transform import Rotation  # here: `import station` stays light
-
-        turn = Rotation.from_rotvec(step).as_matrix()  # exp([w]_x) per group
-        return RigidGroups(self.rot @ turn, self.s, self.group, self.rank, self.magnitude)
+        return RigidGroups(self.rot @ rotation_matrices(step), self.s, self.group, self.rank,
+                           self.magnitude)
 
 
 def rigid_groups(constraints, v0: np.ndarray, magnitude: float) -> RigidGroups | None:

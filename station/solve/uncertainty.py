@@ -7,6 +7,11 @@ directions is the covariance of every gauge-invariant function of theta: scale f
 between axes, biases, and a expressed in a frame defined by a itself (the canonical frame
 of Eq. 19).
 
+Each reported figure is computed from the blocks of the covariance it depends on (a scale factor
+from its sensor's p x p block, an angle from the 2 d x 2 d block of its two axes, a in the reporting
+frame by a gauge transformation onto the frame's conditions), so memory stays O((m p)^2) and time
+O((m p)^3) for m sensors (docs/solvers.md, "Scale").
+
 The white-noise figure trusts the readings' stated noise (e.g. sd / sqrt(N) of a pose's samples).
 Real poses carry more: coloured noise, settling, re-seating. `pose_variance` estimates that excess
 as one error term per reading of a pose, sigma_pose^2, from the between-pose scatter of the
@@ -17,7 +22,8 @@ sigma^2 + sigma_pose^2.
 import numpy as np
 
 from station.model import measurement
-from station.model.frames import to_canonical
+from station.model.frames import align_to, canonical_rotation, to_canonical
+from station.solve.identifiability import gauge_directions
 from station.solve.ml import (
     NormalEquations,
     check_spread,
@@ -28,11 +34,26 @@ from station.solve.ml import (
 from station.solve.poses import Directions, SoftMagnitudes
 
 
-def gauge_pinv(fisher: np.ndarray, gauge_dim: int) -> np.ndarray:
-    """Inverse of a symmetric PSD matrix over all but its `gauge_dim` smallest eigen-directions."""
-    lam, vec = np.linalg.eigh(fisher)
-    keep = slice(gauge_dim, None)
-    return (vec[:, keep] / lam[keep]) @ vec[:, keep].T
+def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a symmetric PSD matrix whose null space is spanned by the columns of
+    `gauge`: (S + s Q Q^T)^-1 - Q Q^T / s, Q an orthonormal basis of the gauge, s the mean
+    eigenvalue (one Cholesky inversion, about a tenth of an eigen-decomposition's cost).
+    np.linalg.LinAlgError when S + s Q Q^T is not positive definite (S singular beyond the gauge,
+    which station.solve.identifiability refuses first)."""
+    from scipy.linalg import lapack
+
+    q = np.linalg.qr(gauge)[0]
+    level = float(np.trace(fisher)) / len(fisher)
+    projector = q @ q.T
+    chol, info = lapack.dpotrf(fisher + level * projector, lower=True)
+    if info == 0:
+        inv, info = lapack.dpotri(chol, lower=True)
+    if info != 0:
+        raise np.linalg.LinAlgError("the information is singular beyond the rotation gauge")
+    inv += inv.T  # dpotri fills the lower triangle; dpotrf left the upper one zero
+    inv[np.diag_indices_from(inv)] /= 2
+    inv -= projector / level
+    return inv
 
 
 def reduced_fisher(neq: NormalEquations) -> np.ndarray:
@@ -41,10 +62,11 @@ def reduced_fisher(neq: NormalEquations) -> np.ndarray:
     return reduced_system(neq)[0]
 
 
-def global_covariance(neq: NormalEquations, d: int) -> np.ndarray:
+def global_covariance(neq: NormalEquations, a: np.ndarray) -> np.ndarray:
     """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher
-    matrix."""
-    return gauge_pinv(reduced_fisher(neq), d * (d - 1) // 2)
+    matrix, free of the rotation gauge (zero along it)."""
+    p = neq.g_global.shape[1]
+    return gauge_pinv(reduced_fisher(neq), gauge_directions(a, p))
 
 
 EXCESS_P = 0.05
@@ -58,7 +80,7 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     variance a per-pose error term must have for chi2 / dof = 1. 0 when the white-noise chi2 is
     within its chi2(dof) distribution (P(chi2 >= observed) >= EXCESS_P), or no reading is spare.
     """
-    from scipy import stats  # here: `import station` stays light
+    from scipy import special  # here: `import station` stays light; not scipy.stats (0.5 s)
     from scipy.optimize import brentq
 
     r2, s2 = np.asarray(residuals, float) ** 2, np.asarray(sigma, float) ** 2
@@ -67,7 +89,7 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     def excess(x: float) -> float:
         return float(np.sum(r2 / (s2 + x))) + extra - dof
 
-    if dof <= extra or stats.chi2.sf(excess(0.0) + dof, dof) >= EXCESS_P:
+    if dof <= extra or special.chdtrc(dof, excess(0.0) + dof) >= EXCESS_P:  # chi2 sf
         return 0.0
     high = max(float(np.mean(r2)), float(s2.max()))
     while excess(high) > 0:
@@ -79,28 +101,91 @@ def estimation_widening(pose_var: float, sigma: np.ndarray, dof: int) -> float:
     """Factor (>= 1) on the total covariance for an estimated sigma_pose^2: its dof spare readings
     give it the relative variance 2 / dof, so the total variance has nu = dof / f^2 effective
     degrees of freedom (Welch-Satterthwaite, the white part known; f = the pose term's mean share
-    of each reading's variance), and +-1.96 sigma is a 95 % interval when sigma is widened by
-    t_nu(0.975) / 1.96 (the coverage factor of GUM G.4)."""
-    from scipy import stats
-
+    of each reading's variance), and the factor is `t_widening(nu)`."""
     if pose_var <= 0:
         return 1.0
     share = float(np.mean(pose_var / (np.asarray(sigma, float) ** 2 + pose_var)))
-    nu = dof / share**2
-    return float((stats.t.ppf(0.975, nu) / stats.norm.ppf(0.975)) ** 2)
+    return t_widening(dof / share**2)
 
 
-def propagate(cov: np.ndarray, jac: np.ndarray) -> np.ndarray:
-    """Covariance of f(theta) given the Jacobian of f (k x len(theta))."""
-    return jac @ cov @ jac.T
+def t_widening(nu: float) -> float:
+    """Factor (>= 1) on a covariance whose scale is estimated with nu degrees of freedom, e.g. the
+    noise level from the residuals of a fit with nu = dof spare readings: (t_nu(0.975) / 1.96)^2,
+    so that +-1.96 sigma is a 95 % interval (Student t; the coverage factor of GUM G.4). 1 for
+    nu <= 0: no spare reading, the estimated sigma says nothing."""
+    from scipy import special  # here: `import station` stays light; not scipy.stats (0.5 s)
+
+    if nu <= 0:
+        return 1.0
+    return float((special.stdtrit(nu, 0.975) / special.ndtri(0.975)) ** 2)  # t and normal ppf
 
 
-def scale_factor_jacobian(a: np.ndarray, p: int) -> np.ndarray:
-    """d|a_i| / d theta: (m, m p)."""
+def frame_rotation(a: np.ndarray, nominal: np.ndarray | None = None) -> np.ndarray:
+    """The rotation (d x d) into the reporting frame: the canonical one of Eq. (19), or the one
+    aligning a to a nominal layout (orthogonal Procrustes)."""
+    return canonical_rotation(a) if nominal is None else align_to(a, nominal)
+
+
+def frame_conditions(a_frame: np.ndarray, p: int, nominal: np.ndarray | None = None) -> np.ndarray:
+    """(d(d-1)/2, m p) the linear conditions C theta = 0 that the reporting frame imposes on
+    theta = (a_1, b_1, ...) expressed in it, and so fix the rotation gauge: canonical, the entries
+    of a below the diagonal of its first d columns vanish (Eq. 19); nominal, a nominal^T is
+    symmetric (the optimality of the orthogonal Procrustes rotation)."""
+    d, m = a_frame.shape
+    pairs = np.triu_indices(d, 1)
+    rows = np.zeros((len(pairs[0]), m, p))
+    for row, (r, s) in enumerate(zip(*pairs, strict=True)):
+        if nominal is None:
+            rows[row, r, s] = 1.0  # entry (s, r) of a: component s of column r < s
+        else:
+            rows[row, :, r] = nominal[s]
+            rows[row, :, s] = -nominal[r]
+    return rows.reshape(len(pairs[0]), m * p)
+
+
+def frame_covariance(cov: np.ndarray, a: np.ndarray, nominal: np.ndarray | None = None):
+    """Covariance (m p x m p) of theta with a in the reporting frame (`frame_rotation`), from the
+    gauge-free covariance `cov` of theta at a: each a_i rotated, then every perturbation moved
+    along the rotation gauge G onto the frame's conditions C (`frame_conditions`), the linearised
+    frame map T = I - G (C G)^-1 C (an S-transformation): T R cov R^T T^T in O((m p)^2 d)."""
     d, m = a.shape
-    jac = np.zeros((m, m, p))
-    jac[np.arange(m), np.arange(m), :d] = (a / np.linalg.norm(a, axis=0)).T
-    return jac.reshape(m, m * p)
+    p = cov.shape[0] // m
+    rot = np.eye(p)
+    rot[:d, :d] = frame_rotation(a, nominal)
+    a_frame = rot[:d, :d] @ a
+    rotated = (rot @ cov.reshape(m, p, m * p)).reshape(m * p, m, p) @ rot.T
+    rotated = rotated.reshape(m * p, m * p)
+    gauge = gauge_directions(a_frame, p)
+    cond = frame_conditions(a_frame, p, nominal)
+    move = np.linalg.solve(cond @ gauge, cond)  # (C G)^-1 C
+    moved = move @ rotated
+    out = rotated - gauge @ moved
+    out -= moved.T @ gauge.T
+    out += gauge @ (moved @ move.T) @ gauge.T
+    pinned = np.flatnonzero(cond.sum(axis=0) == 1.0) if nominal is None else []
+    out[pinned, :] = out[:, pinned] = 0.0  # entries the canonical frame fixes: exactly zero
+    return out
+
+
+def parameter_order(m: int, p: int, d: int) -> np.ndarray:
+    """Indices into theta = (a_1, b_1, ...) of vec(a) row-major (d, m), then b when p > d."""
+    theta = np.arange(m * p).reshape(m, p)
+    return np.concatenate([theta[:, :d].T.ravel(), theta[:, d:].ravel()])
+
+
+def sensor_blocks(cov: np.ndarray, d: int, m: int) -> np.ndarray:
+    """The (d x d) blocks cov(a_i, a_k) of a covariance of theta, (m, d, m, d) (a view)."""
+    return cov.reshape(m, -1, m, cov.shape[0] // m)[:, :d, :, :d]
+
+
+def scale_factor_sigmas(cov: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """1-sigma of |a_i| (m,): sqrt(u_i^T cov(a_i, a_i) u_i), u_i = a_i / |a_i| (gauge-invariant:
+    any gauge-free covariance of theta gives the same)."""
+    d, m = a.shape
+    u = a / np.linalg.norm(a, axis=0)
+    idx = np.arange(m)
+    own = sensor_blocks(cov, d, m)[idx, :, idx, :]
+    return np.sqrt(np.maximum(np.einsum("di,ide,ei->i", u, own, u), 0.0))
 
 
 def axis_angles(a: np.ndarray) -> np.ndarray:
@@ -109,26 +194,24 @@ def axis_angles(a: np.ndarray) -> np.ndarray:
     return np.arccos(np.clip(u.T @ u, -1.0, 1.0))
 
 
-def axis_angle_jacobian(a: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs (i < k) and d angle(a_i, a_k) / d theta: (pairs, m p)."""
+def axis_angle_sigmas(cov: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """1-sigma of the angles between the sensitive axes (m, m), zero on the diagonal: each
+    angle(i, k) is the quadratic form of its gradient (g_ik on a_i, g_ki on a_k) on the 2 d x 2 d
+    covariance of (a_i, a_k), all pairs at once in O(m^2 d^2)."""
     d, m = a.shape
     norms = np.linalg.norm(a, axis=0)
     u = a / norms
-    i, k = np.triu_indices(m, 1)
-    cos = np.einsum("dp,dp->p", u[:, i], u[:, k])
+    cos = u.T @ u
     sin = np.sqrt(np.maximum(1.0 - cos**2, 1e-300))
-    jac = np.zeros((len(i), m, p))
-    rows = np.arange(len(i))
-    jac[rows, i, :d] = (-(u[:, k] - cos * u[:, i]) / (sin * norms[i])).T
-    jac[rows, k, :d] = (-(u[:, i] - cos * u[:, k]) / (sin * norms[k])).T
-    return np.stack([i, k]), jac.reshape(len(i), m * p)
-
-
-def bias_jacobian(m: int, p: int) -> np.ndarray:
-    """d b_i / d theta: (m, m p)."""
-    jac = np.zeros((m, m, p))
-    jac[np.arange(m), np.arange(m), p - 1] = 1.0
-    return jac.reshape(m, m * p)
+    # grad[i, k] = d angle(a_i, a_k) / d a_i
+    grad = (cos[:, :, None] * u.T[:, None, :] - u.T[None, :, :]) / (sin * norms[:, None])[..., None]
+    blocks = sensor_blocks(cov, d, m)
+    idx = np.arange(m)
+    own = np.einsum("ikd,ide,ike->ik", grad, blocks[idx, :, idx, :], grad)
+    cross = np.einsum("ikd,idke,kie->ik", grad, blocks, grad)
+    var = own + own.T + 2 * cross
+    var[idx, idx] = 0.0
+    return np.sqrt(np.maximum(var, 0.0))
 
 
 def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7) -> np.ndarray:
@@ -166,8 +249,8 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
     sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
     neq, _ = normal_equations(a, poses, bias, measurement.forward(a, v, bias), 1.0 / sig**2)
-    p = d + (1 if estimate_bias else 0)
-    return propagate(global_covariance(neq, d), frame_jacobian(a, p))
+    order = parameter_order(m, d + (1 if estimate_bias else 0), d)[: d * m]
+    return frame_covariance(global_covariance(neq, a), a)[np.ix_(order, order)]
 
 
 def eps_tail_probability(eps: float, bound: np.ndarray, samples: int = 200_000) -> float:
