@@ -180,16 +180,12 @@ def _with_bias(cov, gain, sigma_b) -> np.ndarray:
 
 def _invariants(a, cov) -> tuple:
     """(1-sigma of the scale factors, axis angles, their 1-sigma) of a from the covariance of a
-    row-major, through the solver's Jacobians (`station.solve.uncertainty`, parameters
+    row-major, through the solver's blocks (`station.solve.uncertainty`, parameters
     theta = (a_1, a_2, a_3) sensor by sensor: a column-major)."""
     order = np.arange(9).reshape(3, 3).T.ravel()
     theta = cov[np.ix_(order, order)]
-    scale = np.sqrt(np.diag(uncertainty.propagate(theta,
-                                                  uncertainty.scale_factor_jacobian(a, 3))))
-    (i, k), jac = uncertainty.axis_angle_jacobian(a, 3)
-    angles = np.zeros((3, 3))
-    angles[i, k] = angles[k, i] = np.sqrt(np.diag(uncertainty.propagate(theta, jac)))
-    return scale, uncertainty.axis_angles(a), angles
+    return (uncertainty.scale_factor_sigmas(theta, a), uncertainty.axis_angles(a),
+            uncertainty.axis_angle_sigmas(theta, a))
 
 
 def _turns(acc, intervals, min_turn_deg: float) -> np.ndarray:
