@@ -90,11 +90,12 @@ class StreamSpec:
 class StreamData:
     """A recorded sample stream: the `SampleBlock` columns and the stream's description."""
 
-    counts: np.ndarray  # (k, m) int32 or int64
+    counts: np.ndarray | None  # (k, m) int32 or int64; None: the timing columns only were read
     seq: np.ndarray  # (k,) int64
     device_time: np.ndarray  # (k,) float64 s
     host_time: np.ndarray  # (k,) float64 s
     spec: StreamSpec
+    rows: np.ndarray | None = None  # (k,) file row of each sample; None: rows 0..k-1
 
     def to_si(self) -> np.ndarray:
         """Readings (k, m) in SI units: counts / counts_per_unit."""

@@ -81,24 +81,33 @@ class Session:
         """False while a writer is live or after it was killed (superblock flags still set)."""
         return open_flags(self.path) == 0
 
-    def stream(self, name: str) -> StreamData:
-        """All samples of a stream flushed so far (the common length of its columns)."""
+    def stream(self, name: str, start: int = 0, stop: int | None = None,
+               counts: bool = True) -> StreamData:
+        """The samples of a stream among its file rows [start, stop) (stop None: all flushed so
+        far, the common length of its columns); rows of damaged chunks are left out, `rows` says
+        which file row each sample is. `counts=False` reads the timing columns only (counts is
+        then None): a stream's clock, 24 bytes a sample, from which windows are found and then
+        read by row range (`station.reduce.windows`)."""
         if name not in self.specs:
             raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
         spec = self.specs[name]
         g = self._file["streams"][name]
-        counts, seq, device_time, host_time = _columns(g, STREAM_COLUMNS, self.path, {
-            "counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
-            "device_time": ("f", ()), "host_time": ("f", ())}, drop_damaged=True)
-        return StreamData(counts, seq.astype(np.int64), device_time.astype(np.float64),
-                          host_time.astype(np.float64), spec)
+        kinds = {"counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
+                 "device_time": ("f", ()), "host_time": ("f", ())}
+        names = STREAM_COLUMNS if counts else STREAM_COLUMNS[1:]
+        columns, rows = _columns(g, STREAM_COLUMNS, self.path, kinds, drop_damaged=True,
+                                 start=start, stop=stop, read=names)
+        values = dict(zip(names, columns, strict=True))
+        return StreamData(values.get("counts"), values["seq"].astype(np.int64),
+                          values["device_time"].astype(np.float64),
+                          values["host_time"].astype(np.float64), spec, rows)
 
     def table(self) -> TableData:
         """The rotary-table states flushed so far."""
         g = _child(self._file["streams"], "table", h5py.Group, self.path)
         kinds = {c: ("f", ()) for c in TABLE_COLUMNS}
         kinds["status"] = ("u", ())
-        cols = _columns(g, TABLE_COLUMNS, self.path, kinds, drop_damaged=True)
+        cols, _ = _columns(g, TABLE_COLUMNS, self.path, kinds, drop_damaged=True)
         return TableData(*(c.astype(np.float64) for c in cols[:-1]), cols[-1].astype(np.uint8))
 
     def events(self) -> list:
@@ -254,53 +263,61 @@ def read_spec(g, where="") -> StreamSpec:
         raise SessionFormatError(f"{where}: stream {g.name} is malformed ({e})") from None
 
 
-def _columns(g, names, where, kinds, drop_damaged=False) -> list:
-    """Datasets `names` of `g` read to their common length, each checked for dtype kind and
-    trailing shape. A chunk that does not read back (its fletcher32 checksum fails) is a
-    SessionFormatError, or with `drop_damaged` its rows are left out of every column, as samples
-    the link lost (the sequence numbers show the gap; `station.files.session.check` names the
-    positions they belong to)."""
-    datasets = [_child(g, n, h5py.Dataset, where) for n in names]
-    for ds, n in zip(datasets, names, strict=True):
+def _columns(g, names, where, kinds, drop_damaged=False, start=0, stop=None,
+             read=None) -> tuple:
+    """(columns, rows): datasets `read` (default: all `names`) of `g` read over the rows
+    [start, stop) of the common length of `names` (stop None: to that length), each of `names`
+    checked for dtype kind and trailing shape; `rows` the file row of each value read. A chunk
+    that does not read back (its fletcher32 checksum fails) is a SessionFormatError, or with
+    `drop_damaged` its rows are left out of every column read, as samples the link lost (the
+    sequence numbers show the gap; `station.files.session.check` names the positions they belong
+    to)."""
+    datasets = {n: _child(g, n, h5py.Dataset, where) for n in names}
+    for n, ds in datasets.items():
         ds.refresh()
         dtype_kinds, tail = kinds[n]
         if ds.dtype.kind not in dtype_kinds or ds.shape[1:] != tail:
             raise SessionFormatError(f"{where}: {ds.name} has dtype {ds.dtype} and shape "
                                      f"{ds.shape}; expected kind {dtype_kinds!r}, rows x {tail}")
-    k = min(ds.shape[0] for ds in datasets)
-    columns, intact = zip(*(_rows(ds, k, where, drop_damaged) for ds in datasets), strict=True)
+    k = min(ds.shape[0] for ds in datasets.values())
+    start, stop = min(start, k), k if stop is None else min(stop, k)
+    columns, intact = zip(*(_rows(datasets[n], start, max(start, stop), where, drop_damaged)
+                            for n in (names if read is None else read)), strict=True)
     keep = np.logical_and.reduce(intact)
-    return list(columns) if keep.all() else [c[keep] for c in columns]
+    rows = np.arange(start, max(start, stop))
+    return (list(columns), rows) if keep.all() else ([c[keep] for c in columns], rows[keep])
 
 
-def _rows(ds, k: int, where, drop_damaged: bool) -> tuple:
-    """(the first k rows of `ds`, a mask of the rows that read back intact)."""
+def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
+    """(the rows [start, stop) of `ds`, a mask of the rows that read back intact)."""
     try:
-        return ds[:k], np.ones(k, bool)
+        return ds[start:stop], np.ones(stop - start, bool)
     except OSError as e:
         if not drop_damaged or ds.chunks is None:
             raise SessionFormatError(f"{where}: {ds.name} does not read back intact ({e}); the "
                                      "file is damaged") from None
-    values, intact = np.zeros((k, *ds.shape[1:]), ds.dtype), np.ones(k, bool)
-    for start in range(0, k, ds.chunks[0]):
-        rows = slice(start, min(start + ds.chunks[0], k))
+    values = np.zeros((stop - start, *ds.shape[1:]), ds.dtype)
+    intact = np.ones(stop - start, bool)
+    size = ds.chunks[0]
+    for first in range(start - start % size, stop, size):
+        a, b = max(first, start), min(first + size, stop)
         try:
-            values[rows] = ds[rows]
+            values[a - start:b - start] = ds[a:b]
         except OSError:
-            intact[rows] = False
+            intact[a - start:b - start] = False
     return values, intact
 
 
 def read_events(g, where="") -> list:
     kinds = {"time": ("f", ()), "position": ("i", ()), "kind": ("S", ()), "detail_end": ("i", ())}
-    times, positions, kind_bytes, ends = _columns(g, EVENT_COLUMNS, where, kinds)
+    (times, positions, kind_bytes, ends), _ = _columns(g, EVENT_COLUMNS, where, kinds)
     detail = _child(g, "detail", h5py.Dataset, where)
     detail.refresh()
     if detail.dtype != np.uint8 or detail.ndim != 1:
         raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
     k = complete_events(ends, detail.shape[0], where)
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
-    text = _rows(detail, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
+    text = _rows(detail, 0, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
     events = []
     for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
                               strict=True):

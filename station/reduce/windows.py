@@ -1,0 +1,85 @@
+"""Windows of a recorded stream found by time and read by row range, so that a reduction costs
+time linear in the session and holds one window's samples at a time.
+
+A window [t0, t1] (clock s) holds the samples whose sampling instant (`station.reduce.timeline.
+sample_times`) lies in it. The instants increase within a segment of the stream, are NaN for the
+samples that belong to no window (held back across a resume), and may start over at a segment's
+start (a resumed session's clock, a device that restarted): so the stream is cut into runs of
+increasing instants, and a window is, per run, the row range `np.searchsorted` finds in it -
+the same rows, in the same order, as the mask `(t >= t0) & (t <= t1)` over the whole stream.
+`StreamWindows` reads the stream's timing columns once (24 bytes a sample) and each window's
+counts from the file by row range (`station.files.session.Session.stream`).
+"""
+
+import numpy as np
+
+from station.reduce.timeline import sample_times, segment_breaks
+
+
+def increasing_runs(t) -> np.ndarray:
+    """(r, 2) [start, stop) row ranges of `t` over which it is finite and strictly increasing,
+    covering every finite value, in row order."""
+    t = np.asarray(t, float)
+    finite = np.flatnonzero(np.isfinite(t))
+    if finite.size == 0:
+        return np.zeros((0, 2), np.int64)
+    cut = np.flatnonzero((np.diff(finite) != 1) | (np.diff(t[finite]) <= 0)) + 1
+    first = finite[np.concatenate([[0], cut])]
+    last = finite[np.concatenate([cut - 1, [finite.size - 1]])]
+    return np.column_stack([first, last + 1])
+
+
+def window_ranges(t, runs, t0: float, t1: float) -> list:
+    """[(start, stop), ...] row ranges of the values of `t` in [t0, t1], in row order; `runs`:
+    `increasing_runs(t)`. The rows are those of `np.flatnonzero((t >= t0) & (t <= t1))`."""
+    ranges = []
+    for a, b in runs:
+        part = t[a:b]
+        lo = a + int(np.searchsorted(part, t0, side="left"))
+        hi = a + int(np.searchsorted(part, t1, side="right"))
+        if hi > lo:
+            ranges.append((lo, hi))
+    return ranges
+
+
+class StreamWindows:
+    """A recorded stream's sampling instants, and its samples read window by window.
+
+    clock : the stream's timing columns (`Session.stream(name, counts=False)`), rows intact there
+    t     : (k,) sampling instant of each clock row (NaN: in no window)
+    """
+
+    def __init__(self, session, name: str, events):
+        self._session, self._name = session, name
+        self.clock = session.stream(name, counts=False)
+        self.spec = self.clock.spec
+        self.t = sample_times(self.clock.seq, self.clock.host_time, self.spec.rate_hz,
+                              segment_breaks(events))
+        self._runs = increasing_runs(self.t)
+
+    def index(self, t0: float, t1: float) -> np.ndarray:
+        """Clock rows whose instant lies in [t0, t1], in order (counts not read)."""
+        return _concat([np.arange(a, b) for a, b in window_ranges(self.t, self._runs, t0, t1)],
+                       np.int64)
+
+    def read(self, t0: float, t1: float) -> tuple:
+        """(index, counts): the clock rows whose instant lies in [t0, t1] and whose counts read
+        back intact (rows of a damaged chunk are left out, as the whole-stream read leaves them),
+        and their counts (len(index), m)."""
+        index, counts = [], []
+        for a, b in window_ranges(self.t, self._runs, t0, t1):
+            rows = self.clock.rows[a:b]
+            part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1)
+            keep = np.arange(a, b)
+            if len(part.rows) != b - a:  # rows of a damaged counts chunk: left out
+                keep = keep[np.isin(rows, part.rows)]
+            index.append(keep)
+            counts.append(part.counts)
+        m = len(self.spec.channels)
+        return _concat(index, np.int64), _concat(counts, np.dtype(self.spec.dtype), (0, m))
+
+
+def _concat(parts: list, dtype, empty=(0,)) -> np.ndarray:
+    """The parts joined along the first axis; an empty array of `dtype` and shape `empty` when
+    there are none."""
+    return np.concatenate(parts) if parts else np.zeros(empty, dtype)
