@@ -29,14 +29,15 @@ def increasing_runs(t) -> np.ndarray:
     return np.column_stack([first, last + 1])
 
 
-def window_ranges(t, runs, t0: float, t1: float) -> list:
-    """[(start, stop), ...] row ranges of the values of `t` in [t0, t1], in row order; `runs`:
-    `increasing_runs(t)`. The rows are those of `np.flatnonzero((t >= t0) & (t <= t1))`."""
+def window_ranges(t, runs, t0: float, t1: float, closed: bool = True) -> list:
+    """[(start, stop), ...] row ranges of the values of `t` in [t0, t1] ([t0, t1) unless
+    `closed`), in row order; `runs`: `increasing_runs(t)`. The rows are those of
+    `np.flatnonzero((t >= t0) & (t <= t1))` (`t < t1` unless `closed`)."""
     ranges = []
     for a, b in runs:
         part = t[a:b]
         lo = a + int(np.searchsorted(part, t0, side="left"))
-        hi = a + int(np.searchsorted(part, t1, side="right"))
+        hi = a + int(np.searchsorted(part, t1, side="right" if closed else "left"))
         if hi > lo:
             ranges.append((lo, hi))
     return ranges
@@ -57,17 +58,35 @@ class StreamWindows:
                               segment_breaks(events))
         self._runs = increasing_runs(self.t)
 
+    def ranges(self, t0: float, t1: float, closed: bool = True) -> list:
+        """Row ranges of the clock rows whose instant lies in [t0, t1] ([t0, t1) unless
+        `closed`), in order (`window_ranges`)."""
+        return window_ranges(self.t, self._runs, t0, t1, closed)
+
     def index(self, t0: float, t1: float) -> np.ndarray:
-        """Clock rows whose instant lies in [t0, t1], in order (counts not read)."""
-        return _concat([np.arange(a, b) for a, b in window_ranges(self.t, self._runs, t0, t1)],
-                       np.int64)
+        """The clock rows whose instant lies in [t0, t1], in order (their counts not read)."""
+        return _concat([np.arange(a, b) for a, b in self.ranges(t0, t1)], np.int64)
+
+    def count(self, t0: float, t1: float, closed: bool = True) -> int:
+        """How many clock rows have their instant in the window (`ranges`)."""
+        return sum(b - a for a, b in self.ranges(t0, t1, closed))
+
+    def first(self, t0: float) -> int:
+        """The first clock row at or after instant t0 (the row count if none is): on a stream of
+        one run, `np.searchsorted(t, t0)`."""
+        found = self.ranges(t0, np.inf)
+        return found[0][0] if found else len(self.t)
 
     def read(self, t0: float, t1: float) -> tuple:
-        """(index, counts): the clock rows whose instant lies in [t0, t1] and whose counts read
+        """(index, counts): the clock rows whose instant lies in [t0, t1] (`read_rows`)."""
+        return self.read_rows(self.ranges(t0, t1))
+
+    def read_rows(self, ranges) -> tuple:
+        """(index, counts): the clock rows of `ranges` ([(start, stop), ...]) whose counts read
         back intact (rows of a damaged chunk are left out, as the whole-stream read leaves them),
-        and their counts (len(index), m)."""
+        and their counts (len(index), m), read from the file by row range."""
         index, counts = [], []
-        for a, b in window_ranges(self.t, self._runs, t0, t1):
+        for a, b in ranges:
             rows = self.clock.rows[a:b]
             part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1)
             keep = np.arange(a, b)
