@@ -71,8 +71,9 @@ def arrays(session, stream: str = "imu") -> dict:
     rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None; see the module
     docstring for what is cut."""
     events, table = session.events(), session.table()
-    stream_windows = StreamWindows(session, stream, events)
-    clock, t, spec = stream_windows.clock, stream_windows.t, stream_windows.spec
+    clock = session.stream(stream, columns=("seq", "device_time", "host_time"))
+    stream_windows = StreamWindows(session, stream, events, clock)
+    t, spec = stream_windows.t, clock.spec
     fs = spec.rate_hz
     pos = {}
     for j, p in _spans(session.path, events).items():

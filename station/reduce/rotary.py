@@ -13,7 +13,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
-from station.reduce.windows import StreamWindows
+from station.reduce.windows import StreamWindows, table_angle
 
 STUCK = 100
 """Samples in a window from which a channel that never changes is stuck."""
@@ -49,7 +49,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
     (e.g. to test whether the table's start or stop leaks into the windows).
     """
-    table, events = session.table(), session.events()
+    table_times, events = session.table_times(), session.events()
     stream_windows = StreamWindows(session, stream, events)
     if not (math.isfinite(trim) and trim >= 0):
         raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
@@ -58,7 +58,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     if not windows:
         raise CalibrationInputError(f"the session {session.path} has no completed position.",
                                     "Record at least as many positions as the solver asks for.")
-    if len(table.time) < 2:
+    if len(table_times[0]) < 2:
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = stream_windows.spec.rate_hz
@@ -73,8 +73,8 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         (static, static_counts), (rotating, rotating_counts) = chosen["static"], chosen["rotating"]
         ns, nr = len(static), len(rotating)
         y = np.concatenate([static_counts, rotating_counts])[None]
-        angle = np.interp(stream_windows.t[np.concatenate([static, rotating])], table.time,
-                          table.angle)
+        angle = table_angle(session, table_times,
+                            stream_windows.t[np.concatenate([static, rotating])])
         try:
             parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
                                                 "rotating": np.array([ns, ns + nr])}, angle=angle))

@@ -7,8 +7,9 @@ samples that belong to no window (held back across a resume), and may start over
 start (a resumed session's clock, a device that restarted): so the stream is cut into runs of
 increasing instants, and a window is, per run, the row range `np.searchsorted` finds in it -
 the same rows, in the same order, as the mask `(t >= t0) & (t <= t1)` over the whole stream.
-`StreamWindows` reads the stream's timing columns once (24 bytes a sample) and each window's
-counts from the file by row range (`station.files.session.Session.stream`).
+`StreamWindows` reads the stream's timing columns once, keeps the instants, and reads each
+window's counts from the file by row range (`station.files.session.Session.stream`);
+`table_angle` reads the table states around a window likewise.
 """
 
 import numpy as np
@@ -46,15 +47,20 @@ def window_ranges(t, runs, t0: float, t1: float, closed: bool = True) -> list:
 class StreamWindows:
     """A recorded stream's sampling instants, and its samples read window by window.
 
-    clock : the stream's timing columns (`Session.stream(name, counts=False)`), rows intact there
-    t     : (k,) sampling instant of each clock row (NaN: in no window)
+    t    : (k,) sampling instant of each clock row (the rows whose timing columns read back
+           intact; NaN: in no window)
+    rows : (k,) the file row of each clock row
+    Only these are held (16 bytes a sample); the timing columns themselves are read and let go,
+    unless the caller passes them in as `clock` (`Session.stream` with at least the columns
+    "seq" and "host_time").
     """
 
-    def __init__(self, session, name: str, events):
+    def __init__(self, session, name: str, events, clock=None):
         self._session, self._name = session, name
-        self.clock = session.stream(name, counts=False)
-        self.spec = self.clock.spec
-        self.t = sample_times(self.clock.seq, self.clock.host_time, self.spec.rate_hz,
+        if clock is None:
+            clock = session.stream(name, columns=("seq", "host_time"))
+        self.spec, self.rows = clock.spec, clock.rows
+        self.t = sample_times(clock.seq, clock.host_time, self.spec.rate_hz,
                               segment_breaks(events))
         self._runs = increasing_runs(self.t)
 
@@ -87,8 +93,9 @@ class StreamWindows:
         and their counts (len(index), m), read from the file by row range."""
         index, counts = [], []
         for a, b in ranges:
-            rows = self.clock.rows[a:b]
-            part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1)
+            rows = self.rows[a:b]
+            part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1,
+                                        columns=("counts",))
             keep = np.arange(a, b)
             if len(part.rows) != b - a:  # rows of a damaged counts chunk: left out
                 keep = keep[np.isin(rows, part.rows)]
@@ -102,3 +109,19 @@ def _concat(parts: list, dtype, empty=(0,)) -> np.ndarray:
     """The parts joined along the first axis; an empty array of `dtype` and shape `empty` when
     there are none."""
     return np.concatenate(parts) if parts else np.zeros(empty, dtype)
+
+
+def table_angle(session, times, t) -> np.ndarray:
+    """The recorded table angle interpolated at the instants `t` as `np.interp` over all the
+    table's states does, reading only the states from the last one at or before min(t) to the
+    first one at or after max(t); `times`: `session.table_times()`."""
+    time, rows = times
+    lo = max(int(np.searchsorted(time, np.min(t), side="right")) - 1, 0)
+    hi = min(int(np.searchsorted(time, np.max(t), side="left")) + 1, len(time))
+    first, last = time[lo], time[hi - 1]
+    while True:
+        part = session.table(int(rows[lo]), int(rows[hi - 1]) + 1)
+        whole = lo == 0 and hi == len(time)
+        if whole or (len(part.time) and part.time[0] <= first and part.time[-1] >= last):
+            return np.interp(t, part.time, part.angle)
+        lo, hi = max(2 * lo - hi, 0), min(2 * hi - lo, len(time))  # damaged states: widen

@@ -90,10 +90,10 @@ class StreamSpec:
 class StreamData:
     """A recorded sample stream: the `SampleBlock` columns and the stream's description."""
 
-    counts: np.ndarray | None  # (k, m) int32 or int64; None: the timing columns only were read
-    seq: np.ndarray  # (k,) int64
-    device_time: np.ndarray  # (k,) float64 s
-    host_time: np.ndarray  # (k,) float64 s
+    counts: np.ndarray | None  # (k, m) int32 or int64
+    seq: np.ndarray | None  # (k,) int64
+    device_time: np.ndarray | None  # (k,) float64 s
+    host_time: np.ndarray | None  # (k,) float64 s; a column not read (Session.stream) is None
     spec: StreamSpec
     rows: np.ndarray | None = None  # (k,) file row of each sample; None: rows 0..k-1
 

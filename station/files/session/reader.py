@@ -36,6 +36,9 @@ from station.files.session.format import (
 )
 from station.solve.calibrate import CalibrationResult
 
+_TABLE_KINDS = {**{c: ("f", ()) for c in TABLE_COLUMNS}, "status": ("u", ())}
+"""dtype kind and trailing shape of each table column."""
+
 
 class Session:
     """A session file opened for reading, also while a writer appends to it (SWMR read).
@@ -82,33 +85,43 @@ class Session:
         return open_flags(self.path) == 0
 
     def stream(self, name: str, start: int = 0, stop: int | None = None,
-               counts: bool = True) -> StreamData:
+               columns: tuple = STREAM_COLUMNS) -> StreamData:
         """The samples of a stream among its file rows [start, stop) (stop None: all flushed so
         far, the common length of its columns); rows of damaged chunks are left out, `rows` says
-        which file row each sample is. `counts=False` reads the timing columns only (counts is
-        then None): a stream's clock, 24 bytes a sample, from which windows are found and then
-        read by row range (`station.reduce.windows`)."""
+        which file row each sample is. Only `columns` are read (the others are None): e.g. a
+        stream's clock ("seq", "host_time"), from which windows are found and then read by row
+        range (`station.reduce.windows`)."""
         if name not in self.specs:
             raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
         spec = self.specs[name]
         g = self._file["streams"][name]
         kinds = {"counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
                  "device_time": ("f", ()), "host_time": ("f", ())}
-        names = STREAM_COLUMNS if counts else STREAM_COLUMNS[1:]
-        columns, rows = _columns(g, STREAM_COLUMNS, self.path, kinds, drop_damaged=True,
-                                 start=start, stop=stop, read=names)
-        values = dict(zip(names, columns, strict=True))
-        return StreamData(values.get("counts"), values["seq"].astype(np.int64),
-                          values["device_time"].astype(np.float64),
-                          values["host_time"].astype(np.float64), spec, rows)
+        read, rows = _columns(g, STREAM_COLUMNS, self.path, kinds, drop_damaged=True,
+                              start=start, stop=stop, read=columns)
+        values = dict(zip(columns, read, strict=True))
+        dtypes = {"seq": np.int64, "device_time": np.float64, "host_time": np.float64}
+        for column, dtype in dtypes.items():
+            if column in values:
+                values[column] = values[column].astype(dtype, copy=False)
+        return StreamData(*(values.get(c) for c in STREAM_COLUMNS), spec, rows)
 
-    def table(self) -> TableData:
-        """The rotary-table states flushed so far."""
+    def table(self, start: int = 0, stop: int | None = None) -> TableData:
+        """The rotary-table states among the file rows [start, stop) (stop None: all flushed so
+        far); rows of damaged chunks are left out."""
         g = _child(self._file["streams"], "table", h5py.Group, self.path)
-        kinds = {c: ("f", ()) for c in TABLE_COLUMNS}
-        kinds["status"] = ("u", ())
-        cols, _ = _columns(g, TABLE_COLUMNS, self.path, kinds, drop_damaged=True)
-        return TableData(*(c.astype(np.float64) for c in cols[:-1]), cols[-1].astype(np.uint8))
+        cols, _ = _columns(g, TABLE_COLUMNS, self.path, _TABLE_KINDS, drop_damaged=True,
+                           start=start, stop=stop)
+        return TableData(*(c.astype(np.float64, copy=False) for c in cols[:-1]),
+                         cols[-1].astype(np.uint8, copy=False))
+
+    def table_times(self) -> tuple:
+        """(time, rows): the times of the table states (their dimension scale) and the file row
+        of each, rows of damaged chunks left out; `table(start, stop)` reads the states."""
+        g = _child(self._file["streams"], "table", h5py.Group, self.path)
+        (time,), rows = _columns(g, TABLE_COLUMNS, self.path, _TABLE_KINDS, drop_damaged=True,
+                                 read=("time",))
+        return time.astype(np.float64, copy=False), rows
 
     def events(self) -> list:
         """Protocol events flushed so far, in order."""
