@@ -49,8 +49,9 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
     (e.g. to test whether the table's start or stop leaks into the windows).
     """
-    table_times, events = session.table_times(), session.events()
+    events = session.events()
     stream_windows = StreamWindows(session, stream, events)
+    table_times = session.table_times()
     if not (math.isfinite(trim) and trim >= 0):
         raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
     windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}

@@ -49,8 +49,8 @@ class StreamWindows:
 
     t    : (k,) sampling instant of each clock row (the rows whose timing columns read back
            intact; NaN: in no window)
-    rows : (k,) the file row of each clock row
-    Only these are held (16 bytes a sample); the timing columns themselves are read and let go,
+    rows : (k,) the file row of each clock row (None: row i, no chunk damaged)
+    Only these are held (8 or 16 bytes a sample); the timing columns themselves are read and let go,
     unless the caller passes them in as `clock` (`Session.stream` with at least the columns
     "seq" and "host_time").
     """
@@ -93,11 +93,11 @@ class StreamWindows:
         and their counts (len(index), m), read from the file by row range."""
         index, counts = [], []
         for a, b in ranges:
-            rows = self.rows[a:b]
+            rows = np.arange(a, b) if self.rows is None else self.rows[a:b]
             part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1,
                                         columns=("counts",))
             keep = np.arange(a, b)
-            if len(part.rows) != b - a:  # rows of a damaged counts chunk: left out
+            if part.rows is not None:  # rows of a damaged counts chunk: left out
                 keep = keep[np.isin(rows, part.rows)]
             index.append(keep)
             counts.append(part.counts)
@@ -120,7 +120,8 @@ def table_angle(session, times, t) -> np.ndarray:
     hi = min(int(np.searchsorted(time, np.max(t), side="left")) + 1, len(time))
     first, last = time[lo], time[hi - 1]
     while True:
-        part = session.table(int(rows[lo]), int(rows[hi - 1]) + 1)
+        start, last_row = (int(i if rows is None else rows[i]) for i in (lo, hi - 1))
+        part = session.table(start, last_row + 1)
         whole = lo == 0 and hi == len(time)
         if whole or (len(part.time) and part.time[0] <= first and part.time[-1] >= last):
             return np.interp(t, part.time, part.angle)

@@ -95,7 +95,7 @@ class StreamData:
     device_time: np.ndarray | None  # (k,) float64 s
     host_time: np.ndarray | None  # (k,) float64 s; a column not read (Session.stream) is None
     spec: StreamSpec
-    rows: np.ndarray | None = None  # (k,) file row of each sample; None: rows 0..k-1
+    rows: np.ndarray | None = None  # (k,) file row of each sample; None: the k rows read, in order
 
     def to_si(self) -> np.ndarray:
         """Readings (k, m) in SI units: counts / counts_per_unit."""

@@ -88,9 +88,9 @@ class Session:
                columns: tuple = STREAM_COLUMNS) -> StreamData:
         """The samples of a stream among its file rows [start, stop) (stop None: all flushed so
         far, the common length of its columns); rows of damaged chunks are left out, `rows` says
-        which file row each sample is. Only `columns` are read (the others are None): e.g. a
-        stream's clock ("seq", "host_time"), from which windows are found and then read by row
-        range (`station.reduce.windows`)."""
+        which file row each sample is (None: all of [start, stop)). Only `columns` are read (the
+        others are None): e.g. a stream's clock ("seq", "host_time"), from which windows are
+        found and then read by row range (`station.reduce.windows`)."""
         if name not in self.specs:
             raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
         spec = self.specs[name]
@@ -117,7 +117,8 @@ class Session:
 
     def table_times(self) -> tuple:
         """(time, rows): the times of the table states (their dimension scale) and the file row
-        of each, rows of damaged chunks left out; `table(start, stop)` reads the states."""
+        of each (None: row i is time[i]), rows of damaged chunks left out; `table(start, stop)`
+        reads the states."""
         g = _child(self._file["streams"], "table", h5py.Group, self.path)
         (time,), rows = _columns(g, TABLE_COLUMNS, self.path, _TABLE_KINDS, drop_damaged=True,
                                  read=("time",))
@@ -280,7 +281,8 @@ def _columns(g, names, where, kinds, drop_damaged=False, start=0, stop=None,
              read=None) -> tuple:
     """(columns, rows): datasets `read` (default: all `names`) of `g` read over the rows
     [start, stop) of the common length of `names` (stop None: to that length), each of `names`
-    checked for dtype kind and trailing shape; `rows` the file row of each value read. A chunk
+    checked for dtype kind and trailing shape; `rows` the file row of each value read, None when
+    every row of [start, stop) was (no chunk damaged, the common case). A chunk
     that does not read back (its fletcher32 checksum fails) is a SessionFormatError, or with
     `drop_damaged` its rows are left out of every column read, as samples the link lost (the
     sequence numbers show the gap; `station.files.session.check` names the positions they belong
@@ -297,8 +299,9 @@ def _columns(g, names, where, kinds, drop_damaged=False, start=0, stop=None,
     columns, intact = zip(*(_rows(datasets[n], start, max(start, stop), where, drop_damaged)
                             for n in (names if read is None else read)), strict=True)
     keep = np.logical_and.reduce(intact)
-    rows = np.arange(start, max(start, stop))
-    return (list(columns), rows) if keep.all() else ([c[keep] for c in columns], rows[keep])
+    if keep.all():
+        return list(columns), None
+    return [c[keep] for c in columns], start + np.flatnonzero(keep)
 
 
 def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
