@@ -13,6 +13,7 @@ from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.rotary import position_windows, rotary_readings
 from station.reduce.timeline import sample_times, segment_breaks
 from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
+from station.sim import rotary as rotary_sim
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
@@ -100,3 +101,21 @@ def test_a_window_read_by_rows_is_the_masked_whole_stream(session):
             inside = np.flatnonzero((t >= t0) & (t <= t1))
             np.testing.assert_array_equal(index, inside)
             np.testing.assert_array_equal(counts, whole.counts[inside])
+
+
+def test_simulation_in_blocks_gives_the_whole_session_numbers(monkeypatch, tmp_path):
+    def simulated(lazy):
+        unit = gyro_array(np.random.default_rng(11), fs=20.0)
+        return simulate_rotary(unit, 7, RotaryTiming(static=3, moving=12), a_nominal=A_MODEL,
+                               lazy=lazy)
+
+    monkeypatch.setattr(rotary_sim, "BLOCK_POSITIONS", 3)
+    blocks = simulated(True)
+    path, _ = npz.write(tmp_path / "blocks.npz", blocks)
+    monkeypatch.setattr(rotary_sim, "BLOCK_POSITIONS", 7)
+    whole = simulated(False)
+    written = npz.read(path)
+    assert set(written) == set(whole.arrays)
+    for name, value in whole.arrays.items():
+        np.testing.assert_array_equal(written[name], value, err_msg=name)
+        assert written[name].dtype == np.asarray(value).dtype
