@@ -21,12 +21,10 @@ def increasing_runs(t) -> np.ndarray:
     """(r, 2) [start, stop) row ranges of `t` over which it is finite and strictly increasing,
     covering every finite value, in row order."""
     t = np.asarray(t, float)
-    finite = np.flatnonzero(np.isfinite(t))
-    if finite.size == 0:
-        return np.zeros((0, 2), np.int64)
-    cut = np.flatnonzero((np.diff(finite) != 1) | (np.diff(t[finite]) <= 0)) + 1
-    first = finite[np.concatenate([[0], cut])]
-    last = finite[np.concatenate([cut - 1, [finite.size - 1]])]
+    rising = t[1:] > t[:-1]  # False where either is NaN
+    finite = np.isfinite(t)
+    first = np.flatnonzero(finite & np.concatenate([[True], ~rising]))
+    last = np.flatnonzero(finite & np.concatenate([~rising, [True]]))
     return np.column_stack([first, last + 1])
 
 
@@ -62,6 +60,7 @@ class StreamWindows:
         self.spec, self.rows = clock.spec, clock.rows
         self.t = sample_times(clock.seq, clock.host_time, self.spec.rate_hz,
                               segment_breaks(events))
+        del clock  # the timing columns go before the runs are found (unless the caller keeps them)
         self._runs = increasing_runs(self.t)
 
     def ranges(self, t0: float, t1: float, closed: bool = True) -> list:

@@ -61,6 +61,7 @@ class Session:
         streams = _child(h5file, "streams", h5py.Group, self.path)
         self.specs = {n: read_spec(_child(streams, n, h5py.Group, self.path), self.path)
                       for n in streams if n != "table"}
+        self._checked = {}  # stream name (or "/table") -> its checked datasets (`_checked`)
 
     @classmethod
     def open(cls, path) -> "Session":
@@ -94,11 +95,13 @@ class Session:
         if name not in self.specs:
             raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
         spec = self.specs[name]
-        g = self._file["streams"][name]
-        kinds = {"counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
-                 "device_time": ("f", ()), "host_time": ("f", ())}
-        read, rows = _columns(g, STREAM_COLUMNS, self.path, kinds, drop_damaged=True,
-                              start=start, stop=stop, read=columns)
+        if name not in self._checked:
+            kinds = {"counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
+                     "device_time": ("f", ()), "host_time": ("f", ())}
+            self._checked[name] = _checked(self._file["streams"][name], STREAM_COLUMNS,
+                                           self.path, kinds)
+        read, rows = _columns(self._checked[name], self.path, drop_damaged=True, start=start,
+                              stop=stop, read=columns)
         values = dict(zip(columns, read, strict=True))
         dtypes = {"seq": np.int64, "device_time": np.float64, "host_time": np.float64}
         for column, dtype in dtypes.items():
@@ -109,9 +112,7 @@ class Session:
     def table(self, start: int = 0, stop: int | None = None) -> TableData:
         """The rotary-table states among the file rows [start, stop) (stop None: all flushed so
         far); rows of damaged chunks are left out."""
-        g = _child(self._file["streams"], "table", h5py.Group, self.path)
-        cols, _ = _columns(g, TABLE_COLUMNS, self.path, _TABLE_KINDS, drop_damaged=True,
-                           start=start, stop=stop)
+        cols, _ = _columns(self._table(), self.path, drop_damaged=True, start=start, stop=stop)
         return TableData(*(c.astype(np.float64, copy=False) for c in cols[:-1]),
                          cols[-1].astype(np.uint8, copy=False))
 
@@ -119,10 +120,15 @@ class Session:
         """(time, rows): the times of the table states (their dimension scale) and the file row
         of each (None: row i is time[i]), rows of damaged chunks left out; `table(start, stop)`
         reads the states."""
-        g = _child(self._file["streams"], "table", h5py.Group, self.path)
-        (time,), rows = _columns(g, TABLE_COLUMNS, self.path, _TABLE_KINDS, drop_damaged=True,
-                                 read=("time",))
+        (time,), rows = _columns(self._table(), self.path, drop_damaged=True, read=("time",))
         return time.astype(np.float64, copy=False), rows
+
+    def _table(self) -> dict:
+        """The table's checked datasets (`_checked`), looked up once."""
+        if "/table" not in self._checked:  # no stream is named so ("/" is not in a name)
+            g = _child(self._file["streams"], "table", h5py.Group, self.path)
+            self._checked["/table"] = _checked(g, TABLE_COLUMNS, self.path, _TABLE_KINDS)
+        return self._checked["/table"]
 
     def events(self) -> list:
         """Protocol events flushed so far, in order."""
@@ -277,27 +283,32 @@ def read_spec(g, where="") -> StreamSpec:
         raise SessionFormatError(f"{where}: stream {g.name} is malformed ({e})") from None
 
 
-def _columns(g, names, where, kinds, drop_damaged=False, start=0, stop=None,
-             read=None) -> tuple:
-    """(columns, rows): datasets `read` (default: all `names`) of `g` read over the rows
-    [start, stop) of the common length of `names` (stop None: to that length), each of `names`
-    checked for dtype kind and trailing shape; `rows` the file row of each value read, None when
-    every row of [start, stop) was (no chunk damaged, the common case). A chunk
-    that does not read back (its fletcher32 checksum fails) is a SessionFormatError, or with
-    `drop_damaged` its rows are left out of every column read, as samples the link lost (the
-    sequence numbers show the gap; `station.files.session.check` names the positions they belong
-    to)."""
+def _checked(g, names, where, kinds) -> dict:
+    """{name: dataset} of the datasets `names` of `g`, each a plain dataset of this file with the
+    dtype kind and trailing shape of `kinds` (name -> (dtype kinds, trailing shape))."""
     datasets = {n: _child(g, n, h5py.Dataset, where) for n in names}
     for n, ds in datasets.items():
-        ds.refresh()
         dtype_kinds, tail = kinds[n]
         if ds.dtype.kind not in dtype_kinds or ds.shape[1:] != tail:
             raise SessionFormatError(f"{where}: {ds.name} has dtype {ds.dtype} and shape "
                                      f"{ds.shape}; expected kind {dtype_kinds!r}, rows x {tail}")
+    return datasets
+
+
+def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None) -> tuple:
+    """(columns, rows): the datasets `read` (default: all) of `datasets` (`_checked`), refreshed,
+    read over the rows [start, stop) of their common length (stop None: to that length); `rows`
+    the file row of each value read, None when every row of [start, stop) was (no chunk damaged,
+    the common case). A chunk that does not read back (its fletcher32 checksum fails) is a
+    SessionFormatError, or with `drop_damaged` its rows are left out of every column read, as
+    samples the link lost (the sequence numbers show the gap; `station.files.session.check` names
+    the positions they belong to)."""
+    for ds in datasets.values():
+        ds.refresh()
     k = min(ds.shape[0] for ds in datasets.values())
     start, stop = min(start, k), k if stop is None else min(stop, k)
     columns, intact = zip(*(_rows(datasets[n], start, max(start, stop), where, drop_damaged)
-                            for n in (names if read is None else read)), strict=True)
+                            for n in (datasets if read is None else read)), strict=True)
     keep = np.logical_and.reduce(intact)
     if keep.all():
         return list(columns), None
@@ -326,7 +337,8 @@ def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
 
 def read_events(g, where="") -> list:
     kinds = {"time": ("f", ()), "position": ("i", ()), "kind": ("S", ()), "detail_end": ("i", ())}
-    (times, positions, kind_bytes, ends), _ = _columns(g, EVENT_COLUMNS, where, kinds)
+    (times, positions, kind_bytes, ends), _ = _columns(_checked(g, EVENT_COLUMNS, where, kinds),
+                                                       where)
     detail = _child(g, "detail", h5py.Dataset, where)
     detail.refresh()
     if detail.dtype != np.uint8 or detail.ndim != 1:
