@@ -115,6 +115,8 @@ def table_angle(session, times, t) -> np.ndarray:
     table's states does, reading only the states from the last one at or before min(t) to the
     first one at or after max(t); `times`: `session.table_times()`."""
     time, rows = times
+    if np.size(t) == 0:
+        return np.zeros(0)
     lo = max(int(np.searchsorted(time, np.min(t), side="right")) - 1, 0)
     hi = min(int(np.searchsorted(time, np.max(t), side="left")) + 1, len(time))
     first, last = time[lo], time[hi - 1]
