@@ -53,7 +53,7 @@ import numpy as np
 from station.errors import CalibrationInputError
 from station.files.session import nominal_layout
 from station.reduce.rotary import position_windows
-from station.reduce.windows import StreamWindows
+from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
 
 RAMP_BAND = (0.1, 0.9)
 """Fractions of the steady rate between which ramp samples are fitted by a line."""
@@ -70,7 +70,7 @@ def arrays(session, stream: str = "imu") -> dict:
     """The grid of a recorded rotary session: counts (n, k, m), lsb (m,), fs, times (n, k),
     rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None; see the module
     docstring for what is cut."""
-    events, table = session.events(), session.table()
+    events, table = session.events(), _States(session.table())
     clock = session.stream(stream, columns=("seq", "device_time", "host_time"))
     stream_windows = StreamWindows(session, stream, events, clock)
     t, spec = stream_windows.t, clock.spec
@@ -257,11 +257,25 @@ def _swept(t, p) -> np.ndarray:
     return ramp(t - p["ts"], p["up"]) - ramp(t - p["te"], p["down"])
 
 
-def _commanded(path, table, pos) -> float:
+class _States:
+    """The table states read for windows: `time`, `angle`, `rate_setpoint`, `still` (not moving)
+    of every state, and `rows(t0, t1)`, the states whose time lies in [t0, t1] found by
+    `np.searchsorted` (`station.reduce.windows.window_ranges`), not by masks over the table."""
+
+    def __init__(self, table):
+        self.time, self.angle, self.rate_setpoint = table.time, table.angle, table.rate_setpoint
+        self.still = ~table.flag("moving")
+        self._runs = increasing_runs(table.time)
+
+    def rows(self, t0: float, t1: float) -> np.ndarray:
+        """Indices of the states whose time lies in [t0, t1], in order."""
+        ranges = window_ranges(self.time, self._runs, t0, t1)
+        return np.concatenate([np.arange(a, b) for a, b in ranges] or [np.zeros(0, np.int64)])
+
+
+def _commanded(path, table: _States, pos) -> float:
     """c: the table's recorded set point during the rotating windows (one for all positions)."""
-    inside = np.zeros(len(table.time), bool)
-    for p in pos:
-        inside |= (table.time >= p["r0"]) & (table.time <= p["r1"])
+    inside = np.concatenate([table.rows(p["r0"], p["r1"]) for p in pos])
     values = np.unique(table.rate_setpoint[inside])
     if values.size != 1 or values[0] == 0:
         raise CalibrationInputError(
@@ -271,28 +285,29 @@ def _commanded(path, table, pos) -> float:
     return float(values[0])
 
 
-def _rate_factor(table, p, c, start: float) -> tuple:
+def _rate_factor(table: _States, p, c, start: float) -> tuple:
     """(factor, 1-sigma): the angle the table reports between rest before the spin-up (`start`)
     and rest after the stop, over c times the IMU-timed turning time at full rate (`_ramps`). 1
     for a table that reports its command (to the IMU timing's precision, the sigma); the true
     rate over the command for one whose angle reads the shaft. (1, inf) without a reading at rest
     after the stop (a position cut at the end of its spin-down, as imported arrays)."""
     rest = _at_rest(table, p["te"], p["done"])
-    if not rest.any():
+    if not rest.size:
         return 1.0, math.inf
     factor = (np.median(table.angle[rest]) - start) / (c * p["turning"])
     return factor, factor * p["turning_sd"] / p["turning"]
 
 
-def _at_rest(table, t0, t1) -> np.ndarray:
-    """Mask of the table readings at rest within [t0, t1]."""
-    return ~table.flag("moving") & (table.time >= t0) & (table.time <= t1)
+def _at_rest(table: _States, t0, t1) -> np.ndarray:
+    """Indices of the table readings at rest within [t0, t1]."""
+    rows = table.rows(t0, t1)
+    return rows[table.still[rows]]
 
 
-def _rest_angle(path, table, t0, t1, j, where) -> float:
+def _rest_angle(path, table: _States, t0, t1, j, where) -> float:
     """Median angle of the table readings at rest within [t0, t1]."""
     rest = _at_rest(table, t0, t1)
-    if not rest.any():
+    if not rest.size:
         raise CalibrationInputError(
             f"the session {path} holds no table reading at rest in position {j + 1}'s {where}.",
             "Record the session with the rotary table connected.")
