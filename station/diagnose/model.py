@@ -12,7 +12,7 @@ The deviance of a model is the chi2 of its binned residuals plus the rail pile-u
 difference between two nested models is their likelihood ratio.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -25,7 +25,8 @@ from station.solve.calibrate import CalibrationResult, calibrate
 
 @dataclass(frozen=True)
 class Model:
-    """A fitted model: calibration, extensions {name: Fitted} in the order added, twin output."""
+    """A fitted model: calibration, extensions {name: Fitted} in the order added, twin output
+    (`prediction`: its rate, mu, z and b; omega and s None)."""
 
     calibration: CalibrationResult
     fitted: dict
@@ -76,7 +77,9 @@ def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
     pred = twin.predict(ctx, fitted, EXTENSIONS)
     chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
     exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
-    return Model(calibration, dict(fitted), ctx, pred, chi2,
+    # a model keeps its twin's output (z, mu), not the motion and sensed signal the extensions
+    # were fitted to: several models are held at once, each of the session's size
+    return Model(calibration, dict(fitted), ctx, replace(pred, omega=None, s=None), chi2,
                  rails.deviance(rails.observed(data), exp))
 
 

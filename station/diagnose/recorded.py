@@ -40,8 +40,10 @@ that reports its command, to the IMU timing's precision; the true rate's factor 
 angle reads the shaft, which the `rate_error` extension then uses).
 
 Sample instants come from the sequence numbers at the nominal rate (`station.reduce.timeline.
-sample_times`); the nominal rate is checked against the device's time stamps (or the arrival
-times), and a window with a gap in the sequence numbers (a lossy link) is refused.
+sample_times`); each position's stretch is found by time and read from the file by row range
+(`station.reduce.windows.StreamWindows`), so the work is linear in the session; the nominal rate
+is checked against the device's time stamps (or the arrival times), and a window with a gap in
+the sequence numbers (a lossy link) is refused.
 """
 
 import math
@@ -51,7 +53,7 @@ import numpy as np
 from station.errors import CalibrationInputError
 from station.files.session import nominal_layout
 from station.reduce.rotary import position_windows
-from station.reduce.timeline import sample_times, segment_breaks
+from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
 
 RAMP_BAND = (0.1, 0.9)
 """Fractions of the steady rate between which ramp samples are fitted by a line."""
@@ -68,24 +70,31 @@ def arrays(session, stream: str = "imu") -> dict:
     """The grid of a recorded rotary session: counts (n, k, m), lsb (m,), fs, times (n, k),
     rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None; see the module
     docstring for what is cut."""
-    events, table = session.events(), session.table()
-    data = session.stream(stream)
-    fs = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, fs, segment_breaks(events))
-    y = data.to_si()
+    events, table = session.events(), _States(session.table())
+    clock = session.stream(stream, columns=("seq", "device_time", "host_time"))
+    stream_windows = StreamWindows(session, stream, events, clock)
+    t, spec = stream_windows.t, clock.spec
+    fs = spec.rate_hz
     pos = {}
     for j, p in _spans(session.path, events).items():
-        _complete(t, data.seq, fs, p["s0"], p["r1"], j)
-        p.update(_ramps(t, y, p, j))
-        _complete(t, data.seq, fs, p["s0"], p["te"], j)
+        # the position's own stretch, read from the file: everything below is local to it
+        index, counts = stream_windows.read(p["s0"], p["done"])
+        tj, seq = t[index], clock.seq[index]
+        y = counts / np.asarray(spec.counts_per_unit)
+        _complete(tj, seq, fs, p["s0"], p["r1"], j)
+        p.update(_ramps(tj, y, p, j))
+        _complete(tj, seq, fs, p["s0"], p["te"], j)
         pos[j] = p
-    _check_rate(data, t, fs, pos)
-    index, windows = _grid(t, fs, list(pos.values()))
-    # within each stretch, seq steps as the stream index
-    for j, idx in zip(pos, index, strict=True):
-        lost = int(np.sum(np.diff(data.seq[idx]) - np.diff(idx)))
-        if lost:
-            raise _lossy(j, t[idx[0]], t[idx[-1]], lost)
+    _check_rate(clock, stream_windows, fs, pos)
+    index, windows = _grid(stream_windows, fs, list(pos.values()))
+    counts = np.empty((*index.shape, len(spec.channels)), np.dtype(spec.dtype))
+    # within each stretch, seq steps as the stream index, and every sample's counts read back
+    for j, idx, row in zip(pos, index, counts, strict=True):
+        lost = int(np.sum(np.diff(clock.seq[idx]) - np.diff(idx)))
+        got, row_counts = stream_windows.read_rows(_stretches(idx))
+        if lost or len(got) < len(idx):
+            raise _lossy(j, t[idx[0]], t[idx[-1]], max(lost, len(idx) - len(got)))
+        row[:] = row_counts
     times = t[index]
     c = _commanded(session.path, table, pos.values())
     rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values(), strict=True)])
@@ -97,10 +106,16 @@ def arrays(session, stream: str = "imu") -> dict:
     angle = np.stack([a0 + c * f * _swept(tj, p)
                       for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors,
                                                    strict=True)])
-    return {"counts": data.counts[index], "lsb": 1.0 / np.asarray(data.spec.counts_per_unit),
+    return {"counts": counts, "lsb": 1.0 / np.asarray(spec.counts_per_unit),
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": np.array([sd for _, sd in factors]),
-            "a_nominal": nominal_layout(session.metadata, len(data.spec.channels))}
+            "a_nominal": nominal_layout(session.metadata, len(spec.channels))}
+
+
+def _stretches(idx) -> list:
+    """[(start, stop), ...]: the consecutive runs of the increasing row numbers `idx`."""
+    cut = np.flatnonzero(np.diff(idx) != 1) + 1
+    return [(int(part[0]), int(part[-1]) + 1) for part in np.split(idx, cut)]
 
 
 def _spans(path, events) -> dict:
@@ -169,22 +184,24 @@ def _line(t, f, t0, t1, j, what) -> tuple:
     return -intercept / slope, slope, half, float(np.sqrt(scatter * grad @ cov @ grad))
 
 
-def _check_rate(data, t, fs, pos) -> None:
+def _check_rate(clock, stream_windows, fs, pos) -> None:
     """Refuse a nominal rate that misplaces a position's samples by half a sample.
 
     With device time stamps: the slope of device time - seq / fs over each position's stretch.
     Without: the arrival times' lower envelope (least delayed tenth at each end of the stream),
-    which resolves the drift only to within the arrival delays (their median is allowed)."""
-    seq = data.seq.astype(float)
-    if np.all(np.isfinite(data.device_time)):
+    which resolves the drift only to within the arrival delays (their median is allowed).
+    `clock`: the stream's timing columns, `stream_windows` their instants (`StreamWindows`)."""
+    if np.all(np.isfinite(clock.device_time)):
         for j, p in pos.items():
-            on = (t >= p["s0"]) & (t <= p["te"])
-            slope = np.polyfit(seq[on] / fs, data.device_time[on] - seq[on] / fs, 1)[0]
+            on = stream_windows.index(p["s0"], p["te"])
+            seq = clock.seq[on].astype(float)
+            slope = np.polyfit(seq / fs, clock.device_time[on] - seq / fs, 1)[0]
             span = p["te"] - p["s0"]
             if abs(slope) * span * fs > 0.5:
                 raise _off_rate(fs, slope, f"the device time stamps of position {j + 1}", span)
         return
-    offset = data.host_time - seq / fs
+    seq = clock.seq.astype(float)
+    offset = clock.host_time - seq / fs
     tenth = max(len(seq) // 10, 1)
     drift = offset[-tenth:].min() - offset[:tenth].min()
     if abs(drift) > 0.5 / fs + np.median(offset - offset.min()):
@@ -198,7 +215,7 @@ def _off_rate(fs, slope, source, span) -> CalibrationInputError:
         "Fix rate_hz in the device profile the session was recorded with, and record again.")
 
 
-def _grid(t, fs, pos) -> tuple:
+def _grid(stream_windows, fs, pos) -> tuple:
     """(n, k) stream indices of the three aligned stretches, and the windows on the grid.
 
     The moving stretch is aligned at each position's `rotate_start`: every position then has at
@@ -208,14 +225,15 @@ def _grid(t, fs, pos) -> tuple:
     slightly different indices; the `spinup` window spans them all (the twin's rate profile is
     per position, so only the transients statistic sees the window)."""
     def samples(a, b, pick):
-        return pick([np.sum((t >= p[a]) & (t < p[b])) for p in pos])
+        return pick([stream_windows.count(p[a], p[b], closed=False) for p in pos])
 
     ns, lead = samples("s0", "s1", min), samples("s1", "r0", min)
     moving, down = samples("r0", "te", min), samples("te", "done", min)
     settle_max, settle_min = samples("ts", "r0", max), samples("ts", "r0", min)
     index = np.stack([np.concatenate([
         np.arange(s, s + ns), np.arange(r - lead, r + moving), np.arange(e, e + down)])
-        for s, r, e in (np.searchsorted(t, [p["s0"], p["r0"], p["te"]]) for p in pos)])
+        for s, r, e in ([stream_windows.first(p[key]) for key in ("s0", "r0", "te")]
+                        for p in pos)])
     up, dn = (math.ceil(fs * max(1 / p[key] for p in pos)) for key in ("up", "down"))
     m0 = ns + lead  # the rotating windows' start
     windows = {"static": (0, ns),
@@ -239,11 +257,25 @@ def _swept(t, p) -> np.ndarray:
     return ramp(t - p["ts"], p["up"]) - ramp(t - p["te"], p["down"])
 
 
-def _commanded(path, table, pos) -> float:
+class _States:
+    """The table states read for windows: `time`, `angle`, `rate_setpoint`, `still` (not moving)
+    of every state, and `rows(t0, t1)`, the states whose time lies in [t0, t1] found by
+    `np.searchsorted` (`station.reduce.windows.window_ranges`), not by masks over the table."""
+
+    def __init__(self, table):
+        self.time, self.angle, self.rate_setpoint = table.time, table.angle, table.rate_setpoint
+        self.still = ~table.flag("moving")
+        self._runs = increasing_runs(table.time)
+
+    def rows(self, t0: float, t1: float) -> np.ndarray:
+        """Indices of the states whose time lies in [t0, t1], in order."""
+        ranges = window_ranges(self.time, self._runs, t0, t1)
+        return np.concatenate([np.arange(a, b) for a, b in ranges] or [np.zeros(0, np.int64)])
+
+
+def _commanded(path, table: _States, pos) -> float:
     """c: the table's recorded set point during the rotating windows (one for all positions)."""
-    inside = np.zeros(len(table.time), bool)
-    for p in pos:
-        inside |= (table.time >= p["r0"]) & (table.time <= p["r1"])
+    inside = np.concatenate([table.rows(p["r0"], p["r1"]) for p in pos])
     values = np.unique(table.rate_setpoint[inside])
     if values.size != 1 or values[0] == 0:
         raise CalibrationInputError(
@@ -253,28 +285,29 @@ def _commanded(path, table, pos) -> float:
     return float(values[0])
 
 
-def _rate_factor(table, p, c, start: float) -> tuple:
+def _rate_factor(table: _States, p, c, start: float) -> tuple:
     """(factor, 1-sigma): the angle the table reports between rest before the spin-up (`start`)
     and rest after the stop, over c times the IMU-timed turning time at full rate (`_ramps`). 1
     for a table that reports its command (to the IMU timing's precision, the sigma); the true
     rate over the command for one whose angle reads the shaft. (1, inf) without a reading at rest
     after the stop (a position cut at the end of its spin-down, as imported arrays)."""
     rest = _at_rest(table, p["te"], p["done"])
-    if not rest.any():
+    if not rest.size:
         return 1.0, math.inf
     factor = (np.median(table.angle[rest]) - start) / (c * p["turning"])
     return factor, factor * p["turning_sd"] / p["turning"]
 
 
-def _at_rest(table, t0, t1) -> np.ndarray:
-    """Mask of the table readings at rest within [t0, t1]."""
-    return ~table.flag("moving") & (table.time >= t0) & (table.time <= t1)
+def _at_rest(table: _States, t0, t1) -> np.ndarray:
+    """Indices of the table readings at rest within [t0, t1]."""
+    rows = table.rows(t0, t1)
+    return rows[table.still[rows]]
 
 
-def _rest_angle(path, table, t0, t1, j, where) -> float:
+def _rest_angle(path, table: _States, t0, t1, j, where) -> float:
     """Median angle of the table readings at rest within [t0, t1]."""
     rest = _at_rest(table, t0, t1)
-    if not rest.any():
+    if not rest.size:
         raise CalibrationInputError(
             f"the session {path} holds no table reading at rest in position {j + 1}'s {where}.",
             "Record the session with the rotary table connected.")

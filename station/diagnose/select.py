@@ -180,18 +180,19 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
     tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
     while True:
         remaining = [c for c in candidates if c not in current.fitted]
-        fits, ev = {}, {}
+        ev, best, chosen = {}, "none", None
         if len(current.fitted) < max_effects:
             for name in remaining:
-                fits[name] = extend(current, (*current.fitted, name))
-                ev[name] = evidence(current, fits[name], name, len(remaining), alpha)
-                ev[name]["implausible"] = check(name, fits[name].fitted[name])
+                fit = extend(current, (*current.fitted, name))
+                ev[name] = evidence(current, fit, name, len(remaining), alpha)
+                ev[name]["implausible"] = check(name, fit.fitted[name])
+                if ev[name]["significant"] and not ev[name]["implausible"] and (
+                        best == "none" or ev[name]["log10_p"] < ev[best]["log10_p"]):
+                    best, chosen = name, fit  # only the strongest fit so far is kept (memory)
                 tried += 1
                 if progress is not None:
                     progress(tried, total)
-        best = min((n for n in ev if ev[n]["significant"] and not ev[n]["implausible"]),
-                   key=lambda n: ev[n]["log10_p"], default="none")
         steps.append(Step(current, statistics(current), ev, best))
         if best == "none":
             return Diagnosis(steps, alpha)
-        current = fits[best]
+        current = chosen

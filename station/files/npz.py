@@ -19,16 +19,35 @@ def truth_path(path) -> Path:
 
 
 def write(path, simulation) -> tuple[Path, Path]:
-    """Write `simulation.arrays` to `path` (.npz) and `simulation.truth` to the truth file."""
+    """Write `simulation.arrays` to `path` (.npz, compressed, as numpy.savez_compressed writes
+    it; arrays given in blocks are written block by block) and `simulation.truth` to the truth
+    file."""
     p = Path(path)
     if p.suffix != ".npz":
         raise InputError(
             f"output file {str(p)!r} must end with .npz (the truth goes to .truth.json)"
         )
-    np.savez_compressed(p, **simulation.arrays)
+    with zipfile.ZipFile(p, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as archive:
+        for name, value in simulation.arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                _write_array(member, value)
     t = truth_path(p)
     t.write_text(json.dumps(jsonable(simulation.truth), indent=1) + "\n")
     return p, t
+
+
+def _write_array(member, value) -> None:
+    """One array in .npy format, as numpy.savez_compressed writes it; an array given in blocks
+    (anything with `shape`, `dtype` and an iterator of C-ordered blocks along its first axis,
+    e.g. `station.sim.rotary.Blocks`) is written block by block, never held whole."""
+    if isinstance(value, np.ndarray | np.generic | int | float):
+        np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+        return
+    np.lib.format.write_array_header_1_0(member, {
+        "descr": np.lib.format.dtype_to_descr(np.dtype(value.dtype)), "fortran_order": False,
+        "shape": tuple(value.shape)})
+    for block in value:
+        member.write(np.ascontiguousarray(block, value.dtype).tobytes())
 
 
 def read(path) -> dict:

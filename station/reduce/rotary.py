@@ -13,7 +13,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
-from station.reduce.timeline import sample_times, segment_breaks
+from station.reduce.windows import StreamWindows, table_angle
 
 STUCK = 100
 """Samples in a window from which a channel that never changes is stuck."""
@@ -49,7 +49,9 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
     (e.g. to test whether the table's start or stop leaks into the windows).
     """
-    data, table, events = session.stream(stream), session.table(), session.events()
+    events = session.events()
+    stream_windows = StreamWindows(session, stream, events)
+    table_times = session.table_times()
     if not (math.isfinite(trim) and trim >= 0):
         raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
     windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
@@ -57,23 +59,23 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     if not windows:
         raise CalibrationInputError(f"the session {session.path} has no completed position.",
                                     "Record at least as many positions as the solver asks for.")
-    if len(table.time) < 2:
+    if len(table_times[0]) < 2:
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
-    rate = data.spec.rate_hz
-    t = sample_times(data.seq, data.host_time, rate, segment_breaks(events))
-    lsb = 1.0 / np.asarray(data.spec.counts_per_unit)
+    rate = stream_windows.spec.rate_hz
+    lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)
     parts = []
     for j, w in windows.items():
-        chosen = {name: (t >= t0) & (t <= t1) for name, (t0, t1) in w.items()}
+        chosen = {name: stream_windows.read(t0, t1) for name, (t0, t1) in w.items()}
         for name, (t0, t1) in w.items():
-            check_window_count(j, name, int(chosen[name].sum()), (t1 - t0) * rate, coverage)
-        static, rotating = chosen["static"], chosen["rotating"]
-        for name, window in chosen.items():
-            check_samples(j, name, data.counts[window])
-        ns, nr = int(static.sum()), int(rotating.sum())
-        y = np.concatenate([data.counts[static], data.counts[rotating]])[None]
-        angle = np.interp(np.concatenate([t[static], t[rotating]]), table.time, table.angle)
+            check_window_count(j, name, len(chosen[name][0]), (t1 - t0) * rate, coverage)
+        for name, (_, counts) in chosen.items():
+            check_samples(j, name, counts)
+        (static, static_counts), (rotating, rotating_counts) = chosen["static"], chosen["rotating"]
+        ns, nr = len(static), len(rotating)
+        y = np.concatenate([static_counts, rotating_counts])[None]
+        angle = table_angle(session, table_times,
+                            stream_windows.t[np.concatenate([static, rotating])])
         try:
             parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
                                                 "rotating": np.array([ns, ns + nr])}, angle=angle))

@@ -37,17 +37,39 @@ def sample_times(seq, host_time, rate_hz: float, breaks=()) -> np.ndarray:
     windows recorded before the interruption.
     """
     seq, host_time = np.asarray(seq), np.asarray(host_time, float)
-    if seq.size == 0:
-        return np.zeros(0)
     starts = np.concatenate([[-np.inf], np.sort(np.asarray(breaks, float))])
-    after = np.searchsorted(starts[1:], host_time, side="right")  # index of the break before
-    segment = after + np.concatenate([[0], np.cumsum(np.diff(seq) <= 0)])
+    offsets = {}
+    for rows, segment, _ in _segments(seq, host_time, starts):
+        for k in np.unique(segment):
+            part = segment == k
+            offset = arrival_offset(seq[rows][part], host_time[rows][part], rate_hz)
+            offsets[k] = min(offsets.get(k, np.inf), offset)
+    lookup = np.full(max(offsets, default=-1) + 1, np.nan)
+    lookup[list(offsets)] = list(offsets.values())
     times = np.empty(len(seq))
-    for k in np.unique(segment):
-        part = segment == k
-        times[part] = seq[part] / rate_hz + arrival_offset(seq[part], host_time[part], rate_hz)
-    times[times < starts[after]] = np.nan
+    for rows, segment, after in _segments(seq, host_time, starts):
+        part = seq[rows] / rate_hz + lookup[segment]
+        part[part < starts[after]] = np.nan
+        times[rows] = part
     return times
+
+
+BLOCK = 1 << 16
+"""Samples `sample_times` works on at a time (its memory beyond the result is a few blocks)."""
+
+
+def _segments(seq, host_time, starts):
+    """(rows, segment, after) per block of `BLOCK` samples: the block's slice, the segment of
+    each of its samples (the breaks before it plus the places before it where `seq` does not
+    increase) and the index in `starts` of the break before it."""
+    restarts = 0
+    for first in range(0, len(seq), BLOCK):
+        rows = slice(first, first + BLOCK)
+        after = np.searchsorted(starts[1:], host_time[rows], side="right")
+        steps = np.cumsum(np.diff(seq[max(first - 1, 0):first + BLOCK]) <= 0)
+        count = restarts + (np.concatenate([[0], steps]) if first == 0 else steps)
+        restarts = int(count[-1])
+        yield rows, after + count, after
 
 
 def segment_breaks(events) -> list:

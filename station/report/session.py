@@ -117,7 +117,8 @@ def build(path, result: str | None = None) -> Report:
         _fixture_poses(report, session.metadata)
         calibration = _calibration(session, result, report)
         for name in session.specs:
-            _stream_health(report, name, session.stream(name), events)
+            _stream_health(report, name, session.stream(name, columns=("seq", "host_time")),
+                           events)
         _table_stability(report, session.table(), events, session.metadata)
     if calibration is not None:
         cal, channels, units = calibration

@@ -90,11 +90,12 @@ class StreamSpec:
 class StreamData:
     """A recorded sample stream: the `SampleBlock` columns and the stream's description."""
 
-    counts: np.ndarray  # (k, m) int32 or int64
-    seq: np.ndarray  # (k,) int64
-    device_time: np.ndarray  # (k,) float64 s
-    host_time: np.ndarray  # (k,) float64 s
+    counts: np.ndarray | None  # (k, m) int32 or int64
+    seq: np.ndarray | None  # (k,) int64
+    device_time: np.ndarray | None  # (k,) float64 s
+    host_time: np.ndarray | None  # (k,) float64 s; a column not read (Session.stream) is None
     spec: StreamSpec
+    rows: np.ndarray | None = None  # (k,) file row of each sample; None: the k rows read, in order
 
     def to_si(self) -> np.ndarray:
         """Readings (k, m) in SI units: counts / counts_per_unit."""

@@ -36,6 +36,9 @@ from station.files.session.format import (
 )
 from station.solve.calibrate import CalibrationResult
 
+_TABLE_KINDS = {**{c: ("f", ()) for c in TABLE_COLUMNS}, "status": ("u", ())}
+"""dtype kind and trailing shape of each table column."""
+
 
 class Session:
     """A session file opened for reading, also while a writer appends to it (SWMR read).
@@ -58,6 +61,7 @@ class Session:
         streams = _child(h5file, "streams", h5py.Group, self.path)
         self.specs = {n: read_spec(_child(streams, n, h5py.Group, self.path), self.path)
                       for n in streams if n != "table"}
+        self._checked = {}  # stream name (or "/table") -> its checked datasets (`_checked`)
 
     @classmethod
     def open(cls, path) -> "Session":
@@ -81,25 +85,50 @@ class Session:
         """False while a writer is live or after it was killed (superblock flags still set)."""
         return open_flags(self.path) == 0
 
-    def stream(self, name: str) -> StreamData:
-        """All samples of a stream flushed so far (the common length of its columns)."""
+    def stream(self, name: str, start: int = 0, stop: int | None = None,
+               columns: tuple = STREAM_COLUMNS) -> StreamData:
+        """The samples of a stream among its file rows [start, stop) (stop None: all flushed so
+        far, the common length of its columns); rows of damaged chunks are left out, `rows` says
+        which file row each sample is (None: all of [start, stop)). Only `columns` are read (the
+        others are None): e.g. a stream's clock ("seq", "host_time"), from which windows are
+        found and then read by row range (`station.reduce.windows`)."""
         if name not in self.specs:
             raise InputError(f"no stream {name!r} in {self.path}; it has {sorted(self.specs)}")
         spec = self.specs[name]
-        g = self._file["streams"][name]
-        counts, seq, device_time, host_time = _columns(g, STREAM_COLUMNS, self.path, {
-            "counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
-            "device_time": ("f", ()), "host_time": ("f", ())}, drop_damaged=True)
-        return StreamData(counts, seq.astype(np.int64), device_time.astype(np.float64),
-                          host_time.astype(np.float64), spec)
+        if name not in self._checked:
+            kinds = {"counts": ("iu", (len(spec.channels),)), "seq": ("i", ()),
+                     "device_time": ("f", ()), "host_time": ("f", ())}
+            self._checked[name] = _checked(self._file["streams"][name], STREAM_COLUMNS,
+                                           self.path, kinds)
+        read, rows = _columns(self._checked[name], self.path, drop_damaged=True, start=start,
+                              stop=stop, read=columns)
+        values = dict(zip(columns, read, strict=True))
+        dtypes = {"seq": np.int64, "device_time": np.float64, "host_time": np.float64}
+        for column, dtype in dtypes.items():
+            if column in values:
+                values[column] = values[column].astype(dtype, copy=False)
+        return StreamData(*(values.get(c) for c in STREAM_COLUMNS), spec, rows)
 
-    def table(self) -> TableData:
-        """The rotary-table states flushed so far."""
-        g = _child(self._file["streams"], "table", h5py.Group, self.path)
-        kinds = {c: ("f", ()) for c in TABLE_COLUMNS}
-        kinds["status"] = ("u", ())
-        cols = _columns(g, TABLE_COLUMNS, self.path, kinds, drop_damaged=True)
-        return TableData(*(c.astype(np.float64) for c in cols[:-1]), cols[-1].astype(np.uint8))
+    def table(self, start: int = 0, stop: int | None = None) -> TableData:
+        """The rotary-table states among the file rows [start, stop) (stop None: all flushed so
+        far); rows of damaged chunks are left out."""
+        cols, _ = _columns(self._table(), self.path, drop_damaged=True, start=start, stop=stop)
+        return TableData(*(c.astype(np.float64, copy=False) for c in cols[:-1]),
+                         cols[-1].astype(np.uint8, copy=False))
+
+    def table_times(self) -> tuple:
+        """(time, rows): the times of the table states (their dimension scale) and the file row
+        of each (None: row i is time[i]), rows of damaged chunks left out; `table(start, stop)`
+        reads the states."""
+        (time,), rows = _columns(self._table(), self.path, drop_damaged=True, read=("time",))
+        return time.astype(np.float64, copy=False), rows
+
+    def _table(self) -> dict:
+        """The table's checked datasets (`_checked`), looked up once."""
+        if "/table" not in self._checked:  # no stream is named so ("/" is not in a name)
+            g = _child(self._file["streams"], "table", h5py.Group, self.path)
+            self._checked["/table"] = _checked(g, TABLE_COLUMNS, self.path, _TABLE_KINDS)
+        return self._checked["/table"]
 
     def events(self) -> list:
         """Protocol events flushed so far, in order."""
@@ -254,53 +283,69 @@ def read_spec(g, where="") -> StreamSpec:
         raise SessionFormatError(f"{where}: stream {g.name} is malformed ({e})") from None
 
 
-def _columns(g, names, where, kinds, drop_damaged=False) -> list:
-    """Datasets `names` of `g` read to their common length, each checked for dtype kind and
-    trailing shape. A chunk that does not read back (its fletcher32 checksum fails) is a
-    SessionFormatError, or with `drop_damaged` its rows are left out of every column, as samples
-    the link lost (the sequence numbers show the gap; `station.files.session.check` names the
-    positions they belong to)."""
-    datasets = [_child(g, n, h5py.Dataset, where) for n in names]
-    for ds, n in zip(datasets, names, strict=True):
-        ds.refresh()
+def _checked(g, names, where, kinds) -> dict:
+    """{name: dataset} of the datasets `names` of `g`, each a plain dataset of this file with the
+    dtype kind and trailing shape of `kinds` (name -> (dtype kinds, trailing shape))."""
+    datasets = {n: _child(g, n, h5py.Dataset, where) for n in names}
+    for n, ds in datasets.items():
         dtype_kinds, tail = kinds[n]
         if ds.dtype.kind not in dtype_kinds or ds.shape[1:] != tail:
             raise SessionFormatError(f"{where}: {ds.name} has dtype {ds.dtype} and shape "
                                      f"{ds.shape}; expected kind {dtype_kinds!r}, rows x {tail}")
-    k = min(ds.shape[0] for ds in datasets)
-    columns, intact = zip(*(_rows(ds, k, where, drop_damaged) for ds in datasets), strict=True)
+    return datasets
+
+
+def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None) -> tuple:
+    """(columns, rows): the datasets `read` (default: all) of `datasets` (`_checked`), refreshed,
+    read over the rows [start, stop) of their common length (stop None: to that length); `rows`
+    the file row of each value read, None when every row of [start, stop) was (no chunk damaged,
+    the common case). A chunk that does not read back (its fletcher32 checksum fails) is a
+    SessionFormatError, or with `drop_damaged` its rows are left out of every column read, as
+    samples the link lost (the sequence numbers show the gap; `station.files.session.check` names
+    the positions they belong to)."""
+    for ds in datasets.values():
+        ds.refresh()
+    k = min(ds.shape[0] for ds in datasets.values())
+    start, stop = min(start, k), k if stop is None else min(stop, k)
+    columns, intact = zip(*(_rows(datasets[n], start, max(start, stop), where, drop_damaged)
+                            for n in (datasets if read is None else read)), strict=True)
     keep = np.logical_and.reduce(intact)
-    return list(columns) if keep.all() else [c[keep] for c in columns]
+    if keep.all():
+        return list(columns), None
+    return [c[keep] for c in columns], start + np.flatnonzero(keep)
 
 
-def _rows(ds, k: int, where, drop_damaged: bool) -> tuple:
-    """(the first k rows of `ds`, a mask of the rows that read back intact)."""
+def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
+    """(the rows [start, stop) of `ds`, a mask of the rows that read back intact)."""
     try:
-        return ds[:k], np.ones(k, bool)
+        return ds[start:stop], np.ones(stop - start, bool)
     except OSError as e:
         if not drop_damaged or ds.chunks is None:
             raise SessionFormatError(f"{where}: {ds.name} does not read back intact ({e}); the "
                                      "file is damaged") from None
-    values, intact = np.zeros((k, *ds.shape[1:]), ds.dtype), np.ones(k, bool)
-    for start in range(0, k, ds.chunks[0]):
-        rows = slice(start, min(start + ds.chunks[0], k))
+    values = np.zeros((stop - start, *ds.shape[1:]), ds.dtype)
+    intact = np.ones(stop - start, bool)
+    size = ds.chunks[0]
+    for first in range(start - start % size, stop, size):
+        a, b = max(first, start), min(first + size, stop)
         try:
-            values[rows] = ds[rows]
+            values[a - start:b - start] = ds[a:b]
         except OSError:
-            intact[rows] = False
+            intact[a - start:b - start] = False
     return values, intact
 
 
 def read_events(g, where="") -> list:
     kinds = {"time": ("f", ()), "position": ("i", ()), "kind": ("S", ()), "detail_end": ("i", ())}
-    times, positions, kind_bytes, ends = _columns(g, EVENT_COLUMNS, where, kinds)
+    (times, positions, kind_bytes, ends), _ = _columns(_checked(g, EVENT_COLUMNS, where, kinds),
+                                                       where)
     detail = _child(g, "detail", h5py.Dataset, where)
     detail.refresh()
     if detail.dtype != np.uint8 or detail.ndim != 1:
         raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
     k = complete_events(ends, detail.shape[0], where)
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
-    text = _rows(detail, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
+    text = _rows(detail, 0, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
     events = []
     for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
                               strict=True):
