@@ -8,8 +8,6 @@ fraction within +-1.96 sigma).
 """
 
 import argparse
-import contextlib
-import io
 import json
 import sys
 import tempfile
@@ -22,21 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from test_gyro_carry import FS, G, hand_recording, true_sensitivity  # noqa: E402
 
-from station.cli import main as station  # noqa: E402
+from bench.realdata_cli import run  # noqa: E402
 from station.files.calfile import load  # noqa: E402
 
 COUNTS, MID = 4000.0, 32768.0  # counts per rad/s and mid-scale of the simulated gyro
 BIAS = np.array([0.02, -0.01, 0.015])  # rad/s, hand_recording's
-
-
-def run(*argv) -> str:
-    """stdout of one `station` command (it must succeed)."""
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        code = station([str(a) for a in argv])
-    if code != 0:
-        raise SystemExit(f"station {' '.join(map(str, argv))} exited {code}")
-    return out.getvalue()
 
 
 def one(seed: int, work: Path) -> dict:

@@ -65,15 +65,9 @@ def _covariance(rho, pooled_a, pooled_b) -> np.ndarray | None:
     parts = [(pooled_a.mean_sigma.ravel(), pooled_a), (pooled_b.mean_sigma, pooled_b)]
     mean_sd = np.concatenate([sd for sd, _ in parts])
     tau2 = np.concatenate([np.where(p.sigma.ravel() > 0, p.tau**2, 0.0) for _, p in parts])
-    widen = np.concatenate([_widening(p).ravel() for _, p in parts])
+    widen = np.concatenate([np.full(sd.size, p.widening) for sd, p in parts])
     cov = rho * np.outer(mean_sd, mean_sd) + np.diag(tau2)
     return cov * np.outer(widen, widen)
-
-
-def _widening(p: repeatability.Pooled) -> np.ndarray:
-    """The factor `pool` applied to each parameter's next-session sigma (1 where fixed)."""
-    base = np.sqrt(p.mean_sigma**2 + np.where(p.sigma > 0, p.tau**2, 0.0))
-    return np.divide(p.sigma, base, out=np.ones_like(base), where=base > 0)
 
 
 def combine(cals, names) -> Calibration:
@@ -92,7 +86,8 @@ def combine(cals, names) -> Calibration:
         flat = repeatability.pool(x.reshape(len(cals), -1), s.reshape(len(cals), -1))
         pooled[name] = repeatability.Pooled(
             mean=flat.mean.reshape(x.shape[1:]), mean_sigma=flat.mean_sigma.reshape(x.shape[1:]),
-            sigma=flat.sigma.reshape(x.shape[1:]), tau=flat.tau, dof=flat.dof, q=flat.q)
+            sigma=flat.sigma.reshape(x.shape[1:]), tau=flat.tau, dof=flat.dof, q=flat.q,
+            widening=flat.widening)
     a = pooled["a"].mean
     fits = [c.fit for c in cals]
     suspect = [f"{n}: {'; '.join(c.fit.get('status_reasons', [])) or 'suspect'}"

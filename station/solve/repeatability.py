@@ -34,6 +34,7 @@ class Pooled:
     dof              : degrees of freedom of tau^2, P' (K - 1) over the P' parameters that vary
     q                : the generalised Q statistic at tau = 0 (chi2 with dof degrees of freedom
                        when the sessions agree within their own 1-sigma)
+    widening         : the factor on sqrt(mean_sigma^2 + tau^2) that gives `sigma` (1: tau = 0)
     """
 
     mean: np.ndarray
@@ -42,6 +43,7 @@ class Pooled:
     tau: float
     dof: int
     q: float
+    widening: float = 1.0
 
 
 def _q(x: np.ndarray, s2: np.ndarray, tau2: float) -> float:
@@ -96,4 +98,4 @@ def pool(x, s) -> Pooled:
         share = float(np.mean(tau2 / total[~fixed]))
         widen = float(stats.t.ppf(0.975, dof / share**2) / stats.norm.ppf(0.975))
     return Pooled(mean=mean, mean_sigma=np.sqrt(mean_var), sigma=widen * np.sqrt(total),
-                  tau=float(np.sqrt(tau2)), dof=dof, q=q0)
+                  tau=float(np.sqrt(tau2)), dof=dof, q=q0, widening=widen)
