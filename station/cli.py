@@ -20,9 +20,9 @@ debug logging. Anything else is a bug and keeps its traceback.
 import argparse
 import logging
 import os
-import signal
 import sys
-import threading
+
+from station.acquire import interrupts
 
 # name -> (module under station/commands/, one-line summary for `station --help`)
 COMMANDS = {
@@ -113,8 +113,7 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     configure_logging(args.verbose)
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGTERM, _terminated) if main_thread else None  # kill = ^C
+    previous = interrupts.install()  # kill = ^C, and never lost
     try:
         return int(args.run(args) or 0)
     except KeyboardInterrupt as err:
@@ -130,14 +129,7 @@ def main(argv=None) -> int:
             raise
         return _fail(args, err, err.exit_code)
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-
-
-def _terminated(signum, frame):
-    """SIGTERM: raise KeyboardInterrupt in the main thread, so that every `with` and `finally`
-    on the way out runs (the rotary table is stopped, the session file closed)."""
-    raise KeyboardInterrupt("terminated (SIGTERM)")
+        interrupts.restore(previous)
 
 
 def _fail(args, err: BaseException, code: int, message: str = "") -> int:

@@ -64,10 +64,12 @@ def run_and_kill(path, mode, delay):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines, first = [], threading.Event()
 
-    def read():
+    def read():  # a line cut by the kill is left out
         for line in proc.stdout:
-            lines.append(line.split())
-            first.set()
+            words = line.split()
+            if line.endswith("\n") and words and (words[0] == "done" or len(words) == 4):
+                lines.append(words)
+                first.set()
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     watchdog = time.monotonic() + 60

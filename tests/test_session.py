@@ -24,6 +24,8 @@ from station.files.session import (
     StreamSpec,
     write_results,
 )
+from station.files.session import writer as writer_module
+from station.files.session.format import EVENT_COLUMNS, STREAM_COLUMNS, TABLE_COLUMNS
 from station.replay import as_block
 from station.solve.calibrate import calibrate
 
@@ -100,6 +102,50 @@ def test_round_trip_is_exact(tmp_path):
         assert np.array_equal(f["streams/imu"].attrs["counts_per_unit"], [1.0e6] * 12)
         assert f["streams/imu/counts"].maxshape == (None, 12)
         assert f["events/kind"][1] == b"static_start"
+
+
+FLUSH_WRITES = len(STREAM_COLUMNS) + len(TABLE_COLUMNS) + len(EVENT_COLUMNS) + 1  # + detail
+
+
+@pytest.mark.parametrize("cut", range(1, FLUSH_WRITES + 1))
+def test_a_flush_cut_by_ctrl_c_is_written_again_whole(tmp_path, monkeypatch, cut):
+    """Ctrl-C raises KeyboardInterrupt in the main thread between any two writes of a flush (here
+    before write number `cut` of the flush of an event with samples and table states buffered);
+    the protocol then records its abort and closes: every row is in the file once, the columns in
+    step (a cut events flush once made a resumed session unreadable: 'not valid ASCII/JSON')."""
+    rng = np.random.default_rng(cut)
+    blocks = [block(rng, 0, 30), block(rng, 30, 20)]
+    states = [table_reading(1.0), table_reading(2.0, ("running",))]
+    path = tmp_path / "cut.h5"
+    w = new_session(path, flush_interval=3600.0)
+    for b, state in zip(blocks, states, strict=True):
+        w.append("imu", b)
+        w.append_table(state)
+    real, writes = writer_module._extend, []
+
+    def extend(ds, values):
+        writes.append(ds.name)
+        if len(writes) == cut:
+            raise KeyboardInterrupt
+        real(ds, values)
+    monkeypatch.setattr(writer_module, "_extend", extend)
+    with pytest.raises(KeyboardInterrupt):
+        w.event("position_done", 0, {"up": [0.0, 0.0, 1.0]}, time=101.0)
+    monkeypatch.setattr(writer_module, "_extend", real)
+    w.event("abort", 0, {"error": "KeyboardInterrupt"}, time=102.0)
+    w.close()
+    every = SampleBlock.concat(blocks)
+    with Session.open(path) as s:
+        d = s.stream("imu")
+        assert np.array_equal(d.seq, every.seq) and np.array_equal(d.counts, every.counts)
+        assert np.array_equal(d.host_time, every.host_time)
+        assert np.array_equal(s.table().time, [1.0, 2.0])
+        events = s.events()
+        assert [(e.kind, e.position, e.detail) for e in events[1:]] == [
+            ("position_done", 0, {"up": [0.0, 0.0, 1.0]}),
+            ("abort", 0, {"error": "KeyboardInterrupt"})]
+        assert [e.time for e in events[1:]] == [101.0, 102.0]
+    assert len(writes) == cut  # the flush had reached its write number `cut`
 
 
 def test_int64_streams_keep_counts_beyond_32_bits(tmp_path):

@@ -27,6 +27,7 @@ from typing import Self
 import numpy as np
 
 from drivers.clock import WallClock
+from station.acquire import interrupts
 from station.errors import RecordingError
 from station.reduce.timeline import arrival_offset
 
@@ -134,7 +135,9 @@ class Recorder:
 
     def check(self, stale: float) -> None:
         """Raise RecordingError if the reader failed or no sample came for `stale` clock seconds
-        (and at least `busy_grace` wall seconds)."""
+        (and at least `busy_grace` wall seconds); raise a Ctrl-C that was dropped
+        (`station.acquire.interrupts`)."""
+        interrupts.raise_dropped()
         if self.error is not None:
             raise RecordingError(f"recording of the IMU stopped: {self.error}") from self.error
         clock, wall = self._last_arrival

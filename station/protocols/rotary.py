@@ -60,6 +60,7 @@ import numpy as np
 
 from drivers.errors import CanBusError, SerialPortError, TableError
 from drivers.rotary_table import TableTimeout, not_stopped
+from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
@@ -231,6 +232,7 @@ class RotaryProtocol:
         except SessionPaused:
             raise  # table stopped and `pause` recorded already
         except BaseException as exc:
+            interrupts.handled()
             log.warning("position %d aborted in state %s: %r", self.position + 1, self.state, exc)
             self._abort(exc)
             raise

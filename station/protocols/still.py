@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.acquire import interrupts
 from station.acquire.recorder import Recorder
 from station.errors import InputError, ProtocolError
 from station.files.session import SessionWriter
@@ -201,6 +202,7 @@ def run_states(protocol, recorder, first: str) -> None:
         while protocol.state != "done":
             protocol.state = protocol.handlers[protocol.state]()
     except BaseException as exc:
+        interrupts.handled()
         try:
             recorder.event("abort", protocol.position, {
                 "state": protocol.state, "error": f"{type(exc).__name__}: {exc}"})

@@ -71,6 +71,7 @@ class SessionWriter:
         self.specs = {name: read_spec(g) for name, g in h5file["streams"].items()
                       if name != "table"}
         self._pending = {name: [] for name in [*self.specs, "table", "events"]}
+        self._rows = {name: _lengths(h5file[_group(name)], name) for name in self._pending}
         self._last_flush = time.monotonic()
         self.last_completed_position = last_completed_position(read_events(h5file["events"]))
 
@@ -218,9 +219,10 @@ class SessionWriter:
         with self._mutex:
             self._check_open()
             for name, chunks in self._pending.items():
-                if chunks:
+                if chunks:  # kept until written: an append cut by an exception is done again
+                    rows = _append_rows(self._file[_group(name)], name, chunks, self._rows[name])
+                    self._rows[name] = rows
                     self._pending[name] = []
-                    _append_rows(self._file[_group(name)], name, chunks)
             self._file.flush()
             self._last_flush = time.monotonic()
 
@@ -410,21 +412,38 @@ def _first_column(name: str) -> str:
     return "time" if name in ("events", "table") else "counts"
 
 
-def _append_rows(group, name, chunks) -> None:
+def _grown(name: str) -> tuple:
+    """The datasets of a group that an append grows."""
+    if name == "events":
+        return (*EVENT_COLUMNS, "detail")
+    return TABLE_COLUMNS if name == "table" else STREAM_COLUMNS
+
+
+def _lengths(group, name) -> dict:
+    return {column: group[column].shape[0] for column in _grown(name)}
+
+
+def _append_rows(group, name, chunks, lengths) -> dict:
     """Append buffered column tuples to a group's datasets (events: detail bytes first, then the
-    end offset of each event's text in them)."""
+    end offset of each event's text in them); returns the datasets' new lengths.
+
+    `lengths` are those of the last complete append: what an append cut by an exception left (a
+    Ctrl-C raises in the main thread between any two of its writes) is cut off first, so that the
+    columns never go out of step."""
+    for column, n in lengths.items():
+        if group[column].shape[0] != n:
+            group[column].resize(n, axis=0)
     columns = [np.concatenate(parts) for parts in zip(*chunks, strict=True)]
+    names = _grown(name)
     if name == "events":
         text = columns.pop()
-        lengths = columns.pop()
-        ends = group["detail"].shape[0] + np.cumsum(lengths)
+        ends = group["detail"].shape[0] + np.cumsum(columns.pop())
         _extend(group["detail"], text)
         columns.append(ends)
         names = EVENT_COLUMNS
-    else:
-        names = TABLE_COLUMNS if name == "table" else STREAM_COLUMNS
     for column, values in zip(names, columns, strict=True):
         _extend(group[column], values)
+    return _lengths(group, name)
 
 
 def _extend(ds, values) -> None:

@@ -1,0 +1,49 @@
+"""Ctrl-C and `kill` that are never lost.
+
+Python runs a signal handler between two bytecodes of the main thread, also inside a weakref
+callback or a `__del__`; an exception raised there is printed ("Exception ignored in ...") and
+dropped, so a KeyboardInterrupt from Ctrl-C could vanish and the recording go on with the rotary
+table turning. `install()` makes SIGINT and SIGTERM (`kill`) raise KeyboardInterrupt and also
+remember it; `raise_dropped()`, called wherever a protocol polls its devices
+(`station.acquire.recorder.Recorder.check`), raises it again if nobody has handled it; whoever
+handles it (stops the table, records the abort) calls `handled()` first.
+"""
+
+import signal
+import threading
+
+_pending: str | None = None
+
+
+def install() -> dict:
+    """Handle SIGINT and SIGTERM as above (main thread only); returns the previous handlers for
+    `restore`."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {number: signal.signal(number, _interrupted) for number in (signal.SIGINT,
+                                                                       signal.SIGTERM)}
+
+
+def restore(previous: dict) -> None:
+    """Put back the handlers `install` replaced; forget any interrupt."""
+    for number, handler in previous.items():
+        signal.signal(number, handler)
+    handled()
+
+
+def raise_dropped() -> None:
+    """Raise KeyboardInterrupt again for a signal whose first one was dropped."""
+    if _pending is not None:
+        raise KeyboardInterrupt(f"{_pending} (raised again: the first was dropped)")
+
+
+def handled() -> None:
+    """The interrupt is being handled: `raise_dropped` no longer raises it."""
+    global _pending
+    _pending = None
+
+
+def _interrupted(number, frame):
+    global _pending
+    _pending = "interrupted (Ctrl-C)" if number == signal.SIGINT else "terminated (SIGTERM)"
+    raise KeyboardInterrupt(_pending)

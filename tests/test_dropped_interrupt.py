@@ -1,0 +1,51 @@
+"""A Ctrl-C or `kill` whose KeyboardInterrupt Python drops (the handler ran inside a finaliser or
+a weakref callback: "Exception ignored in ...") is raised again where a protocol polls its devices
+(station.acquire.interrupts); once handled it is not raised again. Seen on CI: `station record`
+went on to the end of the session after a SIGTERM at a position's end."""
+
+import os
+import signal
+
+import pytest
+
+from station.acquire import interrupts
+
+
+class Finalised:
+    """Sends itself `number` from its finaliser and runs on: the handler raises in there."""
+
+    def __init__(self, number):
+        self.number = number
+
+    def __del__(self):
+        os.kill(os.getpid(), self.number)
+        for _ in range(10_000):  # the eval loop runs the Python handler here
+            pass
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the dropped one
+@pytest.mark.parametrize("number", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_dropped_interrupt_is_raised_again_until_handled(number):
+    previous = interrupts.install()
+    try:
+        Finalised(number)  # its KeyboardInterrupt is printed and dropped, nothing raises here
+        with pytest.raises(KeyboardInterrupt, match="dropped"):
+            interrupts.raise_dropped()
+        interrupts.handled()
+        interrupts.raise_dropped()  # handled: nothing more
+    finally:
+        interrupts.restore(previous)
+    assert signal.getsignal(number) is previous[number]
+
+
+def test_an_interrupt_that_propagates_is_handled_once():
+    previous = interrupts.install()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(10_000):
+                pass
+        interrupts.handled()  # what the protocol does before stopping the table
+        interrupts.raise_dropped()
+    finally:
+        interrupts.restore(previous)
