@@ -84,6 +84,28 @@ VERDICTS = ("PASS", "FAIL", "MARGINAL")
 
 
 @dataclass(frozen=True, eq=False)
+class NoiseFigures:
+    """Each sensor's noise from its static data, by the Allan deviation (IEEE Std 952-1997 and
+    1293-1998 terms); arrays (m,) in the order of `Calibration.sensors`, in the readings' units u
+    (rad/s, m/s^2), each with its 1-sigma:
+
+    white            : N, white-noise density (angle / velocity random walk), u sqrt(s) = u/sqrt(Hz)
+    bias_instability : B, the flicker floor, u (Allan deviation minimum / sqrt(2 ln 2 / pi))
+    random_walk      : K, rate / acceleration random walk, u/sqrt(s) (= u sqrt(Hz)/s)
+    rate_hz          : sample rate of the static data; seconds: how much of it was analysed
+    """
+
+    white: np.ndarray
+    white_sigma: np.ndarray
+    bias_instability: np.ndarray
+    bias_instability_sigma: np.ndarray
+    random_walk: np.ndarray
+    random_walk_sigma: np.ndarray
+    rate_hz: float
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
 class Calibration(measurement.Sensitivity):
     """One unit's calibration, as stored in a calibration file (shapes: d axes, m sensors).
 
@@ -107,6 +129,7 @@ class Calibration(measurement.Sensitivity):
     white               : the white-noise figure {name: array} of WHITE (a_sigma, bias_sigma,
                           scale_factors_sigma, axis_angles_sigma), or None (files before
                           version 4)
+    noise               : each sensor's `NoiseFigures`, or None (not measured)
     """
 
     unit_serial: str
@@ -130,6 +153,7 @@ class Calibration(measurement.Sensitivity):
     verdict: dict | None = None
     pose_sigma: float | None = None
     white: dict | None = None
+    noise: NoiseFigures | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
 
