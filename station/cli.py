@@ -39,7 +39,8 @@ COMMANDS = {
                            "their repeatability"),
     "apply": ("apply", "apply a calibration file to readings (CSV or session) -> calibrated "
                        "vectors"),
-    "export": ("export", "export a calibration file as a C header for firmware"),
+    "export": ("export", "export calibrations for other tools: C header, Kalibr, ArduPilot, PX4, "
+                          "ROS, imucal"),
     "report": ("report", "write an HTML report (and PNG figures) of a session file"),
     "diagnose": ("diagnose", "find where a session and its twin disagree and name the effect"),
     "simulate": ("simulate", "simulate a session of the digital twin"),
