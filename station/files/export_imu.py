@@ -127,9 +127,10 @@ def axis_noise(cal: Calibration, name: str, format_name: str) -> np.ndarray:
 
 def noise_covariance(cal: Calibration, variances) -> np.ndarray:
     """(d, d) covariance F diag(variances) F^T of the calibrated vector from independent
-    sensors' variances (m,)."""
+    sensors' variances (m,), exactly symmetric (a covariance a reader may check)."""
     f = cal.fusion_matrix()
-    return (f * np.asarray(variances, float)) @ f.T
+    cov = (f * np.asarray(variances, float)) @ f.T
+    return (cov + cov.T) / 2
 
 
 @dataclass(frozen=True)
