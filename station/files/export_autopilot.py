@@ -3,7 +3,7 @@
 Both autopilots correct each axis on its own, in the sensor's frame, before the board rotation:
 
 - ArduPilot (libraries/AP_InertialSensor, AP_InertialSensor_Backend::_rotate_and_correct_accel
-  and _gyro; parameter documentation INS_ACCOFFS_*, INS_ACCSCAL_* (range 0.8 to 1.2),
+  and _gyro; the parameter documentation of INS_ACCOFFS_*, INS_ACCSCAL_* (range 0.8 to 1.2),
   INS_GYROFFS_*, units m/s^2 and rad/s):
       accel_k = (raw_k - INS_ACCOFFS_k) * INS_ACCSCAL_k,   gyro_k = raw_k - INS_GYROFFS_k
   instance 1 is INS_ACC*, INS_GYR*; 2 and 3 are INS_ACC2OFFS_X, INS_GYR2OFFS_X, ... The file is
@@ -22,10 +22,14 @@ the readings' SI units) and the accelerometer's scales 1 / a_kk; the autopilot t
 v'_k = (z_k - b_k) / a_kk = v_k + (cross-axis terms), exact for a diagonal a. The gyro has no
 scale parameter in either autopilot: its scale errors are dropped too. The worst case of the
 dropped part at 1 g / 1 rad/s is stated in the summary and refused beyond 1 % unless --force.
-The readings must be the sensor axes the autopilot corrects: its raw (RAW_IMU, sensor_accel)
-axes before the board rotation, in x, y, z order, in a frame tied to them (`nominal`, or
-`canonical` of a triad whose first sensor is x). Values are written as float32 (MAVLink
-parameters are REAL32), the shortest text that gives back that float32.
+The readings must be what the correction sees: ArduPilot rotates the chip's axes to the board's
+(the driver's sensor orientation) before the offsets and scales and turns by AHRS_ORIENTATION
+after them; PX4 turns by CAL_ACCn_ROT / SENS_BOARD_ROT after them. So record the unit with the
+autopilot's own offsets 0, scales 1, board rotation none and temperature calibration off (or
+from a sensor that reports before them), its x, y, z axes in that order, and solve it in a frame
+tied to them (`nominal`, or the `canonical` frame of a triad whose first sensor is x).
+Values are written as float32 (MAVLink parameters are REAL32), the shortest text that gives
+back that float32.
 """
 
 import numpy as np
