@@ -129,16 +129,22 @@ def test_a_gyro_carried_by_the_accelerometer_shares_its_canonical_frame(tmp_path
 
 # ArduPilot: pymavlink's loader, ArduPilot's per-axis correction --------------------------------
 
-def ardupilot_correct(params, z_acc, z_gyr, tag=""):
+AP_NAMES = {1: ("INS_ACCOFFS", "INS_ACCSCAL", "INS_GYROFFS"),  # ArduPilot's parameter docs
+            2: ("INS_ACC2OFFS", "INS_ACC2SCAL", "INS_GYR2OFFS")}
+
+
+def ardupilot_correct(params, z_acc, z_gyr, instance=1):
     """AP_InertialSensor_Backend: accel (raw - INS_ACCOFFS) * INS_ACCSCAL, gyro
     raw - INS_GYROFFS, per axis, in float32 (ArduPilot's parameters and arithmetic)."""
     f32 = np.float32
+    offset, scale, gyro = AP_NAMES[instance]
+    assert set(params) == {f"{name}_{k}" for name in AP_NAMES[instance] for k in "XYZ"}
 
     def vec(name):
         return np.array([params[f"{name}_{k}"] for k in "XYZ"], dtype=f32)
 
-    acc = (z_acc.astype(f32) - vec(f"INS_ACC{tag}OFFS")) * vec(f"INS_ACC{tag}SCAL")
-    gyr = z_gyr.astype(f32) - vec(f"INS_GYR{tag or 'O'}OFFS")
+    acc = (z_acc.astype(f32) - vec(offset)) * vec(scale)
+    gyr = z_gyr.astype(f32) - vec(gyro)
     return acc.astype(float), gyr.astype(float)
 
 
@@ -157,7 +163,6 @@ def test_ardupilot_parameters_give_our_vectors_for_a_per_axis_unit(tmp_path, cap
     code, summary = export(tmp_path, capsys, [acc, gyro], "--to", "ardupilot")
     assert code == 0 and summary["out"].endswith(".ardupilot.param")
     params = load_mavproxy(summary["out"])
-    assert len(params) == 9
     _, z_acc = readings(acc, 2 * G)
     _, z_gyr = readings(gyro, 5.0)
     got_acc, got_gyr = ardupilot_correct(params, z_acc, z_gyr)
@@ -180,7 +185,7 @@ def test_ardupilot_states_what_its_per_axis_model_drops(tmp_path, capsys):
     u = rng.normal(size=(20000, 3))
     u /= np.linalg.norm(u, axis=1)[:, None]
     got_acc, got_gyr = ardupilot_correct(params, G * u @ acc.a + acc.bias, u @ gyro.a + gyro.bias,
-                                         tag="2")
+                                         instance=2)
     for kind, got, true in (("accelerometer", got_acc, G * u), ("gyroscope", got_gyr, u)):
         worst = np.max(np.linalg.norm(got - true, axis=1))
         # the statement is a bound (within float32 rounding) and, over 20000 directions, tight

@@ -6,7 +6,8 @@ Both autopilots correct each axis on its own, in the sensor's frame, before the 
   and _gyro; the parameter documentation of INS_ACCOFFS_*, INS_ACCSCAL_* (range 0.8 to 1.2),
   INS_GYROFFS_*, units m/s^2 and rad/s):
       accel_k = (raw_k - INS_ACCOFFS_k) * INS_ACCSCAL_k,   gyro_k = raw_k - INS_GYROFFS_k
-  instance 1 is INS_ACC*, INS_GYR*; 2 and 3 are INS_ACC2OFFS_X, INS_GYR2OFFS_X, ... The file is
+  instance 1 is INS_ACCOFFS_X, INS_ACCSCAL_X, INS_GYROFFS_X, ...; 2 and 3 are INS_ACC2OFFS_X,
+  INS_ACC2SCAL_X, INS_GYR2OFFS_X, ... The file is
   the Mission Planner / MAVProxy parameter file: one `NAME,VALUE` per line, `#` comments
   (pymavlink's `mavparm.MAVParmDict.load`, which MAVProxy's `param load` uses, reads it).
 - PX4 (src/lib/sensor_calibration/Accelerometer.hpp and Gyroscope.hpp `Correct`; parameters
@@ -74,7 +75,8 @@ def ardupilot(imu: Imu, instance: int = 1, force: bool = False) -> Written:
         params += _axes(f"INS_ACC{tag}SCAL_{{}}", model.scale)
     if imu.gyro is not None:
         model = _model(imu.gyro, "gyroscope", "ArduPilot", False, force, notes)
-        params += _axes(f"INS_GYR{tag or 'O'}OFFS_{{}}", model.offset)
+        gyro = "INS_GYROFFS" if instance == 1 else f"INS_GYR{tag}OFFS"  # the names differ
+        params += _axes(gyro + "_{}", model.offset)
         notes.append("ArduPilot measures the gyro offsets again at every boot unless "
                      "INS_GYR_CAL is 0 (Never)")
     header = _header(imu, f"ArduPilot, IMU instance {instance}")
