@@ -6,6 +6,7 @@ applied to simulated raw readings z = a^T v + b gives the vectors v of `Calibrat
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +19,10 @@ from station.files.calfile import NoiseFigures, load
 from station.files.export_imu import Imu
 from station.files.export_kalibr import kalibr
 from station.files.export_ros import ros
+from station.reduce.ferraris import read_recording
 
 G = 9.80665
+FERRARIS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "imucal-ferraris"
 # hand-made triads, columns = each sensor's sensitive vector in the unit's (nominal) frame
 ACC_A = np.array([[1.012, 0.0021, -0.0017], [0.0013, 0.987, 0.0024], [-0.0008, 0.0015, 1.021]])
 ACC_B = np.array([0.12, -0.31, 0.047])  # m/s^2
@@ -404,3 +407,30 @@ def test_calibration_files_still_load_after_export(tmp_path, capsys):
     cal = acc_cal()
     code, _ = export(tmp_path, capsys, [cal], "--to", "ardupilot")
     assert code == 0 and load(tmp_path / "c0.cal.json").unit_serial == cal.unit_serial
+
+
+@pytest.mark.skipif(not FERRARIS.is_dir(), reason="real data (../shared) not available")
+def test_imucals_recording_round_trips_through_imucal(tmp_path, capsys):
+    """imucal's own continuous Ferraris recording (docs/realdata.md): import, solve the
+    accelerometer on its faces and the gyro from the turns between them, export both to imucal;
+    imucal's calibrate gives our vectors on all 10376 samples."""
+    from imucal.management import load_calibration_info
+
+    csv = FERRARIS / "example_ferraris_session.csv"
+    h5, acc, gyro = tmp_path / "fer.h5", tmp_path / "fer.cal.json", tmp_path / "gyro.cal.json"
+    for argv in (["import", "csv", h5, csv, "--no-time", "--fs", "102.4", "--stream",
+                  "acc=acc_x,acc_y,acc_z", "--unit", "acc=m/s^2", "--stream",
+                  "gyro=gyr_x,gyr_y,gyr_z", "--unit", "gyro=deg/s"],
+                 ["solve", h5, "--magnitude", "9.81", "--faces", "--out", acc],
+                 ["solve", h5, "--stream", "gyro", "--magnitude", "9.81", "--faces", "--out",
+                  gyro],
+                 ["export", acc, "--gyro", gyro, "--to", "imucal", "--out",
+                  tmp_path / "imucal.json"]):
+        assert cli.main([str(a) for a in argv]) == 0
+    capsys.readouterr()
+    rec = read_recording(csv)
+    rates = np.radians(rec.gyro)  # the session holds the gyro in rad/s (SI inside)
+    got_acc, got_gyr = load_calibration_info(tmp_path / "imucal.json").calibrate(
+        rec.acc, rates, "m/s^2", "rad/s")
+    np.testing.assert_allclose(got_acc, load(acc).apply(rec.acc.T).T, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(got_gyr, load(gyro).apply(rates.T).T, rtol=0, atol=1e-13)
