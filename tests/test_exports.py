@@ -434,3 +434,8 @@ def test_imucals_recording_round_trips_through_imucal(tmp_path, capsys):
         rec.acc, rates, "m/s^2", "rad/s")
     np.testing.assert_allclose(got_acc, load(acc).apply(rec.acc.T).T, rtol=0, atol=1e-13)
     np.testing.assert_allclose(got_gyr, load(gyro).apply(rates.T).T, rtol=0, atol=1e-13)
+
+
+def test_an_option_of_another_format_is_refused(tmp_path, capsys):
+    code, err = export(tmp_path, capsys, [acc_cal()], "--to", "ardupilot", "--acc-id", "7")
+    assert code == 2 and "--acc-id applies to --to px4, not to ardupilot" in err

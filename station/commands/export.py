@@ -22,6 +22,10 @@ from pathlib import Path
 FORMATS = ("c-header", "kalibr", "ardupilot", "px4", "ros", "imucal")
 SUFFIXES = {"c-header": ".h", "kalibr": ".kalibr.yaml", "ardupilot": ".ardupilot.param",
             "px4": ".px4.params", "ros": ".ros.yaml", "imucal": ".imucal.json"}
+OPTIONS = {"type": ("c-header",), "prefix": ("c-header",), "instance": ("ardupilot", "px4"),
+           "acc_id": ("px4",), "gyro_id": ("px4",), "rostopic": ("kalibr",),
+           "rate": ("kalibr", "ros")}
+"""The formats each format option applies to (given to another format, it is refused)."""
 
 
 def register(p) -> None:
@@ -47,15 +51,15 @@ def register(p) -> None:
                         help="write a C header (same as --to c-header --out OUT.h)")
     p.add_argument("--out", type=Path,
                    help="file to write (default: beside the calibration, named for the format)")
-    p.add_argument("--type", choices=("float", "double"), default="float",
+    p.add_argument("--type", choices=("float", "double"),
                    help="c-header: C type of the arrays (default float)")
-    p.add_argument("--prefix", default="IMU_CAL",
+    p.add_argument("--prefix",
                    help="c-header: prefix of the macro and array names (default IMU_CAL)")
     p.add_argument("--instance", type=int,
                    help="ardupilot: IMU 1-3 (default 1); px4: calibration slot 0-3 (default 0)")
     p.add_argument("--acc-id", type=int, help="px4: the accelerometer's device id (CAL_ACCn_ID)")
     p.add_argument("--gyro-id", type=int, help="px4: the gyro's device id (CAL_GYROn_ID)")
-    p.add_argument("--rostopic", default="/imu0", help="kalibr: the IMU topic (default /imu0)")
+    p.add_argument("--rostopic", help="kalibr: the IMU topic (default /imu0)")
     p.add_argument("--rate", type=float, metavar="HZ",
                    help="kalibr, ros: the IMU's sample rate (default: that of the noise "
                         "figures)")
@@ -76,6 +80,10 @@ def run(args) -> int:
     if args.c_header is not None and args.out is not None:
         raise InputError("give the header's name once: --c-header OUT.h, or --to c-header "
                          "--out OUT.h")
+    for option, formats in OPTIONS.items():
+        if getattr(args, option) is not None and fmt not in formats:
+            raise InputError(f"--{option.replace('_', '-')} applies to --to "
+                             f"{' and '.join(formats)}, not to {fmt}; leave it out")
     out = args.c_header or args.out or _default_name(args.calibration, fmt)
     out = new_file(out, "--out name", args.force)
     cals = [load(existing_file(path, "a calibration file (.cal.json)"),
@@ -113,15 +121,15 @@ def _write(fmt: str, cals: list, args):
         if len(cals) > 1:
             raise InputError("a C header holds one calibration file; export the gyro one "
                              "with its own header")
-        cal = cals[0]
-        return Written(c_header(cal, args.prefix, args.type),
-                       (f"{args.prefix}_FUSION[{cal.d}][{cal.m}] and {args.prefix}_BIAS "
-                        f"({args.type}, {cal.units[0]})",))
+        cal, prefix, ctype = cals[0], args.prefix or "IMU_CAL", args.type or "float"
+        return Written(c_header(cal, prefix, ctype),
+                       (f"{prefix}_FUSION[{cal.d}][{cal.m}] and {prefix}_BIAS "
+                        f"({ctype}, {cal.units[0]})",))
     imu = Imu.of(*cals)
     if fmt == "kalibr":
         from station.files.export_kalibr import kalibr
 
-        return kalibr(imu, args.rostopic, args.rate)
+        return kalibr(imu, args.rostopic or "/imu0", args.rate)
     if fmt == "ardupilot":
         from station.files.export_autopilot import ardupilot
 
