@@ -14,9 +14,11 @@ Both autopilots correct each axis on its own, in the sensor's frame, before the 
   CAL_ACCn_XOFF / _XSCALE, CAL_GYROn_XOFF, in m/s^2 and rad/s, applied to the sensor whose
   device id is CAL_ACCn_ID / CAL_GYROn_ID):
       accel = R * ((raw - CAL_ACCn_OFF) .* CAL_ACCn_SCALE),   gyro = R * (raw - CAL_GYROn_OFF)
-  The file is QGroundControl's parameter file: `#` comment lines, then one tab-separated row
-  `vehicle-id  component-id  NAME  VALUE  TYPE` per parameter, TYPE the MAVLink MAV_PARAM_TYPE
-  (6 INT32, 9 REAL32).
+  The file is QGroundControl's parameter file (QGroundControl Dev Guide, "File Formats:
+  Parameters"; PX4's own Tools/process_sensor_caldata.py writes the same): `#` comment lines,
+  then one tab-separated row `Vehicle-Id Component-Id Name Value Type` per parameter, Type the
+  MAVLink MAV_PARAM_TYPE (6 INT32, 9 REAL32); vehicle 1 (PX4's default MAV_SYS_ID), component 1
+  (the autopilot).
 
 Conversion (station/files/export_imu.py `per_axis`): from z = a^T v + b, the offsets are b (in
 the readings' SI units) and the accelerometer's scales 1 / a_kk; the autopilot then computes
@@ -111,8 +113,9 @@ def px4(imu: Imu, instance: int = 0, acc_id: int | None = None, gyro_id: int | N
         params += _axes(prefix + "{}OFF", model.offset)
         if short == "ACC":
             params += _axes(prefix + "{}SCALE", model.scale)
-    header = _header(imu, f"PX4, calibration slot {instance}")
-    lines = [f"# {line}" for line in header] + ["# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
+    header = ["Onboard parameters for Vehicle 1",
+              *_header(imu, f"PX4, calibration slot {instance}")]
+    lines = [f"# {line}" for line in header] + ["# Vehicle-Id Component-Id Name Value Type"]
     lines += [f"1\t1\t{name}\t{_value(kind, value)}\t{MAV_PARAM_TYPE[kind]}"
               for name, kind, value in params]
     return Written("\n".join(lines) + "\n", tuple(notes))
