@@ -277,6 +277,31 @@ def axis_figure(a, per_sensor):
     return np.sqrt(np.max(np.diag(f @ np.diag(np.square(per_sensor)) @ f.T)))
 
 
+def kalibr_statistics(doc):
+    """kalibr_common/ConfigReader.py ImuParameters: its checks (rostopic a string, update_rate,
+    densities and random walks > 0) and getAccelerometerStatistics / getGyroStatistics:
+    (discrete sigma = density / sqrt(1 / update_rate), random walk, density) of each type."""
+    assert isinstance(doc["rostopic"], str) and doc["update_rate"] > 0
+    out = {}
+    for kind in ("accelerometer", "gyroscope"):
+        density, walk = doc[f"{kind}_noise_density"], doc[f"{kind}_random_walk"]
+        assert density > 0 and walk > 0
+        out[kind] = (density / np.sqrt(1.0 / doc["update_rate"]), walk, density)
+    return out
+
+
+def test_kalibr_and_ros_agree_on_the_sample_noise():
+    """Kalibr's discrete sigma (its largest axis) is the largest standard deviation of the ROS
+    covariance of one sample: the same figures, two formats."""
+    acc, gyro = noisy_pair()
+    stats = kalibr_statistics(yaml.safe_load(kalibr(Imu(acc, gyro)).text))
+    params = yaml.safe_load(ros(Imu(acc, gyro)).text)["/**"]["ros__parameters"]
+    for kind, key in (("accelerometer", "linear_acceleration_covariance"),
+                      ("gyroscope", "angular_velocity_covariance")):
+        largest = np.sqrt(np.max(np.diag(np.reshape(params[key], (3, 3)))))
+        assert stats[kind][0] == pytest.approx(largest, rel=1e-12)
+
+
 def test_kalibr_imu_yaml_has_the_noise_and_the_intrinsics():
     acc, gyro = noisy_pair()
     doc = yaml.safe_load(kalibr(Imu(acc, gyro), "/imu0").text)
