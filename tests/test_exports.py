@@ -466,3 +466,9 @@ def test_imucals_recording_round_trips_through_imucal(tmp_path, capsys):
 def test_an_option_of_another_format_is_refused(tmp_path, capsys):
     code, err = export(tmp_path, capsys, [acc_cal()], "--to", "ardupilot", "--acc-id", "7")
     assert code == 2 and "--acc-id applies to --to px4, not to ardupilot" in err
+
+
+def test_a_suspect_calibration_is_said_so(tmp_path, capsys):
+    cal = acc_cal(fit={"method": "ml", "status": "suspect", "status_reasons": ["chi2 too large"]})
+    code, summary = export(tmp_path, capsys, [cal], "--to", "ardupilot")
+    assert code == 0 and "m/s^2 calibration marked suspect: chi2 too large" in summary["notes"]

@@ -91,12 +91,15 @@ def run(args) -> int:
             for path in (args.calibration, args.gyro) if path is not None]
     written = _write(fmt, cals, args)
     out.write_text(written.text)
+    suspect = [f"{cal.units[0]} calibration marked suspect: "
+               f"{'; '.join(map(str, cal.fit.get('status_reasons') or ['(no reason given)']))}"
+               for cal in cals if cal.fit.get("status") == "suspect"]
     summary = {"out": str(out), "format": fmt, "unit_serial": cals[0].unit_serial,
                "calibrations": [str(p) for p in (args.calibration, args.gyro) if p],
-               "notes": list(written.notes)}
+               "notes": suspect + list(written.notes)}
     print(json.dumps(summary, indent=2) if args.json else
           "\n".join([f"wrote {out} ({fmt}) for unit {cals[0].unit_serial}",
-                     *(f"  {note}" for note in written.notes)]))
+                     *(f"  {note}" for note in summary["notes"])]))
     return 0
 
 
