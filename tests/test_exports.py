@@ -17,6 +17,7 @@ from station import cli
 from station.errors import InputError
 from station.files.calfile import NoiseFigures, load
 from station.files.export_imu import Imu
+from station.files.export_imucal import imucal
 from station.files.export_kalibr import kalibr
 from station.files.export_ros import ros
 from station.reduce.ferraris import read_recording
@@ -359,6 +360,40 @@ def test_kalibr_refuses_a_mirrored_gyro():
     mirrored = dataclasses.replace(gyro, a=-gyro.a)
     with pytest.raises(InputError, match="mirrored"):
         kalibr(Imu(acc, mirrored))
+
+
+def random_triad(rng):
+    """A triad in some frame: scale errors of a few %, axes a few degrees off, turned by a
+    random rotation (det +1)."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    q[:, 0] *= np.sign(np.linalg.det(q))
+    return q @ (np.diag(rng.uniform(0.95, 1.05, 3)) + rng.normal(0, 0.03, (3, 3)))
+
+
+def test_kalibr_and_imucal_are_exact_for_any_triads_in_one_frame():
+    """50 random pairs of triads in one (nominal) frame, turned anyhow: Kalibr's model and
+    imucal's `calibrate` give `Calibration.apply`'s vectors."""
+    from imucal import CalibrationInfo
+
+    rng = np.random.default_rng(8)
+    for _ in range(50):
+        acc = with_noise(acc_cal(random_triad(rng), rng.normal(0, 0.3, 3)), ACC_WHITE, ACC_WALK)
+        gyro = with_noise(gyro_cal(random_triad(rng), rng.normal(0, 0.01, 3)), GYRO_WHITE,
+                          GYRO_WALK)
+        _, z_acc = readings(acc, 2 * G, k=20, seed=int(rng.integers(1 << 30)))
+        _, z_gyr = readings(gyro, 5.0, k=20, seed=int(rng.integers(1 << 30)))
+        doc = yaml.safe_load(kalibr(Imu(acc, gyro)).text)
+        c_ib = np.array(doc["T_i_b"])[:3, :3]
+        acc_i = np.linalg.solve(doc["accelerometers"]["M"], (z_acc - acc.bias).T)
+        w_i = np.array(doc["gyroscopes"]["C_gyro_i"]).T @ np.linalg.solve(
+            doc["gyroscopes"]["M"], (z_gyr - gyro.bias).T)
+        np.testing.assert_allclose(c_ib.T @ acc_i, acc.apply(z_acc.T), atol=1e-11)
+        np.testing.assert_allclose(c_ib.T @ w_i, gyro.apply(z_gyr.T), atol=1e-12)
+        info = CalibrationInfo.from_json(imucal(Imu(acc, gyro)).text)
+        got_acc, got_gyr = info.calibrate(z_acc, z_gyr, "m/s^2", "rad/s")
+        np.testing.assert_allclose(got_acc, acc.apply(z_acc.T).T, atol=1e-11)
+        np.testing.assert_allclose(got_gyr, gyro.apply(z_gyr.T).T, atol=1e-12)
 
 
 # ROS: PyYAML, the covariance of fused samples ------------------------------------------------
