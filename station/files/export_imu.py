@@ -17,8 +17,11 @@ export_imucal) share, written once:
   is not what these tools describe);
 - `axis_noise`: the sensors' noise figures (`NoiseFigures`, per sensor) carried to the 3 axes of
   the calibrated vector through F;
-- `per_axis`: the diagonal model of the autopilots, its parameters and the size of what it drops;
-- `number`: float text that round-trips and that YAML 1.1 readers (PyYAML) take as a float.
+- `per_axis`, `check_dropped`, `dropped_words`: the per-axis model of the autopilots, its
+  parameters, the size of what it drops, the limit and the summary's sentence;
+- `number`: float text that round-trips and that YAML 1.1 readers (PyYAML) take as a float;
+  `safe_comment`: untrusted text made safe inside a comment line;
+- `Written`: an export's text and the notes for the command's summary.
 """
 
 from dataclasses import dataclass
