@@ -118,11 +118,23 @@ def test_imucal_refuses_what_it_cannot_hold(tmp_path, capsys, files, words):
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1
 
 
+def carried_gyro(acc, **kw):
+    """A gyro calibration carried through `acc`'s frame, with the record `station solve
+    --stream GYRO` keeps of that accelerometer."""
+    return gyro_cal(frame=acc.frame, fit={"method": "gravity carry (Tedaldi et al. 2014)"},
+                    session={"accelerometer": {"scale_factors": acc.scale_factors.tolist(),
+                                               "bias": acc.bias.tolist()}}, **kw)
+
+
 def test_a_gyro_carried_by_the_accelerometer_shares_its_canonical_frame(tmp_path, capsys):
     from imucal.management import load_calibration_info
 
     acc = acc_cal(np.triu(ACC_A), frame="canonical")
-    gyro = gyro_cal(frame="canonical", fit={"method": "gravity carry (Tedaldi et al. 2014)"})
+    gyro = carried_gyro(acc)
+    # carried through another accelerometer calibration: refused
+    other = acc_cal(np.triu(ACC_A) * 1.001, frame="canonical")
+    code, err = export(tmp_path, capsys, [other, gyro], "--to", "imucal")
+    assert code == 2 and "carried through the frame of another accelerometer" in err
     code, summary = export(tmp_path, capsys, [acc, gyro], "--to", "imucal")
     assert code == 0 and summary["out"].endswith("c0.imucal.json")
     _, z = readings(gyro, 3.0)
@@ -337,9 +349,7 @@ def test_kalibr_imu_yaml_has_the_noise_and_the_intrinsics():
 def test_kalibr_in_the_canonical_frame_is_its_own_imu_frame():
     upper = np.triu(ACC_A)
     acc = with_noise(acc_cal(upper, frame="canonical"), ACC_WHITE, ACC_WALK)
-    gyro = with_noise(gyro_cal(frame="canonical", fit={"method": "gravity carry (Tedaldi et "
-                                                                 "al. 2014)"}),
-                      GYRO_WHITE, GYRO_WALK)
+    gyro = with_noise(carried_gyro(acc), GYRO_WHITE, GYRO_WALK)
     doc = yaml.safe_load(kalibr(Imu(acc, gyro), "/imu0", update_rate=400.0).text)
     np.testing.assert_allclose(np.array(doc["T_i_b"]), np.eye(4), atol=1e-15)
     np.testing.assert_allclose(np.array(doc["accelerometers"]["M"]), upper.T, rtol=1e-15)

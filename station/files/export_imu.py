@@ -83,7 +83,10 @@ class Imu:
         (unknown) misalignment between the triads."""
         acc, gyro = self.acc, self.gyro
         carried = str(gyro.fit.get("method", "")).startswith("gravity carry")
-        if (carried and gyro.frame == acc.frame) or acc.frame == gyro.frame == "nominal":
+        if carried and gyro.frame == acc.frame:
+            _carried_by(gyro, acc)
+            return
+        if acc.frame == gyro.frame == "nominal":
             return
         raise InputError(
             f"{format_name} puts both triads in one frame, but the accelerometer's is "
@@ -91,6 +94,23 @@ class Imu:
             "own sensors' axes); solve both against the unit's nominal layout (`station solve "
             "--nominal`), or calibrate the gyro from the turns between the accelerometer's "
             "poses (`station solve --stream GYRO`), which puts it in the accelerometer's frame")
+
+
+def _carried_by(gyro: Calibration, acc: Calibration) -> None:
+    """Refuse a carried gyro unless the accelerometer calibration it was carried with (the
+    record `station solve --stream GYRO` keeps in its session) is `acc`: same stream's scale
+    factors and biases (to 1e-9, the same solve)."""
+    record = (gyro.session or {}).get("accelerometer")
+    same = isinstance(record, dict) and all(
+        np.shape(record.get(key)) == (acc.m,)
+        and np.allclose(np.asarray(record[key], float), ours, rtol=1e-9, atol=1e-12)
+        for key, ours in (("scale_factors", acc.scale_factors), ("bias", acc.bias)))
+    if not same:
+        raise InputError(
+            "the gyro calibration was carried through the frame of another accelerometer "
+            "calibration than the one given (its record of that accelerometer's scale factors "
+            "and biases differs); give the accelerometer calibration of the same session and "
+            "settings, or solve the gyro again against this one")
 
 
 def kind_of(cal: Calibration, where: str) -> str:
