@@ -78,7 +78,7 @@ class Imu:
     def common_frame(self, format_name: str) -> None:
         """Refuse an accelerometer and a gyro calibration whose frames are not one frame: both
         `nominal` (each aligned to the unit's nominal axes), or the gyro carried by gravity
-        through the accelerometer's frame (station.solve.gyro_carry). Two `canonical` frames
+        through this accelerometer calibration's frame (station.solve.gyro_carry). Two `canonical` frames
         of Eq. (19) are each tied to their own sensors' axes, which differ by the unit's
         (unknown) misalignment between the triads."""
         acc, gyro = self.acc, self.gyro
