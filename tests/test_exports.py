@@ -365,6 +365,13 @@ def test_kalibr_refuses_missing_noise_figures(tmp_path, capsys):
     assert code == 2 and "has no noise figures" in err and "station noise" in err
 
 
+def test_noise_figures_of_another_shape_are_refused():
+    acc, gyro = noisy_pair()
+    bad = dataclasses.replace(gyro, noise=dataclasses.replace(gyro.noise, white=GYRO_WHITE[:2]))
+    with pytest.raises(InputError, match="are not 3 finite numbers >= 0, one per sensor"):
+        ros(Imu(acc, bad))
+
+
 def test_kalibr_refuses_a_mirrored_gyro():
     acc, gyro = noisy_pair()
     mirrored = dataclasses.replace(gyro, a=-gyro.a)

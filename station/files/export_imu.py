@@ -78,9 +78,9 @@ class Imu:
     def common_frame(self, format_name: str) -> None:
         """Refuse an accelerometer and a gyro calibration whose frames are not one frame: both
         `nominal` (each aligned to the unit's nominal axes), or the gyro carried by gravity
-        through this accelerometer calibration's frame (station.solve.gyro_carry). Two `canonical` frames
-        of Eq. (19) are each tied to their own sensors' axes, which differ by the unit's
-        (unknown) misalignment between the triads."""
+        through this accelerometer calibration's frame (station.solve.gyro_carry). Two
+        `canonical` frames of Eq. (19) are each tied to their own sensors' axes, which differ by
+        the unit's (unknown) misalignment between the triads."""
         acc, gyro = self.acc, self.gyro
         carried = str(gyro.fit.get("method", "")).startswith("gravity carry")
         if carried and gyro.frame == acc.frame:
@@ -145,6 +145,10 @@ def axis_noise(cal: Calibration, name: str, format_name: str) -> np.ndarray:
         raise InputError(f"{format_name} needs the {kind_of(cal, 'calibration')}'s noise, but "
                          f"the calibration of unit {cal.unit_serial!r} has {what}; "
                          f"{NOISE_ADVICE}")
+    values = np.asarray(values, float)
+    if values.shape != (cal.m,) or not np.all(np.isfinite(values) & (values >= 0)):
+        raise InputError(f"the {name.replace('_', ' ')} figures {values.tolist()} are not "
+                         f"{cal.m} finite numbers >= 0, one per sensor; {NOISE_ADVICE}")
     return np.sqrt(np.diag(noise_covariance(cal, np.square(values))))
 
 
