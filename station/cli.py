@@ -40,6 +40,8 @@ COMMANDS = {
     "apply": ("apply", "apply a calibration file to readings (CSV or session) -> calibrated "
                        "vectors"),
     "export": ("export", "export a calibration file as a C header for firmware"),
+    "noise": ("noise", "noise of a session's static data: Allan deviation, white noise, bias "
+                       "instability, random walk"),
     "report": ("report", "write an HTML report (and PNG figures) of a session file"),
     "diagnose": ("diagnose", "find where a session and its twin disagree and name the effect"),
     "simulate": ("simulate", "simulate a session of the digital twin"),

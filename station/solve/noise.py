@@ -37,7 +37,7 @@ FLOOR = 2.0 * math.log(2.0) / math.pi
 """AVAR of bias instability B = 1: the Allan deviation floor is B sqrt(FLOOR) (IEEE 952 C.1)."""
 TERMS = ("white", "bias_instability", "random_walk")
 ALPHA = (0, -1, -2)
-"""Frequency-noise power-law exponent of each term (S_y ~ f^alpha): white, flicker, random walk FM."""
+"""Power-law exponent of each term's PSD (S ~ f^alpha): white, flicker, random-walk FM."""
 RESOLVED = 2.0
 """A term is resolved when its variance coefficient is this many sigma above zero."""
 MIN_SAMPLES = 64
