@@ -118,7 +118,14 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
     from station.protocols import lookup
-    from station.replay import ReplaySettings, calibrated_stream, carried, solve_recorded, stimulus
+    from station.replay import (
+        ReplaySettings,
+        calibrated_stream,
+        carried,
+        recorded_noise,
+        solve_recorded,
+        stimulus,
+    )
     from station.solve.quality import check_fit
     from station.solve.verdict import verdict
 
@@ -156,6 +163,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
                 status=check.status, status_reasons=check.problems, **bias)
             solved = readings, result
+        cal = cal.with_noise(recorded_noise(session, stream, channels))
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
     if tolerances is None or tolerances.empty:

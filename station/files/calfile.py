@@ -126,19 +126,19 @@ class NoiseFigures:
     seconds: float
 
     @classmethod
-    def from_fit(cls, fit, rate_hz: float, seconds: float) -> "NoiseFigures":
-        """The figures of a `station.solve.noise.NoiseFit` (value, sigma (3, m), resolved): a
-        term not resolved for every sensor is None."""
-        terms = [(fit.value[k], fit.sigma[k]) if fit.resolved[k].all() else (None, None)
-                 for k in range(3)]
+    def from_fit(cls, fit, rate_hz: float, seconds: float, channels=None) -> "NoiseFigures":
+        """The figures of a `station.solve.noise.NoiseFit` (value, sigma (3, c), resolved) for
+        its `channels` (indices, default all, in the order of the calibration's sensors): a
+        term not resolved for every one of them is None."""
+        pick = slice(None) if channels is None else np.asarray(channels, np.int64)
+        value, sigma, resolved = fit.value[:, pick], fit.sigma[:, pick], fit.resolved[:, pick]
+        terms = [(value[k], sigma[k]) if resolved[k].all() else (None, None) for k in range(3)]
         return cls(*terms[0], *terms[1], *terms[2], rate_hz=float(rate_hz),
                    seconds=float(seconds))
 
     def to_document(self, unit: str) -> dict:
         """The file's `noise` object for readings in `unit`."""
-        doc = {name: _list(getattr(self, name)) for name in NOISE_TERMS}
-        doc.update({f"{name}_sigma": _list(getattr(self, f"{name}_sigma"))
-                    for name in NOISE_TERMS})
+        doc = {key: _list(getattr(self, key)) for key in NOISE_KEYS[:6]}
         return {**doc, "rate_hz": self.rate_hz, "seconds": self.seconds,
                 "units": noise_units(unit)}
 
