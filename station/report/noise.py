@@ -14,6 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from station.errors import CalibrationInputError
+from station.files.calfile import noise_units
 from station.reduce.noise import SessionNoise, session_noise
 from station.report import html
 from station.solve.noise import FLOOR, TERMS
@@ -24,11 +25,6 @@ WORDS = {"white": "white noise N", "bias_instability": "bias instability B",
          "random_walk": "random walk K"}
 
 
-def term_units(unit: str) -> tuple:
-    """The units of (N, B, K) for readings in `unit`: u sqrt(s), u, u / sqrt(s)."""
-    return f"({unit}) sqrt(s)", unit, f"({unit})/sqrt(s)"
-
-
 def summary(noise: SessionNoise) -> dict:
     """The figures as JSON-able data: per channel each term's value and 1-sigma with its unit
     (None: not resolved by the data), and what was analysed."""
@@ -36,10 +32,11 @@ def summary(noise: SessionNoise) -> dict:
     channels = []
     for c, (name, unit) in enumerate(zip(noise.channels, noise.units, strict=True)):
         entry = {"channel": name, "unit": unit}
-        for k, (term, tunit) in enumerate(zip(TERMS, term_units(unit), strict=True)):
+        units = noise_units(unit)
+        for k, term in enumerate(TERMS):
             ok = bool(fit.resolved[k, c])
             entry[term] = {"value": float(fit.value[k, c]) if ok else None,
-                           "sigma": float(fit.sigma[k, c]) if ok else None, "unit": tunit}
+                           "sigma": float(fit.sigma[k, c]) if ok else None, "unit": units[term]}
         channels.append(entry)
     return {"stream": noise.stream, "source": noise.source, "windows": len(noise.windows),
             "seconds": noise.curve.seconds, "rate_hz": noise.curve.rate,
@@ -91,7 +88,7 @@ def allan_png(noise: SessionNoise) -> bytes:
 def _slopes(ax, tau, theta, unit: str) -> None:
     """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2."""
     med = np.median(theta, axis=0)
-    n, b, k = term_units(unit)
+    n, b, k = noise_units(unit).values()
     lines = ((med[0] / tau, -0.5, f"N = {math.sqrt(med[0]):.3g} {n}"),
              (np.full_like(tau, FLOOR * med[1]), 0.0, f"B = {math.sqrt(med[1]):.3g} {b}"),
              (med[2] * tau / 3.0, 0.5, f"K = {math.sqrt(med[2]):.3g} {k}"))
