@@ -233,3 +233,9 @@ def test_the_report_shows_the_allan_deviation(simulated, tmp_path):
     assert "allan-imu" in [p.name for p in built.plots]
     assert built.summary["noise"]["imu"]["windows"] == 6
     assert "white noise N" in built.html()
+
+
+def test_a_channel_that_does_not_vary_is_refused():
+    y = np.column_stack([np.random.default_rng(0).normal(size=1000), np.full(1000, 7.0)])
+    with pytest.raises(CalibrationInputError, match="channel\\(s\\) 2 do not vary"):
+        fit_noise(allan_curve(y, RATE))

@@ -1,10 +1,11 @@
 """Sensor noise from static data by the Allan variance: arrays in, arrays out.
 
 A static stretch of one channel, y (k,) in its unit u at `rate` Hz, gives the overlapping Allan
-variance at octave-spaced averaging times tau = m / rate, m = 1, 2, 4, ... (`allantools.oadev`,
-NIST SP 1065 eq. 11). IEEE Std 952-1997 Annex C (and El-Sheimy, Hou and Niu 2008, "Analysis and
-modeling of inertial sensors using Allan variance", IEEE Trans. Instrum. Meas. 57(1)) write the
-Allan variance of the three noises every inertial sensor shows as
+variance at averaging times tau = m / rate, m = 4, 16, 64, ... up to k / 8 (`allantools.oadev`,
+NIST SP 1065 eq. 11; `octave_factors` says why these). IEEE Std 952-1997 Annex C (and
+El-Sheimy, Hou and Niu 2008, "Analysis and modeling of inertial sensors using Allan variance",
+IEEE Trans. Instrum. Meas. 57(1)) write the Allan variance of the three noises every inertial
+sensor shows as
 
     AVAR(tau) = N^2 / tau  +  (2 ln 2 / pi) B^2  +  K^2 tau / 3
 
@@ -16,12 +17,13 @@ The fit is linear in theta = (N^2, B^2, K^2). Each estimate AVAR_hat(tau) is dis
 AVAR(tau) chi2_nu / nu, nu its equivalent degrees of freedom (Greenhall and Riley 2004,
 `allantools.edf_greenhall`, for the noise that dominates at that tau). The fit is maximum
 likelihood on those chi2 laws: its score is the weighted least-squares equation with weights
-nu / (2 AVAR(tau)^2) at the model, solved by iterated reweighting; the 1-sigma of theta is the
-inverse Fisher information (the estimates at different taus are treated as independent, which
-the benchmark bench/noise.py checks). A term whose theta is not at least `RESOLVED` sigma above
-zero is left out (None: the data cannot resolve it, e.g. too short for the random walk) and the
-others are fitted again without it. The 1-sigma of N, B, K follow from theta's by the derivative
-of the square root.
+nu / (2 AVAR(tau)^2) at the model, solved by iterated reweighting. The 1-sigma of theta is the
+inverse Fisher information widened by `INFLATION`: the likelihood treats the estimates at
+different taus as independent, and overlapping estimates that share the same slow noise are not;
+the factors are measured by bench/noise.py, not derived (docs/noise.md). A term whose theta is
+not at least `RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too
+short for the random walk) and the others are fitted again without it. The 1-sigma of N, B, K
+follow from theta's by the derivative of the square root.
 """
 
 import math
@@ -41,11 +43,12 @@ ALPHA = (0, -1, -2)
 RESOLVED = 2.0
 """A term is resolved when its variance coefficient is this many sigma above zero."""
 MIN_SAMPLES = 64
-"""Fewest samples of a stretch (octaves m = 1 .. 16 with at least 32 terms each)."""
+"""Fewest samples of a stretch: 64 reach m = 4 (k / 8) with 57 terms."""
 MIN_TERMS = 4
 """Fewest overlapping terms (k - 2m + 1 of a stretch of k samples) for a tau to be used: the
 estimates beyond hold too few degrees of freedom for the chi2 law's weights to mean much."""
 ITERATIONS = 50
+"""Most reweighting iterations of the fit (it converges in a handful)."""
 MIN_TAUS = 4
 """Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
 INFLATION = np.array([1.1, 1.25, 1.3])
@@ -53,6 +56,7 @@ INFLATION = np.array([1.1, 1.25, 1.3])
 neighbouring taus, which the likelihood (independent chi2 laws) leaves out: measured by
 bench/noise.py (the z-scores' spread over seeds and stream lengths, docs/noise.md)."""
 FIRST, STEP, LONGEST = 4, 4, 8
+"""Averaging factors m = FIRST STEP^j up to k / LONGEST (`octave_factors`)."""
 
 
 @dataclass(frozen=True)
@@ -104,8 +108,11 @@ class NoiseFit:
 
 
 def octave_factors(length: int) -> np.ndarray:
-    """Averaging factors 1, 2, 4, ... of a stretch of `length` samples whose overlapping Allan
-    variance holds at least `MIN_TERMS` terms (length - 2m + 1)."""
+    """Averaging factors 4, 16, 64, ... (every other octave) of a stretch of `length` samples, up
+    to `_longest_factor`. m starts at 4: the shortest taus of a real sensor are shaped by its
+    anti-alias filter, and of discrete flicker noise by its discreteness (1.44 times the floor at
+    m = 1); the spacing of 4 keeps neighbouring estimates less correlated than octaves; beyond an
+    eighth of the stretch an estimate has a handful of degrees of freedom."""
     top = _longest_factor(length)
     if top < FIRST:
         return np.zeros(0, np.int64)
@@ -209,6 +216,11 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
         raise CalibrationInputError(
             f"{curve.seconds:.3g} s of static data give no averaging time.",
             "Record a longer rest (at least a few seconds).")
+    flat = np.flatnonzero(~np.all(curve.avar > 0, axis=0))
+    if len(flat):
+        raise CalibrationInputError(
+            f"channel(s) {', '.join(str(c + 1) for c in flat)} do not vary over the static data.",
+            "A sensor without noise is stuck or its readings are cut to one value: check it.")
     c = curve.avar.shape[1]
     x = design(curve.tau)
     theta, cov = np.zeros((c, 3)), np.zeros((c, 3, 3))
@@ -239,7 +251,7 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
     theta = np.zeros(3)
     theta[keep] = np.linalg.lstsq(xs / a[:, None], np.ones(len(a)), rcond=None)[0]
     theta = np.maximum(theta, 0.0)
-    theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)
+    theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
     for _ in range(ITERATIONS):
         model = x @ theta
         nu = edf(curve, theta[None])[:, 0]
