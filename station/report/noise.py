@@ -89,13 +89,13 @@ def _slopes(ax, tau, theta, unit: str) -> None:
     """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2."""
     med = np.median(theta, axis=0)
     n, b, k = noise_units(unit).values()
-    lines = ((med[0] / tau, -0.5, f"N = {math.sqrt(med[0]):.3g} {n}"),
-             (np.full_like(tau, FLOOR * med[1]), 0.0, f"B = {math.sqrt(med[1]):.3g} {b}"),
-             (med[2] * tau / 3.0, 0.5, f"K = {math.sqrt(med[2]):.3g} {k}"))
+    lines = ((med[0] / tau, "-1/2", f"N = {math.sqrt(med[0]):.3g} {n}"),
+             (np.full_like(tau, FLOOR * med[1]), "0", f"B = {math.sqrt(med[1]):.3g} {b}"),
+             (med[2] * tau / 3.0, "+1/2", f"K = {math.sqrt(med[2]):.3g} {k}"))
     for avar, slope, label in lines:
         if np.all(avar > 0):
             ax.loglog(tau, np.sqrt(avar), "k--", lw=0.8)
-            ax.annotate(f"slope {slope:+g}: {label}", (tau[len(tau) // 2], np.sqrt(avar)[32]),
+            ax.annotate(f"slope {slope}: {label}", (tau[len(tau) // 2], np.sqrt(avar)[32]),
                         fontsize=7)
 
 
