@@ -16,7 +16,8 @@
              at 2 kHz (int32 counts, white noise and random walk: the cost does not depend on
              the noise), the counts held by the caller (7.2e6 x 12 x 4 bytes = 346 MB) not
              counted; peak memory is the tracemalloc peak of the Python and numpy allocations.
-             --quick: 1 minute. Target: < 60 s, < 1 GB.
+             --quick: 1 minute. Target: < 60 s, < 1 GB. The verdict (PASS/FAIL) needs 100 seeds
+             and the hour; --quick (20 seeds) prints the figures only.
 
 Prints a table, or one JSON object with --json.
 """
@@ -109,6 +110,8 @@ def main(argv=None) -> int:
     passed = all(TARGETS["within_2_sigma"][0] <= v <= TARGETS["within_2_sigma"][1]
                  for v in cov["within_2_sigma"].values()) \
         and sc["wall_s"] < TARGETS["scale_s"] and sc["peak_bytes"] < TARGETS["scale_bytes"]
+    if cov["seeds"] < 100 or args.quick:
+        passed = None  # 20 seeds put +-7 % on a coverage, 1 min is not the hour: no verdict
     out = {"coverage": cov, "scale": sc, "targets": TARGETS, "pass": passed,
            "quick": args.quick}
     if args.json:
@@ -126,7 +129,8 @@ def main(argv=None) -> int:
     print(f"scale: {sc['seconds_of_data']:g} s x {sc['channels']} channels at {sc['rate_hz']:g}"
           f" Hz: {sc['wall_s']:.1f} s, peak {sc['peak_bytes'] / 1e6:.0f} MB (input "
           f"{sc['input_bytes'] / 1e6:.0f} MB not counted)")
-    print("PASS" if passed else "FAIL")
+    print({True: "PASS", False: "FAIL", None: "no verdict: --quick, or fewer than 100 seeds"}
+          [passed])
     return 0
 
 
