@@ -41,6 +41,8 @@ COMMANDS = {
                        "vectors"),
     "export": ("export", "export calibrations for other tools: C header, Kalibr, ArduPilot, PX4, "
                           "ROS, imucal"),
+    "noise": ("noise", "noise of a session's static data: Allan deviation, white noise, bias "
+                       "instability, random walk"),
     "report": ("report", "write an HTML report (and PNG figures) of a session file"),
     "diagnose": ("diagnose", "find where a session and its twin disagree and name the effect"),
     "simulate": ("simulate", "simulate a session of the digital twin"),

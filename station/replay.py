@@ -40,6 +40,7 @@ import numpy as np
 
 from drivers.samples import SampleBlock
 from station.errors import AcquisitionError, CalibrationInputError, InputError
+from station.files.calfile import NoiseFigures
 from station.files.session import (
     TABLE_STATUS_BITS,
     Session,
@@ -138,6 +139,20 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
         nominal = recorded_layout(session.metadata, readings.M.shape[0], session.path)
     return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
                                          method=settings.method, refine=settings.refine)
+
+
+def recorded_noise(session, stream: str, channels) -> NoiseFigures | None:
+    """The `NoiseFigures` of the calibrated `channels` (indices into the stream's) of an open
+    session's `stream`, from its static data (`station.reduce.noise.session_noise`: the
+    protocol's static windows or still poses, else still intervals found in the stream); None
+    when the session holds too little static data for the Allan variance."""
+    from station.reduce.noise import session_noise  # allantools loads scipy's stats: 0.4 s
+
+    try:
+        found = session_noise(session, stream)
+    except CalibrationInputError:
+        return None
+    return NoiseFigures.from_fit(found.fit, found.curve.rate, found.curve.seconds, channels)
 
 
 def carried(session, stream: str) -> bool:

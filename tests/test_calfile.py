@@ -108,7 +108,7 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
     with pytest.raises(CalibrationFileError,
-                       match=r"format_version 5 .*reads \(1, 2, 3, 4\).*newer"):
+                       match=r"format_version 6 .*reads \(1, 2, 3, 4, 5\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -257,14 +257,15 @@ def test_a_version_1_file_still_loads_without_covariance():
     from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
-        del doc["covariance"], doc["verdict"], doc["uncertainty"]
+        del doc["covariance"], doc["verdict"], doc["uncertainty"], doc["noise"]
         doc.update(format_version=1, conventions=CONVENTIONS_V1)
 
     back = loads(edited(make(), to_v1, True))
     assert back.covariance is None and back.verdict is None and back.unit_serial == "SN42"
     assert back.white is None and back.pose_sigma is None
     with pytest.raises(CalibrationFileError,
-                       match="unknown keys \\['covariance', 'uncertainty', 'verdict'\\]"):
+                       match="unknown keys \\['covariance', 'noise', 'uncertainty', "
+                             "'verdict'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
 
@@ -273,7 +274,7 @@ def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
     from station.files.calfile import CONVENTIONS
 
     def to_v2(doc):
-        del doc["verdict"], doc["uncertainty"]
+        del doc["verdict"], doc["uncertainty"], doc["noise"]
         doc.update(format_version=2, conventions=CONVENTIONS)
 
     assert loads(edited(make(), to_v2, True)).verdict is None
@@ -333,7 +334,7 @@ def test_a_version_3_file_loads_without_the_white_noise_figure():
     from station.files.calfile import CONVENTIONS_V3
 
     def to_v3(doc):
-        del doc["uncertainty"]
+        del doc["uncertainty"], doc["noise"]
         doc.update(format_version=3, conventions=CONVENTIONS_V3)
 
     back = loads(edited(make(), to_v3, True))
@@ -362,3 +363,71 @@ def test_both_figures_of_a_solve_go_into_the_file_and_back():
         loads(edited(cal, lambda d: d["uncertainty"].update(pose_sigma=-1.0), True))
     with pytest.raises(CalibrationFileError, match="bias_sigma has shape"):
         loads(edited(cal, lambda d: d["uncertainty"]["white"].update(bias_sigma=[1.0]), True))
+
+
+def noisy(resolved: bool = True) -> Calibration:
+    """make() with hand-made noise figures; B and K None unless `resolved`."""
+    from station.files.calfile import NoiseFigures
+
+    full = np.array([1.5e-4, 2.25e-4, 1.0e-4, 3.0e-4])
+    terms = (full / 3, full / 300, full / 30, full / 900) if resolved else (None,) * 4
+    return make().with_noise(NoiseFigures(full, full / 100, *terms, rate_hz=200.0,
+                                          seconds=3600.5))
+
+
+@pytest.mark.parametrize("resolved", [True, False])
+def test_noise_figures_round_trip_bit_for_bit(tmp_path, resolved):
+    cal = noisy(resolved)
+    path = tmp_path / "n.cal.json"
+    cal.save(path)
+    back = load(path)
+    for name in ("white", "white_sigma", "bias_instability", "bias_instability_sigma",
+                 "random_walk", "random_walk_sigma"):
+        mine, theirs = getattr(cal.noise, name), getattr(back.noise, name)
+        if name.startswith("white") or resolved:
+            assert mine.tobytes() == theirs.tobytes()
+        else:
+            assert mine is None and theirs is None
+    assert (back.noise.rate_hz, back.noise.seconds) == (200.0, 3600.5)
+    assert back.dumps() == path.read_text()
+    doc = json.loads(path.read_text())
+    assert doc["format_version"] == 5 and doc["noise"]["units"]["random_walk"] == \
+        "rad/s / sqrt(s)"
+    assert loads(make().dumps()).noise is None  # not measured: null
+
+
+def test_a_version_4_file_loads_without_noise_figures():
+    from station.files.calfile import CONVENTIONS_V4
+
+    def to_v4(doc):
+        del doc["noise"]
+        doc.update(format_version=4, conventions=CONVENTIONS_V4)
+
+    back = loads(edited(make(), to_v4, True))
+    assert back.noise is None and back.white is None and back.unit_serial == "SN42"
+    with pytest.raises(CalibrationFileError, match="unknown keys \\['noise'\\]"):
+        loads(edited(noisy(), lambda d: d.update(format_version=4, conventions=CONVENTIONS_V4),
+                     True))
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (lambda n: n.update(white=[1e-4, -1e-4, 1e-4, 1e-4]), "noise.white must be finite"),
+    (lambda n: n.update(white=[1e-4, 0.0, 1e-4, 1e-4]), "and positive"),
+    (lambda n: n.update(white=[1e-4] * 3), "noise.white has shape \\(3,\\)"),
+    (lambda n: n.update(white_sigma=None), "noise.white_sigma must be a"),
+    (lambda n: n.update(random_walk=None), "noise.random_walk must be a"),
+    (lambda n: n.update(random_walk=["1e-5"] * 4), "noise.random_walk must be a"),
+    (lambda n: n.update(bias_instability=[True] * 4), "noise.bias_instability must be a"),
+    (lambda n: n.update(rate_hz=0), "noise.rate_hz 0 must be a positive"),
+    (lambda n: n.update(seconds=True), "noise.seconds True must be a positive"),
+    (lambda n: n.update(seconds=1e300), "noise.seconds .* must be a positive"),
+    (lambda n: n["units"].update(white="rad/s"), "noise.units"),
+    (lambda n: n.update(extra=1), "noise must be null or an object with exactly"),
+    (lambda n: n.pop("seconds"), "noise must be null or an object with exactly"),
+])
+def test_a_hostile_noise_section_is_refused(edit, problem):
+    text = edited(noisy(), lambda d: edit(d["noise"]), True)
+    with pytest.raises(CalibrationFileError, match=problem):
+        loads(text)
+    with pytest.raises(CalibrationFileError, match="noise must be null or an object"):
+        loads(edited(noisy(), lambda d: d.update(noise=[1, 2]), True))

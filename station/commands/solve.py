@@ -118,7 +118,14 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
     from station.protocols import lookup
-    from station.replay import ReplaySettings, calibrated_stream, carried, solve_recorded, stimulus
+    from station.replay import (
+        ReplaySettings,
+        calibrated_stream,
+        carried,
+        recorded_noise,
+        solve_recorded,
+        stimulus,
+    )
     from station.solve.quality import check_fit
     from station.solve.verdict import verdict
 
@@ -156,6 +163,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
                 status=check.status, status_reasons=check.problems, **bias)
             solved = readings, result
+        cal = cal.with_noise(recorded_noise(session, stream, channels))
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
     if tolerances is None or tolerances.empty:
@@ -299,6 +307,7 @@ def summarise(cal, out) -> dict:
         "scale_factors_sigma_white": None if cal.white is None
         else cal.white["scale_factors_sigma"].tolist(),
         "bias_sigma_white": None if cal.white is None else cal.white["bias_sigma"].tolist(),
+        "noise": None if cal.noise is None else cal.noise.to_document(cal.units[0]),
     }
 
 
@@ -322,8 +331,21 @@ def _text(s: dict) -> str:
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *suspect,
+    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *noise_lines(s), *suspect,
                       f"written to {s['calibration']}", *judged])
+
+
+def noise_lines(s: dict) -> list:
+    """One line on the noise figures stored (docs/noise.md), or none when not measured."""
+    noise = s["noise"]
+    if noise is None:
+        return []
+    resolved = [t for t in ("bias_instability", "random_walk") if noise[t] is not None]
+    return [f"noise from {noise['seconds']:.3g} s of static data: white-noise density "
+            f"{min(noise['white']):.3g} .. {max(noise['white']):.3g} {noise['units']['white']}"
+            + (f"; {' and '.join(t.replace('_', ' ') for t in resolved)} resolved" if resolved
+               else "; bias instability and random walk not resolved (too short a rest)")
+            + " (`station noise` for the table)"]
 
 
 def carry_lines(s: dict) -> list:

@@ -16,7 +16,9 @@ measured apart from the fit are independent of `a`), the gauge-invariant scale f
 angles with their 1-sigma values, the frame of `a`, the fit, the session it came from and the
 date. Version 4 adds `uncertainty`: the sigmas above are the total figure (the readings' white
 noise plus a per-pose error term estimated from the residuals, docs/solvers.md), `uncertainty`
-holds that term and the white-noise figure beside them. Files of versions 1-3 still load.
+holds that term and the white-noise figure beside them. Version 5 adds `noise`: each sensor's
+white-noise density, bias instability and random walk from the static data by the Allan deviation
+(`NoiseFigures`, docs/noise.md), null when not measured. Files of versions 1-4 still load.
 Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives back
 bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits and
 damage (it is not a signature).
@@ -27,6 +29,7 @@ keys are refused. Errors are `CalibrationFileError` (a `ValueError`) naming the 
 and what to do.
 """
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -39,8 +42,9 @@ from station.files.provenance import software_version, utc_now
 from station.model import measurement
 
 FORMAT = "imu-station-calibration"
-FORMAT_VERSION = 4
-SUPPORTED_VERSIONS = (1, 2, 3, 4)  # 2 added `covariance`, 3 `verdict`, 4 `uncertainty`
+FORMAT_VERSION = 5
+SUPPORTED_VERSIONS = (1, 2, 3, 4, 5)  # 2 added `covariance`, 3 `verdict`, 4 `uncertainty`,
+# 5 `noise`
 MAX_BYTES = 4 << 20
 LIMITS = {"a": (1e-9, 1e12), "b": (0.0, 1e9), "magnitude": (1e-12, 1e9), "condition": (0.0, 1e8)}
 """Plausible ranges of finite numbers, wide enough for any unit in SI or raw counts: column norms
@@ -75,10 +79,24 @@ CONVENTIONS_V4 = {**CONVENTIONS_V3,
                                  "readings' white noise plus pose_sigma, a per-pose error term "
                                  "estimated from the residuals (docs/solvers.md); white holds the "
                                  "white-noise figure of the same quantities; null when unknown"}
+CONVENTIONS_V5 = {**CONVENTIONS_V4,
+                  "noise": "each sensor's noise from static data by the overlapping Allan "
+                           "variance, fitted as N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3 (IEEE Std "
+                           "952-1997 Annex C, docs/noise.md): white (N, white-noise density: "
+                           "angle/velocity random walk), bias_instability (B), random_walk (K, "
+                           "rate/acceleration random walk), each with its 1-sigma, in the units "
+                           "given; a term null when the data did not resolve it for every "
+                           "sensor; rate_hz and seconds of the static data; null when not "
+                           "measured"}
 _KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum"),
          3: (*_KEYS_V1[:-1], "covariance", "verdict", "checksum"),
-         4: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "checksum")}
-_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3, 4: CONVENTIONS_V4}
+         4: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "checksum"),
+         5: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "noise", "checksum")}
+_CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3, 4: CONVENTIONS_V4,
+                5: CONVENTIONS_V5}
+NOISE_TERMS = ("white", "bias_instability", "random_walk")
+NOISE_KEYS = ("white", "white_sigma", "bias_instability", "bias_instability_sigma", "random_walk",
+              "random_walk_sigma", "rate_hz", "seconds", "units")
 WHITE = ("a_sigma", "bias_sigma", "scale_factors_sigma", "axis_angles_sigma")
 VERDICTS = ("PASS", "FAIL", "MARGINAL")
 
@@ -93,16 +111,36 @@ class NoiseFigures:
     bias_instability : B, the flicker floor, u (Allan deviation minimum / sqrt(2 ln 2 / pi))
     random_walk      : K, rate / acceleration random walk, u/sqrt(s) (= u sqrt(Hz)/s)
     rate_hz          : sample rate of the static data; seconds: how much of it was analysed
+    white and white_sigma are always arrays; bias_instability and random_walk (with their sigmas)
+    are None when the static data did not resolve the term for every sensor (too short a rest,
+    station.solve.noise), else arrays. Values and sigmas are finite and positive.
     """
 
     white: np.ndarray
     white_sigma: np.ndarray
-    bias_instability: np.ndarray
-    bias_instability_sigma: np.ndarray
-    random_walk: np.ndarray
-    random_walk_sigma: np.ndarray
+    bias_instability: np.ndarray | None
+    bias_instability_sigma: np.ndarray | None
+    random_walk: np.ndarray | None
+    random_walk_sigma: np.ndarray | None
     rate_hz: float
     seconds: float
+
+    @classmethod
+    def from_fit(cls, fit, rate_hz: float, seconds: float, channels=None) -> "NoiseFigures":
+        """The figures of a `station.solve.noise.NoiseFit` (value, sigma (3, c), resolved) for
+        its `channels` (indices, default all, in the order of the calibration's sensors): a
+        term not resolved for every one of them is None."""
+        pick = slice(None) if channels is None else np.asarray(channels, np.int64)
+        value, sigma, resolved = fit.value[:, pick], fit.sigma[:, pick], fit.resolved[:, pick]
+        terms = [(value[k], sigma[k]) if resolved[k].all() else (None, None) for k in range(3)]
+        return cls(*terms[0], *terms[1], *terms[2], rate_hz=float(rate_hz),
+                   seconds=float(seconds))
+
+    def to_document(self, unit: str) -> dict:
+        """The file's `noise` object for readings in `unit`."""
+        doc = {key: _list(getattr(self, key)) for key in NOISE_KEYS[:6]}
+        return {**doc, "rate_hz": self.rate_hz, "seconds": self.seconds,
+                "units": noise_units(unit)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,7 +167,8 @@ class Calibration(measurement.Sensitivity):
     white               : the white-noise figure {name: array} of WHITE (a_sigma, bias_sigma,
                           scale_factors_sigma, axis_angles_sigma), or None (files before
                           version 4)
-    noise               : each sensor's `NoiseFigures`, or None (not measured)
+    noise               : each sensor's `NoiseFigures`, or None (not measured; files before
+                          version 5)
     """
 
     unit_serial: str
@@ -234,6 +273,12 @@ class Calibration(measurement.Sensitivity):
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 
+    def with_noise(self, noise: NoiseFigures | None) -> "Calibration":
+        """This calibration with its sensors' `NoiseFigures` (checked as a load checks them)."""
+        cal = dataclasses.replace(self, noise=noise)
+        _from_document(cal.to_document(), "the calibration")
+        return cal
+
     def fusion_matrix(self) -> np.ndarray:
         """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""
         return measurement.fusion_matrix(self.a)
@@ -286,7 +331,7 @@ class Calibration(measurement.Sensitivity):
         doc = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
-            "conventions": dict(CONVENTIONS_V4),
+            "conventions": dict(CONVENTIONS_V5),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
             "units": {"readings": list(self.units), "stimulus": self.units[0],
                       "sensitivity": "1 (reading unit per stimulus unit)",
@@ -304,6 +349,7 @@ class Calibration(measurement.Sensitivity):
             "uncertainty": {"pose_sigma": self.pose_sigma,
                             "white": None if self.white is None else
                             {k: _list(self.white[k]) for k in WHITE}},
+            "noise": None if self.noise is None else self.noise.to_document(self.units[0]),
         }
         doc["checksum"] = checksum(doc)
         return doc
@@ -370,6 +416,46 @@ def _uncertainty(doc, a_shape, fail):
               "axis_angles_sigma": (m, m)}
     return (None if pose is None else float(pose),
             {k: _array(white, k, fail, shape=shapes[k], sigma=True) for k in WHITE})
+
+
+def noise_units(unit: str) -> dict:
+    """The units of the `noise` terms for readings in `unit` (u sqrt(s), u, u/sqrt(s))."""
+    return {"white": f"{unit} sqrt(s)", "bias_instability": unit,
+            "random_walk": f"{unit} / sqrt(s)"}
+
+
+def _noise(doc, m: int, unit: str, fail) -> NoiseFigures | None:
+    """The `noise` object of a version-5 document (None before, or null), checked: exactly its
+    keys, each term an (m,) array of finite positive numbers with a positive 1-sigma (the random
+    walk and bias instability both null or both given with their sigma), the rate and seconds
+    positive, the units those of the readings."""
+    block = doc.get("noise")
+    if block is None:
+        return None
+
+    def fail_noise(problem: str, *advice) -> CalibrationFileError:
+        return fail(problem if problem.startswith("noise") else f"noise.{problem}", *advice)
+
+    if not isinstance(block, dict) or set(block) != set(NOISE_KEYS):
+        raise fail(f"noise must be null or an object with exactly {', '.join(NOISE_KEYS)}")
+    if block["units"] != noise_units(unit):
+        raise fail(f"noise.units {block['units']!r} are not {noise_units(unit)} (readings in "
+                   f"{unit})")
+    for key in ("rate_hz", "seconds"):
+        value = block[key]
+        if type(value) not in (int, float) or not 0 < value <= LIMITS["b"][1]:
+            raise fail(f"noise.{key} {value!r} must be a positive number")
+    terms = {}
+    for name in NOISE_TERMS:
+        pair = (name, f"{name}_sigma")
+        if name != "white" and block[pair[0]] is None and block[pair[1]] is None:
+            terms.update(dict.fromkeys(pair))
+            continue
+        for key in pair:
+            terms[key] = _array(block, key, fail_noise, shape=(m,), positive=True,
+                                bound=LIMITS["b"][1])
+    return NoiseFigures(**terms, rate_hz=float(block["rate_hz"]),
+                        seconds=float(block["seconds"]))
 
 
 def checksum(doc: dict) -> str:
@@ -504,7 +590,8 @@ def _from_document(doc, where: str) -> Calibration:
         axis_angles_sigma=_array(inv, "axis_angles_sigma", fail, shape=(m, m), sigma=True),
         frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
         counts_per_unit=cpu, session=session, covariance=covariance, verdict=verdict,
-        pose_sigma=pose_sigma, white=white, created=doc["created"],
+        pose_sigma=pose_sigma, white=white,
+        noise=_noise(doc, m, readings_units[0], fail), created=doc["created"],
         software_version=doc["software_version"])
 
 

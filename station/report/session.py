@@ -14,7 +14,10 @@ The figures:
 - table       : measured table rate against the setpoint, and its error in the rotating windows;
 - stream      : samples received per second against the nominal rate, sequence gaps, arrival
                 latency of each sample (host time - sampling instant);
-- uncertainty : scale factors, biases and axis angles with their 1-sigma uncertainties.
+- uncertainty : scale factors, biases and axis angles with their 1-sigma uncertainties;
+- allan       : per stream with static data, the Allan deviation of each channel with its
+                confidence band and the fitted IEEE 952 terms, beside their table
+                (station/report/noise.py).
 
 The calibration is the stored `results/<name>` (the newest by default). A session without stored
 results (e.g. a recording that was interrupted) is reduced and solved for the report as `station
@@ -38,7 +41,7 @@ from station.protocols import KINDS
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
-from station.report import html
+from station.report import html, noise
 from station.solve.quality import CHI2_P, check_fit, outlier_words
 
 WEAK_EXCITATION = 0.25
@@ -120,6 +123,7 @@ def build(path, result: str | None = None) -> Report:
             _stream_health(report, name, session.stream(name, columns=("seq", "host_time")),
                            events)
         _table_stability(report, session.table(), events, session.metadata)
+        noise.add_to_report(report, session)
     if calibration is not None:
         cal, channels, units = calibration
         _fit(report, cal, channels, hand)

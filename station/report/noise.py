@@ -1,0 +1,123 @@
+"""The noise of a session's static data for people: the Allan deviation plot, the table of the
+IEEE 952 terms, and the section of the session report (`station.reduce.noise`).
+
+The plot is log-log: each channel's overlapping Allan deviation with its 68.3 % confidence band
+(`allantools.confidence_interval` on the estimates' equivalent degrees of freedom), the fitted
+model, and the fitted terms' own lines: slope -1/2 (N / sqrt(tau)), 0 (the floor
+B sqrt(2 ln 2 / pi)) and +1/2 (K sqrt(tau / 3)), drawn for the median channel of each unit.
+"""
+
+import math
+
+import allantools
+import numpy as np
+from matplotlib.figure import Figure
+
+from station.errors import CalibrationInputError
+from station.files.calfile import noise_units
+from station.reduce.noise import SessionNoise, session_noise
+from station.report import html
+from station.solve.noise import FLOOR, TERMS
+
+BAND = 0.6826894921370859
+"""Confidence level of the bands drawn: 1 sigma of a normal law."""
+WORDS = {"white": "white noise N", "bias_instability": "bias instability B",
+         "random_walk": "random walk K"}
+
+
+def summary(noise: SessionNoise) -> dict:
+    """The figures as JSON-able data: per channel each term's value and 1-sigma with its unit
+    (None: not resolved by the data), and what was analysed."""
+    fit = noise.fit
+    channels = []
+    for c, (name, unit) in enumerate(zip(noise.channels, noise.units, strict=True)):
+        entry = {"channel": name, "unit": unit}
+        units = noise_units(unit)
+        for k, term in enumerate(TERMS):
+            ok = bool(fit.resolved[k, c])
+            entry[term] = {"value": float(fit.value[k, c]) if ok else None,
+                           "sigma": float(fit.sigma[k, c]) if ok else None, "unit": units[term]}
+        channels.append(entry)
+    return {"stream": noise.stream, "source": noise.source, "windows": len(noise.windows),
+            "seconds": noise.curve.seconds, "rate_hz": noise.curve.rate,
+            "taus_s": noise.curve.tau.tolist(), "channels": channels}
+
+
+def rows(noise: SessionNoise) -> list:
+    """Table rows: channel, then each term as 'value +- sigma unit' ('not resolved' if not)."""
+    out = []
+    for entry in summary(noise)["channels"]:
+        cells = [entry["channel"]]
+        for term in TERMS:
+            t = entry[term]
+            cells.append("not resolved" if t["value"] is None
+                         else f"{t['value']:.3g} +- {t['sigma']:.2g} {t['unit']}")
+        out.append(cells)
+    return out
+
+
+HEAD = ("channel", *(WORDS[t] for t in TERMS))
+
+
+def allan_png(noise: SessionNoise) -> bytes:
+    """The Allan deviation figure (module docstring): one panel per unit of the stream."""
+    units = sorted(set(noise.units))
+    fig = Figure(figsize=(6 * len(units), 4.5))
+    axes = fig.subplots(1, len(units), squeeze=False)[0]
+    tau, fit = noise.curve.tau, noise.fit
+    dense = np.geomspace(tau[0], tau[-1], 64)
+    for ax, unit in zip(axes, units, strict=True):
+        cols = [c for c, u in enumerate(noise.units) if u == unit]
+        for c in cols:
+            dev = np.sqrt(noise.curve.avar[:, c])
+            lo, hi = zip(*(allantools.confidence_interval(d, max(nu, 1e-3), BAND)
+                           for d, nu in zip(dev, fit.edf[:, c], strict=True)), strict=True)
+            line, = ax.loglog(tau, dev, "o", ms=3, label=noise.channels[c] if len(cols) <= 6
+                              else (f"{len(cols)} channels" if c == cols[0] else None))
+            ax.fill_between(tau, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+            ax.loglog(dense, np.sqrt(fit.model_avar(dense)[:, c]), "-", lw=0.7,
+                      color=line.get_color())
+        _slopes(ax, dense, fit.theta[cols], unit)
+        ax.set_xlabel("averaging time tau (s)")
+        ax.set_ylabel(f"Allan deviation ({unit})")
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend(fontsize=7)
+    return html.png(fig)
+
+
+def _slopes(ax, tau, theta, unit: str) -> None:
+    """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2."""
+    med = np.median(theta, axis=0)
+    n, b, k = noise_units(unit).values()
+    lines = ((med[0] / tau, "-1/2", f"N = {math.sqrt(med[0]):.3g} {n}"),
+             (np.full_like(tau, FLOOR * med[1]), "0", f"B = {math.sqrt(med[1]):.3g} {b}"),
+             (med[2] * tau / 3.0, "+1/2", f"K = {math.sqrt(med[2]):.3g} {k}"))
+    for avar, slope, label in lines:
+        if np.all(avar > 0):
+            ax.loglog(tau, np.sqrt(avar), "k--", lw=0.8)
+            ax.annotate(f"slope {slope}: {label}", (tau[len(tau) // 2], np.sqrt(avar)[32]),
+                        fontsize=7)
+
+
+def add_to_report(report, session) -> None:
+    """A section and a figure per stream of the session whose static data give its noise; a
+    stream without enough static data gets a line saying so."""
+    for name in session.specs:
+        try:
+            noise = session_noise(session, name)
+        except CalibrationInputError as exc:
+            report.sections.append(html.section(f"noise-{name}", f"Noise: {name}",
+                                                f"<p>{html.e(exc.problem)}</p>"))
+            continue
+        report.summary.setdefault("noise", {})[name] = summary(noise)
+        what = (f"{noise.curve.seconds:.1f} s of static data in {len(noise.windows)} window(s) "
+                f"({noise.source}), at {noise.curve.rate:g} Hz")
+        report.sections.append(html.section(
+            f"noise-{name}", f"Noise: {name}",
+            f"<p>{html.e(what)}; 1-sigma after +-.</p>" + html.table(rows(noise), HEAD)))
+        report.plots.append(html.Plot(
+            f"allan-{name}", f"Allan deviation: {name}",
+            "Overlapping Allan deviation of each channel (points) with its 68 % confidence band, "
+            "the fitted model (solid) and the median channel's fitted terms (dashed: slope -1/2 "
+            "white noise N, 0 bias instability B, +1/2 random walk K; IEEE Std 952-1997 "
+            "Annex C).", allan_png(noise)))

@@ -1,0 +1,271 @@
+"""Sensor noise from static data by the Allan variance: arrays in, arrays out.
+
+A static stretch of one channel, y (k,) in its unit u at `rate` Hz, gives the overlapping Allan
+variance at averaging times tau = m / rate, m = 4, 16, 64, ... up to k / 8 (`allantools.oadev`,
+NIST SP 1065 eq. 11; `octave_factors` says why these). IEEE Std 952-1997 Annex C (and
+El-Sheimy, Hou and Niu 2008, "Analysis and modeling of inertial sensors using Allan variance",
+IEEE Trans. Instrum. Meas. 57(1)) write the Allan variance of the three noises every inertial
+sensor shows as
+
+    AVAR(tau) = N^2 / tau  +  (2 ln 2 / pi) B^2  +  K^2 tau / 3
+
+N   white-noise density (angle / velocity random walk), u sqrt(s); two-sided PSD N^2
+B   bias instability, u; two-sided PSD B^2 / (2 pi f), the Allan deviation's floor B sqrt(2 ln2/pi)
+K   rate / acceleration random walk, u / sqrt(s); two-sided PSD (K / 2 pi)^2 / f^2
+
+The fit is linear in theta = (N^2, B^2, K^2). Each estimate AVAR_hat(tau) is distributed as
+AVAR(tau) chi2_nu / nu, nu its equivalent degrees of freedom (Greenhall and Riley 2004,
+`allantools.edf_greenhall`, for the noise that dominates at that tau). The fit is maximum
+likelihood on those chi2 laws: its score is the weighted least-squares equation with weights
+nu / (2 AVAR(tau)^2) at the model, solved by iterated reweighting. The 1-sigma of theta is the
+inverse Fisher information widened by `INFLATION`: the likelihood treats the estimates at
+different taus as independent, and overlapping estimates that share the same slow noise are not;
+the factors are measured by bench/noise.py, not derived (docs/noise.md). A term whose theta is
+not at least `RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too
+short for the random walk) and the others are fitted again without it. The 1-sigma of N, B, K
+follow from theta's by the derivative of the square root.
+"""
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import allantools
+import numpy as np
+
+from station.errors import CalibrationInputError
+
+FLOOR = 2.0 * math.log(2.0) / math.pi
+"""AVAR of bias instability B = 1: the Allan deviation floor is B sqrt(FLOOR) (IEEE 952 C.1)."""
+TERMS = ("white", "bias_instability", "random_walk")
+ALPHA = (0, -1, -2)
+"""Power-law exponent of each term's PSD (S ~ f^alpha): white, flicker, random-walk FM."""
+RESOLVED = 2.0
+"""A term is resolved when its variance coefficient is this many sigma above zero."""
+MIN_SAMPLES = 64
+"""Fewest samples of a stretch: 64 reach m = 4 (k / 8) with 57 terms."""
+MIN_TERMS = 4
+"""Fewest overlapping terms (k - 2m + 1 of a stretch of k samples) for a tau to be used: the
+estimates beyond hold too few degrees of freedom for the chi2 law's weights to mean much."""
+ITERATIONS = 50
+"""Most reweighting iterations of the fit (it converges in a handful)."""
+MIN_TAUS = 4
+"""Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
+INFLATION = np.array([1.1, 1.25, 1.3])
+"""Factors on the Fisher sigmas of (N^2, B^2, K^2) for the correlation between the estimates at
+neighbouring taus, which the likelihood (independent chi2 laws) leaves out: measured by
+bench/noise.py (the z-scores' spread over seeds and stream lengths, docs/noise.md)."""
+FIRST, STEP, LONGEST = 4, 4, 8
+"""Averaging factors m = FIRST STEP^j up to k / LONGEST (`octave_factors`)."""
+
+
+@dataclass(frozen=True)
+class AllanCurve:
+    """Overlapping Allan variance of c channels at octave taus, pooled over stretches.
+
+    m      : (t,) averaging factors; tau : (t,) s = m / rate
+    avar   : (t, c) Allan variance in u^2
+    terms  : (t,) overlapping terms summed over the stretches
+    lengths: (s,) samples of each stretch (their edf is found per stretch and tau)
+    rate   : sample rate, Hz
+    """
+
+    m: np.ndarray
+    tau: np.ndarray
+    avar: np.ndarray
+    terms: np.ndarray
+    lengths: np.ndarray
+    rate: float
+
+    @property
+    def seconds(self) -> float:
+        """Seconds of data analysed."""
+        return float(self.lengths.sum() / self.rate)
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """The fitted IEEE 952 terms of c channels (`TERMS`), each (c,) in u sqrt(s), u, u/sqrt(s),
+    with 1-sigma; NaN where a channel's term is not resolved (`resolved` False).
+
+    value, sigma : (3, c) N, B, K and their 1-sigma
+    theta, cov   : (c, 3) variance coefficients (N^2, B^2, K^2), (c, 3, 3) their covariance
+                   (zero rows and columns for terms left out)
+    edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate
+    resolved     : (3, c) bool
+    """
+
+    value: np.ndarray
+    sigma: np.ndarray
+    theta: np.ndarray
+    cov: np.ndarray
+    edf: np.ndarray
+    resolved: np.ndarray
+
+    def model_avar(self, tau) -> np.ndarray:
+        """(len(tau), c) fitted Allan variance at `tau` s."""
+        return design(np.asarray(tau, float)) @ self.theta.T
+
+
+def octave_factors(length: int) -> np.ndarray:
+    """Averaging factors 4, 16, 64, ... (every other octave) of a stretch of `length` samples, up
+    to `_longest_factor`. m starts at 4: the shortest taus of a real sensor are shaped by its
+    anti-alias filter, and of discrete flicker noise by its discreteness (1.44 times the floor at
+    m = 1); the spacing of 4 keeps neighbouring estimates less correlated than octaves; beyond an
+    eighth of the stretch an estimate has a handful of degrees of freedom."""
+    top = _longest_factor(length)
+    if top < FIRST:
+        return np.zeros(0, np.int64)
+    return FIRST * STEP ** np.arange(int(math.log(top / FIRST, STEP)) + 1)
+
+
+def _longest_factor(length) -> int:
+    """The largest averaging factor a stretch of `length` samples reaches: at least `MIN_TERMS`
+    terms, at most an `LONGEST`th of the stretch."""
+    return min((int(length) + 1 - MIN_TERMS) // 2, int(length) // LONGEST)
+
+
+def allan_curve(stretch, rate: float, counts_per_unit=None) -> AllanCurve:
+    """The overlapping Allan variance of one static stretch (k, c) at `rate` Hz, channel by
+    channel (`allantools.oadev` on frequency data: the readings themselves), at `octave_factors`.
+    `counts_per_unit` (c,): the stretch holds raw counts, each channel divided by its scale when
+    it is analysed (so only one channel is ever held in floats). The channel's mean is taken out
+    first (the Allan variance does not see it; the phase's running sum then keeps its
+    precision)."""
+    y = np.asarray(stretch)
+    scale = np.ones(y.shape[-1]) if counts_per_unit is None else \
+        np.broadcast_to(np.asarray(counts_per_unit, float), y.shape[-1:])
+    k = len(y)
+    if y.ndim != 2 or k < MIN_SAMPLES:
+        raise CalibrationInputError(
+            f"a static stretch of {k} samples is too short for the Allan variance.",
+            f"Give stretches of at least {MIN_SAMPLES} samples (seconds of rest).")
+    m = octave_factors(k)
+    avar = np.empty((len(m), y.shape[1]))
+    for c in range(y.shape[1]):
+        column = y[:, c] / scale[c]
+        if not np.all(np.isfinite(column)):
+            raise CalibrationInputError(f"channel {c + 1} holds values that are not finite.",
+                                        "Give finite readings in SI units.")
+        _, dev, _, _ = allantools.oadev(column - column.mean(), rate=rate, data_type="freq",
+                                        taus=m / rate)
+        avar[:, c] = dev[:len(m)] ** 2
+    return AllanCurve(m, m / rate, avar, (k - 2 * m + 1).astype(float), np.array([k]), rate)
+
+
+def pooled(curves) -> AllanCurve:
+    """One Allan curve from the curves of several stretches of the same channels: at each tau
+    the stretches' Allan variances averaged with their numbers of terms as weights (each term is
+    one squared second difference, so this is the Allan variance of all the terms together);
+    taus only the longer stretches reach take only those."""
+    curves = list(curves)
+    if not curves:
+        raise CalibrationInputError("no static stretch to analyse.",
+                                    "Record the unit at rest (static windows, still poses).")
+    rate = curves[0].rate
+    if any(c.rate != rate or c.avar.shape[1] != curves[0].avar.shape[1] for c in curves):
+        raise CalibrationInputError("the static stretches differ in rate or channels.",
+                                    "Pool stretches of one stream only.")
+    m = max((c.m for c in curves), key=len)
+    sums, terms = np.zeros((len(m), curves[0].avar.shape[1])), np.zeros(len(m))
+    for c in curves:
+        t = len(c.m)
+        sums[:t] += c.avar * c.terms[:, None]
+        terms[:t] += c.terms
+    return AllanCurve(m, m / rate, sums / terms[:, None], terms,
+                      np.concatenate([c.lengths for c in curves]), rate)
+
+
+def design(tau) -> np.ndarray:
+    """(t, 3) coefficients of (N^2, B^2, K^2) in AVAR(tau) (IEEE 952 Annex C)."""
+    tau = np.asarray(tau, float)
+    return np.column_stack([1.0 / tau, np.full_like(tau, FLOOR), tau / 3.0])
+
+
+@lru_cache(maxsize=4096)
+def _greenhall(alpha: int, m: int, length: int) -> float:
+    """edf of an overlapping Allan variance at factor m of `length` readings (length + 1 phase
+    points) for power-law noise alpha (`allantools.edf_greenhall`, Greenhall and Riley 2004)."""
+    return float(allantools.edf_greenhall(alpha=alpha, d=2, m=int(m), N=int(length) + 1,
+                                          overlapping=True))
+
+
+def edf(curve: AllanCurve, theta) -> np.ndarray:
+    """(t, c) equivalent degrees of freedom of the pooled estimates for channels whose variance
+    coefficients are theta (c, 3): per stretch Greenhall's edf for the noise that dominates the
+    model at that tau, pooled over the stretches that reach the tau by Satterthwaite's rule with
+    the pooling weights (their numbers of terms). (Satterthwaite's mixture of the terms' edfs
+    instead of the dominant one's gave sigmas further from the spread over seeds in
+    bench/noise.py: z-scores spread 1.2, 1.6, 1.75 against 1.07, 1.14-1.28, 1.17-1.31.)"""
+    parts = design(curve.tau)[:, None, :] * np.asarray(theta)[None]  # (t, c, 3)
+    alpha = np.array(ALPHA)[np.argmax(parts, axis=2)]
+    out = np.zeros(alpha.shape)
+    for i, m in enumerate(curve.m):
+        reach = [n for n in curve.lengths if _longest_factor(n) >= m]
+        w = np.array([n - 2 * m + 1 for n in reach], float)
+        for c, a in enumerate(alpha[i]):
+            nu = np.array([_greenhall(int(a), int(m), int(n)) for n in reach])
+            out[i, c] = w.sum() ** 2 / np.sum(w**2 / nu)
+    return out
+
+
+def fit_noise(curve: AllanCurve) -> NoiseFit:
+    """N, B, K of every channel of `curve` by maximum likelihood on the chi2 laws of its
+    estimates (module docstring); terms not resolved are left out (NaN, `resolved` False)."""
+    if not len(curve.m):
+        raise CalibrationInputError(
+            f"{curve.seconds:.3g} s of static data give no averaging time.",
+            "Record a longer rest (at least a few seconds).")
+    flat = np.flatnonzero(~np.all(curve.avar > 0, axis=0))
+    if len(flat):
+        raise CalibrationInputError(
+            f"channel(s) {', '.join(str(c + 1) for c in flat)} do not vary over the static data.",
+            "A sensor without noise is stuck or its readings are cut to one value: check it.")
+    c = curve.avar.shape[1]
+    x = design(curve.tau)
+    theta, cov = np.zeros((c, 3)), np.zeros((c, 3, 3))
+    nu = np.zeros(curve.avar.shape)
+    for ch in range(c):  # per channel: each has its own terms left out
+        keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
+        while True:
+            theta[ch], cov[ch], nu[:, ch] = _ml(curve, ch, x, keep)
+            sig = np.sqrt(np.diag(cov[ch]))
+            weak = keep & ~(theta[ch] > RESOLVED * sig)
+            weak[0] = False  # the white noise is always fitted: it sets the shortest taus
+            if not weak.any():
+                break
+            worst = np.flatnonzero(weak)[np.argmin((theta[ch] / np.maximum(sig, 1e-300))[weak])]
+            keep[worst] = False
+    resolved = (theta > 0).T
+    value = np.where(resolved, np.sqrt(np.maximum(theta.T, 0.0)), np.nan)
+    var = np.diagonal(cov, axis1=1, axis2=2).T
+    sigma = np.where(resolved, np.sqrt(var) / (2.0 * np.where(resolved, value, 1.0)), np.nan)
+    return NoiseFit(value, sigma, theta, cov, nu, resolved)
+
+
+def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
+    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: iterated
+    reweighted least squares with weights nu / (2 model^2), the score of the chi2 likelihood."""
+    a = curve.avar[:, ch]
+    xs = x[:, keep]
+    theta = np.zeros(3)
+    theta[keep] = np.linalg.lstsq(xs / a[:, None], np.ones(len(a)), rcond=None)[0]
+    theta = np.maximum(theta, 0.0)
+    theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
+    for _ in range(ITERATIONS):
+        model = x @ theta
+        nu = edf(curve, theta[None])[:, 0]
+        w = nu / (2.0 * model**2)
+        info = xs.T @ (xs * w[:, None])
+        new = np.zeros(3)
+        new[keep] = np.linalg.solve(info, xs.T @ (w * a))
+        new = np.where(keep, np.maximum(new, 0.0), 0.0)
+        new[0] = max(new[0], theta[0] * 1e-3)
+        done = np.allclose(new, theta, rtol=1e-9, atol=0.0)
+        theta = new
+        if done:
+            break
+    cov = np.zeros((3, 3))
+    cov[np.ix_(keep, keep)] = np.linalg.inv(info)
+    cov *= np.outer(INFLATION, INFLATION)
+    return theta, cov, nu
