@@ -445,13 +445,16 @@ class MavlinkImu:
         return self.decoder.decode(data, self.clock.now()) if data else None
 
     def _first_block(self) -> SampleBlock:
-        """The first IMU samples, asking for the stream every REQUEST_EVERY wall seconds."""
+        """The first IMU samples (asking for the stream); MavlinkError after `wait_s`."""
         section = self.profile.mavlink
-        deadline, asked = time.monotonic() + section.wait_s, -math.inf
+        deadline, asked, heard = time.monotonic() + section.wait_s, -math.inf, 0
         while time.monotonic() < deadline:
-            if section.request_stream and time.monotonic() - asked >= REQUEST_EVERY:
+            # ask again every REQUEST_EVERY s, and at once when the first message comes (on UDP
+            # the station can answer only once it has heard from the flight controller)
+            again = time.monotonic() - asked >= REQUEST_EVERY or (self.stats.messages and not heard)
+            if section.request_stream and again:
                 self.request_stream()
-                asked = time.monotonic()
+                asked, heard = time.monotonic(), self.stats.messages
             block = self._read()
             if not self._open:
                 raise self._lost

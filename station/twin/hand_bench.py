@@ -37,6 +37,7 @@ from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.serial import SerialTwin
 from station.acquire.operator import SimulatedTechnician
+from station.errors import InputError
 from station.files.session import Session, StreamSpec, write_results
 from station.model import sensing
 from station.model.earth import normal_gravity
@@ -52,10 +53,23 @@ TRIAD = np.eye(3)
 """Nominal layout of a plain accelerometer triad."""
 
 
-def accel_profile(m: int, rate_hz: float) -> SerialImuProfile:
-    """The bundled serial profile `acc<m>_serial` (m = 3 or 4 accelerometers, 4096 counts per g) at
-    `rate_hz`."""
-    base = SerialImuProfile.load(f"acc{m}_serial")
+LINKS = ("serial", "mavlink")
+"""How the hand bench's unit streams: binary serial frames, or MAVLink (a flight controller)."""
+
+
+def accel_profile(m: int, rate_hz: float, link: str = "serial"):
+    """The bundled profile of the unit at `rate_hz`: serial `acc<m>_serial` (m = 3 or 4
+    accelerometers, 4096 counts per g) or MAVLink `acc3_mavlink` (a triad in SCALED_IMU, 1000
+    counts per g); InputError for a MAVLink unit of another m."""
+    if link == "mavlink":
+        from drivers.mavlink_imu import MavlinkProfile
+
+        if m != 3:
+            raise InputError(f"a MAVLink IMU message carries one accelerometer triad; this unit "
+                             f"has {m} accelerometers: use the serial link")
+        base = MavlinkProfile.load("acc3_mavlink")
+    else:
+        base = SerialImuProfile.load(f"acc{m}_serial")
     return dataclasses.replace(base, imu=dataclasses.replace(base.imu, rate_hz=float(rate_hz)))
 
 
@@ -190,16 +204,21 @@ class HandBench:
     latitude_deg  : site latitude (normal gravity)
     effects       : optional {name: {param: value}}: named effects in the unit's output chain
                     (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 30.0}}
+    link          : "serial" (`drivers.twins.serial.SerialTwin` on a pty) or "mavlink" (a flight
+                    controller, `drivers.twins.mavlink.MavlinkTwin`, SCALED_IMU; a triad only)
+    udp_port      : mavlink: send to the station over UDP on 127.0.0.1:udp_port, not a pty
     """
 
     def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
                  mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
-                 latitude_deg: float = 52.2, effects: dict | None = None):
+                 latitude_deg: float = 52.2, effects: dict | None = None, link: str = "serial",
+                 udp_port: int | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
         self.clock = ScaledClock(speed)
-        self.profile = accel_profile(self.layout.shape[1], rate_hz)
+        self.link, self.udp_port = link, udp_port
+        self.profile = accel_profile(self.layout.shape[1], rate_hz, link)
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
         self.gravity = normal_gravity(latitude_deg)
         self.unit = accelerometer_triad(rng, self.layout, fs=rate_hz,
@@ -212,11 +231,19 @@ class HandBench:
                                          placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
 
-    def start(self) -> Self:
-        """Start the IMU stream."""
+    def start(self, unread_after: float | None = None) -> Self:
+        """Start the IMU stream (MAVLink: the heartbeat; the IMU when the station asks for it);
+        `unread_after`: see `drivers.twins.pty.PtyLink`."""
+        if self.link == "mavlink":
+            from drivers.twins.mavlink import MavlinkTwin
+
+            self.twin = MavlinkTwin(self.profile, self.rig, self.clock, udp_port=self.udp_port,
+                                    max_lag=np.inf, unread_after=unread_after).start()
+            return self
         # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
         # samples whatever the host's load (frames before the driver opens the port are lost)
-        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf).start(0.0)
+        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf,
+                               unread_after=unread_after).start(0.0)
         return self
 
     def close(self) -> None:
@@ -233,8 +260,8 @@ class HandBench:
 
     @contextlib.contextmanager
     def driver(self):
-        """The station's real serial driver on the twin's port, closed on exit."""
-        with open_imu("serial", self.twin.port, self.profile, self.clock) as imu:
+        """The station's real driver of the link on the twin's port, closed on exit."""
+        with open_imu(self.link, self.twin.port, self.profile, self.clock) as imu:
             yield imu
 
     def truth(self) -> HandTruth:
