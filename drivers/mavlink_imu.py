@@ -29,6 +29,7 @@ message repeated with the same packet sequence and bytes is a duplicate, dropped
 import contextlib
 import ipaddress
 import math
+import select
 import socket
 import time
 from collections import Counter
@@ -41,7 +42,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from drivers import LinkStats
 from drivers.clock import WallClock
 from drivers.errors import DeviceLostError, MavlinkError, ProfileError, SerialPortError
-from drivers.profile import SI_UNITS, ImuSection, Section, load_profile
+from drivers.profile import ImuSection, Section, load_profile
 from drivers.samples import SampleBlock
 from drivers.wire.mavlink import DEFAULT_SCALE, QUANTITY, ImuMessage
 
@@ -116,15 +117,16 @@ class MavlinkProfile:
         section = profile.section("mavlink", MavlinkSection.parse)
         message = section.message
         table = dict(profile.tables.get("imu") or {})
+        where = f"{profile.source}: [imu]"
+        channels = table.get("channels")
+        if isinstance(channels, list) and len(channels) != len(message.fields):
+            raise ProfileError(f"{where} has {len(channels)} channels and [mavlink] fields "
+                               f"{len(message.fields)}: give one field per channel")
         units = [QUANTITY[f] for f in message.fields]
         table.setdefault("units", units)
         if message.family != "RAW_IMU":
             table.setdefault("scale", [message.fixed_scale(u) or DEFAULT_SCALE[u] for u in units])
         imu = ImuSection.parse(Section(profile.source, "imu", table))
-        where = f"{profile.source}: [imu]"
-        if len(imu.channels) != len(message.fields):
-            raise ProfileError(f"{where} has {len(imu.channels)} channels and [mavlink] fields "
-                               f"{len(message.fields)}: give one field per channel")
         if list(imu.units) != units:
             raise ProfileError(f"{where} units {list(imu.units)} differ from the fields' "
                                f"{units} ({', '.join(message.fields)}); omit `units`")
@@ -133,7 +135,6 @@ class MavlinkProfile:
             if fixed is not None and not math.isclose(scale, fixed, rel_tol=1e-9):
                 raise ProfileError(f"{where} scale: {message.family} fixes {fixed!r} counts per "
                                    f"{unit} (one count per milli-unit); omit `scale`")
-        assert set(units) <= set(SI_UNITS.values())
         return cls(profile.source, imu, section)
 
 
@@ -304,7 +305,12 @@ class _SerialLink:
 
 
 class _UdpLink:
-    """A UDP socket listening on (host, port); writes go to the last sender."""
+    """A UDP socket listening on (host, port); writes go to the last sender. Its receive buffer
+    is `buffer` bytes (the kernel's default holds a few hundred datagrams: a fraction of a
+    second of a fast stream while the host is busy)."""
+
+    buffer = 1 << 22
+    drain = 1024  # datagrams taken by one read at most
 
     def __init__(self, address: str, host_port: tuple, read_timeout: float):
         self.address, self.host_port, self.read_timeout = address, host_port, read_timeout
@@ -320,15 +326,21 @@ class _UdpLink:
             raise MavlinkError(self.address, f"cannot listen on {self.address}: {exc.strerror}. "
                                              "Is another program (a ground station) using the "
                                              "port? Is the address one of this host's?") from exc
-        sock.settimeout(self.read_timeout)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.buffer)
+        sock.setblocking(False)
         self._socket = sock
 
     def read(self) -> bytes:
-        try:
-            data, self._peer = self._socket.recvfrom(65536)
-        except (TimeoutError, BlockingIOError):
+        """The datagrams waiting now (one message each, usually; at most `drain`), or the first
+        within the read timeout: b"" if none."""
+        if not select.select([self._socket], [], [], self.read_timeout)[0]:
             return b""
-        return data
+        chunks = []
+        with contextlib.suppress(BlockingIOError):
+            while len(chunks) < self.drain:
+                data, self._peer = self._socket.recvfrom(65536)
+                chunks.append(data)
+        return b"".join(chunks)
 
     def write(self, data: bytes) -> None:
         if self._peer is not None:  # nobody to answer before the first datagram

@@ -142,7 +142,8 @@ class MavlinkTwin:
         self._encoder = mavlink.MAVLink(None, section.system_id, section.component_id)
         self._commands = mavlink.MAVLink(None)
         self._commands.robust_parsing = True
-        self._rng = np.random.default_rng(seed)
+        self._fates = np.random.default_rng(seed)  # two draws per IMU message, in order
+        self._rng = np.random.default_rng([seed, 1])  # damage and noise
         self._log = []
         self._garbage = b""
         self.requests = []  # (message id, interval us) of each SET_MESSAGE_INTERVAL received
@@ -292,8 +293,9 @@ class MavlinkTwin:
                              f"({len(seq)}, {m}); got {counts.dtype} {counts.shape}")
         values = self.message.wire_values(counts, self.scale)
         fate = np.full(len(seq), SENT, np.int8)
-        fate[self._rng.random(len(seq)) < self.corrupt] = CORRUPTED
-        fate[self._rng.random(len(seq)) < self.drop] = DROPPED
+        draws = self._fates.random((len(seq), 2))  # the same fates however the stream is cut
+        fate[draws[:, 0] < self.corrupt] = CORRUPTED
+        fate[draws[:, 1] < self.drop] = DROPPED
         frames = []
         for t, row, f in zip(times, values, fate, strict=True):
             frame = self._pack(self.message.encode(self._encoder, t, row))
