@@ -5,6 +5,10 @@ UDP on 127.0.0.1; `station record` runs a free-static session against it through
 sensitivities and biases within their sigmas of the twin's truth."""
 
 import io
+import json
+import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -21,29 +25,76 @@ FALSE_ALARM = 1e-3
 """Two-sided false-alarm probability of each check (Bonferroni over the values it checks)."""
 
 
+STATION = [sys.executable, "-m", "station"]
+
+
 @pytest.fixture(scope="module", params=["pty", "udp"])
 def solved(request, tmp_path_factory):
     """A free-static session of 12 poses recorded from the MAVLink twin, solved by `station
-    solve --json`: (link, truth, session path, calibration, bench profile text)."""
+    solve --json`: (link, truth, session path, calibration, bench profile text). pty: the twin
+    and `station record`'s code in this process; udp: `station twin --link mavlink --udp` and
+    `station record` as separate processes talking over 127.0.0.1."""
     tmp = tmp_path_factory.mktemp(request.param)
-    with HandTwin("static", seed=11, speed=40.0, poses=12, link="mavlink",
-                  udp=request.param == "udp") as twin:
-        text = twin.profile_text("SN-FC")
-        (tmp / "b.toml").write_text(text)
+    record_ = _record_in_process if request.param == "pty" else _record_by_the_commands
+    truth = record_(tmp)
+    assert cli.main(["solve", str(tmp / "s.h5"), "--json"]) == 0
+    serial = "SN-FC" if request.param == "pty" else "SIM-12"  # `station twin` names it by seed
+    return (request.param, truth, tmp / "s.h5", load(tmp / "s.cal.json", unit_serial=serial),
+            (tmp / "b.toml").read_text())
+
+
+def _record_in_process(tmp) -> dict:
+    """`station.acquire.bench.record` against a `HandTwin` on a pty; the twin's truth."""
+    with HandTwin("static", seed=11, speed=40.0, poses=12, link="mavlink") as twin:
+        (tmp / "b.toml").write_text(twin.profile_text("SN-FC"))
         profile = BenchProfile.load(tmp / "b.toml")
         summary = record(profile, tmp / "s.h5", ConsoleOperator(io.StringIO("\n" * 50),
                                                                   io.StringIO()))
         truth = twin.truth()
     assert twin.error is None
     assert summary["positions_done"] == profile.positions == 12
-    assert cli.main(["solve", str(tmp / "s.h5"), "--json"]) == 0
-    return request.param, truth, tmp / "s.h5", load(tmp / "s.cal.json", unit_serial="SN-FC"), text
+    return truth
+
+
+def _record_by_the_commands(tmp) -> dict:
+    """`station twin ... --udp` in one process, `station record` in another; the twin's truth
+    (printed when it stops)."""
+    twin = subprocess.Popen(
+        [*STATION, "twin", "--protocol", "static", "--link", "mavlink", "--udp", "--speed", "40",
+         "--positions", "12", "--seed", "12", "--profile-out", str(tmp / "b.toml"),
+         "--lifetime", "200", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        started = json.loads(twin.stdout.readline())
+        assert started["imu"]["link"] == "mavlink"
+        assert started["imu"]["port"].startswith("udpin:127.0.0.1:")
+        rec = subprocess.run([*STATION, "record", "--profile", str(tmp / "b.toml"), "--out",
+                              str(tmp / "s.h5"), "--json"], check=False, input="\n" * 12,
+                             text=True, capture_output=True, timeout=180)
+        assert rec.returncode == 0, rec.stderr
+        assert json.loads(rec.stdout)["positions_done"] == 12
+    finally:
+        twin.send_signal(signal.SIGINT)
+        out, err = twin.communicate(timeout=30)
+    assert twin.returncode == 0, err
+    truth = json.loads(out.splitlines()[-1])["truth"]
+    assert truth["turns"] == 12
+    return truth
 
 
 def test_the_bench_profile_names_the_mavlink_link(solved):
     link, _, _, _, text = solved
     assert 'link = "mavlink"' in text and 'profile = "acc3_mavlink"' in text
     assert ('port = "udpin:127.0.0.1:' in text) == (link == "udp")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--protocol", "rotary", "--link", "mavlink"], "serial link only"),
+    (["--protocol", "iron", "--link", "mavlink"], "4 accelerometers"),
+    (["--protocol", "static", "--udp"], "--udp serves the MAVLink link"),
+])
+def test_station_twin_refuses_what_mavlink_cannot_serve(tmp_path, capsys, args, message):
+    assert cli.main(["twin", *args, "--profile-out", str(tmp_path / "x.toml")]) == 2
+    assert message in capsys.readouterr().err
 
 
 def test_the_chi2_is_within_its_bounds(solved):
