@@ -150,6 +150,8 @@ class MavlinkStats(LinkStats):
                      messages of any type lost on the way)
     other_messages : the flight controller's messages that are not the IMU message (HEARTBEAT,
                      COMMAND_ACK, other instances...)
+    invalid        : IMU messages with a value that is not finite or beyond the counts' range
+                     (HIGHRES_IMU floats), not returned
     """
 
     bytes: int = 0
@@ -158,6 +160,7 @@ class MavlinkStats(LinkStats):
     bad_bytes: int = 0
     lost_messages: int = 0
     other_messages: int = 0
+    invalid: int = 0
 
 
 class MavlinkDecoder:
@@ -228,10 +231,14 @@ class MavlinkDecoder:
             self.stats.other_messages += 1
             return None
         self._last_buf = msg.get_msgbuf()
-        return self._sample(msg)
+        counts = self.message.counts(msg, self.scale)
+        if counts is None:
+            self.stats.invalid += 1
+            return None
+        return counts, *self._number(msg)
 
-    def _sample(self, msg) -> tuple:
-        """(counts, seq, device time) of an IMU message (the numbering of the module docstring)."""
+    def _number(self, msg) -> tuple:
+        """(seq, device time) of an IMU message (the numbering of the module docstring)."""
         t = self.message.time_of(msg)
         if self._last is None:
             seq = 0
@@ -249,7 +256,7 @@ class MavlinkDecoder:
                     self.stats.dropped += step - 1
         self._last, self._lost = (seq, t), False
         self.stats.samples += 1
-        return self.message.counts(msg, self.scale), seq, t
+        return seq, t
 
 
 def udp_address(address: str) -> tuple | None:

@@ -209,3 +209,34 @@ def test_profile_errors_name_the_problem(tmp_path, imu, mavlink, message):
                                      f'{imu}\n[mavlink]\n{mavlink}\n')
     with pytest.raises(ProfileError, match=message):
         MavlinkProfile.load(tmp_path / "p.toml")
+
+
+def test_the_decoder_numbers_duplicates_reboots_and_invalid_values():
+    """The pure decoder on frames built here with pymavlink: a repeated message (same packet
+    number and bytes) is dropped, a time stamp going back starts a new segment, a message lost
+    in between steps the numbering by the periods it covers, NaN is refused."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from drivers.mavlink_imu import MavlinkDecoder
+
+    profile = MavlinkProfile.load("imu6_mavlink")
+    fc = mavlink.MAVLink(None, 1, 1)
+
+    def frame(t, value, seq):
+        fc.seq = seq
+        return bytes(fc.highres_imu_encode(round(t * 1e6), value, 0, 9.8, 0.01, 0, 0, 0, 0, 0,
+                                           0, 0, 0, 0, 0x3F, 0).pack(fc))
+
+    stream = [frame(1.000, 0.5, 10), frame(1.005, 0.25, 11), frame(1.005, 0.25, 11),  # repeat
+              frame(1.020, 0.125, 14),  # packets 12, 13 lost: samples at 1.010 and 1.015
+              frame(0.002, 1.0, 15),  # rebooted
+              frame(0.007, float("nan"), 16), frame(0.012, -2.0, 17)]
+    decoder = MavlinkDecoder(profile.mavlink, profile.imu.scale, 200.0)
+    block = decoder.decode(b"".join(stream), host_time=3.0)
+    np.testing.assert_array_equal(block.seq, [0, 1, 4, 4, 6])
+    np.testing.assert_allclose(block.device_time, [1.0, 1.005, 1.02, 0.002, 0.012])
+    np.testing.assert_array_equal(block.counts[:, 0], np.array([0.5, 0.25, 0.125, 1.0, -2.0]) * 1e5)
+    np.testing.assert_array_equal(block.counts[:, 3], [10000] * 5)  # 0.01 rad/s at 1e6 per rad/s
+    s = decoder.stats
+    assert (s.samples, s.duplicates, s.lost_messages, s.gaps, s.dropped, s.restarts, s.invalid) \
+        == (5, 1, 2, 2, 3, 1, 1)

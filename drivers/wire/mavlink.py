@@ -90,13 +90,18 @@ class ImuMessage:
             return msg.time_boot_ms * 1e-3
         return msg.time_usec * 1e-6
 
-    def counts(self, msg, scale: np.ndarray) -> np.ndarray:
-        """(m,) int64 counts of one decoded message (`scale`: counts per SI unit per channel)."""
+    def counts(self, msg, scale: np.ndarray) -> np.ndarray | None:
+        """(m,) int64 counts of one decoded message (`scale`: counts per SI unit per channel);
+        None when a float field is not finite or beyond the counts' range (an invalid
+        sample)."""
         values = np.array([getattr(msg, f) for f in self.fields], float)
         if not self.is_float:
             return values.astype(np.int64)
         si = values * [SI_PER_WIRE["HIGHRES_IMU"][QUANTITY[f]] for f in self.fields]
-        return np.round(si * scale).astype(np.int64)
+        counts = np.round(si * scale)
+        if not np.all(np.abs(counts) < 2.0**62):  # NaN fails too
+            return None
+        return counts.astype(np.int64)
 
     def wire_values(self, counts, scale: np.ndarray) -> np.ndarray:
         """(k, m) field values of messages carrying `counts` (k, m): the inverse of `counts`
