@@ -13,7 +13,9 @@ unit frame; the identity for free poses), the iron (or the unit itself) is turne
 and every change of attitude or mounting is a smooth turn of `turn_time` seconds (a raised-cosine
 slerp), so the station sees real motion between the still poses. The rig is the `source(times)` of
 `drivers.twins.serial.SerialTwin`; the profile is the bundled binary serial profile with an `[imu]`
-section for the accelerometers.
+section for the accelerometers. With `link="mavlink"` a triad streams through
+`drivers.twins.mavlink.MavlinkTwin` instead (a flight controller's SCALED_IMU, profile
+`acc3_mavlink`, on a pty or over UDP), read by the station's MAVLink driver.
 
 Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
 In an iron that is the iron's squareness (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's

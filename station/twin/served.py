@@ -6,7 +6,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
   `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run
   (with `cube`: at the next planned pose of a lettered cube on a wedge, the profile's [fixture]);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
-  unit on a metronome through the iron's or the free-static protocol's sequence.
+  unit on a metronome through the iron's or the free-static protocol's sequence; the static
+  bench's triad streams over the serial link or MAVLink (a flight controller, pty or UDP).
 
 `rotary_twin`, `iron_twin` and `static_twin` build them from `station twin`'s options: the
 kinds' twin entries in `station.protocols.KINDS`.
