@@ -476,7 +476,8 @@ class MavlinkImu:
                 asked, heard = time.monotonic(), self.stats.messages
             block = self._read()
             if not self._open:
-                raise self._lost
+                error, self._lost = self._lost, None
+                raise error
             if block is not None and len(block):
                 return block
         raise MavlinkError(self.address, self._silence())
