@@ -86,7 +86,7 @@ def _record_by_the_commands(tmp) -> dict:
 
 def test_the_bench_profile_names_the_mavlink_link(solved):
     link, _, _, _, text = solved
-    assert 'link = "mavlink"' in text and 'profile = "acc3_mavlink"' in text
+    assert 'link = "mavlink"' in text and 'profile = "imu6_scaled_mavlink"' in text
     assert ('port = "udpin:127.0.0.1:' in text) == (link == "udp")
 
 
@@ -117,11 +117,45 @@ def test_the_calibration_matches_the_truth(solved):
 
 
 def test_the_session_holds_the_mavlink_stream(solved):
-    """The stream's counts are mG (SCALED_IMU's fixed scale), every sample numbered in turn."""
-    _, _, path, _, _ = solved
+    """The stream's counts are mG and mrad/s (SCALED_IMU's fixed scales), every sample numbered in
+    turn; at rest the gyros read their biases. Rest: every gyro within 8 mrad/s of its median
+    (turns reach ~1 rad/s; the few turn samples slower than that, at a turn's ends, move the mean
+    by < 1e-5 rad/s). There the per-sample noise is at most 2.5 mrad/s (0.01 deg/s/sqrt(Hz) at
+    200 Hz) and dithers the 1 mrad/s count (no bias); over >= 4e4 samples the mean's standard
+    error is <= 1.3e-5 rad/s, and 1e-4 rad/s is 7.7 of them."""
+    _, truth, path, _, _ = solved
     with Session.open(path) as session:
         spec, stream = session.specs["imu"], session.stream("imu")
         assert session.metadata["profiles"]["imu"]["mavlink"]["message"] == "SCALED_IMU"
-        seq = np.asarray(stream.seq)
-    np.testing.assert_allclose(spec.counts_per_unit, 1000 / 9.80665, rtol=1e-12)
+        seq, counts = np.asarray(stream.seq), np.asarray(stream.counts)
+    np.testing.assert_allclose(spec.counts_per_unit, [1000 / 9.80665] * 3 + [1000.0] * 3,
+                               rtol=1e-12)
+    assert spec.units == ("m/s^2",) * 3 + ("rad/s",) * 3
     assert np.all(np.diff(seq) == 1)
+    gyro = counts[:, 3:] / 1000.0
+    rest = np.all(np.abs(gyro - np.median(gyro, axis=0)) < 8e-3, axis=1)
+    assert np.count_nonzero(rest) >= 4e4 and np.count_nonzero(~rest) > 0
+    np.testing.assert_allclose(gyro[rest].mean(axis=0), truth["gyro"]["bias"], rtol=0, atol=1e-4)
+
+
+def test_the_hand_rig_turns_at_the_rate_its_gyros_sense():
+    """HandRig.rates against the attitude it turns through: -C' C^T = [w x] by central
+    differences (error ~ h^2 |C'''| ~ 1e-9), and |w| integrates to the turn's angle."""
+    from scipy.spatial.transform import Rotation
+
+    from drivers.clock import ScaledClock
+    from station.twin.hand_bench import HandRig
+
+    clock = ScaledClock(1.0, start=10.0)
+    rig = HandRig(None, clock, 9.8, turn_time=2.0)
+    rig.next_turn = 10.5
+    rig.orientation = Rotation.from_rotvec([0.9, -1.4, 0.6]).as_matrix()
+    t, h = np.linspace(10.0, 13.0, 3001), 1e-5
+    c_dot = (rig.attitude(t + h) - rig.attitude(t - h)) / (2 * h)
+    omega = -c_dot @ np.transpose(rig.attitude(t), (0, 2, 1))
+    w = np.stack([omega[:, 2, 1], omega[:, 0, 2], omega[:, 1, 0]], axis=1)
+    smooth = (np.abs(t - 10.5) > 2 * h) & (np.abs(t - 12.5) > 2 * h)  # s'' jumps at the ends
+    np.testing.assert_allclose(rig.rates(t)[smooth], w[smooth], rtol=0, atol=1e-7)
+    assert np.all(rig.rates(t[(t <= 10.5) | (t >= 12.5)]) == 0)
+    angle = np.trapezoid(np.linalg.norm(rig.rates(t), axis=1), t)
+    assert angle == pytest.approx(np.linalg.norm([0.9, -1.4, 0.6]), rel=1e-5)

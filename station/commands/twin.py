@@ -28,10 +28,11 @@ than the wall; the profile tells `station record` to use the same speed. With --
 (sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
 
 `--link mavlink` (with `--protocol static`) serves the hand bench's triad as a flight controller
-speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU at the rate
-asked by the station's SET_MESSAGE_INTERVAL) on a pty, or with `--udp` over UDP: it sends to
-127.0.0.1:PORT, the profile's `port = "udpin:127.0.0.1:PORT"` where `station record` listens. The
-technician's first turn is timed from the station's stream request.
+speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU with the
+accelerometers and a gyro triad at the rate asked by the station's SET_MESSAGE_INTERVAL) on a
+pty, or with `--udp` over UDP: it sends to 127.0.0.1:PORT, the profile's
+`port = "udpin:127.0.0.1:PORT"` where `station record` listens. The technician's first turn is
+timed from the station's stream request.
 
 The CAN twin (a python-can virtual channel) is visible only inside one process:
 `station.twin.served.BenchTwin("can")` serves in-process tests and the demo, not a separate

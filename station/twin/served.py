@@ -347,10 +347,12 @@ class HandTwin:
                 "clock_speed": b.clock.speed}
 
     def truth(self) -> dict:
-        """The simulated unit and the up direction after each turn (JSON-ready)."""
-        t = self.bench.truth()
+        """The simulated unit, its gyro triad (MAVLink) and the up direction after each turn
+        (JSON-ready)."""
+        t, gyro = self.bench.truth(), self.bench.gyro
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
-                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns}
+                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns,
+                **({"gyro": {"a": gyro.a.tolist(), "bias": gyro.bias.tolist()}} if gyro else {})}
 
     def _fixture(self) -> None:
         """Start the stream when the station opens the port (MAVLink: wait for its stream
