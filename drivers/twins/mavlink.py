@@ -145,7 +145,9 @@ class MavlinkTwin:
         self._fates = np.random.default_rng(seed)  # two draws per IMU message, in order
         self._rng = np.random.default_rng([seed, 1])  # damage and noise
         self._log = []
-        self._garbage = b""
+        self._garbage = b""  # noise to send next (`burst`)
+        self._lock = threading.Lock()
+        self._next_beat = 0.0  # clock time of the next heartbeat
         self.requests = []  # (message id, interval us) of each SET_MESSAGE_INTERVAL received
         self.streaming = threading.Event()
         self.rate_hz = None
@@ -158,18 +160,22 @@ class MavlinkTwin:
     # -- device life -----------------------------------------------------------------------------
 
     def plug(self) -> None:
+        """Plug the flight controller back in (the same port or address)."""
         self.link.plug()
 
     @property
     def plugged(self) -> bool:
+        """True between `plug()` and `unplug()`."""
         return self.link.plugged
 
     def unplug(self) -> None:
+        """Pull the cable: the pty closes (the reader gets an error); UDP goes silent."""
         self.link.unplug()
 
     def burst(self, n: int) -> None:
         """Send `n` random bytes before the next message (line noise)."""
-        self._garbage += self._rng.integers(0, 256, int(n), dtype=np.uint8).tobytes()
+        with self._lock:
+            self._garbage += self._rng.integers(0, 256, int(n), dtype=np.uint8).tobytes()
 
     def start(self) -> "MavlinkTwin":
         """Start the heartbeat (and with `stream`, the IMU stream at the profile's rate)."""
@@ -256,7 +262,8 @@ class MavlinkTwin:
     def _send_due(self) -> bool:
         """Send the noise, heartbeats and IMU messages due by now; False if nothing was due."""
         now = self.clock.now()
-        out, self._garbage = [self._garbage], b""
+        with self._lock:
+            out, self._garbage = [self._garbage], b""
         while self._next_beat <= now:
             out.append(self._pack(self._encoder.heartbeat_encode(
                 mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
