@@ -13,7 +13,7 @@ Every IMU driver satisfies one declared interface, `ImuDriver`, with one meaning
 
 and is a context manager (open on enter, close on exit). `open_imu(link, address, profile, clock)`
 builds and opens the driver of a link from a lazy table (python-can's BACKENDS style), so
-importing `drivers` loads neither pyserial nor python-can.
+importing `drivers` loads neither pyserial, python-can nor pymavlink.
 """
 
 import importlib
@@ -25,6 +25,7 @@ from drivers.errors import ProfileError
 LINKS = {
     "serial": ("drivers.serial_imu", "SerialImu"),
     "can": ("drivers.can_imu", "CanImu"),
+    "mavlink": ("drivers.mavlink_imu", "MavlinkImu"),
 }
 """IMU link name -> (module, driver class), imported only when the link is used."""
 
@@ -66,8 +67,8 @@ class ImuDriver(Protocol):
 
 
 def driver_class(link: str) -> type:
-    """The driver class of `link` ("serial" or "can"), imported on first use; ValueError naming the
-    links for any other name."""
+    """The driver class of `link` ("serial", "can" or "mavlink"), imported on first use;
+    ProfileError naming the links for any other name."""
     try:
         module, name = LINKS[link]
     except KeyError:
@@ -78,7 +79,8 @@ def driver_class(link: str) -> type:
 def open_imu(link: str, address, profile, clock=None, **options) -> ImuDriver:
     """The driver of `link`, opened (use it as a context manager to close it).
 
-    address : serial: a port path or pyserial URL; can: the `can.Bus` keyword arguments (dict)
+    address : serial: a port path or pyserial URL; can: the `can.Bus` keyword arguments (dict);
+              mavlink: a port path or pyserial URL, or `udpin:HOST:PORT`
     profile : the driver's device profile (object, path or bundled name)
     options : driver-specific keywords (serial `read_timeout`, can `log_path`)
     """

@@ -4,7 +4,9 @@
      +-- ProfileError (ValueError)      2  a device profile that cannot describe the device
      +-- LinkError (ConnectionError)    3  the link to an IMU cannot be opened or was lost
      |    +-- SerialPortError              a serial port; `port` names it
-     |         +-- DeviceLostError         the device stopped answering mid-stream (unplugged)
+     |    |    +-- DeviceLostError         the device stopped answering mid-stream (unplugged)
+     |    +-- CanBusError                  a CAN bus; `channel` names it
+     |    +-- MavlinkError                 a MAVLink link, or no IMU message on it; `address`
      +-- TableError (RuntimeError)      3  the rotary table did not do what was asked
           +-- TableTimeout                 no reply within the timeout, after the bounded retries
           +-- TableBusy                    'device busy' (Modbus exception 6) after the retries
@@ -74,3 +76,11 @@ class CanBusError(LinkError):
     def __init__(self, channel: str, message: str):
         super().__init__(message)
         self.channel = channel
+
+
+class MavlinkError(LinkError):
+    """A MAVLink link cannot be opened or brings no IMU message; `address` names it."""
+
+    def __init__(self, address: str, message: str):
+        super().__init__(message)
+        self.address = address

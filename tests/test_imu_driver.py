@@ -1,6 +1,6 @@
-"""The declared IMU interface (drivers.ImuDriver): both drivers satisfy it, and one recorder code
-path reconnects a lost serial device and a lost CAN adapter (virtual devices: the pty twin and a
-python-can virtual bus; no mocks)."""
+"""The declared IMU interface (drivers.ImuDriver): the drivers satisfy it, and one recorder code
+path reconnects a lost serial device, a lost CAN adapter and a lost MAVLink flight controller
+(virtual devices: the pty twins and a python-can virtual bus; no mocks)."""
 
 import dataclasses
 import time
@@ -12,9 +12,11 @@ import pytest
 from drivers import ImuDriver, LinkStats, driver_class, open_imu
 from drivers.can_imu import CanBusError, CanProfile, replay
 from drivers.clock import ScaledClock, WallClock
+from drivers.mavlink_imu import MavlinkProfile
 from drivers.profile import SerialImuProfile
 from drivers.serial_imu import DeviceLostError
 from drivers.twins.can import CanImuTwin
+from drivers.twins.mavlink import MavlinkTwin
 from drivers.twins.serial import SENT, SerialTwin
 from station.acquire.recorder import Recorder, RecordingError
 from station.files.session import Session, SessionWriter, StreamSpec
@@ -124,3 +126,25 @@ def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
     assert imu.stats.dropped == after[0] - before[-1] - 1
     replayed, _ = replay(log, CAN_200HZ)  # one raw log across the reconnection
     assert np.array_equal(replayed.seq[:len(data.seq)], data.seq)
+
+
+def test_recorder_reconnects_a_lost_mavlink_device(tmp_path):
+    """The same recorder code over the MAVLink link (HIGHRES_IMU on a pty): after the unplug
+    `open()` asks for the stream again, and the numbering goes on by the device time."""
+    clock = ScaledClock(speed=10)
+    profile = MavlinkProfile.load("imu6_mavlink")
+
+    def counts(times):  # below 2**19 counts: exact through HIGHRES_IMU's float32 fields
+        n = np.round(np.asarray(times) * 1e6).astype(np.int64)
+        return (n[:, None] * 7919 + np.arange(6) * 40503) % 2**20 - 2**19
+
+    twin = MavlinkTwin(profile, counts, clock=clock)
+    with twin, open_imu("mavlink", twin.port, profile, clock) as imu:
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, profile, clock,
+                                                    twin.unplug, twin.plug, enough=1000)
+    assert isinstance(error, DeviceLostError) and imu.connections == 2
+    assert len(twin.requests) == 2  # the stream asked for at each open
+    assert np.array_equal(data.counts, counts(data.device_time))
+    steps = np.round(np.diff(data.device_time) * profile.imu.rate_hz).astype(np.int64)
+    assert np.array_equal(np.diff(data.seq), steps) and np.all(steps > 0)
+    assert np.sum(data.host_time < resume) >= 1000 and np.sum(data.host_time > resume) >= 1000

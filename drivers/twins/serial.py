@@ -1,9 +1,8 @@
 """Virtual serial IMU: a pseudo-terminal pair streaming the profile's wire format.
 
-The driver opens `twin.port` exactly as it would open /dev/ttyUSB0. `port` is a stable symlink (like
-udev's /dev/serial/by-id/...) to the pty slave, so the same path works again after `unplug()` and
-`plug()`. Both pty ends are put in raw mode at once (no echo, no line buffering) and the twin keeps
-one slave fd open so the pty survives the driver closing and reopening the port.
+The driver opens `twin.port` exactly as it would open /dev/ttyUSB0: the device end is a
+`drivers.twins.pty.PtyLink` (a stable path to a pty slave in raw mode that survives the driver's
+reopening; `unread_after` tells it when nobody reads).
 
 Frames are paced by the shared clock: frame `seq` carries the data `source(times)` at
 `time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes
@@ -27,19 +26,14 @@ Fault knobs (attributes, changeable while streaming):
 Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
 """
 
-import contextlib
-import os
-import select
-import shutil
-import tempfile
 import threading
 import time
-import tty
 
 import numpy as np
 
 from drivers.clock import WallClock
 from drivers.profile import SerialImuProfile
+from drivers.twins.pty import PtyLink
 from drivers.wire.ascii import encode_lines
 from drivers.wire.binary import encode_frames
 
@@ -92,50 +86,30 @@ class SerialTwin:
         self.duplicate = duplicate
         self.duplicated, self.restarts = [], []
         self._origin = 0  # frame number the device counts from (changed by `restart`)
-        self.unread_after = unread_after
-        self._blocked_since = None  # wall time the pty stopped taking bytes
         self.start_time = None
         self.error = None
         self._rng = np.random.default_rng(seed)
         self._log = []
         self._pause = (np.inf, np.inf)  # clock-time window of silence
-        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = None
-        self._master = self._keeper = None
-        self._dir = tempfile.mkdtemp(prefix="serial-twin-")
-        self.port = os.path.join(self._dir, "ttyIMU")
-        self.plug()
+        self.link = PtyLink(unread_after)
+        self.port = self.link.port
 
     # -- device life -----------------------------------------------------------------------------
 
     def plug(self) -> None:
-        """Connect a fresh pty pair behind `port` (raw mode on both ends before any byte flows)."""
-        with self._lock:
-            if self._master is not None:
-                return
-            master, slave = os.openpty()
-            tty.setraw(master)
-            tty.setraw(slave)
-            os.set_blocking(master, False)
-            self._master, self._keeper = master, slave
-            os.symlink(os.ttyname(slave), self.port + ".new")
-            os.replace(self.port + ".new", self.port)
+        """Plug the device back in (`PtyLink.plug`)."""
+        self.link.plug()
 
     @property
     def plugged(self) -> bool:
         """True between `plug()` and `unplug()`."""
-        return self._master is not None
+        return self.link.plugged
 
     def unplug(self) -> None:
-        """Pull the cable: close the pty; a reader then gets an error, as with a real unplug."""
-        with self._lock:
-            if self._master is None:
-                return
-            os.close(self._master)
-            os.close(self._keeper)
-            self._master = self._keeper = None
-            os.unlink(self.port)
+        """Pull the cable (`PtyLink.unplug`): the reader gets an error, as with a real unplug."""
+        self.link.unplug()
 
     def restart(self) -> None:
         """The device resets: its numbering and clock start again from 0 at the next frame."""
@@ -161,8 +135,7 @@ class SerialTwin:
         if self._thread is not None:
             self._thread.join()
             self._thread = None
-        self.unplug()
-        shutil.rmtree(self._dir, ignore_errors=True)
+        self.link.close()
         if self.error is not None:
             raise self.error
 
@@ -201,7 +174,7 @@ class SerialTwin:
             if due <= next_seq:
                 time.sleep(0.002)
                 continue
-            if self._unread():  # nobody reads the port: the frames due are lost
+            if self.link.unread():  # nobody reads the port: the frames due are lost
                 skipped = np.arange(next_seq, due)
                 self._log.append((skipped, np.full(len(skipped), OVERFLOW, np.int8)))
                 next_seq = due
@@ -229,7 +202,7 @@ class SerialTwin:
         for i in twice:
             frames[i] = frames[i] * 2
         self.duplicated.extend(seq[fate <= CORRUPTED][twice].tolist())
-        written = self._write(b"".join(frames))
+        written = self.link.write(b"".join(frames), self._stop)
         ends = np.cumsum([len(f) for f in frames])
         sent = np.flatnonzero(fate <= CORRUPTED)
         fate[sent[ends > written]] = OVERFLOW if self.plugged else UNPLUGGED
@@ -259,32 +232,3 @@ class SerialTwin:
         data = encode_frames(fmt, wire, ticks, counts, imu.channels, imu.scale)
         size = len(data) // len(times)
         return [data[i : i + size] for i in range(0, len(data), size)]
-
-    def _unread(self) -> bool:
-        """Has the pty taken no bytes for `unread_after` wall seconds, and still none now?"""
-        if self.unread_after is None or self._blocked_since is None or \
-                time.monotonic() - self._blocked_since < self.unread_after:
-            return False
-        with self._lock, contextlib.suppress(OSError, ValueError):
-            if self._master is not None and select.select([], [self._master], [], 0)[1]:
-                self._blocked_since = None  # a reader is back
-        return self._blocked_since is not None
-
-    def _write(self, data: bytes) -> int:
-        """Write while the pty accepts bytes; stop early on unplug, stop or no reader. Bytes
-        written."""
-        view, done = memoryview(data), 0
-        while done < len(data) and not self._stop.is_set() and not self._unread():
-            with self._lock:
-                if self._master is None:
-                    break
-                try:
-                    done += os.write(self._master, view[done:])
-                    self._blocked_since = None
-                    continue
-                except BlockingIOError:
-                    master = self._master
-                    self._blocked_since = self._blocked_since or time.monotonic()
-            with contextlib.suppress(OSError, ValueError):  # unplugged meanwhile
-                select.select([], [master], [], 0.02)
-        return done

@@ -25,14 +25,15 @@ SERIAL = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 @dataclass(frozen=True)
 class BenchProfile:
-    """A parsed bench profile; `imu` is a SerialImuProfile or CanProfile with the rate applied."""
+    """A parsed bench profile; `imu` is a SerialImuProfile, CanProfile or MavlinkProfile with the
+    rate applied."""
 
     source: str
     unit_serial: str
     clock_speed: float
     link: str
     imu: object
-    imu_address: str | dict  # serial: the port; can: {"interface", "channel", "bitrate"?}
+    imu_address: str | dict  # serial, mavlink: the port (or udpin:); can: {"interface", ...}
     protocol: str  # a kind of station.protocols.KINDS that records (acquire)
     positions: int  # table kinds (rotary): positions; others: the settings' poses
     settings: object  # the kind's settings (RotarySettings, IronSettings, StaticSettings, ...)
@@ -47,7 +48,7 @@ class BenchProfile:
     @classmethod
     def load(cls, path) -> "BenchProfile":
         """Read and check a bench profile; `drivers.profile.ProfileError` names any problem."""
-        from drivers import driver_class
+        from drivers import LINKS, driver_class
         from drivers.profile import ProfileError, Section, load_profile
         from station.protocols import KINDS, kinds_with
         from station.solve.verdict import Tolerances
@@ -81,14 +82,14 @@ class BenchProfile:
             raise ProfileError(f"{path}: [bench] needs a unit_serial of 1-64 letters, digits, '.', "
                                f"'_' or '-' (it names the session file; got {serial!r}) and a "
                                f"clock_speed between 0 and 1e4 (got {speed!r})")
-        link = imu.get("link", str, choices=("serial", "can"))
+        link = imu.get("link", str, choices=tuple(LINKS))
         dev = driver_class(link).profile_type.load(device(imu.get("profile", str)))
         rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
         if not 0 < rate <= 1e5:
             raise ProfileError(f"{path}: [imu] rate_hz = {rate!r}; give the IMU's output rate in "
                                "Hz (0 < rate_hz <= 100000)")
         dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
-        if link == "serial":
+        if link in ("serial", "mavlink"):  # mavlink: a serial port or udpin:HOST:PORT
             address = imu.get("port", str)
         else:
             address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}

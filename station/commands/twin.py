@@ -27,6 +27,13 @@ pause and `station resume`. `--speed` makes the twin's clock run faster
 than the wall; the profile tells `station record` to use the same speed. With --json, the truth
 (sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
 
+`--link mavlink` (with `--protocol static`) serves the hand bench's triad as a flight controller
+speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU with the
+accelerometers and a gyro triad at the rate asked by the station's SET_MESSAGE_INTERVAL) on a
+pty, or with `--udp` over UDP: it sends to 127.0.0.1:PORT, the profile's
+`port = "udpin:127.0.0.1:PORT"` where `station record` listens. The technician's first turn is
+timed from the station's stream request.
+
 The CAN twin (a python-can virtual channel) is visible only inside one process:
 `station.twin.served.BenchTwin("can")` serves in-process tests and the demo, not a separate
 `station record`.
@@ -48,6 +55,7 @@ def register(p) -> None:
         "examples:\n  station twin --profile-out bench.toml\n"
         "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
         "  station twin --protocol static --speed 20 --profile-out hand.toml\n"
+        "  station twin --protocol static --link mavlink --udp --profile-out fc.toml\n"
         "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
@@ -63,6 +71,11 @@ def register(p) -> None:
                         "or a 45-degree wedge; the profile gets a [fixture] section and the "
                         "fixture (or technician) follows the plan `station record` makes from it "
                         "(rotary: at most --positions positions)")
+    p.add_argument("--link", choices=("serial", "mavlink"), default="serial",
+                   help="static: how the unit streams: binary serial frames (default) or MAVLink "
+                        "SCALED_IMU, as a flight controller")
+    p.add_argument("--udp", action="store_true",
+                   help="--link mavlink: over UDP on 127.0.0.1 instead of a pty")
     p.add_argument("--mountings", type=int, default=2,
                    help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=1.0,
@@ -107,7 +120,8 @@ def run(args) -> int:
                 print(json.dumps(info), flush=True)
             else:
                 table = info.get("table")
-                print(f"serial IMU twin on {info['imu']['port']} ({info['imu']['rate_hz']:g} Hz)\n"
+                print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
+                      f"({info['imu']['rate_hz']:g} Hz)\n"
                       + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
                       + f"bench profile: {info['profile']}\n"
                       f"  station record --profile {args.profile_out}\n"

@@ -13,7 +13,10 @@ unit frame; the identity for free poses), the iron (or the unit itself) is turne
 and every change of attitude or mounting is a smooth turn of `turn_time` seconds (a raised-cosine
 slerp), so the station sees real motion between the still poses. The rig is the `source(times)` of
 `drivers.twins.serial.SerialTwin`; the profile is the bundled binary serial profile with an `[imu]`
-section for the accelerometers.
+section for the accelerometers. With `link="mavlink"` a triad streams through
+`drivers.twins.mavlink.MavlinkTwin` instead (a flight controller's SCALED_IMU, profile
+`imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad beside it that senses the turns
+(`HandRig.rates`), read by the station's MAVLink driver.
 
 Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
 In an iron that is the iron's squareness (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's
@@ -37,12 +40,13 @@ from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.serial import SerialTwin
 from station.acquire.operator import SimulatedTechnician
+from station.errors import InputError
 from station.files.session import Session, StreamSpec, write_results
 from station.model import sensing
 from station.model.earth import normal_gravity
 from station.model.effects import from_json
 from station.protocols.still import record_poses
-from station.sim.layouts import accelerometer_triad
+from station.sim.layouts import accelerometer_triad, gyro_array
 from station.solve.still import calibrate_still
 
 ACC4 = np.column_stack([np.eye(3), np.ones(3) / np.sqrt(3)])
@@ -52,10 +56,24 @@ TRIAD = np.eye(3)
 """Nominal layout of a plain accelerometer triad."""
 
 
-def accel_profile(m: int, rate_hz: float) -> SerialImuProfile:
-    """The bundled serial profile `acc<m>_serial` (m = 3 or 4 accelerometers, 4096 counts per g) at
-    `rate_hz`."""
-    base = SerialImuProfile.load(f"acc{m}_serial")
+LINKS = ("serial", "mavlink")
+"""How the hand bench's unit streams: binary serial frames, or MAVLink (a flight controller)."""
+
+
+def accel_profile(m: int, rate_hz: float, link: str = "serial"):
+    """The bundled profile of the unit at `rate_hz`: serial `acc<m>_serial` (m = 3 or 4
+    accelerometers, 4096 counts per g) or MAVLink `imu6_scaled_mavlink` (a flight controller's
+    accelerometer and gyro triads in SCALED_IMU, 1000 counts per g and per rad/s); InputError for
+    a MAVLink unit of another m."""
+    if link == "mavlink":
+        from drivers.mavlink_imu import MavlinkProfile
+
+        if m != 3:
+            raise InputError(f"a MAVLink IMU message carries one accelerometer triad; this unit "
+                             f"has {m} accelerometers: use the serial link")
+        base = MavlinkProfile.load("imu6_scaled_mavlink")
+    else:
+        base = SerialImuProfile.load(f"acc{m}_serial")
     return dataclasses.replace(base, imu=dataclasses.replace(base.imu, rate_hz=float(rate_hz)))
 
 
@@ -67,12 +85,15 @@ class HandRig:
     the identity). `remount(b)` fixes the unit anew in the iron (b: iron -> unit frame). Each change
     starts a turn now, lasting `turn_time` clock seconds; the stimulus is the specific force g C(t)
     e_z in the unit frame, C = b W the world -> unit attitude. `effects` {name: parameters}: named
-    sensor effects (station.model.sensing.LIVE_EFFECTS) in the unit's output chain.
+    sensor effects (station.model.sensing.LIVE_EFFECTS) in the unit's output chain. `gyro`: a gyro
+    triad (a SensorUnit in rad/s) fixed to the unit, whose counts follow the accelerometers' on
+    each row, sensing `rates`.
     """
 
-    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0, effects=None):
+    def __init__(self, unit, clock, gravity: float, turn_time: float = 2.0, effects=None,
+                 gyro=None):
         self.next_turn = None  # clock time the next turn starts at (None: when it is asked for)
-        self.unit = unit
+        self.unit, self.gyro = unit, gyro
         self.effects = dict(effects or {})
         sensing.refuse_batch_effects(self.effects)
         self.clock = clock
@@ -111,10 +132,33 @@ class HandRig:
             out[which == i] = Slerp([0.0, 1.0], Rotation.concatenate([a, b]))(s).as_matrix()
         return out
 
+    def rates(self, times) -> np.ndarray:
+        """(k, 3) angular rate of the unit in its own frame at `times`, rad/s. A turn from A to
+        B is C(t) = A exp(s(t) [phi x]) (scipy's Slerp; phi the rotation vector of A^T B, s the
+        raised cosine), so C' = C s' [phi x]; with C' = -[w x] C for a world -> body attitude,
+        w = -s' C phi. Zero at rest."""
+        times = np.atleast_1d(np.asarray(times, float))
+        starts = np.array([t for t, _, _ in self._turns])
+        out = np.zeros((times.size, 3))
+        which = np.searchsorted(starts, times, side="right") - 1
+        for i in np.unique(which):
+            start, a, b = self._turns[i]
+            if not np.isfinite(start):
+                continue
+            x = (times[which == i] - start) / self.turn_time
+            s_dot = np.where((x > 0) & (x < 1), 0.5 * np.pi * np.sin(np.pi * x), 0.0) \
+                / self.turn_time
+            phi = (a.inv() * b).as_rotvec()
+            out[which == i] = -s_dot[:, None] * (self.attitude(times[which == i]) @ phi)
+        return out
+
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
         v = self.gravity * self.attitude(times)[:, :, 2]
-        return self.unit.sample(v, times, self.effects)
+        counts = self.unit.sample(v, times, self.effects)
+        if self.gyro is None:
+            return counts
+        return np.hstack([counts, self.gyro.sample(self.rates(times), times)])
 
     def _turn(self) -> None:
         start = max(self.clock.now(), self.next_turn or -np.inf)
@@ -190,33 +234,52 @@ class HandBench:
     latitude_deg  : site latitude (normal gravity)
     effects       : optional {name: {param: value}}: named effects in the unit's output chain
                     (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 30.0}}
+    link          : "serial" (`drivers.twins.serial.SerialTwin` on a pty) or "mavlink" (a flight
+                    controller, `drivers.twins.mavlink.MavlinkTwin`, SCALED_IMU; a triad only,
+                    with a gyro triad `gyro` beside it: `gyro_array` noise and biases, TRIAD)
+    udp_port      : mavlink: send to the station over UDP on 127.0.0.1:udp_port, not a pty
     """
 
     def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
                  mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
-                 latitude_deg: float = 52.2, effects: dict | None = None):
+                 latitude_deg: float = 52.2, effects: dict | None = None, link: str = "serial",
+                 udp_port: int | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
         self.clock = ScaledClock(speed)
-        self.profile = accel_profile(self.layout.shape[1], rate_hz)
+        self.link, self.udp_port = link, udp_port
+        self.profile = accel_profile(self.layout.shape[1], rate_hz, link)
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
         self.gravity = normal_gravity(latitude_deg)
+        m = self.layout.shape[1]
         self.unit = accelerometer_triad(rng, self.layout, fs=rate_hz,
-                                        counts_per_unit=self.profile.imu.scale)
+                                        counts_per_unit=self.profile.imu.scale[:m])
+        # a flight controller's gyro triad beside the accelerometers (its own random stream)
+        self.gyro = gyro_array(np.random.default_rng([seed, 3]), TRIAD, fs=rate_hz,
+                               counts_per_unit=self.profile.imu.scale[m:]) \
+            if len(self.profile.imu.channels) > m else None
         if np.ndim(mountings) == 0:
             mountings = Rotation.random(int(mountings), random_state=rng).as_matrix()
         self.rig = HandRig(self.unit, self.clock, self.gravity, turn_time,
-                           effects=from_json(effects or {}))
+                           effects=from_json(effects or {}), gyro=self.gyro)
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
 
-    def start(self) -> Self:
-        """Start the IMU stream."""
+    def start(self, unread_after: float | None = None) -> Self:
+        """Start the IMU stream (MAVLink: the heartbeat; the IMU when the station asks for it);
+        `unread_after`: see `drivers.twins.pty.PtyLink`."""
+        if self.link == "mavlink":
+            from drivers.twins.mavlink import MavlinkTwin
+
+            self.twin = MavlinkTwin(self.profile, self.rig, self.clock, udp_port=self.udp_port,
+                                    max_lag=np.inf, unread_after=unread_after).start()
+            return self
         # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
         # samples whatever the host's load (frames before the driver opens the port are lost)
-        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf).start(0.0)
+        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf,
+                               unread_after=unread_after).start(0.0)
         return self
 
     def close(self) -> None:
@@ -233,8 +296,8 @@ class HandBench:
 
     @contextlib.contextmanager
     def driver(self):
-        """The station's real serial driver on the twin's port, closed on exit."""
-        with open_imu("serial", self.twin.port, self.profile, self.clock) as imu:
+        """The station's real driver of the link on the twin's port, closed on exit."""
+        with open_imu(self.link, self.twin.port, self.profile, self.clock) as imu:
             yield imu
 
     def truth(self) -> HandTruth:

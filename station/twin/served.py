@@ -6,7 +6,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
   `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run
   (with `cube`: at the next planned pose of a lettered cube on a wedge, the profile's [fixture]);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
-  unit on a metronome through the iron's or the free-static protocol's sequence.
+  unit on a metronome through the iron's or the free-static protocol's sequence; the static
+  bench's triad streams over the serial link or MAVLink (a flight controller, pty or UDP).
 
 `rotary_twin`, `iron_twin` and `static_twin` build them from `station twin`'s options: the
 kinds' twin entries in `station.protocols.KINDS`.
@@ -23,6 +24,7 @@ import os
 import termios
 import threading
 import time
+from pathlib import Path
 from typing import Self
 
 import numpy as np
@@ -246,18 +248,28 @@ class HandTwin:
                 (`station.model.fixture`, 1 deg off each pose); the bench profile gets its
                 [fixture] section and the technician sets the poses `station record` plans
                 from it (`station.protocols.planned.static_plan`), in order
+    link      : "serial" (binary frames on a pty) or "mavlink" (a flight controller's SCALED_IMU
+                on a pty, or with `udp` over UDP to 127.0.0.1; the triad of the static bench
+                only): the technician's first turn is then timed from the station's stream
+                request instead of its opening the port
     """
 
     def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
                  poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
-                 period: float = 20.0, cube: bool = False):
+                 period: float = 20.0, cube: bool = False, link: str = "serial",
+                 udp: bool = False):
         from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
         self.protocol, self.seed = protocol, seed
+        if udp and link != "mavlink":
+            raise InputError("--udp serves the MAVLink link (--link mavlink)")
+        if udp:
+            from drivers.twins.mavlink import free_udp_port
         self.bench = HandBench(seed, speed, rate_hz, layout=TRIAD if static else ACC4,
                                mountings=[np.eye(3)] if static else mountings, period=period,
-                               placement_deg=(1.0 if cube else 5.0) if static else 0.0002)
+                               placement_deg=(1.0 if cube else 5.0) if static else 0.0002,
+                               link=link, udp_port=free_udp_port() if udp else None)
         self.cube = FixtureSpec(Fixture(wedge=True), TRIAD, float(
             np.max(self.bench.unit.noise_density))) if cube and static else None
         if self.cube is None:
@@ -278,19 +290,25 @@ class HandTwin:
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
 
     def start(self) -> Self:
-        """Serve the serial IMU from the moment the station opens its port."""
+        """Serve the serial IMU from the moment the station opens its port (MAVLink: the
+        heartbeat at once, the IMU when the station asks for it)."""
         from drivers.twins.serial import SerialTwin
 
         b = self.bench
-        b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf, unread_after=UNREAD_AFTER)
-        self._watch = PortWatch(b.twin.port)
+        if b.link == "mavlink":
+            b.start(unread_after=UNREAD_AFTER)
+        else:
+            b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf,
+                                unread_after=UNREAD_AFTER)
+            self._watch = PortWatch(b.twin.port)
         self._thread.start()
         return self
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)  # a turn being waited for ends within a period
-        self._watch.close()
+        if self._watch is not None:
+            self._watch.close()
         self.bench.close()
 
     def __enter__(self) -> Self:
@@ -302,8 +320,8 @@ class HandTwin:
     def profile_text(self, unit_serial: str | None = None) -> str:
         """A bench profile (`station record --profile`) for this protocol and device."""
         b = self.bench
-        imu = {"link": "serial", "profile": f"acc{b.layout.shape[1]}_serial",
-               "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz}
+        imu = {"link": b.link, "profile": Path(b.profile.source).stem, "port": b.twin.port,
+               "rate_hz": b.profile.imu.rate_hz}
         protocol = {"kind": self.protocol, "gravity": b.gravity, **self.settings}
         lines = [f"{k} = {_toml(v)}" for k, v in protocol.items()]
         if self.protocol == "iron":
@@ -325,22 +343,27 @@ class HandTwin:
 
     def addresses(self) -> dict:
         b = self.bench
-        return {"imu": {"link": "serial", "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
+        return {"imu": {"link": b.link, "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
                 "clock_speed": b.clock.speed}
 
     def truth(self) -> dict:
-        """The simulated unit and the up direction after each turn (JSON-ready)."""
-        t = self.bench.truth()
+        """The simulated unit, its gyro triad (MAVLink) and the up direction after each turn
+        (JSON-ready)."""
+        t, gyro = self.bench.truth(), self.bench.gyro
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
-                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns}
+                "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns,
+                **({"gyro": {"a": gyro.a.tolist(), "bias": gyro.bias.tolist()}} if gyro else {})}
 
     def _fixture(self) -> None:
-        """Start the stream when the station opens the port, then turn as instructed, in order."""
+        """Start the stream when the station opens the port (MAVLink: wait for its stream
+        request), then turn as instructed, in order."""
         try:
-            while not self._watch.opened():
+            while not (self.bench.twin.streaming.is_set() if self._watch is None
+                       else self._watch.opened()):
                 if self._stop.wait(0.002):
                     return
-            self.bench.twin.start()
+            if self._watch is not None:
+                self.bench.twin.start()
             for instruction in self.instructions:
                 if self._stop.is_set():
                     return
@@ -351,7 +374,8 @@ class HandTwin:
 
 
 def _toggle_imu(twin) -> bool:
-    """Unplug the serial IMU twin if it is plugged, else plug it; True when now unplugged."""
+    """Unplug the IMU twin (serial or MAVLink) if it is plugged, else plug it; True when now
+    unplugged."""
     if twin.plugged:
         twin.unplug()
         return True
@@ -375,6 +399,9 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
     rate_hz, lifetime, cube)."""
+    if getattr(options, "link", "serial") != "serial":
+        raise InputError("the rotary bench's IMU streams over the serial link only (--link "
+                         "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
                      options.lifetime, getattr(options, "cube", False))
 
@@ -382,6 +409,9 @@ def rotary_twin(options) -> BenchTwin:
 def iron_twin(options) -> HandTwin:
     """`station twin --protocol iron`: the ACC4 unit in an iron (options: seed, speed, positions,
     mountings, rate_hz)."""
+    if getattr(options, "link", "serial") != "serial":
+        raise InputError("the iron bench's unit has 4 accelerometers: it streams over the serial "
+                         "link only (--link mavlink serves the static bench's triad)")
     return HandTwin("iron", options.seed, options.speed, options.positions, options.mountings,
                     options.rate_hz)
 
@@ -393,7 +423,8 @@ def static_twin(options) -> HandTwin:
     if not 12 <= options.positions <= 26:
         raise InputError("a static session has 12 to 26 poses (--positions)")
     return HandTwin("static", options.seed, options.speed, options.positions, options.mountings,
-                    options.rate_hz, cube=getattr(options, "cube", False))
+                    options.rate_hz, cube=getattr(options, "cube", False),
+                    link=getattr(options, "link", "serial"), udp=getattr(options, "udp", False))
 
 
 def _toml(value) -> str:
