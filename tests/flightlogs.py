@@ -25,7 +25,8 @@ SENSOR_ACCEL = [("uint64_t", "timestamp"), ("uint64_t", "timestamp_sample"),
 """PX4 msg/SensorAccel.msg (its leading fields; sensor_gyro has the same)."""
 
 SENSOR_COMBINED = [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"),
-                   ("uint32_t", "gyro_integral_dt"), ("int32_t", "accelerometer_timestamp_relative"),
+                   ("uint32_t", "gyro_integral_dt"),
+                   ("int32_t", "accelerometer_timestamp_relative"),
                    ("float[3]", "accelerometer_m_s2"), ("uint32_t", "accelerometer_integral_dt")]
 """PX4 msg/SensorCombined.msg (its leading fields)."""
 
@@ -49,10 +50,11 @@ def _message(kind: bytes, payload: bytes) -> bytes:
     return struct.pack("<HB", len(payload), kind[0]) + payload
 
 
-def ulog(topics, start_us: int = 0) -> bytes:
+def ulog(topics, start_us: int = 0, in_time_order: bool = True) -> bytes:
     """A ULog file: topics = [(name, fields [(type, field)], multi_id, rows)], rows a structured
     array of `records(fields, ...)` (an empty one: the topic subscribed, nothing logged). Data
-    messages in time order across topics, as PX4's logger writes them."""
+    messages in time order across topics, as PX4's logger writes them (else in row order, topic
+    by topic within a row: a sensor whose clock jumped)."""
     out = [ULOG_MAGIC, struct.pack("<BQ", 1, start_us),
            _message(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))]
     defined = set()
@@ -68,8 +70,8 @@ def ulog(topics, start_us: int = 0) -> bytes:
         out.append(_message(b"A", struct.pack("<BH", multi_id, msg_id) + name.encode()))
         raw = np.ascontiguousarray(rows, _dtype(fields))
         for i, t in enumerate(raw["timestamp"]):
-            items.append((int(t), msg_id, _message(b"D", struct.pack("<H", msg_id)
-                                                   + raw[i:i + 1].tobytes())))
+            items.append((int(t) if in_time_order else i, msg_id,
+                          _message(b"D", struct.pack("<H", msg_id) + raw[i:i + 1].tobytes())))
     items.sort(key=lambda item: (item[0], item[1]))
     return b"".join(out + [item[2] for item in items])
 

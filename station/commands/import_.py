@@ -42,7 +42,8 @@ def register(p) -> None:
     p.add_argument("format", choices=("text", "csv", "npz", "binary", "ulog", "dataflash"),
                    help="format of the recording")
     p.add_argument("out", type=Path, help="session file to create (.h5, must not exist)")
-    p.add_argument("source", nargs="?", type=Path, help="the CSV, .npz, binary dump, .ulg or .bin log file")
+    p.add_argument("source", nargs="?", type=Path,
+                   help="the CSV, .npz, binary dump, .ulg or .bin log")
     p.add_argument("--stream", action="append", default=[], metavar="NAME=WHAT",
                    help="text: NAME=FILE (columns t x y z ...); csv: NAME=COL,COL,...")
     p.add_argument("--unit", action="append", default=[], metavar="NAME=UNIT",

@@ -111,9 +111,9 @@ def _imu_rows(reader, path: Path, notes: list) -> tuple:
         raise CalibrationInputError(f"{path}: pymavlink fails reading the IMU messages "
                                     f"({type(exc).__name__}: {exc}).", FIX) from None
     notes += _said(path, said)
-    if reader.data_len - reader.offset > 0:
-        notes.append(f"{path.name}: the log ends inside a message ({reader.data_len - reader.offset}"
-                     " bytes after the last whole one left out; a log cut by a power loss)")
+    if (left := reader.data_len - reader.offset) > 0:
+        notes.append(f"{path.name}: the log ends inside a message ({left} bytes after the last "
+                     "whole one left out; a log cut by a power loss)")
     return rows, dict(reader.params)
 
 
@@ -129,9 +129,9 @@ def _instance(path: Path, reader, rows: dict, instance) -> int:
               if c > 0 and i in reader.id_to_name}
     listed = ", ".join(f"{n} {c}" for n, c in sorted(counts.items(), key=lambda x: -x[1])[:15])
     defined = [n for n in IMU_MESSAGES if n in reader.name_to_id]
-    raise CalibrationInputError(
-        f"{path} holds no IMU messages ({'defined but empty: ' + ', '.join(defined) + '; ' if defined else ''}"
-        f"messages: {listed or 'none'}).", FIX)
+    empty = f"defined but empty: {', '.join(defined)}; " if defined else ""
+    raise CalibrationInputError(f"{path} holds no IMU messages ({empty}messages: "
+                                f"{listed or 'none'}).", FIX)
 
 
 def _said(path: Path, said: io.StringIO) -> list:

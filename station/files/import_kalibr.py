@@ -44,9 +44,10 @@ def recognise(path) -> Layout:
     with path.open(encoding="utf-8-sig", errors="replace") as f:
         line = f.readline(HEADER_CHARS)
     fields = [field.strip() for field in line.strip().split(",")]
-    names, units = zip(*(_name_and_unit(field) for field in fields)) if fields else ((), ())
+    parsed = [_name_and_unit(field) for field in fields]
+    names, units = tuple(n for n, _ in parsed), tuple(u for _, u in parsed)
     if len(fields) == 7 and names[0] == "timestamp":
-        for gyro, acc in zip(GYRO, ACC):
+        for gyro, acc in zip(GYRO, ACC, strict=True):
             if names[1:] == gyro + acc and _units_fit(units):
                 return Layout(fields[0], {"gyro": list(fields[1:4]), "acc": list(fields[4:])},
                               {"gyro": "rad/s", "acc": "m/s^2"},
@@ -70,4 +71,4 @@ def _name_and_unit(field: str) -> tuple:
 def _units_fit(units) -> bool:
     """Whether each declared unit is the layout's (undeclared ones are taken as the layout's)."""
     kinds = ("timestamp", *["gyro"] * 3, *["acc"] * 3)
-    return all(u is None or u.strip() in UNITS[k] for u, k in zip(units, kinds))
+    return all(u is None or u.strip() in UNITS[k] for u, k in zip(units, kinds, strict=True))

@@ -97,9 +97,9 @@ def _family(path, ulog, datasets: dict, instance) -> tuple:
             return family, shared[0]
         if instance in shared:
             return family, instance
+        which = "no instance shared by" if instance is None else f"no instance {instance} of"
         raise CalibrationInputError(
-            f"{path}: {'no instance shared by' if instance is None else f'no instance {instance} of'}"
-            f" {' and '.join(family)} ({_holdings(ulog, datasets)}).",
+            f"{path}: {which} {' and '.join(family)} ({_holdings(ulog, datasets)}).",
             "Give --instance N with one of the instances listed.")
     raise CalibrationInputError(f"{path} holds no IMU samples ({_holdings(ulog, datasets)}).", FIX)
 
@@ -182,9 +182,10 @@ def _field(d, name: str) -> np.ndarray:
     """A numeric field of a topic instance, refused by name when missing or not numeric."""
     values = d.data.get(name)
     if values is None or values.dtype.kind not in "iuf":
+        what = "no" if values is None else "a non-numeric"
         raise CalibrationInputError(
-            f"topic {d.name} instance {d.multi_id} has {'no' if values is None else 'a non-numeric'}"
-            f" field {name!r} (fields: {', '.join(list(d.data)[:20])}).",
+            f"topic {d.name} instance {d.multi_id} has {what} field {name!r} (fields: "
+            f"{', '.join(list(d.data)[:20])}).",
             "The log's message definitions differ from PX4's: " + FIX)
     return values
 
