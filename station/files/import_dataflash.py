@@ -15,6 +15,7 @@ INS_GYR_ID, ... when the log holds them. The samples go through station.files.fl
 
 import contextlib
 import io
+import struct
 from importlib.metadata import version
 from pathlib import Path
 
@@ -31,6 +32,9 @@ FIELDS = {"acc": (("AccX", "AccY", "AccZ"), "m/s^2", "ACC"),
           "gyro": (("GyrX", "GyrY", "GyrZ"), "rad/s", "GYR")}
 """Stream -> (IMU message fields, SI unit, INS_<x>_ID parameter stem)."""
 
+NUMERIC = set("bBhHiIqQfd")
+"""DataFlash format characters of plain numbers (no multiplier: LogStructure.h)."""
+
 FIX = ("Give the .bin log of a flight controller that logged its IMU (LOG_BITMASK bit IMU, "
        "or IMU_RAW); a text .log or tlog is not a DataFlash .bin.")
 
@@ -41,33 +45,42 @@ def import_dataflash(out, path, *, instance: int | None = None,
     session `out` (streams acc, gyro on the IMU messages' TimeUS)."""
     path = Path(path)
     reader, notes = _open(path)
-    rows, params = _imu_rows(reader, path, notes)
+    rows = _imu_rows(reader, path, notes)
     chosen = _instance(path, reader, rows, instance)
-    notes.append(f"{path.name}: IMU instance {chosen}: {len(rows[chosen])} messages")
-    msgs = rows[chosen]
-    t = np.array([m[0] for m in msgs], np.int64)
+    name, table = rows[chosen]
+    notes.append(f"{path.name}: IMU instance {chosen}: {len(table['TimeUS'])} messages {name}")
+    params = _params(reader)
     series = {}
-    for name, (fields, unit, stem) in FIELDS.items():
-        origin = {"message": msgs[0][1], "instance": chosen, "time": "TimeUS"}
+    for stream, (fields, unit, stem) in FIELDS.items():
+        origin = {"message": name, "instance": chosen, "time": "TimeUS"}
         device = params.get(f"INS_{stem}{chosen + 1 if chosen else ''}_ID")
         if device is not None:
             origin["device_id"] = int(device)
-        temperature = np.array([m[2].get("T", np.nan) for m in msgs], float)
-        if np.isfinite(temperature).any():
+        if "T" in table and np.isfinite(table["T"]).any():
+            temperature = table["T"][np.isfinite(table["T"])]
             origin["temperature"] = {"first": float(temperature[0]),
-                                     "min": float(np.nanmin(temperature)),
-                                     "mean": float(np.nanmean(temperature)),
-                                     "max": float(np.nanmax(temperature))}
-        values = np.array([[m[2][f] for f in fields] for m in msgs], float)
-        series[name] = Series(t, values, unit, f"message {msgs[0][1]} instance {chosen}", origin)
+                                     "min": float(temperature.min()),
+                                     "mean": float(temperature.mean()),
+                                     "max": float(temperature.max())}
+        series[stream] = Series(table["TimeUS"].astype(np.int64),
+                                np.column_stack([table[f] for f in fields]), unit,
+                                f"message {name} instance {chosen}", origin)
     return write_session(out, path, "dataflash", series, f"pymavlink {version('pymavlink')}",
                          notes, unit_serial=unit_serial)
 
 
 def _open(path: Path) -> tuple:
-    """(DFReader_binary, notes): the reader's exceptions turned into a CalibrationInputError,
-    what it prints (skipped bytes, parse failures) into notes."""
+    """(DFReader_binary without its clock search, notes): the reader's exceptions turned into a
+    CalibrationInputError, what it prints (skipped bytes, parse failures) into notes."""
     from pymavlink.DFReader import DFReader_binary
+
+    class DFReaderTimeUS(DFReader_binary):
+        """pymavlink's reader without the search for a GPS time base (in a log without a GPS
+        week, a bench log, it parses every message of the log in Python: 25 s per million);
+        the importer takes the IMU messages' own TimeUS."""
+
+        def init_clock(self):
+            self.clock = None
 
     size = path.stat().st_size
     if size > MAX_BYTES or size < 3:
@@ -76,7 +89,7 @@ def _open(path: Path) -> tuple:
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            reader = DFReader_binary(str(path), zero_time_base=True)
+            reader = DFReaderTimeUS(str(path), zero_time_base=True)
     except Exception as exc:  # the reader raises what its parsing meets
         raise CalibrationInputError(
             f"{path} is not a DataFlash log pymavlink can read ({type(exc).__name__}: {exc}).",
@@ -84,44 +97,65 @@ def _open(path: Path) -> tuple:
     return reader, _said(path, said)
 
 
-def _imu_rows(reader, path: Path, notes: list) -> tuple:
-    """({instance: [(TimeUS, message name, {field: value})]}, parameters) of the log's IMU
-    messages, in log order."""
-    rows, names = {}, [n for n in IMU_MESSAGES if n in reader.name_to_id]
+def _imu_rows(reader, path: Path, notes: list) -> dict:
+    """{instance: (message name, {field: (K,) float64})} of the log's IMU messages, in log order:
+    the reader's index of each message type (offsets) unpacked with the struct its FMT defines
+    (DFFormat.msg_struct, as DFReader does message by message, 100x slower); a message cut by
+    the end of the file left out and noted."""
+    out, end = {}, _end_of_messages(reader)
+    for name in (n for n in IMU_MESSAGES if n in reader.name_to_id):
+        type_id = reader.name_to_id[name]
+        fmt = reader.formats[type_id]
+        wanted = ["TimeUS", *FIELDS["acc"][0], *FIELDS["gyro"][0],
+                  *[f for f in ("I", "T") if f in fmt.colhash]]
+        missing = [f for f in wanted if f not in fmt.colhash or
+                   fmt.msg_fmts[fmt.colhash[f]] not in NUMERIC or
+                   fmt.msg_mults[fmt.colhash[f]] is not None]
+        if missing:
+            raise CalibrationInputError(
+                f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT says "
+                f"{fmt.format!r}: {','.join(fmt.columns)}).",
+                "The log's IMU message is not ArduPilot's: " + FIX)
+        unpack = struct.Struct(fmt.msg_struct).unpack_from
+        offsets = [o for o in reader.offsets[type_id] if o + fmt.len <= reader.data_len]
+        try:
+            values = np.array([unpack(reader.data_map, o + 3) for o in offsets], float)
+        except (struct.error, ValueError, TypeError) as exc:
+            raise CalibrationInputError(f"{path}: message {name} does not unpack as its FMT "
+                                        f"says ({exc}).", FIX) from None
+        table = {f: values[:, fmt.colhash[f]] for f in wanted} if len(offsets) else {}
+        instances = table["I"].astype(int) if "I" in table else \
+            np.full(len(offsets), IMU_MESSAGES[name])
+        for i in np.unique(instances):
+            out[int(i)] = (name, {f: v[instances == i] for f, v in table.items()})
+    if end < reader.data_len:
+        notes.append(f"{path.name}: the log ends inside a message ({reader.data_len - end} "
+                     "bytes after the last whole one left out; a log cut by a power loss)")
+    return out
+
+
+def _end_of_messages(reader) -> int:
+    """The file offset after the last whole message the reader's index holds."""
+    ends = [o + reader.formats[t].len for t, offsets in enumerate(reader.offsets)
+            if t in reader.formats for o in offsets[-1:]]
+    return max([e for e in ends if e <= reader.data_len], default=0)
+
+
+def _params(reader) -> dict:
+    """The log's parameters (PARM messages), read through the reader."""
     said = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            while (m := reader.recv_match(type=[*names, "PARM"])) is not None:
-                name = m.get_type()
-                if name == "PARM":
-                    continue
-                values = m.to_dict()
-                missing = [f for f in ("TimeUS", *FIELDS["acc"][0], *FIELDS["gyro"][0])
-                           if not isinstance(values.get(f), (int, float))]
-                if missing:
-                    raise CalibrationInputError(
-                        f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT "
-                        f"says {reader.formats[reader.name_to_id[name]].format}).",
-                        "The log's IMU message is not ArduPilot's: " + FIX)
-                i = int(values["I"]) if "I" in values else IMU_MESSAGES[name]
-                rows.setdefault(i, []).append((int(values["TimeUS"]), name, values))
-    except CalibrationInputError:
-        raise
-    except Exception as exc:
-        raise CalibrationInputError(f"{path}: pymavlink fails reading the IMU messages "
-                                    f"({type(exc).__name__}: {exc}).", FIX) from None
-    notes += _said(path, said)
-    if (left := reader.data_len - reader.offset) > 0:
-        notes.append(f"{path.name}: the log ends inside a message ({left} bytes after the last "
-                     "whole one left out; a log cut by a power loss)")
-    return rows, dict(reader.params)
+    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+        while reader.recv_match(type="PARM") is not None:
+            pass
+    return dict(reader.params)
 
 
 def _instance(path: Path, reader, rows: dict, instance) -> int:
     """The instance to import: `instance`, or the first; refused listing what the log holds."""
     if rows and (instance is None or instance in rows):
         return min(rows) if instance is None else instance
-    held = ", ".join(f"instance {i}: {len(r)} messages" for i, r in sorted(rows.items()))
+    held = ", ".join(f"instance {i}: {len(table['TimeUS'])} messages"
+                     for i, (_, table) in sorted(rows.items()))
     if held:
         raise CalibrationInputError(f"{path}: no IMU instance {instance} ({held}).",
                                     "Give --instance N with one of the instances listed.")
