@@ -362,17 +362,21 @@ def test_station_solve_calibrates_a_logged_static_recording(hand, tmp_path, caps
     assert np.all(np.abs(scale_err) < 4) and np.all(np.abs(bias_err) < 4), (scale_err, bias_err)
 
 
-def test_station_solve_calibrates_a_logged_gyro_from_the_turns(tmp_path, capsys):
+@pytest.mark.parametrize("fmt", ["ulog", "dataflash"])
+def test_station_solve_calibrates_a_logged_gyro_from_the_turns(tmp_path, capsys, fmt):
     from test_gyro_carry import G, hand_recording, true_sensitivity
 
     a_true = true_sensitivity(7)
     gyro, acc, _ = hand_recording(11, a_true)
-    t = T0_US + 10_000 * np.arange(len(acc))
-    log = tmp_path / "turned.bin"
-    log.write_bytes(dataflash({0: (t, gyro.astype(np.float32), acc.astype(np.float32), 40.0)}))
+    t = T0_US + 10_000 * np.arange(len(acc), dtype=np.uint64)
+    x = np.hstack([acc, gyro]).astype(np.float32)
+    log = tmp_path / f"turned.{fmt}"
+    log.write_bytes(ulog(raw_topics(t, x)) if fmt == "ulog" else
+                    dataflash({0: imu_rows(t, x)}))
     h5 = tmp_path / "turned.h5"
-    assert station(capsys, "import", "dataflash", h5, log)[0] == 0
-    # acc and gyro share the IMU messages' samples: the gyro from the turns between the poses
+    assert station(capsys, "import", fmt, h5, log)[0] == 0
+    # acc and gyro on the same samples (one DataFlash message; ULog topics sampled together):
+    # the gyro from the turns between the poses
     code, out, err = station(capsys, "solve", h5, "--stream", "gyro", "--magnitude", G,
                              "--json")
     assert code == 0, err
