@@ -236,6 +236,30 @@ def test_a_ulog_without_imu_topics_is_refused_listing_what_it_holds(tmp_path, ca
     assert "SDLOG_PROFILE" in err
 
 
+def test_the_streams_of_a_log_are_not_spelled_out(hand, tmp_path, capsys):
+    t, x, _ = hand
+    log = tmp_path / "a.ulg"
+    log.write_bytes(ulog(raw_topics(t[:100], x[:100])))
+    code, _, err = station(capsys, "import", "ulog", tmp_path / "a.h5", log, "--stream", "acc=x")
+    assert code == 2 and "takes the IMU's streams from the log" in err
+    code, _, err = station(capsys, "import", "csv", tmp_path / "a.h5", log, "--instance", "1")
+    assert code == 2 and "--instance is for flight-controller logs" in err
+    assert not (tmp_path / "a.h5").exists()
+
+
+def test_a_logger_gap_is_a_gap_in_the_sample_numbers(hand, tmp_path, capsys):
+    t, x, _ = hand
+    keep = np.r_[0:300, 340:600]  # 40 samples the logger dropped
+    jitter = np.random.default_rng(5).integers(-900, 900, len(keep)).astype(np.int64)
+    times = (t[keep].astype(np.int64) + jitter).astype(np.uint64)  # +-0.9 ms on 10 ms steps
+    log = tmp_path / "gap.ulg"
+    log.write_bytes(ulog(raw_topics(times, x[keep])))
+    assert station(capsys, "import", "ulog", tmp_path / "gap.h5", log)[0] == 0
+    with Session.open(tmp_path / "gap.h5") as s:
+        seq = s.stream("acc").seq
+    np.testing.assert_array_equal(seq, keep)  # the row numbers where no sample was dropped
+
+
 def test_a_file_that_is_no_log_is_refused(tmp_path, capsys):
     junk = tmp_path / "junk.bin"
     junk.write_bytes(b"\x00\x01" * 5000)

@@ -63,16 +63,15 @@ def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *
     for name, s in series.items():
         t_us, values = checked(path, s, notes)
         counts, scale = exact_counts(values, f"{path.name}: {s.where}", notes)
-        step = float(np.median(np.diff(t_us)))
+        seq, step = sample_numbers(t_us)
         specs[name] = StreamSpec([f"{name}{i + 1}" for i in range(values.shape[1])], s.unit,
                                  scale, 1e6 / step, "int64", f"imported-{fmt}")
         t = t_us * 1e-6
-        blocks[name] = SampleBlock(counts, _sample_numbers(t_us, step), t, t,
-                                   specs[name].channels)
+        blocks[name] = SampleBlock(counts, seq, t, t, specs[name].channels)
         origin[name] = s.origin
         notes.append(f"{path.name}: {name} from {s.where}: {len(t)} samples, "
-                     f"{t[-1] - t[0]:.3f} s at {1e6 / step:.4f} Hz (median step), own time "
-                     "stamps")
+                     f"{t[-1] - t[0]:.3f} s at {1e6 / step:.4f} Hz, {seq[-1] + 1 - len(t)} "
+                     "missing (logger gaps); own time stamps")
     sha = _sha256(path)
     metadata = {"protocol": "import", "unit_serial": unit_serial,
                 "import": {"format": fmt, "reader": reader, "origin": origin,
@@ -154,9 +153,15 @@ def _binary_places(v: np.ndarray) -> int:
     return int(max(0, np.max(53 - exponent - zeros)))
 
 
-def _sample_numbers(t_us: np.ndarray, step: float) -> np.ndarray:
-    """Sample numbers on the nominal clock (time / median step, rounded): a logger's dropped
-    samples are gaps in them, as a device's sequence numbers; where jitter makes two equal, the
-    row numbers."""
-    seq = np.rint((t_us - t_us[0]) / step).astype(np.int64)
-    return seq if np.all(np.diff(seq) > 0) else np.arange(len(t_us), dtype=np.int64)
+def sample_numbers(t_us: np.ndarray) -> tuple:
+    """(sample numbers (K,), nominal step in us) of increasing time stamps: the step is the mean
+    of the steps within half a step of the median one; each step counts its length over that,
+    rounded, at least 1. A logger's dropped samples are gaps in the numbers (as a device's
+    sequence numbers), time stamp jitter below half a step is not, and no rounding error
+    accumulates along the log."""
+    steps = np.diff(t_us).astype(float)
+    guess = float(np.median(steps))
+    regular = np.rint(steps / guess) == 1
+    step = float(np.mean(steps[regular])) if regular.any() else guess
+    counts = np.maximum(1, np.rint(steps / step)).astype(np.int64)
+    return np.concatenate([[0], np.cumsum(counts)]), step
