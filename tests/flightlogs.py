@@ -86,7 +86,7 @@ def records(fields, **columns) -> np.ndarray:
 
 
 DF_STRUCT = {"Q": "Q", "q": "q", "B": "B", "b": "b", "H": "H", "h": "h", "I": "I", "i": "i",
-             "f": "f", "d": "d", "n": "4s", "N": "16s", "Z": "64s"}
+             "f": "f", "d": "d", "n": "4s", "N": "16s", "Z": "64s", "a": "32h"}
 """DataFlash format characters -> Python struct (LogStructure.h's table)."""
 
 IMU_FORMAT = ("QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
@@ -109,6 +109,31 @@ def df_fmt(type_id: int, name: str, chars: str, columns: str) -> bytes:
 
 def df_message(type_id: int, chars: str, values) -> bytes:
     return bytes([0xA3, 0x95, type_id]) + df_struct(chars).pack(*values)
+
+
+ISBH = (140, "ISBH", "QHBBHHQf", "TimeUS,N,type,instance,mul,smp_cnt,SampleUS,smp_rate")
+ISBD = (141, "ISBD", "QHHaaa", "TimeUS,N,seqno,x,y,z")
+"""The batch sampler's header and data blocks (libraries/AP_InertialSensor/LogStructure.h)."""
+
+
+def batch_log(batches, drop=()) -> bytes:
+    """A DataFlash log of batch-sampler messages only: batches = [(kind 0 acc | 1 gyro, instance,
+    multiplier, sample_us, rate_hz, counts (n, 3) int16)], each an ISBH then its ISBD blocks of 32
+    samples per axis (the last one padded with zeros); `drop`: (batch, block) pairs not written."""
+    out = [dataflash(None), df_fmt(*ISBH), df_fmt(*ISBD)]
+    for number, (kind, instance, mul, sample_us, rate, counts) in enumerate(batches):
+        n = len(counts)
+        out.append(df_message(ISBH[0], ISBH[2], (sample_us + 500, number, kind, instance, mul, n,
+                                                 sample_us, rate)))
+        padded = np.zeros((32 * -(-n // 32), 3), np.int16)
+        padded[:n] = counts
+        for block in range(len(padded) // 32):
+            if (number, block) in drop:
+                continue
+            rows = padded[32 * block:32 * block + 32]
+            out.append(df_message(ISBD[0], ISBD[2], (sample_us + 900 + block, number, block,
+                                                     *rows[:, 0], *rows[:, 1], *rows[:, 2])))
+    return b"".join(out)
 
 
 def dataflash(imu_rows, *, old: bool = False, params=(), extra=()) -> bytes:

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from flightlogs import (
     SENSOR_ACCEL,
+    batch_log,
     SENSOR_COMBINED,
     VEHICLE_IMU,
     dataflash,
@@ -362,6 +363,41 @@ def test_a_foreign_imu_message_is_refused_by_field(tmp_path, capsys):
                                for i in range(10)))
     code, _, err = station(capsys, "import", "dataflash", tmp_path / "o.h5", log)
     assert code == 2 and "message IMU has no numeric AccX, AccY, AccZ" in err
+
+
+def test_the_batch_sampler_counts_at_their_own_rate(hand, tmp_path, capsys):
+    t, x, other = hand
+    mul = {0: 128, 1: 938}  # ArduPilot's int16 multipliers: 32767 / 26 g, 32767 / 2000 deg/s
+    batches, expected = [], {0: [], 1: []}
+    for b in range(3):
+        for kind, cols in ((0, slice(0, 3)), (1, slice(3, 6))):
+            counts = np.round(x[100 * b:100 * b + 80, cols] * mul[kind]).astype(np.int16)
+            start = 2_000_000 + 1_000_000 * b + 200_000 * kind
+            batches.append((kind, 0, mul[kind], start, 1000.0, counts))
+            expected[kind].append((start, counts))
+    batches.append((0, 1, 128, 9_000_000, 1000.0, np.ones((40, 3), np.int16)))  # instance 1
+    log = tmp_path / "isb.bin"
+    # the second gyro batch (batch number 3) lost its middle block: left out
+    log.write_bytes(batch_log(batches, drop={(3, 1)}))
+    code, out, _ = station(capsys, "import", "dataflash", tmp_path / "isb.h5", log, "--batch",
+                           "--json")
+    assert code == 0
+    notes = json.loads(out)["notes"]
+    assert any("batch sampler gyro instance 0: 1 of 3 batches left out" in n for n in notes)
+    got, meta = samples(tmp_path / "isb.h5")
+    for kind, name in ((0, "acc"), (1, "gyro")):
+        kept = [e for i, e in enumerate(expected[kind]) if (kind, i) != (1, 1)]
+        counts = np.concatenate([c for _, c in kept])
+        time = np.concatenate([(s + np.arange(80) * 1e6 / 1000.0) * 1e-6 for s, _ in kept])
+        np.testing.assert_array_equal(got[name][1], counts / mul[kind])  # counts / multiplier
+        np.testing.assert_allclose(got[name][0], time, rtol=0, atol=1e-9)
+        assert meta["origin"][name]["batches"] == len(kept)
+
+    code, _, err = station(capsys, "import", "dataflash", tmp_path / "i3.h5", log, "--batch",
+                           "--instance", "3")
+    assert code == 2 and "no batch sampler instance 3 (instances: 0, 1)" in err
+    code, _, err = station(capsys, "import", "dataflash", tmp_path / "no.h5", tmp_path / "isb.bin")
+    assert code == 2 and "holds no IMU messages" in err  # without --batch: the IMU messages
 
 
 # ------------------------------------------------------------------------- calibrating the logs

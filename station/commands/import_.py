@@ -19,6 +19,7 @@ EXAMPLES = (
     "  station import binary exp_1.h5 exp_1.bin --profile mimu4444\n"
     "  station import ulog px4.h5 log_12_2026-11-25.ulg --instance 1\n"
     "  station import dataflash ardupilot.h5 00000042.BIN\n"
+    "  station import dataflash raw.h5 00000042.BIN --batch   # the batch sampler's samples\n"
     "  station import csv euroc.h5 mav0/imu0/data.csv       # a Kalibr/EuRoC IMU CSV, recognised"
 )
 
@@ -69,6 +70,9 @@ def register(p) -> None:
     p.add_argument("--instance", type=int, metavar="N",
                    help="ulog/dataflash: the IMU instance (ULog multi_id, DataFlash IMU I or "
                         "IMU2/IMU3; default the first)")
+    p.add_argument("--batch", action="store_true",
+                   help="dataflash: the batch sampler's raw-rate samples (ISBH/ISBD) instead of "
+                        "the IMU messages")
     p.add_argument("--unit-serial", default="IMPORTED", help="serial number of the unit")
     p.add_argument("--json", action="store_true", help="print the session written as JSON")
     p.set_defaults(run=run)
@@ -106,6 +110,9 @@ def _import(args, existing_file, advance) -> Path:
     if args.instance is not None and args.format not in ("ulog", "dataflash"):
         raise InputError(f"--instance is for flight-controller logs (ulog, dataflash), not "
                          f"`import {args.format}`; leave it out")
+    if args.batch and args.format != "dataflash":
+        raise InputError(f"--batch is for DataFlash logs, not `import {args.format}`; leave it "
+                         "out")
     streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
     delimiter = DELIMITER_NAMES.get(args.delimiter, args.delimiter)
     if delimiter is not None and len(delimiter) != 1:
@@ -164,7 +171,8 @@ def _flight_log(args, existing_file) -> Path:
     from station.files.import_dataflash import import_dataflash
 
     return import_dataflash(args.out, existing_file(args.source, "a DataFlash log (.bin)"),
-                            instance=args.instance, unit_serial=args.unit_serial)
+                            instance=args.instance, batch=args.batch,
+                            unit_serial=args.unit_serial)
 
 
 def _pairs(items, option: str) -> dict:

@@ -40,16 +40,18 @@ SPLIT_ADVICE = ("Export the part you need (pyulog's ulog2csv, pymavlink's mavlog
 
 @dataclass(frozen=True)
 class Series:
-    """One sensor's samples in a log: `time_us` (K,) integer time stamps in microseconds,
-    `values` (K, 3) in the SI `unit` (m/s^2 or rad/s), `where` (e.g. "topic sensor_accel
-    instance 1") for messages, `origin` (topic or message, instance, device id, temperature, ...)
-    for the metadata."""
+    """One sensor's samples in a log: `time_us` (K,) time stamps in microseconds, `values`
+    (K, 3) in the SI `unit` (m/s^2 or rad/s), `where` (e.g. "topic sensor_accel instance 1") for
+    messages, `origin` (topic or message, instance, device id, temperature, ...) for the
+    metadata; `scale`: the values are integer counts logged with this many per SI unit (kept as
+    they are), None: numbers in the unit (stored exactly, `exact_counts`)."""
 
     time_us: np.ndarray
     values: np.ndarray
     unit: str
     where: str
     origin: dict
+    scale: float | None = None
 
 
 def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *,
@@ -62,7 +64,10 @@ def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *
     specs, blocks, origin = {}, {}, {}
     for name, s in series.items():
         t_us, values = checked(path, s, notes)
-        counts, scale = exact_counts(values, f"{path.name}: {s.where}", notes)
+        if s.scale is None:
+            counts, scale = exact_counts(values, f"{path.name}: {s.where}", notes)
+        else:
+            counts, scale = values.astype(np.int64), s.scale
         seq, step = sample_numbers(t_us)
         specs[name] = StreamSpec([f"{name}{i + 1}" for i in range(values.shape[1])], s.unit,
                                  scale, 1e6 / step, "int64", f"imported-{fmt}")
@@ -90,7 +95,7 @@ def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *
 def checked(path: Path, s: Series, notes: list) -> tuple:
     """(time stamps, values) of a sensor's samples: at least 2, finite, times strictly
     increasing once exact repeats (a message logged twice) are dropped (counted in `notes`)."""
-    t, v = np.asarray(s.time_us, np.int64), np.asarray(s.values, float)
+    t, v = np.asarray(s.time_us, float), np.asarray(s.values, float)
     where = f"{path}: {s.where}"
     if v.ndim != 2 or len(t) != len(v):
         raise CalibrationInputError(f"{where}: {len(t)} time stamps for values of shape "

@@ -38,12 +38,16 @@ FIX = ("Give the .bin log of a flight controller that logged its IMU (LOG_BITMAS
        "or IMU_RAW); a text .log or tlog is not a DataFlash .bin.")
 
 
-def import_dataflash(out, path, *, instance: int | None = None,
+def import_dataflash(out, path, *, instance: int | None = None, batch: bool = False,
                      unit_serial: str = "IMPORTED") -> Path:
     """Import the accelerometer and gyro of one IMU instance of a DataFlash log into a new
-    session `out` (streams acc, gyro on the IMU messages' TimeUS)."""
+    session `out` (streams acc, gyro on the IMU messages' TimeUS; `batch`: the batch sampler's
+    raw-rate samples instead, `batch_series`)."""
     path = Path(path)
     reader, notes = _open(path)
+    if batch:
+        return write_session(out, path, "dataflash", batch_series(reader, path, instance, notes),
+                             f"pymavlink {version('pymavlink')}", notes, unit_serial=unit_serial)
     rows = _imu_rows(reader, path, notes)
     chosen = _instance(path, reader, rows, instance)
     name, table = rows[chosen]
@@ -66,6 +70,62 @@ def import_dataflash(out, path, *, instance: int | None = None,
                                 f"message {name} instance {chosen}", origin)
     return write_session(out, path, "dataflash", series, f"pymavlink {version('pymavlink')}",
                          notes, unit_serial=unit_serial)
+
+
+def batch_series(reader, path: Path, instance, notes: list) -> dict:
+    """Series acc and gyro of the batch sampler (INS_LOG_BAT_*: raw samples at the sensor's
+    rate, in batches with gaps between them): each ISBH header (`type` 0 accelerometer, 1 gyro,
+    `instance`, `mul` counts per SI unit, `smp_cnt` samples from `SampleUS` at `smp_rate` Hz)
+    followed by its ISBD blocks (`seqno` 0, 1, ... of 32 int16 samples per axis), as pymavlink's
+    tools/mavfft_isb.py reads them. A batch with a missing block or cut short is left out and
+    counted; the counts are kept with `mul` as their scale."""
+    for name in ("ISBH", "ISBD"):
+        if name not in reader.name_to_id:
+            raise CalibrationInputError(
+                f"{path} holds no {name} messages (the batch sampler's).",
+                "Log them (INS_LOG_BAT_MASK, LOG_BITMASK bit IMU_RAW), or import the IMU "
+                "messages: leave out --batch.")
+    heads, head_at = _messages(reader, path, "ISBH")
+    blocks, block_at = _messages(reader, path, "ISBD")
+    present = sorted({int(i) for i in heads["instance"]})
+    chosen = present[0] if instance is None and present else instance
+    if chosen not in present:
+        raise CalibrationInputError(f"{path}: no batch sampler instance {instance} (instances: "
+                                    f"{', '.join(map(str, present)) or 'none'}).",
+                                    "Give --instance N with one of the instances listed, or "
+                                    "import the IMU messages: leave out --batch.")
+    owner = np.searchsorted(head_at, block_at) - 1  # the header each block follows
+    owner[(owner < 0) | (heads["N"][np.maximum(owner, 0)] != blocks["N"])] = -1
+    out = {}
+    for kind, (name, unit) in enumerate((("acc", "m/s^2"), ("gyro", "rad/s"))):
+        mine = np.flatnonzero((heads["type"] == kind) & (heads["instance"] == chosen))
+        times, counts, scales, left = [], [], set(), 0
+        for j in mine:
+            h = heads[j]
+            part = blocks[owner == j]
+            part = part[np.argsort(part["seqno"], kind="stable")]
+            n, rate = int(h["smp_cnt"]), float(h["smp_rate"])
+            if not (np.array_equal(part["seqno"], np.arange(len(part))) and 32 * len(part) >= n
+                    and n > 0 and rate > 0 and h["mul"] > 0):
+                left += 1
+                continue
+            counts.append(np.stack([part["x"], part["y"], part["z"]], -1).reshape(-1, 3)[:n])
+            times.append(float(h["SampleUS"]) + np.arange(n) * 1e6 / rate)
+            scales.add(float(h["mul"]))
+        if left:
+            notes.append(f"{path.name}: batch sampler {name} instance {chosen}: {left} of "
+                         f"{len(mine)} batches left out (a block missing, or cut short)")
+        if len(scales) > 1:
+            raise CalibrationInputError(f"{path}: the {name} batches of instance {chosen} change "
+                                        f"their multiplier ({sorted(scales)}).",
+                                        "Import the IMU messages (leave out --batch).")
+        where = f"batch sampler {name} instance {chosen}"
+        out[name] = Series(np.concatenate(times or [np.empty(0)]),
+                           np.concatenate(counts or [np.empty((0, 3))]), unit, where,
+                           {"message": "ISBH/ISBD", "instance": chosen, "batches": len(counts),
+                            "time": "SampleUS + i / smp_rate"},
+                           scale=scales.pop() if scales else 1.0)
+    return out
 
 
 def _open(path: Path) -> tuple:
@@ -115,10 +175,7 @@ def _imu_rows(reader, path: Path, notes: list) -> dict:
                 f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT says "
                 f"{fmt.format!r}: {','.join(fmt.columns)}).",
                 "The log's IMU message is not ArduPilot's: " + FIX)
-        record = _record(path, fmt)
-        offsets = [o for o in reader.offsets[type_id] if o + fmt.len <= reader.data_len]
-        data = reader.data_map
-        rows = np.frombuffer(b"".join(data[o + 3:o + fmt.len] for o in offsets), record)
+        rows, _ = _messages(reader, path, name)
         table = {f: rows[f].astype(float) for f in wanted}
         instances = table["I"].astype(int) if "I" in table else \
             np.full(len(rows), IMU_MESSAGES[name])
@@ -130,15 +187,30 @@ def _imu_rows(reader, path: Path, notes: list) -> dict:
     return out
 
 
+def _messages(reader, path: Path, name: str) -> tuple:
+    """(records (K,), file offsets (K,)) of every whole message `name` of the log, in log order:
+    the reader's index of the type read as numpy records of the struct its FMT defines."""
+    fmt = reader.formats[reader.name_to_id[name]]
+    record = _record(path, fmt)
+    offsets = [o for o in reader.offsets[fmt.type] if o + fmt.len <= reader.data_len]
+    data = reader.data_map
+    return (np.frombuffer(b"".join(data[o + 3:o + fmt.len] for o in offsets), record),
+            np.array(offsets, np.int64))
+
+
 def _record(path: Path, fmt) -> np.dtype:
     """The packed little-endian numpy record of a message type: its FMT's columns and format
-    characters, each of the struct code pymavlink's FORMAT_TO_STRUCT gives it."""
+    characters, each of the struct code pymavlink's FORMAT_TO_STRUCT gives it (`a`: int16[32])."""
     from pymavlink.DFReader import FORMAT_TO_STRUCT
 
+    def code(char):
+        text = FORMAT_TO_STRUCT[char][0]
+        return ("<i2", (32,)) if char == "a" else \
+            (f"V{text[:-1]}",) if text.endswith("s") else ("<" + text,)
+
     try:
-        codes = [FORMAT_TO_STRUCT[char][0] for char in fmt.msg_fmts]
-        record = np.dtype([(column, f"V{code[:-1]}" if code.endswith("s") else "<" + code)
-                           for column, code in zip(fmt.columns, codes, strict=True)])
+        record = np.dtype([(column, *code(char))
+                           for column, char in zip(fmt.columns, fmt.msg_fmts, strict=True)])
     except (KeyError, ValueError, TypeError) as exc:
         raise CalibrationInputError(f"{path}: the FMT of message {fmt.name} is not one numpy "
                                     f"can lay out ({exc}).", FIX) from None
