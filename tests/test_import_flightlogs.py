@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from flightlogs import (
     SENSOR_ACCEL,
-    batch_log,
     SENSOR_COMBINED,
     VEHICLE_IMU,
+    batch_log,
     dataflash,
     df_fmt,
     df_message,
