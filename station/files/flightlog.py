@@ -8,6 +8,8 @@ channel an integer (while the counts stay below 2^53, exact in float64): the ses
 (counts / 2^k) are then the logged numbers bit for bit. A channel whose values cannot all be
 exact within 2^53 counts (values spanning more than 53 binary orders of magnitude, or computed
 ones such as vehicle_imu's delta / dt) is rounded to 2^-k, the largest error said in the notes.
+Integer counts logged with a scale (the DataFlash batch sampler's int16 and its multiplier) are
+kept as they are, with that scale.
 
 Every log is untrusted input: a sensor with fewer than 2 samples, non-finite values, time stamps
 that repeat with other values or go backwards are refused naming the file, the topic or message,

@@ -10,7 +10,9 @@ messages (libraries/AP_InertialSensor/LogStructure.h) carry `TimeUS` (microsecon
 instance is `--instance N` (default the first); a wrong one, or a log without IMU messages (a
 board that logged none, another vehicle's log), is refused listing the messages it holds.
 The accelerometer's and gyro's device ids come from the parameters INS_ACC_ID, INS_ACC2_ID, ...,
-INS_GYR_ID, ... when the log holds them. The samples go through station.files.flightlog.
+INS_GYR_ID, ... when the log holds them. With `batch`, the batch sampler's raw-rate samples
+(ISBH/ISBD, `batch_series`) instead of the IMU messages. The samples go through
+station.files.flightlog.
 """
 
 import contextlib
