@@ -178,10 +178,15 @@ def test_a_ulog_cut_in_a_message_keeps_the_samples_before(hand, tmp_path, capsys
     log.write_bytes(whole[: len(whole) - 20])  # the last data message cut in its middle
     code, out, _ = station(capsys, "import", "ulog", tmp_path / "cut.h5", log, "--json")
     assert code == 0
+    assert any("ends inside a message (" in n for n in json.loads(out)["notes"])
     got, _ = samples(tmp_path / "cut.h5")
     # messages go in time order, gyro after accel: the last gyro sample is the one cut
     np.testing.assert_array_equal(got["acc"][1], x[:1000, :3].astype(float))
     np.testing.assert_array_equal(got["gyro"][1], x[:999, 3:].astype(float))
+    (tmp_path / "whole.ulg").write_bytes(whole)
+    code, out, _ = station(capsys, "import", "ulog", tmp_path / "whole.h5",
+                           tmp_path / "whole.ulg", "--json")
+    assert code == 0 and not any("ends inside" in n for n in json.loads(out)["notes"])
 
     log.write_bytes(whole[:10])  # cut in the header
     code, _, err = station(capsys, "import", "ulog", tmp_path / "head.h5", log)

@@ -48,7 +48,7 @@ def import_ulog(out, path, *, instance: int | None = None,
     path = Path(path)
     ulog, notes = read(path)
     datasets = {(d.name, d.multi_id): d for d in ulog.data_list}
-    family, chosen = _family(path, ulog, datasets, instance)
+    family, chosen = _family(path, ulog, datasets, instance, notes)
     notes.append(f"{path.name}: topics {', '.join(family)} instance {chosen}")
     pick = {name: datasets[(name, chosen)] for name in family}
     series = (_raw(pick) if family == FAMILIES[0] else
@@ -80,17 +80,39 @@ def read(path: Path) -> tuple:
     notes = [f"{path.name}: pyulog says: {line}" for line in said.getvalue().splitlines()
              if line.strip()][:5]
     if ulog.file_corruption:
-        notes.append(f"{path.name}: the log is cut or damaged (pyulog's file_corruption); the "
-                     "samples before the damage are used")
+        notes.append(f"{path.name}: the log is damaged (pyulog's file_corruption); the samples "
+                     "pyulog could read are used")
+    elif cut := _cut_bytes(path):
+        notes.append(f"{path.name}: the log ends inside a message ({cut} bytes after the last "
+                     "whole one left out; a log cut by a power loss)")
     return ulog, notes
 
 
-def _family(path, ulog, datasets: dict, instance) -> tuple:
+def _cut_bytes(path: Path) -> int:
+    """Bytes after the last whole message of a ULog file: its messages (after the 16-byte
+    header) walked by their 3-byte headers (uint16 size, uint8 type; docs.px4.io "ULog File
+    Format"); 0 when the file ends on a message's end."""
+    data = path.read_bytes()
+    at = 16
+    while at + 3 <= len(data):
+        end = at + 3 + int.from_bytes(data[at:at + 2], "little")
+        if end > len(data):
+            break
+        at = end
+    return len(data) - at
+
+
+def _family(path, ulog, datasets: dict, instance, notes: list) -> tuple:
     """(topics, instance) to import: the first family whose topics all hold samples, at
-    `instance` or the first instance they share; refused listing what the log holds."""
+    `instance` or the first instance they share; refused listing what the log holds. A family
+    with some of its topics empty is passed over, said in `notes`."""
     for family in FAMILIES:
         present = [sorted(i for (n, i) in datasets if n == name) for name in family]
         if not all(present):
+            if any(present):
+                empty = [n for n, p in zip(family, present, strict=True) if not p]
+                notes.append(f"{path.name}: {', '.join(family)} passed over: "
+                             f"{', '.join(empty)} holds no samples")
             continue
         shared = sorted(set.intersection(*map(set, present)))
         if instance is None and shared:
