@@ -21,6 +21,7 @@ go through station.files.flightlog (checks, exact scaling, the session).
 
 import contextlib
 import io
+import mmap
 from importlib.metadata import version
 from pathlib import Path
 
@@ -92,14 +93,14 @@ def _cut_bytes(path: Path) -> int:
     """Bytes after the last whole message of a ULog file: its messages (after the 16-byte
     header) walked by their 3-byte headers (uint16 size, uint8 type; docs.px4.io "ULog File
     Format"); 0 when the file ends on a message's end."""
-    data = path.read_bytes()
-    at = 16
-    while at + 3 <= len(data):
-        end = at + 3 + int.from_bytes(data[at:at + 2], "little")
-        if end > len(data):
-            break
-        at = end
-    return len(data) - at
+    with path.open("rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        at = 16
+        while at + 3 <= len(data):
+            end = at + 3 + int.from_bytes(data[at:at + 2], "little")
+            if end > len(data):
+                break
+            at = end
+        return len(data) - at
 
 
 def _family(path, ulog, datasets: dict, instance, notes: list) -> tuple:
