@@ -247,7 +247,8 @@ def test_the_streams_of_a_log_are_not_spelled_out(hand, tmp_path, capsys):
     log = tmp_path / "a.ulg"
     log.write_bytes(ulog(raw_topics(t[:100], x[:100])))
     code, _, err = station(capsys, "import", "ulog", tmp_path / "a.h5", log, "--stream", "acc=x")
-    assert code == 2 and "takes the IMU's streams from the log" in err
+    assert code == 2 and "takes the IMU's streams, units and time stamps from the log; leave " \
+                         "out --stream" in err
     code, _, err = station(capsys, "import", "csv", tmp_path / "a.h5", log, "--instance", "1")
     assert code == 2 and "--instance is for flight-controller logs" in err
     assert not (tmp_path / "a.h5").exists()

@@ -157,9 +157,14 @@ def _flight_log(args, existing_file) -> Path:
     import_dataflash.py)."""
     from station.errors import InputError
 
-    if args.stream or args.unit or args.time or args.columns:
-        raise InputError(f"`import {args.format}` takes the IMU's streams from the log; leave out "
-                         "--stream, --unit, --time and --columns (--instance N chooses the IMU)")
+    given = [option for option, value in (
+        ("--stream", args.stream), ("--unit", args.unit), ("--columns", args.columns),
+        ("--time", args.time), ("--time-unit", args.time_unit), ("--index", args.index),
+        ("--fs", args.fs), ("--profile", args.profile)) if value]
+    if given:
+        raise InputError(f"`import {args.format}` takes the IMU's streams, units and time stamps "
+                         f"from the log; leave out {', '.join(given)} (--instance N chooses the "
+                         "IMU)")
     if args.instance is not None and args.instance < 0:
         raise InputError(f"--instance {args.instance} is negative; give the instance number "
                          "(0 is the first)")
