@@ -54,7 +54,7 @@ def import_dataflash(out, path, *, instance: int | None = None, batch: bool = Fa
     chosen = _instance(path, reader, rows, instance)
     name, table = rows[chosen]
     notes.append(f"{path.name}: IMU instance {chosen}: {len(table['TimeUS'])} messages {name}")
-    params = _params(reader)
+    params = _params(reader, path, notes)
     series = {}
     for stream, (fields, unit, stem) in FIELDS.items():
         origin = {"message": name, "instance": chosen, "time": "TimeUS"}
@@ -229,13 +229,21 @@ def _end_of_messages(reader) -> int:
     return max([e for e in ends if e <= reader.data_len], default=0)
 
 
-def _params(reader) -> dict:
-    """The log's parameters (PARM messages), read through the reader."""
+def _params(reader, path: Path, notes: list) -> dict:
+    """The log's parameters (PARM messages), read through the reader; none when it cannot (said
+    in `notes`: the device ids are then left out)."""
+    if "PARM" not in reader.name_to_id:
+        return {}
     said = io.StringIO()
-    with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-        while reader.recv_match(type="PARM") is not None:
-            pass
-    return dict(reader.params)
+    try:
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            while reader.recv_match(type="PARM") is not None:
+                pass
+    except Exception as exc:  # the reader raises what its parsing meets
+        notes.append(f"{path.name}: the parameters (PARM) are unreadable ({type(exc).__name__}: "
+                     f"{exc}); no device ids")
+        return {}
+    return {k: v for k, v in reader.params.items() if isinstance(v, (int, float))}
 
 
 def _instance(path: Path, reader, rows: dict, instance) -> int:
