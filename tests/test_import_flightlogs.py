@@ -276,6 +276,44 @@ def test_a_file_that_is_no_log_is_refused(tmp_path, capsys):
     assert code == 2 and "holds no IMU messages" in err and "messages: none" in err
 
 
+@pytest.mark.parametrize("fmt", ["ulog", "dataflash", "batch"])
+def test_damaged_logs_import_or_are_refused_by_name(hand, tmp_path, fmt):
+    """Flipped bytes, cuts and overwritten runs (60 damaged copies, a fixed seed): each log is
+    imported or refused with a CalibrationInputError naming it; nothing else escapes."""
+    from station.errors import CalibrationInputError
+    from station.files.import_dataflash import import_dataflash
+    from station.files.import_ulog import import_ulog
+
+    t, x, _ = hand
+    logs = {"ulog": ulog(raw_topics(t[:300], x[:300])),
+            "dataflash": dataflash({0: imu_rows(t[:300], x[:300])}, params=[("INS_ACC_ID", 5)]),
+            "batch": batch_log([(0, 0, 128, 1000, 1000.0, np.ones((40, 3), np.int16)),
+                                (1, 0, 938, 50_000, 1000.0, np.ones((40, 3), np.int16))])}
+    read = {"ulog": import_ulog, "dataflash": import_dataflash,
+            "batch": lambda out, path: import_dataflash(out, path, batch=True)}[fmt]
+    rng = np.random.default_rng(11)
+    outcomes = set()
+    for trial in range(60):
+        data = bytearray(logs[fmt])
+        if trial % 3 == 0:
+            for at in rng.integers(0, len(data), rng.integers(1, 20)):
+                data[at] = rng.integers(0, 256)
+        elif trial % 3 == 1:
+            data = data[:rng.integers(0, len(data))]
+        else:
+            at = rng.integers(0, min(len(data), 3000))
+            data[at:at + 8] = rng.integers(0, 256, 8).astype(np.uint8).tobytes()
+        path = tmp_path / f"damaged{trial}.log"
+        path.write_bytes(bytes(data))
+        try:
+            read(tmp_path / f"damaged{trial}.h5", path)
+            outcomes.add("imported")
+        except CalibrationInputError as exc:
+            assert path.name in str(exc)
+            outcomes.add("refused")
+    assert outcomes == {"imported", "refused"}
+
+
 # ----------------------------------------------------------------------------------- DataFlash
 
 

@@ -102,6 +102,9 @@ def checked(path: Path, s: Series, notes: list) -> tuple:
     if v.ndim != 2 or len(t) != len(v):
         raise CalibrationInputError(f"{where}: {len(t)} time stamps for values of shape "
                                     f"{v.shape}.", SPLIT_ADVICE)
+    if not np.all(np.isfinite(t)):
+        raise CalibrationInputError(f"{where}: {int(np.sum(~np.isfinite(t)))} time stamps are "
+                                    "NaN or infinite.", SPLIT_ADVICE)
     bad = ~np.all(np.isfinite(v), axis=1)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])

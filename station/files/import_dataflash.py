@@ -33,8 +33,8 @@ FIELDS = {"acc": (("AccX", "AccY", "AccZ"), "m/s^2", "ACC"),
           "gyro": (("GyrX", "GyrY", "GyrZ"), "rad/s", "GYR")}
 """Stream -> (IMU message fields, SI unit, INS_<x>_ID parameter stem)."""
 
-NUMERIC = set("bBhHiIqQfd")
-"""DataFlash format characters of plain numbers (no multiplier: LogStructure.h)."""
+NUMERIC = set("bBhHiIqQfda")
+"""DataFlash format characters of plain numbers (no multiplier; `a`: int16[32]; LogStructure.h)."""
 
 FIX = ("Give the .bin log of a flight controller that logged its IMU (LOG_BITMASK bit IMU, "
        "or IMU_RAW); a text .log or tlog is not a DataFlash .bin.")
@@ -67,7 +67,7 @@ def import_dataflash(out, path, *, instance: int | None = None, batch: bool = Fa
                                      "min": float(temperature.min()),
                                      "mean": float(temperature.mean()),
                                      "max": float(temperature.max())}
-        series[stream] = Series(table["TimeUS"].astype(np.int64),
+        series[stream] = Series(table["TimeUS"],
                                 np.column_stack([table[f] for f in fields]), unit,
                                 f"message {name} instance {chosen}", origin)
     return write_session(out, path, "dataflash", series, f"pymavlink {version('pymavlink')}",
@@ -87,8 +87,9 @@ def batch_series(reader, path: Path, instance, notes: list) -> dict:
                 f"{path} holds no {name} messages (the batch sampler's).",
                 "Log them (INS_LOG_BAT_MASK, LOG_BITMASK bit IMU_RAW), or import the IMU "
                 "messages: leave out --batch.")
-    heads, head_at = _messages(reader, path, "ISBH")
-    blocks, block_at = _messages(reader, path, "ISBD")
+    heads, head_at = _messages(reader, path, "ISBH", ("N", "type", "instance", "mul", "smp_cnt",
+                                                     "SampleUS", "smp_rate"))
+    blocks, block_at = _messages(reader, path, "ISBD", ("N", "seqno", "x", "y", "z"))
     present = sorted({int(i) for i in heads["instance"]})
     chosen = present[0] if instance is None and present else instance
     if chosen not in present:
@@ -137,11 +138,16 @@ def _open(path: Path) -> tuple:
 
     class DFReaderTimeUS(DFReader_binary):
         """pymavlink's reader without the search for a GPS time base (in a log without a GPS
-        week, a bench log, it parses every message of the log in Python: 25 s per million);
-        the importer takes the IMU messages' own TimeUS."""
+        week, a bench log, it parses every message of the log in Python: 25 s per million;
+        the importer takes the IMU messages' own TimeUS), indexing in Python."""
 
         def init_clock(self):
             self.clock = None
+
+        def init_arrays_fast(self, progress_callback=None):
+            """The pure-Python indexer (0.3 s per million messages): the Cython one prints its
+            complaints about damaged bytes on the process's stderr, past redirect_stderr."""
+            self.init_arrays(progress_callback)
 
     size = path.stat().st_size
     if size > MAX_BYTES or size < 3:
@@ -165,21 +171,13 @@ def _imu_rows(reader, path: Path, notes: list) -> dict:
     by the end of the file left out and noted."""
     out, end = {}, _end_of_messages(reader)
     for name in (n for n in IMU_MESSAGES if n in reader.name_to_id):
-        type_id = reader.name_to_id[name]
-        fmt = reader.formats[type_id]
+        fmt = reader.formats[reader.name_to_id[name]]
         wanted = ["TimeUS", *FIELDS["acc"][0], *FIELDS["gyro"][0],
                   *[f for f in ("I", "T") if f in fmt.colhash]]
-        missing = [f for f in wanted if f not in fmt.colhash or
-                   fmt.msg_fmts[fmt.colhash[f]] not in NUMERIC or
-                   fmt.msg_mults[fmt.colhash[f]] is not None]
-        if missing:
-            raise CalibrationInputError(
-                f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT says "
-                f"{fmt.format!r}: {','.join(fmt.columns)}).",
-                "The log's IMU message is not ArduPilot's: " + FIX)
-        rows, _ = _messages(reader, path, name)
-        table = {f: rows[f].astype(float) for f in wanted}
-        instances = table["I"].astype(int) if "I" in table else \
+        rows, _ = _messages(reader, path, name, wanted)
+        with np.errstate(invalid="ignore"):  # a signalling NaN of a damaged log: refused later
+            table = {f: rows[f].astype(float) for f in wanted}
+        instances = _instances(path, name, table["I"]) if "I" in table else \
             np.full(len(rows), IMU_MESSAGES[name])
         for i in np.unique(instances):
             out[int(i)] = (name, {f: v[instances == i] for f, v in table.items()})
@@ -189,10 +187,19 @@ def _imu_rows(reader, path: Path, notes: list) -> dict:
     return out
 
 
-def _messages(reader, path: Path, name: str) -> tuple:
+def _messages(reader, path: Path, name: str, fields) -> tuple:
     """(records (K,), file offsets (K,)) of every whole message `name` of the log, in log order:
-    the reader's index of the type read as numpy records of the struct its FMT defines."""
+    the reader's index of the type read as numpy records of the struct its FMT defines; refused
+    unless each of `fields` is a plain number (or `a`, int16[32]) there."""
     fmt = reader.formats[reader.name_to_id[name]]
+    missing = [f for f in fields if f not in fmt.colhash or
+               fmt.msg_fmts[fmt.colhash[f]] not in NUMERIC or
+               fmt.msg_mults[fmt.colhash[f]] is not None]
+    if missing:
+        raise CalibrationInputError(
+            f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT says "
+            f"{fmt.format!r}: {','.join(fmt.columns)}).", f"The log's {name} message is not "
+            "ArduPilot's: " + FIX)
     record = _record(path, fmt)
     offsets = [o for o in reader.offsets[fmt.type] if o + fmt.len <= reader.data_len]
     data = reader.data_map
@@ -220,6 +227,15 @@ def _record(path: Path, fmt) -> np.dtype:
         raise CalibrationInputError(f"{path}: message {fmt.name}'s FMT says {fmt.len} bytes, its "
                                     f"format {fmt.format!r} {record.itemsize + 3}.", FIX)
     return record
+
+
+def _instances(path: Path, name: str, field: np.ndarray) -> np.ndarray:
+    """The instance numbers of an `I` field, refused unless each is an integer 0..255."""
+    bad = ~np.isfinite(field) | (field != np.round(field)) | (field < 0) | (field > 255)
+    if bad.any():
+        raise CalibrationInputError(f"{path}: {int(bad.sum())} {name} messages have an instance "
+                                    "field I that is no instance number (a damaged log?).", FIX)
+    return field.astype(int)
 
 
 def _end_of_messages(reader) -> int:
