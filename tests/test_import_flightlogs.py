@@ -278,7 +278,7 @@ def test_a_file_that_is_no_log_is_refused(tmp_path, capsys):
 
 @pytest.mark.parametrize("fmt", ["ulog", "dataflash", "batch"])
 def test_damaged_logs_import_or_are_refused_by_name(hand, tmp_path, fmt):
-    """Flipped bytes, cuts and overwritten runs (60 damaged copies, a fixed seed): each log is
+    """Flipped bytes, cuts and overwritten runs (90 damaged copies, a fixed seed): each log is
     imported or refused with a CalibrationInputError naming it; nothing else escapes."""
     from station.errors import CalibrationInputError
     from station.files.import_dataflash import import_dataflash
@@ -293,7 +293,7 @@ def test_damaged_logs_import_or_are_refused_by_name(hand, tmp_path, fmt):
             "batch": lambda out, path: import_dataflash(out, path, batch=True)}[fmt]
     rng = np.random.default_rng(11)
     outcomes = set()
-    for trial in range(60):
+    for trial in range(90):
         data = bytearray(logs[fmt])
         if trial % 3 == 0:
             for at in rng.integers(0, len(data), rng.integers(1, 20)):

@@ -129,7 +129,7 @@ def _family(path, ulog, datasets: dict, instance, notes: list) -> tuple:
 
 def _holdings(ulog, datasets: dict) -> str:
     """What the log holds of the IMU topics: samples per topic instance, topics defined empty."""
-    held = [f"{n} instance {i}: {len(d.data['timestamp'])} samples"
+    held = [f"{n} instance {i}: {len(next(iter(d.data.values()), ()))} samples"
             for (n, i), d in sorted(datasets.items())]
     empty = sorted({t for f in FAMILIES for t in f} & set(ulog.message_formats)
                    - {n for n, _ in datasets})
