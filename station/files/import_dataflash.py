@@ -192,6 +192,7 @@ def _messages(reader, path: Path, name: str, fields) -> tuple:
     the reader's index of the type read as numpy records of the struct its FMT defines; refused
     unless each of `fields` is a plain number (or `a`, int16[32]) there."""
     fmt = reader.formats[reader.name_to_id[name]]
+    record = _record(path, fmt)  # first: its columns and format characters match
     missing = [f for f in fields if f not in fmt.colhash or
                fmt.msg_fmts[fmt.colhash[f]] not in NUMERIC or
                fmt.msg_mults[fmt.colhash[f]] is not None]
@@ -200,7 +201,6 @@ def _messages(reader, path: Path, name: str, fields) -> tuple:
             f"{path}: message {name} has no numeric {', '.join(missing)} (its FMT says "
             f"{fmt.format!r}: {','.join(fmt.columns)}).", f"The log's {name} message is not "
             "ArduPilot's: " + FIX)
-    record = _record(path, fmt)
     offsets = [o for o in reader.offsets[fmt.type] if o + fmt.len <= reader.data_len]
     data = reader.data_map
     return (np.frombuffer(b"".join(data[o + 3:o + fmt.len] for o in offsets), record),

@@ -198,7 +198,8 @@ def _array(name: str) -> tuple:
 
 def _columns(d, fields) -> np.ndarray:
     """(K, 3) float64 of three numeric fields of a topic."""
-    return np.column_stack([_field(d, f).astype(float) for f in fields])
+    with np.errstate(invalid="ignore"):  # a signalling NaN of a damaged log: refused later
+        return np.column_stack([_field(d, f).astype(float) for f in fields])
 
 
 def _field(d, name: str) -> np.ndarray:
