@@ -94,6 +94,17 @@ def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *
     return Path(out)
 
 
+def summary(values: np.ndarray) -> dict:
+    """First, min, mean and max of the finite values (a sensor's temperature, deg C), {} when
+    none is finite."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return {}
+    return {"first": float(v[0]), "min": float(v.min()), "mean": float(v.mean()),
+            "max": float(v.max())}
+
+
 def checked(path: Path, s: Series, notes: list) -> tuple:
     """(time stamps, values) of a sensor's samples: at least 2, finite, times strictly
     increasing once exact repeats (a message logged twice) are dropped (counted in `notes`)."""

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.flightlog import Series, write_session
+from station.files.flightlog import Series, summary, write_session
 from station.files.tables import MAX_BYTES
 
 IMU_MESSAGES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
@@ -62,11 +62,7 @@ def import_dataflash(out, path, *, instance: int | None = None, batch: bool = Fa
         if device is not None:
             origin["device_id"] = int(device)
         if "T" in table and np.isfinite(table["T"]).any():
-            temperature = table["T"][np.isfinite(table["T"])]
-            origin["temperature"] = {"first": float(temperature[0]),
-                                     "min": float(temperature.min()),
-                                     "mean": float(temperature.mean()),
-                                     "max": float(temperature.max())}
+            origin["temperature"] = summary(table["T"])
         series[stream] = Series(table["TimeUS"],
                                 np.column_stack([table[f] for f in fields]), unit,
                                 f"message {name} instance {chosen}", origin)

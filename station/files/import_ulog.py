@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.flightlog import Series, write_session
+from station.files.flightlog import Series, summary, write_session
 from station.files.tables import MAX_BYTES
 
 FAMILIES = (("sensor_accel", "sensor_gyro"), ("sensor_combined",), ("vehicle_imu",))
@@ -148,7 +148,7 @@ def _raw(pick: dict) -> dict:
             ids = sorted({int(i) for i in _field(d, "device_id")})
             origin["device_id"] = ids[0] if len(ids) == 1 else ids
         if "temperature" in d.data:
-            origin["temperature"] = _summary(_field(d, "temperature"))
+            origin["temperature"] = summary(_field(d, "temperature"))
         out[name] = Series(_field(d, time), _columns(d, ("x", "y", "z")), unit,
                            f"topic {topic} instance {d.multi_id}", origin)
     return out
@@ -212,13 +212,3 @@ def _field(d, name: str) -> np.ndarray:
             f"{', '.join(list(d.data)[:20])}).",
             "The log's message definitions differ from PX4's: " + FIX)
     return values
-
-
-def _summary(values: np.ndarray) -> dict:
-    """First, min, mean and max of the finite values (e.g. a sensor's temperature, deg C)."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if not len(v):
-        return {}
-    return {"first": float(v[0]), "min": float(v.min()), "mean": float(v.mean()),
-            "max": float(v.max())}
