@@ -459,6 +459,7 @@ def test_station_solve_calibrates_a_logged_static_recording(hand, tmp_path, caps
     assert code == 0, err  # 0: the fit passed the quality gate (chi2, outliers)
     summary = json.loads(out)
     assert summary["poses"] == 15 and summary["rejected"] == []
+    assert summary["status"] == "good" and summary["status_reasons"] == []  # chi2 within bounds
     cal = load(summary["calibration"])
     # within 4 sigma of the simulator's truth (6 values, normal errors)
     scale_err = (cal.scale_factors - np.linalg.norm(A_TRUE, axis=1)) / cal.scale_factors_sigma
@@ -485,7 +486,7 @@ def test_station_solve_calibrates_a_logged_gyro_from_the_turns(tmp_path, capsys,
                              "--json")
     assert code == 0, err
     summary = json.loads(out)
-    assert summary["poses"] == 24
+    assert summary["poses"] == 24 and summary["status"] == "good"
     cal = load(summary["calibration"])
     assert cal.sensors == ("gyro1", "gyro2", "gyro3") and cal.units == ("rad/s",) * 3
     z = (cal.scale_factors - np.linalg.norm(a_true, axis=0)) / cal.scale_factors_sigma
