@@ -88,6 +88,8 @@ def test_ulog_samples_equal_the_logged_ones_per_instance(hand, tmp_path, capsys)
     code, out, _ = station(capsys, "import", "ulog", tmp_path / "a.h5", log, "--json")
     assert code == 0
     assert json.loads(out)["streams"]["acc"]["samples"] == len(t)
+    assert any(f"acc from topic sensor_accel instance 0, device id {DEVICE_ID} (read with "
+               "pyulog " in note for note in json.loads(out)["notes"])
     assert_equal_to_log(tmp_path / "a.h5", t, x)
     _, meta = samples(tmp_path / "a.h5")
     assert meta["format"] == "ulog" and meta["reader"].startswith("pyulog ")

@@ -76,9 +76,10 @@ def write_session(out, path, fmt: str, series: dict, reader: str, notes: list, *
         t = t_us * 1e-6
         blocks[name] = SampleBlock(counts, seq, t, t, specs[name].channels)
         origin[name] = s.origin
-        notes.append(f"{path.name}: {name} from {s.where}: {len(t)} samples, "
-                     f"{t[-1] - t[0]:.3f} s at {1e6 / step:.4f} Hz, {seq[-1] + 1 - len(t)} "
-                     "missing (logger gaps); own time stamps")
+        device = f", device id {s.origin['device_id']}" if "device_id" in s.origin else ""
+        notes.append(f"{path.name}: {name} from {s.where}{device} (read with {reader}): "
+                     f"{len(t)} samples, {t[-1] - t[0]:.3f} s at {1e6 / step:.4f} Hz, "
+                     f"{seq[-1] + 1 - len(t)} missing (logger gaps); own time stamps")
     sha = _sha256(path)
     metadata = {"protocol": "import", "unit_serial": unit_serial,
                 "import": {"format": fmt, "reader": reader, "origin": origin,
