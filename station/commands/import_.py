@@ -16,7 +16,11 @@ EXAMPLES = (
     "  station import csv logger.h5 logger.csv --time t_us --time-unit us --delimiter ';' \\\n"
     "      --skip-rows 3 --stream acc=ax,ay,az --unit acc=g\n"
     "  station import npz rotary.h5 recording.npz\n"
-    "  station import binary exp_1.h5 exp_1.bin --profile mimu4444"
+    "  station import binary exp_1.h5 exp_1.bin --profile mimu4444\n"
+    "  station import ulog px4.h5 log_12_2026-11-25.ulg --instance 1\n"
+    "  station import dataflash ardupilot.h5 00000042.BIN\n"
+    "  station import dataflash raw.h5 00000042.BIN --batch   # the batch sampler's samples\n"
+    "  station import csv euroc.h5 mav0/imu0/data.csv       # a Kalibr/EuRoC IMU CSV, recognised"
 )
 
 DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " "}
@@ -30,13 +34,17 @@ def register(p) -> None:
         "counts:<SI unit>[@<counts per SI unit>]. text/csv: the delimiter is sniffed and lines "
         "before the header are skipped unless given; .mat files v5/v7 and v7.3 (HDF5) are read, "
         "arrays in either orientation (the time axis is the long one). binary: a raw dump of "
-        "a serial IMU's frames, decoded by the drivers' parser with a device profile."
+        "a serial IMU's frames, decoded by the drivers' parser with a device profile. "
+        "ulog (PX4, pyulog) and dataflash (ArduPilot .bin, pymavlink): the IMU's accelerometer "
+        "and gyro as streams acc and gyro in m/s^2 and rad/s, at their logged time stamps, the "
+        "numbers exact. csv without --stream: a Kalibr/EuRoC IMU CSV is recognised by its header."
     )
     p.epilog = EXAMPLES
-    p.add_argument("format", choices=("text", "csv", "npz", "binary"),
+    p.add_argument("format", choices=("text", "csv", "npz", "binary", "ulog", "dataflash"),
                    help="format of the recording")
     p.add_argument("out", type=Path, help="session file to create (.h5, must not exist)")
-    p.add_argument("source", nargs="?", type=Path, help="the CSV, .npz or binary dump file")
+    p.add_argument("source", nargs="?", type=Path,
+                   help="the CSV, .npz, binary dump, .ulg or .bin log")
     p.add_argument("--stream", action="append", default=[], metavar="NAME=WHAT",
                    help="text: NAME=FILE (columns t x y z ...); csv: NAME=COL,COL,...")
     p.add_argument("--unit", action="append", default=[], metavar="NAME=UNIT",
@@ -59,6 +67,12 @@ def register(p) -> None:
                         "default: the header line is found")
     p.add_argument("--profile", metavar="PROFILE",
                    help="binary: device profile (bundled name or TOML path)")
+    p.add_argument("--instance", type=int, metavar="N",
+                   help="ulog/dataflash: the IMU instance (ULog multi_id, DataFlash IMU I or "
+                        "IMU2/IMU3; default the first)")
+    p.add_argument("--batch", action="store_true",
+                   help="dataflash: the batch sampler's raw-rate samples (ISBH/ISBD) instead of "
+                        "the IMU messages")
     p.add_argument("--unit-serial", default="IMPORTED", help="serial number of the unit")
     p.add_argument("--json", action="store_true", help="print the session written as JSON")
     p.set_defaults(run=run)
@@ -93,6 +107,12 @@ def _import(args, existing_file, advance) -> Path:
     from station.errors import InputError
     from station.files import importers
 
+    if args.instance is not None and args.format not in ("ulog", "dataflash"):
+        raise InputError(f"--instance is for flight-controller logs (ulog, dataflash), not "
+                         f"`import {args.format}`; leave it out")
+    if args.batch and args.format != "dataflash":
+        raise InputError(f"--batch is for DataFlash logs, not `import {args.format}`; leave it "
+                         "out")
     streams, units = _pairs(args.stream, "--stream"), _pairs(args.unit, "--unit")
     delimiter = DELIMITER_NAMES.get(args.delimiter, args.delimiter)
     if delimiter is not None and len(delimiter) != 1:
@@ -120,6 +140,8 @@ def _import(args, existing_file, advance) -> Path:
                                     unit_serial=args.unit_serial, time_unit=args.time_unit,
                                     delimiter=delimiter, skip_rows=args.skip_rows,
                                     progress=advance)
+    if args.format in ("ulog", "dataflash"):
+        return _flight_log(args, existing_file)
     if args.format == "npz":
         return importers.import_npz(args.out, existing_file(args.source, "an .npz recording"),
                                     unit_serial=args.unit_serial)
@@ -128,6 +150,34 @@ def _import(args, existing_file, advance) -> Path:
                          "--profile NAME_OR_PATH (e.g. --profile mimu4444)")
     return importers.import_binary(args.out, existing_file(args.source, "a binary dump"),
                                    args.profile, unit_serial=args.unit_serial)
+
+
+def _flight_log(args, existing_file) -> Path:
+    """A PX4 ULog or ArduPilot DataFlash log's IMU (station/files/import_ulog.py,
+    import_dataflash.py)."""
+    from station.errors import InputError
+
+    given = [option for option, value in (
+        ("--stream", args.stream), ("--unit", args.unit), ("--columns", args.columns),
+        ("--time", args.time), ("--time-unit", args.time_unit), ("--index", args.index),
+        ("--fs", args.fs), ("--profile", args.profile)) if value]
+    if given:
+        raise InputError(f"`import {args.format}` takes the IMU's streams, units and time stamps "
+                         f"from the log; leave out {', '.join(given)} (--instance N chooses the "
+                         "IMU)")
+    if args.instance is not None and args.instance < 0:
+        raise InputError(f"--instance {args.instance} is negative; give the instance number "
+                         "(0 is the first)")
+    if args.format == "ulog":
+        from station.files.import_ulog import import_ulog
+
+        return import_ulog(args.out, existing_file(args.source, "a ULog file (.ulg)"),
+                           instance=args.instance, unit_serial=args.unit_serial)
+    from station.files.import_dataflash import import_dataflash
+
+    return import_dataflash(args.out, existing_file(args.source, "a DataFlash log (.bin)"),
+                            instance=args.instance, batch=args.batch,
+                            unit_serial=args.unit_serial)
 
 
 def _pairs(items, option: str) -> dict:

@@ -1,14 +1,16 @@
 """Foreign recordings into session files (docs/session-format.md), as `station import` does.
 
-Four formats, every file treated as untrusted input (sizes, types and values checked before use,
-nothing unpickled or evaluated; errors are `CalibrationInputError`s naming the problem and the fix):
+Four formats (the flight-controller logs: station/files/import_ulog.py, import_dataflash.py),
+every file treated as untrusted input (sizes, types and values checked before use, nothing
+unpickled or evaluated; errors are `CalibrationInputError`s naming the problem and the fix):
 
 - `import_text`: tables `t x y z` without a header (imu_tk's `.mat` files are such text; MATLAB
   v5/v7 and v7.3 files with one numeric array are read too, in either orientation), one file per
   stream (station.files.tables.read_matrix);
 - `import_csv`: a delimited text file with a header of column names (imucal's sessions), the
   delimiter sniffed and a preamble skipped (station.files.tables.read_csv), one stream per group
-  of named columns, time from a column or from sample numbers at a given rate;
+  of named columns, time from a column or from sample numbers at a given rate; a Kalibr/EuRoC
+  IMU CSV is recognised by its header without any (station.files.import_kalibr);
 - `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
   `rate_cmd`, `c_cmd`, `seg_*`, `a_nominal`, optional `angle`), loaded with `allow_pickle=False`
   after its array headers were checked. The session holds the counts, the table's angle and rate as
@@ -46,6 +48,7 @@ from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from drivers.wire.binary import BinaryFrameParser
 from station.errors import CalibrationInputError
+from station.files.import_kalibr import recognise
 from station.files.jsonable import jsonable
 from station.files.session import SessionWriter, StreamSpec
 from station.files.tables import MAX_BYTES, read_csv, read_matrix
@@ -175,10 +178,17 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     units   : stream name -> unit spec
     Time: `time_column` (in `time_unit`), or `index_column` (sample numbers) with `fs`, or rows
     at `fs`. delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
-    station.files.tables.read_csv (and its `progress`).
+    station.files.tables.read_csv (and its `progress`). No streams, time column or rate: a
+    Kalibr/EuRoC IMU CSV, recognised by its header (station.files.import_kalibr), streams gyro
+    and acc at its nanosecond time stamps.
     """
-    _check_names(streams, units)
     path = Path(path)
+    recognised = []
+    if not streams and time_column is None and index_column is None and fs is None:
+        layout = recognise(path)
+        streams, units, time_column = layout.streams, layout.units, layout.time_column
+        time_unit, delimiter, recognised = "ns", delimiter or ",", [layout.note]
+    _check_names(streams, units)
     wanted = [c for cols in streams.values() for c in cols]
     for extra in (time_column, index_column):
         if extra is not None:
@@ -204,7 +214,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
         t = np.arange(len(table)) / fs
     values = {name: np.column_stack([by_name[c] for c in cols]) for name, cols in streams.items()}
     return _write(out, "csv", {name: str(path) for name in streams}, values, units, t, seq, fs,
-                  unit_serial, list(read.notes))
+                  unit_serial, recognised + list(read.notes))
 
 
 def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:
