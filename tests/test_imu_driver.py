@@ -143,7 +143,8 @@ def test_recorder_reconnects_a_lost_mavlink_device(tmp_path):
         error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, profile, clock,
                                                     twin.unplug, twin.plug, enough=1000)
     assert isinstance(error, DeviceLostError) and imu.connections == 2
-    assert len(twin.requests) == 2  # the stream asked for at each open
+    # the stream asked for at each open (again while no sample has come: more on a slow host)
+    assert len(twin.requests) >= 2
     assert np.array_equal(data.counts, counts(data.device_time))
     steps = np.round(np.diff(data.device_time) * profile.imu.rate_hz).astype(np.int64)
     assert np.array_equal(np.diff(data.seq), steps) and np.all(steps > 0)
