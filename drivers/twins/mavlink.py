@@ -44,6 +44,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from drivers.clock import WallClock
 from drivers.mavlink_imu import MavlinkProfile
 from drivers.twins.pty import PtyLink
+from drivers.twins.streamer import Streamer
 
 # fates of IMU messages in the log
 SENT, CORRUPTED, DROPPED, OVERFLOW, UNPLUGGED = range(5)
@@ -115,7 +116,7 @@ def free_udp_port() -> int:
         return probe.getsockname()[1]
 
 
-class MavlinkTwin:
+class MavlinkTwin(Streamer):
     """A flight controller with the IMU of `profile` (see the module docstring).
 
     source   : callable times (k,) in clock seconds -> counts (k, m) integers
@@ -153,24 +154,9 @@ class MavlinkTwin:
         self.rate_hz = None
         self._epoch = (0.0, 0)  # (clock time, sample number) the current rate counts from
         self._next = 0  # next sample number
-        self.error = None
-        self._stop = threading.Event()
-        self._thread = None
+        super().__init__()
 
     # -- device life -----------------------------------------------------------------------------
-
-    def plug(self) -> None:
-        """Plug the flight controller back in (the same port or address)."""
-        self.link.plug()
-
-    @property
-    def plugged(self) -> bool:
-        """True between `plug()` and `unplug()`."""
-        return self.link.plugged
-
-    def unplug(self) -> None:
-        """Pull the cable: the pty closes (the reader gets an error); UDP goes silent."""
-        self.link.unplug()
 
     def burst(self, n: int) -> None:
         """Send `n` random bytes before the next message (line noise)."""
@@ -182,26 +168,7 @@ class MavlinkTwin:
         self._next_beat = self.clock.now()
         if self.stream_on_start:
             self._set_rate(self.profile.imu.rate_hz)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="mavlink-twin", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop, close the link; re-raise a streaming error (e.g. from the source)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        self.link.close()
-        if self.error is not None:
-            raise self.error
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
+        return self._launch("mavlink-twin")
 
     # -- what was sent ---------------------------------------------------------------------------
 

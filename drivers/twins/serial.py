@@ -26,7 +26,6 @@ Fault knobs (attributes, changeable while streaming):
 Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
 """
 
-import threading
 import time
 
 import numpy as np
@@ -34,6 +33,7 @@ import numpy as np
 from drivers.clock import WallClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.pty import PtyLink
+from drivers.twins.streamer import Streamer
 from drivers.wire.ascii import encode_lines
 from drivers.wire.binary import encode_frames
 
@@ -61,7 +61,7 @@ def corrupt_frame(frame: bytes, rng: np.random.Generator) -> bytes:
     return bytes(data)
 
 
-class SerialTwin:
+class SerialTwin(Streamer):
     """A serial IMU of profile `profile` behind a pseudo-terminal (see the module docstring).
 
     source  : callable times (k,) in clock seconds -> counts (k, m) integers
@@ -77,6 +77,7 @@ class SerialTwin:
 
     def __init__(self, profile, source, clock=None, rate_hz=None, seed=0, corrupt=0.0, drop=0.0,
                  max_lag=1.0, duplicate=0.0, unread_after=None):
+        super().__init__()
         self.profile = (profile if isinstance(profile, SerialImuProfile)
                         else SerialImuProfile.load(profile))
         self.source = source
@@ -87,29 +88,13 @@ class SerialTwin:
         self.duplicated, self.restarts = [], []
         self._origin = 0  # frame number the device counts from (changed by `restart`)
         self.start_time = None
-        self.error = None
         self._rng = np.random.default_rng(seed)
         self._log = []
         self._pause = (np.inf, np.inf)  # clock-time window of silence
-        self._stop = threading.Event()
-        self._thread = None
         self.link = PtyLink(unread_after)
         self.port = self.link.port
 
     # -- device life -----------------------------------------------------------------------------
-
-    def plug(self) -> None:
-        """Plug the device back in (`PtyLink.plug`)."""
-        self.link.plug()
-
-    @property
-    def plugged(self) -> bool:
-        """True between `plug()` and `unplug()`."""
-        return self.link.plugged
-
-    def unplug(self) -> None:
-        """Pull the cable (`PtyLink.unplug`): the reader gets an error, as with a real unplug."""
-        self.link.unplug()
 
     def restart(self) -> None:
         """The device resets: its numbering and clock start again from 0 at the next frame."""
@@ -123,27 +108,7 @@ class SerialTwin:
     def start(self, start_time=None) -> "SerialTwin":
         """Start streaming; frame 0 is at `start_time` (default: now)."""
         self.start_time = self.clock.now() if start_time is None else float(start_time)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="serial-twin", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop streaming, remove the pty and the port link; re-raise a streaming error (e.g. from
-        the source)."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        self.link.close()
-        if self.error is not None:
-            raise self.error
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
+        return self._launch("serial-twin")
 
     # -- what was sent ---------------------------------------------------------------------------
 

@@ -1,0 +1,54 @@
+"""What the streaming twins share (drivers.twins.serial, drivers.twins.mavlink): one background
+thread serving over a link that can be unplugged (`drivers.twins.pty.PtyLink`, or a UDP sender)."""
+
+import threading
+
+
+class Streamer:
+    """Base of a twin that streams from one background thread over `self.link` (set by the
+    subclass: anything with plug, unplug, plugged and close). The subclass defines `_run` (which
+    keeps its exception in `error`) and starts it with `_launch(name)` from its `start()`. A
+    context manager: `start()` on entry, `stop()` on exit."""
+
+    def __init__(self):
+        self.error = None
+        self._stop = threading.Event()
+        self._thread = None
+
+    def plug(self) -> None:
+        """Plug the device back in (the same port or address)."""
+        self.link.plug()
+
+    @property
+    def plugged(self) -> bool:
+        """True between `plug()` and `unplug()`."""
+        return self.link.plugged
+
+    def unplug(self) -> None:
+        """Pull the cable: a pty closes (its reader gets an error, as with a real unplug), UDP
+        goes silent."""
+        self.link.unplug()
+
+    def _launch(self, name: str):
+        """Start `_run` in the background thread `name`; returns self."""
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop streaming, close the link (a pty and its port link are removed); re-raise a
+        streaming error (e.g. from the source)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        self.link.close()
+        if self.error is not None:
+            raise self.error
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
