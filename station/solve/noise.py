@@ -15,15 +15,16 @@ K   rate / acceleration random walk, u / sqrt(s); two-sided PSD (K / 2 pi)^2 / f
 
 The fit is linear in theta = (N^2, B^2, K^2). Each estimate AVAR_hat(tau) is distributed as
 AVAR(tau) chi2_nu / nu, nu its equivalent degrees of freedom (Greenhall and Riley 2004,
-`allantools.edf_greenhall`, for the noise that dominates at that tau). The fit is maximum
-likelihood on those chi2 laws: its score is the weighted least-squares equation with weights
-nu / (2 AVAR(tau)^2) at the model, solved by iterated reweighting. The 1-sigma of theta is the
-inverse Fisher information widened by `INFLATION`: the likelihood treats the estimates at
-different taus as independent, and overlapping estimates that share the same slow noise are not;
-the factors are measured by bench/noise.py, not derived (docs/noise.md). A term whose theta is
-not at least `RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too
-short for the random walk) and the others are fitted again without it. The 1-sigma of N, B, K
-follow from theta's by the derivative of the square root.
+`allantools.edf_greenhall`, for the noise that dominates at that tau): that gives its variance
+2 AVAR^2 / nu. The estimates at different taus are correlated (they share the same slow noise):
+their correlation is the model's (`station.solve.allan_covariance`: the covariance of quadratic
+forms of a Gaussian process, an integral over the Allan variance's transfer functions and the
+model's PSD). The fit is generalised least squares with that covariance at the model, iterated
+(the quasi-likelihood equation X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the
+inverse of its information X^T C^-1 X, nothing added. A term whose theta is not at least
+`RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too short for the
+random walk) and the others are fitted again without it. The 1-sigma of N, B, K follow from
+theta's by the derivative of the square root.
 """
 
 import math
@@ -32,8 +33,10 @@ from functools import lru_cache
 
 import allantools
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from station.errors import CalibrationInputError
+from station.solve.allan_covariance import correlation, stretch_covariance
 
 FLOOR = 2.0 * math.log(2.0) / math.pi
 """AVAR of bias instability B = 1: the Allan deviation floor is B sqrt(FLOOR) (IEEE 952 C.1)."""
@@ -51,10 +54,6 @@ ITERATIONS = 50
 """Most reweighting iterations of the fit (it converges in a handful)."""
 MIN_TAUS = 4
 """Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
-INFLATION = np.array([1.1, 1.25, 1.3])
-"""Factors on the Fisher sigmas of (N^2, B^2, K^2) for the correlation between the estimates at
-neighbouring taus, which the likelihood (independent chi2 laws) leaves out: measured by
-bench/noise.py (the z-scores' spread over seeds and stream lengths, docs/noise.md)."""
 FIRST, STEP, LONGEST = 4, 4, 8
 """Averaging factors m = FIRST STEP^j up to k / LONGEST (`octave_factors`)."""
 
@@ -91,7 +90,8 @@ class NoiseFit:
     value, sigma : (3, c) N, B, K and their 1-sigma
     theta, cov   : (c, 3) variance coefficients (N^2, B^2, K^2), (c, 3, 3) their covariance
                    (zero rows and columns for terms left out)
-    edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate
+    edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate (2 AVAR^2
+                   over its variance, `covariance`)
     resolved     : (3, c) bool
     """
 
@@ -190,23 +190,28 @@ def _greenhall(alpha: int, m: int, length: int) -> float:
                                           overlapping=True))
 
 
-def edf(curve: AllanCurve, theta) -> np.ndarray:
-    """(t, c) equivalent degrees of freedom of the pooled estimates for channels whose variance
-    coefficients are theta (c, 3): per stretch Greenhall's edf for the noise that dominates the
-    model at that tau, pooled over the stretches that reach the tau by Satterthwaite's rule with
-    the pooling weights (their numbers of terms). (Satterthwaite's mixture of the terms' edfs
-    instead of the dominant one's gave sigmas further from the spread over seeds in
-    bench/noise.py: z-scores spread 1.2, 1.6, 1.75 against 1.07, 1.14-1.28, 1.17-1.31.)"""
-    parts = design(curve.tau)[:, None, :] * np.asarray(theta)[None]  # (t, c, 3)
-    alpha = np.array(ALPHA)[np.argmax(parts, axis=2)]
-    out = np.zeros(alpha.shape)
-    for i, m in enumerate(curve.m):
-        reach = [n for n in curve.lengths if _longest_factor(n) >= m]
-        w = np.array([n - 2 * m + 1 for n in reach], float)
-        for c, a in enumerate(alpha[i]):
-            nu = np.array([_greenhall(int(a), int(m), int(n)) for n in reach])
-            out[i, c] = w.sum() ** 2 / np.sum(w**2 / nu)
-    return out
+def covariance(curve: AllanCurve, theta) -> np.ndarray:
+    """(t, t) covariance of the pooled estimates `curve.avar` of a channel whose variance
+    coefficients are theta (3,). Per stretch: the variances 2 AVAR^2 / nu, nu Greenhall's edf
+    for the noise that dominates the model at that tau (`_greenhall`), and the correlation the
+    model gives (`allan_covariance.stretch_covariance`, its large-M form: its diagonal is poor
+    at the longest taus, its correlation is not); the stretches are independent, so their
+    covariances add with the squared pooling weights (their numbers of terms over the sum):
+    at a tau only some stretches reach, that is Satterthwaite's pooled edf."""
+    theta = np.asarray(theta, float)
+    parts = design(curve.tau) * theta
+    model = parts.sum(axis=1)
+    alpha = np.array(ALPHA)[np.argmax(parts, axis=1)]
+    total = np.zeros((len(curve.m), len(curve.m)))
+    for n in curve.lengths:
+        t = int(np.sum(curve.m <= _longest_factor(n)))
+        m = curve.m[:t]
+        nu = np.array([_greenhall(int(a), int(f), int(n))
+                       for a, f in zip(alpha[:t], m, strict=True)])
+        sd = model[:t] * np.sqrt(2.0 / nu) * (n - 2 * m + 1) / curve.terms[:t]
+        rho = correlation(stretch_covariance(m, int(n), theta, curve.rate))
+        total[:t, :t] += rho * np.outer(sd, sd)
+    return total
 
 
 def fit_noise(curve: AllanCurve) -> NoiseFit:
@@ -244,8 +249,8 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
 
 
 def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
-    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: iterated
-    reweighted least squares with weights nu / (2 model^2), the score of the chi2 likelihood."""
+    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: generalised
+    least squares with the estimates' covariance at the model (`covariance`), iterated."""
     a = curve.avar[:, ch]
     xs = x[:, keep]
     theta = np.zeros(3)
@@ -253,12 +258,12 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
     theta = np.maximum(theta, 0.0)
     theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
     for _ in range(ITERATIONS):
-        model = x @ theta
-        nu = edf(curve, theta[None])[:, 0]
-        w = nu / (2.0 * model**2)
-        info = xs.T @ (xs * w[:, None])
+        c = covariance(curve, theta)
+        root = np.linalg.cholesky(c)
+        xw, aw = solve_triangular(root, xs, lower=True), solve_triangular(root, a, lower=True)
+        info = xw.T @ xw
         new = np.zeros(3)
-        new[keep] = np.linalg.solve(info, xs.T @ (w * a))
+        new[keep] = np.linalg.solve(info, xw.T @ aw)
         new = np.where(keep, np.maximum(new, 0.0), 0.0)
         new[0] = max(new[0], theta[0] * 1e-3)
         done = np.allclose(new, theta, rtol=1e-9, atol=0.0)
@@ -267,5 +272,4 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
             break
     cov = np.zeros((3, 3))
     cov[np.ix_(keep, keep)] = np.linalg.inv(info)
-    cov *= np.outer(INFLATION, INFLATION)
-    return theta, cov, nu
+    return theta, cov, 2.0 * (x @ theta) ** 2 / np.diag(c)
