@@ -33,7 +33,6 @@ from functools import lru_cache
 
 import allantools
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from station.errors import CalibrationInputError
 from station.solve.allan_covariance import stretch_covariance
@@ -271,11 +270,10 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
     theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
     for _ in range(ITERATIONS):
         c = covariance(curve, theta)
-        root = np.linalg.cholesky(c)
-        xw, aw = solve_triangular(root, xs, lower=True), solve_triangular(root, a, lower=True)
-        info = xw.T @ xw
+        whitened = np.linalg.solve(c, np.column_stack([xs, a]))  # C^-1 [X a]
+        info = xs.T @ whitened[:, :-1]
         new = np.zeros(3)
-        new[keep] = np.linalg.solve(info, xw.T @ aw)
+        new[keep] = np.linalg.solve(info, xs.T @ whitened[:, -1])
         new = np.where(keep, np.maximum(new, 0.0), 0.0)
         new[0] = max(new[0], theta[0] * 1e-3)
         done = np.allclose(new, theta, rtol=1e-9, atol=0.0)
