@@ -13,13 +13,11 @@ N   white-noise density (angle / velocity random walk), u sqrt(s); two-sided PSD
 B   bias instability, u; two-sided PSD B^2 / (2 pi f), the Allan deviation's floor B sqrt(2 ln2/pi)
 K   rate / acceleration random walk, u / sqrt(s); two-sided PSD (K / 2 pi)^2 / f^2
 
-The fit is linear in theta = (N^2, B^2, K^2). Each estimate AVAR_hat(tau) is distributed as
-AVAR(tau) chi2_nu / nu, nu its equivalent degrees of freedom (Greenhall and Riley 2004,
-`allantools.edf_greenhall`, for the noise that dominates at that tau): that gives its variance
-2 AVAR^2 / nu. The estimates at different taus are correlated (they share the same slow noise):
-their correlation is the model's (`station.solve.allan_covariance`: the covariance of quadratic
-forms of a Gaussian process, an integral over the Allan variance's transfer functions and the
-model's PSD). The fit is generalised least squares with that covariance at the model, iterated
+The fit is linear in theta = (N^2, B^2, K^2). The estimates at different taus are correlated
+(they share the same slow noise); their covariance is the model's (`covariance`: the covariance
+of quadratic forms of a Gaussian process, an integral over the Allan variance's transfer
+functions and the model's PSD, `station.solve.allan_covariance`, with Greenhall and Riley's
+finite-length factor on the variances; docs/noise.md derives it). The fit is generalised least squares with that covariance at the model, iterated
 (the quasi-likelihood equation X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the
 inverse of its information X^T C^-1 X, nothing added. A term whose theta is not at least
 `RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too short for the
