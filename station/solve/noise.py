@@ -17,12 +17,13 @@ The fit is linear in theta = (N^2, B^2, K^2). The estimates at different taus ar
 (they share the same slow noise); their covariance is the model's (`covariance`: the covariance
 of quadratic forms of a Gaussian process, an integral over the Allan variance's transfer
 functions and the model's PSD, `station.solve.allan_covariance`, with Greenhall and Riley's
-finite-length factor on the variances; docs/noise.md derives it). The fit is generalised least squares with that covariance at the model, iterated
-(the quasi-likelihood equation X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the
-inverse of its information X^T C^-1 X, nothing added. A term whose theta is not at least
-`RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too short for the
-random walk) and the others are fitted again without it. The 1-sigma of N, B, K follow from
-theta's by the derivative of the square root.
+finite-length factor on the variances; docs/noise.md derives it). The fit is generalised least
+squares with that covariance at the model, iterated (the quasi-likelihood equation
+X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the inverse of its information
+X^T C^-1 X, nothing added. A term whose theta is not at least `RESOLVED` sigma above zero is left
+out (None: the data cannot resolve it, e.g. too short for the random walk) and the others are
+fitted again without it. The 1-sigma of N, B, K follow from theta's by the derivative of the
+square root.
 """
 
 import math
