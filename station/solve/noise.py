@@ -49,7 +49,7 @@ MIN_TERMS = 4
 """Fewest overlapping terms (k - 2m + 1 of a stretch of k samples) for a tau to be used: the
 estimates beyond hold too few degrees of freedom for the chi2 law's weights to mean much."""
 ITERATIONS = 50
-"""Most reweighting iterations of the fit (it converges in a handful)."""
+"""Most iterations of the fit (the covariance at the model) (it converges in a handful)."""
 MIN_TAUS = 4
 """Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
 LARGE = 2**40
@@ -225,8 +225,9 @@ def covariance(curve: AllanCurve, theta) -> np.ndarray:
 
 
 def fit_noise(curve: AllanCurve) -> NoiseFit:
-    """N, B, K of every channel of `curve` by maximum likelihood on the chi2 laws of its
-    estimates (module docstring); terms not resolved are left out (NaN, `resolved` False)."""
+    """N, B, K of every channel of `curve` by generalised least squares with its estimates'
+    covariance across taus (module docstring); terms not resolved are left out (NaN,
+    `resolved` False)."""
     if not len(curve.m):
         raise CalibrationInputError(
             f"{curve.seconds:.3g} s of static data give no averaging time.",
@@ -243,7 +244,7 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
     for ch in range(c):  # per channel: each has its own terms left out
         keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
         while True:
-            theta[ch], cov[ch], nu[:, ch] = _ml(curve, ch, x, keep)
+            theta[ch], cov[ch], nu[:, ch] = _gls(curve, ch, x, keep)
             sig = np.sqrt(np.diag(cov[ch]))
             weak = keep & ~(theta[ch] > RESOLVED * sig)
             weak[0] = False  # the white noise is always fitted: it sets the shortest taus
@@ -258,7 +259,7 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
     return NoiseFit(value, sigma, theta, cov, nu, resolved)
 
 
-def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
+def _gls(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
     """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: generalised
     least squares with the estimates' covariance at the model (`covariance`), iterated."""
     a = curve.avar[:, ch]
