@@ -49,7 +49,7 @@ MIN_TERMS = 4
 """Fewest overlapping terms (k - 2m + 1 of a stretch of k samples) for a tau to be used: the
 estimates beyond hold too few degrees of freedom for the chi2 law's weights to mean much."""
 ITERATIONS = 50
-"""Most iterations of the fit (the covariance at the model) (it converges in a handful)."""
+"""Most iterations of the fit, each with the covariance at the model (it converges in a handful)."""
 MIN_TAUS = 4
 """Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
 LARGE = 2**40
