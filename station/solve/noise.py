@@ -13,17 +13,17 @@ N   white-noise density (angle / velocity random walk), u sqrt(s); two-sided PSD
 B   bias instability, u; two-sided PSD B^2 / (2 pi f), the Allan deviation's floor B sqrt(2 ln2/pi)
 K   rate / acceleration random walk, u / sqrt(s); two-sided PSD (K / 2 pi)^2 / f^2
 
-The fit is linear in theta = (N^2, B^2, K^2). Each estimate AVAR_hat(tau) is distributed as
-AVAR(tau) chi2_nu / nu, nu its equivalent degrees of freedom (Greenhall and Riley 2004,
-`allantools.edf_greenhall`, for the noise that dominates at that tau). The fit is maximum
-likelihood on those chi2 laws: its score is the weighted least-squares equation with weights
-nu / (2 AVAR(tau)^2) at the model, solved by iterated reweighting. The 1-sigma of theta is the
-inverse Fisher information widened by `INFLATION`: the likelihood treats the estimates at
-different taus as independent, and overlapping estimates that share the same slow noise are not;
-the factors are measured by bench/noise.py, not derived (docs/noise.md). A term whose theta is
-not at least `RESOLVED` sigma above zero is left out (None: the data cannot resolve it, e.g. too
-short for the random walk) and the others are fitted again without it. The 1-sigma of N, B, K
-follow from theta's by the derivative of the square root.
+The fit is linear in theta = (N^2, B^2, K^2). The estimates at different taus are correlated
+(they share the same slow noise); their covariance is the model's (`covariance`: the covariance
+of quadratic forms of a Gaussian process, an integral over the Allan variance's transfer
+functions and the model's PSD, `station.solve.allan_covariance`, with Greenhall and Riley's
+finite-length factor on the variances; docs/noise.md derives it). The fit is generalised least
+squares with that covariance at the model, iterated (the quasi-likelihood equation
+X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the inverse of its information
+X^T C^-1 X, nothing added. A term whose theta is not at least `RESOLVED` sigma above zero is left
+out (None: the data cannot resolve it, e.g. too short for the random walk) and the others are
+fitted again without it. The 1-sigma of N, B, K follow from theta's by the derivative of the
+square root.
 """
 
 import math
@@ -34,6 +34,7 @@ import allantools
 import numpy as np
 
 from station.errors import CalibrationInputError
+from station.solve.allan_covariance import stretch_covariance
 
 FLOOR = 2.0 * math.log(2.0) / math.pi
 """AVAR of bias instability B = 1: the Allan deviation floor is B sqrt(FLOOR) (IEEE 952 C.1)."""
@@ -48,13 +49,11 @@ MIN_TERMS = 4
 """Fewest overlapping terms (k - 2m + 1 of a stretch of k samples) for a tau to be used: the
 estimates beyond hold too few degrees of freedom for the chi2 law's weights to mean much."""
 ITERATIONS = 50
-"""Most reweighting iterations of the fit (it converges in a handful)."""
+"""Most iterations of the fit, each with the covariance at the model (it converges in a handful)."""
 MIN_TAUS = 4
 """Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
-INFLATION = np.array([1.1, 1.25, 1.3])
-"""Factors on the Fisher sigmas of (N^2, B^2, K^2) for the correlation between the estimates at
-neighbouring taus, which the likelihood (independent chi2 laws) leaves out: measured by
-bench/noise.py (the z-scores' spread over seeds and stream lengths, docs/noise.md)."""
+LARGE = 2**40
+"""Readings of a stretch long enough for the large-length covariance (`_finite_length`)."""
 FIRST, STEP, LONGEST = 4, 4, 8
 """Averaging factors m = FIRST STEP^j up to k / LONGEST (`octave_factors`)."""
 
@@ -91,7 +90,8 @@ class NoiseFit:
     value, sigma : (3, c) N, B, K and their 1-sigma
     theta, cov   : (c, 3) variance coefficients (N^2, B^2, K^2), (c, 3, 3) their covariance
                    (zero rows and columns for terms left out)
-    edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate
+    edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate (2 AVAR^2
+                   over its variance, `covariance`)
     resolved     : (3, c) bool
     """
 
@@ -190,28 +190,44 @@ def _greenhall(alpha: int, m: int, length: int) -> float:
                                           overlapping=True))
 
 
-def edf(curve: AllanCurve, theta) -> np.ndarray:
-    """(t, c) equivalent degrees of freedom of the pooled estimates for channels whose variance
-    coefficients are theta (c, 3): per stretch Greenhall's edf for the noise that dominates the
-    model at that tau, pooled over the stretches that reach the tau by Satterthwaite's rule with
-    the pooling weights (their numbers of terms). (Satterthwaite's mixture of the terms' edfs
-    instead of the dominant one's gave sigmas further from the spread over seeds in
-    bench/noise.py: z-scores spread 1.2, 1.6, 1.75 against 1.07, 1.14-1.28, 1.17-1.31.)"""
-    parts = design(curve.tau)[:, None, :] * np.asarray(theta)[None]  # (t, c, 3)
-    alpha = np.array(ALPHA)[np.argmax(parts, axis=2)]
-    out = np.zeros(alpha.shape)
-    for i, m in enumerate(curve.m):
-        reach = [n for n in curve.lengths if _longest_factor(n) >= m]
-        w = np.array([n - 2 * m + 1 for n in reach], float)
-        for c, a in enumerate(alpha[i]):
-            nu = np.array([_greenhall(int(a), int(m), int(n)) for n in reach])
-            out[i, c] = w.sum() ** 2 / np.sum(w**2 / nu)
-    return out
+@lru_cache(maxsize=4096)
+def _finite_length(alpha: int, m: int, length: int) -> float:
+    """Greenhall's ratio of the variance of the estimate at factor m of `length` readings to its
+    large-length form 2 / M sum_l R(l)^2 (the sum's lags near the ends are counted fewer than M
+    times): his edf per term at `LARGE` readings over his edf per term at `length`, for
+    power-law noise alpha. (His edf itself is not taken: for discrete white noise at m = 4 and
+    16 it is 11 % and 5 % below the exact 3 M / (2 m) x 4 m^2 / (4 m^2 + 5), NIST SP 1065 Table
+    12, which seeded streams confirm; the ratio agrees with the exact white-noise sums to 1e-5.)"""
+    per_term = [_greenhall(alpha, m, n) / (n - 2 * m + 1) for n in (LARGE, length)]
+    return per_term[0] / per_term[1]
+
+
+def covariance(curve: AllanCurve, theta) -> np.ndarray:
+    """(t, t) covariance of the pooled estimates `curve.avar` of a channel whose variance
+    coefficients are theta (3,). Per stretch the model's large-length covariance
+    (`allan_covariance.stretch_covariance`: the covariance of quadratic forms of a Gaussian
+    process, all three terms of the model), its variances scaled by Greenhall's finite-length
+    factor for the noise that dominates at that tau (`_finite_length`; the correlations kept);
+    the stretches are independent, so their covariances add with the squared pooling weights
+    (their numbers of terms over the sum): for the variances, Satterthwaite's pooled edf."""
+    theta = np.asarray(theta, float)
+    parts = design(curve.tau) * theta
+    alpha = np.array(ALPHA)[np.argmax(parts, axis=1)]
+    total = np.zeros((len(curve.m), len(curve.m)))
+    for n in curve.lengths:
+        t = int(np.sum(curve.m <= _longest_factor(n)))
+        m = curve.m[:t]
+        scale = np.array([_finite_length(int(a), int(f), int(n))
+                          for a, f in zip(alpha[:t], m, strict=True)])
+        w = np.sqrt(scale) * (n - 2 * m + 1) / curve.terms[:t]
+        total[:t, :t] += stretch_covariance(m, int(n), theta, curve.rate) * np.outer(w, w)
+    return total
 
 
 def fit_noise(curve: AllanCurve) -> NoiseFit:
-    """N, B, K of every channel of `curve` by maximum likelihood on the chi2 laws of its
-    estimates (module docstring); terms not resolved are left out (NaN, `resolved` False)."""
+    """N, B, K of every channel of `curve` by generalised least squares with its estimates'
+    covariance across taus (module docstring); terms not resolved are left out (NaN,
+    `resolved` False)."""
     if not len(curve.m):
         raise CalibrationInputError(
             f"{curve.seconds:.3g} s of static data give no averaging time.",
@@ -228,7 +244,7 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
     for ch in range(c):  # per channel: each has its own terms left out
         keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
         while True:
-            theta[ch], cov[ch], nu[:, ch] = _ml(curve, ch, x, keep)
+            theta[ch], cov[ch], nu[:, ch] = _gls(curve, ch, x, keep)
             sig = np.sqrt(np.diag(cov[ch]))
             weak = keep & ~(theta[ch] > RESOLVED * sig)
             weak[0] = False  # the white noise is always fitted: it sets the shortest taus
@@ -243,9 +259,9 @@ def fit_noise(curve: AllanCurve) -> NoiseFit:
     return NoiseFit(value, sigma, theta, cov, nu, resolved)
 
 
-def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
-    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: iterated
-    reweighted least squares with weights nu / (2 model^2), the score of the chi2 likelihood."""
+def _gls(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
+    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: generalised
+    least squares with the estimates' covariance at the model (`covariance`), iterated."""
     a = curve.avar[:, ch]
     xs = x[:, keep]
     theta = np.zeros(3)
@@ -253,12 +269,11 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
     theta = np.maximum(theta, 0.0)
     theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
     for _ in range(ITERATIONS):
-        model = x @ theta
-        nu = edf(curve, theta[None])[:, 0]
-        w = nu / (2.0 * model**2)
-        info = xs.T @ (xs * w[:, None])
+        c = covariance(curve, theta)
+        whitened = np.linalg.solve(c, np.column_stack([xs, a]))  # C^-1 [X a]
+        info = xs.T @ whitened[:, :-1]
         new = np.zeros(3)
-        new[keep] = np.linalg.solve(info, xs.T @ (w * a))
+        new[keep] = np.linalg.solve(info, xs.T @ whitened[:, -1])
         new = np.where(keep, np.maximum(new, 0.0), 0.0)
         new[0] = max(new[0], theta[0] * 1e-3)
         done = np.allclose(new, theta, rtol=1e-9, atol=0.0)
@@ -267,5 +282,4 @@ def _ml(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
             break
     cov = np.zeros((3, 3))
     cov[np.ix_(keep, keep)] = np.linalg.inv(info)
-    cov *= np.outer(INFLATION, INFLATION)
-    return theta, cov, nu
+    return theta, cov, 2.0 * (x @ theta) ** 2 / np.diag(c)
