@@ -40,6 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from station.files.jsonable import jsonable  # noqa: E402
 from station.sim.noise import simulated_noise  # noqa: E402
 from station.solve.noise import FLOOR, TERMS, allan_curve, fit_noise  # noqa: E402
 
@@ -141,7 +142,7 @@ def main(argv=None) -> int:
     out = {"coverage": runs, "scale": sc, "targets": TARGETS, "pass": passed,
            "quick": args.quick}
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(json.dumps(jsonable(out), indent=1, allow_nan=False))
         return 0
     print(f"coverage: {seeds} seeds a length and mix at {RATE:g} Hz, band fit +- 2 sigma "
           "(nominal 95.4 %), +- 1 sigma (68.3 %); 'res': among the seeds resolving the term")
