@@ -220,3 +220,50 @@ class TablePhysics:
                 true_rate=self._factor * self._rate,
                 true_angle=self._true_angle,
             )
+
+
+@dataclass(frozen=True)
+class PositionState:
+    """The position axis at `time` (clock seconds): angle and setpoint in rad, `in_position` once
+    the axis has reached its setpoint (docs/devices.md)."""
+
+    time: float
+    angle: float
+    setpoint: float
+    in_position: bool
+
+
+class PositionAxis:
+    """The inner (position) axis of a two-axis table: moves to its setpoint at a bounded rate
+    `max_rate` (rad/s), then holds it exactly; thread-safe, advanced to `clock.now()` on each call.
+    A motion that a rotating run of the outer axis would disturb is not modelled: the protocol
+    moves this axis only with the table at rest."""
+
+    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0):
+        if not max_rate > 0:
+            raise ValueError(f"max_rate must be positive (rad/s), got {max_rate!r}")
+        self._clock, self.max_rate = clock, float(max_rate)
+        self._lock = threading.Lock()
+        self._t, self._angle, self._setpoint = clock.now(), float(angle), float(angle)
+
+    def _advance(self) -> None:
+        t1 = self._clock.now()
+        step = self.max_rate * max(t1 - self._t, 0.0)
+        gap = self._setpoint - self._angle
+        self._angle = self._setpoint if abs(gap) <= step else self._angle + math.copysign(step, gap)
+        self._t = max(t1, self._t)
+
+    def set_position(self, angle: float) -> None:
+        """Command the axis to `angle` (rad, finite)."""
+        if not math.isfinite(angle):
+            raise ValueError(f"position setpoint {angle!r} must be a finite angle in rad")
+        with self._lock:
+            self._advance()
+            self._setpoint = float(angle)
+
+    def state(self) -> PositionState:
+        """Advance to clock.now() and return the axis' state."""
+        with self._lock:
+            self._advance()
+            return PositionState(self._t, self._angle, self._setpoint,
+                                 self._angle == self._setpoint)
