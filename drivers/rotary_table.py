@@ -113,7 +113,8 @@ class TableRegisterMap:
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
         missing += [f"status_bits.{n}" for n in STATUS_BITS if n not in self.status_bits]
-        axis = [n in self.registers for n in POSITION_REGISTERS] + [POSITION_BIT in self.status_bits]
+        axis = [n in self.registers for n in POSITION_REGISTERS]
+        axis += [POSITION_BIT in self.status_bits]
         if any(axis) and not all(axis):
             missing += [n for n, on in zip(POSITION_REGISTERS + (POSITION_BIT,), axis,
                                             strict=True) if not on]
