@@ -8,6 +8,7 @@ from station.errors import CalibrationInputError, InputError
 from station.model.two_axis import (
     ALPHA,
     diagonal_mount,
+    orientation,
     position_angles,
     position_axes,
     position_axis,
@@ -49,3 +50,10 @@ def test_one_spin_of_the_position_axis_makes_the_design_full_rank(alpha_deg):
 def test_no_spin_of_the_position_axis_is_refused():
     with pytest.raises(InputError, match="at least one spin of the position axis"):
         position_axes(6, spins=0)
+
+
+@pytest.mark.parametrize("phi", [0.0, 1.0, -2.5])
+def test_the_orientation_is_a_rotation_whose_table_axis_is_the_rate_axis(phi):
+    r = orientation(phi)
+    assert np.allclose(r.T @ r, np.eye(3)) and np.isclose(np.linalg.det(r), 1)
+    assert np.allclose(r[:, 2], rate_axis(phi)[0])

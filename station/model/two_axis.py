@@ -77,3 +77,12 @@ def position_axes(n: int, spins: int = 1, alpha: float = ALPHA,
     c = position_axis(mount)
     signs = np.where(np.arange(spins) % 2 == 0, 1.0, -1.0)
     return np.vstack([rate_axis(position_angles(n), alpha, mount), signs[:, None] * c])
+
+
+def orientation(phi: float, alpha: float = ALPHA, mount: np.ndarray | None = None) -> np.ndarray:
+    """(3, 3) table frame (z = the rate axis) -> unit frame at position angle `phi`, as
+    `station.sim.live.MountedUnit.orientation` takes it: R_mount^T Rz(phi)^T Ry(alpha)."""
+    mount = diagonal_mount() if mount is None else np.asarray(mount, float)
+    c, s = np.cos(alpha), np.sin(alpha)
+    tilt = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # e_z -> e_rate
+    return mount.T @ rz(phi).T @ tilt
