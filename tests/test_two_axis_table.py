@@ -5,6 +5,7 @@ import logging
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from drivers.clock import ScaledClock
@@ -95,3 +96,21 @@ def test_half_a_position_axis_is_refused(tmp_path, drop, missing):
     assert tomllib.loads(path.read_text())  # still a valid TOML file
     with pytest.raises(ProfileError, match=f"lacks .*'{missing}'"):
         TableRegisterMap.load(path)
+
+
+def test_the_virtual_bench_turns_its_unit_with_the_position_axis():
+    """`VirtualBench(two_axis=True)`: the real driver sets phi over Modbus and the simulated unit
+    takes `two_axis.orientation(phi)` from the instant the axis arrives, not before."""
+    from station.model.two_axis import orientation
+    from station.twin.rotary_bench import VirtualBench
+
+    with VirtualBench(seed=2, speed=40.0, two_axis=True) as bench, \
+            bench.drivers() as (_, table):
+        assert np.allclose(bench.mounted.orientation_at(bench.clock.now()), orientation(0.0))
+        t0 = bench.clock.now()
+        reading = table.set_position(1.0)
+        arrival = t0 + 1.0 / bench.position.max_rate
+        assert reading.time >= arrival - 0.05 * bench.clock.speed  # not in position sooner
+        assert np.allclose(bench.mounted.orientation_at(bench.clock.now()), orientation(1.0))
+        assert np.allclose(bench.mounted.orientation_at(t0), orientation(0.0))
+        assert bench.metadata()["two_axis"] is True

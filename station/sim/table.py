@@ -236,13 +236,15 @@ class PositionState:
 class PositionAxis:
     """The inner (position) axis of a two-axis table: moves to its setpoint at a bounded rate
     `max_rate` (rad/s), then holds it exactly; thread-safe, advanced to `clock.now()` on each call.
-    A motion that a rotating run of the outer axis would disturb is not modelled: the protocol
-    moves this axis only with the table at rest."""
+    `on_move(setpoint, arrival)`, when given, is called at every command with the clock time the
+    axis will reach the setpoint (what turns the simulated unit). The slew itself is not felt by a
+    simulated unit (the unit takes its new orientation on arrival): the protocol moves this axis
+    only with the table at rest and waits before it measures."""
 
-    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0):
+    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0, on_move=None):
         if not max_rate > 0:
             raise ValueError(f"max_rate must be positive (rad/s), got {max_rate!r}")
-        self._clock, self.max_rate = clock, float(max_rate)
+        self._clock, self.max_rate, self.on_move = clock, float(max_rate), on_move
         self._lock = threading.Lock()
         self._t, self._angle, self._setpoint = clock.now(), float(angle), float(angle)
 
@@ -260,6 +262,9 @@ class PositionAxis:
         with self._lock:
             self._advance()
             self._setpoint = float(angle)
+            arrival = self._t + abs(self._setpoint - self._angle) / self.max_rate
+        if self.on_move is not None:
+            self.on_move(self._setpoint, arrival)
 
     def state(self) -> PositionState:
         """Advance to clock.now() and return the axis' state."""
