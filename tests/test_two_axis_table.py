@@ -114,3 +114,30 @@ def test_the_virtual_bench_turns_its_unit_with_the_position_axis():
         assert np.allclose(bench.mounted.orientation_at(bench.clock.now()), orientation(1.0))
         assert np.allclose(bench.mounted.orientation_at(t0), orientation(0.0))
         assert bench.metadata()["two_axis"] is True
+
+
+def test_a_two_axis_session_records_with_no_mounting_and_the_unit_follows_phi(tmp_path):
+    """The rotary protocol on `VirtualBench(two_axis=True)`: the mount step sets phi over Modbus
+    (recorded in `position_start`), the technician never mounts anything, and the rotating-window
+    readings are Eq. (18)'s a^T (w u(phi_j)) within 6 of their sigmas (u: the cone direction)."""
+    from station.files.session import Session
+    from station.model.two_axis import position_angles, rate_axis
+    from station.protocols.rotary import RotarySettings
+    from station.reduce.rotary import rotary_readings
+    from station.twin.rotary_bench import VirtualBench, record_rotary
+
+    fast = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+    phis = position_angles(3)
+    path = tmp_path / "two_axis.h5"
+    with VirtualBench(seed=3, speed=40.0, two_axis=True) as bench:
+        record_rotary(bench, path, fast, phis=phis)
+        truth = bench.truth()
+    assert len(truth.orientations) == 0  # nobody mounted anything
+    with Session.open(path) as f:
+        starts = [e for e in f.events() if e.kind == "position_start"]
+        reduced = rotary_readings(f)
+        assert f.metadata["phis"] == pytest.approx(phis.tolist())
+    assert [e.detail["phi"] for e in starts] == pytest.approx(phis.tolist())
+    expected = truth.a.T @ (1.0 * rate_axis(phis)).T
+    assert reduced.M.shape == (12, 3)
+    assert np.all(np.abs(reduced.M - expected) < 6 * reduced.sigma)

@@ -39,7 +39,7 @@ from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
-from station.model.two_axis import orientation
+from station.model.two_axis import orientation, rate_axis
 from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
@@ -255,16 +255,21 @@ class VirtualBench:
 
 
 def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
-                  watch=None, view=None) -> None:
+                  watch=None, view=None, phis=None) -> None:
     """Record a new rotary session file at `path` on the started `bench`.
 
     settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
+    phis           : on a two-axis bench, the position-axis angles (rad): the axes are then where
+                     they put the rate axis (`station.model.two_axis.rate_axis`), no technician
     watch          : optional callable(writer), called once the session file exists
     view           : optional `station.acquire.live_view.LiveView` shown while recording
     """
     with bench.drivers() as (imu, table):
+        if phis is not None:
+            axes = rate_axis(phis)
         protocol = RotaryProtocol(table, bench.technician, bench.clock,
-                                  bench.with_margins(settings or RotarySettings()), axes)
+                                  bench.with_margins(settings or RotarySettings()), axes,
+                                  phis=phis)
         metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
                     "virtual_bench": bench.metadata()}
         with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
