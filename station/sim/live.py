@@ -37,7 +37,7 @@ class MountedUnit:
 
     def mount(self, orientation, at: float) -> None:
         """Take `orientation` from clock time `at` on (now or later: a two-axis table's position
-        axis arriving at its setpoint); a later mounting made earlier is superseded."""
+        axis arriving at its setpoint), never before the mounting set last takes effect."""
         at = max(float(at), self._mounts[-1][0])
         self._mounts.append((at, np.asarray(orientation, float)))
 
