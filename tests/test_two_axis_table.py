@@ -141,3 +141,43 @@ def test_a_two_axis_session_records_with_no_mounting_and_the_unit_follows_phi(tm
     expected = truth.a.T @ (1.0 * rate_axis(phis)).T
     assert reduced.M.shape == (12, 3)
     assert np.all(np.abs(reduced.M - expected) < 6 * reduced.sigma)
+
+
+def test_resume_sets_phi_again_for_the_positions_left(tmp_path):
+    """A two-axis session aborted by a table fault after its first position: `resume_rotary`
+    builds a two-axis bench from the file's metadata and records the rest, setting phi itself."""
+    import threading
+    import time
+
+    from drivers.rotary_table import TableFault
+    from station.files.session import Session
+    from station.model.two_axis import position_angles, rate_axis
+    from station.protocols.rotary import RotarySettings
+    from station.reduce.rotary import rotary_readings
+    from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
+
+    fast = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+    phis = position_angles(3)
+    path = tmp_path / "two_axis.h5"
+
+    def fault_after_the_first_position(bench):
+        def watch(writer):
+            def wait():
+                while writer.last_completed_position is None:
+                    time.sleep(0.005)
+                bench.table_twin.inject("exception", count=1, code=4)
+            threading.Thread(target=wait, daemon=True).start()
+        return watch
+
+    with VirtualBench(seed=3, speed=40.0, two_axis=True) as bench, \
+            pytest.raises(TableFault):
+        a = bench.unit.a  # the resumed bench is built from the same seed: the same unit
+        record_rotary(bench, path, fast, phis=phis, watch=fault_after_the_first_position(bench))
+    assert resume_rotary(path) == 1
+    with Session.open(path) as f:
+        starts = [e for e in f.events() if e.kind == "position_start"]
+        reduced = rotary_readings(f)
+    resumed = [e.detail["phi"] for e in starts if e.position > 0]
+    assert resumed[-2:] == pytest.approx(phis[1:].tolist())
+    expected = a.T @ rate_axis(phis).T
+    assert np.all(np.abs(reduced.M - expected) < 6 * reduced.sigma)
