@@ -3,9 +3,13 @@
 The table is a set of holding registers described by the device profile's `[table]` section
 (`TableRegisterMap`): a status bit field (ready, moving, at rate, fault), a run/stop command, the
 rate setpoint, the measured rate and the cumulative angle, the last three as signed 32-bit fixed
-point numbers (register integer = SI value * scale) with a configurable word order.
+point numbers (register integer = SI value * scale) with a configurable word order. A two-axis
+table adds an optional position axis (the inner axis the unit is mounted on, docs/devices.md): a
+position setpoint and the measured position (int32 fixed point, counts per rad) and an
+`in_position` status bit; a map without them is a one-axis table, exactly as before.
 
-`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop` and `state()`. Every
+`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop`, `state()` and, on a
+two-axis table, `set_position` (waits until the table reports in position, or `TableTimeout`). Every
 failure of a transaction becomes a `TableError` whose message names the table (`rotary table at
 host:port`), what happened and what to do: `TableBusy` (code 6), `TableTimeout` (no reply),
 `TableLinkError` (connection refused, reset or broken: the client reconnects on the next try),
@@ -45,6 +49,8 @@ INT32 = ModbusTcpClient.DATATYPE.INT32
 STATUS_BITS = ("ready", "moving", "at_rate", "fault")
 WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
+POSITION_REGISTERS = ("position_setpoint", "position")  # optional position axis, int32 fixed point
+POSITION_BIT = "in_position"  # status bit of the optional position axis
 STOP_RETRY_PAUSE = 0.05  # s between two emergency stop attempts
 
 
@@ -90,6 +96,8 @@ class TableRegisterMap:
     run, stop   : values written to the command register
     rate_scale  : register counts per rad/s; angle_scale: counts per rad
     word_order  : "big" (high word at the lower address) or "little"
+    position axis (optional, all or none): registers `position_setpoint`, `position` (int32 fixed
+                  point at angle_scale counts per rad) and status bit `in_position`
     """
 
     registers: dict
@@ -105,9 +113,14 @@ class TableRegisterMap:
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
         missing += [f"status_bits.{n}" for n in STATUS_BITS if n not in self.status_bits]
+        axis = [n in self.registers for n in POSITION_REGISTERS]
+        axis += [POSITION_BIT in self.status_bits]
+        if any(axis) and not all(axis):
+            missing += [n for n, on in zip(POSITION_REGISTERS + (POSITION_BIT,), axis,
+                                            strict=True) if not on]
         if missing:
             raise ProfileError(f"table register map lacks {missing}; see docs/devices.md")
-        used = sorted(a for n in WORD_REGISTERS + FIXED_REGISTERS for a in self.addresses(n))
+        used = sorted(a for n in self.quantities for a in self.addresses(n))
         if len(set(used)) != len(used) or used[0] < 0 or used[-1] > 0xFFFF:
             raise ProfileError(f"table registers overlap or leave 0..65535: {self.registers}")
         if used[-1] - used[0] + 1 > 125:
@@ -120,16 +133,30 @@ class TableRegisterMap:
             raise ProfileError(f"status bits must be numbers 0..15, got {self.status_bits}")
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
 
+    @property
+    def two_axis(self) -> bool:
+        """Does the table have a position axis?"""
+        return "position" in self.registers
+
+    @property
+    def quantities(self) -> tuple:
+        """Names of the registers this map lays out."""
+        position = POSITION_REGISTERS if self.two_axis else ()
+        return WORD_REGISTERS + FIXED_REGISTERS + position
+
     @classmethod
     def parse(cls, s: Section) -> "TableRegisterMap":
         """Build from the `[table]` section of a device profile (see drivers.profile)."""
         s.get("name", str, default="rotary table")
         registers, bits, scale = s.sub("registers"), s.sub("status_bits"), s.sub("scale")
         commands = s.sub("command_values") if s.has("command_values") else None
+        position = [n for n in POSITION_REGISTERS if registers.has(n)]
+        in_position = [POSITION_BIT] if bits.has(POSITION_BIT) else []
         try:
             table = cls(
-                registers={n: registers.get(n, int) for n in WORD_REGISTERS + FIXED_REGISTERS},
-                status_bits={n: bits.get(n, int) for n in STATUS_BITS},
+                registers={n: registers.get(n, int)
+                           for n in WORD_REGISTERS + FIXED_REGISTERS + tuple(position)},
+                status_bits={n: bits.get(n, int) for n in STATUS_BITS + tuple(in_position)},
                 rate_scale=scale.get("rate", float), angle_scale=scale.get("angle", float),
                 device_id=s.get("device_id", int, default=1),
                 run=commands.get("run", int, default=1) if commands else 1,
@@ -150,7 +177,7 @@ class TableRegisterMap:
 
     def addresses(self, name: str) -> range:
         """Register addresses a named quantity occupies."""
-        width = 2 if name in FIXED_REGISTERS else 1
+        width = 2 if name in FIXED_REGISTERS + POSITION_REGISTERS else 1
         return range(self.registers[name], self.registers[name] + width)
 
     def encode(self, value: float, scale: float) -> list:
@@ -181,6 +208,9 @@ class TableReading:
     moving: bool
     at_rate: bool
     fault: bool
+    position: float | None = None  # rad, the position axis (None: a one-axis table)
+    position_setpoint: float | None = None
+    in_position: bool | None = None
 
 
 class RotaryTable:
@@ -234,6 +264,35 @@ class RotaryTable:
         self._operate("set rate", lambda: self._client.write_registers(
             self.map.registers["rate_setpoint"], words, device_id=self.map.device_id))
 
+    def set_position(self, angle_rad: float, timeout: float = 60.0, poll: float = 0.05) -> \
+            TableReading:
+        """Move the position axis to `angle_rad` and wait (clock seconds, at most `timeout`) until
+        the table reports in position there; returns that reading. A table without a position
+        axis is an error; one that does not get there in time raises `TableTimeout` and is
+        stopped."""
+        if not self.map.two_axis:
+            raise TableError(f"{self.where}: its register map has no position axis; use a "
+                             "two-axis profile (e.g. table_two_axis) or mount the unit by hand")
+        if not math.isfinite(angle_rad):
+            raise ValueError(f"position setpoint must be a finite number of rad, got {angle_rad!r}")
+        words = self.map.encode(angle_rad, self.map.angle_scale)
+        self._operate("set position", lambda: self._client.write_registers(
+            self.map.registers["position_setpoint"], words, device_id=self.map.device_id))
+        deadline = self.clock.now() + timeout
+        while True:
+            reading = self.state()
+            if (reading.in_position and abs(reading.position_setpoint - angle_rad)
+                    <= 1 / self.map.angle_scale):
+                return reading
+            if self.clock.now() >= deadline:
+                error = TableTimeout(
+                    f"{self.where}: position axis not in position at {angle_rad:.4f} rad within "
+                    f"{timeout} s (at {reading.position:.4f} rad); check that nothing blocks it "
+                    "and the axis is enabled, then resume the session")
+                self._emergency_stop(error)
+                raise error
+            self.clock.sleep(poll)
+
     def start(self) -> None:
         """Command the table to run towards the setpoint."""
         self._operate("start", lambda: self._write_command(self.map.run), repeat=False)
@@ -253,13 +312,19 @@ class RotaryTable:
 
         status = regs[self.map.registers["status"] - first]
         bits = {n: bool(status >> b & 1) for n, b in self.map.status_bits.items()}
+        axis = {}
+        if self.map.two_axis:
+            axis = {"position": self.map.decode(words("position"), self.map.angle_scale),
+                    "position_setpoint": self.map.decode(words("position_setpoint"),
+                                                         self.map.angle_scale),
+                    "in_position": bits[POSITION_BIT]}
         return TableReading(
             time=now,
             rate=self.map.decode(words("rate"), self.map.rate_scale),
             angle=self.map.decode(words("angle"), self.map.angle_scale),
             rate_setpoint=self.map.decode(words("rate_setpoint"), self.map.rate_scale),
             running=regs[self.map.registers["command"] - first] == self.map.run,
-            **{n: bits[n] for n in STATUS_BITS})
+            **{n: bits[n] for n in STATUS_BITS}, **axis)
 
     def _read(self, first: int, count: int):
         """One read of `count` registers; a reply with fewer is refused (TableReplyError)."""

@@ -29,6 +29,10 @@ its command arrived).
 a stop from connections none of which was open at the run is a new client's (e.g. `station
 resume` stopping the table a killed station left turning).
 
+With `position` (a `station.sim.table.PositionAxis`) and a register map with a position axis, the
+twin is a two-axis table: it serves the axis' angle, setpoint and `in_position` bit and turns
+writes of the position setpoint into `position.set_position`.
+
 `silent` (an attribute): while True no request is answered, however many come (a link that is
 down: the cable pulled, the controller's network port dead); the physics go on.
 """
@@ -47,7 +51,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.rotary_table import FIXED_REGISTERS, TableRegisterMap
+from drivers.rotary_table import POSITION_BIT, TableRegisterMap
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -59,8 +63,11 @@ class TableTwin:
     """Serve `table` (a `station.sim.table.TablePhysics`) with the layout of `register_map`."""
 
     def __init__(self, table, register_map: TableRegisterMap, lifetime: float = 60.0,
-                 write_log: str | Path | None = None):
+                 write_log: str | Path | None = None, position=None):
+        if (position is not None) != register_map.two_axis:
+            raise ValueError("a two-axis register map needs a position axis, and only it")
         self.table = table
+        self.position = position
         self.map = register_map
         self.lifetime = lifetime
         self.write_log = write_log
@@ -223,7 +230,12 @@ class TableTwin:
         fixed = {"rate_setpoint": m.encode(s.rate_setpoint, m.rate_scale),
                  "rate": m.encode(s.rate, m.rate_scale),
                  "angle": m.encode(angle_counts / m.angle_scale, m.angle_scale)}
-        for name in FIXED_REGISTERS:
+        if self.position is not None:
+            p = self.position.state()
+            image[m.registers["status"]] |= p.in_position << m.status_bits[POSITION_BIT]
+            fixed |= {"position": m.encode(p.angle, m.angle_scale),
+                      "position_setpoint": m.encode(p.setpoint, m.angle_scale)}
+        for name in fixed:
             image.update(zip(m.addresses(name), fixed[name], strict=True))
         for address, value in image.items():
             registers[address - start] = value
@@ -233,8 +245,13 @@ class TableTwin:
         m = self.map
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         setpoint = list(m.addresses("rate_setpoint"))
-        if not set(written) <= set(setpoint) | {m.registers["command"]}:
+        target = list(m.addresses("position_setpoint")) if self.position is not None else []
+        if not set(written) <= set(setpoint) | set(target) | {m.registers["command"]}:
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        if any(a in written for a in target):
+            if not all(a in written for a in target):
+                return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
+            self.position.set_position(m.decode([written[a] for a in target], m.angle_scale))
         if any(a in written for a in setpoint):
             if not all(a in written for a in setpoint):
                 return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value

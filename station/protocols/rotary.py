@@ -154,10 +154,13 @@ class RotaryProtocol:
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
     fixture_poses : instead of axes, the poses of a mounting fixture, {"words", "picture",
                "orientation"} each (`station.protocols.planned.FixturePlan.instructions`)
+    phis     : on a two-axis table, the position-axis angle (rad) of each position: the mount
+               step commands it (`table.set_position`) instead of asking the operator; `axes`
+               are then the rate axis in the unit frame there (`station.model.two_axis`)
     """
 
     def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None,
-                 fixture_poses=None):
+                 fixture_poses=None, phis=None):
         self.table = table
         self.recorder = None
         self.operator = operator
@@ -169,6 +172,11 @@ class RotaryProtocol:
         self.axes = suggested_axes(20) if axes is None else np.asarray(axes, float)
         if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
             raise InputError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
+        self.phis = None if phis is None else np.asarray(phis, float)
+        if self.phis is not None and (self.phis.shape != (len(self.axes),)
+                                      or not np.all(np.isfinite(self.phis))):
+            raise InputError(f"phis must be one finite angle per position ({len(self.axes)}), "
+                             f"got shape {self.phis.shape}")
         self.position = 0
         self.state = "mount"
         self._handlers = {"mount": self._mount, "still": self._still, "static": self._static,
@@ -180,6 +188,8 @@ class RotaryProtocol:
     def metadata(self) -> dict:
         """What a session file should record about this protocol run."""
         fixture = {"fixture_poses": self.fixture_poses} if self.fixture_poses else {}
+        if self.phis is not None:
+            fixture["phis"] = self.phis.tolist()
         return {"protocol": "rotary", "settings": asdict(self.settings),
                 "axes": self.axes.tolist(), **fixture}
 
@@ -192,6 +202,8 @@ class RotaryProtocol:
         try:
             settings = RotarySettings(**metadata["settings"])
             axes = np.asarray(metadata["axes"], float)
+            phis = metadata.get("phis")
+            phis = None if phis is None else np.asarray(phis, float)
             poses = metadata.get("fixture_poses")
             if poses is not None:
                 poses = [{"words": str(p["words"]), "picture": str(p["picture"]),
@@ -200,7 +212,7 @@ class RotaryProtocol:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"the session's rotary settings or axes are unusable ({exc}); "
                              "it was not written by this station") from None
-        return cls(table, operator, clock, settings, axes, poses)
+        return cls(table, operator, clock, settings, axes, poses, phis)
 
     def instruction(self, j: int) -> Instruction:
         """The technician's instruction for mounting position j: the fixture pose's words and
@@ -241,8 +253,15 @@ class RotaryProtocol:
 
     def _mount(self) -> str:
         j = self.position
-        self.operator.wait(self.instruction(j))
-        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist()})
+        detail = {"axis": self.axes[j].tolist()}
+        if self.phis is None:
+            self.operator.wait(self.instruction(j))
+        else:  # a two-axis table turns the unit itself; a timeout pauses the session
+            self.operator.prompt(f"position {j + 1}/{len(self.axes)}: position axis to "
+                                 f"{np.degrees(self.phis[j]):.2f} deg")
+            self.table.set_position(float(self.phis[j]))
+            detail["phi"] = float(self.phis[j])
+        self.recorder.event("position_start", j, detail)
         return "still"
 
     def _still(self) -> str:

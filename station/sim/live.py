@@ -33,11 +33,25 @@ class MountedUnit:
 
     @orientation.setter
     def orientation(self, value) -> None:
-        self._mounts.append((self.table.clock.now(), np.asarray(value, float)))
+        self.mount(value, self.table.clock.now())
+
+    def mount(self, orientation, at: float) -> None:
+        """Take `orientation` from clock time `at` on (now or later: a two-axis table's position
+        axis arriving at its setpoint), never before the mounting set last takes effect."""
+        at = max(float(at), self._mounts[-1][0])
+        self._mounts.append((at, np.asarray(orientation, float)))
+
+    def orientation_at(self, time: float) -> np.ndarray:
+        """The orientation the samples at clock time `time` have."""
+        return self._mounts[self._which(np.atleast_1d(float(time)))[0]][1]
+
+    def _which(self, times: np.ndarray) -> np.ndarray:
+        """Index in the mountings of each of `times`."""
+        return np.searchsorted([t for t, _ in self._mounts], times, side="right") - 1
 
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
-        which = np.searchsorted([t for t, _ in self._mounts], times, side="right") - 1
+        which = self._which(times)
         axes = np.array([u[:, 2] for _, u in self._mounts])[which]
         omega = self.table.true_rates(times)[:, None] * axes
         return self.unit.sample(omega, times, self.effects)

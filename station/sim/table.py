@@ -220,3 +220,55 @@ class TablePhysics:
                 true_rate=self._factor * self._rate,
                 true_angle=self._true_angle,
             )
+
+
+@dataclass(frozen=True)
+class PositionState:
+    """The position axis at `time` (clock seconds): angle and setpoint in rad, `in_position` once
+    the axis has reached its setpoint (docs/devices.md)."""
+
+    time: float
+    angle: float
+    setpoint: float
+    in_position: bool
+
+
+class PositionAxis:
+    """The inner (position) axis of a two-axis table: moves to its setpoint at a bounded rate
+    `max_rate` (rad/s), then holds it exactly; thread-safe, advanced to `clock.now()` on each call.
+    `on_move(setpoint, arrival)`, when given, is called at every command with the clock time the
+    axis will reach the setpoint (what turns the simulated unit). The slew itself is not felt by a
+    simulated unit (the unit takes its new orientation on arrival): the protocol moves this axis
+    only with the table at rest and waits before it measures."""
+
+    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0, on_move=None):
+        if not max_rate > 0:
+            raise ValueError(f"max_rate must be positive (rad/s), got {max_rate!r}")
+        self._clock, self.max_rate, self.on_move = clock, float(max_rate), on_move
+        self._lock = threading.Lock()
+        self._t, self._angle, self._setpoint = clock.now(), float(angle), float(angle)
+
+    def _advance(self) -> None:
+        t1 = self._clock.now()
+        step = self.max_rate * max(t1 - self._t, 0.0)
+        gap = self._setpoint - self._angle
+        self._angle = self._setpoint if abs(gap) <= step else self._angle + math.copysign(step, gap)
+        self._t = max(t1, self._t)
+
+    def set_position(self, angle: float) -> None:
+        """Command the axis to `angle` (rad, finite)."""
+        if not math.isfinite(angle):
+            raise ValueError(f"position setpoint {angle!r} must be a finite angle in rad")
+        with self._lock:
+            self._advance()
+            self._setpoint = float(angle)
+            arrival = self._t + abs(self._setpoint - self._angle) / self.max_rate
+        if self.on_move is not None:
+            self.on_move(self._setpoint, arrival)
+
+    def state(self) -> PositionState:
+        """Advance to clock.now() and return the axis' state."""
+        with self._lock:
+            self._advance()
+            return PositionState(self._t, self._angle, self._setpoint,
+                                 self._angle == self._setpoint)

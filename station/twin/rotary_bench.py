@@ -39,16 +39,17 @@ from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
+from station.model.two_axis import orientation, rate_axis
 from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
-from station.sim.table import TablePhysics
+from station.sim.table import PositionAxis, TablePhysics
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
 BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error",
-              "effects"}
+              "effects", "two_axis"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
 HOST_LATENCY = 0.05
 """Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
@@ -118,12 +119,16 @@ class VirtualBench:
                     (`station.model.effects.rate_error`), drawn anew at every start
     effects       : optional {name: {param: value}}: named effects in the unit's output chain
                     (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 3.0}}
+    two_axis      : a two-axis table (profile table_two_axis, `station.model.two_axis` geometry):
+                    the unit sits on the position axis and takes `two_axis.orientation(phi)` when
+                    the axis reaches phi (no technician needed for the mountings)
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
                  lifetime: float = 3600.0, clock_start: float = 0.0,
-                 rate_error: dict | None = None, effects: dict | None = None):
+                 rate_error: dict | None = None, effects: dict | None = None,
+                 two_axis: bool = False):
         if imu not in IMU_KINDS:
             raise InputError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -138,17 +143,25 @@ class VirtualBench:
         self.rate_error = dict(rate_error) if rate_error else None
         self.table = TablePhysics(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed,
                                  rate_error=RateError(**self.rate_error) if rate_error else None)
-        self.table_map = TableRegisterMap.load("table_modbus")
+        self.two_axis = bool(two_axis)
+        self.table_map = TableRegisterMap.load("table_two_axis" if two_axis else "table_modbus")
         self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz,
                                counts_per_unit=self.profile.imu.scale)
         live = from_json(effects or {})
         self.effects = to_json(live) or None  # every parameter, for the session's metadata
-        self.mounted = MountedUnit(self.unit, self.table, effects=live)
+        self.mounted = MountedUnit(self.unit, self.table, effects=live,
+                                   orientation=orientation(0.0) if two_axis else None)
+        self.position = PositionAxis(self.clock, on_move=self._turn_unit) if two_axis else None
         self.technician = BenchTechnician(self, remount_time, placement_deg,
                                           np.random.default_rng([seed, 1]))
-        self.table_twin = TableTwin(self.table, self.table_map, lifetime)
+        self.table_twin = TableTwin(self.table, self.table_map, lifetime, position=self.position)
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.imu_twin = None
+
+    def _turn_unit(self, phi: float, arrival: float) -> None:
+        """The position axis was commanded to `phi`: the unit on it has that orientation from
+        the clock time `arrival` on."""
+        self.mounted.mount(orientation(phi), arrival)
 
     def with_margins(self, settings: RotarySettings) -> RotarySettings:
         """`settings` with rest, guard and steady of at least HOST_LATENCY wall seconds of this
@@ -171,8 +184,8 @@ class VirtualBench:
 
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
-        hidden = {k: v for k, v in (("rate_error", self.rate_error), ("effects", self.effects))
-                  if v}
+        hidden = {k: v for k, v in (("rate_error", self.rate_error), ("effects", self.effects),
+                                    ("two_axis", self.two_axis)) if v}
         return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
                 "rate_hz": self.rate_hz, "remount_time": self.remount_time,
                 "placement_deg": self.placement_deg, **hidden}
@@ -242,16 +255,21 @@ class VirtualBench:
 
 
 def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
-                  watch=None, view=None) -> None:
+                  watch=None, view=None, phis=None) -> None:
     """Record a new rotary session file at `path` on the started `bench`.
 
     settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
+    phis           : on a two-axis bench, the position-axis angles (rad): the axes are then where
+                     they put the rate axis (`station.model.two_axis.rate_axis`), no technician
     watch          : optional callable(writer), called once the session file exists
     view           : optional `station.acquire.live_view.LiveView` shown while recording
     """
     with bench.drivers() as (imu, table):
+        if phis is not None:
+            axes = rate_axis(phis)
         protocol = RotaryProtocol(table, bench.technician, bench.clock,
-                                  bench.with_margins(settings or RotarySettings()), axes)
+                                  bench.with_margins(settings or RotarySettings()), axes,
+                                  phis=phis)
         metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
                     "virtual_bench": bench.metadata()}
         with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},
