@@ -1,7 +1,6 @@
 """Rotary-table driver against its Modbus twin (a real pymodbus server on 127.0.0.1)."""
 
 import dataclasses
-import logging
 import time
 
 import pytest
@@ -25,14 +24,7 @@ MAP = TableRegisterMap.load("table_modbus")
 TIMEOUT, RETRIES = 0.1, 1
 
 
-@pytest.fixture(autouse=True)
-def quiet_pymodbus():
-    """Timeouts make pymodbus log errors; the tests check them through the driver instead."""
-    logger = logging.getLogger("pymodbus")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)
-    yield
-    logger.setLevel(level)
+pytestmark = pytest.mark.usefixtures("quiet_pymodbus")
 
 
 @pytest.fixture

@@ -1,7 +1,6 @@
 """Position axis of a two-axis rotary table: the driver against its Modbus twin (a real pymodbus
 server on 127.0.0.1) with `station.sim.table.PositionAxis` physics."""
 
-import logging
 import tomllib
 from pathlib import Path
 
@@ -20,14 +19,7 @@ AXIS_RATE = 0.5  # rad/s, the position axis' slew rate in these tests
 PROFILES = Path(__file__).resolve().parent.parent / "drivers" / "profiles"
 
 
-@pytest.fixture(autouse=True)
-def quiet_pymodbus():
-    """Timeouts make pymodbus log errors; the tests check them through the driver instead."""
-    logger = logging.getLogger("pymodbus")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)
-    yield
-    logger.setLevel(level)
+pytestmark = pytest.mark.usefixtures("quiet_pymodbus")
 
 
 @pytest.fixture
