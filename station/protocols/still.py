@@ -155,7 +155,7 @@ class PoseWatcher:
         end = self._start + s.hold
         self.clock.sleep(end - self.clock.now())
         self.recorder.drain(end + s.window, s.stale)  # the detector sees up to w/2 before the last
-        since = self._still_since()
+        since = self._still_since(until=end + s.window)
         if since is None or since > self._start + s.window:  # a start jitters by a few samples
             self.operator.prompt(f"pose {position + 1}: the unit moved; let it rest")
             self.recorder.event("note", position, {"text": "moved during the still window"})
@@ -174,11 +174,17 @@ class PoseWatcher:
         quality."""
         self.operator.prompt(f"{words}: still {describe(quality, unit, 'the rest noise')}")
 
-    def _still_since(self) -> float | None:
-        """Start time of the still interval going on now, if it began after `_since`."""
+    def _still_since(self, until: float | None = None) -> float | None:
+        """Start time of the still interval going on now (at clock time `until`: samples a busy
+        host received late, taken after it, e.g. the next turn, are not looked at), if it began
+        after `_since`."""
         s = self.settings
         self.recorder.check(s.stale)
-        t, z = self.tap.samples(self.clock.now() - s.lookback)
+        end = self.clock.now() if until is None else until
+        t, z = self.tap.samples(end - s.lookback)
+        if until is not None:
+            keep = t <= until
+            t, z = t[keep], z[keep]
         if len(t) < (s.rest_length + 2 * s.window) * self.tap.rate_hz:
             return None
         still = detect_still(z, self.tap.rate_hz, rest_length=s.rest_length, window=s.window,
