@@ -6,10 +6,14 @@ rate setpoint, the measured rate and the cumulative angle, the last three as sig
 point numbers (register integer = SI value * scale) with a configurable word order. A two-axis
 table adds an optional position axis (the inner axis the unit is mounted on, docs/devices.md): a
 position setpoint and the measured position (int32 fixed point, counts per rad) and an
-`in_position` status bit; a map without them is a one-axis table, exactly as before.
+`in_position` status bit; a map without them is a one-axis table, exactly as before. A table with
+a motorised mounting fixture (a robot that re-mounts the unit in the positions of the protocol's
+plan) adds a `mount` register (uint16: the position asked for, 1-based; 0 none) and a `mounted`
+status bit (the fixture holds the unit in the position asked for).
 
-`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop`, `state()` and, on a
-two-axis table, `set_position` (waits until the table reports in position, or `TableTimeout`). Every
+`RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop`, `state()`, on a
+two-axis table `set_position` (waits until the table reports in position, or `TableTimeout`) and,
+with a fixture, `mount` (waits until the fixture reports the unit mounted, or `TableTimeout`). Every
 failure of a transaction becomes a `TableError` whose message names the table (`rotary table at
 host:port`), what happened and what to do: `TableBusy` (code 6), `TableTimeout` (no reply),
 `TableLinkError` (connection refused, reset or broken: the client reconnects on the next try),
@@ -51,6 +55,8 @@ WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
 POSITION_REGISTERS = ("position_setpoint", "position")  # optional position axis, int32 fixed point
 POSITION_BIT = "in_position"  # status bit of the optional position axis
+FIXTURE_REGISTER = "mount"  # optional mounting fixture: the position asked for (uint16, 1-based)
+FIXTURE_BIT = "mounted"  # its status bit: the unit is held in the position asked for
 STOP_RETRY_PAUSE = 0.05  # s between two emergency stop attempts
 
 
@@ -98,6 +104,7 @@ class TableRegisterMap:
     word_order  : "big" (high word at the lower address) or "little"
     position axis (optional, all or none): registers `position_setpoint`, `position` (int32 fixed
                   point at angle_scale counts per rad) and status bit `in_position`
+    fixture (optional, both or none): register `mount` (uint16) and status bit `mounted`
     """
 
     registers: dict
@@ -115,9 +122,11 @@ class TableRegisterMap:
         missing += [f"status_bits.{n}" for n in STATUS_BITS if n not in self.status_bits]
         axis = [n in self.registers for n in POSITION_REGISTERS]
         axis += [POSITION_BIT in self.status_bits]
-        if any(axis) and not all(axis):
-            missing += [n for n, on in zip(POSITION_REGISTERS + (POSITION_BIT,), axis,
-                                            strict=True) if not on]
+        fixture = [FIXTURE_REGISTER in self.registers, FIXTURE_BIT in self.status_bits]
+        for names, present in ((POSITION_REGISTERS + (POSITION_BIT,), axis),
+                               ((FIXTURE_REGISTER, FIXTURE_BIT), fixture)):
+            if any(present) and not all(present):  # an optional part is all there or absent
+                missing += [n for n, on in zip(names, present, strict=True) if not on]
         if missing:
             raise ProfileError(f"table register map lacks {missing}; see docs/devices.md")
         used = sorted(a for n in self.quantities for a in self.addresses(n))
@@ -139,10 +148,16 @@ class TableRegisterMap:
         return "position" in self.registers
 
     @property
+    def fixture(self) -> bool:
+        """Does the table have a motorised mounting fixture?"""
+        return FIXTURE_REGISTER in self.registers
+
+    @property
     def quantities(self) -> tuple:
         """Names of the registers this map lays out."""
         position = POSITION_REGISTERS if self.two_axis else ()
-        return WORD_REGISTERS + FIXED_REGISTERS + position
+        return (WORD_REGISTERS + FIXED_REGISTERS + position
+                + ((FIXTURE_REGISTER,) if self.fixture else ()))
 
     @classmethod
     def parse(cls, s: Section) -> "TableRegisterMap":
@@ -150,13 +165,13 @@ class TableRegisterMap:
         s.get("name", str, default="rotary table")
         registers, bits, scale = s.sub("registers"), s.sub("status_bits"), s.sub("scale")
         commands = s.sub("command_values") if s.has("command_values") else None
-        position = [n for n in POSITION_REGISTERS if registers.has(n)]
-        in_position = [POSITION_BIT] if bits.has(POSITION_BIT) else []
+        optional = tuple(n for n in POSITION_REGISTERS + (FIXTURE_REGISTER,) if registers.has(n))
+        optional_bits = tuple(n for n in (POSITION_BIT, FIXTURE_BIT) if bits.has(n))
         try:
             table = cls(
                 registers={n: registers.get(n, int)
-                           for n in WORD_REGISTERS + FIXED_REGISTERS + tuple(position)},
-                status_bits={n: bits.get(n, int) for n in STATUS_BITS + tuple(in_position)},
+                           for n in WORD_REGISTERS + FIXED_REGISTERS + optional},
+                status_bits={n: bits.get(n, int) for n in STATUS_BITS + optional_bits},
                 rate_scale=scale.get("rate", float), angle_scale=scale.get("angle", float),
                 device_id=s.get("device_id", int, default=1),
                 run=commands.get("run", int, default=1) if commands else 1,
@@ -211,6 +226,8 @@ class TableReading:
     position: float | None = None  # rad, the position axis (None: a one-axis table)
     position_setpoint: float | None = None
     in_position: bool | None = None
+    mount: int | None = None  # the fixture's position asked for, 1-based (None: no fixture)
+    mounted: bool | None = None
 
 
 class RotaryTable:
@@ -278,17 +295,41 @@ class RotaryTable:
         words = self.map.encode(angle_rad, self.map.angle_scale)
         self._operate("set position", lambda: self._client.write_registers(
             self.map.registers["position_setpoint"], words, device_id=self.map.device_id))
+        return self._wait_until(
+            lambda r: r.in_position and abs(r.position_setpoint - angle_rad)
+            <= 1 / self.map.angle_scale, timeout, poll,
+            lambda r: f"position axis not in position at {angle_rad:.4f} rad within {timeout} s "
+                      f"(at {r.position:.4f} rad); check that nothing blocks it and the axis is "
+                      "enabled")
+
+    def mount(self, position: int, timeout: float = 120.0, poll: float = 0.05) -> TableReading:
+        """Ask the mounting fixture for `position` (1-based, as the plan numbers them) and wait
+        (clock seconds, at most `timeout`) until it reports the unit mounted there; returns that
+        reading. A table without a fixture is an error; a fixture that does not get there in
+        time raises `TableTimeout` (the table is stopped)."""
+        if not self.map.fixture:
+            raise TableError(f"{self.where}: its register map has no mounting fixture; use a "
+                             "profile with one (e.g. table_fixture) or mount the unit by hand")
+        if not 1 <= position <= 0xFFFF:
+            raise ValueError(f"fixture position must be 1..65535, got {position!r}")
+        self._operate("mount", lambda: self._client.write_register(
+            self.map.registers[FIXTURE_REGISTER], position, device_id=self.map.device_id))
+        return self._wait_until(
+            lambda r: r.mounted and r.mount == position, timeout, poll,
+            lambda r: f"fixture did not report position {position} mounted within {timeout} s "
+                      f"(asked: {r.mount}, mounted: {r.mounted}); check that nothing blocks it "
+                      "and it is enabled")
+
+    def _wait_until(self, done, timeout: float, poll: float, words) -> TableReading:
+        """Poll `state()` until `done(reading)`; after `timeout` clock seconds stop the table and
+        raise `TableTimeout` with `words(reading)`."""
         deadline = self.clock.now() + timeout
         while True:
             reading = self.state()
-            if (reading.in_position and abs(reading.position_setpoint - angle_rad)
-                    <= 1 / self.map.angle_scale):
+            if done(reading):
                 return reading
             if self.clock.now() >= deadline:
-                error = TableTimeout(
-                    f"{self.where}: position axis not in position at {angle_rad:.4f} rad within "
-                    f"{timeout} s (at {reading.position:.4f} rad); check that nothing blocks it "
-                    "and the axis is enabled, then resume the session")
+                error = TableTimeout(f"{self.where}: {words(reading)}, then resume the session")
                 self._emergency_stop(error)
                 raise error
             self.clock.sleep(poll)
@@ -318,6 +359,9 @@ class RotaryTable:
                     "position_setpoint": self.map.decode(words("position_setpoint"),
                                                          self.map.angle_scale),
                     "in_position": bits[POSITION_BIT]}
+        if self.map.fixture:
+            axis |= {"mount": regs[self.map.registers[FIXTURE_REGISTER] - first],
+                     "mounted": bits[FIXTURE_BIT]}
         return TableReading(
             time=now,
             rate=self.map.decode(words("rate"), self.map.rate_scale),

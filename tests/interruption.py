@@ -74,13 +74,12 @@ def _events(path: Path) -> list:
 
 
 def _answers(interrupt) -> str:
-    """What the technician types into `station record`: Enter at each mounting; after a lost
-    device, Enter at each reconnection prompt (the cable still out) or 'n' to going on without
-    the table."""
+    """What the technician types into `station record` (the twin's fixture mounts the unit: no
+    key press at the mountings): after a lost device, Enter at each reconnection prompt (the
+    cable still out) or 'n' to going on without the table."""
     if interrupt is None or interrupt[0] not in DEVICES:
-        return "\n" * POSITIONS
-    device, _, position = interrupt  # one answer more, for a loss seen after the next mounting
-    return "\n" * (position + 1) + ("\n" * (RETRIES + 2) if device == "imu" else "n\nn\n")
+        return ""
+    return "\n" * (RETRIES + 2) if interrupt[0] == "imu" else "n\nn\n"
 
 
 def _table_running(profile: Path) -> bool:
@@ -103,7 +102,7 @@ def record(workdir: Path, interrupt=None) -> dict:
     session = workdir / "session.h5"
     twin, profile = _twin(workdir)
     try:
-        enters = workdir / "enter.txt"  # the technician: one Enter per mounting prompt
+        enters = workdir / "enter.txt"  # the technician's answers
         enters.write_text(_answers(interrupt))
         with enters.open() as stdin:
             rec = subprocess.Popen([*STATION, "record", "--profile", str(profile), "--out",

@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import pytest
 from scipy import stats
+from technicians import QuitsAt
 
 import station
 from station.acquire.bench import BenchProfile, record, resume
@@ -63,7 +64,7 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
         assert rec.returncode == 0, rec.stderr
         summary = json.loads(rec.stdout)
         assert summary["positions_done"] == POSITIONS and summary["unit_serial"] == "SIM-3"
-        assert rec.stderr.count("press Enter when done") == POSITIONS
+        assert rec.stderr.count("(the fixture mounts it)") == POSITIONS  # no key press needed
         assert [f"position {j}/{POSITIONS} captured" in rec.stderr
                 for j in range(1, POSITIONS + 1)] == [True] * POSITIONS
     finally:
@@ -71,7 +72,7 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
         out, err = twin.communicate(timeout=30)
     assert twin.returncode == 0, err
     truth = json.loads(out.splitlines()[-1])["truth"]
-    assert truth["mounted"] == POSITIONS + 1  # the first mounting, then one per table stop
+    assert truth["mounted"] == list(range(1, POSITIONS + 1))  # each position once, in order
     with Session.open(session) as s:
         kinds = [e.kind for e in s.events()]
         assert kinds.count("position_done") == POSITIONS and "abort" not in kinds
@@ -83,6 +84,11 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
 def test_end_of_input_aborts_and_stops_the_table(tmp_path):
     with BenchTwin(seed=5, speed=40, positions=POSITIONS) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
+        bench = BenchProfile.load(tmp_path / "b.toml")
+        # a table without the fixture: the technician mounts the unit and presses Enter; the
+        # input ends after the first position
+        (tmp_path / "b.toml").write_text(twin.profile_text().replace(
+            'profile = "table_fixture"', 'profile = "table_modbus"'))
         bench = BenchProfile.load(tmp_path / "b.toml")
         operator = ConsoleOperator(stdin=io.StringIO("\n"), stdout=io.StringIO())
         with pytest.raises(OperatorAbort):
@@ -107,8 +113,8 @@ def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_pa
     with BenchTwin(seed=6, speed=40, positions=POSITIONS) as twin:
         profile.write_text(twin.profile_text())
         bench = BenchProfile.load(profile)
-        with pytest.raises(OperatorAbort):
-            record(bench, path, ConsoleOperator(stdin=io.StringIO("\n" * 3), stdout=io.StringIO()))
+        with pytest.raises(OperatorAbort):  # the technician walks away at the 4th position
+            record(bench, path, QuitsAt(f"position 4/{POSITIONS}"))
         other = tmp_path / "other.toml"
         other.write_text(twin.profile_text(unit_serial="SIM-99"))
         assert main(["resume", str(path), "--profile", str(other)]) == 2
@@ -144,8 +150,7 @@ def test_station_resume_stops_a_turning_table_before_anything_else(tmp_path):
     with BenchTwin(seed=7, speed=40, positions=POSITIONS) as twin:
         profile.write_text(twin.profile_text())
         with pytest.raises(OperatorAbort):
-            record(BenchProfile.load(profile), path,
-                   ConsoleOperator(stdin=io.StringIO("\n"), stdout=io.StringIO()))
+            record(BenchProfile.load(profile), path, QuitsAt(f"position 2/{POSITIONS}"))
         table = twin.bench.table
         table.set_rate(1.0)
         table.start()

@@ -25,13 +25,11 @@ when `write_log` names a file, appended to it as one line `<monotonic s> <addres
 (CLOCK_MONOTONIC is shared by every process of the machine, so another process can measure when
 its command arrived).
 
-`commands` keeps each run/stop command with the ids of the client connections open when it came:
-a stop from connections none of which was open at the run is a new client's (e.g. `station
-resume` stopping the table a killed station left turning).
-
 With `position` (a `station.sim.table.PositionAxis`) and a register map with a position axis, the
 twin is a two-axis table: it serves the axis' angle, setpoint and `in_position` bit and turns
-writes of the position setpoint into `position.set_position`.
+writes of the position setpoint into `position.set_position`. With `fixture` (a
+`station.sim.table.MountingFixture`) and a map with a fixture, it serves the `mount` register and
+the `mounted` bit and turns writes of `mount` into `fixture.request`.
 
 `silent` (an attribute): while True no request is answered, however many come (a link that is
 down: the cable pulled, the controller's network port dead); the physics go on.
@@ -51,7 +49,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.rotary_table import POSITION_BIT, TableRegisterMap
+from drivers.rotary_table import FIXTURE_BIT, FIXTURE_REGISTER, POSITION_BIT, TableRegisterMap
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -63,18 +61,20 @@ class TableTwin:
     """Serve `table` (a `station.sim.table.TablePhysics`) with the layout of `register_map`."""
 
     def __init__(self, table, register_map: TableRegisterMap, lifetime: float = 60.0,
-                 write_log: str | Path | None = None, position=None):
+                 write_log: str | Path | None = None, position=None, fixture=None):
         if (position is not None) != register_map.two_axis:
             raise ValueError("a two-axis register map needs a position axis, and only it")
+        if (fixture is not None) != register_map.fixture:
+            raise ValueError("a register map with a fixture needs a fixture, and only it")
         self.table = table
         self.position = position
+        self.fixture = fixture
         self.map = register_map
         self.lifetime = lifetime
         self.write_log = write_log
         self.port = None
         self.requests = 0
         self.writes = []
-        self.commands = []  # (run: bool, ids of the client connections open then), in order
         self._server = None
         self._cut = False  # the next reply is sent short
         self.silent = False
@@ -235,6 +235,10 @@ class TableTwin:
             image[m.registers["status"]] |= p.in_position << m.status_bits[POSITION_BIT]
             fixed |= {"position": m.encode(p.angle, m.angle_scale),
                       "position_setpoint": m.encode(p.setpoint, m.angle_scale)}
+        if self.fixture is not None:
+            asked, held = self.fixture.state()
+            image[m.registers["status"]] |= held << m.status_bits[FIXTURE_BIT]
+            image[m.registers[FIXTURE_REGISTER]] = asked
         for name in fixed:
             image.update(zip(m.addresses(name), fixed[name], strict=True))
         for address, value in image.items():
@@ -246,8 +250,11 @@ class TableTwin:
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         setpoint = list(m.addresses("rate_setpoint"))
         target = list(m.addresses("position_setpoint")) if self.position is not None else []
-        if not set(written) <= set(setpoint) | set(target) | {m.registers["command"]}:
+        mount = {m.registers[FIXTURE_REGISTER]} if self.fixture is not None else set()
+        if not set(written) <= set(setpoint) | set(target) | mount | {m.registers["command"]}:
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        for address in mount & set(written):
+            self.fixture.request(written[address])
         if any(a in written for a in target):
             if not all(a in written for a in target):
                 return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
@@ -263,8 +270,6 @@ class TableTwin:
         if command not in (None, m.run, m.stop):
             return ExcCodes.ILLEGAL_VALUE
         self._log_write(address, values)
-        if command is not None:  # who commanded it: the connections open at that moment
-            self.commands.append((command == m.run, frozenset(self._server.active_connections)))
         if command == m.run:
             if not self.table.start():
                 return ExcCodes.DEVICE_FAILURE

@@ -252,11 +252,18 @@ class RotaryProtocol:
     # -- states: each does its work and returns the next state -----------------------------------
 
     def _mount(self) -> str:
+        """Mount the unit at the position: the operator does it, or the table's motorised
+        fixture (its `mount` register) or its position axis when it has one; a table timeout
+        pauses the session."""
         j = self.position
         detail = {"axis": self.axes[j].tolist()}
-        if self.phis is None:
+        if self.phis is None and self.table.map.fixture:
+            self.operator.prompt(f"{self.instruction(j).text} (the fixture mounts it)")
+            self.table.mount(j + 1)
+            detail["mount"] = j + 1
+        elif self.phis is None:
             self.operator.wait(self.instruction(j))
-        else:  # a two-axis table turns the unit itself; a timeout pauses the session
+        else:
             self.operator.prompt(f"position {j + 1}/{len(self.axes)}: position axis to "
                                  f"{np.degrees(self.phis[j]):.2f} deg")
             self.table.set_position(float(self.phis[j]))

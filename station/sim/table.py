@@ -272,3 +272,34 @@ class PositionAxis:
             self._advance()
             return PositionState(self._t, self._angle, self._setpoint,
                                  self._angle == self._setpoint)
+
+
+class MountingFixture:
+    """A motorised fixture that re-mounts the unit in the positions of a plan, commanded through
+    the table's controller (the `mount` register of `drivers.rotary_table`). `request(n)` asks
+    for position n (1-based; 0: none); whoever moves the unit (the virtual bench's fixture
+    thread) takes `pending()` and reports `done(n)`. Asking again for the position held needs
+    no move. Thread-safe."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._requested = self._held = 0
+
+    def request(self, position: int) -> None:
+        with self._lock:
+            self._requested = int(position)
+
+    def pending(self) -> int | None:
+        """The position asked for and not yet held, or None."""
+        with self._lock:
+            return self._requested if self._requested not in (0, self._held) else None
+
+    def done(self, position: int) -> None:
+        """The unit is now held in `position`."""
+        with self._lock:
+            self._held = int(position)
+
+    def state(self) -> tuple[int, bool]:
+        """(position asked for, is it held)."""
+        with self._lock:
+            return self._requested, self._requested != 0 and self._requested == self._held

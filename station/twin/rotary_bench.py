@@ -44,7 +44,7 @@ from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
-from station.sim.table import PositionAxis, TablePhysics
+from station.sim.table import MountingFixture, PositionAxis, TablePhysics
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
@@ -122,13 +122,17 @@ class VirtualBench:
     two_axis      : a two-axis table (profile table_two_axis, `station.model.two_axis` geometry):
                     the unit sits on the position axis and takes `two_axis.orientation(phi)` when
                     the axis reaches phi (no technician needed for the mountings)
+    fixture       : the table's controller drives a motorised mounting fixture (profile
+                    table_fixture): `self.fixture`, a `station.sim.table.MountingFixture`, holds
+                    what the station asks for; whoever serves it (`station.twin.served.BenchTwin`)
+                    mounts the unit
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
                  lifetime: float = 3600.0, clock_start: float = 0.0,
                  rate_error: dict | None = None, effects: dict | None = None,
-                 two_axis: bool = False):
+                 two_axis: bool = False, fixture: bool = False):
         if imu not in IMU_KINDS:
             raise InputError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -144,7 +148,8 @@ class VirtualBench:
         self.table = TablePhysics(self.clock, max_accel=2.0, rate_noise=1e-4, seed=seed,
                                  rate_error=RateError(**self.rate_error) if rate_error else None)
         self.two_axis = bool(two_axis)
-        self.table_map = TableRegisterMap.load("table_two_axis" if two_axis else "table_modbus")
+        self.table_map = TableRegisterMap.load(
+            "table_two_axis" if two_axis else "table_fixture" if fixture else "table_modbus")
         self.unit = gyro_array(np.random.default_rng(seed), fs=rate_hz,
                                counts_per_unit=self.profile.imu.scale)
         live = from_json(effects or {})
@@ -154,7 +159,9 @@ class VirtualBench:
         self.position = PositionAxis(self.clock, on_move=self._turn_unit) if two_axis else None
         self.technician = BenchTechnician(self, remount_time, placement_deg,
                                           np.random.default_rng([seed, 1]))
-        self.table_twin = TableTwin(self.table, self.table_map, lifetime, position=self.position)
+        self.fixture = MountingFixture() if fixture else None
+        self.table_twin = TableTwin(self.table, self.table_map, lifetime, position=self.position,
+                                    fixture=self.fixture)
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.imu_twin = None
 

@@ -2,9 +2,9 @@
 on a pty and a Modbus server, and a fixture or technician that follows the protocol by itself.
 
 - `BenchTwin`: the rotary bench (`station.twin.rotary_bench.VirtualBench`) whose motorised
-  fixture re-mounts the unit once the table has come to rest after a run: at the next of
-  `suggested_axes(positions)` after whole revolutions, at the same one after an aborted run
-  (with `cube`: at the next planned pose of a lettered cube on a wedge, the profile's [fixture]);
+  fixture, commanded by the station through the table's controller (profile table_fixture: the
+  `mount` register), mounts the unit in position j of `suggested_axes(positions)` when asked for
+  it (with `cube`: the planned pose j of a lettered cube on a wedge, the profile's [fixture]);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence; the static
   bench's triad streams over the serial link or MAVLink (a flight controller, pty or UDP).
@@ -61,7 +61,8 @@ class PortWatch:
 
 
 class BenchTwin:
-    """A `VirtualBench` whose unit is re-mounted by a fixture at every table stop.
+    """A `VirtualBench` whose unit is mounted by a motorised fixture in the position the station
+    asks for (the table controller's `mount` register).
 
     positions : the fixture follows `suggested_axes(positions)`, as the rotary protocol does
     cube      : the unit sits in a lettered cube with a 45-degree wedge (`station.model.fixture`);
@@ -76,7 +77,7 @@ class BenchTwin:
         from station.twin.rotary_bench import VirtualBench
 
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
-                                  lifetime=lifetime)
+                                  lifetime=lifetime, fixture=True)
         self.seed = seed
         self.positions = positions
         self.cube = _cube(self.bench.unit) if cube else None
@@ -88,7 +89,7 @@ class BenchTwin:
             self.instructions = [fixture_instruction(j, len(steps), s)
                                  for j, s in enumerate(steps)]
             self.axes = np.array([i.orientation[:, 2] for i in self.instructions])
-        self.mounted = 0
+        self.mounted = []  # the positions mounted, 1-based, in order
         self.error = None
         self._watch = None  # the pty watched for the station's open
         self._stop = threading.Event()
@@ -99,7 +100,7 @@ class BenchTwin:
         (a twin streaming to nobody would hand the station a stale backlog, computed late)."""
         from drivers.twins.serial import SerialTwin
 
-        self._mount()
+        self._mount(1)
         b = self.bench
         if b.kind == "serial":
             b.table_twin.start()
@@ -132,7 +133,7 @@ class BenchTwin:
             {"link": "can", "interface": "virtual", "channel": b.can_channel}
         return {"imu": {**imu, "profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
-                          "profile": "table_modbus"},
+                          "profile": "table_fixture"},
                 "clock_speed": b.clock.speed}
 
     def toggle(self, device: str) -> bool:
@@ -161,38 +162,26 @@ class BenchTwin:
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
                 "orientations": t.orientations.tolist(), "mounted": self.mounted}
 
-    def _mount(self, advance: bool = True) -> None:
-        """Mount the unit at the next position (or again at the last one). The fixture is
-        repeatable: its placement error belongs to the fixture position (drawn from the seed and
-        the position), so a position mounted again has the orientation it had the first time."""
-        self.mounted += 0 if advance or not self.mounted else -1
-        j = self.mounted % len(self.instructions)
+    def _mount(self, position: int) -> None:
+        """Mount the unit in `position` (1-based; beyond the plan: the plan's position modulo
+        its length) and report it held. The fixture is repeatable: its placement error belongs
+        to the fixture position (drawn from the seed and the position), so a position mounted
+        again has the orientation it had the first time."""
+        j = (position - 1) % len(self.instructions)
         self.bench.technician.rng = np.random.default_rng([self.seed, 2, j])
         self.bench.technician.wait(self.instructions[j])
-        self.mounted += 1
-
-    def _same_station(self) -> bool:
-        """Was the run that just ended stopped by the station that started it?"""
-        return _stopped_by_its_station(list(self.bench.table_twin.commands))
+        self.mounted.append(position)
+        self.bench.fixture.done(position)
 
     def _fixture(self) -> None:
-        """Start the serial stream when the station opens the port; after each run of the table,
-        once it has come to rest, re-mount the unit: at the next position when the run turned
-        the protocol's whole revolutions (a completed position), else at the same one (the
-        station aborted the position and will record it again, e.g. after a Ctrl-C)."""
+        """Start the serial stream when the station opens the port; mount the unit in each
+        position the station asks for."""
         try:
-            started, stopped = None, False  # angle at the run command; run ended, still moving
             while not self._stop.wait(0.002):
                 if self._watch is not None and self._watch.opened():
                     self.bench.imu_twin.start()
-                state = self.bench.table.state()
-                if state.running and started is None:
-                    started = state.angle
-                elif not state.running and started is not None:
-                    started, stopped, turned = None, True, abs(state.angle - started)
-                if stopped and not state.moving:
-                    stopped = False
-                    self._mount(advance=_completed(turned) and self._same_station())
+                if (position := self.bench.fixture.pending()) is not None:
+                    self._mount(position)
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
 
@@ -213,25 +202,6 @@ def _fixture_section(spec: FixtureSpec | None, layout: bool = True) -> str:
     lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
              for k, v in spec.table().items() if layout or k != "layout"]
     return "\n[fixture]\n" + "\n".join(lines) + "\n"
-
-
-def _stopped_by_its_station(commands: list) -> bool:
-    """Was the last run stopped by a client connection that was open when it started (the
-    station that ran the position), rather than by a new one (`station resume` after the station
-    was killed: the position was not completed, whatever the table turned)? `commands`:
-    `drivers.twins.table.TableTwin.commands`."""
-    runs = [ids for run, ids in commands if run]
-    stops = [ids for run, ids in commands if not run]
-    return not runs or not stops or bool(runs[-1] & stops[-1])
-
-
-def _completed(turned: float) -> bool:
-    """Did a run of the table that turned `turned` rad complete a rotary position? It must have
-    turned the protocol's whole revolutions; a run that turned far more (more than 2 turns
-    beyond them: a station killed while the table turned, stopped only by the resume) or less
-    (a position aborted) is recorded again."""
-    whole = 2 * np.pi * RotarySettings().revolutions
-    return whole <= turned <= whole + 4 * np.pi
 
 
 class HandTwin:
