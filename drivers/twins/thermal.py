@@ -17,8 +17,9 @@ U(t) = T0 + r (t - tau_unit (1 - exp(-t / tau_unit))).
 
 Both are integrated in steps of `step` clock seconds (default a hundredth of the shorter time
 constant), each exact for a constant input (exponential update, the air's step then clipped to the
-rate limit), lazily up to the instant asked. `unit_temperature(t)` answers for any instant from the
-last `HISTORY` steps on (interpolated), so an IMU twin may ask for its own sample times.
+rate limit), lazily up to the instant asked. `unit_temperature(t)` answers for any instant of the
+last `HISTORY` steps (kept one per step, interpolated linearly), so an IMU twin may ask for its own
+sample times.
 """
 
 import bisect
@@ -73,7 +74,7 @@ class ChamberPhysics:
         self.setpoint, self.ramp = room, 0.0
         self._t = clock.now()
         self._air = self._unit = self._goal = room
-        self._history = collections.deque([(self._t, room, room)], maxlen=HISTORY)
+        self._history = collections.deque([(self._t, room)], maxlen=HISTORY)  # (t, unit)
         self._lock = threading.Lock()
 
     def set_setpoint(self, kelvin: float) -> None:
@@ -124,7 +125,8 @@ class ChamberPhysics:
             if i == 0:
                 raise ValueError(f"unit temperature at {t} s asked, before the kept history "
                                  f"({self._history[0][0]} s on)")
-            (t0, u0, _), (t1, u1, _) = self._history[i - 1], self._history[i]
+            (t0, u0), (t1, u1) = self._history[i - 1], (
+                self._history[i] if i < len(self._history) else (self._t, self._unit))
             return u0 + (u1 - u0) * (t - t0) / (t1 - t0)
 
     def _advance(self, t: float) -> None:
@@ -142,4 +144,5 @@ class ChamberPhysics:
             middle = 0.5 * (air + self._air)
             self._unit += (middle - self._unit) * -math.expm1(-dt / self.tau_unit)
             self._t += dt
-            self._history.append((self._t, self._unit, self._air))
+            if self._t - self._history[-1][0] >= self.step:
+                self._history.append((self._t, self._unit))
