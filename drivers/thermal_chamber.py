@@ -111,7 +111,8 @@ class ChamberRegisterMap:
                                f"{self.scale}")
         bits = list(self.status_bits.values())
         if not all(0 <= b < 16 for b in bits) or len(set(bits)) != len(bits):
-            raise ProfileError(f"status bits must be distinct numbers 0..15, got {self.status_bits}")
+            raise ProfileError(f"status bits must be distinct numbers 0..15, got "
+                               f"{self.status_bits}")
         low, high = self.setpoint_range
         if not (math.isfinite(low) and math.isfinite(high) and 0 < low < high):
             raise ProfileError(f"chamber setpoint limits must be 0 < min < max kelvin, got "
@@ -224,7 +225,8 @@ def serial_link_words(exc: OSError) -> str:
     on (pyserial raises SerialException, an OSError, with its own text)."""
     text = str(exc).lower()
     if "could not open" in text or "no such file" in text:
-        return "cannot open the serial port (is the adapter plugged in, the path right, the port free?)"
+        return ("cannot open the serial port (is the adapter plugged in, the path right, the port "
+                "free?)")
     return f"serial link lost ({exc}); check the adapter and the cable"
 
 

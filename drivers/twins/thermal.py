@@ -144,5 +144,5 @@ class ChamberPhysics:
             middle = 0.5 * (air + self._air)
             self._unit += (middle - self._unit) * -math.expm1(-dt / self.tau_unit)
             self._t += dt
-            if self._t - self._history[-1][0] >= self.step:
+            if self._t - self._history[-1][0] >= self.step * (1 - 1e-9):  # rounding
                 self._history.append((self._t, self._unit))
