@@ -8,7 +8,8 @@ exception code in words). A timeout, a lost link or a bad reply is retried only 
 the request is safe to send again; a busy answer always (the controller did nothing).
 
 pymodbus reports a timeout as a ModbusIOException whose text holds "No response"; any other
-ModbusIOException is a reply it could not decode (a CRC error, a frame cut short).
+ModbusIOException is a reply it could not decode (e.g. a byte count beyond the frame). An RTU
+frame with a bad CRC is dropped by pymodbus' framer unseen: it ends as no reply, a timeout.
 """
 
 import logging
