@@ -100,9 +100,12 @@ def test_alarm_stops_conditioning_and_a_new_run_is_refused():
     p.alarm = True
     state = p.state()
     assert (state.running, state.alarm) == (False, True)
-    p.stop()
     p.run()
-    assert not p.running
+    assert not p.state().running  # refused in alarm
+    p.alarm = False
+    assert not p.state().running  # stays stopped once the alarm is cleared
+    p.run()
+    assert p.state().running
 
 
 def test_unit_temperature_of_the_past_is_interpolated():
@@ -146,8 +149,7 @@ def test_twin_refuses_what_a_controller_would():
 def test_twin_listens_on_loopback_only_and_stops_by_itself():
     twin = ChamberTwin(ChamberPhysics(ScaledClock(10.0)), INT16, lifetime=0.5).start()
     try:
-        host = twin._thread.server.transport.sockets[0].getsockname()[0]
-        assert host == "127.0.0.1"
+        assert twin.bound == ("127.0.0.1", twin.port)
         time.sleep(1.0)
         client = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=0.2)
         assert not client.connect()  # refused: the server ended with its lifetime

@@ -67,7 +67,7 @@ class ChamberTwin:
             self.close()
             raise
         if self.link == "tcp":
-            self.port = self._thread.server.transport.sockets[0].getsockname()[1]
+            self.port = self.bound[1]
         return self
 
     def close(self) -> None:
@@ -81,6 +81,13 @@ class ChamberTwin:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+    @property
+    def bound(self) -> tuple:
+        """The (host, port) the TCP server listens on (None over RTU)."""
+        if self.link != "tcp":
+            return None
+        return self._thread.server.transport.sockets[0].getsockname()[:2]
 
     def unit_temperature(self, t: float | None = None) -> float:
         """The unit's temperature at clock time `t` (default now), K."""

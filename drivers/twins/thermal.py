@@ -8,8 +8,9 @@ ramped setpoint G with time constant `tau_air`, its rate limited to `heat_rate` 
 
 G follows the setpoint at the ramp rate (K/min), starting from the air temperature when the
 setpoint is written (as controllers ramp from the process value); ramp 0 puts G at the setpoint at
-once. Stopped, or in alarm (a controller stops conditioning then), the air relaxes to the room
-with `tau_room`, unlimited. The door bit is only a bit: opening is not modelled.
+once. Stopped, or in alarm (a controller stops conditioning then, and stays stopped until told to
+run again), the air relaxes to the room with `tau_room`, unlimited. The door bit is only a bit:
+opening is not modelled.
 
 Unit (first order): the unit's own temperature U lags the air with time constant `tau_unit`,
 dU/dt = (A - U) / tau_unit. With the air on a ramp of slope r from U = A = T0 at t = 0,
@@ -111,7 +112,7 @@ class ChamberPhysics:
         with self._lock:
             self._advance(self.clock.now())
             return ChamberState(self._t, self._air, self._unit, self.setpoint, self.ramp,
-                                self.running and not self.alarm, self.alarm, self.door_open,
+                                self.running, self.alarm, self.door_open,
                                 self.running and abs(self._air - self.setpoint) <= self.band)
 
     def unit_temperature(self, t: float | None = None) -> float:
@@ -131,10 +132,12 @@ class ChamberPhysics:
 
     def _advance(self, t: float) -> None:
         """Integrate air and unit up to clock time `t` (called with the lock held)."""
+        if self.alarm:  # a controller in alarm stops conditioning
+            self.running = False
         while self._t < t:
             dt = min(self.step, t - self._t)
             air = self._air
-            if self.running and not self.alarm:
+            if self.running:
                 move = self.ramp / 60.0 * dt if self.ramp else math.inf  # the ramped setpoint
                 self._goal += max(-move, min(move, self.setpoint - self._goal))
                 change = (self._goal - air) * -math.expm1(-dt / self.tau_air)
