@@ -184,6 +184,14 @@ def test_a_short_reply_is_a_reply_error(link):
             chamber.state()
 
 
+def test_a_garbled_reply_is_a_reply_error():
+    with bench() as (physics, twin, chamber):
+        twin.inject("garbled", count=RETRIES + 1)
+        with pytest.raises(ChamberReplyError, match="garbled reply to read state"):
+            chamber.state()
+        assert chamber.state().temperature == pytest.approx(ROOM, abs=0.05)  # it recovers
+
+
 def test_a_short_reply_once_is_retried():
     with bench() as (physics, twin, chamber):
         twin.inject("short", count=1)

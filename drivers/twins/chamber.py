@@ -19,6 +19,9 @@ Fault knobs:
   inject("short", count)           -> the next `count` reads are answered with one register fewer
                                       than asked (a well-formed frame: right length, right CRC)
   inject("exception", count, code) -> the next `count` requests get Modbus exception `code`
+  inject("garbled", count)         -> TCP only: the next `count` read replies claim more data than
+                                      they hold (byte count 255), a frame pymodbus cannot decode
+                                      (over RTU such a frame fails its CRC and is dropped: `silent`)
 """
 
 import asyncio
@@ -36,8 +39,10 @@ from drivers.thermal_chamber import ZERO_CELSIUS, ChamberRegisterMap
 from drivers.twins.modbus_server import ServerThread
 from drivers.twins.nullmodem import NullModem
 
-KINDS = ("short", "exception")
+KINDS = ("short", "exception", "garbled")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
+READ_HOLDING = 3  # Modbus function code "read holding registers"
+MBAP = 7  # bytes of the Modbus TCP header: transaction, protocol, length, unit id
 
 
 class ChamberTwin:
@@ -99,6 +104,9 @@ class ChamberTwin:
             raise ValueError(f"unknown fault {kind!r}; choose one of {KINDS}")
         if kind == "exception" and code not in set(ExcCodes):
             raise ValueError(f"fault 'exception' needs a Modbus exception code, got {code!r}")
+        if kind == "garbled" and self.link != "tcp":
+            raise ValueError("fault 'garbled' is for Modbus TCP: over RTU a garbled frame fails "
+                             "its CRC and is dropped; use `silent`")
         self._faults.extend([(kind, code)] * count)
 
     async def _open(self):
@@ -107,7 +115,8 @@ class ChamberTwin:
         device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
             SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
         if self.link == "tcp":
-            server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_pdu=self._trace)
+            server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_pdu=self._trace,
+                                     trace_packet=self._garble)
         else:
             m = self.map
             server = ModbusSerialServer(device, framer=FramerType.RTU, port=self._modem.b,
@@ -139,6 +148,15 @@ class ChamberTwin:
             self._faults.popleft()
             pdu.registers = pdu.registers[:-1]
         return pdu
+
+    def _garble(self, sending: bool, packet: bytes) -> bytes:
+        """pymodbus' packet hook (TCP): a read reply's byte count set to 255 when a "garbled"
+        fault is due."""
+        if (sending and self._faults and self._faults[0][0] == "garbled"
+                and len(packet) > MBAP + 1 and packet[MBAP] == READ_HOLDING):
+            self._faults.popleft()
+            return packet[:MBAP + 1] + b"\xff" + packet[MBAP + 2:]
+        return packet
 
     def _refresh(self, start: int, registers: list) -> None:
         """Write the chamber's present state into the register image (in place)."""
