@@ -150,17 +150,19 @@ class ChamberRegisterMap:
             serial = {"baudrate": sub.get("baudrate", int, default=19200),
                       "parity": sub.get("parity", str, default="N", choices=("N", "E", "O")),
                       "stopbits": sub.get("stopbits", int, default=1, choices=(1, 2))}
+            if serial["baudrate"] <= 0:
+                raise sub.error("baudrate", "must be positive")
             sections.append(sub)
+        fields = dict(
+            registers={n: registers.get(n, int) for n in WORD_REGISTERS + VALUE_REGISTERS},
+            status_bits={n: bits.get(n, int) for n in STATUS_BITS},
+            value_type=value_type,
+            setpoint_range=(limits.get("setpoint_min", float), limits.get("setpoint_max", float)),
+            ramp_max=limits.get("ramp_max", float), scale=scale,
+            word_order=s.get("word_order", str, default="big", choices=("big", "little")),
+            device_id=s.get("device_id", int, default=1), **commands, **serial)
         try:
-            chamber = cls(
-                registers={n: registers.get(n, int) for n in WORD_REGISTERS + VALUE_REGISTERS},
-                status_bits={n: bits.get(n, int) for n in STATUS_BITS},
-                value_type=value_type,
-                setpoint_range=(limits.get("setpoint_min", float),
-                                limits.get("setpoint_max", float)),
-                ramp_max=limits.get("ramp_max", float), scale=scale,
-                word_order=s.get("word_order", str, default="big", choices=("big", "little")),
-                device_id=s.get("device_id", int, default=1), **commands, **serial)
+            chamber = cls(**fields)
         except ProfileError as exc:
             raise ProfileError(f"{s.source}: [chamber] {exc}") from None
         for section in sections:
