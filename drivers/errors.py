@@ -13,6 +13,13 @@
           +-- TableFault                   a device failure (Modbus exception 4): needs the operator
           +-- TableLinkError               the TCP connection was refused, reset or broken
           +-- TableReplyError              a reply that does not answer the request (short, garbled)
+     +-- ChamberError (RuntimeError)    3  the thermal chamber did not do what was asked
+          +-- ChamberTimeout               no reply within the timeout, after the bounded retries
+          +-- ChamberLinkError             the TCP connection or serial port was refused or lost
+          +-- ChamberReplyError            a reply that does not answer the request (short, garbled)
+          +-- ChamberAlarm                 the chamber's alarm bit is set: it needs the operator
+          +-- ChamberDoorOpen              the chamber's door is open
+          +-- ChamberRangeError (ValueError) 2 a setpoint or ramp outside the profile's limits
 
 The station's own errors are drawn in `station.errors`; the command line catches both roots.
 """
@@ -68,6 +75,37 @@ class TableLinkError(TableError):
 
 class TableReplyError(TableError):
     """The table's reply does not answer the request: fewer registers than asked, or garbled."""
+
+
+class ChamberError(DeviceError, RuntimeError):
+    """The thermal chamber did not do what was asked; the message says what to check."""
+
+
+class ChamberTimeout(ChamberError):
+    """No reply from the chamber within the timeout, after the bounded retries."""
+
+
+class ChamberLinkError(ChamberError):
+    """The link to the chamber was refused or lost (TCP connection, serial port)."""
+
+
+class ChamberReplyError(ChamberError):
+    """The chamber's reply does not answer the request: fewer registers than asked, garbled, or a
+    value that is no temperature."""
+
+
+class ChamberAlarm(ChamberError):
+    """The chamber reports an alarm (its status bit): it needs the operator."""
+
+
+class ChamberDoorOpen(ChamberError):
+    """The chamber reports its door open: it cannot hold a temperature."""
+
+
+class ChamberRangeError(ChamberError, ValueError):
+    """A setpoint or ramp rate outside the limits the chamber's profile allows; nothing was sent."""
+
+    exit_code = 2
 
 
 class CanBusError(LinkError):
