@@ -19,19 +19,45 @@ from dataclasses import dataclass
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ConnectionException, ModbusIOException
 
-from drivers.rotary_table import exception_name
-
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class Failures:
-    """A device family's error classes (each a subclass of `base`)."""
+    """A device family's error classes (each a subclass of `base`); `busy` (exception 6 after
+    the retries) and `fault` (exception 4, device failure) default to `base`."""
 
     base: type
     timeout: type
     link: type
     reply: type
+    busy: type | None = None
+    fault: type | None = None
+
+
+def link_words(exc: OSError | ConnectionException) -> str:
+    """What a lost or refused TCP connection means, in words an operator can act on."""
+    if isinstance(exc, ConnectionResetError):
+        return "connection reset by the controller (is it powered? did it restart?)"
+    if isinstance(exc, ConnectionRefusedError):
+        return "connection refused (is the controller running, and the port right?)"
+    if isinstance(exc, BrokenPipeError | ConnectionAbortedError):
+        return "connection broken by the controller (is it powered? did it restart?)"
+    if isinstance(exc, ConnectionException) and "failed to connect" in str(exc).lower():
+        # pymodbus' words when the client could not (re)connect
+        return "cannot connect (is the controller running and powered, the port right?)"
+    if isinstance(exc, ConnectionException):
+        return "connection lost (is it powered? did its controller restart?)"
+    return f"network error ({exc.strerror or exc}); check its power, cable and IP address"
+
+
+def exception_name(code: int) -> str:
+    """pymodbus' name of a Modbus exception code in words ("illegal address"), or "unknown
+    exception" for a code outside the standard."""
+    try:
+        return ExcCodes(code).name.lower().replace("_", " ")
+    except ValueError:
+        return "unknown exception"
 
 
 def read_registers(client, first: int, count: int, device_id: int, where: str, reply: type):
@@ -85,11 +111,15 @@ def request(call, what: str, where: str, failures: Failures, *, client, device_i
             return response
         code = response.exception_code
         if code == ExcCodes.DEVICE_BUSY:
-            error = failures.base(f"{where}: stayed busy (Modbus exception 6) during {what} "
-                                  f"after {attempt + 1} tries; wait for it to finish and retry")
+            error = (failures.busy or failures.base)(
+                f"{where}: stayed busy (Modbus exception 6) during {what} after {attempt + 1} "
+                "tries; wait for it to finish and retry")
             busy = True
             time.sleep(busy_backoff)
             continue
+        if code == ExcCodes.DEVICE_FAILURE and failures.fault is not None:
+            raise failures.fault(f"{where}: reports a device failure (Modbus exception 4) to "
+                                 f"{what}; check its fault display and reset it")
         raise failures.base(f"{where}: answered {what} with Modbus exception {code} "
                             f"({exception_name(code)}); check the register map and device id "
                             "in the device profile, and the controller's display")

@@ -33,8 +33,6 @@ from dataclasses import dataclass, field
 from typing import Self
 
 from pymodbus.client import ModbusTcpClient
-from pymodbus.constants import ExcCodes
-from pymodbus.exceptions import ConnectionException, ModbusIOException
 
 from drivers.clock import WallClock
 from drivers.errors import (
@@ -45,6 +43,7 @@ from drivers.errors import (
     TableReplyError,
     TableTimeout,
 )
+from drivers.modbus_request import Failures, link_words, read_registers, request
 from drivers.profile import ProfileError, Section, load_profile
 
 log = logging.getLogger(__name__)
@@ -58,31 +57,8 @@ POSITION_BIT = "in_position"  # status bit of the optional position axis
 FIXTURE_REGISTER = "mount"  # optional mounting fixture: the position asked for (uint16, 1-based)
 FIXTURE_BIT = "mounted"  # its status bit: the unit is held in the position asked for
 STOP_RETRY_PAUSE = 0.05  # s between two emergency stop attempts
-
-
-def link_words(exc: OSError | ConnectionException) -> str:
-    """What a lost or refused TCP connection means, in words an operator can act on."""
-    if isinstance(exc, ConnectionResetError):
-        return "connection reset by the controller (is it powered? did it restart?)"
-    if isinstance(exc, ConnectionRefusedError):
-        return "connection refused (is the controller running, and the port right?)"
-    if isinstance(exc, BrokenPipeError | ConnectionAbortedError):
-        return "connection broken by the controller (is it powered? did it restart?)"
-    if isinstance(exc, ConnectionException) and "failed to connect" in str(exc).lower():
-        # pymodbus' words when the client could not (re)connect
-        return "cannot connect (is the controller running and powered, the port right?)"
-    if isinstance(exc, ConnectionException):
-        return "connection lost (is it powered? did its controller restart?)"
-    return f"network error ({exc.strerror or exc}); check its power, cable and IP address"
-
-
-def exception_name(code: int) -> str:
-    """pymodbus' name of a Modbus exception code in words ("illegal address"), or "unknown
-    exception" for a code outside the standard."""
-    try:
-        return ExcCodes(code).name.lower().replace("_", " ")
-    except ValueError:
-        return "unknown exception"
+FAILURES = Failures(TableError, TableTimeout, TableLinkError, TableReplyError, TableBusy,
+                    TableFault)
 
 
 def not_stopped(error: BaseException, stop_error: BaseException) -> None:
@@ -372,13 +348,8 @@ class RotaryTable:
 
     def _read(self, first: int, count: int):
         """One read of `count` registers; a reply with fewer is refused (TableReplyError)."""
-        response = self._client.read_holding_registers(first, count=count,
-                                                      device_id=self.map.device_id)
-        if not response.isError() and len(response.registers) != count:
-            raise TableReplyError(f"{self.where}: short reply, {len(response.registers)} "
-                                  f"registers of the {count} asked; check the register map "
-                                  "(docs/devices.md) and the controller's firmware")
-        return response
+        return read_registers(self._client, first, count, self.map.device_id, self.where,
+                              TableReplyError)
 
     @property
     def where(self) -> str:
@@ -415,46 +386,9 @@ class RotaryTable:
             time.sleep(STOP_RETRY_PAUSE)
 
     def _request(self, what: str, call, repeat: bool = True):
-        """One transaction. Busy answers are retried `retries` times; timeouts, lost connections
-        and bad replies too if `repeat` (the request is safe to send again), reconnecting first."""
-        where, error = self.where, None
-        for attempt in range(self.retries + 1):
-            if attempt and not repeat and not isinstance(error, TableBusy):
-                break
-            try:
-                response = call()
-            except ModbusIOException as exc:
-                if "No response" not in str(exc):  # pymodbus' words for a timeout
-                    error = TableReplyError(f"{where}: garbled reply to {what} ({exc}); check "
-                                            "the register map and the device id "
-                                            f"{self.map.device_id}")
-                    continue
-                error = TableTimeout(f"{where}: no reply to {what} within {self.timeout} s "
-                                     f"({attempt + 1} tries); check the cable and the device id "
-                                     f"{self.map.device_id}")
-                continue
-            except (OSError, ConnectionException) as exc:
-                self._client.close()  # the next try reconnects
-                error = TableLinkError(f"{where}: {link_words(exc)} during {what}")
-                error.__cause__ = exc
-                continue
-            except TableReplyError as exc:
-                error = exc
-                continue
-            if not response.isError():
-                if attempt:
-                    log.info("%s: %s answered after %d retries", what, where, attempt)
-                return response
-            code = response.exception_code
-            if code == ExcCodes.DEVICE_BUSY:
-                error = TableBusy(f"{where}: stayed busy (Modbus exception 6) during {what} after "
-                                  f"{attempt + 1} tries; wait for it to finish and retry")
-                time.sleep(self.busy_backoff)
-                continue
-            if code == ExcCodes.DEVICE_FAILURE:
-                raise TableFault(f"{where}: reports a device failure (Modbus exception 4) to "
-                                 f"{what}; check the table's fault display and reset it")
-            raise TableError(f"{where}: answered {what} with Modbus exception {code} "
-                             f"({exception_name(code)}); "
-                             "check the register map and device id in the device profile")
-        raise error
+        """One transaction (`drivers.modbus_request.request`): busy answers are retried `retries`
+        times; timeouts, lost connections and bad replies too if `repeat` (the request is safe
+        to send again), reconnecting first."""
+        return request(call, what, self.where, FAILURES, client=self._client,
+                       device_id=self.map.device_id, retries=self.retries, timeout=self.timeout,
+                       link_words=link_words, repeat=repeat, busy_backoff=self.busy_backoff)

@@ -38,9 +38,8 @@ from drivers.errors import (
     ChamberReplyError,
     ChamberTimeout,
 )
-from drivers.modbus_request import Failures, read_registers, request
+from drivers.modbus_request import Failures, link_words, read_registers, request
 from drivers.profile import ProfileError, Section, load_profile
-from drivers.rotary_table import link_words
 
 ZERO_CELSIUS = 273.15  # K
 STATUS_BITS = ("running", "alarm", "door_open", "at_setpoint")

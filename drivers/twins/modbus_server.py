@@ -31,11 +31,17 @@ class ServerThread:
         if self.server is None or self._error is not None:
             raise RuntimeError(f"the {self.name} Modbus server did not start: {self._error!r}")
 
-    def close(self) -> None:
-        """Stop the server and its thread (idempotent)."""
+    def close(self, first=None) -> None:
+        """Stop the server and its thread (idempotent); `first`: a function the loop runs just
+        before (e.g. resetting the connections of a controller that dies)."""
         if self._thread is not None and self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._stopping.set)
+            self._loop.call_soon_threadsafe(self._stop, first)
             self._thread.join(10)
+
+    def _stop(self, first) -> None:
+        if first is not None:
+            first()
+        self._stopping.set()
 
     def _serve(self, make_server) -> None:
         asyncio.set_event_loop(self._loop)

@@ -37,10 +37,8 @@ down: the cable pulled, the controller's network port dead); the physics go on.
 
 import asyncio
 import collections
-import contextlib
 import socket
 import struct
-import threading
 import time
 from pathlib import Path
 from typing import Self
@@ -50,6 +48,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.rotary_table import FIXTURE_BIT, FIXTURE_REGISTER, POSITION_BIT, TableRegisterMap
+from drivers.twins.modbus_server import ServerThread
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -79,36 +78,21 @@ class TableTwin:
         self._cut = False  # the next reply is sent short
         self.silent = False
         self._faults = collections.deque()
-        self._loop = asyncio.new_event_loop()
-        self._stopping = None
-        self._ready = threading.Event()
-        self._thread = threading.Thread(target=self._serve, name="TableTwin", daemon=True)
-        self._error = None
+        self._thread = ServerThread("table twin", lifetime)
 
     def start(self) -> "TableTwin":
         """Start serving; returns once the port is known."""
-        self._thread.start()
-        self._ready.wait(10)
-        if self.port is None:
-            raise RuntimeError(f"the table twin's Modbus server did not start: {self._error!r}")
+        self._thread.start(self._open)
         return self
 
     def close(self) -> None:
         """Stop the server and its thread (idempotent)."""
-        if self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._stopping.set)
-            self._thread.join(10)
+        self._thread.close()
 
     def die(self) -> None:
         """The controller process dies: reset every connection, close the port (see the module
         doc); the physics goes on."""
-        if self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._die)
-            self._thread.join(10)
-
-    def _die(self) -> None:
-        self._reset_connections()
-        self._stopping.set()
+        self._thread.close(first=self._reset_connections)
 
     def __enter__(self) -> Self:
         return self.start()
@@ -127,35 +111,16 @@ class TableTwin:
             raise ValueError("fault 'slow' needs a positive delay in seconds")
         self._faults.extend([(kind, code, delay)] * count)
 
-    def _serve(self) -> None:
-        asyncio.set_event_loop(self._loop)
-        try:
-            self._loop.run_until_complete(self._main())
-        except Exception as exc:  # noqa: BLE001 - reported by start()
-            self._error = exc
-            self._ready.set()
-        finally:
-            pending = asyncio.all_tasks(self._loop)
-            for task in pending:
-                task.cancel()
-            self._loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
-            self._loop.close()
-
-    async def _main(self) -> None:
-        self._stopping = asyncio.Event()
+    async def _open(self):
+        """The server, listening on an ephemeral port of 127.0.0.1 (`port`)."""
         first, count = self.map.span
         device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
             SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
         server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace)
         self._server = server
         await server.serve_forever(background=True)
-        try:
-            self.port = server.transport.sockets[0].getsockname()[1]
-            self._ready.set()
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._stopping.wait(), self.lifetime)
-        finally:
-            await server.shutdown()
+        self.port = server.transport.sockets[0].getsockname()[1]
+        return server
 
     async def _action(self, func_code, start, address, count, registers, values):
         """pymodbus hook called before each access: faults, then physics."""
