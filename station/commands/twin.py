@@ -3,11 +3,11 @@
 Starts the digital twin of a bench (the kind's twin in `station.protocols.KINDS`, from
 `station.twin.served`: a `station.twin.rotary_bench.VirtualBench`): a 12-gyro unit streaming
 binary frames through a pseudo-terminal, and a Modbus TCP rotary table on 127.0.0.1 whose registers
-follow the simulated table's physics. The unit sits in a motorised fixture that turns it to the
-next position of the rotary protocol (`station.protocols.rotary.suggested_axes`) each time the
-table is commanded to stop, so a technician has nothing to turn: pressing Enter at each prompt of
-`station record` runs the whole session. Restart the twin for each new session (the fixture counts
-the stops). With `--cube` the unit sits in a lettered cube on a 45-degree wedge instead: the
+follow the simulated table's physics. The unit sits in a motorised fixture driven by the table's
+controller (register map table_fixture): `station record` asks it for each position of the rotary
+protocol (`station.protocols.rotary.suggested_axes`) and it mounts the unit there, so nobody
+touches anything and `station record` runs the whole session without a key press. With `--cube`
+the unit sits in a lettered cube on a 45-degree wedge instead: the
 bench profile gets a [fixture] section, `station record` plans the fixture poses from it
 (`station plan`) and the twin's fixture sets the same poses.
 
