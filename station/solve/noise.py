@@ -255,28 +255,45 @@ def fit_noise(curve: AllanCurve, names=None) -> NoiseFit:
     keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
     fitted = [_gls(curve, ch, x, keep) for ch in range(c)]
     theta, cov = np.array([f[0] for f in fitted]), np.array([f[1] for f in fitted])
-    nu = np.column_stack([f[2] for f in fitted])
+    nu, resolved = np.column_stack([f[2] for f in fitted]), np.column_stack([f[3] for f in fitted])
     var = np.diagonal(cov, axis1=1, axis2=2).T
-    resolved = keep[:, None] & (theta.T > RESOLVED * np.sqrt(var))
-    resolved[0] = theta[:, 0] > 0  # the white noise is reported whenever positive
     value = np.where(resolved, np.sqrt(np.maximum(theta.T, 0.0)), np.nan)
     sigma = np.where(resolved, np.sqrt(var) / (2.0 * np.where(resolved, value, 1.0)), np.nan)
     return NoiseFit(value, sigma, theta, cov, nu, resolved)
 
 
 def _gls(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
-    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: generalised
+    """(theta (3,), cov (3, 3), edf (t,), resolved (3,)) of channel `ch` with the terms `keep`:
+    generalised
     least squares with the estimates' covariance at the model (`covariance`), iterated. theta is
     not constrained (a term too weak to resolve may come out negative, so that the others are
-    not biased by its bound); the covariance is taken at the physical model, theta with its
-    negative terms at zero (`_physical`)."""
+    not biased by a bound on it). The covariance is taken at a noise that exists (`_physical`):
+    first every term at its fitted value or zero; then, again to convergence, only the terms
+    that fit resolves (`RESOLVED`), so that a term absent from the data, fitted above zero by
+    chance, does not widen the others' bands by the variance it would add. (Deciding the terms
+    at every iteration instead can flip between two fits for ever.) A term is resolved when both
+    fits resolve it (the second alone, its covariance without the term, would understate its
+    sigma); the white noise whenever it is positive."""
     a = curve.avar[:, ch]
-    xs = x[:, keep]
     floor = a[0] / x[0, 0] * 1e-6  # N^2 of a millionth of the first Allan variance
     theta = np.zeros(3)
-    theta[keep] = np.linalg.lstsq(xs / a[:, None], np.ones(len(a)), rcond=None)[0]
+    theta[keep] = np.linalg.lstsq(x[:, keep] / a[:, None], np.ones(len(a)), rcond=None)[0]
+    theta, cov, c = _iterated(curve, a, x, keep, theta, np.ones(3, bool), floor)
+    present = theta > RESOLVED * np.sqrt(np.diag(cov))
+    theta, cov, c = _iterated(curve, a, x, keep, theta, present, floor)
+    resolved = present & (theta > RESOLVED * np.sqrt(np.diag(cov)))
+    resolved[0] = theta[0] > 0
+    return theta, cov, 2.0 * (x @ _physical(theta, present, floor)) ** 2 / np.diag(c), resolved
+
+
+def _iterated(curve: AllanCurve, a: np.ndarray, x: np.ndarray, keep: np.ndarray,
+              theta: np.ndarray, present: np.ndarray, floor: float) -> tuple:
+    """(theta, cov (3, 3), the estimates' covariance (t, t)): the generalised least squares fit
+    of the terms `keep` to the Allan variances `a`, from `theta`, each step with the covariance at
+    the last fit's terms `present` (`_physical`), until theta stops changing."""
+    xs, cov = x[:, keep], np.zeros((3, 3))
     for _ in range(ITERATIONS):
-        c = covariance(curve, _physical(theta, floor))
+        c = covariance(curve, _physical(theta, present, floor))
         whitened = np.linalg.solve(c, np.column_stack([xs, a]))  # C^-1 [X a]
         info = xs.T @ whitened[:, :-1]
         new = np.zeros(3)
@@ -285,14 +302,14 @@ def _gls(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
         theta = new
         if done:
             break
-    cov = np.zeros((3, 3))
     cov[np.ix_(keep, keep)] = np.linalg.inv(info)
-    return theta, cov, 2.0 * (x @ _physical(theta, floor)) ** 2 / np.diag(c)
+    return theta, cov, c
 
 
-def _physical(theta: np.ndarray, floor: float) -> np.ndarray:
-    """theta of a noise that exists: negative terms at zero, the white noise at least `floor`
-    (the covariance model stays positive definite)."""
-    out = np.maximum(theta, 0.0)
-    out[0] = max(out[0], floor)
+def _physical(theta: np.ndarray, present: np.ndarray, floor: float) -> np.ndarray:
+    """theta of the noise the covariance is taken at: the terms `present` at their fitted value
+    or zero, the others zero, the white noise at least `floor` (the covariance stays positive
+    definite)."""
+    out = np.where(present, np.maximum(theta, 0.0), 0.0)
+    out[0] = max(theta[0], floor)
     return out
