@@ -141,18 +141,19 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
                                          method=settings.method, refine=settings.refine)
 
 
-def recorded_noise(session, stream: str, channels) -> NoiseFigures | None:
-    """The `NoiseFigures` of the calibrated `channels` (indices into the stream's) of an open
-    session's `stream`, from its static data (`station.reduce.noise.session_noise`: the
-    protocol's static windows or still poses, else still intervals found in the stream); None
-    when the session holds too little static data for the Allan variance."""
+def recorded_noise(session, stream: str, channels) -> tuple[NoiseFigures | None, str | None]:
+    """(figures, None): the `NoiseFigures` of the calibrated `channels` (indices into the
+    stream's) of an open session's `stream`, from its static data (`station.reduce.noise.
+    session_noise`: the protocol's static windows or still poses, else still intervals found in
+    the stream); (None, why) when there are none: the problem `session_noise` names (too little
+    static data, a channel that never varies)."""
     from station.reduce.noise import session_noise  # allantools loads scipy's stats: 0.4 s
 
     try:
-        found = session_noise(session, stream)
-    except CalibrationInputError:
-        return None
-    return NoiseFigures.from_fit(found.fit, found.curve.rate, found.curve.seconds, channels)
+        found = session_noise(session, stream, channels)
+    except CalibrationInputError as exc:
+        return None, exc.problem
+    return NoiseFigures.from_fit(found.fit, found.curve.rate, found.curve.seconds), None
 
 
 def carried(session, stream: str) -> bool:

@@ -34,6 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
+NO_NOISE = "no_noise_figures"
+"""The key of the calibration file's `session` record that says why `noise` is null."""
+
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
@@ -163,7 +166,10 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
                 status=check.status, status_reasons=check.problems, **bias)
             solved = readings, result
-        cal = cal.with_noise(recorded_noise(session, stream, channels))
+        noise, why = recorded_noise(session, stream, channels)
+        cal = cal.with_noise(noise)
+        if why is not None:  # the file and the summary say why it has no noise figures
+            cal = dataclasses.replace(cal, session={**(cal.session or {}), NO_NOISE: why})
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
     if tolerances is None or tolerances.empty:
@@ -308,6 +314,7 @@ def summarise(cal, out) -> dict:
         else cal.white["scale_factors_sigma"].tolist(),
         "bias_sigma_white": None if cal.white is None else cal.white["bias_sigma"].tolist(),
         "noise": None if cal.noise is None else cal.noise.to_document(cal.units[0]),
+        NO_NOISE: None if cal.noise is not None else (cal.session or {}).get(NO_NOISE),
     }
 
 
@@ -336,10 +343,10 @@ def _text(s: dict) -> str:
 
 
 def noise_lines(s: dict) -> list:
-    """One line on the noise figures stored (docs/noise.md), or none when not measured."""
+    """One line on the noise figures stored (docs/noise.md), or on why there are none."""
     noise = s["noise"]
     if noise is None:
-        return []
+        return [f"no noise figures: {s[NO_NOISE]}"] if s[NO_NOISE] else []
     resolved = [t for t in ("bias_instability", "random_walk") if noise[t] is not None]
     return [f"noise from {noise['seconds']:.3g} s of static data: white-noise density "
             f"{min(noise['white']):.3g} .. {max(noise['white']):.3g} {noise['units']['white']}"

@@ -64,8 +64,9 @@ def allan_png(noise: SessionNoise) -> bytes:
     units = sorted(set(noise.units))
     fig = Figure(figsize=(6 * len(units), 4.5))
     axes = fig.subplots(1, len(units), squeeze=False)[0]
-    tau, fit = noise.curve.tau, noise.fit
-    dense = np.geomspace(tau[0], tau[-1], 64)
+    tau, fit, rate = noise.curve.tau, noise.fit, noise.curve.rate
+    factors = np.unique(np.geomspace(noise.curve.m[0], noise.curve.m[-1], 64).round())
+    dense = factors / rate
     for ax, unit in zip(axes, units, strict=True):
         cols = [c for c, u in enumerate(noise.units) if u == unit]
         for c in cols:
@@ -75,7 +76,7 @@ def allan_png(noise: SessionNoise) -> bytes:
             line, = ax.loglog(tau, dev, "o", ms=3, label=noise.channels[c] if len(cols) <= 6
                               else (f"{len(cols)} channels" if c == cols[0] else None))
             ax.fill_between(tau, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
-            ax.loglog(dense, np.sqrt(fit.model_avar(dense)[:, c]), "-", lw=0.7,
+            ax.loglog(dense, np.sqrt(fit.model_avar(factors, rate)[:, c]), "-", lw=0.7,
                       color=line.get_color())
         _slopes(ax, dense, fit.theta[cols], unit)
         ax.set_xlabel("averaging time tau (s)")
@@ -86,17 +87,18 @@ def allan_png(noise: SessionNoise) -> bytes:
 
 
 def _slopes(ax, tau, theta, unit: str) -> None:
-    """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2."""
+    """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2 (a term fitted
+    below zero, not resolved, has none)."""
     med = np.median(theta, axis=0)
-    n, b, k = noise_units(unit).values()
-    lines = ((med[0] / tau, "-1/2", f"N = {math.sqrt(med[0]):.3g} {n}"),
-             (np.full_like(tau, FLOOR * med[1]), "0", f"B = {math.sqrt(med[1]):.3g} {b}"),
-             (med[2] * tau / 3.0, "+1/2", f"K = {math.sqrt(med[2]):.3g} {k}"))
-    for avar, slope, label in lines:
-        if np.all(avar > 0):
-            ax.loglog(tau, np.sqrt(avar), "k--", lw=0.8)
-            ax.annotate(f"slope {slope}: {label}", (tau[len(tau) // 2], np.sqrt(avar)[32]),
-                        fontsize=7)
+    units = noise_units(unit).values()
+    shapes = (1.0 / tau, np.full_like(tau, FLOOR), tau / 3.0)
+    for term, shape, slope, name, u in zip(med, shapes, ("-1/2", "0", "+1/2"), "NBK", units,
+                                           strict=True):
+        if term > 0:
+            dev = np.sqrt(term * shape)
+            ax.loglog(tau, dev, "k--", lw=0.8)
+            ax.annotate(f"slope {slope}: {name} = {math.sqrt(term):.3g} {u}",
+                        (tau[len(tau) // 2], dev[len(tau) // 2]), fontsize=7)
 
 
 def add_to_report(report, session) -> None:

@@ -27,10 +27,18 @@ integral of |H_i|^2 |H_j|^2 S^2 over [-rate/2, rate/2]:
 (the covariance of quadratic forms of a Gaussian process: e.g. Percival and Walden, "Spectral
 analysis for physical applications", 1993, section 7.3; Greenhall and Riley 2004 use the same
 sums for the edf). For white noise and i = j it is 2 AVAR^2 / edf with edf -> 3 M / (2 m), the
-large-M limit of Greenhall's overlapping edf (NIST SP 1065 Table 12). With S = N^2 S_W + B^2 S_F +
-K^2 S_R (S_W = 1, S_F = 1 / (2 pi |f|), S_R = 1 / (2 pi f)^2, docs/noise.md), S^2 is a quadratic
-form in theta = (N^2, B^2, K^2), and the covariance is sum_pq theta_p theta_q G^pq_ij with G from
-`fourth_moments` (computed once per set of factors and rate).
+large-M limit of Greenhall's overlapping edf (NIST SP 1065 Table 12).
+
+The noises are those of the sampled process (`shapes`): S = N^2 S_W + B^2 S_F + K^2 S_R with
+S_p(f) = rate^-e_p (2 sin(pi |nu|))^-e_p, e = 0, 1, 2: white samples; Kasdin-Walter flicker, white
+samples through (1 - z^-1)^(-1/2), whose power gain is 1 / (2 sin(pi nu)) (Kasdin and Walter 1992,
+Proc. IEEE Frequency Control Symposium; `station.sim.noise`); the random walk, the running sum
+(1 - z^-1)^-1, power gain 1 / (2 sin(pi nu))^2. For f << rate they are IEEE 952's 1, 1 / (2 pi
+|f|), 1 / (2 pi f)^2 (docs/noise.md), which define N, B, K. The Allan variance of each is
+rate^(1 - e_p) `second_moments` (the model's design: 1 / tau, (2 ln 2 / pi) (1 + 5.0 % at m = 4,
+0.46 % at 16), tau / 3 (1 + 1 / (2 m^2))). S^2 is a quadratic form in theta = (N^2, B^2, K^2), and
+the covariance is sum_pq theta_p theta_q G^pq_ij with G from `fourth_moments` (computed once per
+set of factors and rate).
 """
 
 import math
@@ -39,7 +47,8 @@ from functools import lru_cache
 import numpy as np
 
 EXPONENT = np.array([0, 1, 2])
-"""S_p(f) = (2 pi |f|)^-EXPONENT[p] for p = white, flicker, random walk."""
+"""S_p(f) = rate^-EXPONENT[p] (2 sin(pi |nu|))^-EXPONENT[p] for p = white, flicker, random walk
+(`shapes`)."""
 RESOLVE = 32.0
 """Beyond nu m = RESOLVE the factor sin^4(pi nu m) is replaced by its mean over a period (3/8;
 sin^8: 35/128): the integrand there is a small tail, and the grid need not follow its wiggles."""
@@ -71,24 +80,48 @@ def _sin4(nu: np.ndarray, m: int, power: int) -> np.ndarray:
     return np.where(nu * m < RESOLVE, np.sin(np.pi * nu * m) ** (4 * power), mean)
 
 
+def shapes(nu: np.ndarray) -> np.ndarray:
+    """(3, n) s_p(nu) = (2 sin(pi nu))^-EXPONENT[p], 0 < nu <= 1/2: the two-sided PSD shapes of
+    the sampled white noise, Kasdin-Walter flicker and random walk at rate 1 (module
+    docstring)."""
+    return (2.0 * np.sin(np.pi * nu))[None, :] ** -EXPONENT[:, None].astype(float)
+
+
+def _integral(f: np.ndarray, nu: np.ndarray, power: float) -> float:
+    """Integral over nu in [-1/2, 1/2] of an even integrand f sampled on `_grid` nu: the
+    trapezoid rule in log nu, and below the grid f ~ nu^power integrated exactly."""
+    g = f * nu  # d nu = nu d ln nu
+    body = np.sum((g[1:] + g[:-1]) * np.diff(np.log(nu))) / 2.0
+    return 2.0 * (body + g[0] / (power + 1.0))  # both signs of nu
+
+
+@lru_cache(maxsize=4096)
+def second_moments(m: int) -> np.ndarray:
+    """(3,) integrals over nu in [-1/2, 1/2] of |H_m|^2 s_p (`shapes`): the Allan variance at
+    factor m of the sampled noise p of unit coefficient at rate 1; at `rate`, rate^(1 -
+    EXPONENT[p]) times this. White: 1 / m; random walk: m / 3 + 1 / (6 m); flicker: (2 ln 2 /
+    pi) (1 + 5.0e-2, 4.6e-3, 3.8e-4 at m = 4, 16, 64), its discreteness (module docstring)."""
+    nu = _grid(m)
+    h2 = 2.0 * _sin4(nu, m, 1) / (m * np.sin(np.pi * nu)) ** 2
+    return np.array([_integral(h2 * s, nu, 2.0 - e) for s, e in zip(shapes(nu), EXPONENT,
+                                                                    strict=True)])
+
+
 @lru_cache(maxsize=4096)
 def fourth_moments(m_i: int, m_j: int) -> np.ndarray:
-    """(3, 3) integrals over nu in [-1/2, 1/2] of |H_i|^2 |H_j|^2 s_p s_q, s_p = (2 pi |nu|)^-
-    EXPONENT[p]: with nu = f / rate, rate * integral |H_i|^2 |H_j|^2 S_p S_q df is
-    rate^(2 - EXPONENT[p] - EXPONENT[q]) times this. Trapezoid rule in log nu on `_grid`, the
-    power-law piece below the grid added exactly."""
+    """(3, 3) integrals over nu in [-1/2, 1/2] of |H_i|^2 |H_j|^2 s_p s_q (`shapes`): with nu =
+    f / rate, rate * integral |H_i|^2 |H_j|^2 S_p S_q df is rate^(2 - EXPONENT[p] -
+    EXPONENT[q]) times this. Trapezoid rule in log nu on `_grid`, the power-law piece below the
+    grid added exactly."""
     nu = _grid(max(m_i, m_j))
     sines = _sin4(nu, m_i, 2) if m_i == m_j else _sin4(nu, m_i, 1) * _sin4(nu, m_j, 1)
     h4 = 4.0 * sines / (m_i * m_j * np.sin(np.pi * nu) ** 2) ** 2
-    s = (2.0 * np.pi * nu)[None, :] ** -EXPONENT[:, None].astype(float)  # (3, n)
+    s = shapes(nu)
     out = np.zeros((3, 3))
     for p in range(3):
         for q in range(p, 3):
-            f = h4 * s[p] * s[q]
-            g = f * nu  # d nu = nu d ln nu
-            body = np.sum((g[1:] + g[:-1]) * np.diff(np.log(nu))) / 2.0
-            below = g[0] / (5.0 - EXPONENT[p] - EXPONENT[q])  # f ~ nu^(4 - e_p - e_q) near 0
-            out[p, q] = out[q, p] = 2.0 * (body + below)  # both signs of nu
+            out[p, q] = out[q, p] = _integral(h4 * s[p] * s[q], nu,
+                                              4.0 - EXPONENT[p] - EXPONENT[q])
     return out
 
 

@@ -9,6 +9,10 @@ sensor shows as
 
     AVAR(tau) = N^2 / tau  +  (2 ln 2 / pi) B^2  +  K^2 tau / 3
 
+for the continuous noises; the fit uses the Allan variance of the sampled ones (`design`:
+`allan_covariance.second_moments`), whose flicker term is 5.0 % above (2 ln 2 / pi) B^2 at m = 4,
+0.46 % at m = 16, and whose random walk's is K^2 tau / 3 (1 + 1 / (2 m^2)).
+
 N   white-noise density (angle / velocity random walk), u sqrt(s); two-sided PSD N^2
 B   bias instability, u; two-sided PSD B^2 / (2 pi f), the Allan deviation's floor B sqrt(2 ln2/pi)
 K   rate / acceleration random walk, u / sqrt(s); two-sided PSD (K / 2 pi)^2 / f^2
@@ -20,10 +24,12 @@ functions and the model's PSD, `station.solve.allan_covariance`, with Greenhall 
 finite-length factor on the variances; docs/noise.md derives it). The fit is generalised least
 squares with that covariance at the model, iterated (the quasi-likelihood equation
 X^T C^-1 (AVAR_hat - X theta) = 0); the 1-sigma of theta is the inverse of its information
-X^T C^-1 X, nothing added. A term whose theta is not at least `RESOLVED` sigma above zero is left
-out (None: the data cannot resolve it, e.g. too short for the random walk) and the others are
-fitted again without it. The 1-sigma of N, B, K follow from theta's by the derivative of the
-square root.
+X^T C^-1 X, nothing added. All three terms are fitted whenever the data give `MIN_TAUS` taus: a
+term left out would push its share of the Allan variance into the others (a random walk too weak
+to be resolved made B too large), so its uncertainty stays in theirs. A term whose theta is not at
+least `RESOLVED` sigma above zero is reported as not resolved (None: the data cannot resolve it,
+e.g. too short for the random walk), never as a number. The 1-sigma of N, B, K follow from
+theta's by the derivative of the square root.
 """
 
 import math
@@ -34,15 +40,16 @@ import allantools
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.solve.allan_covariance import stretch_covariance
+from station.solve.allan_covariance import EXPONENT, second_moments, stretch_covariance
 
 FLOOR = 2.0 * math.log(2.0) / math.pi
-"""AVAR of bias instability B = 1: the Allan deviation floor is B sqrt(FLOOR) (IEEE 952 C.1)."""
+"""AVAR of bias instability B = 1 at long taus: the Allan deviation floor is B sqrt(FLOOR) (IEEE
+952 C.1; at short taus the sampled flicker's is above it, `design`)."""
 TERMS = ("white", "bias_instability", "random_walk")
 ALPHA = (0, -1, -2)
 """Power-law exponent of each term's PSD (S ~ f^alpha): white, flicker, random-walk FM."""
 RESOLVED = 2.0
-"""A term is resolved when its variance coefficient is this many sigma above zero."""
+"""A term is reported (resolved) when its variance coefficient is this many sigma above zero."""
 MIN_SAMPLES = 64
 """Fewest samples of a stretch: 64 reach m = 4 (k / 8) with 57 terms."""
 MIN_TERMS = 4
@@ -51,7 +58,8 @@ estimates beyond hold too few degrees of freedom for the chi2 law's weights to m
 ITERATIONS = 50
 """Most iterations of the fit, each with the covariance at the model (it converges in a handful)."""
 MIN_TAUS = 4
-"""Fewest averaging times for B and K to be fitted at all (fewer: N alone, B and K unresolved)."""
+"""Fewest averaging times for B and K to be fitted (three terms and one degree of freedom; fewer:
+N alone, B and K unresolved)."""
 LARGE = 2**40
 """Readings of a stretch long enough for the large-length covariance (`_finite_length`)."""
 FIRST, STEP, LONGEST = 4, 4, 8
@@ -88,8 +96,9 @@ class NoiseFit:
     with 1-sigma; NaN where a channel's term is not resolved (`resolved` False).
 
     value, sigma : (3, c) N, B, K and their 1-sigma
-    theta, cov   : (c, 3) variance coefficients (N^2, B^2, K^2), (c, 3, 3) their covariance
-                   (zero rows and columns for terms left out)
+    theta, cov   : (c, 3) variance coefficients (N^2, B^2, K^2) as fitted (an unresolved one
+                   may be negative), (c, 3, 3) their covariance (zero rows and columns for
+                   terms not fitted: B and K of fewer than `MIN_TAUS` taus)
     edf          : (t, c) equivalent degrees of freedom of each Allan variance estimate (2 AVAR^2
                    over its variance, `covariance`)
     resolved     : (3, c) bool
@@ -102,9 +111,9 @@ class NoiseFit:
     edf: np.ndarray
     resolved: np.ndarray
 
-    def model_avar(self, tau) -> np.ndarray:
-        """(len(tau), c) fitted Allan variance at `tau` s."""
-        return design(np.asarray(tau, float)) @ self.theta.T
+    def model_avar(self, m, rate: float) -> np.ndarray:
+        """(len(m), c) fitted Allan variance at the averaging factors m (integers) at `rate` Hz."""
+        return design(m, rate) @ self.theta.T
 
 
 def octave_factors(length: int) -> np.ndarray:
@@ -176,10 +185,13 @@ def pooled(curves) -> AllanCurve:
                       np.concatenate([c.lengths for c in curves]), rate)
 
 
-def design(tau) -> np.ndarray:
-    """(t, 3) coefficients of (N^2, B^2, K^2) in AVAR(tau) (IEEE 952 Annex C)."""
-    tau = np.asarray(tau, float)
-    return np.column_stack([1.0 / tau, np.full_like(tau, FLOOR), tau / 3.0])
+def design(m, rate: float) -> np.ndarray:
+    """(t, 3) coefficients of (N^2, B^2, K^2) in the Allan variance at the averaging factors m
+    (t,) of readings at `rate` Hz: the terms of IEEE 952 Annex C, 1 / tau, (2 ln 2 / pi) and tau
+    / 3 for the continuous noises, as the sampled noises have them (white samples, Kasdin-Walter
+    flicker, a running sum: `allan_covariance.second_moments`)."""
+    return np.array([second_moments(int(f)) for f in np.asarray(m)]).reshape(-1, 3) \
+        * rate ** (1.0 - EXPONENT)
 
 
 @lru_cache(maxsize=4096)
@@ -211,7 +223,7 @@ def covariance(curve: AllanCurve, theta) -> np.ndarray:
     the stretches are independent, so their covariances add with the squared pooling weights
     (their numbers of terms over the sum): for the variances, Satterthwaite's pooled edf."""
     theta = np.asarray(theta, float)
-    parts = design(curve.tau) * theta
+    parts = design(curve.m, curve.rate) * theta
     alpha = np.array(ALPHA)[np.argmax(parts, axis=1)]
     total = np.zeros((len(curve.m), len(curve.m)))
     for n in curve.lengths:
@@ -224,62 +236,80 @@ def covariance(curve: AllanCurve, theta) -> np.ndarray:
     return total
 
 
-def fit_noise(curve: AllanCurve) -> NoiseFit:
+def fit_noise(curve: AllanCurve, names=None) -> NoiseFit:
     """N, B, K of every channel of `curve` by generalised least squares with its estimates'
-    covariance across taus (module docstring); terms not resolved are left out (NaN,
-    `resolved` False)."""
+    covariance across taus, all three terms fitted together (module docstring); terms not
+    resolved are NaN, `resolved` False. names: the channels' names, for the errors."""
     if not len(curve.m):
         raise CalibrationInputError(
             f"{curve.seconds:.3g} s of static data give no averaging time.",
             "Record a longer rest (at least a few seconds).")
     flat = np.flatnonzero(~np.all(curve.avar > 0, axis=0))
     if len(flat):
+        which = [str(c + 1) if names is None else str(names[c]) for c in flat]
         raise CalibrationInputError(
-            f"channel(s) {', '.join(str(c + 1) for c in flat)} do not vary over the static data.",
+            f"channel(s) {', '.join(which)} do not vary over the static data.",
             "A sensor without noise is stuck or its readings are cut to one value: check it.")
     c = curve.avar.shape[1]
-    x = design(curve.tau)
-    theta, cov = np.zeros((c, 3)), np.zeros((c, 3, 3))
-    nu = np.zeros(curve.avar.shape)
-    for ch in range(c):  # per channel: each has its own terms left out
-        keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
-        while True:
-            theta[ch], cov[ch], nu[:, ch] = _gls(curve, ch, x, keep)
-            sig = np.sqrt(np.diag(cov[ch]))
-            weak = keep & ~(theta[ch] > RESOLVED * sig)
-            weak[0] = False  # the white noise is always fitted: it sets the shortest taus
-            if not weak.any():
-                break
-            worst = np.flatnonzero(weak)[np.argmin((theta[ch] / np.maximum(sig, 1e-300))[weak])]
-            keep[worst] = False
-    resolved = (theta > 0).T
-    value = np.where(resolved, np.sqrt(np.maximum(theta.T, 0.0)), np.nan)
+    x = design(curve.m, curve.rate)
+    keep = np.array([True] + [len(curve.m) >= MIN_TAUS] * 2)
+    fitted = [_gls(curve, ch, x, keep) for ch in range(c)]
+    theta, cov = np.array([f[0] for f in fitted]), np.array([f[1] for f in fitted])
+    nu, resolved = np.column_stack([f[2] for f in fitted]), np.column_stack([f[3] for f in fitted])
     var = np.diagonal(cov, axis1=1, axis2=2).T
+    value = np.where(resolved, np.sqrt(np.maximum(theta.T, 0.0)), np.nan)
     sigma = np.where(resolved, np.sqrt(var) / (2.0 * np.where(resolved, value, 1.0)), np.nan)
     return NoiseFit(value, sigma, theta, cov, nu, resolved)
 
 
 def _gls(curve: AllanCurve, ch: int, x: np.ndarray, keep: np.ndarray) -> tuple:
-    """(theta (3,), cov (3, 3), edf (t,)) of channel `ch` with the terms `keep`: generalised
-    least squares with the estimates' covariance at the model (`covariance`), iterated."""
+    """(theta (3,), cov (3, 3), edf (t,), resolved (3,)) of channel `ch` with the terms `keep`:
+    generalised
+    least squares with the estimates' covariance at the model (`covariance`), iterated. theta is
+    not constrained (a term too weak to resolve may come out negative, so that the others are
+    not biased by a bound on it). The covariance is taken at a noise that exists (`_physical`):
+    first every term at its fitted value or zero; then, again to convergence, only the terms
+    that fit resolves (`RESOLVED`), so that a term absent from the data, fitted above zero by
+    chance, does not widen the others' bands by the variance it would add. (Deciding the terms
+    at every iteration instead can flip between two fits for ever.) A term is resolved when both
+    fits resolve it (the second alone, its covariance without the term, would understate its
+    sigma); the white noise whenever it is positive."""
     a = curve.avar[:, ch]
-    xs = x[:, keep]
+    floor = a[0] / x[0, 0] * 1e-6  # N^2 of a millionth of the first Allan variance
     theta = np.zeros(3)
-    theta[keep] = np.linalg.lstsq(xs / a[:, None], np.ones(len(a)), rcond=None)[0]
-    theta = np.maximum(theta, 0.0)
-    theta[0] = max(theta[0], a[0] * curve.tau[0] * 1e-6)  # the model stays positive
+    theta[keep] = np.linalg.lstsq(x[:, keep] / a[:, None], np.ones(len(a)), rcond=None)[0]
+    theta, cov, c = _iterated(curve, a, x, keep, theta, np.ones(3, bool), floor)
+    present = theta > RESOLVED * np.sqrt(np.diag(cov))
+    theta, cov, c = _iterated(curve, a, x, keep, theta, present, floor)
+    resolved = present & (theta > RESOLVED * np.sqrt(np.diag(cov)))
+    resolved[0] = theta[0] > 0
+    return theta, cov, 2.0 * (x @ _physical(theta, present, floor)) ** 2 / np.diag(c), resolved
+
+
+def _iterated(curve: AllanCurve, a: np.ndarray, x: np.ndarray, keep: np.ndarray,
+              theta: np.ndarray, present: np.ndarray, floor: float) -> tuple:
+    """(theta, cov (3, 3), the estimates' covariance (t, t)): the generalised least squares fit
+    of the terms `keep` to the Allan variances `a`, from `theta`, each step with the covariance at
+    the last fit's terms `present` (`_physical`), until theta stops changing."""
+    xs, cov = x[:, keep], np.zeros((3, 3))
     for _ in range(ITERATIONS):
-        c = covariance(curve, theta)
+        c = covariance(curve, _physical(theta, present, floor))
         whitened = np.linalg.solve(c, np.column_stack([xs, a]))  # C^-1 [X a]
         info = xs.T @ whitened[:, :-1]
         new = np.zeros(3)
         new[keep] = np.linalg.solve(info, xs.T @ whitened[:, -1])
-        new = np.where(keep, np.maximum(new, 0.0), 0.0)
-        new[0] = max(new[0], theta[0] * 1e-3)
-        done = np.allclose(new, theta, rtol=1e-9, atol=0.0)
+        done = np.allclose(new, theta, rtol=1e-9, atol=1e-12 * abs(new[0]))
         theta = new
         if done:
             break
-    cov = np.zeros((3, 3))
     cov[np.ix_(keep, keep)] = np.linalg.inv(info)
-    return theta, cov, 2.0 * (x @ theta) ** 2 / np.diag(c)
+    return theta, cov, c
+
+
+def _physical(theta: np.ndarray, present: np.ndarray, floor: float) -> np.ndarray:
+    """theta of the noise the covariance is taken at: the terms `present` at their fitted value
+    or zero, the others zero, the white noise at least `floor` (the covariance stays positive
+    definite)."""
+    out = np.where(present, np.maximum(theta, 0.0), 0.0)
+    out[0] = max(theta[0], floor)
+    return out
