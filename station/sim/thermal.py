@@ -1,0 +1,53 @@
+"""Per-soak still-pose readings of a unit at a list of temperatures (the `temperature` effect).
+
+Each soak is a free-static recording (`station.sim.static.simulate_static`: random poses, smooth
+turns, the unit's noise and quantisation) of the unit with its a and b moved to the soak's
+temperature by `station.model.effects.temperature`; the still intervals of the truth are averaged
+(mean and standard error per pose), as the reduction of a recorded soak would give them.
+"""
+
+import numpy as np
+
+from station.model.effects import temperature as effect
+from station.model.unit import SensorUnit
+from station.reduce.still import StillReadings
+from station.sim.static import simulate_static
+from station.solve.temperature import Soak
+
+ROOM = 296.15
+"""K: where the unit starts before the first soak (for the hysteresis' direction)."""
+
+
+def unit_at(unit: SensorUnit, temperature: float, heating: bool, p: effect.Temperature):
+    """A copy of `unit` (same noise, quantisation and random stream) at `temperature` K."""
+    ratio, offset = effect.apply(temperature, heating, p)
+    return SensorUnit(unit.a * ratio, unit.bias + offset, unit.noise_density, unit.fs,
+                      unit.counts_per_unit, unit.output_range, unit.bias_walk, rng=unit.rng)
+
+
+def simulate_soaks(unit: SensorUnit, temperatures, p: effect.Temperature, *, poses: int = 20,
+                   still: float = 2.0, move: float = 1.0, start: float = ROOM) -> list:
+    """[Soak] of `unit` at each temperature (K) in the order given, still poses of `still`
+    seconds (the unit starts at `start` K: each soak is reached by heating when warmer than the
+    one before)."""
+    soaks, before = [], start
+    for temp in temperatures:
+        sim = simulate_static(unit_at(unit, temp, temp > before, p), poses, still, move)
+        soaks.append(Soak(float(temp), *_still_means(sim)))
+        before = temp
+    return soaks
+
+
+def _still_means(sim) -> tuple:
+    """((m, P) means, (m, P) standard errors) of a simulation's still intervals, SI units."""
+    y = sim.arrays["y"][0] * sim.arrays["lsb"]
+    intervals = sim.truth["still"]
+    means = np.array([y[a:z].mean(axis=0) for a, z in intervals]).T
+    sigma = np.array([y[a:z].std(axis=0, ddof=1) / np.sqrt(z - a) for a, z in intervals]).T
+    return means, sigma
+
+
+def still_readings(soak: Soak) -> StillReadings:
+    """A soak's readings as the still-pose reduction gives them (for `calibrate_still`)."""
+    p = soak.readings.shape[1]
+    return StillReadings(soak.readings, soak.sigma, np.zeros((p, 2)), np.zeros(p, np.int64))
