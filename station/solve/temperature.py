@@ -240,7 +240,12 @@ def _model(g: dict, orders: dict, t_ref: float, temps) -> TemperatureModel:
     bias = theta[m * (1 + ps):].reshape(m, 1 + pb)[:, 1:]
     return TemperatureModel(t_ref=float(t_ref), t_min=float(np.min(temps)),
                             t_max=float(np.max(temps)), bias=bias, scale=gamma,
-                            covariance=jac @ cov @ jac.T)
+                            covariance=_symmetric(jac @ cov @ jac.T))
+
+
+def _symmetric(c: np.ndarray) -> np.ndarray:
+    """c made exactly symmetric (rounding of a propagation leaves it a few ulp off)."""
+    return 0.5 * (c + c.T)
 
 
 def _reference(nearest: CalibrationResult, g: dict) -> CalibrationResult:
