@@ -1,0 +1,162 @@
+"""The temperature model: the thermal fit's tempcos and their sigmas, the order selection, the
+model applied between the soaks, and the fit's refusals (docs/solvers.md, "Temperature")."""
+
+import numpy as np
+import pytest
+from scipy.stats import binom, norm
+from thermalsim import (
+    BETWEEN,
+    TRUE_LINEAR,
+    TRUE_QUADRATIC,
+    G,
+    direct_calibration,
+    magnitude_errors,
+    probe,
+    thermal_fit,
+    z_scores,
+)
+
+from station.errors import CalibrationInputError, InputError
+from station.files.calfile import Calibration
+from station.model.effects.temperature import Temperature
+from station.sim.layouts import accelerometer_triad, gyro_array
+from station.sim.thermal import simulate_soaks, unit_at
+from station.solve.temperature import FALSE_ALARM, Soak, fit_temperature
+
+ALPHA = 0.01
+"""False-alarm probability of each statistical check below."""
+
+
+def spread_bounds(n: int) -> tuple:
+    """Two-sided ALPHA bounds of the sample standard deviation of n N(0, 1) values (its standard
+    error is 1 / sqrt(2 n) for large n)."""
+    half = norm.isf(ALPHA / 2) / np.sqrt(2 * n)
+    return 1 - half, 1 + half
+
+
+def test_tempcos_are_recovered_within_their_sigmas_over_50_seeds():
+    z = np.array([z_scores(thermal_fit(seed, orders={"bias": 1, "scale": 1})[1], TRUE_LINEAR)
+                  for seed in range(50)]).ravel()
+    low, high = spread_bounds(z.size)
+    bonferroni = norm.isf(ALPHA / (2 * z.size))  # all |z| below it with probability 1 - ALPHA
+    print(f"z spread {z.std():.3f} (bounds {low:.3f} .. {high:.3f}), mean {z.mean():.3f}, "
+          f"max |z| {np.abs(z).max():.2f} (bound {bonferroni:.2f})")
+    assert low < z.std() < high
+    assert np.abs(z).max() < bonferroni
+    assert abs(z.mean()) < norm.isf(ALPHA / 2) / np.sqrt(z.size / 6)  # 6 correlated per seed
+
+
+@pytest.mark.parametrize("truth, expected", [(TRUE_LINEAR, {"bias": 1, "scale": 1}),
+                                             (TRUE_QUADRATIC, {"bias": 2, "scale": 2})])
+def test_the_order_is_chosen_by_the_evidence(truth, expected):
+    seeds = 30
+    right = sum(thermal_fit(1000 + seed, truth)[1].model.orders == expected
+                for seed in range(seeds))
+    # a linear truth is over-fitted with probability <= FALSE_ALARM (one step beyond it; the
+    # quadratic's size is far above its noise): at most `allowed` misses but with prob. ALPHA
+    allowed = int(binom.isf(ALPHA, seeds, FALSE_ALARM))
+    print(f"{truth.bias2 and 'quadratic' or 'linear'}: {right}/{seeds} right "
+          f"({right / seeds:.0%}), misses allowed {allowed}")
+    assert seeds - right <= allowed
+
+
+def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
+    model_errors, direct_errors = [], []
+    for seed in range(8):
+        unit, fit = thermal_fit(seed)
+        cal = Calibration.from_result(fit.reference, "SN1", ("ax", "ay", "az"), "m/s^2") \
+            .with_temperature(fit.model)
+        rng = np.random.default_rng(100 + seed)
+        for temp in BETWEEN:
+            z, _ = probe(unit, temp, TRUE_LINEAR, rng)
+            model_errors.append(magnitude_errors(cal.apply_at(z, temp)))
+            direct_errors.append(magnitude_errors(direct_calibration(unit, temp, TRUE_LINEAR)
+                                                  .apply(z)))
+    ratio = np.sqrt(np.mean(np.square(model_errors)) / np.mean(np.square(direct_errors)))
+    print(f"RMS magnitude error, model / calibration at that temperature: {ratio:.3f}")
+    assert ratio <= 1.2
+    # and without the model (the reference calibration applied at every temperature) it is not
+    unit, fit = thermal_fit(0)
+    z, _ = probe(unit, BETWEEN[0], TRUE_LINEAR, np.random.default_rng(5))
+    stale = np.sqrt(np.mean(magnitude_errors(fit.reference.apply(z)) ** 2))
+    assert stale > 5 * np.sqrt(np.mean(np.square(direct_errors)))
+
+
+def test_the_rotary_gyro_path_recovers_its_tempcos():
+    """Eq. 18 readings (bias-free) and biases measured apart, as a rotary soak gives them."""
+    truth = Temperature(bias=(1e-4, -2e-4, 5e-5, 1e-4), scale=(1e-4, 2e-4, -1e-4, 5e-5),
+                        t_ref=298.15)
+    rate, sigma, bias_sigma = 1.0, 1e-5, 2e-6
+    z = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        unit = gyro_array(rng, a_nominal=np.array([[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1.0]])
+                          / np.array([1, 1, 1, np.sqrt(3)]))
+        soaks = []
+        for temp in (263.15, 283.15, 313.15, 333.15):
+            at = unit_at(unit, temp, True, truth)
+            u = rng.standard_normal((3, 24))
+            v = rate * u / np.linalg.norm(u, axis=0)
+            readings = at.a.T @ v + sigma * rng.standard_normal((4, 24))
+            soaks.append(Soak(temp, readings, np.full((4, 24), sigma),
+                              bias=at.bias + bias_sigma * rng.standard_normal(4),
+                              bias_sigma=np.full(4, bias_sigma)))
+        model = fit_temperature(soaks, rate, orders={"bias": 1, "scale": 1}).model
+        z.append(np.r_[(model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0],
+                       (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0]])
+    z = np.ravel(z)
+    low, high = spread_bounds(z.size)
+    print(f"gyro z spread {z.std():.3f}, max |z| {np.abs(z).max():.2f}")
+    assert low < z.std() < high and np.abs(z).max() < norm.isf(ALPHA / (2 * z.size))
+
+
+def test_hysteresis_moves_the_bias_by_its_width_between_heating_and_cooling():
+    unit = accelerometer_triad(np.random.default_rng(3))
+    p = Temperature(bias=1e-3, hysteresis=(4e-3, 0.0, 1e-3), t_ref=300.0)
+    heated, cooled = unit_at(unit, 320.0, True, p), unit_at(unit, 320.0, False, p)
+    assert np.allclose(heated.bias - cooled.bias, [4e-3, 0.0, 1e-3], rtol=0, atol=1e-15)
+    assert np.allclose(heated.bias - unit.bias, 20 * 1e-3 + np.array([2e-3, 0.0, 5e-4]),
+                       rtol=0, atol=1e-15)
+    soaks = simulate_soaks(unit, (310.0, 290.0), p, poses=12, start=300.0)
+    assert [s.temperature for s in soaks] == [310.0, 290.0]
+
+
+def soaks_at(temps, seed=0):
+    return simulate_soaks(accelerometer_triad(np.random.default_rng(seed)), temps, TRUE_LINEAR,
+                          poses=12)
+
+
+@pytest.mark.parametrize("temps, orders, message", [
+    ((300.0,), None, "1 soak.*at least 2"),
+    ((300.0, 302.0, 304.0), None, "span 4 K.*too close to resolve a slope"),
+    ((25.0, 45.0, 65.0), None, "looks like degC"),
+    ((263.15, 303.15), {"bias": 2, "scale": 1}, "order 2 needs 3 distinct soak temperatures"),
+    ((263.15, 263.5, 303.15), {"bias": 1, "scale": 2}, "needs 3 distinct"),
+    ((263.15, 283.15, 303.15), {"bias": 3, "scale": 1}, "order 3 is not in 0..2"),
+])
+def test_impossible_fits_are_refused_naming_the_problem(temps, orders, message):
+    soaks = soaks_at(np.clip(temps, 200.0, None))
+    soaks = [Soak(t, s.readings, s.sigma) for t, s in zip(temps, soaks, strict=True)]
+    with pytest.raises(InputError, match=message):
+        fit_temperature(soaks, G, orders=orders)
+
+
+def test_a_non_finite_temperature_is_refused():
+    soaks = soaks_at((263.15, 303.15))
+    with pytest.raises(InputError, match="non-finite"):
+        fit_temperature([soaks[0], Soak(float("nan"), soaks[1].readings, soaks[1].sigma)], G)
+
+
+def test_a_soak_the_solver_refuses_is_named():
+    soaks = soaks_at((263.15, 303.15))
+    few = Soak(303.15, soaks[1].readings[:, :6], soaks[1].sigma[:, :6])
+    with pytest.raises(CalibrationInputError, match="the soak at 303.15 K"):
+        fit_temperature([soaks[0], few], G)
+
+
+def test_the_selection_stops_at_what_the_soaks_resolve():
+    """Two soaks: at most linear, whatever the data; the tests say so."""
+    fit = fit_temperature(soaks_at((263.15, 323.15)), G)
+    assert fit.model.orders == {"bias": 1, "scale": 1}
+    assert fit.dof == 0 and [t[:2] for t in fit.tests] == [("bias", 1), ("scale", 1)]
+    assert (fit.model.t_min, fit.model.t_ref, fit.model.t_max) == (263.15, 293.15, 323.15)
