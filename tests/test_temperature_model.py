@@ -19,9 +19,10 @@ from thermalsim import (
 from station.errors import CalibrationInputError, InputError
 from station.files.calfile import Calibration
 from station.model.effects.temperature import Temperature
+from station.model.temperature import Soak
 from station.sim.layouts import accelerometer_triad, gyro_array
 from station.sim.thermal import simulate_soaks, unit_at
-from station.solve.temperature import FALSE_ALARM, Soak, fit_temperature
+from station.solve.temperature import FALSE_ALARM, fit_temperature
 
 ALPHA = 0.01
 """False-alarm probability of each statistical check below."""

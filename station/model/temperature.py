@@ -24,7 +24,25 @@ KELVIN_MIN = 150.0
 than any inertial sensor is specified for)."""
 KELVIN_MAX = 600.0
 """Temperatures above this many kelvin are refused as implausible for an IMU (327 degC)."""
-QUANTITIES = ("bias", "scale")
+
+
+@dataclass(frozen=True)
+class Soak:
+    """One soak: the unit's mean temperature (K) and its averaged readings.
+
+    readings, sigma : (m, n) averaged readings and their standard errors, as the still-pose or
+                      rotary solvers take them (station.reduce.still.StillReadings.M / .sigma,
+                      Eq. 18 rotary readings)
+    bias, bias_sigma: None (still poses: the biases are estimated with the calibration), or (m,)
+                      biases measured apart with their 1-sigma (a rotary soak: its static
+                      windows; its Eq. 18 readings are bias-free)
+    """
+
+    temperature: float
+    readings: np.ndarray
+    sigma: np.ndarray
+    bias: np.ndarray | None = None
+    bias_sigma: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,10 +9,9 @@ temperature by `station.model.effects.temperature`; the still intervals of the t
 import numpy as np
 
 from station.model.effects import temperature as effect
+from station.model.temperature import Soak
 from station.model.unit import SensorUnit
-from station.reduce.still import StillReadings
 from station.sim.static import simulate_static
-from station.solve.temperature import Soak
 
 ROOM = 296.15
 """K: where the unit starts before the first soak (for the hysteresis' direction)."""
@@ -46,8 +45,3 @@ def _still_means(sim) -> tuple:
     sigma = np.array([y[a:z].std(axis=0, ddof=1) / np.sqrt(z - a) for a, z in intervals]).T
     return means, sigma
 
-
-def still_readings(soak: Soak) -> StillReadings:
-    """A soak's readings as the still-pose reduction gives them (for `calibrate_still`)."""
-    p = soak.readings.shape[1]
-    return StillReadings(soak.readings, soak.sigma, np.zeros((p, 2)), np.zeros(p, np.int64))

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from station.errors import CalibrationInputError
-from station.model.temperature import MAX_ORDER, TemperatureModel, check_kelvin, powers
+from station.model.temperature import MAX_ORDER, Soak, TemperatureModel, check_kelvin, powers
 from station.solve.calibrate import CalibrationResult, calibrate
 
 FALSE_ALARM = 0.01
@@ -38,25 +38,6 @@ MIN_SPAN = 5.0
 any MEMS unit: refused."""
 DISTINCT = 1.0
 """Soaks closer than this (K) count as one temperature for the orders they can resolve."""
-
-
-@dataclass(frozen=True)
-class Soak:
-    """One soak: the unit's mean temperature (K) and its averaged readings.
-
-    readings, sigma : (m, n) averaged readings and their standard errors, as the still-pose or
-                      rotary solvers take them (station.reduce.still.StillReadings.M / .sigma,
-                      Eq. 18 rotary readings)
-    bias, bias_sigma: None (still poses: the biases are estimated with the calibration), or (m,)
-                      biases measured apart with their 1-sigma (a rotary soak: its static
-                      windows; its Eq. 18 readings are bias-free)
-    """
-
-    temperature: float
-    readings: np.ndarray
-    sigma: np.ndarray
-    bias: np.ndarray | None = None
-    bias_sigma: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -82,8 +63,8 @@ class TemperatureFit:
 
 def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names=None,
                     false_alarm: float = FALSE_ALARM) -> TemperatureFit:
-    """Fit the temperature model to `soaks` (a list of `Soak`) of stimulus magnitude `magnitude`
-    (local gravity in m/s^2, the table rate in rad/s). orders: {"bias": P_b, "scale": P_s} to fix
+    """Fit the temperature model to `soaks` (a list of station.model.temperature.Soak) of
+    stimulus magnitude `magnitude` (local gravity in m/s^2, the table rate in rad/s). orders: {"bias": P_b, "scale": P_s} to fix
     them, or None to select them (module docstring). names: the sensors' names for messages."""
     soaks = list(soaks)
     temps = _temperatures(soaks)
