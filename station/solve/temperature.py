@@ -64,8 +64,9 @@ class TemperatureFit:
 def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names=None,
                     false_alarm: float = FALSE_ALARM) -> TemperatureFit:
     """Fit the temperature model to `soaks` (a list of station.model.temperature.Soak) of
-    stimulus magnitude `magnitude` (local gravity in m/s^2, the table rate in rad/s). orders: {"bias": P_b, "scale": P_s} to fix
-    them, or None to select them (module docstring). names: the sensors' names for messages."""
+    stimulus magnitude `magnitude` (local gravity in m/s^2, the table rate in rad/s). orders:
+    {"bias": P_b, "scale": P_s} to fix them, or None to select them (module docstring). names:
+    the sensors' names for messages."""
     soaks = list(soaks)
     temps = _temperatures(soaks)
     results = tuple(_calibrate_soak(s, magnitude, nominal, names) for s in soaks)
