@@ -16,9 +16,9 @@ noise is not included): columns sigma_v_x, ... (HDF5: dataset `v_sigma`).
 
 A calibration with a temperature model (calibration file version 6, docs/conventions.md) is
 applied at the unit's temperature of each sample: from a column (`--temperature-column NAME`, in
-K: a CSV column `NAME` or `NAME [K]`, or a channel of the session's stream; by default the
-stream's one channel in K, if it has one) or one fixed `--temperature KELVIN`. A temperature
-outside the calibrated range is refused, naming the range, unless `--extrapolate` (then a warning
+K: a CSV column `NAME` or `NAME [K]`, or a channel of the session's stream; by default the CSV's
+one column `[K]` or the stream's one channel in K, if it has one) or one fixed `--temperature
+KELVIN`. A temperature outside the calibrated range is refused, naming the range, unless `--extrapolate` (then a warning
 on stderr and `extrapolated` in the --json summary). The temperature options are refused with a
 calibration that has no temperature model, and so is --sigma with one (the model's own
 uncertainty is not propagated yet).
@@ -69,7 +69,7 @@ def register(p) -> None:
                         "temperature model)")
     p.add_argument("--temperature-column", metavar="NAME",
                    help="the column (CSV) or stream channel (session) holding the unit's "
-                        "temperature in K (default for a session: its channel in K)")
+                        "temperature in K (default: the one column or channel in K)")
     p.add_argument("--extrapolate", action="store_true",
                    help="apply the temperature model outside its calibrated range (warns)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
@@ -243,6 +243,9 @@ def read_csv(path, cal, counts: bool = False, temperature_column: str | None = N
             raise fail("empty file; the first row must name the columns")
         names, units = _parse_header(header, fail)
         body = f.read()
+    kelvin = [n for n, u in zip(names, units, strict=True) if u == "K"]
+    if temperature_column is None and cal.temperature is not None and len(kelvin) == 1:
+        temperature_column = kelvin[0]
     expected_unit = "counts" if counts else cal.units[0]
     wrong = {n: u for n, u in zip(names, units, strict=True) if u is not None and n != "time"
              and u != ("K" if n == temperature_column else expected_unit)}
