@@ -20,8 +20,8 @@ K: a CSV column `NAME` or `NAME [K]`, or a channel of the session's stream; by d
 one column `[K]` or the stream's one channel in K, if it has one) or one fixed `--temperature
 KELVIN`. A temperature outside the calibrated range is refused, naming the range, unless
 `--extrapolate` (then a warning on stderr and `extrapolated` in the --json summary). The
-temperature options are refused with a calibration that has no temperature model, and so is --sigma with one (the model's own
-uncertainty is not propagated yet).
+temperature options are refused with a calibration that has no temperature model, and so is
+--sigma with one (the model's own uncertainty is not propagated yet).
 """
 
 import csv
