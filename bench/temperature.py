@@ -63,8 +63,7 @@ def between(seeds: int) -> dict:
     model_err, direct_err = [], []
     for s in range(seeds):
         unit, fit = thermal_fit(s)
-        cal = Calibration.from_result(fit.reference, "SIM", ("ax", "ay", "az"), "m/s^2") \
-            .with_temperature(fit.model)
+        cal = Calibration.from_temperature_fit(fit, "SIM", ("ax", "ay", "az"), "m/s^2")
         rng = np.random.default_rng(100 + s)
         for temp in BETWEEN:
             z, _ = probe(unit, temp, TRUE_LINEAR, rng)

@@ -6,6 +6,7 @@ import pytest
 from scipy.stats import binom, norm
 from thermalsim import (
     BETWEEN,
+    SOAKS,
     TRUE_LINEAR,
     TRUE_QUADRATIC,
     G,
@@ -17,7 +18,7 @@ from thermalsim import (
 )
 
 from station.errors import CalibrationInputError, InputError
-from station.files.calfile import Calibration
+from station.files.calfile import Calibration, loads
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
 from station.sim.layouts import accelerometer_triad, gyro_array
@@ -65,8 +66,11 @@ def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
     model_errors, direct_errors = [], []
     for seed in range(8):
         unit, fit = thermal_fit(seed)
-        cal = Calibration.from_result(fit.reference, "SN1", ("ax", "ay", "az"), "m/s^2") \
-            .with_temperature(fit.model)
+        cal = loads(Calibration.from_temperature_fit(fit, "SN1", ("ax", "ay", "az"), "m/s^2")
+                    .dumps())  # through the file
+        assert cal.fit["temperature"]["soaks_K"] == list(SOAKS)
+        assert [step["accepted"] for step in cal.fit["temperature"]["selection"]][:2] == \
+            [True, True]  # the tempcos, far above the noise, found
         rng = np.random.default_rng(100 + seed)
         for temp in BETWEEN:
             z, _ = probe(unit, temp, TRUE_LINEAR, rng)

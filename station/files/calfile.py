@@ -300,6 +300,22 @@ class Calibration(measurement.Sensitivity):
         _from_document(cal.to_document(), "the calibration")
         return cal
 
+    @classmethod
+    def from_temperature_fit(cls, fit, unit_serial: str, sensors, units,
+                             **kwargs) -> "Calibration":
+        """A calibration file's content from `station.solve.temperature.TemperatureFit`: its
+        reference calibration (at t_ref) with the temperature model; `fit.temperature` records
+        the soaks' temperatures, the fit's chi2 and dof and the order selection's steps.
+        kwargs: those of `from_result` (counts_per_unit, session, ...)."""
+        cal = cls.from_result(fit.reference, unit_serial, sensors, units, **kwargs)
+        record = {"soaks_K": [float(s.temperature) for s in fit.soak_data],
+                  "chi2": float(fit.chi2), "dof": int(fit.dof),
+                  "selection": [{"quantity": q, "order": o, "chi2_drop": drop,
+                                 "threshold": limit, "accepted": ok}
+                                for q, o, drop, limit, ok in fit.tests]}
+        return dataclasses.replace(cal, fit={**cal.fit, "temperature": record}) \
+            .with_temperature(fit.model)
+
     def with_temperature(self, model: TemperatureModel | None) -> "Calibration":
         """This calibration with a temperature model (checked as a load checks it); a and bias
         must be the calibration at the model's t_ref (station.solve.temperature's reference)."""

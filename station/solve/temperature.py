@@ -48,7 +48,7 @@ class TemperatureFit:
     reference : the calibration at T_ref (a CalibrationResult): a's axis directions from the soak
                 nearest T_ref, the scale factors and biases the fit's s_i0, b_i0 with their
                 covariance
-    soaks     : the per-soak CalibrationResults, in the order given
+    soaks     : the per-soak CalibrationResults, in the order given; soak_data the Soaks
     chi2, dof : of the fit at the selected orders; tests : [(quantity, order, drop in chi2,
                 threshold, accepted)] of the order selection
     """
@@ -56,6 +56,7 @@ class TemperatureFit:
     model: TemperatureModel
     reference: CalibrationResult
     soaks: tuple
+    soak_data: tuple
     chi2: float
     dof: int
     tests: tuple
@@ -81,7 +82,8 @@ def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names
     g = gls(x, y, cov, chosen)
     model = _model(g, chosen, t_ref, temps)
     nearest = results[int(np.argmin(np.abs(x)))]
-    return TemperatureFit(model, _reference(nearest, g), results, g["chi2"], g["dof"], tests)
+    return TemperatureFit(model, _reference(nearest, g), results, tuple(soaks), g["chi2"],
+                          g["dof"], tests)
 
 
 def _temperatures(soaks) -> np.ndarray:
