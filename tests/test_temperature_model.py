@@ -21,9 +21,11 @@ from station.errors import CalibrationInputError, InputError
 from station.files.calfile import Calibration, loads
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
+from station.reduce.still import StillReadings
+from station.reduce.stillness import detect_still
 from station.sim.layouts import accelerometer_triad, gyro_array
-from station.sim.thermal import simulate_soaks, unit_at
-from station.solve.temperature import FALSE_ALARM, fit_temperature
+from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
+from station.solve.temperature import FALSE_ALARM, fit_temperature, still_soak
 
 ALPHA = 0.01
 """False-alarm probability of each statistical check below."""
@@ -165,3 +167,21 @@ def test_the_selection_stops_at_what_the_soaks_resolve():
     assert fit.model.orders == {"bias": 1, "scale": 1}
     assert fit.dof == 0 and [t[:2] for t in fit.tests] == [("bias", 1), ("scale", 1)]
     assert (fit.model.t_min, fit.model.t_ref, fit.model.t_max) == (263.15, 293.15, 323.15)
+
+
+def test_the_free_static_path_from_detected_still_poses():
+    """Each soak's recording through the stillness detector and the still-pose reduction's
+    readings (as `station solve` gets them), then the fit: the tempcos within 4.5 sigma (all 6
+    below it with probability 1 - 4e-5)."""
+    unit = accelerometer_triad(np.random.default_rng(11))
+    soaks = []
+    sims = soak_recordings(unit, SOAKS, TRUE_LINEAR, still=4.0, move=2.0)  # the detector's pace
+    for temp, sim in zip(SOAKS, sims, strict=True):
+        found = detect_still(sim.arrays["y"][0] * sim.arrays["lsb"], unit.fs)
+        p = len(found.mean)
+        readings = StillReadings(found.mean.T, found.stderr.T, np.zeros((p, 2)),
+                                 np.zeros(p, np.int64))
+        soaks.append(still_soak(temp, readings))
+    assert all(s.readings.shape == (3, 20) for s in soaks)  # every pose found
+    fit = fit_temperature(soaks, G, orders={"bias": 1, "scale": 1})
+    assert np.abs(z_scores(fit, TRUE_LINEAR)).max() < 4.5

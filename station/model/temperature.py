@@ -36,6 +36,8 @@ class Soak:
     bias, bias_sigma: None (still poses: the biases are estimated with the calibration), or (m,)
                       biases measured apart with their 1-sigma (a rotary soak: its static
                       windows; its Eq. 18 readings are bias-free)
+    constraints     : the poses' inner-product constraints (station.solve.constraints, e.g. an
+                      iron's faces: `IronReadings.constraints()`), None for free poses
     """
 
     temperature: float
@@ -43,6 +45,7 @@ class Soak:
     sigma: np.ndarray
     bias: np.ndarray | None = None
     bias_sigma: np.ndarray | None = None
+    constraints: object = None
 
 
 @dataclass(frozen=True, eq=False)

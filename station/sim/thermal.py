@@ -24,17 +24,24 @@ def unit_at(unit: SensorUnit, temperature: float, heating: bool, p: effect.Tempe
                       unit.counts_per_unit, unit.output_range, unit.bias_walk, rng=unit.rng)
 
 
-def simulate_soaks(unit: SensorUnit, temperatures, p: effect.Temperature, *, poses: int = 20,
-                   still: float = 2.0, move: float = 1.0, start: float = ROOM) -> list:
-    """[Soak] of `unit` at each temperature (K) in the order given, still poses of `still`
-    seconds (the unit starts at `start` K: each soak is reached by heating when warmer than the
-    one before)."""
-    soaks, before = [], start
+def soak_recordings(unit: SensorUnit, temperatures, p: effect.Temperature, *, poses: int = 20,
+                    still: float = 2.0, move: float = 1.0, start: float = ROOM) -> list:
+    """[free-static Simulation] of `unit` at each temperature (K) in the order given, still poses
+    of `still` seconds (the unit starts at `start` K: each soak is reached by heating when warmer
+    than the one before)."""
+    sims, before = [], start
     for temp in temperatures:
-        sim = simulate_static(unit_at(unit, temp, temp > before, p), poses, still, move)
-        soaks.append(Soak(float(temp), *_still_means(sim)))
+        sims.append(simulate_static(unit_at(unit, temp, temp > before, p), poses, still, move))
         before = temp
-    return soaks
+    return sims
+
+
+def simulate_soaks(unit: SensorUnit, temperatures, p: effect.Temperature, **options) -> list:
+    """[Soak] of `unit` at each temperature (K): `soak_recordings` (its options) with the
+    still intervals of the truth averaged."""
+    return [Soak(float(temp), *_still_means(sim))
+            for temp, sim in zip(temperatures, soak_recordings(unit, temperatures, p, **options),
+                                 strict=True)]
 
 
 def _still_means(sim) -> tuple:

@@ -86,6 +86,14 @@ def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names
                           g["dof"], tests)
 
 
+def still_soak(temperature: float, readings) -> Soak:
+    """The Soak of a still-pose soak's reduced readings (station.reduce.still.StillReadings or
+    an iron's: M, sigma and constraints(), the inputs of `station.solve.still.calibrate_still`)
+    at the unit's mean temperature (K) over it."""
+    return Soak(float(temperature), readings.M, readings.sigma,
+                constraints=readings.constraints())
+
+
 def _temperatures(soaks) -> np.ndarray:
     """(K,) soak temperatures, checked: kelvin, finite, at least two, spanning MIN_SPAN."""
     if len(soaks) < 2:
@@ -128,7 +136,7 @@ def _calibrate_soak(soak: Soak, magnitude: float, nominal, names) -> Calibration
     bias = "estimate" if soak.bias is None else None
     try:
         return calibrate(soak.readings, magnitude, d=3, bias=bias, sigma=soak.sigma,
-                         nominal=nominal, names=names)
+                         constraints=soak.constraints, nominal=nominal, names=names)
     except CalibrationInputError as exc:
         raise CalibrationInputError(f"the soak at {soak.temperature:.2f} K: {exc.problem}",
                                     exc.advice) from None
