@@ -1,6 +1,8 @@
 """The temperature model: the thermal fit's tempcos and their sigmas, the order selection, the
 model applied between the soaks, and the fit's refusals (docs/solvers.md, "Temperature")."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.stats import binom, norm
@@ -185,3 +187,17 @@ def test_the_free_static_path_from_detected_still_poses():
     assert all(s.readings.shape == (3, 20) for s in soaks)  # every pose found
     fit = fit_temperature(soaks, G, orders={"bias": 1, "scale": 1})
     assert np.abs(z_scores(fit, TRUE_LINEAR)).max() < 4.5
+
+
+def test_a_hysteresis_the_model_lacks_makes_the_calibration_suspect():
+    """1 mg of hysteresis, soaks visited up and down: chi2 far beyond its dof; without it the
+    same soaks pass (a false alarm has probability CHI2_P / 2 = 5e-4 per fit)."""
+    temps = (233.15, 318.15, 273.15, 358.15)
+    for hysteresis, suspect in ((0.0, False), (1e-2, True)):
+        truth = dataclasses.replace(TRUE_LINEAR, hysteresis=hysteresis)
+        unit = accelerometer_triad(np.random.default_rng(4))
+        fit = fit_temperature(simulate_soaks(unit, temps, truth), G)
+        cal = Calibration.from_temperature_fit(fit, "SN1", ("ax", "ay", "az"), "m/s^2")
+        assert bool(fit.problems) == suspect
+        assert cal.fit["status"] == ("suspect" if suspect else "good")
+    assert "hysteresis" in cal.fit["status_reasons"][0]

@@ -305,8 +305,11 @@ class Calibration(measurement.Sensitivity):
                              **kwargs) -> "Calibration":
         """A calibration file's content from `station.solve.temperature.TemperatureFit`: its
         reference calibration (at t_ref) with the temperature model; `fit.temperature` records
-        the soaks' temperatures, the fit's chi2 and dof and the order selection's steps.
+        the soaks' temperatures, the fit's chi2 and dof and the order selection's steps; a fit
+        with problems (inconsistent with the soaks' uncertainty) is written "suspect" with them.
         kwargs: those of `from_result` (counts_per_unit, session, ...)."""
+        if fit.problems:
+            kwargs.update(status="suspect", status_reasons=fit.problems)
         cal = cls.from_result(fit.reference, unit_serial, sensors, units, **kwargs)
         record = {"soaks_K": [float(s.temperature) for s in fit.soak_data],
                   "chi2": float(fit.chi2), "dof": int(fit.dof),

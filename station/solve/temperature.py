@@ -30,6 +30,7 @@ from scipy.stats import chi2 as chi2_dist
 from station.errors import CalibrationInputError
 from station.model.temperature import MAX_ORDER, Soak, TemperatureModel, check_kelvin, powers
 from station.solve.calibrate import CalibrationResult, calibrate
+from station.solve.quality import CHI2_P
 
 FALSE_ALARM = 0.01
 """Probability that the order selection raises an order the data do not need, per step."""
@@ -51,6 +52,9 @@ class TemperatureFit:
     soaks     : the per-soak CalibrationResults, in the order given; soak_data the Soaks
     chi2, dof : of the fit at the selected orders; tests : [(quantity, order, drop in chi2,
                 threshold, accepted)] of the order selection
+    problems  : why the fit is suspect, in words (the soaks scatter about the model by more than
+                their calibrations' uncertainty: chi2 beyond its upper CHI2_P / 2 tail, the
+                quality gate's level, station.solve.quality); empty when it is consistent
     """
 
     model: TemperatureModel
@@ -60,6 +64,7 @@ class TemperatureFit:
     chi2: float
     dof: int
     tests: tuple
+    problems: tuple = ()
 
 
 def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names=None,
@@ -83,7 +88,17 @@ def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names
     model = _model(g, chosen, t_ref, temps)
     nearest = results[int(np.argmin(np.abs(x)))]
     return TemperatureFit(model, _reference(nearest, g), results, tuple(soaks), g["chi2"],
-                          g["dof"], tests)
+                          g["dof"], tests, _problems(g["chi2"], g["dof"]))
+
+
+def _problems(chi2: float, dof: int) -> tuple:
+    """The fit's inconsistency with the soaks' uncertainties, in words (none: ())."""
+    if dof <= 0 or chi2_dist.sf(chi2, dof) >= CHI2_P / 2:
+        return ()
+    return (f"the soaks scatter about the temperature model by more than their calibrations' "
+            f"uncertainty (chi2 {chi2:.1f} for {dof} degrees of freedom): hysteresis between "
+            "heating and cooling, a soak not settled, or a dependence the polynomials lack; the "
+            "orders and sigmas are not to be trusted",)
 
 
 def still_soak(temperature: float, readings) -> Soak:
