@@ -32,8 +32,11 @@ def model(bias=BETA, scale=GAMMA) -> TemperatureModel:
     return TemperatureModel(T_REF, T_MIN, T_MAX, bias, scale, np.diag(sigma**2))
 
 
+COV0 = np.diag(np.r_[np.full(9, 1e-4), np.full(3, 1e-5)] ** 2)  # make()'s sigmas of a and b
+
+
 def thermal_cal():
-    return make(a=A, bias=B).with_temperature(model())
+    return make(a=A, bias=B, covariance=COV0).with_temperature(model())
 
 
 def readings(temps, seed=3):
@@ -151,8 +154,13 @@ def test_a_fixed_temperature(tmp_path, cal_path):
     data, out = tmp_path / "z.csv", tmp_path / "v.csv"
     write_csv(data, list(SENSORS), [z])
     assert cli.main(["apply", str(cal_path), str(data), "--temperature", "321.5",
-                     "--out", str(out)]) == 0
-    assert np.max(np.abs(read_vectors(out) - v)) < 1e-12
+                     "--out", str(out), "--sigma"]) == 0
+    got = read_vectors(out)
+    assert got.shape == (10, 6) and np.max(np.abs(got[:, :3] - v)) < 1e-12
+    # 21.5 K from t_ref the model's coefficients add to the sigma of every component
+    assert cli.main(["apply", str(cal_path), str(data), "--temperature", str(T_REF),
+                     "--out", str(out), "--sigma", "--force"]) == 0
+    assert np.all(got[:, 3:] > read_vectors(out)[:, 3:])
 
 
 def test_outside_the_range_it_refuses_unless_extrapolate(tmp_path, cal_path, capsys):
@@ -181,7 +189,6 @@ def test_outside_the_range_it_refuses_unless_extrapolate(tmp_path, cal_path, cap
     (["--temperature-column", "t"], ["temp", *SENSORS], "no column 't'"),
     (["--temperature", "300", "--temperature-column", "temp"], ["temp", *SENSORS],
      "either --temperature or --temperature-column"),
-    (["--temperature", "300", "--sigma"], list(SENSORS), "--sigma is not available"),
 ])
 def test_bad_temperature_input_is_refused(tmp_path, cal_path, capsys, extra, columns, message):
     _, z = readings(np.full(4, 300.0))
@@ -189,6 +196,38 @@ def test_bad_temperature_input_is_refused(tmp_path, cal_path, capsys, extra, col
     write_csv(data, columns, [np.full(4, 25.0), z] if len(columns) == 4 else [z])
     assert cli.main(["apply", str(cal_path), str(data), *extra]) == 2
     assert re.search(message, capsys.readouterr().err)
+
+
+def test_sigma_at_a_temperature_is_the_first_order_propagation():
+    """Against central differences of apply_at over each parameter of (a, b) and of the model,
+    with the two covariances given (independent)."""
+    cov0, cal = COV0, thermal_cal()
+    temps = np.array([265.0, 300.0, 335.0, 335.0])
+    _, z = readings(temps)
+    got = cal.vector_covariance(z.T, temps)
+    theta0 = np.r_[A.ravel(), B]
+    coef0 = np.r_[BETA.ravel(), GAMMA.ravel()]
+
+    def apply(theta, coef):
+        m = TemperatureModel(T_REF, T_MIN, T_MAX, coef[:6].reshape(3, 2),
+                             coef[6:].reshape(3, 1), np.eye(9))
+        return m.fuse(theta[:9].reshape(3, 3), theta[9:], z.T, temps)
+
+    def jacobian(f, x0, h=1e-7):
+        cols = []
+        for i in range(len(x0)):
+            e = np.zeros(len(x0))
+            e[i] = h * max(abs(x0[i]), 1e-3)
+            cols.append((f(x0 + e) - f(x0 - e)) / (2 * e[i]))
+        return np.stack(cols, axis=-1)  # (d, k, p)
+
+    j0 = jacobian(lambda t: apply(t, coef0), theta0)
+    jt = jacobian(lambda c: apply(theta0, c), coef0)
+    want = np.einsum("dkp,pq,ekq->kde", j0, cov0, j0) + \
+        np.einsum("dkp,pq,ekq->kde", jt, cal.temperature.covariance, jt)
+    assert np.allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(got).max())
+    assert not np.allclose(got[0], got[1], rtol=1e-2)  # the model's uncertainty grows off t_ref
+    assert np.allclose(cal.vector_covariance(z.T[:, 1], 300.0)[0], got[1], rtol=1e-12)
 
 
 def test_temperature_options_need_a_temperature_model(tmp_path, capsys):

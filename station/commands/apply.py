@@ -20,8 +20,9 @@ K: a CSV column `NAME` or `NAME [K]`, or a channel of the session's stream; by d
 one column `[K]` or the stream's one channel in K, if it has one) or one fixed `--temperature
 KELVIN`. A temperature outside the calibrated range is refused, naming the range, unless
 `--extrapolate` (then a warning on stderr and `extrapolated` in the --json summary). The
-temperature options are refused with a calibration that has no temperature model, and so is
---sigma with one (the model's own uncertainty is not propagated yet).
+temperature options are refused with a calibration that has no temperature model. `--sigma` with
+a model includes its coefficients' uncertainty (taken independent of the reference calibration's:
+the file holds no cross terms).
 """
 
 import csv
@@ -113,7 +114,7 @@ def run(args) -> int:
                                    "a sensor can read: check their unit")
     sigma = None
     if args.sigma:
-        sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T), axis1=1, axis2=2)) \
+        sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T, temp), axis1=1, axis2=2)) \
             if len(z) else np.zeros_like(v)
     if args.out is None:
         sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
@@ -145,9 +146,6 @@ def check_temperature_options(args, cal) -> None:
         return
     if args.temperature is not None and args.temperature_column is not None:
         raise InputError("give either --temperature or --temperature-column, not both")
-    if args.sigma:
-        raise InputError("--sigma is not available with a temperature model yet (its "
-                         "coefficients' uncertainty is not propagated); drop --sigma")
     if args.temperature is not None:
         check_kelvin(args.temperature, "--temperature")
 

@@ -354,14 +354,22 @@ class Calibration(measurement.Sensitivity):
                                        "one column per instant: (m,) or (m, k)")
         return z
 
-    def vector_covariance(self, z) -> np.ndarray:
+    def vector_covariance(self, z, temperature=None) -> np.ndarray:
         """(k, d, d) covariance of each calibrated vector F (z - b) due to the calibration's own
         uncertainty (`covariance`), for SI readings z (m,) or (m, k), by first-order propagation
         through station.model.measurement.fusion_jacobian. The readings' own noise is not
-        included."""
+        included. With `temperature` (K, (k,) or one for all): at those temperatures through the
+        temperature model, its coefficients' uncertainty included (`apply_at`)."""
         if self.covariance is None:
             raise CalibrationFileError("this calibration file has no covariance (format version "
                                        "1); solve the session again for one")
+        if temperature is not None:
+            if self.temperature is None:
+                raise CalibrationFileError("this calibration has no temperature model; give no "
+                                           "temperature")
+            return self.temperature.vector_covariance(
+                self.a, self.bias, self.covariance,
+                np.atleast_2d(self._readings(z).T).T, temperature)
         jac = measurement.fusion_jacobian(self.a, self._readings(z), self.bias)
         return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
 

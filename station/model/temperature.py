@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import InputError
+from station.model import measurement
 
 MAX_ORDER = 2
 KELVIN_MIN = 150.0
@@ -114,6 +115,34 @@ class TemperatureModel:
         r = z.T - np.asarray(b, float) - self.bias_offset(t)  # (k, m)
         rhs = np.einsum("kdm,km->kd", a_t, r)[..., None]
         return np.linalg.solve(a_t @ np.swapaxes(a_t, 1, 2), rhs)[..., 0].T
+
+    def vector_covariance(self, a, b, covariance, z, temperature) -> np.ndarray:
+        """(k, d, d) covariance of the calibrated vectors `fuse` gives for readings z (m, k) at
+        the temperatures (k,) (or one for all), due to the calibration's own uncertainty: the
+        covariance of (a row-major, b) at t_ref (`covariance`) and the model's, taken as
+        independent (the file holds no cross terms), by first-order propagation through
+        station.model.measurement.fusion_jacobian at a(T), b(T). The readings' noise is not
+        included."""
+        z = np.asarray(z, float)
+        t = np.broadcast_to(check_kelvin(temperature), (z.shape[1],))
+        a = np.asarray(a, float)
+        d, m = a.shape
+        out = np.empty((z.shape[1], d, d))
+        for temp in np.unique(t):  # one Jacobian per distinct temperature
+            at = t == temp
+            ratio, xp = self.scale_ratio(temp)[0], powers(temp - self.t_ref, MAX_ORDER)[0]
+            jac = measurement.fusion_jacobian(a * ratio, z[:, at], b + self.bias_offset(temp)[0])
+            jac_a = jac[:, :, : d * m].reshape(-1, d, d, m)
+            jac_b = jac[:, :, d * m:]
+            ref = np.concatenate([(jac_a * ratio).reshape(-1, d, d * m), jac_b], axis=2)
+            turn = np.einsum("kdri,ri->kdi", jac_a, a)  # d v / d ratio_i
+            coef = np.concatenate([(jac_b[..., None] * xp[: self.bias.shape[1]]).reshape(
+                -1, d, self.bias.size), (turn[..., None] * xp[: self.scale.shape[1]]).reshape(
+                -1, d, self.scale.size)], axis=2)
+            out[at] = np.einsum("kpi,ij,kqj->kpq", ref, covariance, ref) + \
+                np.einsum("kpi,ij,kqj->kpq", coef, self.covariance, coef)
+        return out
+
 
 def powers(x, order: int) -> np.ndarray:
     """(k, order) columns x, x^2, ..., x^order of x (k,)."""
