@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scipy.stats import binom, norm
+from scipy.stats import t as t_dist
 from thermalsim import (
     BETWEEN,
     SOAKS,
@@ -23,9 +24,13 @@ from station.errors import CalibrationInputError, InputError
 from station.files.calfile import Calibration, loads
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
+from station.reduce.eq18 import reduce_arrays
+from station.reduce.rotary import static_bias
 from station.reduce.still import StillReadings
 from station.reduce.stillness import detect_still
 from station.sim.layouts import accelerometer_triad, gyro_array
+from station.sim.rotary import simulate_rotary
+from station.sim.static import simulate_static
 from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
 from station.solve.temperature import FALSE_ALARM, fit_temperature, still_soak
 
@@ -92,31 +97,36 @@ def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
 
 
 def test_the_rotary_gyro_path_recovers_its_tempcos():
-    """Eq. 18 readings (bias-free) and biases measured apart, as a rotary soak gives them."""
-    truth = Temperature(bias=(1e-4, -2e-4, 5e-5, 1e-4), scale=(1e-4, 2e-4, -1e-4, 5e-5),
-                        t_ref=298.15)
-    rate, sigma, bias_sigma = 1.0, 1e-5, 2e-6
-    z = []
-    for seed in range(20):
-        rng = np.random.default_rng(seed)
-        unit = gyro_array(rng, a_nominal=np.array([[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1.0]])
-                          / np.array([1, 1, 1, np.sqrt(3)]))
+    """A 12-gyro unit's rotary sessions (20 positions) at 4 soaks, each through the Eq. 18
+    reduction, its biases from the static windows (`static_bias`), as `station solve` gets them:
+    the linear tempcos' z over 15 seeds. The scale z are N(0, 1) (sigmas from thousands of
+    samples); a bias sigma is the scatter of 20 static means (19 dof), so its z is at worst
+    t(19): sd up to sqrt(19 / 17), tails bounded by t(19)'s Bonferroni quantile."""
+    truth = Temperature(bias=2e-5, scale=(1e-4, -5e-5) * 6, t_ref=298.15)
+    temps = (263.15, 283.15, 313.15, 333.15)
+    z_bias, z_scale = [], []
+    for seed in range(15):
+        unit = gyro_array(np.random.default_rng(seed))
         soaks = []
-        for temp in (263.15, 283.15, 313.15, 333.15):
-            at = unit_at(unit, temp, True, truth)
-            u = rng.standard_normal((3, 24))
-            v = rate * u / np.linalg.norm(u, axis=0)
-            readings = at.a.T @ v + sigma * rng.standard_normal((4, 24))
-            soaks.append(Soak(temp, readings, np.full((4, 24), sigma),
-                              bias=at.bias + bias_sigma * rng.standard_normal(4),
-                              bias_sigma=np.full(4, bias_sigma)))
-        model = fit_temperature(soaks, rate, orders={"bias": 1, "scale": 1}).model
-        z.append(np.r_[(model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0],
-                       (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0]])
-    z = np.ravel(z)
-    low, high = spread_bounds(z.size)
-    print(f"gyro z spread {z.std():.3f}, max |z| {np.abs(z).max():.2f}")
-    assert low < z.std() < high and np.abs(z).max() < norm.isf(ALPHA / (2 * z.size))
+        sims = soak_recordings(unit, temps, truth, lambda u: simulate_rotary(u, 20))
+        for temp, sim in zip(temps, sims, strict=True):
+            reduced = reduce_arrays(sim.arrays)
+            bias = static_bias(reduced)
+            soaks.append(Soak(temp, reduced.M, reduced.sigma, bias=bias["bias"],
+                              bias_sigma=bias["bias_sigma"]))
+        model = fit_temperature(soaks, float(sims[0].arrays["c_cmd"]),
+                                orders={"bias": 1, "scale": 1}).model
+        z_bias.append((model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0])
+        z_scale.append((model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0])
+    z_bias, z_scale = np.ravel(z_bias), np.ravel(z_scale)
+    low, high = spread_bounds(z_scale.size)
+    print(f"gyro z spread: scale {z_scale.std():.3f}, bias {z_bias.std():.3f} (bounds {low:.3f} "
+          f".. {high:.3f}, bias up to {high - 1 + np.sqrt(19 / 17):.3f}); max |z| "
+          f"{np.abs(z_scale).max():.2f}, {np.abs(z_bias).max():.2f}")
+    assert low < z_scale.std() < high
+    assert low < z_bias.std() < high - 1 + np.sqrt(19 / 17)
+    assert np.abs(z_scale).max() < norm.isf(ALPHA / (2 * z_scale.size))
+    assert np.abs(z_bias).max() < t_dist.isf(ALPHA / (2 * z_bias.size), 19)
 
 
 def test_hysteresis_moves_the_bias_by_its_width_between_heating_and_cooling():
@@ -177,7 +187,7 @@ def test_the_free_static_path_from_detected_still_poses():
     below it with probability 1 - 4e-5)."""
     unit = accelerometer_triad(np.random.default_rng(11))
     soaks = []
-    sims = soak_recordings(unit, SOAKS, TRUE_LINEAR, still=4.0, move=2.0)  # the detector's pace
+    sims = soak_recordings(unit, SOAKS, TRUE_LINEAR, simulate_static)  # 4 s poses: the detector's
     for temp, sim in zip(SOAKS, sims, strict=True):
         found = detect_still(sim.arrays["y"][0] * sim.arrays["lsb"], unit.fs)
         p = len(found.mean)

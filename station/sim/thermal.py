@@ -6,6 +6,8 @@ temperature by `station.model.effects.temperature`; the still intervals of the t
 (mean and standard error per pose), as the reduction of a recorded soak would give them.
 """
 
+from functools import partial
+
 import numpy as np
 
 from station.model.effects import temperature as effect
@@ -24,24 +26,27 @@ def unit_at(unit: SensorUnit, temperature: float, heating: bool, p: effect.Tempe
                       unit.counts_per_unit, unit.output_range, unit.bias_walk, rng=unit.rng)
 
 
-def soak_recordings(unit: SensorUnit, temperatures, p: effect.Temperature, *, poses: int = 20,
-                    still: float = 2.0, move: float = 1.0, start: float = ROOM) -> list:
-    """[free-static Simulation] of `unit` at each temperature (K) in the order given, still poses
-    of `still` seconds (the unit starts at `start` K: each soak is reached by heating when warmer
-    than the one before)."""
+def soak_recordings(unit: SensorUnit, temperatures, p: effect.Temperature, simulate, *,
+                    start: float = ROOM) -> list:
+    """[Simulation] `simulate(unit at T)` of `unit` at each temperature T (K) in the order given
+    (e.g. a free-static session, or `station.sim.rotary.simulate_rotary` for a gyro unit); the
+    unit starts at `start` K: each soak is reached by heating when warmer than the one before."""
     sims, before = [], start
     for temp in temperatures:
-        sims.append(simulate_static(unit_at(unit, temp, temp > before, p), poses, still, move))
+        sims.append(simulate(unit_at(unit, temp, temp > before, p)))
         before = temp
     return sims
 
 
-def simulate_soaks(unit: SensorUnit, temperatures, p: effect.Temperature, **options) -> list:
-    """[Soak] of `unit` at each temperature (K): `soak_recordings` (its options) with the
-    still intervals of the truth averaged."""
+def simulate_soaks(unit: SensorUnit, temperatures, p: effect.Temperature, *, poses: int = 20,
+                   still: float = 2.0, move: float = 1.0, start: float = ROOM) -> list:
+    """[Soak] of `unit` at each temperature (K): free-static sessions of `poses` still poses of
+    `still` seconds (`soak_recordings`), the still intervals of the truth averaged."""
+    sims = soak_recordings(unit, temperatures, p,
+                           partial(simulate_static, poses=poses, still=still, move=move),
+                           start=start)
     return [Soak(float(temp), *_still_means(sim))
-            for temp, sim in zip(temperatures, soak_recordings(unit, temperatures, p, **options),
-                                 strict=True)]
+            for temp, sim in zip(temperatures, sims, strict=True)]
 
 
 def _still_means(sim) -> tuple:
