@@ -9,6 +9,7 @@ from scipy.stats import binom, norm
 from scipy.stats import t as t_dist
 from thermalsim import (
     BETWEEN,
+    GYRO_TRUTH,
     SOAKS,
     TRUE_LINEAR,
     TRUE_QUADRATIC,
@@ -16,6 +17,7 @@ from thermalsim import (
     direct_calibration,
     magnitude_errors,
     probe,
+    rotary_fit,
     thermal_fit,
     z_scores,
 )
@@ -24,12 +26,9 @@ from station.errors import CalibrationInputError, InputError
 from station.files.calfile import Calibration, loads
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
-from station.reduce.eq18 import reduce_arrays
-from station.reduce.rotary import static_bias
 from station.reduce.still import StillReadings
 from station.reduce.stillness import detect_still
-from station.sim.layouts import accelerometer_triad, gyro_array
-from station.sim.rotary import simulate_rotary
+from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static
 from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
 from station.solve.temperature import FALSE_ALARM, fit_temperature, still_soak
@@ -46,8 +45,8 @@ def spread_bounds(n: int) -> tuple:
 
 
 def test_tempcos_are_recovered_within_their_sigmas_over_50_seeds():
-    z = np.array([z_scores(thermal_fit(seed, orders={"bias": 1, "scale": 1})[1], TRUE_LINEAR)
-                  for seed in range(50)]).ravel()
+    z = np.ravel([z_scores(thermal_fit(seed, orders={"bias": 1, "scale": 1})[1], TRUE_LINEAR)
+                  for seed in range(50)])
     low, high = spread_bounds(z.size)
     bonferroni = norm.isf(ALPHA / (2 * z.size))  # all |z| below it with probability 1 - ALPHA
     print(f"z spread {z.std():.3f} (bounds {low:.3f} .. {high:.3f}), mean {z.mean():.3f}, "
@@ -97,28 +96,12 @@ def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
 
 
 def test_the_rotary_gyro_path_recovers_its_tempcos():
-    """A 12-gyro unit's rotary sessions (20 positions) at 4 soaks, each through the Eq. 18
-    reduction, its biases from the static windows (`static_bias`), as `station solve` gets them:
+    """A 12-gyro unit's rotary sessions at 4 soaks through the Eq. 18 reduction (`rotary_fit`):
     the linear tempcos' z over 15 seeds. The scale z are N(0, 1) (sigmas from thousands of
     samples); a bias sigma is the scatter of 20 static means (19 dof), so its z is at worst
     t(19): sd up to sqrt(19 / 17), tails bounded by t(19)'s Bonferroni quantile."""
-    truth = Temperature(bias=2e-5, scale=(1e-4, -5e-5) * 6, t_ref=298.15)
-    temps = (263.15, 283.15, 313.15, 333.15)
-    z_bias, z_scale = [], []
-    for seed in range(15):
-        unit = gyro_array(np.random.default_rng(seed))
-        soaks = []
-        sims = soak_recordings(unit, temps, truth, lambda u: simulate_rotary(u, 20))
-        for temp, sim in zip(temps, sims, strict=True):
-            reduced = reduce_arrays(sim.arrays)
-            bias = static_bias(reduced)
-            soaks.append(Soak(temp, reduced.M, reduced.sigma, bias=bias["bias"],
-                              bias_sigma=bias["bias_sigma"]))
-        model = fit_temperature(soaks, float(sims[0].arrays["c_cmd"]),
-                                orders={"bias": 1, "scale": 1}).model
-        z_bias.append((model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0])
-        z_scale.append((model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0])
-    z_bias, z_scale = np.ravel(z_bias), np.ravel(z_scale)
+    z_bias, z_scale = (np.ravel(z) for z in zip(*(z_scores(rotary_fit(seed), GYRO_TRUTH)
+                                                  for seed in range(15)), strict=True))
     low, high = spread_bounds(z_scale.size)
     print(f"gyro z spread: scale {z_scale.std():.3f}, bias {z_bias.std():.3f} (bounds {low:.3f} "
           f".. {high:.3f}, bias up to {high - 1 + np.sqrt(19 / 17):.3f}); max |z| "

@@ -11,14 +11,22 @@ import numpy as np
 
 from station.model.earth import normal_gravity
 from station.model.effects.temperature import Temperature
-from station.sim.layouts import accelerometer_triad
-from station.sim.thermal import simulate_soaks, unit_at
+from station.model.temperature import Soak
+from station.reduce.eq18 import reduce_arrays
+from station.reduce.rotary import static_bias
+from station.sim.layouts import accelerometer_triad, gyro_array
+from station.sim.rotary import simulate_rotary
+from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
 from station.solve.calibrate import calibrate
 from station.solve.temperature import fit_temperature
 
 G = normal_gravity(52.2)
 SOAKS = (233.15, 273.15, 318.15, 358.15)
 T_REF = 0.5 * (SOAKS[0] + SOAKS[-1])
+GYRO_SOAKS = (263.15, 283.15, 313.15, 333.15)
+GYRO_TRUTH = Temperature(bias=2e-5, scale=(1e-4, -5e-5) * 6, t_ref=0.5 * (263.15 + 333.15))
+"""A 12-gyro unit (station.sim.layouts.gyro_array): 20 ndeg/s/K ... 1 mdeg/s/K biases (2e-5
+rad/s/K), 50-100 ppm/K scale factors."""
 BETWEEN = (243.15, 258.15, 288.15, 303.15, 333.15, 348.15)
 """Six temperatures inside the range, none a soak's."""
 TRUE_LINEAR = Temperature(bias=(2e-3, -3e-3, 2.5e-3), scale=(1e-4, -5e-5, 2e-4), t_ref=T_REF)
@@ -32,11 +40,27 @@ def thermal_fit(seed: int, truth: Temperature = TRUE_LINEAR, orders=None):
     return unit, fit_temperature(simulate_soaks(unit, SOAKS, truth), G, orders=orders)
 
 
-def z_scores(fit, truth: Temperature) -> np.ndarray:
-    """(6,) (estimate - truth) / sigma of the linear bias and scale tempcos of a fit."""
+def rotary_fit(seed: int, truth: Temperature = GYRO_TRUTH):
+    """The linear TemperatureFit of a 12-gyro unit's rotary sessions (20 positions) at
+    GYRO_SOAKS, each through the Eq. 18 reduction with its biases from the static windows
+    (`static_bias`), as `station solve` gets them."""
+    unit = gyro_array(np.random.default_rng(seed))
+    soaks = []
+    sims = soak_recordings(unit, GYRO_SOAKS, truth, lambda u: simulate_rotary(u, 20))
+    for temp, sim in zip(GYRO_SOAKS, sims, strict=True):
+        reduced = reduce_arrays(sim.arrays)
+        bias = static_bias(reduced)
+        soaks.append(Soak(temp, reduced.M, reduced.sigma, bias=bias["bias"],
+                          bias_sigma=bias["bias_sigma"]))
+    return fit_temperature(soaks, float(sims[0].arrays["c_cmd"]),
+                           orders={"bias": 1, "scale": 1})
+
+
+def z_scores(fit, truth: Temperature) -> tuple:
+    """((m,) bias, (m,) scale) (estimate - truth) / sigma of a fit's linear tempcos."""
     model = fit.model
-    return np.r_[(model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0],
-                 (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0]]
+    return ((model.bias[:, 0] - truth.bias) / model.bias_sigma[:, 0],
+            (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0])
 
 
 def probe(unit, temperature: float, truth: Temperature, rng, n: int = 500):
