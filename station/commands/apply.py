@@ -135,10 +135,11 @@ def run(args) -> int:
 
 
 def check_temperature_options(args, cal) -> None:
-    """Refuse temperature options a calibration cannot use, and a model without a temperature
-    source (a session may still provide its channel in K: `read_session`)."""
+    """Refuse temperature options a calibration without a temperature model cannot use, both
+    sources at once, and a fixed temperature that is not kelvin."""
     given = [f"--{k.replace('_', '-')}" for k in ("temperature", "temperature_column",
-                                                  "extrapolate") if getattr(args, k)]
+                                                  "extrapolate")
+             if getattr(args, k) not in (None, False)]
     if cal.temperature is None:
         if given:
             raise InputError(f"{args.calibration} has no temperature model (calibrated at one "

@@ -333,7 +333,7 @@ class Calibration(measurement.Sensitivity):
         if self.temperature is None:
             raise CalibrationFileError("this calibration has no temperature model; apply it "
                                        "without a temperature")
-        return self.temperature.fuse(self.a, self.bias, np.atleast_2d(self._readings(z).T).T,
+        return self.temperature.fuse(self.a, self.bias, self._readings(z).reshape(self.m, -1),
                                      temperature)
 
     def fusion_matrix(self) -> np.ndarray:
@@ -369,7 +369,7 @@ class Calibration(measurement.Sensitivity):
                                            "temperature")
             return self.temperature.vector_covariance(
                 self.a, self.bias, self.covariance,
-                np.atleast_2d(self._readings(z).T).T, temperature)
+                self._readings(z).reshape(self.m, -1), temperature)
         jac = measurement.fusion_jacobian(self.a, self._readings(z), self.bias)
         return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
 
