@@ -37,6 +37,12 @@ ALPHA = 0.01
 """False-alarm probability of each statistical check below."""
 
 
+GLS_T19 = 1.064
+"""sd of the slope's z of a straight line fitted to 4 points at x = -35, -15, 15, 35 K with
+weights 1 / s_k^2, s_k^2 ~ sigma^2 chi2(19) / 19 independent (2e5 draws of that arithmetic alone,
+numpy; 1.057 for one point's t(19))."""
+
+
 def spread_bounds(n: int) -> tuple:
     """Two-sided ALPHA bounds of the sample standard deviation of n N(0, 1) values (its standard
     error is 1 / sqrt(2 n) for large n)."""
@@ -98,16 +104,17 @@ def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
 def test_the_rotary_gyro_path_recovers_its_tempcos():
     """A 12-gyro unit's rotary sessions at 4 soaks through the Eq. 18 reduction (`rotary_fit`):
     the linear tempcos' z over 15 seeds. The scale z are N(0, 1) (sigmas from thousands of
-    samples); a bias sigma is the scatter of 20 static means (19 dof), so its z is at worst
-    t(19): sd up to sqrt(19 / 17), tails bounded by t(19)'s Bonferroni quantile."""
+    samples). A bias sigma is the scatter of 20 static means (19 dof): a soak's bias z is t(19)
+    (sd sqrt(19/17) = 1.057), and the least squares over 4 soaks weighted by those estimated
+    sigmas spreads its slope's z to GLS_T19 (tails bounded by t(19)'s Bonferroni quantile)."""
     z_bias, z_scale = (np.ravel(z) for z in zip(*(z_scores(rotary_fit(seed), GYRO_TRUTH)
                                                   for seed in range(15)), strict=True))
     low, high = spread_bounds(z_scale.size)
     print(f"gyro z spread: scale {z_scale.std():.3f}, bias {z_bias.std():.3f} (bounds {low:.3f} "
-          f".. {high:.3f}, bias up to {high - 1 + np.sqrt(19 / 17):.3f}); max |z| "
+          f".. {high:.3f}, bias up to {high - 1 + GLS_T19:.3f}); max |z| "
           f"{np.abs(z_scale).max():.2f}, {np.abs(z_bias).max():.2f}")
     assert low < z_scale.std() < high
-    assert low < z_bias.std() < high - 1 + np.sqrt(19 / 17)
+    assert low < z_bias.std() < high - 1 + GLS_T19
     assert np.abs(z_scale).max() < norm.isf(ALPHA / (2 * z_scale.size))
     assert np.abs(z_bias).max() < t_dist.isf(ALPHA / (2 * z_bias.size), 19)
 
