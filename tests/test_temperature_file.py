@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 
+import h5py
 import numpy as np
 import pytest
 from test_calfile import edited, make
@@ -250,10 +251,13 @@ def test_a_sessions_channel_in_kelvin_is_used(tmp_path, cal_path):
                               {"imu": spec}) as w:
         w.append("imu", SampleBlock(np.round(np.c_[z, temps] * cpu).astype(np.int64), seq,
                                     np.full(len(z), np.nan), 10.0 + seq / 100.0, spec.channels))
-    out = tmp_path / "v.csv"
+    out = tmp_path / "v.h5"
     assert cli.main(["apply", str(cal_path), str(tmp_path / "s.h5"), "--out", str(out)]) == 0
+    with h5py.File(out, "r") as f:
+        got, used = f["v"][()], f["temperature"][()]
+        assert f["temperature"].attrs["units"] == "K"
     # counts rounded to 1e-6 rad/s and 0.01 K (the tempcos move a reading < 1e-5 per 0.01 K)
-    assert np.max(np.abs(read_vectors(out)[:, 1:] - v)) < 2e-5
+    assert np.max(np.abs(got - v)) < 2e-5 and np.max(np.abs(used - temps)) <= 0.005
 
 
 C_PROGRAM = r"""

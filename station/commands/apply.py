@@ -19,7 +19,8 @@ applied at the unit's temperature of each sample: from a column (`--temperature-
 K: a CSV column `NAME` or `NAME [K]`, or a channel of the session's stream; by default the CSV's
 one column `[K]` or the stream's one channel in K, if it has one) or one fixed `--temperature
 KELVIN`. A temperature outside the calibrated range is refused, naming the range, unless
-`--extrapolate` (then a warning on stderr and `extrapolated` in the --json summary). The
+`--extrapolate` (then a warning on stderr and `extrapolated` in the --json summary); HDF5 output
+keeps the temperatures used (dataset `temperature`, K). The
 temperature options are refused with a calibration that has no temperature model. `--sigma` with
 a model includes its coefficients' uncertainty (taken independent of the reference calibration's:
 the file holds no cross terms).
@@ -119,7 +120,8 @@ def run(args) -> int:
     if args.out is None:
         sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
     elif args.out.suffix.lower() in HDF5_SUFFIXES:
-        write_hdf5(args.out, time, v, cal, args.data, sigma)
+        write_hdf5(args.out, time, v, cal, args.data, sigma,
+                   temp if cal.temperature is not None else None)
     else:
         args.out.write_text(csv_text(time, v, cal.units[0], sigma))
     if args.json:
@@ -302,9 +304,10 @@ def csv_text(time, v, unit: str, sigma=None) -> str:
     return out.getvalue()
 
 
-def write_hdf5(path, time, v, cal, source, sigma=None) -> None:
-    """An HDF5 file: datasets `v` (k, d), `time` (k,) (when known) and `v_sigma` (k, d) (when
-    given), with units and origin."""
+def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None:
+    """An HDF5 file: datasets `v` (k, d), `time` (k,) (when known), `v_sigma` (k, d) (when
+    given) and `temperature` (k,) K (the unit's temperature the model was applied at, when it
+    was), with units and origin."""
     import h5py
 
     tmp = f"{path}.tmp{os.getpid()}"
@@ -316,6 +319,9 @@ def write_hdf5(path, time, v, cal, source, sigma=None) -> None:
         ds.attrs.update(units=cal.units[0], columns=list(AXES[:v.shape[1]]))
         if time is not None:
             f.create_dataset("time", data=time).attrs["units"] = "s"
+        if temperature is not None:
+            f.create_dataset("temperature", data=temperature).attrs.update(
+                units="K", meaning="the unit's temperature the temperature model was applied at")
         if sigma is not None:
             f.create_dataset("v_sigma", data=sigma).attrs.update(
                 units=cal.units[0], columns=list(AXES[:v.shape[1]]),
