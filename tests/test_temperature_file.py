@@ -293,10 +293,12 @@ int main(void) {
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="needs a C compiler")
-def test_the_c_header_carries_the_temperature_model(tmp_path, cal_path):
+def test_the_c_header_carries_the_temperature_model(tmp_path, cal_path, capsys):
     header = tmp_path / "cal.h"
     assert cli.main(["export", str(cal_path), "--c-header", str(header), "--type",
                      "double"]) == 0
+    assert "temperature model: IMU_CAL_T_REF, _T_MIN, _T_MAX (260.00 .. 340.00 K), bias order 2" \
+        in capsys.readouterr().out
     text = header.read_text()
     assert "#define IMU_CAL_T_MIN 260.0" in text and "#define IMU_CAL_BIAS_ORDER 2" in text
     (tmp_path / "main.c").write_text(C_PROGRAM)
