@@ -1,9 +1,11 @@
-"""Per-soak still-pose readings of a unit at a list of temperatures (the `temperature` effect).
+"""A unit soaked at a list of temperatures (the `temperature` effect): one simulated session each.
 
-Each soak is a free-static recording (`station.sim.static.simulate_static`: random poses, smooth
-turns, the unit's noise and quantisation) of the unit with its a and b moved to the soak's
-temperature by `station.model.effects.temperature`; the still intervals of the truth are averaged
-(mean and standard error per pose), as the reduction of a recorded soak would give them.
+Each soak is a session of the unit with its a and b moved to the soak's temperature by
+`station.model.effects.temperature` (`unit_at`): any session simulation (`soak_recordings`, e.g.
+`station.sim.rotary.simulate_rotary`), or a free-static one (`simulate_soaks`:
+`station.sim.static.simulate_static`, random poses, smooth turns, the unit's noise and
+quantisation) whose still intervals of the truth are averaged (mean and standard error per pose),
+as the reduction of a recorded soak would give them.
 """
 
 from functools import partial
