@@ -108,7 +108,7 @@ def test_files_are_written_once_unless_overwrite(tmp_path):
 def test_an_unknown_version_is_refused_naming_the_versions():
     text = edited(make(), lambda d: d.update(format_version=FORMAT_VERSION + 1), True)
     with pytest.raises(CalibrationFileError,
-                       match=r"format_version 6 .*reads \(1, 2, 3, 4, 5\).*newer"):
+                       match=r"format_version 7 .*reads \(1, 2, 3, 4, 5, 6\).*newer"):
         loads(text)
     for bad in ("1", 1.0, True, None):
         with pytest.raises(CalibrationFileError, match="format_version"):
@@ -257,15 +257,15 @@ def test_a_version_1_file_still_loads_without_covariance():
     from station.files.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
-        del doc["covariance"], doc["verdict"], doc["uncertainty"], doc["noise"]
+        del doc["covariance"], doc["verdict"], doc["uncertainty"], doc["noise"], doc["temperature"]
         doc.update(format_version=1, conventions=CONVENTIONS_V1)
 
     back = loads(edited(make(), to_v1, True))
     assert back.covariance is None and back.verdict is None and back.unit_serial == "SN42"
     assert back.white is None and back.pose_sigma is None
     with pytest.raises(CalibrationFileError,
-                       match="unknown keys \\['covariance', 'noise', 'uncertainty', "
-                             "'verdict'\\]"):
+                       match="unknown keys \\['covariance', 'noise', 'temperature', "
+                             "'uncertainty', 'verdict'\\]"):
         loads(edited(make(covariance=None), lambda d: d.update(format_version=1,
                                                               conventions=CONVENTIONS_V1), True))
 
@@ -274,7 +274,7 @@ def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
     from station.files.calfile import CONVENTIONS
 
     def to_v2(doc):
-        del doc["verdict"], doc["uncertainty"], doc["noise"]
+        del doc["verdict"], doc["uncertainty"], doc["noise"], doc["temperature"]
         doc.update(format_version=2, conventions=CONVENTIONS)
 
     assert loads(edited(make(), to_v2, True)).verdict is None
@@ -334,7 +334,7 @@ def test_a_version_3_file_loads_without_the_white_noise_figure():
     from station.files.calfile import CONVENTIONS_V3
 
     def to_v3(doc):
-        del doc["uncertainty"], doc["noise"]
+        del doc["uncertainty"], doc["noise"], doc["temperature"]
         doc.update(format_version=3, conventions=CONVENTIONS_V3)
 
     back = loads(edited(make(), to_v3, True))
@@ -391,7 +391,7 @@ def test_noise_figures_round_trip_bit_for_bit(tmp_path, resolved):
     assert (back.noise.rate_hz, back.noise.seconds) == (200.0, 3600.5)
     assert back.dumps() == path.read_text()
     doc = json.loads(path.read_text())
-    assert doc["format_version"] == 5 and doc["noise"]["units"]["random_walk"] == \
+    assert doc["format_version"] == 6 and doc["noise"]["units"]["random_walk"] == \
         "rad/s / sqrt(s)"
     assert loads(make().dumps()).noise is None  # not measured: null
 
@@ -400,12 +400,12 @@ def test_a_version_4_file_loads_without_noise_figures():
     from station.files.calfile import CONVENTIONS_V4
 
     def to_v4(doc):
-        del doc["noise"]
+        del doc["noise"], doc["temperature"]
         doc.update(format_version=4, conventions=CONVENTIONS_V4)
 
     back = loads(edited(make(), to_v4, True))
     assert back.noise is None and back.white is None and back.unit_serial == "SN42"
-    with pytest.raises(CalibrationFileError, match="unknown keys \\['noise'\\]"):
+    with pytest.raises(CalibrationFileError, match="unknown keys \\['noise', 'temperature'\\]"):
         loads(edited(noisy(), lambda d: d.update(format_version=4, conventions=CONVENTIONS_V4),
                      True))
 

@@ -1,7 +1,8 @@
 """`station export`: calibration files -> the formats other tools read.
 
 --to c-header   a C header for firmware (station.files.export_c): the fusion matrix, biases and
-                counts per SI unit, so that v = FUSION (counts / COUNTS_PER_UNIT - BIAS); any m
+                counts per SI unit, so that v = FUSION (counts / COUNTS_PER_UNIT - BIAS); any m;
+                a temperature model's reference, range and coefficients when the file has one
 --to kalibr     Kalibr's imu.yaml: noise densities, random walks, update rate, and the
                 scale-misalignment intrinsics (station.files.export_kalibr); accelerometer + gyro
 --to ardupilot  ArduPilot INS_ACCOFFS/INS_ACCSCAL/INS_GYROFFS, a Mission Planner / MAVProxy
@@ -125,9 +126,14 @@ def _write(fmt: str, cals: list, args):
             raise InputError("a C header holds one calibration file; export the gyro one "
                              "with its own header")
         cal, prefix, ctype = cals[0], args.prefix or "IMU_CAL", args.type or "float"
-        return Written(c_header(cal, prefix, ctype),
-                       (f"{prefix}_FUSION[{cal.d}][{cal.m}] and {prefix}_BIAS "
-                        f"({ctype}, {cal.units[0]})",))
+        notes = (f"{prefix}_FUSION[{cal.d}][{cal.m}] and {prefix}_BIAS "
+                 f"({ctype}, {cal.units[0]})",)
+        if cal.temperature is not None:
+            t = cal.temperature
+            notes += (f"the temperature model: {prefix}_T_REF, _T_MIN, _T_MAX "
+                      f"({t.t_min:.2f} .. {t.t_max:.2f} K), bias order {t.orders['bias']}, "
+                      f"scale order {t.orders['scale']} (the formula in the header's comment)",)
+        return Written(c_header(cal, prefix, ctype), notes)
     imu = Imu.of(*cals)
     if fmt == "kalibr":
         from station.files.export_kalibr import kalibr

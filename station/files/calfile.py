@@ -18,7 +18,10 @@ date. Version 4 adds `uncertainty`: the sigmas above are the total figure (the r
 noise plus a per-pose error term estimated from the residuals, docs/solvers.md), `uncertainty`
 holds that term and the white-noise figure beside them. Version 5 adds `noise`: each sensor's
 white-noise density, bias instability and random walk from the static data by the Allan deviation
-(`NoiseFigures`, docs/noise.md), null when not measured. Files of versions 1-4 still load.
+(`NoiseFigures`, docs/noise.md), null when not measured. Version 6 adds `temperature`: the
+temperature model (biases and scale factors as polynomials in T - t_ref, the calibrated range,
+the coefficients with their sigmas and covariance; station.model.temperature), null when there
+is none; `a` and `b` are then the calibration at t_ref. Files of versions 1-5 still load.
 Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives back
 bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits and
 damage (it is not a signature).
@@ -37,14 +40,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from station.errors import CalibrationFileError
+from station.errors import CalibrationFileError, InputError
 from station.files.provenance import software_version, utc_now
 from station.model import measurement
+from station.model.temperature import MAX_ORDER, TemperatureModel, check_kelvin
 
 FORMAT = "imu-station-calibration"
-FORMAT_VERSION = 5
-SUPPORTED_VERSIONS = (1, 2, 3, 4, 5)  # 2 added `covariance`, 3 `verdict`, 4 `uncertainty`,
-# 5 `noise`
+FORMAT_VERSION = 6
+SUPPORTED_VERSIONS = (1, 2, 3, 4, 5, 6)  # 2 added `covariance`, 3 `verdict`, 4 `uncertainty`,
+# 5 `noise`, 6 `temperature`
 MAX_BYTES = 4 << 20
 LIMITS = {"a": (1e-9, 1e12), "b": (0.0, 1e9), "magnitude": (1e-12, 1e9), "condition": (0.0, 1e8)}
 """Plausible ranges of finite numbers, wide enough for any unit in SI or raw counts: column norms
@@ -88,12 +92,26 @@ CONVENTIONS_V5 = {**CONVENTIONS_V4,
                            "given; a term null when the data did not resolve it for every "
                            "sensor; rate_hz and seconds of the static data; null when not "
                            "measured"}
+CONVENTIONS_V6 = {**CONVENTIONS_V5,
+                  "temperature": "the temperature model (docs/conventions.md, Temperature): at "
+                                 "the unit's temperature T in K, x = T - t_ref, b_i(T) = b_i + "
+                                 "sum_p bias[i][p-1] x^p and a_i(T) = a_i (1 + sum_p "
+                                 "scale[i][p-1] x^p), a and b above being the calibration at "
+                                 "t_ref; valid on range [t_min, t_max] K; covariance over (bias "
+                                 "row-major, then scale row-major); null when none"}
 _KEYS = {1: _KEYS_V1, 2: (*_KEYS_V1[:-1], "covariance", "checksum"),
          3: (*_KEYS_V1[:-1], "covariance", "verdict", "checksum"),
          4: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "checksum"),
-         5: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "noise", "checksum")}
+         5: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "noise", "checksum"),
+         6: (*_KEYS_V1[:-1], "covariance", "verdict", "uncertainty", "noise", "temperature",
+             "checksum")}
 _CONVENTIONS = {1: CONVENTIONS_V1, 2: CONVENTIONS, 3: CONVENTIONS_V3, 4: CONVENTIONS_V4,
-                5: CONVENTIONS_V5}
+                5: CONVENTIONS_V5, 6: CONVENTIONS_V6}
+TEMPERATURE_KEYS = ("t_ref", "range", "orders", "bias", "bias_sigma", "scale", "scale_sigma",
+                    "covariance", "units")
+SCALE_RATIO = (0.1, 10.0)
+"""a_i(T) / a_i(t_ref) must stay within these over the calibrated range: beyond, a temperature
+model is no unit's (and applying it would divide by almost nothing)."""
 NOISE_TERMS = ("white", "bias_instability", "random_walk")
 NOISE_KEYS = ("white", "white_sigma", "bias_instability", "bias_instability_sigma", "random_walk",
               "random_walk_sigma", "rate_hz", "seconds", "units")
@@ -169,6 +187,8 @@ class Calibration(measurement.Sensitivity):
                           version 4)
     noise               : each sensor's `NoiseFigures`, or None (not measured; files before
                           version 5)
+    temperature         : the `TemperatureModel` (station.model.temperature), a and bias being
+                          the calibration at its t_ref, or None (none; files before version 6)
     """
 
     unit_serial: str
@@ -193,6 +213,7 @@ class Calibration(measurement.Sensitivity):
     pose_sigma: float | None = None
     white: dict | None = None
     noise: NoiseFigures | None = None
+    temperature: TemperatureModel | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
 
@@ -279,6 +300,42 @@ class Calibration(measurement.Sensitivity):
         _from_document(cal.to_document(), "the calibration")
         return cal
 
+    @classmethod
+    def from_temperature_fit(cls, fit, unit_serial: str, sensors, units,
+                             **kwargs) -> "Calibration":
+        """A calibration file's content from `station.solve.temperature.TemperatureFit`: its
+        reference calibration (at t_ref) with the temperature model; `fit.temperature` records
+        the soaks' temperatures, the fit's chi2 and dof and the order selection's steps; a fit
+        with problems (inconsistent with the soaks' uncertainty) is written "suspect" with them.
+        kwargs: those of `from_result` (counts_per_unit, session, ...)."""
+        if fit.problems:
+            kwargs.update(status="suspect", status_reasons=fit.problems)
+        cal = cls.from_result(fit.reference, unit_serial, sensors, units, **kwargs)
+        record = {"soaks_K": [float(s.temperature) for s in fit.soak_data],
+                  "chi2": float(fit.chi2), "dof": int(fit.dof),
+                  "selection": [{"quantity": q, "order": o, "chi2_drop": drop,
+                                 "threshold": limit, "accepted": ok}
+                                for q, o, drop, limit, ok in fit.tests]}
+        return dataclasses.replace(cal, fit={**cal.fit, "temperature": record}) \
+            .with_temperature(fit.model)
+
+    def with_temperature(self, model: TemperatureModel | None) -> "Calibration":
+        """This calibration with a temperature model (checked as a load checks it); a and bias
+        must be the calibration at the model's t_ref (station.solve.temperature's reference)."""
+        cal = dataclasses.replace(self, temperature=model)
+        _from_document(cal.to_document(), "the calibration")
+        return cal
+
+    def apply_at(self, z, temperature) -> np.ndarray:
+        """Calibrated vectors (d, k) from SI readings z (m, k) taken at the unit's temperatures
+        (k,) K (or one for all), through the temperature model; refused without one. The caller
+        checks the calibrated range (`temperature.outside`)."""
+        if self.temperature is None:
+            raise CalibrationFileError("this calibration has no temperature model; apply it "
+                                       "without a temperature")
+        return self.temperature.fuse(self.a, self.bias, self._readings(z).reshape(self.m, -1),
+                                     temperature)
+
     def fusion_matrix(self) -> np.ndarray:
         """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""
         return measurement.fusion_matrix(self.a)
@@ -297,14 +354,22 @@ class Calibration(measurement.Sensitivity):
                                        "one column per instant: (m,) or (m, k)")
         return z
 
-    def vector_covariance(self, z) -> np.ndarray:
+    def vector_covariance(self, z, temperature=None) -> np.ndarray:
         """(k, d, d) covariance of each calibrated vector F (z - b) due to the calibration's own
         uncertainty (`covariance`), for SI readings z (m,) or (m, k), by first-order propagation
         through station.model.measurement.fusion_jacobian. The readings' own noise is not
-        included."""
+        included. With `temperature` (K, (k,) or one for all): at those temperatures through the
+        temperature model, its coefficients' uncertainty included (`apply_at`)."""
         if self.covariance is None:
             raise CalibrationFileError("this calibration file has no covariance (format version "
                                        "1); solve the session again for one")
+        if temperature is not None:
+            if self.temperature is None:
+                raise CalibrationFileError("this calibration has no temperature model; give no "
+                                           "temperature")
+            return self.temperature.vector_covariance(
+                self.a, self.bias, self.covariance,
+                self._readings(z).reshape(self.m, -1), temperature)
         jac = measurement.fusion_jacobian(self.a, self._readings(z), self.bias)
         return np.einsum("kpi,ij,kqj->kpq", jac, self.covariance, jac)
 
@@ -331,7 +396,7 @@ class Calibration(measurement.Sensitivity):
         doc = {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
-            "conventions": dict(CONVENTIONS_V5),
+            "conventions": dict(CONVENTIONS_V6),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
             "units": {"readings": list(self.units), "stimulus": self.units[0],
                       "sensitivity": "1 (reading unit per stimulus unit)",
@@ -350,6 +415,8 @@ class Calibration(measurement.Sensitivity):
                             "white": None if self.white is None else
                             {k: _list(self.white[k]) for k in WHITE}},
             "noise": None if self.noise is None else self.noise.to_document(self.units[0]),
+            "temperature": None if self.temperature is None else
+            temperature_document(self.temperature, self.units[0]),
         }
         doc["checksum"] = checksum(doc)
         return doc
@@ -456,6 +523,74 @@ def _noise(doc, m: int, unit: str, fail) -> NoiseFigures | None:
                                 bound=LIMITS["b"][1])
     return NoiseFigures(**terms, rate_hz=float(block["rate_hz"]),
                         seconds=float(block["seconds"]))
+
+
+def temperature_units(unit: str, orders: dict) -> dict:
+    """The units of the temperature model's coefficients for readings in `unit`."""
+    return {"temperature": "K",
+            "bias": [f"{unit} / K^{p}" for p in range(1, orders["bias"] + 1)],
+            "scale": [f"1 / K^{p}" for p in range(1, orders["scale"] + 1)]}
+
+
+def temperature_document(model: TemperatureModel, unit: str) -> dict:
+    """The file's `temperature` object of a model, for readings in `unit`."""
+    return {"t_ref": model.t_ref, "range": [model.t_min, model.t_max],
+            "orders": dict(model.orders), "bias": _list(model.bias),
+            "bias_sigma": _list(model.bias_sigma), "scale": _list(model.scale),
+            "scale_sigma": _list(model.scale_sigma), "covariance": _list(model.covariance),
+            "units": temperature_units(unit, model.orders)}
+
+
+def _temperature(doc, m: int, unit: str, fail) -> TemperatureModel | None:
+    """The `temperature` object of a version-6 document (None before, or null), checked: exactly
+    its keys; t_ref and the range in kelvin, t_min < t_max, t_ref inside; orders integers in
+    0..MAX_ORDER; coefficients (m, order) finite, sigmas the square roots of the covariance's
+    diagonal (symmetric, positive semi-definite); the units those of the readings and orders; the
+    scale ratio within SCALE_RATIO over the range."""
+    block = doc.get("temperature")
+    if block is None:
+        return None
+
+    def fail_t(problem: str, *advice) -> CalibrationFileError:
+        return fail(f"temperature: {problem}", *advice)
+
+    if not isinstance(block, dict) or set(block) != set(TEMPERATURE_KEYS):
+        raise fail(f"temperature must be null or an object with exactly "
+                   f"{', '.join(TEMPERATURE_KEYS)}")
+    orders = block["orders"]
+    if not (isinstance(orders, dict) and set(orders) == {"bias", "scale"}
+            and all(type(v) is int and 0 <= v <= MAX_ORDER for v in orders.values())):
+        raise fail_t(f"orders {orders!r} must be {{bias, scale}}, each an integer 0..{MAX_ORDER}")
+    if block["units"] != temperature_units(unit, orders):
+        raise fail_t(f"units {block['units']!r} are not {temperature_units(unit, orders)}")
+    span = _array(block, "range", fail_t, shape=(2,))
+    t_ref = block["t_ref"]
+    if type(t_ref) not in (int, float):
+        raise fail_t(f"t_ref {t_ref!r} must be a number (K)")
+    try:
+        check_kelvin([t_ref, *span], "temperature.t_ref and range")
+    except InputError as exc:
+        raise fail(str(exc)) from None
+    if not span[0] < span[1] or not span[0] <= t_ref <= span[1]:
+        raise fail_t(f"range {span.tolist()} must be [t_min, t_max] with t_min < t_max and "
+                     f"t_ref {t_ref} inside")
+    shapes = {"bias": (m, orders["bias"]), "scale": (m, orders["scale"])}
+    coef = {k: _array(block, k, fail_t, shape=shapes[k], bound=LIMITS["b"][1]) for k in shapes}
+    sigma = {k: _array(block, f"{k}_sigma", fail_t, shape=shapes[k], sigma=True)
+             for k in shapes}
+    k = m * (orders["bias"] + orders["scale"])
+    if not k and block["covariance"] != []:
+        raise fail_t("covariance must be [] when both orders are 0")
+    cov = _covariance(block, np.r_[sigma["bias"].ravel(), sigma["scale"].ravel()], fail_t) \
+        if k else np.zeros((0, 0))
+    model = TemperatureModel(t_ref=float(t_ref), t_min=float(span[0]), t_max=float(span[1]),
+                             bias=coef["bias"].reshape(shapes["bias"]),
+                             scale=coef["scale"].reshape(shapes["scale"]), covariance=cov)
+    ratio = model.scale_ratio(np.linspace(span[0], span[1], 101))
+    if not (SCALE_RATIO[0] <= ratio.min() and ratio.max() <= SCALE_RATIO[1]):
+        raise fail_t(f"scale makes a scale factor change by a ratio {ratio.min():.3g} .. "
+                     f"{ratio.max():.3g} over the range; no unit does (allowed {SCALE_RATIO})")
+    return model
 
 
 def checksum(doc: dict) -> str:
@@ -591,7 +726,8 @@ def _from_document(doc, where: str) -> Calibration:
         frame=frame, magnitude=float(magnitude), scale_known=doc["scale_known"], fit=fit,
         counts_per_unit=cpu, session=session, covariance=covariance, verdict=verdict,
         pose_sigma=pose_sigma, white=white,
-        noise=_noise(doc, m, readings_units[0], fail), created=doc["created"],
+        noise=_noise(doc, m, readings_units[0], fail),
+        temperature=_temperature(doc, m, readings_units[0], fail), created=doc["created"],
         software_version=doc["software_version"])
 
 

@@ -8,6 +8,17 @@ and, from raw counts, z[i] = counts[i] / COUNTS_PER_UNIT[i]. The header holds th
 the biases and the counts scale as `static const float` (or double) arrays with their units in
 comments, plus the unit's serial, the sensor order, the frame and the calibration file's checksum
 so the firmware image can be traced back to the calibration.
+
+With a temperature model (calibration file version 6) the header adds T_REF, T_MIN, T_MAX (K),
+the orders and the coefficients BIAS_TEMPCO[i][p-1] (u/K^p) and SCALE_TEMPCO[i][p-1] (1/K^p);
+at the unit's temperature T (x = T - T_REF) the firmware computes
+
+    r[i]  = 1 + sum_p SCALE_TEMPCO[i][p-1] x^p
+    zc[i] = (z[i] - BIAS[i] - sum_p BIAS_TEMPCO[i][p-1] x^p) / r[i]
+    v[k] = sum_i FUSION[k][i] * zc[i]
+
+which is the model's fusion exactly for a triad (m = d) and, for m > d, the least squares with
+each sensor's residual weighted by r[i]^2 (a weighting within a few 1e-3 of the station's).
 """
 
 import re
@@ -61,8 +72,30 @@ def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") ->
         lines += ["", f"/* raw counts per {unit} of each sensor */",
                   (f"static const {ctype} {prefix}_COUNTS_PER_UNIT[{m}] = "
                    f"{{{_row(cal.counts_per_unit, ctype)}}};")]
+    if cal.temperature is not None:
+        lines += temperature_lines(cal.temperature, prefix, ctype, unit)
     lines += ["", f"#endif /* {guard} */", ""]
     return "\n".join(lines)
+
+
+def temperature_lines(model, prefix: str, ctype: str, unit: str) -> list:
+    """The header lines of a temperature model (module docstring); an order-0 quantity has its
+    order macro only (C has no empty arrays)."""
+    lines = ["", "/* temperature model (docs/conventions.md): x = T - T_REF, T in K, valid on "
+                 "[T_MIN, T_MAX] */",
+             f"#define {prefix}_T_REF {model.t_ref!r}",
+             f"#define {prefix}_T_MIN {model.t_min!r}",
+             f"#define {prefix}_T_MAX {model.t_max!r}"]
+    for name, coef, words in (("BIAS", model.bias, f"{unit} per K^p"),
+                              ("SCALE", model.scale, "relative, per K^p")):
+        order = coef.shape[1]
+        lines.append(f"#define {prefix}_{name}_ORDER {order}")
+        if order:
+            lines += [f"/* {name.lower()} tempco of degree p = 1..{order} of each sensor, "
+                      f"{words} */",
+                      f"static const {ctype} {prefix}_{name}_TEMPCO[{len(coef)}][{order}] = {{",
+                      *(f"    {{{_row(row, ctype)}}}," for row in coef), "};"]
+    return lines
 
 
 def _row(values, ctype: str) -> str:
