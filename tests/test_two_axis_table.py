@@ -73,7 +73,7 @@ def test_a_one_axis_map_reads_as_before_and_refuses_a_position(bench):
         with pytest.raises(TableError, match="no position axis; use a two-axis profile"):
             table.set_position(0.5)
     assert not ONE_AXIS.two_axis and TWO_AXIS.two_axis
-    assert ONE_AXIS.span == (0, 8) and TWO_AXIS.span == (0, 12)
+    assert ONE_AXIS.span == (0, 8) and TWO_AXIS.span == (0, 17)
 
 
 @pytest.mark.parametrize("drop, missing", [
