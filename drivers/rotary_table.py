@@ -8,7 +8,7 @@ table adds an optional position axis (the inner axis the unit is mounted on, doc
 position setpoint and the measured position (int32 fixed point, counts per rad) and an
 `in_position` status bit; a map without them is a one-axis table, exactly as before. The position
 axis may also have a rate mode (optional, all or none; it needs the position axis): a
-`position_mode` register (uint16: `command_values.position_rate` runs the axis at
+`position_mode` register (uint16: `command_values.position_spin` runs the axis at
 `position_rate_setpoint`, `command_values.position_hold` brings it to rest and holds it where it
 stops, or moves it to a new `position_setpoint`), the rate setpoint and the measured rate (int32
 fixed point at the rate scale) and the status bits `position_at_rate` and `position_moving`; the
@@ -98,7 +98,7 @@ class TableRegisterMap:
     its rate mode (optional, all or none, with the position axis only): registers
                   `position_mode` (uint16), `position_rate_setpoint`, `position_rate` (int32 fixed
                   point at rate_scale) and status bits `position_at_rate`, `position_moving`;
-                  position_rate, position_hold: the values written to `position_mode`
+                  position_spin, position_hold: the values written to `position_mode`
     fixture (optional, both or none): register `mount` (uint16) and status bit `mounted`
     """
 
@@ -110,7 +110,7 @@ class TableRegisterMap:
     run: int = 1
     stop: int = 0
     word_order: str = "big"
-    position_rate: int = 1
+    position_spin: int = 1
     position_hold: int = 0
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
 
@@ -141,8 +141,8 @@ class TableRegisterMap:
             raise ProfileError(f"word_order must be 'big' or 'little', got {self.word_order!r}")
         if not (self.rate_scale > 0 and self.angle_scale > 0):
             raise ProfileError("table scales (counts per rad/s, counts per rad) must be positive")
-        if self.rate_mode and self.position_rate == self.position_hold:
-            raise ProfileError("command_values position_rate and position_hold must differ")
+        if self.rate_mode and self.position_spin == self.position_hold:
+            raise ProfileError("command_values position_spin and position_hold must differ")
         if not all(0 <= b < 16 for b in self.status_bits.values()):
             raise ProfileError(f"status bits must be numbers 0..15, got {self.status_bits}")
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
@@ -189,7 +189,7 @@ class TableRegisterMap:
                 device_id=s.get("device_id", int, default=1),
                 run=commands.get("run", int, default=1) if commands else 1,
                 stop=commands.get("stop", int, default=0) if commands else 0,
-                position_rate=commands.get("position_rate", int, default=1) if commands else 1,
+                position_spin=commands.get("position_spin", int, default=1) if commands else 1,
                 position_hold=commands.get("position_hold", int, default=0) if commands else 0,
                 word_order=s.get("word_order", str, default="big", choices=("big", "little")))
         except ProfileError:
@@ -243,7 +243,7 @@ class TableReading:
     in_position: bool | None = None
     position_rate: float | None = None  # rad/s, the position axis' rate mode (None: none)
     position_rate_setpoint: float | None = None
-    position_spinning: bool | None = None  # in rate mode (position_mode = position_rate)
+    position_spinning: bool | None = None  # in rate mode (position_mode = position_spin)
     position_at_rate: bool | None = None
     position_moving: bool | None = None
     mount: int | None = None  # the fixture's position asked for, 1-based (None: no fixture)
@@ -342,7 +342,7 @@ class RotaryTable:
         words = self.map.encode(rate_rad_s, self.map.rate_scale)
         self._operate("set position rate", lambda: self._client.write_registers(
             self.map.registers["position_rate_setpoint"], words, device_id=self.map.device_id))
-        self._operate("spin position axis", lambda: self._write_mode(self.map.position_rate),
+        self._operate("spin position axis", lambda: self._write_mode(self.map.position_spin),
                       repeat=False)
         return self._wait_until(
             lambda r: r.position_spinning and r.position_at_rate
@@ -426,7 +426,7 @@ class RotaryTable:
                      "position_rate_setpoint": self.map.decode(words("position_rate_setpoint"),
                                                                self.map.rate_scale),
                      "position_spinning": regs[self.map.registers["position_mode"] - first]
-                     == self.map.position_rate,
+                     == self.map.position_spin,
                      **{n: bits[n] for n in RATE_MODE_BITS}}
         if self.map.fixture:
             axis |= {"mount": regs[self.map.registers[FIXTURE_REGISTER] - first],

@@ -117,11 +117,11 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
 
 
 class AbortsInTheSpin:
-    """The bench's technician, who raises KeyboardInterrupt at the spin's rotating window (the
-    position axis at rate), noting then the state of both axes."""
+    """The bench's technician, who raises KeyboardInterrupt at the rotating window of position
+    `at` (1-based: the spin, the position axis at rate), noting then the state of both axes."""
 
-    def __init__(self, bench):
-        self.bench, self.technician = bench, bench.technician
+    def __init__(self, bench, at: int):
+        self.bench, self.technician, self.at = bench, bench.technician, at
         self.seen = None
 
     def __getattr__(self, name):
@@ -129,7 +129,7 @@ class AbortsInTheSpin:
 
     def prompt(self, text: str) -> None:
         self.technician.prompt(text)
-        if f"position {CONE // 2 + 1}: rotating window" in text and self.seen is None:
+        if f"position {self.at}: rotating window" in text and self.seen is None:
             self.seen = (self.bench.position.state(), self.bench.table.state())
             raise KeyboardInterrupt
 
@@ -137,16 +137,17 @@ class AbortsInTheSpin:
 def test_an_abort_during_the_spin_stops_both_axes_and_the_session_resumes_and_solves(tmp_path):
     """An exception during the position axis' spin: the protocol stops the table, both axes come
     to rest, `abort` is recorded; `resume_rotary` records the spin again and the file solves."""
-    cone, path, cal = CONE // 2, tmp_path / "two_axis.h5", tmp_path / "cal.json"
+    # 6 on the cone: with c, the 6 directions Eq. (7)'s g needs (+-c are one for it)
+    cone, path, cal = 6, tmp_path / "two_axis.h5", tmp_path / "cal.json"
     phis = position_angles(cone)
     with VirtualBench(seed=4, speed=40.0, two_axis=True) as bench:
         a, bias = bench.unit.a.copy(), bench.unit.bias.copy()
-        quitter = AbortsInTheSpin(bench)
+        quitter = AbortsInTheSpin(bench, cone + 1)
         original = bench.technician
         bench.technician = quitter
         try:
             with pytest.raises(KeyboardInterrupt):
-                record_rotary(bench, path, FAST, phis=phis, spins=2)
+                record_rotary(bench, path, FAST, phis=phis, spins=1)
         finally:
             bench.technician = original
         spinning, table = quitter.seen
@@ -166,15 +167,15 @@ def test_an_abort_during_the_spin_stops_both_axes_and_the_session_resumes_and_so
         reduced = rotary_readings(f)
         events = f.events()
     spins = [e for e in events if e.kind == "position_start" and e.detail.get("spin")]
-    assert [e.position for e in spins] == [cone, cone, cone + 1]  # the spin recorded again
-    axes = spin_axes(phis, 2)
+    assert [e.position for e in spins] == [cone, cone]  # the spin recorded again
+    axes = spin_axes(phis, 1)
     k = stats.norm.ppf(1 - ALARM / (2 * reduced.M.size))
     assert np.all(np.abs(reduced.M - a.T @ axes.T) < k * reduced.sigma)
     solved = station_run("solve", str(path), "--out", str(cal), "--json")
     assert solved.returncode == 0, solved.stderr
     check_solution(load(cal), a, bias, axes, reduced.sigma)
     with Session.open(path) as f:
-        assert RotaryProtocol.from_metadata(f.metadata, None, None, None).spins == 2
+        assert RotaryProtocol.from_metadata(f.metadata, None, None, None).spins == 1
 
 
 @pytest.mark.parametrize("drop", ["position_mode", "position_rate_setpoint", "position_rate",
@@ -243,7 +244,7 @@ def test_a_spin_that_does_not_reach_its_rate_in_time_is_a_timeout_with_both_axes
         table.set_rate(1.0)
         table.start()
         with pytest.raises(TableTimeout, match=rf"127.0.0.1:{twin.port}: position axis not at "
-                                               r"2 rad/s within 1 s.*check") as caught:
+                                               r"2 rad/s within 1.0 s \(at .* rad/s\); check") as caught:
             table.spin_position(2.0, timeout=1.0)  # the ramp alone takes 4 s
         assert caught.value.table_stopped is True
         assert not physics.state().running and not axis.state().spinning

@@ -212,7 +212,7 @@ class TableTwin:
             if m.rate_mode:
                 for name, on in zip(RATE_MODE_BITS, (p.at_rate, p.moving), strict=True):
                     image[m.registers["status"]] |= on << m.status_bits[name]
-                image[m.registers["position_mode"]] = (m.position_rate if p.spinning
+                image[m.registers["position_mode"]] = (m.position_spin if p.spinning
                                                        else m.position_hold)
                 fixed |= {"position_rate": m.encode(p.rate, m.rate_scale),
                           "position_rate_setpoint": m.encode(p.rate_setpoint, m.rate_scale)}
@@ -240,7 +240,7 @@ class TableTwin:
         if any(0 < sum(a in written for a in pair) < 2 for pair in (target, setpoint, spin)):
             return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
         position_mode = next((written[a] for a in mode & set(written)), None)
-        if position_mode not in (None, m.position_rate, m.position_hold):
+        if position_mode not in (None, m.position_spin, m.position_hold):
             return ExcCodes.ILLEGAL_VALUE
         for address in mount & set(written):
             self.fixture.request(written[address])
@@ -257,7 +257,7 @@ class TableTwin:
         if command not in (None, m.run, m.stop):
             return ExcCodes.ILLEGAL_VALUE
         self._log_write(address, values)
-        if position_mode == m.position_rate:
+        if position_mode == m.position_spin:
             self.position.spin()
         elif position_mode == m.position_hold:
             self.position.hold()
