@@ -3,6 +3,7 @@ driver, physics, twin), the session of cone positions plus a spin of the positio
 `station record` with no operator input and solved by `station solve`, its resume after an abort
 during the spin, and the safety of both axes (every stop stops both)."""
 
+import io
 import json
 import os
 import signal
@@ -322,3 +323,34 @@ def test_a_bench_profile_on_a_two_axis_table(tmp_path):
     with pytest.raises(ProfileError, match="no rate mode of the position axis"):
         BenchProfile.load(path)
 
+
+
+def test_the_live_view_follows_the_spinning_axis():
+    """During a spin of the position axis the live view counts the turns of that axis (not of
+    the rate axis, at rest) and shows its rate."""
+    from rich.console import Console
+
+    from drivers.rotary_table import TableReading
+    from station.acquire.live_view import LiveView
+
+    class Clock:
+        def now(self) -> float:
+            return 50.0
+
+    view = LiveView(Clock(), rate_hz=200.0)
+    phis = position_angles(6)
+    protocol = view.follow(RotaryProtocol(table=None, operator=None, clock=Clock(),
+                                          axes=spin_axes(phis, 1), phis=phis, spins=1))
+    protocol.position, protocol.state = 6, "rotating"
+    view.on_event("position_start", 6, {"spin": "position"})
+    view.on_event("rotate_start", 6, {"angle": 2.0, "axis": "position", "time": 49.0})
+    view.on_table(TableReading(50.0, 0.0, 7.0, 1.0, False, True, False, False, False,
+                               position=2.0 + 3 * np.pi, position_setpoint=0.0,
+                               in_position=False, position_rate=1.0, position_rate_setpoint=1.0,
+                               position_spinning=True, position_at_rate=True,
+                               position_moving=True))
+    console = Console(file=io.StringIO(), width=130, record=True)
+    console.print(view.render())
+    text = console.export_text()
+    assert "1.50 of 2 turns" in text  # 3 pi of the position axis, 2 turns (default settings)
+    assert "position axis +1.0000 rad/s at 11.425 rad" in text

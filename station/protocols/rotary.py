@@ -305,7 +305,7 @@ class RotaryProtocol:
         return self.settings.rate * (spin_signs(self.spins)[j - len(self.phis)]
                                      if self._spun(j) else 1.0)
 
-    def _motion(self, reading) -> tuple:
+    def motion(self, reading) -> tuple:
         """(rate, angle, at rate) of the axis that spins at this position."""
         if self._spun(self.position):
             return reading.position_rate, reading.position, reading.position_at_rate
@@ -335,7 +335,7 @@ class RotaryProtocol:
 
     def _settle(self) -> str:
         s = self.settings
-        self._until(lambda r: self._motion(r)[2] and self._on_rate(r), s.steady,
+        self._until(lambda r: self.motion(r)[2] and self._on_rate(r), s.steady,
                     f"the table to reach {self._rate():g} rad/s")
         return "rotating"
 
@@ -347,16 +347,16 @@ class RotaryProtocol:
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
-        while abs(self._motion(reading)[1] - self._motion(start)[1]) < sweep:
+        while abs(self.motion(reading)[1] - self.motion(start)[1]) < sweep:
             self.clock.sleep(s.poll)
             reading = self._poll()
             if not self._on_rate(reading):
-                raise ProtocolError(f"the table's rate {self._motion(reading)[0]:.4f} rad/s left "
+                raise ProtocolError(f"the table's rate {self.motion(reading)[0]:.4f} rad/s left "
                                     f"{self._rate():g} +- {s.tolerance:g} rad/s while recording "
                                     f"position {j + 1}; check the table and record this position "
                                     "again")
             if self.clock.now() > deadline:
-                swept = abs(self._motion(reading)[1] - self._motion(start)[1])
+                swept = abs(self.motion(reading)[1] - self.motion(start)[1])
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{swept:.2f} rad in the rotating window); check the table's "
                                     "encoder")
@@ -529,7 +529,7 @@ class RotaryProtocol:
     # -- helpers ---------------------------------------------------------------------------------
 
     def _on_rate(self, reading) -> bool:
-        return abs(self._motion(reading)[0] - self._rate()) < self.settings.tolerance
+        return abs(self.motion(reading)[0] - self._rate()) < self.settings.tolerance
 
     def _poll(self, imu: bool = True):
         """Check the IMU stream (unless `imu` is False), read the table and keep its state,
