@@ -19,7 +19,7 @@ from scipy import stats
 import station
 from drivers.clock import ScaledClock
 from drivers.profile import ProfileError
-from drivers.rotary_table import RotaryTable, TableRegisterMap, TableTimeout
+from drivers.rotary_table import RotaryTable, TableError, TableRegisterMap, TableTimeout
 from drivers.twins.table import TableTwin
 from station.acquire.bench import BenchProfile, stop_table
 from station.errors import CalibrationInputError
@@ -322,6 +322,10 @@ def test_a_bench_profile_on_a_two_axis_table(tmp_path):
     path.write_text(base + f'profile = "{no_rate}"\n[protocol]\npositions = 6\n')
     with pytest.raises(ProfileError, match="no rate mode of the position axis"):
         BenchProfile.load(path)
+    # the driver refuses a spin on it before it sends anything
+    with pytest.raises(TableError, match="no rate mode of the position axis; use a two-axis "
+                                         "profile with one"):
+        RotaryTable("127.0.0.1", 1, TableRegisterMap.load(no_rate)).spin_position(1.0)
 
 
 

@@ -300,8 +300,10 @@ class PositionAxis:
         self._spinner.set_rate(rate)
 
     def spin(self) -> None:
-        """Rate mode: run at the rate setpoint (a slew in progress is halted first)."""
-        self.hold()
+        """Rate mode: run at the rate setpoint (a slew in progress halts where it is)."""
+        with self._lock:
+            self._advance()
+            self._setpoint = self._angle
         self._spinner.start()
 
     def hold(self) -> None:
