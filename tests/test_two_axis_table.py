@@ -62,6 +62,8 @@ def test_not_in_position_in_time_is_a_timeout_naming_the_table_and_the_table_is_
             table.set_position(2.0, timeout=needed / 4)
         assert caught.value.table_stopped is True
         assert not physics.state().running
+        halted = axis.state()  # the stop halts the position axis' slew too, short of 2 rad
+        assert halted.in_position and halted.angle < 2.0 and not halted.moving
 
 
 def test_a_one_axis_map_reads_as_before_and_refuses_a_position(bench):
