@@ -12,9 +12,11 @@ axis may also have a rate mode (optional, all or none; it needs the position axi
 `position_rate_setpoint`, `command_values.position_hold` brings it to rest and holds it where it
 stops, or moves it to a new `position_setpoint`), the rate setpoint and the measured rate (int32
 fixed point at the rate scale) and the status bits `position_at_rate` and `position_moving`; the
-`position` register then reads the cumulative angle. This imitates the per-axis modes of
-multi-axis motion controllers (Acutronic ACUTROL, Ideal Aerosmith 2100 series: every axis is set
-to position or rate mode, then commanded in that mode), laid out generically as holding registers.
+`position` register then reads the cumulative angle. The layout is generic, after the per-axis
+objects of the CiA 402 drive profile (IEC 61800-7-201): a mode register as "modes of operation"
+(0x6060: profile position / profile velocity), the rate setpoint as "target velocity" (0x60FF),
+the measured rate as "velocity actual value" (0x606C), `position_at_rate` as the statusword's
+"target reached" in velocity mode; no rate-table vendor's command set is copied.
 A table with
 a motorised mounting fixture (a robot that re-mounts the unit in the positions of the protocol's
 plan) adds a `mount` register (uint16: the position asked for, 1-based; 0 none) and a `mounted`
