@@ -125,6 +125,48 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
     check_solution(load(cal), truth["a"], truth["bias"], axes, reduced.sigma)
 
 
+def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp_path):
+    """Ctrl-C to `station record` while the position axis spins (the twin in its own process):
+    the session ends with `abort` (table stopped), `station resume` (stdin closed) records the
+    spin again on the same twin and the file solves within the statistical bounds."""
+    cone = 5  # with c, the 6 directions Eq. (7)'s g needs
+    profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
+    twin = subprocess.Popen(
+        [*STATION, "twin", "--two-axis", "--speed", "40", "--positions", str(cone), "--seed", "6",
+         "--profile-out", str(profile), "--lifetime", "200", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
+    try:
+        json.loads(twin.stdout.readline())
+        rec = subprocess.Popen(  # --json: the prompts on stderr
+            [*STATION, "record", "--profile", str(profile), "--out", str(session), "--json"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env=ENV)
+        for line in rec.stderr:
+            if f"position {cone + 1}: rotating window" in line:
+                rec.send_signal(signal.SIGINT)
+                break
+        rec.communicate(timeout=60)
+        assert rec.returncode == 130
+        with Session.open(session) as s:
+            aborts = [e for e in s.events() if e.kind == "abort"]
+            assert s.last_completed_position() == cone - 1
+        assert [(e.position, e.detail["table_stopped"]) for e in aborts] == [(cone, True)]
+        resumed = station_run("resume", str(session), "--json")
+        assert resumed.returncode == 0, resumed.stderr
+        solved = station_run("solve", str(session), "--out", str(cal), "--json")
+        assert solved.returncode == 0, solved.stderr
+    finally:
+        twin.send_signal(signal.SIGINT)
+        out, err = twin.communicate(timeout=30)
+    assert twin.returncode == 0, err
+    truth = json.loads(out.splitlines()[-1])["truth"]
+    with Session.open(session) as s:
+        starts = [e for e in s.events() if e.kind == "position_start"]
+        reduced = rotary_readings(s)
+    assert [e.position for e in starts if e.detail.get("spin")] == [cone, cone]
+    check_solution(load(cal), truth["a"], truth["bias"], truth["axes"], reduced.sigma)
+
+
 class AbortsInTheSpin:
     """The bench's technician, who raises KeyboardInterrupt at the rotating window of position
     `at` (1-based: the spin, the position axis at rate), noting then the state of both axes."""
