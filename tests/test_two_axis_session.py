@@ -264,7 +264,7 @@ def table_bench():
 
 
 def driver(twin, clock) -> RotaryTable:
-    return RotaryTable("127.0.0.1", twin.port, TWO_AXIS, timeout=0.2, retries=1, clock=clock)
+    return RotaryTable("127.0.0.1", twin.port, TWO_AXIS, timeout=1.0, retries=1, clock=clock)
 
 
 def test_spin_position_reaches_its_rate_and_the_angle_is_cumulative(table_bench):
