@@ -167,6 +167,16 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
     check_solution(load(cal), truth["a"], truth["bias"], truth["axes"], reduced.sigma)
 
 
+@pytest.mark.parametrize("args, words", [
+    (["--two-axis", "--cube"], "--cube and --two-axis exclude each other"),
+    (["--two-axis", "--protocol", "static"], "--two-axis: a static bench has no rotary table"),
+])
+def test_station_twin_refuses_a_two_axis_bench_it_cannot_serve(tmp_path, args, words):
+    refused = station_run("twin", *args, "--profile-out", str(tmp_path / "p.toml"), timeout=30)
+    assert refused.returncode == 2 and words in refused.stderr, refused.stderr
+    assert not (tmp_path / "p.toml").exists()
+
+
 class AbortsInTheSpin:
     """The bench's technician, who raises KeyboardInterrupt at the rotating window of position
     `at` (1-based: the spin, the position axis at rate), noting then the state of both axes."""
