@@ -6,13 +6,26 @@ rate setpoint, the measured rate and the cumulative angle, the last three as sig
 point numbers (register integer = SI value * scale) with a configurable word order. A two-axis
 table adds an optional position axis (the inner axis the unit is mounted on, docs/devices.md): a
 position setpoint and the measured position (int32 fixed point, counts per rad) and an
-`in_position` status bit; a map without them is a one-axis table, exactly as before. A table with
+`in_position` status bit; a map without them is a one-axis table, exactly as before. The position
+axis may also have a rate mode (optional, all or none; it needs the position axis): a
+`position_mode` register (uint16: `command_values.position_spin` runs the axis at
+`position_rate_setpoint`, `command_values.position_hold` brings it to rest and holds it where it
+stops, or moves it to a new `position_setpoint`), the rate setpoint and the measured rate (int32
+fixed point at the rate scale) and the status bits `position_at_rate` and `position_moving`; the
+`position` register then reads the cumulative angle. The layout is generic, after the per-axis
+objects of the CiA 402 drive profile (IEC 61800-7-201): a mode register as "modes of operation"
+(0x6060: profile position / profile velocity), the rate setpoint as "target velocity" (0x60FF),
+the measured rate as "velocity actual value" (0x606C), `position_at_rate` as the statusword's
+"target reached" in velocity mode; no rate-table vendor's command set is copied.
+A table with
 a motorised mounting fixture (a robot that re-mounts the unit in the positions of the protocol's
 plan) adds a `mount` register (uint16: the position asked for, 1-based; 0 none) and a `mounted`
 status bit (the fixture holds the unit in the position asked for).
 
 `RotaryTable(host, port, register_map)` offers `set_rate`, `start`, `stop`, `state()`, on a
-two-axis table `set_position` (waits until the table reports in position, or `TableTimeout`) and,
+two-axis table `set_position` (waits until the table reports in position, or `TableTimeout`), with
+a rate mode `spin_position` (runs the position axis at a rate and waits until it is there, or
+`TableTimeout` with both axes stopped) and,
 with a fixture, `mount` (waits until the fixture reports the unit mounted, or `TableTimeout`). Every
 failure of a transaction becomes a `TableError` whose message names the table (`rotary table at
 host:port`), what happened and what to do: `TableBusy` (code 6), `TableTimeout` (no reply),
@@ -21,9 +34,10 @@ host:port`), what happened and what to do: `TableBusy` (code 6), `TableTimeout` 
 failure), `TableError` for the rest (e.g. code 2: the register map does not match the table). A busy
 answer is retried a bounded number of times (the controller did nothing); a timeout, a lost
 connection or a bad reply only where repeating is safe: reads, the setpoint and stop, never a
-start (it may have been executed). After any failure the driver tries to stop the table and notes on
-the error whether it could (`error.table_stopped`); as a context manager it stops the table on exit,
-whatever happened.
+start (it may have been executed). `stop` stops every axis: the rate axis and, with a rate
+mode, the position axis (back to position mode, held where it comes to rest). After any failure
+the driver tries to stop the table and notes on the error whether it could
+(`error.table_stopped`); as a context manager it stops the table on exit, whatever happened.
 """
 
 import logging
@@ -54,6 +68,9 @@ WORD_REGISTERS = ("status", "command")  # one 16-bit register each
 FIXED_REGISTERS = ("rate_setpoint", "rate", "angle")  # int32 fixed point, two registers each
 POSITION_REGISTERS = ("position_setpoint", "position")  # optional position axis, int32 fixed point
 POSITION_BIT = "in_position"  # status bit of the optional position axis
+RATE_MODE_REGISTERS = ("position_mode", "position_rate_setpoint", "position_rate")
+RATE_MODE_FIXED = ("position_rate_setpoint", "position_rate")  # int32 fixed point at rate_scale
+RATE_MODE_BITS = ("position_at_rate", "position_moving")  # status bits of the rate mode
 FIXTURE_REGISTER = "mount"  # optional mounting fixture: the position asked for (uint16, 1-based)
 FIXTURE_BIT = "mounted"  # its status bit: the unit is held in the position asked for
 STOP_RETRY_PAUSE = 0.05  # s between two emergency stop attempts
@@ -80,6 +97,10 @@ class TableRegisterMap:
     word_order  : "big" (high word at the lower address) or "little"
     position axis (optional, all or none): registers `position_setpoint`, `position` (int32 fixed
                   point at angle_scale counts per rad) and status bit `in_position`
+    its rate mode (optional, all or none, with the position axis only): registers
+                  `position_mode` (uint16), `position_rate_setpoint`, `position_rate` (int32 fixed
+                  point at rate_scale) and status bits `position_at_rate`, `position_moving`;
+                  position_spin, position_hold: the values written to `position_mode`
     fixture (optional, both or none): register `mount` (uint16) and status bit `mounted`
     """
 
@@ -91,6 +112,8 @@ class TableRegisterMap:
     run: int = 1
     stop: int = 0
     word_order: str = "big"
+    position_spin: int = 1
+    position_hold: int = 0
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
 
     def __post_init__(self):
@@ -99,10 +122,16 @@ class TableRegisterMap:
         axis = [n in self.registers for n in POSITION_REGISTERS]
         axis += [POSITION_BIT in self.status_bits]
         fixture = [FIXTURE_REGISTER in self.registers, FIXTURE_BIT in self.status_bits]
+        rate_mode = [n in self.registers for n in RATE_MODE_REGISTERS]
+        rate_mode += [n in self.status_bits for n in RATE_MODE_BITS]
         for names, present in ((POSITION_REGISTERS + (POSITION_BIT,), axis),
-                               ((FIXTURE_REGISTER, FIXTURE_BIT), fixture)):
+                               ((FIXTURE_REGISTER, FIXTURE_BIT), fixture),
+                               (RATE_MODE_REGISTERS + RATE_MODE_BITS, rate_mode)):
             if any(present) and not all(present):  # an optional part is all there or absent
                 missing += [n for n, on in zip(names, present, strict=True) if not on]
+        if any(rate_mode) and not any(axis):
+            missing += [n for n, on in zip(POSITION_REGISTERS + (POSITION_BIT,), axis,
+                                           strict=True) if not on]  # a rate mode of what?
         if missing:
             raise ProfileError(f"table register map lacks {missing}; see docs/devices.md")
         used = sorted(a for n in self.quantities for a in self.addresses(n))
@@ -114,6 +143,8 @@ class TableRegisterMap:
             raise ProfileError(f"word_order must be 'big' or 'little', got {self.word_order!r}")
         if not (self.rate_scale > 0 and self.angle_scale > 0):
             raise ProfileError("table scales (counts per rad/s, counts per rad) must be positive")
+        if self.rate_mode and self.position_spin == self.position_hold:
+            raise ProfileError("command_values position_spin and position_hold must differ")
         if not all(0 <= b < 16 for b in self.status_bits.values()):
             raise ProfileError(f"status bits must be numbers 0..15, got {self.status_bits}")
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
@@ -124,6 +155,11 @@ class TableRegisterMap:
         return "position" in self.registers
 
     @property
+    def rate_mode(self) -> bool:
+        """Can the position axis run at a rate (a two-axis session's spin about it)?"""
+        return "position_mode" in self.registers
+
+    @property
     def fixture(self) -> bool:
         """Does the table have a motorised mounting fixture?"""
         return FIXTURE_REGISTER in self.registers
@@ -132,6 +168,7 @@ class TableRegisterMap:
     def quantities(self) -> tuple:
         """Names of the registers this map lays out."""
         position = POSITION_REGISTERS if self.two_axis else ()
+        position += RATE_MODE_REGISTERS if self.rate_mode else ()
         return (WORD_REGISTERS + FIXED_REGISTERS + position
                 + ((FIXTURE_REGISTER,) if self.fixture else ()))
 
@@ -141,8 +178,10 @@ class TableRegisterMap:
         s.get("name", str, default="rotary table")
         registers, bits, scale = s.sub("registers"), s.sub("status_bits"), s.sub("scale")
         commands = s.sub("command_values") if s.has("command_values") else None
-        optional = tuple(n for n in POSITION_REGISTERS + (FIXTURE_REGISTER,) if registers.has(n))
-        optional_bits = tuple(n for n in (POSITION_BIT, FIXTURE_BIT) if bits.has(n))
+        optional = tuple(n for n in POSITION_REGISTERS + RATE_MODE_REGISTERS + (FIXTURE_REGISTER,)
+                         if registers.has(n))
+        optional_bits = tuple(n for n in (POSITION_BIT, FIXTURE_BIT) + RATE_MODE_BITS
+                              if bits.has(n))
         try:
             table = cls(
                 registers={n: registers.get(n, int)
@@ -152,6 +191,8 @@ class TableRegisterMap:
                 device_id=s.get("device_id", int, default=1),
                 run=commands.get("run", int, default=1) if commands else 1,
                 stop=commands.get("stop", int, default=0) if commands else 0,
+                position_spin=commands.get("position_spin", int, default=1) if commands else 1,
+                position_hold=commands.get("position_hold", int, default=0) if commands else 0,
                 word_order=s.get("word_order", str, default="big", choices=("big", "little")))
         except ProfileError:
             raise
@@ -168,7 +209,7 @@ class TableRegisterMap:
 
     def addresses(self, name: str) -> range:
         """Register addresses a named quantity occupies."""
-        width = 2 if name in FIXED_REGISTERS + POSITION_REGISTERS else 1
+        width = 2 if name in FIXED_REGISTERS + POSITION_REGISTERS + RATE_MODE_FIXED else 1
         return range(self.registers[name], self.registers[name] + width)
 
     def encode(self, value: float, scale: float) -> list:
@@ -202,8 +243,18 @@ class TableReading:
     position: float | None = None  # rad, the position axis (None: a one-axis table)
     position_setpoint: float | None = None
     in_position: bool | None = None
+    position_rate: float | None = None  # rad/s, the position axis' rate mode (None: none)
+    position_rate_setpoint: float | None = None
+    position_spinning: bool | None = None  # in rate mode (position_mode = position_spin)
+    position_at_rate: bool | None = None
+    position_moving: bool | None = None
     mount: int | None = None  # the fixture's position asked for, 1-based (None: no fixture)
     mounted: bool | None = None
+
+    @property
+    def resting(self) -> bool:
+        """Every axis stands still: the rate axis and, with a rate mode, the position axis."""
+        return not (self.moving or self.position_moving)
 
 
 class RotaryTable:
@@ -278,6 +329,31 @@ class RotaryTable:
                       f"(at {r.position:.4f} rad); check that nothing blocks it and the axis is "
                       "enabled")
 
+    def spin_position(self, rate_rad_s: float, timeout: float = 60.0, poll: float = 0.05) -> \
+            TableReading:
+        """Run the position axis at `rate_rad_s` (rate mode) and wait (clock seconds, at most
+        `timeout`) until the table reports it at rate; returns that reading. A table without the
+        rate mode is an error; one that does not reach the rate in time raises `TableTimeout` and
+        is stopped (both axes). `stop` ends the spin."""
+        if not self.map.rate_mode:
+            raise TableError(f"{self.where}: its register map has no rate mode of the position "
+                             "axis; use a two-axis profile with one (e.g. table_two_axis)")
+        if not math.isfinite(rate_rad_s):
+            raise ValueError(f"position rate must be a finite number of rad/s, got "
+                             f"{rate_rad_s!r}")
+        words = self.map.encode(rate_rad_s, self.map.rate_scale)
+        self._operate("set position rate", lambda: self._client.write_registers(
+            self.map.registers["position_rate_setpoint"], words, device_id=self.map.device_id))
+        self._operate("spin position axis", lambda: self._write_mode(self.map.position_spin),
+                      repeat=False)
+        return self._wait_until(
+            lambda r: r.position_spinning and r.position_at_rate
+            and abs(r.position_rate_setpoint - rate_rad_s) <= 1 / self.map.rate_scale,
+            timeout, poll,
+            lambda r: f"position axis not at {rate_rad_s:g} rad/s within {timeout} s (at "
+                      f"{r.position_rate:.4f} rad/s); check that nothing blocks it and the axis "
+                      "is enabled")
+
     def mount(self, position: int, timeout: float = 120.0, poll: float = 0.05) -> TableReading:
         """Ask the mounting fixture for `position` (1-based, as the plan numbers them) and wait
         (clock seconds, at most `timeout`) until it reports the unit mounted there; returns that
@@ -315,8 +391,20 @@ class RotaryTable:
         self._operate("start", lambda: self._write_command(self.map.run), repeat=False)
 
     def stop(self) -> None:
-        """Command the table to decelerate to rest."""
-        self._request("stop", lambda: self._write_command(self.map.stop))
+        """Command every axis to decelerate to rest: the rate axis and, with a rate mode, the
+        position axis (position mode, held where it stops). Both commands are sent even if the
+        first fails; the first failure is raised."""
+        failure = None
+        stops = [("stop", lambda: self._write_command(self.map.stop))]
+        if self.map.rate_mode:
+            stops.append(("stop position axis", lambda: self._write_mode(self.map.position_hold)))
+        for what, call in stops:
+            try:
+                self._request(what, call)
+            except TableError as error:
+                failure = failure or error
+        if failure is not None:
+            raise failure
 
     def state(self) -> TableReading:
         """Read every register in one transaction."""
@@ -335,6 +423,13 @@ class RotaryTable:
                     "position_setpoint": self.map.decode(words("position_setpoint"),
                                                          self.map.angle_scale),
                     "in_position": bits[POSITION_BIT]}
+        if self.map.rate_mode:
+            axis |= {"position_rate": self.map.decode(words("position_rate"), self.map.rate_scale),
+                     "position_rate_setpoint": self.map.decode(words("position_rate_setpoint"),
+                                                               self.map.rate_scale),
+                     "position_spinning": regs[self.map.registers["position_mode"] - first]
+                     == self.map.position_spin,
+                     **{n: bits[n] for n in RATE_MODE_BITS}}
         if self.map.fixture:
             axis |= {"mount": regs[self.map.registers[FIXTURE_REGISTER] - first],
                      "mounted": bits[FIXTURE_BIT]}
@@ -358,6 +453,10 @@ class RotaryTable:
 
     def _write_command(self, value: int):
         return self._client.write_register(self.map.registers["command"], value,
+                                           device_id=self.map.device_id)
+
+    def _write_mode(self, value: int):
+        return self._client.write_register(self.map.registers["position_mode"], value,
                                            device_id=self.map.device_id)
 
     def _operate(self, what: str, call, repeat: bool = True):

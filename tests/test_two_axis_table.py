@@ -62,6 +62,8 @@ def test_not_in_position_in_time_is_a_timeout_naming_the_table_and_the_table_is_
             table.set_position(2.0, timeout=needed / 4)
         assert caught.value.table_stopped is True
         assert not physics.state().running
+        halted = axis.state()  # the stop halts the position axis' slew too, short of 2 rad
+        assert halted.in_position and halted.angle < 2.0 and not halted.moving
 
 
 def test_a_one_axis_map_reads_as_before_and_refuses_a_position(bench):
@@ -73,7 +75,7 @@ def test_a_one_axis_map_reads_as_before_and_refuses_a_position(bench):
         with pytest.raises(TableError, match="no position axis; use a two-axis profile"):
             table.set_position(0.5)
     assert not ONE_AXIS.two_axis and TWO_AXIS.two_axis
-    assert ONE_AXIS.span == (0, 8) and TWO_AXIS.span == (0, 12)
+    assert ONE_AXIS.span == (0, 8) and TWO_AXIS.span == (0, 17)
 
 
 @pytest.mark.parametrize("drop, missing", [

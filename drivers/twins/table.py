@@ -27,7 +27,10 @@ its command arrived).
 
 With `position` (a `station.sim.table.PositionAxis`) and a register map with a position axis, the
 twin is a two-axis table: it serves the axis' angle, setpoint and `in_position` bit and turns
-writes of the position setpoint into `position.set_position`. With `fixture` (a
+writes of the position setpoint into `position.set_position`; with a map that has the position
+axis' rate mode it also serves `position_mode`, the axis' rate and rate setpoint and the
+`position_at_rate`/`position_moving` bits, and turns writes of the rate setpoint into
+`position.set_rate` and of `position_mode` into `position.spin` / `position.hold`. With `fixture` (a
 `station.sim.table.MountingFixture`) and a map with a fixture, it serves the `mount` register and
 the `mounted` bit and turns writes of `mount` into `fixture.request`.
 
@@ -47,7 +50,13 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from drivers.rotary_table import FIXTURE_BIT, FIXTURE_REGISTER, POSITION_BIT, TableRegisterMap
+from drivers.rotary_table import (
+    FIXTURE_BIT,
+    FIXTURE_REGISTER,
+    POSITION_BIT,
+    RATE_MODE_BITS,
+    TableRegisterMap,
+)
 from drivers.twins.modbus_server import ServerThread
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
@@ -200,6 +209,13 @@ class TableTwin:
             image[m.registers["status"]] |= p.in_position << m.status_bits[POSITION_BIT]
             fixed |= {"position": m.encode(p.angle, m.angle_scale),
                       "position_setpoint": m.encode(p.setpoint, m.angle_scale)}
+            if m.rate_mode:
+                for name, on in zip(RATE_MODE_BITS, (p.at_rate, p.moving), strict=True):
+                    image[m.registers["status"]] |= on << m.status_bits[name]
+                image[m.registers["position_mode"]] = (m.position_spin if p.spinning
+                                                       else m.position_hold)
+                fixed |= {"position_rate": m.encode(p.rate, m.rate_scale),
+                          "position_rate_setpoint": m.encode(p.rate_setpoint, m.rate_scale)}
         if self.fixture is not None:
             asked, held = self.fixture.state()
             image[m.registers["status"]] |= held << m.status_bits[FIXTURE_BIT]
@@ -216,25 +232,35 @@ class TableTwin:
         setpoint = list(m.addresses("rate_setpoint"))
         target = list(m.addresses("position_setpoint")) if self.position is not None else []
         mount = {m.registers[FIXTURE_REGISTER]} if self.fixture is not None else set()
-        if not set(written) <= set(setpoint) | set(target) | mount | {m.registers["command"]}:
+        spin = list(m.addresses("position_rate_setpoint")) if m.rate_mode else []
+        mode = {m.registers["position_mode"]} if m.rate_mode else set()
+        if not set(written) <= (set(setpoint) | set(target) | mount | set(spin) | mode
+                                | {m.registers["command"]}):
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        if any(0 < sum(a in written for a in pair) < 2 for pair in (target, setpoint, spin)):
+            return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
+        position_mode = next((written[a] for a in mode & set(written)), None)
+        if position_mode not in (None, m.position_spin, m.position_hold):
+            return ExcCodes.ILLEGAL_VALUE
         for address in mount & set(written):
             self.fixture.request(written[address])
-        if any(a in written for a in target):
-            if not all(a in written for a in target):
-                return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
-            self.position.set_position(m.decode([written[a] for a in target], m.angle_scale))
-        if any(a in written for a in setpoint):
-            if not all(a in written for a in setpoint):
-                return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
-            try:
+        try:
+            if target and target[0] in written:
+                self.position.set_position(m.decode([written[a] for a in target], m.angle_scale))
+            if spin and spin[0] in written:
+                self.position.set_rate(m.decode([written[a] for a in spin], m.rate_scale))
+            if setpoint[0] in written:
                 self.table.set_rate(m.decode([written[a] for a in setpoint], m.rate_scale))
-            except ValueError:
-                return ExcCodes.ILLEGAL_VALUE
+        except ValueError:  # out of range, or positioning the axis in rate mode
+            return ExcCodes.ILLEGAL_VALUE
         command = written.get(m.registers["command"])
         if command not in (None, m.run, m.stop):
             return ExcCodes.ILLEGAL_VALUE
         self._log_write(address, values)
+        if position_mode == m.position_spin:
+            self.position.spin()
+        elif position_mode == m.position_hold:
+            self.position.hold()
         if command == m.run:
             if not self.table.start():
                 return ExcCodes.DEVICE_FAILURE

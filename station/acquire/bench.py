@@ -44,6 +44,7 @@ class BenchProfile:
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
+    spins: int = 0  # rotary on a two-axis table: spins of the position axis after the positions
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -109,6 +110,7 @@ class BenchProfile:
                                                              len(dev.imu.channels))
             fields["positions"] = (proto.get("positions", int, default=40)
                                    if "fixture" in fields else proto.get("positions", int))
+            fields["spins"] = _spins(fields, proto, path)
             table.finish()
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
@@ -135,6 +137,30 @@ class BenchProfile:
         for s in (bench, imu, proto):
             s.finish()
         return cls(**fields)
+
+
+def _spins(fields: dict, proto, path) -> int:
+    """[protocol] spins of a rotary session on a two-axis table: the spins of the position axis
+    after `positions` positions on the cone (default 1: without one the directions lie on one
+    cone, docs/protocols.md "Two-axis sessions"); 0 for a one-axis table or a fixture."""
+    from drivers.profile import ProfileError
+
+    table = fields["table_map"]
+    if not table.two_axis or "fixture" in fields:
+        if proto.has("spins"):
+            raise ProfileError(f"{path}: [protocol] spins: only a two-axis table (without a "
+                               "[fixture]) spins its position axis; remove the key")
+        return 0
+    if not table.rate_mode:
+        raise ProfileError(f"{path}: the two-axis table's register map has no rate mode of the "
+                           "position axis, which a two-axis session needs (positions on the rate "
+                           "axis alone lie on one cone); use a profile with one, e.g. "
+                           "table_two_axis (docs/devices.md)")
+    spins = proto.get("spins", int, default=1)
+    if spins < 1:
+        raise ProfileError(f"{path}: [protocol] spins = {spins}: a two-axis session needs at "
+                           "least one spin of the position axis")
+    return spins
 
 
 def _device(profile, name: str) -> str:

@@ -230,7 +230,8 @@ class LiveView:
             shown["static"] = (min(1.0, elapsed / s.static), f"{elapsed:.1f} of {s.static:g} s")
         if "rotating" in windows:
             start, end = windows["rotating"]
-            angle = end if end is not None else (table.angle if table is not None else start)
+            angle = end if end is not None else (self.protocol.motion(table)[1]
+                                                 if table is not None else start)
             turns = abs(angle - start) / (2 * math.pi) if math.isfinite(start) else 0.0
             shown["rotating"] = (min(1.0, turns / s.revolutions),
                                  f"{turns:.2f} of {s.revolutions} turns")
@@ -243,7 +244,11 @@ class LiveView:
         flags = [name for name in ("running", "moving", "at_rate", "fault")
                  if getattr(table, name, False)]
         still = "turning" if getattr(table, "moving", False) else "standing still"
-        return (f"{table.rate:+.4f} rad/s (setpoint {table.rate_setpoint:+.4f}), {still}; "
+        inner = ""
+        if getattr(table, "position_rate", None) is not None:  # a two-axis table's rate mode
+            inner = (f"; position axis {table.position_rate:+.4f} rad/s at "
+                     f"{table.position:.3f} rad")
+        return (f"{table.rate:+.4f} rad/s (setpoint {table.rate_setpoint:+.4f}), {still}{inner}; "
                 f"flags: {', '.join(flags) or 'none'}")
 
     def _counter_words(self) -> str:

@@ -17,11 +17,13 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     [table]                       # rotary only
     host = "192.168.0.50"         # Modbus TCP rotary table
     port = 502
-    profile = "table_modbus"      # register map: path or bundled name
+    profile = "table_modbus"      # register map: path or bundled name ("table_two_axis": the
+                                  # station sets every position itself, no operator input)
 
     [protocol]
     kind = "rotary"               # "rotary" (default), "iron" or "static"
     positions = 20                # rotary; any other key: a field of the protocol's settings
+    # spins = 1                   # two-axis table: spins of the position axis after the positions
 
     [fixture]                     # rotary, optional: a lettered cube (and wedge) to mount the
     layout = [[...], [...], [...]]  # unit in; the positions are then planned fixture poses
@@ -36,6 +38,8 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
 The three protocols (docs/protocols.md):
 - rotary (`station.protocols.rotary`): gyros on a rotary table, Eq. (18) of Rupniewski; the
   technician re-mounts the unit and presses Enter; Ctrl-D or Ctrl-C aborts and stops the table;
+  on a two-axis table nobody does anything: the station sets the position axis at `positions`
+  angles spread over a turn, then spins it `spins` times (docs/protocols.md "Two-axis sessions");
 - iron (`station.protocols.iron`): accelerometers in a right-angle iron, standing on its faces
   (keys: mountings, faces, hold, gravity, ...), Hwangbo & Kanade's constraints;
 - static (`station.protocols.static`): accelerometers turned by hand into free still poses (keys:

@@ -9,7 +9,12 @@ protocol (`station.protocols.rotary.suggested_axes`) and it mounts the unit ther
 touches anything and `station record` runs the whole session without a key press. With `--cube`
 the unit sits in a lettered cube on a 45-degree wedge instead: the
 bench profile gets a [fixture] section, `station record` plans the fixture poses from it
-(`station plan`) and the twin's fixture sets the same poses.
+(`station plan`) and the twin's fixture sets the same poses. With `--two-axis` the table is a
+two-axis one (register map table_two_axis: a position axis with a rate mode) and there is no
+fixture: `station record` sets each orientation itself, `--positions` angles of the position axis
+spread over a turn with the rate axis spinning, then one spin of the position axis itself
+(docs/protocols.md "Two-axis sessions"); the truth printed with --json then gives the unit-frame
+`axes` of those positions.
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who
@@ -56,7 +61,8 @@ def register(p) -> None:
         "  station twin --speed 40 --positions 12 --profile-out bench.toml --json\n"
         "  station twin --protocol static --speed 20 --profile-out hand.toml\n"
         "  station twin --protocol static --link mavlink --udp --profile-out fc.toml\n"
-        "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned"
+        "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned\n"
+        "  station twin --two-axis --speed 40 --positions 8 --profile-out two_axis.toml"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
@@ -71,6 +77,9 @@ def register(p) -> None:
                         "or a 45-degree wedge; the profile gets a [fixture] section and the "
                         "fixture (or technician) follows the plan `station record` makes from it "
                         "(rotary: at most --positions positions)")
+    p.add_argument("--two-axis", action="store_true",
+                   help="rotary: a two-axis table (position axis with a rate mode, profile "
+                        "table_two_axis) that sets every orientation itself; no fixture")
     p.add_argument("--link", choices=("serial", "mavlink"), default="serial",
                    help="static: how the unit streams: binary serial frames (default) or MAVLink "
                         "SCALED_IMU, as a flight controller")
@@ -98,8 +107,8 @@ def run(args) -> int:
 
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
-    if args.table_log and not KINDS[args.protocol].table:
-        raise InputError(f"--table-log: a {args.protocol} bench has no rotary table")
+    if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
+        raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
     with given_values():
         twin = KINDS[args.protocol].entry("twin")(args)
     if args.table_log:

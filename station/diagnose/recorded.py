@@ -52,7 +52,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.files.session import nominal_layout
-from station.reduce.rotary import position_windows
+from station.reduce.rotary import position_spins, position_windows
 from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
 
 RAMP_BAND = (0.1, 0.9)
@@ -120,7 +120,15 @@ def _stretches(idx) -> list:
 
 def _spans(path, events) -> dict:
     """{position: {s0, s1 (static), r0, r1 (rotating), done}} event times of the completed
-    positions."""
+    positions. A two-axis session's spins of the position axis are refused: the table states the
+    diagnosis models are the rate axis' (`station.reduce.rotary.position_spins`), and without the
+    spins the cone positions are not solvable."""
+    if spins := position_spins(events):
+        raise CalibrationInputError(
+            f"the session {path} spins the position axis of a two-axis table at position(s) "
+            f"{', '.join(str(j + 1) for j in sorted(spins))}; the diagnosis models the rate "
+            "axis' recorded motion only and cannot check such a session yet.",
+            "Solve it with `station solve` or `station replay`; its report shows the windows.")
     windows = position_windows(events)
     if not windows:
         raise CalibrationInputError(f"the session {path} has no completed position.",

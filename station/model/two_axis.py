@@ -74,9 +74,22 @@ def position_axes(n: int, spins: int = 1, alpha: float = ALPHA,
     if spins < 1:
         raise InputError("a two-axis session needs at least one spin of the position axis: "
                          "positions on the rate axis alone lie on one cone (docs/conventions.md)")
+    return spin_axes(position_angles(n), spins, alpha, mount)
+
+
+def spin_signs(spins: int) -> np.ndarray:
+    """(spins,) the sign of each spin of the position axis: +1, -1, +1, ... (alternating, so
+    that the spins' own errors of sign, e.g. a direction-dependent rate error, show)."""
+    return np.where(np.arange(spins) % 2 == 0, 1.0, -1.0)
+
+
+def spin_axes(phis, spins: int, alpha: float = ALPHA,
+              mount: np.ndarray | None = None) -> np.ndarray:
+    """(len(phis) + spins, 3) unit-frame spin axes: the rate axis at the position angles `phis`
+    (rad), then `spins` spins of the position axis (`spin_signs` times c)."""
     c = position_axis(mount)
-    signs = np.where(np.arange(spins) % 2 == 0, 1.0, -1.0)
-    return np.vstack([rate_axis(position_angles(n), alpha, mount), signs[:, None] * c])
+    return np.vstack([rate_axis(phis, alpha, mount).reshape(-1, 3),
+                      spin_signs(spins)[:, None] * c])
 
 
 def orientation(phi: float, alpha: float = ALPHA, mount: np.ndarray | None = None) -> np.ndarray:

@@ -47,6 +47,16 @@ due in the static and rotating windows through the reduction's own checks, and t
 against the median of the earlier positions' static windows
 (`station.reduce.window_quality`).
 
+On a two-axis table (`phis`, `spins`; `station.model.two_axis`, docs/protocols.md "Two-axis
+sessions") the mount step sets the position axis to phi_j and the rate axis spins, as above, for the
+first len(phis) positions; the `spins` positions after them spin the POSITION axis itself (its rate
+mode, `RotaryTable.spin_position`) at the session's rate with alternating sign and the rate axis at
+rest: the stimulus is then +-rate times c, the position axis in the unit frame, off the cone of the
+others, without which Eq. (7)'s g is not determined. Everything else is the same, with the position
+axis' rate, at-rate bit and angle in place of the table's: `rotate_start`/`rotate_end` record the
+position angle and the instant it was read (detail `axis: "position"`), from which the reduction
+cuts whole revolutions of the position axis; `stop` stops both axes.
+
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
@@ -65,6 +75,7 @@ from station.acquire.operator import Instruction
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
+from station.model.two_axis import position_angles, spin_axes, spin_signs
 from station.protocols.planned import fixture_instruction, rotary_plan
 from station.protocols.still import StillSettings, StreamTap
 from station.reduce.window_quality import describe, window_quality
@@ -154,13 +165,16 @@ class RotaryProtocol:
     axes     : (n, 3) table-axis directions in the unit frame; default `suggested_axes(20)`
     fixture_poses : instead of axes, the poses of a mounting fixture, {"words", "picture",
                "orientation"} each (`station.protocols.planned.FixturePlan.instructions`)
-    phis     : on a two-axis table, the position-axis angle (rad) of each position: the mount
-               step commands it (`table.set_position`) instead of asking the operator; `axes`
-               are then the rate axis in the unit frame there (`station.model.two_axis`)
+    phis     : on a two-axis table, the position-axis angle (rad) of each of the first
+               len(phis) positions: the mount step commands it (`table.set_position`) instead of
+               asking the operator; `axes` are then the rate axis in the unit frame there
+               (`station.model.two_axis`)
+    spins    : on a two-axis table, the positions after them that spin the position axis
+               (`spin_signs` times the rate; `axes`: +-c there); len(axes) = len(phis) + spins
     """
 
     def __init__(self, table, operator, clock, settings: RotarySettings | None = None, axes=None,
-                 fixture_poses=None, phis=None):
+                 fixture_poses=None, phis=None, spins: int = 0):
         self.table = table
         self.recorder = None
         self.operator = operator
@@ -173,10 +187,14 @@ class RotaryProtocol:
         if self.axes.ndim != 2 or self.axes.shape[1] != 3 or len(self.axes) == 0:
             raise InputError(f"axes must be (n, 3) directions, got shape {self.axes.shape}")
         self.phis = None if phis is None else np.asarray(phis, float)
-        if self.phis is not None and (self.phis.shape != (len(self.axes),)
+        if isinstance(spins, bool) or not isinstance(spins, int) or spins < 0 \
+                or (spins and self.phis is None):
+            raise InputError(f"spins must be a whole number >= 0, with phis; got {spins!r}")
+        self.spins = spins
+        if self.phis is not None and (self.phis.shape != (len(self.axes) - spins,)
                                       or not np.all(np.isfinite(self.phis))):
-            raise InputError(f"phis must be one finite angle per position ({len(self.axes)}), "
-                             f"got shape {self.phis.shape}")
+            raise InputError(f"phis must be one finite angle per position on the cone "
+                             f"({len(self.axes) - spins}), got shape {self.phis.shape}")
         self.position = 0
         self.state = "mount"
         self._handlers = {"mount": self._mount, "still": self._still, "static": self._static,
@@ -190,6 +208,7 @@ class RotaryProtocol:
         fixture = {"fixture_poses": self.fixture_poses} if self.fixture_poses else {}
         if self.phis is not None:
             fixture["phis"] = self.phis.tolist()
+            fixture["spins"] = self.spins
         return {"protocol": "rotary", "settings": asdict(self.settings),
                 "axes": self.axes.tolist(), **fixture}
 
@@ -204,6 +223,7 @@ class RotaryProtocol:
             axes = np.asarray(metadata["axes"], float)
             phis = metadata.get("phis")
             phis = None if phis is None else np.asarray(phis, float)
+            spins = metadata.get("spins", 0)
             poses = metadata.get("fixture_poses")
             if poses is not None:
                 poses = [{"words": str(p["words"]), "picture": str(p["picture"]),
@@ -212,7 +232,7 @@ class RotaryProtocol:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"the session's rotary settings or axes are unusable ({exc}); "
                              "it was not written by this station") from None
-        return cls(table, operator, clock, settings, axes, poses, phis)
+        return cls(table, operator, clock, settings, axes, poses, phis, spins)
 
     def instruction(self, j: int) -> Instruction:
         """The technician's instruction for mounting position j: the fixture pose's words and
@@ -257,7 +277,11 @@ class RotaryProtocol:
         pauses the session."""
         j = self.position
         detail = {"axis": self.axes[j].tolist()}
-        if self.phis is None and self.table.map.fixture:
+        if self._spun(j):
+            self.operator.prompt(f"position {j + 1}/{len(self.axes)}: the position axis spins "
+                                 "(the rate axis at rest)")
+            detail["spin"] = "position"
+        elif self.phis is None and self.table.map.fixture:
             self.operator.prompt(f"{self.instruction(j).text} (the fixture mounts it)")
             self.table.mount(j + 1)
             detail["mount"] = j + 1
@@ -271,51 +295,72 @@ class RotaryProtocol:
         self.recorder.event("position_start", j, detail)
         return "still"
 
+    def _spun(self, j: int) -> bool:
+        """Does position j spin the position axis (two-axis sessions' last `spins` positions)?"""
+        return self.spins > 0 and j >= len(self.phis)
+
+    def _rate(self) -> float:
+        """The commanded rate of the axis that spins at this position (rad/s, signed)."""
+        j = self.position
+        return self.settings.rate * (spin_signs(self.spins)[j - len(self.phis)]
+                                     if self._spun(j) else 1.0)
+
+    def motion(self, reading) -> tuple:
+        """(rate, angle, at rate) of the axis that spins at this position."""
+        if self._spun(self.position):
+            return reading.position_rate, reading.position, reading.position_at_rate
+        return reading.rate, reading.angle, reading.at_rate
+
     def _still(self) -> str:
-        self._until(lambda r: not r.moving, self.settings.rest, "the table to stand still")
+        self._until(lambda r: r.resting, self.settings.rest, "the table to stand still")
         return "static"
 
     def _static(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: static window ({s.static:g} s)")
         start = self.recorder.event("static_start", j)
-        self._hold(s.static, lambda r: not r.moving, "the table moved during the static window")
+        self._hold(s.static, lambda r: r.resting, "the table moved during the static window")
         self._windows["static"] = (start, self.recorder.event("static_end", j))
-        self._hold(s.guard, lambda r: not r.moving, "the table moved during the static window")
+        self._hold(s.guard, lambda r: r.resting, "the table moved during the static window")
         self.recorder.drain(self.clock.now(), s.stale)
         return "spin_up"
 
     def _spin_up(self) -> str:
-        self.table.set_rate(self.settings.rate)
-        self.table.start()
+        if self._spun(self.position):
+            self.table.spin_position(self._rate(), timeout=self.settings.timeout)
+        else:
+            self.table.set_rate(self.settings.rate)
+            self.table.start()
         return "settle"
 
     def _settle(self) -> str:
         s = self.settings
-        self._until(lambda r: r.at_rate and self._on_rate(r), s.steady,
-                    f"the table to reach {s.rate:g} rad/s")
+        self._until(lambda r: self.motion(r)[2] and self._on_rate(r), s.steady,
+                    f"the table to reach {self._rate():g} rad/s")
         return "rotating"
 
     def _rotating(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._poll()
-        begun = self.recorder.event("rotate_start", j, {"angle": start.angle})
+        begun = self.recorder.event("rotate_start", j, self._angle_detail(start))
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
-        while abs(reading.angle - start.angle) < sweep:
+        while abs(self.motion(reading)[1] - self.motion(start)[1]) < sweep:
             self.clock.sleep(s.poll)
             reading = self._poll()
             if not self._on_rate(reading):
-                raise ProtocolError(f"the table's rate {reading.rate:.4f} rad/s left "
-                                    f"{s.rate:g} +- {s.tolerance:g} rad/s while recording position "
-                                    f"{j + 1}; check the table and record this position again")
+                raise ProtocolError(f"the table's rate {self.motion(reading)[0]:.4f} rad/s left "
+                                    f"{self._rate():g} +- {s.tolerance:g} rad/s while recording "
+                                    f"position {j + 1}; check the table and record this position "
+                                    "again")
             if self.clock.now() > deadline:
+                swept = abs(self.motion(reading)[1] - self.motion(start)[1])
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
-                                    f"{abs(reading.angle - start.angle):.2f} rad in the rotating "
-                                    "window); check the table's encoder")
-        end = self.recorder.event("rotate_end", j, {"angle": reading.angle})
+                                    f"{swept:.2f} rad in the rotating window); check the table's "
+                                    "encoder")
+        end = self.recorder.event("rotate_end", j, self._angle_detail(reading))
         self._windows["rotating"] = (begun, end)
         self._rotated = (j, end)
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
@@ -336,10 +381,18 @@ class RotaryProtocol:
     def _done(self, detail: dict | None = None, imu: bool = True) -> None:
         """The table at rest, its spin-down and rest in the file (imu False: the IMU is lost, the
         table alone is watched): record `position_done`."""
-        self._until(lambda r: not r.moving, self.settings.rest, "the table to stop", imu)
+        self._until(lambda r: r.resting, self.settings.rest, "the table to stop", imu)
         if imu:
             self.recorder.drain(self.clock.now(), self.settings.stale)
         self.recorder.event("position_done", self.position, detail)
+
+    def _angle_detail(self, reading) -> dict:
+        """A rotating window's bound: the table's angle, or on a spin of the position axis its
+        angle and the instant it was read (the reduction interpolates between the two bounds:
+        the file's table states are the rate axis')."""
+        if self._spun(self.position):
+            return {"angle": reading.position, "axis": "position", "time": reading.time}
+        return {"angle": reading.angle}
 
     def _windows_in(self) -> bool:
         """The position's rotating window has ended and every sample up to its end is in the
@@ -371,7 +424,9 @@ class RotaryProtocol:
     def _restart(self) -> str:
         j = self.position
         self.operator.prompt(f"position {j + 1}: recording it again (leave the unit mounted)")
-        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist(), "again": True})
+        again = {"spin": "position"} if self._spun(j) else {}
+        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist(), "again": True,
+                                                  **again})
         return "still"
 
     # -- faults: each returns the state to go on with ----------------------------------------------
@@ -474,7 +529,7 @@ class RotaryProtocol:
     # -- helpers ---------------------------------------------------------------------------------
 
     def _on_rate(self, reading) -> bool:
-        return abs(reading.rate - self.settings.rate) < self.settings.tolerance
+        return abs(self.motion(reading)[0] - self._rate()) < self.settings.tolerance
 
     def _poll(self, imu: bool = True):
         """Check the IMU stream (unless `imu` is False), read the table and keep its state,
@@ -599,17 +654,21 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
 def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
                    view=None) -> None:
     """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
-    the bench profile's settings at `suggested_axes(bench.positions)`, or, when the profile
-    describes a fixture, at the planned fixture poses (`station.protocols.planned`, its expected
-    eps told before the session), run with the opened `imu` and `table` drivers into the new
+    the bench profile's settings at `suggested_axes(bench.positions)`; on a two-axis table
+    (`bench.spins` > 0) at `position_angles(bench.positions)` of the position axis then
+    `bench.spins` spins of it, set by the table itself; or, when the profile describes a fixture,
+    at the planned fixture poses (`station.protocols.planned`, its expected eps told before the
+    session), run with the opened `imu` and `table` drivers into the new
     session file `out` (stream `spec`, `metadata` with the table's register map added to its
     device profiles); `view` a LiveView to show, or None."""
     from drivers.profile import load_profile
     from station.files.session import SessionWriter
 
     if bench.fixture is None:
-        protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                                  suggested_axes(bench.positions))
+        phis = position_angles(bench.positions) if bench.spins else None
+        axes = spin_axes(phis, bench.spins) if bench.spins else suggested_axes(bench.positions)
+        protocol = RotaryProtocol(table, operator, clock, bench.settings, axes, phis=phis,
+                                  spins=bench.spins)
         metadata = {**protocol.metadata(), **metadata}
     else:
         plan = rotary_plan(bench.fixture, bench.settings, bench.positions)

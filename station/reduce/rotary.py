@@ -3,8 +3,11 @@
 The protocol's events mark, per position, a static and a rotating window; `rotary_readings` turns
 the recorded stream into M (m x n), Eq. (18): m_j = mean(rotating) - mean(static), the rotating
 window cut to whole revolutions by the table's recorded angle (the arithmetic: `station.reduce.
-eq18`). Eq. (18) readings carry no bias; `static_bias` gives the calibration file its biases from
-the static windows.
+eq18`). On a two-axis table's spin of the position axis (`rotate_start`/`rotate_end` with detail
+`axis: "position"`, `station.protocols.rotary`) the cut follows the position axis' angle, recorded
+at the window's two bounds with the instants it was read and interpolated linearly between them
+(the protocol held that axis' rate within its tolerance all along). Eq. (18) readings carry no
+bias; `static_bias` gives the calibration file its biases from the static windows.
 """
 
 import math
@@ -39,6 +42,43 @@ def position_windows(events) -> dict:
             if "position_done" in t and all(k in t for pair in pairs.values() for k in pair)}
 
 
+def position_spins(events) -> dict:
+    """{position: ((t0, angle0), (t1, angle1))}: the bounds of the rotating window of every
+    position whose last one spun the position axis of a two-axis table (event detail `axis:
+    "position"`, its `time` and `angle`), checked: finite numbers, t1 > t0."""
+    bounds = {}
+    for e in events:
+        if e.position is None:
+            continue
+        if e.kind == "position_start":
+            bounds.pop(e.position, None)
+        elif e.kind in ("rotate_start", "rotate_end") and e.detail.get("axis") == "position":
+            bounds.setdefault(e.position, {})[e.kind] = (e.detail.get("time"),
+                                                        e.detail.get("angle"))
+    spins = {}
+    for j, b in bounds.items():
+        pair = (b.get("rotate_start"), b.get("rotate_end"))
+        values = [v for bound in pair if bound is not None for v in bound]
+        if len(values) != 4 or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                       and math.isfinite(v) for v in values) \
+                or not values[2] > values[0]:
+            raise CalibrationInputError(
+                f"position {j + 1}: the position axis' rotating window is not bounded by two "
+                f"readings of its angle (got {pair}).",
+                "The session was not written by this station's rotary protocol, or is damaged; "
+                "record the position again.")
+        spins[j] = pair
+    return spins
+
+
+def spin_angle(bounds, t) -> np.ndarray:
+    """The position axis' angle at the instants `t`: the line through the window's two bounds
+    ((t0, angle0), (t1, angle1)), extended beyond them (the window's events come just after the
+    readings)."""
+    (t0, a0), (t1, a1) = bounds
+    return a0 + (a1 - a0) * (np.asarray(t, float) - t0) / (t1 - t0)
+
+
 def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
                    trim: float = 0.0) -> Reduced:
     """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
@@ -56,6 +96,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
     windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
                for j, w in position_windows(events).items()}
+    spins = position_spins(events)
     if not windows:
         raise CalibrationInputError(f"the session {session.path} has no completed position.",
                                     "Record at least as many positions as the solver asks for.")
@@ -74,8 +115,9 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         (static, static_counts), (rotating, rotating_counts) = chosen["static"], chosen["rotating"]
         ns, nr = len(static), len(rotating)
         y = np.concatenate([static_counts, rotating_counts])[None]
-        angle = table_angle(session, table_times,
-                            stream_windows.t[np.concatenate([static, rotating])])
+        instants = stream_windows.t[np.concatenate([static, rotating])]
+        angle = (spin_angle(spins[j], instants) if j in spins
+                 else table_angle(session, table_times, instants))
         try:
             parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
                                                 "rotating": np.array([ns, ns + nr])}, angle=angle))

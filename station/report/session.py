@@ -38,7 +38,7 @@ from station.errors import CalibrationInputError, InputError
 from station.files.jsonable import jsonable
 from station.files.session import Session
 from station.protocols import KINDS
-from station.reduce.rotary import position_windows
+from station.reduce.rotary import position_spins, position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
 from station.report import html, noise
@@ -624,10 +624,12 @@ def _stream_png(data, t, latency, gaps) -> bytes:
 
 
 def _table_stability(report, table, events, metadata) -> None:
-    """Measured rate against the setpoint; error inside the rotating windows."""
+    """Measured rate against the setpoint; error inside the rotating windows (a two-axis
+    session's spins of the position axis left out: the table states are the rate axis')."""
     if len(table.time) < 2:
         return
-    windows = position_windows(events)
+    spins = position_spins(events)
+    windows = {j: w for j, w in position_windows(events).items() if j not in spins}
     settings = metadata.get("settings") if isinstance(metadata.get("settings"), dict) else {}
     tolerance = settings.get("tolerance")
     rows, spans = [], []

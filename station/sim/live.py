@@ -15,12 +15,17 @@ class MountedUnit:
     true rate along the table axis at that time (`TablePhysics.true_rates`), so a twin that falls
     behind (a backlog sent after the station reopened the port) still sends the right motion.
     `effects` {name: parameters}: named sensor effects (station.model.sensing.LIVE_EFFECTS) in
-    the unit's output chain.
+    the unit's output chain. `inner` (source, axis): a second axis the unit turns about, fixed in
+    the unit frame (a two-axis table's position axis in rate mode: `source.true_rates(times)`
+    rad/s about the unit-frame direction `axis`, `station.sim.table.PositionAxis`); the unit feels
+    the sum of both angular rates (the rate axis' along the orientation's third column).
     """
 
-    def __init__(self, unit: SensorUnit, table: TablePhysics, orientation=None, effects=None):
+    def __init__(self, unit: SensorUnit, table: TablePhysics, orientation=None, effects=None,
+                 inner=None):
         self.unit = unit
         self.table = table
+        self.inner = inner
         initial = np.eye(3) if orientation is None else np.asarray(orientation, float)
         self._mounts = [(-np.inf, initial)]  # (clock time set, orientation), in time order
         self.effects = dict(effects or {})
@@ -54,4 +59,7 @@ class MountedUnit:
         which = self._which(times)
         axes = np.array([u[:, 2] for _, u in self._mounts])[which]
         omega = self.table.true_rates(times)[:, None] * axes
+        if self.inner is not None:
+            source, axis = self.inner
+            omega = omega + source.true_rates(times)[:, None] * np.asarray(axis, float)
         return self.unit.sample(omega, times, self.effects)

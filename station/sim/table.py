@@ -224,29 +224,54 @@ class TablePhysics:
 
 @dataclass(frozen=True)
 class PositionState:
-    """The position axis at `time` (clock seconds): angle and setpoint in rad, `in_position` once
-    the axis has reached its setpoint (docs/devices.md)."""
+    """The position axis at `time` (clock seconds): angle (cumulative) and setpoint in rad,
+    `in_position` once the axis has reached its setpoint (docs/devices.md); the rate mode's
+    `spinning` (in rate mode), `rate` and `rate_setpoint` (rad/s), `at_rate` and `moving` (either
+    mode)."""
 
     time: float
     angle: float
     setpoint: float
     in_position: bool
+    spinning: bool = False
+    rate: float = 0.0
+    rate_setpoint: float = 0.0
+    at_rate: bool = False
+    moving: bool = False
 
 
 class PositionAxis:
-    """The inner (position) axis of a two-axis table: moves to its setpoint at a bounded rate
-    `max_rate` (rad/s), then holds it exactly; thread-safe, advanced to `clock.now()` on each call.
-    `on_move(setpoint, arrival)`, when given, is called at every command with the clock time the
-    axis will reach the setpoint (what turns the simulated unit). The slew itself is not felt by a
-    simulated unit (the unit takes its new orientation on arrival): the protocol moves this axis
-    only with the table at rest and waits before it measures."""
+    """The inner (position) axis of a two-axis table; thread-safe, advanced to `clock.now()` on
+    each call.
 
-    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0, on_move=None):
+    Position mode: the axis moves to its setpoint at a bounded rate `max_rate` (rad/s), then holds
+    it exactly. `on_move(setpoint, arrival)`, when given, is called at every command with the clock
+    time the axis will reach the setpoint (what turns the simulated unit). The slew itself is not
+    felt by a simulated unit (the unit takes its new orientation on arrival): the protocol moves
+    the axis in position mode only with the table at rest and waits before it measures.
+
+    Rate mode (`spin`): the axis runs at its rate setpoint (`set_rate`), reached and left with the
+    bounded acceleration `max_accel` (rad/s^2): the motion of a `TablePhysics` (its ramps, its
+    `at_rate` after `settle_time` within `tolerance`, its `true_rates` at past times: the rate the
+    simulated unit feels about the axis). `hold` ends it: the axis decelerates and holds where it
+    comes to rest (`on_move` is told that angle and when); in position mode `hold` halts a slew
+    where it is. The angle is the position-mode angle plus what the rate mode swept."""
+
+    def __init__(self, clock, max_rate: float = 0.5, angle: float = 0.0, on_move=None,
+                 max_accel: float = 2.0, tolerance: float = 1e-3, settle_time: float = 0.5,
+                 spin_limit: float = 20.0):
         if not max_rate > 0:
             raise ValueError(f"max_rate must be positive (rad/s), got {max_rate!r}")
         self._clock, self.max_rate, self.on_move = clock, float(max_rate), on_move
         self._lock = threading.Lock()
         self._t, self._angle, self._setpoint = clock.now(), float(angle), float(angle)
+        self._spinner = TablePhysics(clock, max_accel=max_accel, max_rate=spin_limit,
+                                     tolerance=tolerance, settle_time=settle_time)
+
+    @property
+    def clock(self):
+        """The shared clock the axis follows."""
+        return self._clock
 
     def _advance(self) -> None:
         t1 = self._clock.now()
@@ -256,22 +281,56 @@ class PositionAxis:
         self._t = max(t1, self._t)
 
     def set_position(self, angle: float) -> None:
-        """Command the axis to `angle` (rad, finite)."""
+        """Command the axis to `angle` (rad, finite; the cumulative angle); refused (ValueError)
+        in rate mode: `hold` first."""
         if not math.isfinite(angle):
             raise ValueError(f"position setpoint {angle!r} must be a finite angle in rad")
+        if self._spinner.state().running:
+            raise ValueError("the position axis is in rate mode: hold it before positioning it")
+        swept = self._spinner.state().angle  # the rate mode's part of the angle, at rest
         with self._lock:
             self._advance()
-            self._setpoint = float(angle)
+            self._setpoint = float(angle) - swept
             arrival = self._t + abs(self._setpoint - self._angle) / self.max_rate
         if self.on_move is not None:
-            self.on_move(self._setpoint, arrival)
+            self.on_move(float(angle), arrival)
+
+    def set_rate(self, rate: float) -> None:
+        """The rate-mode setpoint (rad/s, signed); ValueError beyond `spin_limit`."""
+        self._spinner.set_rate(rate)
+
+    def spin(self) -> None:
+        """Rate mode: run at the rate setpoint (a slew in progress halts where it is)."""
+        with self._lock:
+            self._advance()
+            self._setpoint = self._angle
+        self._spinner.start()
+
+    def hold(self) -> None:
+        """Position mode, held where the axis comes to rest (see the class doc)."""
+        with self._lock:
+            self._advance()
+            self._setpoint = self._angle
+        self._spinner.stop()
+        s = self._spinner.state()
+        stopping = abs(s.rate) / self._spinner.max_accel
+        rest = self._setpoint + s.angle + 0.5 * s.rate * stopping
+        if self.on_move is not None:
+            self.on_move(rest, s.time + stopping)
+
+    def true_rates(self, times) -> np.ndarray:
+        """The axis' rate (rad/s) in rate mode at each of `times` (`TablePhysics.true_rates`)."""
+        return self._spinner.true_rates(times)
 
     def state(self) -> PositionState:
         """Advance to clock.now() and return the axis' state."""
+        s = self._spinner.state()
         with self._lock:
             self._advance()
-            return PositionState(self._t, self._angle, self._setpoint,
-                                 self._angle == self._setpoint)
+            slewing = self._angle != self._setpoint
+            return PositionState(self._t, self._angle + s.angle, self._setpoint + s.angle,
+                                 not (slewing or s.moving), s.running, s.rate, s.rate_setpoint,
+                                 s.at_rate, slewing or s.moving)
 
 
 class MountingFixture:

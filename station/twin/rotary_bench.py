@@ -39,7 +39,7 @@ from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
-from station.model.two_axis import orientation, rate_axis
+from station.model.two_axis import orientation, position_axis, spin_axes
 from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
@@ -121,7 +121,8 @@ class VirtualBench:
                     (`station.model.sensing.LIVE_EFFECTS`), e.g. {"saturation": {"range": 3.0}}
     two_axis      : a two-axis table (profile table_two_axis, `station.model.two_axis` geometry):
                     the unit sits on the position axis and takes `two_axis.orientation(phi)` when
-                    the axis reaches phi (no technician needed for the mountings)
+                    the axis reaches phi (no technician needed for the mountings); in its rate
+                    mode the axis turns the unit about `two_axis.position_axis()`
     fixture       : the table's controller drives a motorised mounting fixture (profile
                     table_fixture): `self.fixture`, a `station.sim.table.MountingFixture`, holds
                     what the station asks for; whoever serves it (`station.twin.served.BenchTwin`)
@@ -154,9 +155,10 @@ class VirtualBench:
                                counts_per_unit=self.profile.imu.scale)
         live = from_json(effects or {})
         self.effects = to_json(live) or None  # every parameter, for the session's metadata
-        self.mounted = MountedUnit(self.unit, self.table, effects=live,
-                                   orientation=orientation(0.0) if two_axis else None)
         self.position = PositionAxis(self.clock, on_move=self._turn_unit) if two_axis else None
+        self.mounted = MountedUnit(self.unit, self.table, effects=live,
+                                   orientation=orientation(0.0) if two_axis else None,
+                                   inner=(self.position, position_axis()) if two_axis else None)
         self.technician = BenchTechnician(self, remount_time, placement_deg,
                                           np.random.default_rng([seed, 1]))
         self.fixture = MountingFixture() if fixture else None
@@ -262,21 +264,22 @@ class VirtualBench:
 
 
 def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
-                  watch=None, view=None, phis=None) -> None:
+                  watch=None, view=None, phis=None, spins: int = 0) -> None:
     """Record a new rotary session file at `path` on the started `bench`.
 
     settings, axes : `station.protocols.rotary.RotaryProtocol`'s; unit_serial default SIM-<seed>
-    phis           : on a two-axis bench, the position-axis angles (rad): the axes are then where
-                     they put the rate axis (`station.model.two_axis.rate_axis`), no technician
+    phis, spins    : on a two-axis bench, the position-axis angles (rad) and the spins of the
+                     position axis after them: the axes are then where they put the rate axis and
+                     the position axis (`station.model.two_axis.spin_axes`), no technician
     watch          : optional callable(writer), called once the session file exists
     view           : optional `station.acquire.live_view.LiveView` shown while recording
     """
     with bench.drivers() as (imu, table):
         if phis is not None:
-            axes = rate_axis(phis)
+            axes = spin_axes(phis, spins)
         protocol = RotaryProtocol(table, bench.technician, bench.clock,
                                   bench.with_margins(settings or RotarySettings()), axes,
-                                  phis=phis)
+                                  phis=phis, spins=spins)
         metadata = {**protocol.metadata(), "unit_serial": unit_serial or f"SIM-{bench.seed}",
                     "virtual_bench": bench.metadata()}
         with SessionWriter.create(path, metadata, {"imu": bench.stream_spec},

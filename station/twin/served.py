@@ -5,6 +5,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
   fixture, commanded by the station through the table's controller (profile table_fixture: the
   `mount` register), mounts the unit in position j of `suggested_axes(positions)` when asked for
   it (with `cube`: the planned pose j of a lettered cube on a wedge, the profile's [fixture]);
+  with `two_axis` the bench's table is a two-axis one instead (profile table_two_axis): no fixture
+  and nobody mounts anything, the station sets each orientation through the position axis;
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence; the static
   bench's triad streams over the serial link or MAVLink (a flight controller, pty or UDP).
@@ -31,6 +33,7 @@ import numpy as np
 
 from station.errors import InputError
 from station.model.fixture import Fixture
+from station.model.two_axis import position_axes
 from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
@@ -69,19 +72,29 @@ class BenchTwin:
                 the bench profile gets its [fixture] section, the fixture follows the plan
                 `station record` makes from it (`station.protocols.planned.rotary_plan`, at most
                 `positions` positions) in the same words
+    two_axis  : a two-axis table (`VirtualBench(two_axis=True)`), no fixture: `positions` on the
+                cone, set by the station (`station.model.two_axis.position_angles`), then the
+                profile's default spin of the position axis; `truth()["axes"]` are the unit-frame
+                directions of those positions, exact (the geometry of `station.model.two_axis`)
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
-                 cube: bool = False):
+                 cube: bool = False, two_axis: bool = False):
         from station.twin.rotary_bench import VirtualBench
 
+        if cube and two_axis:
+            raise InputError("a two-axis table sets the unit's orientation itself: --cube and "
+                             "--two-axis exclude each other")
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
-                                  lifetime=lifetime, fixture=True)
+                                  lifetime=lifetime, fixture=not two_axis, two_axis=two_axis)
         self.seed = seed
         self.positions = positions
         self.cube = _cube(self.bench.unit) if cube else None
-        if self.cube is None:
+        if two_axis:
+            self.axes = position_axes(positions, 1)
+            self.instructions = []
+        elif self.cube is None:
             self.axes = suggested_axes(positions)
             self.instructions = [instruction(j, positions, u) for j, u in enumerate(self.axes)]
         else:
@@ -100,8 +113,9 @@ class BenchTwin:
         (a twin streaming to nobody would hand the station a stale backlog, computed late)."""
         from drivers.twins.serial import SerialTwin
 
-        self._mount(1)
         b = self.bench
+        if b.fixture is not None:
+            self._mount(1)
         if b.kind == "serial":
             b.table_twin.start()
             b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf,
@@ -133,7 +147,7 @@ class BenchTwin:
             {"link": "can", "interface": "virtual", "channel": b.can_channel}
         return {"imu": {**imu, "profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
-                          "profile": "table_fixture"},
+                          "profile": "table_two_axis" if b.two_axis else "table_fixture"},
                 "clock_speed": b.clock.speed}
 
     def toggle(self, device: str) -> bool:
@@ -159,8 +173,9 @@ class BenchTwin:
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
         t = self.bench.truth()
+        axes = {"axes": self.axes.tolist()} if self.bench.two_axis else {}
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
-                "orientations": t.orientations.tolist(), "mounted": self.mounted}
+                "orientations": t.orientations.tolist(), "mounted": self.mounted, **axes}
 
     def _mount(self, position: int) -> None:
         """Mount the unit in `position` (1-based; beyond the plan: the plan's position modulo
@@ -180,7 +195,8 @@ class BenchTwin:
             while not self._stop.wait(0.002):
                 if self._watch is not None and self._watch.opened():
                     self.bench.imu_twin.start()
-                if (position := self.bench.fixture.pending()) is not None:
+                if self.bench.fixture is not None and \
+                        (position := self.bench.fixture.pending()) is not None:
                     self._mount(position)
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
@@ -368,12 +384,13 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime, cube)."""
+    rate_hz, lifetime, cube, two_axis)."""
     if getattr(options, "link", "serial") != "serial":
         raise InputError("the rotary bench's IMU streams over the serial link only (--link "
                          "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
-                     options.lifetime, getattr(options, "cube", False))
+                     options.lifetime, getattr(options, "cube", False),
+                     getattr(options, "two_axis", False))
 
 
 def iron_twin(options) -> HandTwin:
