@@ -40,14 +40,15 @@ def position_windows(events) -> dict:
 
 
 def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
-                   trim: float = 0.0) -> Reduced:
+                   trim: float = 0.0, channels=None) -> Reduced:
     """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle
     (interpolated at the sampling instants). A window holding less than `coverage` of the samples
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
-    (e.g. to test whether the table's start or stop leaks into the windows).
+    (e.g. to test whether the table's start or stop leaks into the windows). `channels`: the
+    stream's columns reduced (None: all; a thermal campaign leaves out the temperature's).
     """
     events = session.events()
     stream_windows = StreamWindows(session, stream, events)
@@ -63,10 +64,11 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = stream_windows.spec.rate_hz
-    lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)
+    keep = slice(None) if channels is None else np.asarray(channels)
+    lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)[keep]
     parts = []
     for j, w in windows.items():
-        chosen = {name: stream_windows.read(t0, t1) for name, (t0, t1) in w.items()}
+        chosen = {name: _columns(stream_windows.read(t0, t1), keep) for name, (t0, t1) in w.items()}
         for name, (t0, t1) in w.items():
             check_window_count(j, name, len(chosen[name][0]), (t1 - t0) * rate, coverage)
         for name, (_, counts) in chosen.items():
@@ -83,6 +85,12 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
             raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
     return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
                       for name in Reduced.__dataclass_fields__})
+
+
+def _columns(window: tuple, keep) -> tuple:
+    """A window's (sample indices, counts) with the counts' columns `keep` only."""
+    indices, counts = window
+    return indices, counts[:, keep]
 
 
 def check_window_count(j: int, name: str, got: int, due: float, coverage: float = 0.9) -> None:
