@@ -87,6 +87,8 @@ def run(args) -> int:
     from station.solve.verdict import words
 
     bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
+    if bench.chamber is not None:
+        return _campaign(args, bench)
     kind = KINDS[bench.protocol]
     if args.live and not kind.live_view:
         shown = ", ".join(name for name, k in KINDS.items() if k.live_view)
@@ -124,3 +126,44 @@ def solve(path, accept_suspect: bool = False) -> dict:
     cal = solve_session(path, accept_suspect=accept_suspect)
     cal.save(out)
     return summarise(cal, out)
+
+
+def _campaign(args, bench) -> int:
+    """A thermal campaign (the profile has a [chamber] section) into the directory --out."""
+    from station.acquire.operator import ConsoleOperator
+    from station.files.campaign import Campaign
+    from station.protocols.thermal import run_campaign
+
+    if args.live:
+        raise InputError("--live shows one rotary session; record a thermal campaign without it")
+    out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} is a file; a thermal campaign is written into a directory "
+                         "(--out DIR)")
+    campaign = Campaign.create(out, bench.unit_serial, bench.source, bench.chamber.setpoints)
+    operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
+    return report_campaign(run_campaign(bench, campaign, operator), args.json, args.solve,
+                           args.accept_suspect)
+
+
+def report_campaign(summary: dict, as_json: bool, solve: bool = False,
+                    accept_suspect: bool = False) -> int:
+    """Print a finished campaign's summary (as JSON or words); with `solve`, write its
+    calibration file first (campaign.cal.json in its directory)."""
+    from station.commands.solve import campaign_text, solve_campaign, summarise_campaign
+
+    if solve:
+        out = Path(summary["campaign"]) / "campaign.cal.json"
+        cal, fit = solve_campaign(summary["campaign"], accept_suspect)
+        cal.save(out)
+        summary["calibration"] = summarise_campaign(cal, fit, out)
+    if as_json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    temps = ", ".join(f"{s['unit_temperature']:.2f}" for s in summary["soaks"])
+    print(f"thermal campaign {summary['campaign']}: {len(summary['soaks'])} soaks done (the "
+          f"unit at {temps} K); the chamber is at its safe setpoint "
+          f"{summary['safe_setpoint']:.2f} K")
+    if solve:
+        print(campaign_text(summary["calibration"]))
+    return 0

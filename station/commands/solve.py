@@ -389,7 +389,7 @@ def _run_campaign(args) -> int:
     cal, fit = solve_campaign(args.session, args.accept_suspect)
     cal.save(out, overwrite=args.force)
     summary = summarise_campaign(cal, fit, out)
-    print(json.dumps(summary, indent=2) if args.json else _campaign_text(summary))
+    print(json.dumps(summary, indent=2) if args.json else campaign_text(summary))
     return 0
 
 
@@ -432,7 +432,7 @@ def summarise_campaign(cal, fit, out) -> dict:
             "status_reasons": list(fit.problems)}
 
 
-def _campaign_text(s: dict) -> str:
+def campaign_text(s: dict) -> str:
     """The campaign summary in words: orders, then per sensor the linear tempcos +- 1 sigma."""
     orders = s["orders"]
     lines = [f"unit {s['unit_serial']}: {len(s['soaks_K'])} soaks at "

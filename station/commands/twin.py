@@ -71,6 +71,11 @@ def register(p) -> None:
                         "or a 45-degree wedge; the profile gets a [fixture] section and the "
                         "fixture (or technician) follows the plan `station record` makes from it "
                         "(rotary: at most --positions positions)")
+    p.add_argument("--chamber", action="store_true",
+                   help="rotary: the unit streams its temperature (imu12_serial_temp) from inside "
+                        "a thermal chamber twin (Modbus TCP on 127.0.0.1) that sets its biases "
+                        "and scale factors; the profile gets a [chamber] section, so `station "
+                        "record` records a thermal campaign (SIGHUP silences the chamber)")
     p.add_argument("--link", choices=("serial", "mavlink"), default="serial",
                    help="static: how the unit streams: binary serial frames (default) or MAVLink "
                         "SCALED_IMU, as a flight controller")
@@ -100,14 +105,20 @@ def run(args) -> int:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
     if args.table_log and not KINDS[args.protocol].table:
         raise InputError(f"--table-log: a {args.protocol} bench has no rotary table")
+    if args.chamber and (args.protocol != "rotary" or args.cube or args.link != "serial"):
+        raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube)")
+    from station.twin.thermal import thermal_twin
+
     with given_values():
-        twin = KINDS[args.protocol].entry("twin")(args)
+        twin = thermal_twin(args) if args.chamber else KINDS[args.protocol].entry("twin")(args)
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
     devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
     if not KINDS[args.protocol].table:
         del devices[signal.SIGUSR2]
+    if args.chamber:
+        devices[signal.SIGHUP] = "chamber"
     previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
@@ -123,6 +134,8 @@ def run(args) -> int:
                 print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
                       f"({info['imu']['rate_hz']:g} Hz)\n"
                       + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
+                      + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
+                         if args.chamber else "")
                       + f"bench profile: {info['profile']}\n"
                       f"  station record --profile {args.profile_out}\n"
                       "Ctrl-C stops the twin.", flush=True)

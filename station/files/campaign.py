@@ -1,5 +1,5 @@
-"""The manifest of a thermal campaign: one rotary session per chamber setpoint (docs/session-format.md,
-"Thermal campaign").
+"""The manifest of a thermal campaign: one rotary session per chamber setpoint
+(docs/session-format.md, "Thermal campaign").
 
 A campaign is a directory holding `campaign.json` and the session files `soak_<k>_<K>K.h5`
 (k from 1, the setpoint rounded to whole kelvin). The manifest is JSON, rewritten atomically (a

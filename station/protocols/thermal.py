@@ -195,7 +195,7 @@ def run_campaign(bench, campaign, operator) -> dict:
     the devices of the bench profile `bench` (with its `chamber`); returns a summary. Faults and
     Ctrl-C leave the chamber at its safe setpoint and the table stopped (module docstring)."""
     from drivers.clock import ScaledClock, WallClock
-    from station.acquire.bench import imu_driver, record, resume, stop_table
+    from station.acquire.bench import imu_driver, record, resume
 
     settings = bench.chamber
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
@@ -224,13 +224,30 @@ def run_campaign(bench, campaign, operator) -> dict:
                 recorded.append(str(path))
             chamber.safe(settings.safe)
     except BaseException as exc:
-        try:
-            stop_table(bench.source)
-        except Exception as stop_error:  # noqa: BLE001 - said on the error being raised
-            exc.add_note(f"the table could not be stopped ({stop_error}); stop it by hand")
+        _leave_safe(exc, bench, settings, campaign)
         raise
     return {"campaign": str(campaign.directory), "recorded": recorded,
             "soaks": campaign.soaks, "safe_setpoint": settings.safe}
+
+
+def _leave_safe(exc: BaseException, bench, settings: ChamberSettings, campaign) -> None:
+    """After `exc` (the chamber already sent to its safe setpoint by its driver): stop the
+    table, and say on the error what was done and how to go on."""
+    from station.acquire import interrupts
+    from station.acquire.bench import stop_table
+
+    interrupts.handled()
+    try:
+        exc.table_stopped = stop_table(bench.source)
+    except Exception as stop_error:  # noqa: BLE001 - said on the error being raised
+        exc.add_note(f"the table could not be stopped ({stop_error}); stop it by hand")
+    if getattr(exc, "chamber_safe", False):
+        exc.add_note(f"the chamber was sent to its safe setpoint {settings.safe:.2f} K")
+    k = campaign.next_soak()
+    if k is not None:
+        exc.add_note(f"the campaign {campaign.directory} goes on at soak {k + 1} "
+                     f"({campaign.soaks[k]['setpoint']:.2f} K) with `station resume "
+                     f"{campaign.directory}`")
 
 
 def _soak(chamber, imu, settings, setpoint, clock, column, counts_per_kelvin) -> SoakResult:

@@ -1,5 +1,4 @@
-"""The virtual thermal bench (`station twin --protocol thermal`): the rotary bench with its motorised
-fixture (`station.twin.served.BenchTwin`), its 12-gyro unit streaming a temperature channel
+"""The virtual thermal bench (`station twin --chamber`): the rotary bench with its motorised fixture (`station.twin.served.BenchTwin`), its 12-gyro unit streaming a temperature channel
 (device profile imu12_serial_temp), inside a thermal chamber twin (`drivers.twins.chamber`, Modbus
 TCP on 127.0.0.1), all on one clock.
 
@@ -125,6 +124,6 @@ class ThermalTwin:
 
 
 def thermal_twin(options) -> ThermalTwin:
-    """`station twin --protocol thermal` (options: seed, speed, positions, rate_hz, lifetime)."""
+    """`station twin --chamber` (options: seed, speed, positions, rate_hz, lifetime)."""
     return ThermalTwin(options.seed, options.speed, options.positions, options.rate_hz,
                        options.lifetime)
