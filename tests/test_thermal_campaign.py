@@ -5,7 +5,7 @@ rotary table with its motorised fixture and the thermal chamber behind pymodbus 
 then every fault of a soak, each a specific error with the table stopped and the chamber at its
 safe setpoint, and a campaign interrupted by Ctrl-C resumed and solved.
 
-A fast clock (50x), a fast chamber and a small unit (time constants of 10 s and 30 s of clock
+A fast clock (80x), a fast chamber and a small unit (time constants of 10 s and 30 s of clock
 time), few positions and short windows keep each campaign to seconds of wall time.
 """
 
@@ -35,7 +35,7 @@ from station.sim.thermal import unit_at
 from station.twin.thermal import TRUTH, ThermalTwin
 
 STATION = [sys.executable, "-m", "station"]
-SPEED = 50.0
+SPEED = 80.0
 ALPHA = 0.01
 """False-alarm probability of each statistical check, over all the values it checks."""
 
@@ -151,7 +151,7 @@ def test_ctrl_c_during_a_soak_then_resume_and_solve(tmp_path):
     """`station record` interrupted (SIGINT) while the unit soaks at the second setpoint: exit
     130, the table stopped, the chamber at its safe setpoint, the first soak done; `station
     resume DIR` records the second, and `station solve DIR` fits both."""
-    with ThermalTwin(seed=4, speed=SPEED, positions=4, setpoints=(283.15, 313.15)) as twin:
+    with ThermalTwin(seed=4, speed=SPEED, positions=6, setpoints=(283.15, 313.15)) as twin:
         profile = _write_profile(twin, tmp_path)
         camp = tmp_path / "camp"
         record = subprocess.Popen([*STATION, "record", "--profile", str(profile), "--out",
