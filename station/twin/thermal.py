@@ -1,5 +1,6 @@
-"""The virtual thermal bench (`station twin --chamber`): the rotary bench with its motorised fixture (`station.twin.served.BenchTwin`), its 12-gyro unit streaming a temperature channel
-(device profile imu12_serial_temp), inside a thermal chamber twin (`drivers.twins.chamber`, Modbus
+"""The virtual thermal bench (`station twin --chamber`): the rotary bench with its motorised fixture
+(`station.twin.served.BenchTwin`), its 12-gyro unit streaming a temperature channel (device profile
+imu12_serial_temp), inside a thermal chamber twin (`drivers.twins.chamber`, Modbus
 TCP on 127.0.0.1), all on one clock.
 
 The chamber's physics (`drivers.twins.thermal.ChamberPhysics`) gives the unit's temperature; the
