@@ -28,6 +28,11 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     noise_density = 1.7e-4        # (`station plan`; docs/protocols.md, "Fixture and plan")
     wedge = true
 
+    [chamber]                     # rotary, optional: a thermal campaign (docs/protocols.md,
+    host = "192.168.0.60"         # "Thermal sessions"): the chamber's Modbus TCP address (or
+    setpoints = [263.15, 313.15]  # serial_port), setpoints in K, ramp, stability, window,
+    safe = 296.15                 # soak_timeout, safe, poll; --out is then a directory
+
     [tolerances]                  # optional: the unit type's tolerances, for a PASS/FAIL verdict
     scale_factor = 0.03           # |k_i - 1| (station.solve.verdict)
     bias = 0.05                   # |b_i|, in the readings' SI unit
@@ -63,11 +68,12 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
         "  station twin --speed 40 --profile-out twin.toml &   # then:\n"
-        "  station record --profile twin.toml --out twin.h5 --solve --json"
+        "  station record --profile twin.toml --out twin.h5 --solve --json\n"
+        "  station record --profile thermal.toml --out campaigns/SN42 --solve   # [chamber]"
     )
     p.add_argument("--profile", type=Path, required=True, help="bench profile (TOML)")
     p.add_argument("--out", type=Path, help="session file to create (default: "
-                   "sessions/<unit serial>-<date>.h5)")
+                   "sessions/<unit serial>-<date>.h5); a thermal campaign: its directory")
     p.add_argument("--solve", action="store_true",
                    help="solve the session afterwards into <session>.cal.json")
     p.add_argument("--accept-suspect", action="store_true",

@@ -11,6 +11,10 @@ Rotary sessions recorded on the virtual bench (`bench` in their metadata) resume
 bench built from it. Sessions recorded with real devices (`station record`) resume with the devices
 of a bench profile: `--profile`, by default the one the session was recorded with (its path is in
 the metadata); it must be for the same unit and stream (`station.acquire.bench.resume`).
+A thermal campaign (its directory or `campaign.json`) goes on at its first setpoint not done, with
+the bench profile it was recorded with (or `--profile`), the table stopped first: the unit is
+soaked again there, then the session is recorded, or resumed when its file exists
+(`station.protocols.thermal`, docs/protocols.md "Thermal sessions").
 """
 
 import json
@@ -24,7 +28,8 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station resume unit7.h5\n"
         "  station resume unit7.h5 --profile bench.toml   # a port moved\n"
-        "  station resume demo.h5 --speed 80 --json"
+        "  station resume demo.h5 --speed 80 --json\n"
+        "  station resume campaigns/SN42   # a thermal campaign, at its next setpoint"
     )
     p.add_argument("session", type=Path, help="the session file (.h5), or a thermal campaign's "
                    "directory (it goes on at the first setpoint not done)")

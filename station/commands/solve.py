@@ -25,6 +25,11 @@ Eq. (15) (needed when they are only the six axis-aligned directions). --stream G
 between its still poses (gravity carried through each turn, Tedaldi et al.; docs/hand-turns.md), in
 the accelerometer's frame.
 
+A thermal campaign (its directory or `campaign.json`, `station record` with a [chamber]): one soak
+per session (its gyro channels' Eq. 18 readings and static-window biases, at the mean of its
+recorded temperature channel), the temperature model fitted over them with its orders chosen by
+likelihood ratio (`station.solve.temperature`), written as DIR/campaign.cal.json (version 6); the
+summary gives the orders and each tempco with its 1-sigma.
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
@@ -49,7 +54,8 @@ def register(p) -> None:
         "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n"
         "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n"
         "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n"
-        "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n\n"
+        "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n"
+        "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
