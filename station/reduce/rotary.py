@@ -48,7 +48,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     (interpolated at the sampling instants). A window holding less than `coverage` of the samples
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
     (e.g. to test whether the table's start or stop leaks into the windows). `channels`: the
-    stream's columns reduced (None: all; a thermal campaign leaves out the temperature's).
+    stream's columns reduced (None: `rotary_channels`, every one but a temperature's).
     """
     events = session.events()
     stream_windows = StreamWindows(session, stream, events)
@@ -64,7 +64,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = stream_windows.spec.rate_hz
-    keep = slice(None) if channels is None else np.asarray(channels)
+    keep = rotary_channels(session, stream) if channels is None else np.asarray(channels)
     lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)[keep]
     parts = []
     for j, w in windows.items():
@@ -85,6 +85,12 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
             raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
     return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
                       for name in Reduced.__dataclass_fields__})
+
+
+def rotary_channels(session, stream: str = "imu") -> np.ndarray:
+    """Indices of the gyro channels of a rotary session's stream: every channel not in K (a unit's
+    temperature is recorded beside its gyros, never calibrated as one: a thermal campaign)."""
+    return np.array([i for i, u in enumerate(session.specs[stream].units) if u != "K"])
 
 
 def _columns(window: tuple, keep) -> tuple:

@@ -16,7 +16,7 @@ from station.errors import CalibrationInputError
 from station.files.campaign import Campaign
 from station.files.session import Session
 from station.model.temperature import Soak, check_kelvin
-from station.reduce.rotary import rotary_readings, static_bias
+from station.reduce.rotary import rotary_channels, rotary_readings, static_bias
 
 
 @dataclass(frozen=True)
@@ -60,8 +60,8 @@ def campaign_soaks(path) -> CampaignSoaks:
                     f"{file}: its stream or table rate differs from the campaign's first "
                     "session.", "Solve sessions of one unit, one device profile and one rate.")
             first = key
-            gyros = [i for i, u in enumerate(spec.units) if u != "K"]
-            reduced = rotary_readings(session, channels=gyros)
+            gyros = rotary_channels(session)
+            reduced = rotary_readings(session)
             bias = static_bias(reduced)
             soaks.append(Soak(session_temperature(session, file), reduced.M, reduced.sigma,
                               bias=bias["bias"], bias_sigma=bias["bias_sigma"]))
