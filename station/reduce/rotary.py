@@ -64,7 +64,8 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = stream_windows.spec.rate_hz
-    keep = rotary_channels(session, stream) if channels is None else np.asarray(channels)
+    keep = _selection(rotary_channels(session, stream) if channels is None else channels,
+                      len(stream_windows.spec.channels))
     lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)[keep]
     parts = []
     for j, w in windows.items():
@@ -91,6 +92,14 @@ def rotary_channels(session, stream: str = "imu") -> np.ndarray:
     """Indices of the gyro channels of a rotary session's stream: every channel not in K (a unit's
     temperature is recorded beside its gyros, never calibrated as one: a thermal campaign)."""
     return np.array([i for i, u in enumerate(session.specs[stream].units) if u != "K"])
+
+
+def _selection(channels, m: int):
+    """The column selection of `channels` among m: a slice when it is all of them in order (the
+    counts are then read as they are, not copied: the readings stay bit for bit those of a
+    reduction of every column)."""
+    channels = np.asarray(channels)
+    return slice(None) if np.array_equal(channels, np.arange(m)) else channels
 
 
 def _columns(window: tuple, keep) -> tuple:
