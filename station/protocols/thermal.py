@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from station.errors import SoakTimeout
+from station.errors import RecordingError, SoakTimeout
 
 ROOM = 296.15
 """K: the default safe setpoint (23 degC)."""
@@ -119,8 +119,11 @@ class SoakResult:
     trace: dict
 
     def metadata(self) -> dict:
-        """What a soak's session file records about it (`thermal` metadata)."""
-        return dataclasses.asdict(self)
+        """What a soak's session file records about it (`thermal` metadata; a unit temperature
+        not yet read at a poll is null)."""
+        from station.files.jsonable import jsonable
+
+        return jsonable(dataclasses.asdict(self))
 
 
 def temperature_column(units) -> int:
@@ -138,8 +141,9 @@ def temperature_column(units) -> int:
 def soak(chamber, imu, settings: ChamberSettings, setpoint: float, clock, column: int,
          counts_per_kelvin: float) -> SoakResult:
     """Bring the unit to `setpoint` (module docstring): command the chamber, read the IMU's
-    temperature channel `column` until it settles; SoakTimeout when it does not in time. The
-    chamber's alarm and door bits are checked at every poll (ChamberAlarm, ChamberDoorOpen)."""
+    temperature channel `column` until it settles; SoakTimeout when it does not in time,
+    RecordingError when the IMU sends nothing for `window` seconds. The chamber's alarm and door
+    bits are checked at every poll (ChamberAlarm, ChamberDoorOpen)."""
     chamber.set_setpoint(setpoint, settings.ramp)
     chamber.run()
     start = clock.now()
@@ -152,6 +156,10 @@ def soak(chamber, imu, settings: ChamberSettings, setpoint: float, clock, column
             times.append(float(np.mean(block.host_time)))
             temps.append(float(np.mean(block.counts[:, column])) / counts_per_kelvin)
         now = clock.now()
+        if now - (times[-1] if times else start) > settings.window:
+            raise RecordingError(f"the IMU sent no sample for {settings.window:g} s during the "
+                                 f"soak at {setpoint:.2f} K: its temperature cannot be watched. "
+                                 "Check its cable and power, then `station resume` the campaign")
         if trace["time"] and now - trace["time"][-1] < settings.poll:
             continue
         reading = chamber.check()
