@@ -26,7 +26,7 @@ from drivers.errors import ChamberAlarm, ChamberDoorOpen, ChamberTimeout, Device
 from station.acquire.bench import BenchProfile
 from station.acquire.operator import ConsoleOperator
 from station.cli import main
-from station.errors import SoakTimeout
+from station.errors import RecordingError, SoakTimeout
 from station.files.calfile import load
 from station.files.campaign import Campaign
 from station.files.session import Session
@@ -103,6 +103,7 @@ FAULTS = {
     "alarm": (lambda twin: setattr(twin.physics, "alarm", True), ChamberAlarm),
     "door": (lambda twin: setattr(twin.physics, "door_open", True), ChamberDoorOpen),
     "imu lost": (lambda twin: twin.toggle("imu"), DeviceLostError),
+    "imu silent": (lambda twin: twin.bench.imu_twin.pause(1e4), RecordingError),
     "chamber silent": (lambda twin: twin.toggle("chamber"), ChamberTimeout),
     "soak timeout": (lambda twin: None, SoakTimeout),
 }
@@ -180,3 +181,23 @@ def test_ctrl_c_during_a_soak_then_resume_and_solve(tmp_path):
     assert solved.returncode == 0, solved.stderr
     summary = json.loads(solved.stdout)
     assert len(summary["soaks_K"]) == 2 and summary["orders"]["bias"] == 1
+
+
+def test_station_twin_chamber_serves_the_thermal_bench(tmp_path):
+    """`station twin --chamber`: the chamber's address among the devices, and a bench profile
+    whose [chamber] points at it, for a unit streaming its temperature."""
+    profile = tmp_path / "thermal.toml"
+    twin = subprocess.Popen([*STATION, "twin", "--chamber", "--speed", "20", "--positions", "6",
+                             "--profile-out", str(profile), "--lifetime", "30", "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        info = json.loads(twin.stdout.readline())
+        bench = BenchProfile.load(profile)
+    finally:
+        twin.send_signal(signal.SIGINT)
+        out, err = twin.communicate(timeout=30)
+    assert twin.returncode == 0, err
+    assert bench.chamber.port == info["chamber"]["port"] and bench.chamber.host == "127.0.0.1"
+    assert bench.imu.imu.units[-1] == "K"
+    truth = json.loads(out)["truth"]
+    assert truth["temperature"]["bias"] == TRUTH.bias and truth["chamber"]["air"] == ROOM
