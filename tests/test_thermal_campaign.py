@@ -201,3 +201,36 @@ def test_station_twin_chamber_serves_the_thermal_bench(tmp_path):
     assert bench.imu.imu.units[-1] == "K"
     truth = json.loads(out)["truth"]
     assert truth["temperature"]["bias"] == TRUTH.bias and truth["chamber"]["air"] == ROOM
+
+
+def test_an_alarm_during_a_session_sets_it_aside_and_the_setpoint_is_recorded_again(tmp_path):
+    """The chamber's alarm while the first session records (the chamber is watched meanwhile):
+    ChamberAlarm once the session ends, the session moved aside, the chamber safe, the table
+    stopped; after the alarm is cleared, the resumed campaign records that setpoint again."""
+    with ThermalTwin(seed=5, speed=SPEED, positions=3, setpoints=(283.15, 313.15)) as twin:
+        profile = _write_profile(twin, tmp_path)
+        bench = BenchProfile.load(profile)
+        camp = tmp_path / "camp"
+        campaign = Campaign.create(camp, bench.unit_serial, profile, bench.chamber.setpoints)
+
+        def strike():
+            while not (camp / "soak_1_283K.h5").exists():
+                time.sleep(0.01)
+            time.sleep(0.5)
+            twin.physics.alarm = True
+
+        threading.Thread(target=strike, daemon=True).start()
+        with pytest.raises(ChamberAlarm, match="during the session"):
+            run_campaign(bench, campaign, ConsoleOperator(stdout=sys.stderr))
+        assert (camp / "soak_1_283K.chamber-fault.h5").exists()
+        assert not (camp / "soak_1_283K.h5").exists()
+        assert twin.physics.setpoint == ROOM and not twin.bench.table.state().running
+        again = Campaign.load(camp)
+        assert again.next_soak() == 0 and any(again.soaks[0]["chamber_during"]["alarm"])
+
+        twin.physics.alarm = False
+        run_campaign(bench, again, ConsoleOperator(stdout=sys.stderr))
+    done = Campaign.load(camp)
+    assert done.next_soak() is None and not any(done.soaks[0]["chamber_during"]["alarm"])
+    with Session.open(camp / "soak_1_283K.h5") as session:
+        assert session.last_completed_position() == 2

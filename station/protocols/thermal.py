@@ -21,6 +21,7 @@ is sent to its safe setpoint too.
 
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -224,10 +225,13 @@ def run_campaign(bench, campaign, operator) -> dict:
                 path = campaign.directory / campaign.soaks[k]["file"]
                 before = _reading(chamber.check())
                 thermal = {**result.metadata(), "soak": k + 1, "chamber_before": before}
-                if path.exists():
-                    resume(bench, path, operator)
-                else:
-                    record(bench, path, operator, extra={"thermal": thermal})
+                with ChamberWatch(chamber, settings.poll, clock) as watch:
+                    if path.exists():
+                        resume(bench, path, operator)
+                    else:
+                        record(bench, path, operator, extra={"thermal": thermal})
+                campaign.update(k, chamber_during=watch.trace)
+                watch.check(path)
                 campaign.update(k, state="done", chamber_after=_reading(chamber.check()))
                 recorded.append(str(path))
             chamber.safe(settings.safe)
@@ -236,6 +240,69 @@ def run_campaign(bench, campaign, operator) -> dict:
         raise
     return {"campaign": str(campaign.directory), "recorded": recorded,
             "soaks": campaign.soaks, "safe_setpoint": settings.safe}
+
+
+class ChamberWatch:
+    """Reads the chamber every `poll` clock seconds in a thread while a rotary session records
+    (the main thread does not use the chamber meanwhile): `trace` (lists time, air, setpoint,
+    alarm, door_open), and `check` after the session, which refuses it when the chamber raised
+    its alarm or opened its door during it (or stopped answering)."""
+
+    def __init__(self, chamber, poll: float, clock):
+        self.chamber, self.poll, self.clock = chamber, poll, clock
+        self.trace = {"time": [], "air": [], "setpoint": [], "alarm": [], "door_open": []}
+        self.error = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="chamber-watch", daemon=True)
+
+    def __enter__(self) -> "ChamberWatch":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        from drivers.errors import ChamberError
+
+        due = self.clock.now()
+        while not self._stop.wait(0.05):
+            if self.clock.now() < due:
+                continue
+            due += self.poll
+            try:
+                r = self.chamber.state()
+            except ChamberError as exc:
+                self.error = exc
+                return
+            for key, value in (("time", r.time), ("air", r.temperature),
+                               ("setpoint", r.setpoint), ("alarm", r.alarm),
+                               ("door_open", r.door_open)):
+                self.trace[key].append(round(value, 4) if isinstance(value, float) else value)
+
+    def check(self, path) -> None:
+        """Raise what went wrong with the chamber during the session at `path`; such a session is
+        moved aside (`<name>.chamber-fault.h5`), so that the campaign records it again."""
+        from drivers.errors import ChamberAlarm, ChamberDoorOpen
+
+        faults = [(name, cls) for name, cls in (("alarm", ChamberAlarm),
+                                                ("door_open", ChamberDoorOpen))
+                  if any(self.trace[name])]
+        if self.error is None and not faults:
+            return
+        aside = path.with_name(f"{path.stem}.chamber-fault.h5")
+        path.replace(aside)
+        if self.error is not None:
+            self.error.add_note(f"the chamber stopped answering during the session; it was "
+                                f"moved to {aside.name}")
+            raise self.error
+        name, cls = faults[0]
+        words = "raised its alarm" if name == "alarm" else "opened its door"
+        raise cls(f"{self.chamber.where}: {words} during the session at "
+                  f"{self.trace['setpoint'][-1]:.2f} K, so the unit's temperature is not known "
+                  f"there: the session was moved to {aside.name}. Clear the cause, then "
+                  "`station resume` the campaign (it soaks and records this setpoint again)")
 
 
 def _leave_safe(exc: BaseException, bench, settings: ChamberSettings, campaign) -> None:
