@@ -107,10 +107,13 @@ def run(args) -> int:
         raise InputError(f"--table-log: a {args.protocol} bench has no rotary table")
     if args.chamber and (args.protocol != "rotary" or args.cube or args.link != "serial"):
         raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube)")
-    from station.twin.thermal import thermal_twin
-
     with given_values():
-        twin = thermal_twin(args) if args.chamber else KINDS[args.protocol].entry("twin")(args)
+        if args.chamber:
+            from station.twin.thermal import thermal_twin
+
+            twin = thermal_twin(args)
+        else:
+            twin = KINDS[args.protocol].entry("twin")(args)
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
