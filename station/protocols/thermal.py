@@ -204,42 +204,46 @@ def run_campaign(bench, campaign, operator) -> dict:
     the devices of the bench profile `bench` (with its `chamber`); returns a summary. Faults and
     Ctrl-C leave the chamber at its safe setpoint and the table stopped (module docstring)."""
     from drivers.clock import ScaledClock, WallClock
-    from station.acquire.bench import imu_driver, record, resume
 
     settings = bench.chamber
     clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
-    imu_profile = bench.imu.imu
-    column = temperature_column(imu_profile.units)
     recorded = []
     try:
         with settings.chamber(clock) as chamber:
             while (k := campaign.next_soak()) is not None:
-                setpoint = campaign.soaks[k]["setpoint"]
-                operator.prompt(f"soak {k + 1} of {len(campaign.soaks)}: chamber to "
-                              f"{setpoint:.2f} K")
-                with imu_driver(bench, clock) as imu:
-                    result = _soak(chamber, imu, settings, setpoint, clock, column,
-                                   imu_profile.scale[column])
-                campaign.update(k, state="soaked", unit_temperature=result.unit_temperature,
-                                rate_K_per_min=result.rate, soak_seconds=result.seconds)
-                path = campaign.directory / campaign.soaks[k]["file"]
-                before = _reading(chamber.check())
-                thermal = {**result.metadata(), "soak": k + 1, "chamber_before": before}
-                with ChamberWatch(chamber, settings.poll, clock) as watch:
-                    if path.exists():
-                        resume(bench, path, operator)
-                    else:
-                        record(bench, path, operator, extra={"thermal": thermal})
-                campaign.update(k, chamber_during=watch.trace)
-                watch.check(path)
-                campaign.update(k, state="done", chamber_after=_reading(chamber.check()))
-                recorded.append(str(path))
+                recorded.append(_soak_and_record(k, campaign, bench, chamber, clock, operator))
             chamber.safe(settings.safe)
     except BaseException as exc:
         _leave_safe(exc, bench, settings, campaign)
         raise
     return {"campaign": str(campaign.directory), "recorded": recorded,
             "soaks": campaign.soaks, "safe_setpoint": settings.safe}
+
+
+def _soak_and_record(k: int, campaign, bench, chamber, clock, operator) -> str:
+    """Soak k of `campaign`, then its rotary session (recorded, or resumed when its file exists)
+    with the chamber watched; the manifest updated after each step. Returns the session's path."""
+    from station.acquire.bench import imu_driver, record, resume
+
+    settings, setpoint = bench.chamber, campaign.soaks[k]["setpoint"]
+    operator.prompt(f"soak {k + 1} of {len(campaign.soaks)}: chamber to {setpoint:.2f} K")
+    column = temperature_column(bench.imu.imu.units)
+    with imu_driver(bench, clock) as imu:
+        result = _soak(chamber, imu, settings, setpoint, clock, column,
+                       bench.imu.imu.scale[column])
+    campaign.update(k, state="soaked", unit_temperature=result.unit_temperature,
+                    rate_K_per_min=result.rate, soak_seconds=result.seconds)
+    path = campaign.directory / campaign.soaks[k]["file"]
+    thermal = {**result.metadata(), "soak": k + 1, "chamber_before": _reading(chamber.check())}
+    with ChamberWatch(chamber, settings.poll, clock) as watch:
+        if path.exists():
+            resume(bench, path, operator)
+        else:
+            record(bench, path, operator, extra={"thermal": thermal})
+    campaign.update(k, chamber_during=watch.trace)
+    watch.check(path)
+    campaign.update(k, state="done", chamber_after=_reading(chamber.check()))
+    return str(path)
 
 
 class ChamberWatch:
