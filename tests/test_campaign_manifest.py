@@ -82,3 +82,14 @@ def test_the_chamber_section_is_read_with_its_defaults(tmp_path):
 def test_a_chamber_section_the_campaign_cannot_use_is_refused(tmp_path, imu, setpoints, words):
     with pytest.raises(ProfileError, match=words):
         BenchProfile.load(_profile(tmp_path, imu, setpoints))
+
+
+def test_solving_a_campaign_without_two_soaks_or_with_session_options_is_refused(tmp_path,
+                                                                                 capsys):
+    from station.cli import main
+
+    Campaign.create(tmp_path / "c", "SN1", _profile(tmp_path), [263.15, 313.15])
+    assert main(["solve", str(tmp_path / "c"), "--magnitude", "2"]) == 2
+    assert "--magnitude: not for a thermal campaign" in capsys.readouterr().err
+    assert main(["solve", str(tmp_path / "c" / "campaign.json")]) == 2
+    assert "0 soak(s) recorded" in capsys.readouterr().err

@@ -385,11 +385,24 @@ def pose_lines(s: dict) -> list:
     return lines
 
 
+CAMPAIGN_UNUSED = ("stream", "nominal", "magnitude", "store", "tolerances", "rest", "threshold",
+                   "still_channels", "min_still", "faces")
+"""`station solve` options that a thermal campaign refuses (they choose what one session
+calibrates)."""
+
+
 def _run_campaign(args) -> int:
     """`station solve CAMPAIGN`: the temperature model of a thermal campaign."""
     from station.commands import new_file
+    from station.errors import InputError
     from station.files.campaign import manifest_path
 
+    unused = [f"--{name.replace('_', '-')}" for name in CAMPAIGN_UNUSED
+              if getattr(args, name) not in (None, False)]
+    if unused:
+        raise InputError(f"{', '.join(unused)}: not for a thermal campaign, whose sessions are "
+                         "rotary sessions of its stream at their recorded table rate; solve one "
+                         "session file with them instead")
     directory = manifest_path(args.session).parent
     out = new_file(args.out or directory / "campaign.cal.json", force=args.force)
     cal, fit = solve_campaign(args.session, args.accept_suspect)
