@@ -48,7 +48,7 @@ def _write_profile(twin, tmp_path):
 
 def test_a_four_setpoint_campaign_recovers_the_true_tempcos(tmp_path, capsys):
     """4 setpoints, 6 positions each: the 24 linear tempcos within their Bonferroni bound of the
-    truth, both orders chosen linear, a version-6 calibration file with the model, and `station
+    truth, both tempcos detected, a version-6 calibration file with the model, and `station
     apply` between two setpoints giving the true rate magnitudes within the calibration's own
     1-sigma bound."""
     with ThermalTwin(seed=2, speed=SPEED, positions=6) as twin:
@@ -67,7 +67,10 @@ def test_a_four_setpoint_campaign_recovers_the_true_tempcos(tmp_path, capsys):
     path = tmp_path / "camp" / "campaign.cal.json"
     assert json.loads(path.read_text())["format_version"] == 6
     model = load(path).temperature
-    assert model.orders == {"bias": 1, "scale": 1}  # a needless order: <= ALPHA per step
+    # the true tempcos are 40 (bias) and 10 to 60 (scale) of their sigmas: both orders at least
+    # linear. A needless quadratic is chosen now and then (nominally <= 1 % per step, more with
+    # the bias sigmas estimated from 6 windows): the linear terms are then checked all the same
+    assert model.orders["bias"] >= 1 and model.orders["scale"] >= 1, model.orders
     z_bias = (model.bias[:, 0] - TRUTH.bias) / model.bias_sigma[:, 0]
     z_scale = (model.scale[:, 0] - np.asarray(TRUTH.scale)) / model.scale_sigma[:, 0]
     # Bonferroni over the 24 values, ALPHA in all. A bias 1-sigma comes from the scatter of 6
