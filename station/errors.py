@@ -16,6 +16,8 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |    +-- RecordingError              3  the IMU stream stopped
      |    +-- ProtocolError               3  the bench did not behave as the protocol needs
      |         +-- SessionPaused          3  the operator stopped; the session can be resumed
+     |         +-- SoakError              3  a thermal soak did not settle
+     |              +-- SoakTimeout       3  the unit still warmed or cooled at the soak's timeout
      +-- SuspectFitError                1  a fit inconsistent with its noise: not written as good
      +-- OperatorAbort                  1  the operator ended the session
 
@@ -98,3 +100,13 @@ class SuspectFitError(StationError):
 class OperatorAbort(StationError):
     """The operator ended the session (end of input, or 'no' to a question that must be 'yes')."""
 
+
+
+class SoakError(ProtocolError):
+    """A thermal soak did not bring the unit to a steady temperature (station.protocols.thermal);
+    the message names the setpoint, what was seen and what to do."""
+
+
+class SoakTimeout(SoakError):
+    """The unit's own temperature still changed faster than the stability threshold when the
+    soak's timeout ran out."""

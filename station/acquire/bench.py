@@ -45,6 +45,7 @@ class BenchProfile:
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
     spins: int = 0  # rotary on a two-axis table: spins of the position axis after the positions
+    chamber: object = None  # rotary: station.protocols.thermal.ChamberSettings of [chamber]
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
@@ -66,11 +67,11 @@ class BenchProfile:
             return Section(profile.source, name, table)
 
         unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances",
-                                                "fixture"})
+                                                "fixture", "chamber"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
-                               "[imu], [table] (rotary), [protocol], [fixture] (rotary, static) "
-                               "and [tolerances]")
+                               "[imu], [table] (rotary), [protocol], [fixture] (rotary, static), "
+                               "[chamber] (a thermal campaign, rotary) and [tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -112,9 +113,14 @@ class BenchProfile:
                                    if "fixture" in fields else proto.get("positions", int))
             fields["spins"] = _spins(fields, proto, path)
             table.finish()
+            if "chamber" in profile.tables:
+                fields["chamber"] = _chamber(section("chamber"), device, dev.imu)
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
+            if "chamber" in profile.tables:
+                raise ProfileError(f"{path}: a thermal campaign records rotary sessions; remove "
+                                   f"the [chamber] section of this {kind} bench")
             if "fixture" in profile.tables and kind != "static":
                 raise ProfileError(f"{path}: the {kind} protocol does not plan fixture poses; "
                                    "remove the [fixture] section (it serves rotary and static "
@@ -168,6 +174,15 @@ def _device(profile, name: str) -> str:
     path or a bundled profile)."""
     local = Path(profile.source).parent / name
     return str(local) if local.exists() else name
+
+
+def _chamber(section, device, imu):
+    """The [chamber] section's `station.protocols.thermal.ChamberSettings`, for an IMU stream
+    with a temperature channel."""
+    from station.protocols.thermal import ChamberSettings, temperature_column
+
+    temperature_column(imu.units)
+    return ChamberSettings.from_section(section, device)
 
 
 def _table_fields(profile, table) -> dict:
@@ -249,10 +264,11 @@ def _layout(proto, imu, path) -> np.ndarray:
     return a
 
 
-def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
+def record(bench: BenchProfile, out, operator, live: bool = False,
+           extra: dict | None = None) -> dict:
     """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
     and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
-    while recording, for kinds that have one."""
+    while recording, for kinds that have one; extra: more metadata (a thermal soak's)."""
     from drivers.clock import ScaledClock, WallClock
     from drivers.profile import load_profile
     from station.acquire.live_view import LiveView
@@ -264,7 +280,7 @@ def record(bench: BenchProfile, out, operator, live: bool = False) -> dict:
     spec = StreamSpec.from_profile(bench.imu.imu)
     metadata = {"unit_serial": bench.unit_serial,
                 "bench": {"profile": bench.source, "tables": bench.tables},
-                "profiles": {"imu": load_profile(bench.imu.source).tables}}
+                "profiles": {"imu": load_profile(bench.imu.source).tables}, **(extra or {})}
     kind = KINDS[bench.protocol]
     with bench_devices(bench, clock, kind.table) as (imu, table):
         kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,

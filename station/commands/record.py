@@ -30,6 +30,11 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     noise_density = 1.7e-4        # (`station plan`; docs/protocols.md, "Fixture and plan")
     wedge = true
 
+    [chamber]                     # rotary, optional: a thermal campaign (docs/protocols.md,
+    host = "192.168.0.60"         # "Thermal sessions"): the chamber's Modbus TCP address (or
+    setpoints = [263.15, 313.15]  # serial_port), setpoints in K, ramp, stability, window,
+    safe = 296.15                 # soak_timeout, safe, poll; --out is then a directory
+
     [tolerances]                  # optional: the unit type's tolerances, for a PASS/FAIL verdict
     scale_factor = 0.03           # |k_i - 1| (station.solve.verdict)
     bias = 0.05                   # |b_i|, in the readings' SI unit
@@ -67,11 +72,12 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
         "  station twin --speed 40 --profile-out twin.toml &   # then:\n"
-        "  station record --profile twin.toml --out twin.h5 --solve --json"
+        "  station record --profile twin.toml --out twin.h5 --solve --json\n"
+        "  station record --profile thermal.toml --out campaigns/SN42 --solve   # [chamber]"
     )
     p.add_argument("--profile", type=Path, required=True, help="bench profile (TOML)")
     p.add_argument("--out", type=Path, help="session file to create (default: "
-                   "sessions/<unit serial>-<date>.h5)")
+                   "sessions/<unit serial>-<date>.h5); a thermal campaign: its directory")
     p.add_argument("--solve", action="store_true",
                    help="solve the session afterwards into <session>.cal.json")
     p.add_argument("--accept-suspect", action="store_true",
@@ -91,6 +97,8 @@ def run(args) -> int:
     from station.solve.verdict import words
 
     bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
+    if bench.chamber is not None:
+        return _campaign(args, bench)
     kind = KINDS[bench.protocol]
     if args.live and not kind.live_view:
         shown = ", ".join(name for name, k in KINDS.items() if k.live_view)
@@ -128,3 +136,44 @@ def solve(path, accept_suspect: bool = False) -> dict:
     cal = solve_session(path, accept_suspect=accept_suspect)
     cal.save(out)
     return summarise(cal, out)
+
+
+def _campaign(args, bench) -> int:
+    """A thermal campaign (the profile has a [chamber] section) into the directory --out."""
+    from station.acquire.operator import ConsoleOperator
+    from station.files.campaign import Campaign
+    from station.protocols.thermal import run_campaign
+
+    if args.live:
+        raise InputError("--live shows one rotary session; record a thermal campaign without it")
+    out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out} is a file; a thermal campaign is written into a directory "
+                         "(--out DIR)")
+    campaign = Campaign.create(out, bench.unit_serial, bench.source, bench.chamber.setpoints)
+    operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
+    return report_campaign(run_campaign(bench, campaign, operator), args.json, args.solve,
+                           args.accept_suspect)
+
+
+def report_campaign(summary: dict, as_json: bool, solve: bool = False,
+                    accept_suspect: bool = False) -> int:
+    """Print a finished campaign's summary (as JSON or words); with `solve`, write its
+    calibration file first (campaign.cal.json in its directory)."""
+    from station.commands.solve import campaign_text, solve_campaign, summarise_campaign
+
+    if solve:
+        out = Path(summary["campaign"]) / "campaign.cal.json"
+        cal, fit = solve_campaign(summary["campaign"], accept_suspect)
+        cal.save(out)
+        summary["calibration"] = summarise_campaign(cal, fit, out)
+    if as_json:
+        print(json.dumps(summary, indent=2))
+        return 0
+    temps = ", ".join(f"{s['unit_temperature']:.2f}" for s in summary["soaks"])
+    print(f"thermal campaign {summary['campaign']}: {len(summary['soaks'])} soaks done (the "
+          f"unit at {temps} K); the chamber is at its safe setpoint "
+          f"{summary['safe_setpoint']:.2f} K")
+    if solve:
+        print(campaign_text(summary["calibration"]))
+    return 0

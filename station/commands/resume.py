@@ -11,6 +11,10 @@ Rotary sessions recorded on the virtual bench (`bench` in their metadata) resume
 bench built from it. Sessions recorded with real devices (`station record`) resume with the devices
 of a bench profile: `--profile`, by default the one the session was recorded with (its path is in
 the metadata); it must be for the same unit and stream (`station.acquire.bench.resume`).
+A thermal campaign (its directory or `campaign.json`) goes on at its first setpoint not done, with
+the bench profile it was recorded with (or `--profile`), the table stopped first: the unit is
+soaked again there, then the session is recorded, or resumed when its file exists
+(`station.protocols.thermal`, docs/protocols.md "Thermal sessions").
 """
 
 import json
@@ -24,9 +28,11 @@ def register(p) -> None:
     p.epilog = (
         "examples:\n  station resume unit7.h5\n"
         "  station resume unit7.h5 --profile bench.toml   # a port moved\n"
-        "  station resume demo.h5 --speed 80 --json"
+        "  station resume demo.h5 --speed 80 --json\n"
+        "  station resume campaigns/SN42   # a thermal campaign, at its next setpoint"
     )
-    p.add_argument("session", type=Path, help="the session file (.h5)")
+    p.add_argument("session", type=Path, help="the session file (.h5), or a thermal campaign's "
+                   "directory (it goes on at the first setpoint not done)")
     p.add_argument("--profile", type=Path,
                    help="bench profile of the real devices (default: the one recorded with)")
     p.add_argument("--speed", type=float,
@@ -39,7 +45,10 @@ def run(args) -> int:
     """Stop the table first (nothing else is imported before: `stop_table`), then check the
     file (`existing_session`, about 0.5 s in a child process) and resume."""
     from station.commands import existing_file, existing_session, table_words
+    from station.files.campaign import is_campaign
 
+    if is_campaign(args.session):
+        return _resume_campaign(args)
     existing_file(args.session, "a session file (.h5)")
     profile = args.profile or _recorded_profile(args.session)
     if profile is not None:
@@ -111,3 +120,27 @@ def _resume_with_devices(path, profile: Path, quiet: bool) -> int:
 
     bench = BenchProfile.load(profile)
     return resume(bench, path, ConsoleOperator(stdout=sys.stderr if quiet else sys.stdout))
+
+
+def _resume_campaign(args) -> int:
+    """Continue a thermal campaign (its directory or manifest) at its first soak not done, with
+    the bench profile it was recorded with (or --profile); the table is stopped first."""
+    from station.acquire.bench import BenchProfile, stop_table
+    from station.acquire.operator import ConsoleOperator
+    from station.commands import existing_file
+    from station.commands.record import report_campaign
+    from station.errors import InputError
+    from station.files.campaign import Campaign
+    from station.protocols.thermal import run_campaign
+
+    campaign = Campaign.load(args.session)
+    profile = existing_file(args.profile or Path(campaign.profile), "the campaign's bench "
+                            "profile (.toml; give it with --profile)")
+    stop_table(profile)
+    bench = BenchProfile.load(profile)
+    if bench.chamber is None or bench.unit_serial != campaign.unit_serial:
+        raise InputError(f"{profile} is not the thermal bench of unit {campaign.unit_serial!r} "
+                         "(a [chamber] section and that unit_serial); give the campaign's bench "
+                         "profile with --profile")
+    operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
+    return report_campaign(run_campaign(bench, campaign, operator), args.json)

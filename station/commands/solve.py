@@ -25,6 +25,11 @@ Eq. (15) (needed when they are only the six axis-aligned directions). --stream G
 between its still poses (gravity carried through each turn, Tedaldi et al.; docs/hand-turns.md), in
 the accelerometer's frame.
 
+A thermal campaign (its directory or `campaign.json`, `station record` with a [chamber]): one soak
+per session (its gyro channels' Eq. 18 readings and static-window biases, at the mean of its
+recorded temperature channel), the temperature model fitted over them with its orders chosen by
+likelihood ratio (`station.solve.temperature`), written as DIR/campaign.cal.json (version 6); the
+summary gives the orders and each tempco with its 1-sigma.
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
 """
 
@@ -49,7 +54,8 @@ def register(p) -> None:
         "  station solve SN42.h5 --tolerances bench.toml   # PASS/FAIL against [tolerances]\n"
         "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n"
         "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n"
-        "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n\n"
+        "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n"
+        "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -84,7 +90,10 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.commands import existing_file, existing_session, new_file, still_values
+    from station.files.campaign import is_campaign
 
+    if is_campaign(args.session):
+        return _run_campaign(args)
     existing_session(args.session)
     out = new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)
     nominal = None if args.nominal is None else read_nominal(args.nominal)
@@ -374,3 +383,89 @@ def pose_lines(s: dict) -> list:
                      f"{len(s['rejected']) or 'none'}")
         lines += [f"  rejected {a:.2f}-{b:.2f} s: {why}" for a, b, why in s["rejected"]]
     return lines
+
+
+CAMPAIGN_UNUSED = ("stream", "nominal", "magnitude", "store", "tolerances", "rest", "threshold",
+                   "still_channels", "min_still", "faces")
+"""`station solve` options that a thermal campaign refuses (they choose what one session
+calibrates)."""
+
+
+def _run_campaign(args) -> int:
+    """`station solve CAMPAIGN`: the temperature model of a thermal campaign."""
+    from station.commands import new_file
+    from station.errors import InputError
+    from station.files.campaign import manifest_path
+
+    unused = [f"--{name.replace('_', '-')}" for name in CAMPAIGN_UNUSED
+              if getattr(args, name) not in (None, False)]
+    if unused:
+        raise InputError(f"{', '.join(unused)}: not for a thermal campaign, whose sessions are "
+                         "rotary sessions of its stream at their recorded table rate; solve one "
+                         "session file with them instead")
+    directory = manifest_path(args.session).parent
+    out = new_file(args.out or directory / "campaign.cal.json", force=args.force)
+    cal, fit = solve_campaign(args.session, args.accept_suspect)
+    cal.save(out, overwrite=args.force)
+    summary = summarise_campaign(cal, fit, out)
+    print(json.dumps(summary, indent=2) if args.json else campaign_text(summary))
+    return 0
+
+
+def solve_campaign(path, accept_suspect: bool = False) -> tuple:
+    """(Calibration with the temperature model, TemperatureFit) of the thermal campaign at `path`
+    (directory or manifest): one soak per session (`station.reduce.thermal`), the orders chosen
+    by likelihood ratio (`station.solve.temperature.fit_temperature`). A fit whose soaks scatter
+    about the model beyond their uncertainty is refused unless `accept_suspect`."""
+    from station.errors import SuspectFitError
+    from station.files.calfile import Calibration
+    from station.reduce.thermal import campaign_soaks
+    from station.solve.temperature import fit_temperature
+
+    c = campaign_soaks(path)
+    fit = fit_temperature(c.soaks, c.rate, names=c.sensors)
+    if fit.problems and not accept_suspect:
+        raise SuspectFitError(f"{path}: the temperature fit is suspect, so no calibration file "
+                              f"was written: {'; '.join(fit.problems)}; give --accept-suspect to "
+                              "write it marked suspect")
+    session = {"path": str(Path(path).resolve()), "stream": "imu", "protocol": "thermal campaign",
+               "sessions": c.files, "stimulus": "recorded table rate"}
+    cal = Calibration.from_temperature_fit(fit, c.unit_serial, c.sensors, c.units,
+                                           counts_per_unit=c.counts_per_unit, session=session,
+                                           bias_source="static windows of each soak's rotary "
+                                                       "session, fitted over the soaks")
+    return cal, fit
+
+
+def summarise_campaign(cal, fit, out) -> dict:
+    """What `station solve` reports about a campaign's calibration: the soaks, the chosen orders
+    and every tempco with its 1-sigma."""
+    model = fit.model
+    return {"calibration": str(out), "unit_serial": cal.unit_serial, "sensors": list(cal.sensors),
+            "units": cal.units[0], "soaks_K": [s.temperature for s in fit.soak_data],
+            "t_ref": model.t_ref, "range_K": [model.t_min, model.t_max], "orders": model.orders,
+            "bias_tempco": model.bias.tolist(), "bias_tempco_sigma": model.bias_sigma.tolist(),
+            "scale_tempco": model.scale.tolist(),
+            "scale_tempco_sigma": model.scale_sigma.tolist(),
+            "chi2": fit.chi2, "dof": fit.dof, "status": cal.fit.get("status"),
+            "status_reasons": list(fit.problems)}
+
+
+def campaign_text(s: dict) -> str:
+    """The campaign summary in words: orders, then per sensor the linear tempcos +- 1 sigma."""
+    orders = s["orders"]
+    lines = [f"unit {s['unit_serial']}: {len(s['soaks_K'])} soaks at "
+             f"{', '.join(f'{t:.2f}' for t in s['soaks_K'])} K, T_ref {s['t_ref']:.2f} K; "
+             f"orders chosen: bias {orders['bias']}, scale factor {orders['scale']} "
+             f"(chi2 {s['chi2']:.1f} for {s['dof']} dof)",
+             f"{'sensor':>8} {'bias tempco per K^p (' + s['units'] + ')':>36} "
+             f"{'scale tempco per K^p':>32}"]
+    for i, name in enumerate(s["sensors"]):
+        bias = "  ".join(f"{v:+.3e} +- {e:.1e}" for v, e in
+                         zip(s["bias_tempco"][i], s["bias_tempco_sigma"][i], strict=True))
+        scale = "  ".join(f"{v:+.3e} +- {e:.1e}" for v, e in
+                          zip(s["scale_tempco"][i], s["scale_tempco_sigma"][i], strict=True))
+        lines.append(f"{name:>8} {bias or '-':>36} {scale or '-':>32}")
+    if s["status"] == "suspect":
+        lines.append(f"SUSPECT: {'; '.join(s['status_reasons'])}")
+    return "\n".join([*lines, f"written to {s['calibration']}"])

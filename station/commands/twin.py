@@ -80,6 +80,11 @@ def register(p) -> None:
     p.add_argument("--two-axis", action="store_true",
                    help="rotary: a two-axis table (position axis with a rate mode, profile "
                         "table_two_axis) that sets every orientation itself; no fixture")
+    p.add_argument("--chamber", action="store_true",
+                   help="rotary: the unit streams its temperature (imu12_serial_temp) from inside "
+                        "a thermal chamber twin (Modbus TCP on 127.0.0.1) that sets its biases "
+                        "and scale factors; the profile gets a [chamber] section, so `station "
+                        "record` records a thermal campaign (SIGHUP silences the chamber)")
     p.add_argument("--link", choices=("serial", "mavlink"), default="serial",
                    help="static: how the unit streams: binary serial frames (default) or MAVLink "
                         "SCALED_IMU, as a flight controller")
@@ -109,14 +114,25 @@ def run(args) -> int:
         raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
     if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
         raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
+    if args.chamber and (args.protocol != "rotary" or args.cube or args.two_axis
+                         or args.link != "serial"):
+        raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube, no "
+                         "--two-axis)")
     with given_values():
-        twin = KINDS[args.protocol].entry("twin")(args)
+        if args.chamber:
+            from station.twin.thermal import thermal_twin
+
+            twin = thermal_twin(args)
+        else:
+            twin = KINDS[args.protocol].entry("twin")(args)
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
     stop = threading.Event()
     devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
     if not KINDS[args.protocol].table:
         del devices[signal.SIGUSR2]
+    if args.chamber:
+        devices[signal.SIGHUP] = "chamber"
     previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
@@ -132,6 +148,8 @@ def run(args) -> int:
                 print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
                       f"({info['imu']['rate_hz']:g} Hz)\n"
                       + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
+                      + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
+                         if args.chamber else "")
                       + f"bench profile: {info['profile']}\n"
                       f"  station record --profile {args.profile_out}\n"
                       "Ctrl-C stops the twin.", flush=True)

@@ -107,6 +107,7 @@ KINDS = {
         reduce="station.reduce.rotary:rotary_readings",
         solve="station.solve.rotary:calibrate_rotary",
         stimulus=("table rate", ("settings", "rate")),
+        channels="station.reduce.rotary:rotary_channels",
         bias="station.reduce.rotary:static_bias",
         simulate="station.sim.rotary:simulated_session",
         twin="station.twin.served:rotary_twin",

@@ -80,14 +80,15 @@ def spin_angle(bounds, t) -> np.ndarray:
 
 
 def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
-                   trim: float = 0.0) -> Reduced:
+                   trim: float = 0.0, channels=None) -> Reduced:
     """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle
     (interpolated at the sampling instants). A window holding less than `coverage` of the samples
     due in it (a lossy link) is refused. `trim` s are left out at both ends of every window
-    (e.g. to test whether the table's start or stop leaks into the windows).
+    (e.g. to test whether the table's start or stop leaks into the windows). `channels`: the
+    stream's columns reduced (None: `rotary_channels`, every one but a temperature's).
     """
     events = session.events()
     stream_windows = StreamWindows(session, stream, events)
@@ -104,10 +105,12 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         raise CalibrationInputError(f"the session {session.path} holds no table states.",
                                     "Record the session with the rotary table connected.")
     rate = stream_windows.spec.rate_hz
-    lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)
+    keep = _selection(rotary_channels(session, stream) if channels is None else channels,
+                      len(stream_windows.spec.channels))
+    lsb = 1.0 / np.asarray(stream_windows.spec.counts_per_unit)[keep]
     parts = []
     for j, w in windows.items():
-        chosen = {name: stream_windows.read(t0, t1) for name, (t0, t1) in w.items()}
+        chosen = {name: _columns(stream_windows.read(t0, t1), keep) for name, (t0, t1) in w.items()}
         for name, (t0, t1) in w.items():
             check_window_count(j, name, len(chosen[name][0]), (t1 - t0) * rate, coverage)
         for name, (_, counts) in chosen.items():
@@ -125,6 +128,26 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
             raise CalibrationInputError(f"position {j + 1}: {exc.problem}", exc.advice) from None
     return Reduced(**{name: np.concatenate([getattr(p, name) for p in parts], axis=-1)
                       for name in Reduced.__dataclass_fields__})
+
+
+def rotary_channels(session, stream: str = "imu") -> np.ndarray:
+    """Indices of the gyro channels of a rotary session's stream: every channel not in K (a unit's
+    temperature is recorded beside its gyros, never calibrated as one: a thermal campaign)."""
+    return np.array([i for i, u in enumerate(session.specs[stream].units) if u != "K"])
+
+
+def _selection(channels, m: int):
+    """The column selection of `channels` among m: a slice when it is all of them in order (the
+    counts are then read as they are, not copied: the readings stay bit for bit those of a
+    reduction of every column)."""
+    channels = np.asarray(channels)
+    return slice(None) if np.array_equal(channels, np.arange(m)) else channels
+
+
+def _columns(window: tuple, keep) -> tuple:
+    """A window's (sample indices, counts) with the counts' columns `keep` only."""
+    indices, counts = window
+    return indices, counts[:, keep]
 
 
 def check_window_count(j: int, name: str, got: int, due: float, coverage: float = 0.9) -> None:

@@ -165,6 +165,7 @@ class VirtualBench:
         self.table_twin = TableTwin(self.table, self.table_map, lifetime, position=self.position,
                                     fixture=self.fixture)
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
+        self.source = self.mounted  # what the IMU twin streams (station.twin.thermal: heated)
         self.imu_twin = None
 
     def _turn_unit(self, phi: float, arrival: float) -> None:
@@ -213,7 +214,7 @@ class VirtualBench:
         try:
             self.table_twin.start()
             if self.kind == "serial":
-                self.imu_twin = SerialTwin(self.profile, self.mounted, self.clock,
+                self.imu_twin = SerialTwin(self.profile, self.source, self.clock,
                                            max_lag=np.inf)  # flow control: never skip frames
             else:
                 self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,

@@ -118,7 +118,7 @@ class BenchTwin:
             self._mount(1)
         if b.kind == "serial":
             b.table_twin.start()
-            b.imu_twin = SerialTwin(b.profile, b.mounted, b.clock, max_lag=np.inf,
+            b.imu_twin = SerialTwin(b.profile, b.source, b.clock, max_lag=np.inf,
                                     unread_after=UNREAD_AFTER)
             self._watch = PortWatch(b.imu_twin.port)
         else:
