@@ -25,7 +25,9 @@ Device errors have their own root, `drivers.errors.DeviceError` (exit code 3), b
 never import the station (the layering contracts in pyproject.toml): ProfileError (ValueError, exit
 code 2), LinkError (ConnectionError: SerialPortError, DeviceLostError, CanBusError) and TableError
 (RuntimeError: TableTimeout, TableBusy, TableFault, TableLinkError,
-TableReplyError). The command line catches both roots.
+TableReplyError) and ChamberError (RuntimeError: ChamberTimeout, ChamberLinkError,
+ChamberReplyError, ChamberAlarm, ChamberDoorOpen; ChamberRangeError is also a ValueError, exit code
+2). The command line catches both roots.
 """
 
 
