@@ -208,10 +208,11 @@ def test_station_twin_chamber_serves_the_thermal_bench(tmp_path):
     assert truth["temperature"]["bias"] == TRUTH.bias and truth["chamber"]["air"] == ROOM
 
 
-def test_an_alarm_during_a_session_sets_it_aside_and_the_setpoint_is_recorded_again(tmp_path):
+def test_an_alarm_during_a_session_stops_it_and_the_resume_completes_it(tmp_path):
     """The chamber's alarm while the first session records (the chamber is watched meanwhile):
-    ChamberAlarm once the session ends, the session moved aside, the chamber safe, the table
-    stopped; after the alarm is cleared, the resumed campaign records that setpoint again."""
+    ChamberAlarm at once, the session stopped with its table stopped and the chamber safe, the
+    positions done kept; after the alarm is cleared, the resumed campaign soaks that setpoint
+    again and records the positions left into the same session."""
     with ThermalTwin(seed=5, speed=SPEED, positions=3, setpoints=(283.15, 313.15)) as twin:
         profile = _write_profile(twin, tmp_path)
         bench = BenchProfile.load(profile)
@@ -225,11 +226,14 @@ def test_an_alarm_during_a_session_sets_it_aside_and_the_setpoint_is_recorded_ag
             twin.physics.alarm = True
 
         threading.Thread(target=strike, daemon=True).start()
-        with pytest.raises(ChamberAlarm, match="during the session"):
+        with pytest.raises(ChamberAlarm, match="the session stopped"):
             run_campaign(bench, campaign, ConsoleOperator(stdout=sys.stderr))
-        assert (camp / "soak_1_283K.chamber-fault.h5").exists()
-        assert not (camp / "soak_1_283K.h5").exists()
         assert twin.physics.setpoint == ROOM and not twin.bench.table.state().running
+        with Session.open(camp / "soak_1_283K.h5") as session:
+            aborts = [e for e in session.events() if e.kind == "abort"]
+            stopped_at = session.last_completed_position()
+        assert len(aborts) == 1 and "ChamberAlarm" in aborts[0].detail["error"]
+        assert stopped_at is None or stopped_at < 2  # stopped before its last position
         again = Campaign.load(camp)
         assert again.next_soak() == 0 and any(again.soaks[0]["chamber_during"]["alarm"])
 
@@ -238,4 +242,5 @@ def test_an_alarm_during_a_session_sets_it_aside_and_the_setpoint_is_recorded_ag
     done = Campaign.load(camp)
     assert done.next_soak() is None and not any(done.soaks[0]["chamber_during"]["alarm"])
     with Session.open(camp / "soak_1_283K.h5") as session:
+        assert [e.kind for e in session.events()].count("session_resumed") == 1
         assert session.last_completed_position() == 2

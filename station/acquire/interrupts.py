@@ -7,12 +7,16 @@ table turning. `install()` makes SIGINT and SIGTERM (`kill`) raise KeyboardInter
 remember it; `raise_dropped()`, called wherever a protocol polls its devices
 (`station.acquire.recorder.Recorder.check`), raises it again if nobody has handled it; whoever
 handles it (stops the table, records the abort) calls `handled()` first.
+
+A device watched from another thread (the thermal chamber while a session records) stops the
+recording the same way: `deliver(error)` makes the main thread's next `raise_dropped()` raise it.
 """
 
 import signal
 import threading
 
 _pending: str | None = None
+_delivered: BaseException | None = None
 
 
 def install() -> dict:
@@ -32,15 +36,31 @@ def restore(previous: dict) -> None:
 
 
 def raise_dropped() -> None:
-    """Raise KeyboardInterrupt again for a signal whose first one was dropped."""
+    """Raise KeyboardInterrupt again for a signal whose first one was dropped, or the error
+    another thread delivered."""
     if _pending is not None:
         raise KeyboardInterrupt(f"{_pending} (raised again: the first was dropped)")
+    if _delivered is not None:
+        raise _delivered
+
+
+def deliver(error: BaseException) -> None:
+    """Have the main thread's next `raise_dropped()` raise `error` (found by another thread)."""
+    global _delivered
+    _delivered = error
+
+
+def withdraw(error: BaseException) -> None:
+    """Forget `error` if it was delivered and not raised yet (its watcher has ended)."""
+    global _delivered
+    if _delivered is error:
+        _delivered = None
 
 
 def handled() -> None:
-    """The interrupt is being handled: `raise_dropped` no longer raises it."""
-    global _pending
-    _pending = None
+    """The interrupt (or delivered error) is being handled: `raise_dropped` no longer raises it."""
+    global _pending, _delivered
+    _pending = _delivered = None
 
 
 def _interrupted(number, frame):

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.acquire import interrupts
 from station.errors import RecordingError, SoakTimeout
 
 ROOM = 296.15
@@ -235,12 +236,15 @@ def _soak_and_record(k: int, campaign, bench, chamber, clock, operator) -> str:
                     rate_K_per_min=result.rate, soak_seconds=result.seconds)
     path = campaign.directory / campaign.soaks[k]["file"]
     thermal = {**result.metadata(), "soak": k + 1, "chamber_before": _reading(chamber.check())}
-    with ChamberWatch(chamber, settings.poll, clock) as watch:
-        if path.exists():
-            resume(bench, path, operator)
-        else:
-            record(bench, path, operator, extra={"thermal": thermal})
-    campaign.update(k, chamber_during=watch.trace)
+    watch = ChamberWatch(chamber, settings.poll, clock)
+    try:
+        with watch:
+            if path.exists():
+                resume(bench, path, operator)
+            else:
+                record(bench, path, operator, extra={"thermal": thermal})
+    finally:
+        campaign.update(k, chamber_during=watch.trace)
     watch.check(path)
     campaign.update(k, state="done", chamber_after=_reading(chamber.check()))
     return str(path)
@@ -249,8 +253,11 @@ def _soak_and_record(k: int, campaign, bench, chamber, clock, operator) -> str:
 class ChamberWatch:
     """Reads the chamber every `poll` clock seconds in a thread while a rotary session records
     (the main thread does not use the chamber meanwhile): `trace` (lists time, air, setpoint,
-    alarm, door_open), and `check` after the session, which refuses it when the chamber raised
-    its alarm or opened its door during it (or stopped answering)."""
+    alarm, door_open). The first fault (alarm, door open, no answer) stops the session at once:
+    it is delivered to the main thread (`station.acquire.interrupts.deliver`), whose next poll
+    raises it, so the protocol aborts the position with the table stopped and the positions done
+    are kept for `station resume`. `check` after a session that ended before that poll refuses it
+    (the fault came in its last moments)."""
 
     def __init__(self, chamber, poll: float, clock):
         self.chamber, self.poll, self.clock = chamber, poll, clock
@@ -266,6 +273,8 @@ class ChamberWatch:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
+        if self.error is not None:
+            interrupts.withdraw(self.error)
 
     def _run(self) -> None:
         from drivers.errors import ChamberError
@@ -278,35 +287,46 @@ class ChamberWatch:
             try:
                 r = self.chamber.state()
             except ChamberError as exc:
-                self.error = exc
+                exc.add_note("the chamber stopped answering during the session")
+                self._fault(exc)
                 return
             for key, value in (("time", r.time), ("air", r.temperature),
                                ("setpoint", r.setpoint), ("alarm", r.alarm),
                                ("door_open", r.door_open)):
                 self.trace[key].append(round(value, 4) if isinstance(value, float) else value)
+            if r.alarm or r.door_open:
+                self._fault(self._bit_error())
+                return
 
-    def check(self, path) -> None:
-        """Raise what went wrong with the chamber during the session at `path`; such a session is
-        moved aside (`<name>.chamber-fault.h5`), so that the campaign records it again."""
+    def _fault(self, error: BaseException) -> None:
+        """Keep `error` and stop the session with it."""
+        self.error = error
+        interrupts.deliver(error)
+
+    def _bit_error(self):
+        """The ChamberAlarm or ChamberDoorOpen of the trace's first fault bit."""
         from drivers.errors import ChamberAlarm, ChamberDoorOpen
 
-        faults = [(name, cls) for name, cls in (("alarm", ChamberAlarm),
-                                                ("door_open", ChamberDoorOpen))
-                  if any(self.trace[name])]
-        if self.error is None and not faults:
+        name, cls = next((n, c) for n, c in (("alarm", ChamberAlarm),
+                                             ("door_open", ChamberDoorOpen)) if any(self.trace[n]))
+        words = "raised its alarm" if name == "alarm" else "opened its door"
+        return cls(f"{self.chamber.where}: {words} during the session at "
+                   f"{self.trace['setpoint'][-1]:.2f} K, so the unit's temperature is not known "
+                   "there: the session stopped (the positions recorded before are kept). Clear "
+                   "the cause, then `station resume` the campaign (it soaks this setpoint again "
+                   "and records what is missing)")
+
+    def check(self, path) -> None:
+        """After a session that ended before the watch's fault could stop it (the fault came in
+        its last moments): move the session aside (`<name>.chamber-fault.h5`), so that the
+        campaign records it again, and raise the fault."""
+        if self.error is None:
             return
         aside = path.with_name(f"{path.stem}.chamber-fault.h5")
         path.replace(aside)
-        if self.error is not None:
-            self.error.add_note(f"the chamber stopped answering during the session; it was "
-                                f"moved to {aside.name}")
-            raise self.error
-        name, cls = faults[0]
-        words = "raised its alarm" if name == "alarm" else "opened its door"
-        raise cls(f"{self.chamber.where}: {words} during the session at "
-                  f"{self.trace['setpoint'][-1]:.2f} K, so the unit's temperature is not known "
-                  f"there: the session was moved to {aside.name}. Clear the cause, then "
-                  "`station resume` the campaign (it soaks and records this setpoint again)")
+        self.error.add_note(f"the session had ended meanwhile: it was moved to {aside.name} and "
+                            "will be recorded again")
+        raise self.error
 
 
 def _leave_safe(exc: BaseException, bench, settings: ChamberSettings, campaign) -> None:
