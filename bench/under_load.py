@@ -1,8 +1,9 @@
 """The station on a busy host: `station demo` and the test suite beside CPU hogs.
 
 Starts `--hogs` processes that spin a core each (default 2: a load of 2x this 2-core machine with
-the work itself), then runs `station demo --json` and the test suite (`pytest -q`, or the files
-given with --tests), and prints the demo's exit code and eps ratio and the suite's pass, fail and
+the work itself), then runs `station demo --json` and the test suite (`pytest`, quiet by the
+pyproject's addopts: a second -q drops the closing counts line; or the files given with
+--tests), and prints the demo's exit code and eps ratio and the suite's pass, fail and
 error counts; the hogs are stopped whatever happens. One JSON object with --json.
 
     .venv/bin/python -P bench/under_load.py [--hogs 2] [--tests tests/test_demo.py ...] [--json]
@@ -56,7 +57,7 @@ def main() -> None:
         demo_s = time.perf_counter() - start
         summary = json.loads(demo.stdout) if demo.stdout.strip().startswith("{") else {}
         start = time.perf_counter()
-        suite = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+        suite = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
                                 *args.tests], cwd=ROOT, capture_output=True, text=True,
                                timeout=7200)
         suite_s = time.perf_counter() - start

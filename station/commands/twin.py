@@ -141,19 +141,20 @@ def run(args) -> int:
                 signal.signal(number, lambda *_, device=device: twin.toggle(device))
             args.profile_out.write_text(twin.profile_text(f"SIM-{args.seed}"))
             info = {**twin.addresses(), "profile": str(args.profile_out.resolve())}
-            if args.json:
-                print(json.dumps(info), flush=True)
-            else:
-                table = info.get("table")
-                print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
-                      f"({info['imu']['rate_hz']:g} Hz)\n"
-                      + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
-                      + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
-                         if args.chamber else "")
-                      + f"bench profile: {info['profile']}\n"
-                      f"  station record --profile {args.profile_out}\n"
-                      "Ctrl-C stops the twin.", flush=True)
+            # Ctrl-C is the way to stop the twin from the moment its addresses are out
             with contextlib.suppress(KeyboardInterrupt):
+                if args.json:
+                    print(json.dumps(info), flush=True)
+                else:
+                    table = info.get("table")
+                    print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
+                          f"({info['imu']['rate_hz']:g} Hz)\n"
+                          + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
+                          + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
+                             if args.chamber else "")
+                          + f"bench profile: {info['profile']}\n"
+                          f"  station record --profile {args.profile_out}\n"
+                          "Ctrl-C stops the twin.", flush=True)
                 stop.wait(args.lifetime)
             truth = twin.truth()
     finally:
