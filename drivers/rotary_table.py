@@ -228,8 +228,9 @@ class TableRegisterMap:
 
 @dataclass(frozen=True)
 class TableReading:
-    """What the table reports, read at host `time` (clock seconds); rad/s and rad (cumulative,
-    wrapping at 2**31 counts)."""
+    """What the table reports, read at host `time` (clock seconds): the middle of the request and
+    its reply, which the table's state belongs to within +- `round_trip` / 2 (a busy host
+    lengthens the round trip); rad/s and rad (cumulative, wrapping at 2**31 counts)."""
 
     time: float
     rate: float
@@ -250,6 +251,7 @@ class TableReading:
     position_moving: bool | None = None
     mount: int | None = None  # the fixture's position asked for, 1-based (None: no fixture)
     mounted: bool | None = None
+    round_trip: float = 0.0  # clock s from the request to its reply
 
     @property
     def resting(self) -> bool:
@@ -409,8 +411,9 @@ class RotaryTable:
     def state(self) -> TableReading:
         """Read every register in one transaction."""
         first, count = self.map.span
-        now = self.clock.now()
+        asked = self.clock.now()
         regs = self._operate("read state", lambda: self._read(first, count)).registers
+        answered = self.clock.now()
 
         def words(name):
             return [regs[a - first] for a in self.map.addresses(name)]
@@ -434,7 +437,7 @@ class RotaryTable:
             axis |= {"mount": regs[self.map.registers[FIXTURE_REGISTER] - first],
                      "mounted": bits[FIXTURE_BIT]}
         return TableReading(
-            time=now,
+            time=(asked + answered) / 2, round_trip=answered - asked,
             rate=self.map.decode(words("rate"), self.map.rate_scale),
             angle=self.map.decode(words("angle"), self.map.angle_scale),
             rate_setpoint=self.map.decode(words("rate_setpoint"), self.map.rate_scale),

@@ -6,12 +6,17 @@ udev's /dev/serial/by-id/...) to the pty slave, so the same path works again aft
 one slave fd open so the pty survives the driver closing and reopening the port.
 
 Writes never block: `write` returns when the pty is full for good (the caller's stop event, an
-unplug, or no reader). With `unread_after`, a pty that has accepted nothing for that many wall
-seconds has no reader (the station closed the port, or was killed): `unread()` tells the twin, whose
-data due meanwhile is then lost, as a real device's bytes are when nobody reads its port.
+unplug, or no reader). With `unread_after`, a pty that takes no bytes has no reader when no program
+but the link holds its slave open (the station closed the port, or was killed; read from /proc), or
+when it has accepted nothing for `unread_after` wall seconds: `unread()` tells the twin, whose data
+due meanwhile is then lost, as a real device's bytes are when nobody reads its port. (A fast clock
+makes the wait costly: at 40x, two wall seconds are 80 s of samples that a resumed session would
+otherwise receive late, in a backlog that a loaded host may not catch up with before it ends.)
 """
 
 import contextlib
+import glob
+import math
 import os
 import select
 import shutil
@@ -20,17 +25,29 @@ import threading
 import time
 import tty
 
+HELD_CHECK = 0.05
+"""Wall seconds between two looks in /proc for a program holding the pty open."""
+
+
+def _target(fd_link: str) -> str | None:
+    """Where a /proc/PID/fd/N link points; None if it has gone or cannot be read."""
+    try:
+        return os.readlink(fd_link)
+    except OSError:
+        return None
+
 
 class PtyLink:
     """A pty pair whose slave is reached at `port` (see the module docstring).
 
     unread_after : wall seconds after which a pty that takes no bytes counts as unread (None:
-                   never)
+                   never); at once when no other program holds it open
     """
 
     def __init__(self, unread_after=None, name: str = "ttyIMU"):
         self.unread_after = unread_after
         self._blocked_since = None  # wall time the pty stopped taking bytes
+        self._checked = (-math.inf, True)  # (wall time, a reader held the slave then)
         self._lock = threading.Lock()
         self._master = self._keeper = None
         self._dir = tempfile.mkdtemp(prefix="serial-twin-")
@@ -79,14 +96,33 @@ class PtyLink:
         return b""
 
     def unread(self) -> bool:
-        """Has the pty taken no bytes for `unread_after` wall seconds, and still none now?"""
-        if self.unread_after is None or self._blocked_since is None or \
-                time.monotonic() - self._blocked_since < self.unread_after:
+        """Has the pty taken no bytes for `unread_after` wall seconds, or since nobody holds it
+        open, and still none now?"""
+        if self.unread_after is None or self._blocked_since is None or (
+                time.monotonic() - self._blocked_since < self.unread_after and self._held()):
             return False
         with self._lock, contextlib.suppress(OSError, ValueError):
             if self._master is not None and select.select([], [self._master], [], 0)[1]:
                 self._blocked_since = None  # a reader is back
         return self._blocked_since is not None
+
+    def _held(self) -> bool:
+        """Does a program other than this link hold the pty's slave open (a reader)? Read from
+        /proc at most every `HELD_CHECK` wall seconds; True where /proc cannot tell."""
+        now = time.monotonic()
+        if now - self._checked[0] >= HELD_CHECK:
+            self._checked = (now, self._reader_in_proc())
+        return self._checked[1]
+
+    def _reader_in_proc(self) -> bool:
+        try:
+            slave = os.ttyname(self._keeper)
+        except (OSError, TypeError):  # unplugged meanwhile
+            return True
+        mine = f"/proc/{os.getpid()}/fd/{self._keeper}"
+        if _target(mine) != slave:  # no /proc, or another layout: it cannot tell
+            return True
+        return any(_target(fd) == slave for fd in glob.glob("/proc/[0-9]*/fd/*") if fd != mine)
 
     def write(self, data: bytes, stop: threading.Event) -> int:
         """Write while the pty accepts bytes; stop early on unplug, `stop` or no reader. Bytes

@@ -61,7 +61,6 @@ The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
 import contextlib
-import dataclasses
 import logging
 import math
 from dataclasses import asdict, dataclass
@@ -79,6 +78,9 @@ from station.model.two_axis import position_angles, spin_axes, spin_signs
 from station.protocols.planned import fixture_instruction, rotary_plan
 from station.protocols.still import StillSettings, StreamTap
 from station.reduce.window_quality import describe, window_quality
+
+BOUND_READS = 5
+"""Table reads at each bound of a rotating window, the one with the shortest round trip kept."""
 
 log = logging.getLogger(__name__)
 
@@ -342,7 +344,7 @@ class RotaryProtocol:
     def _rotating(self) -> str:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
-        start = self._poll()
+        start = self._bound()
         begun = self.recorder.event("rotate_start", j, self._angle_detail(start))
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
@@ -360,7 +362,7 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{swept:.2f} rad in the rotating window); check the table's "
                                     "encoder")
-        end = self.recorder.event("rotate_end", j, self._angle_detail(reading))
+        end = self.recorder.event("rotate_end", j, self._angle_detail(self._bound()))
         self._windows["rotating"] = (begun, end)
         self._rotated = (j, end)
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
@@ -391,7 +393,8 @@ class RotaryProtocol:
         angle and the instant it was read (the reduction interpolates between the two bounds:
         the file's table states are the rate axis')."""
         if self._spun(self.position):
-            return {"angle": reading.position, "axis": "position", "time": reading.time}
+            return {"angle": reading.position, "axis": "position", "time": reading.time,
+                    "round_trip": reading.round_trip}
         return {"angle": reading.angle}
 
     def _windows_in(self) -> bool:
@@ -532,18 +535,23 @@ class RotaryProtocol:
         return abs(self.motion(reading)[0] - self._rate()) < self.settings.tolerance
 
     def _poll(self, imu: bool = True):
-        """Check the IMU stream (unless `imu` is False), read the table and keep its state,
-        stamped at the middle of the request (the table answered somewhere in between)."""
+        """Check the IMU stream (unless `imu` is False), read the table and keep its state (stamped
+        by the driver at the middle of the request: the table answered somewhere in between)."""
         if imu:
             self.recorder.check(self.settings.stale)
-        before = self.clock.now()
         reading = self.table.state()
-        reading = dataclasses.replace(reading, time=0.5 * (before + self.clock.now()))
         self.recorder.table(reading)
         if reading.fault:
             raise ProtocolError("the table reports a fault; clear it on the table's controller "
                                 "and record the position again")
         return reading
+
+    def _bound(self):
+        """A rotating window's bound: the table read `BOUND_READS` times, the reading with the
+        shortest round trip kept. Its time is the most certain (the rule of the least delay, as
+        NTP's): a spin of the position axis is cut from its two bounds alone, and on a busy host
+        one late reply misplaces the cut by the rate times half its round trip."""
+        return min((self._poll() for _ in range(BOUND_READS)), key=lambda r: r.round_trip)
 
     def _until(self, condition, hold: float, what: str, imu: bool = True) -> None:
         """Poll until `condition(reading)` has held for `hold` s; ProtocolError after `timeout`."""

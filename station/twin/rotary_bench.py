@@ -51,6 +51,8 @@ _channels = itertools.count()
 BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error",
               "effects", "two_axis"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
+MARGINS = ("rest", "guard", "steady")
+"""The rotary settings that must cover the host's latency (`VirtualBench.with_margins`)."""
 HOST_LATENCY = 0.05
 """Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
 instants are estimated from the least delayed arrival, so they are late by the smallest host
@@ -178,7 +180,7 @@ class VirtualBench:
         bench's clock (2 s at 40x; a real bench at 1x keeps its settings)."""
         least = HOST_LATENCY * self.clock.speed
         return dataclasses.replace(settings, **{name: max(getattr(settings, name), least)
-                                                for name in ("rest", "guard", "steady")})
+                                                for name in MARGINS})
 
     def metronome(self, settings: RotarySettings, slack: float = 0.2) -> float:
         """A technician's period (clock s) for positions recorded with `settings` on this bench:

@@ -165,10 +165,15 @@ class BenchTwin:
         serial = unit_serial or f"SIM-{self.seed}"
         imu = "\n".join(f"{k} = {_toml(v)}" for k, v in a["imu"].items())
         table = "\n".join(f"{k} = {_toml(v)}" for k, v in a["table"].items())
+        from station.twin.rotary_bench import MARGINS
+
+        margins = self.bench.with_margins(RotarySettings())  # waits the fast clock multiplies
         return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
                 f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
                 f"[imu]\n{imu}\n\n[table]\n{table}\n\n"
-                f"[protocol]\npositions = {self.positions}\n" + _fixture_section(self.cube))
+                f"[protocol]\npositions = {self.positions}\n"
+                + "".join(f"{k} = {getattr(margins, k)!r}\n" for k in MARGINS)
+                + _fixture_section(self.cube))
 
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
