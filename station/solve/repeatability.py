@@ -56,6 +56,13 @@ def _q(x: np.ndarray, s2: np.ndarray, tau2: float) -> float:
     return float(np.sum(w * (x - mu) ** 2))
 
 
+def fixed_by_frame(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(P,) the parameters of estimates x (K, P) with 1-sigma s (K, P) that every session fixes:
+    0 +- 0 in each (the canonical frame's zeros of a), equal to rounding (1e-12 of the class's
+    largest |x|; a solver's zeros come out as +-1e-21, not 0)."""
+    return np.all(s == 0, axis=0) & (np.ptp(x, axis=0) <= 1e-12 * np.max(np.abs(x)))
+
+
 def between_variance(x, s) -> tuple[float, int, float]:
     """(tau^2, dof, Q at tau = 0) of estimates x (K, P) with 1-sigma s (K, P) over K sessions.
 
@@ -66,7 +73,7 @@ def between_variance(x, s) -> tuple[float, int, float]:
     from scipy.optimize import brentq  # here: `import station` stays light
 
     x, s = np.asarray(x, float), np.asarray(s, float)
-    varies = ~((np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0))
+    varies = ~fixed_by_frame(x, s)
     x, s2 = x[:, varies], s[:, varies] ** 2
     k, p = x.shape
     dof = p * (k - 1)
@@ -89,7 +96,7 @@ def pool(x, s) -> Pooled:
     their mean and the 1-sigma for the next session (module docstring)."""
     x, s = np.asarray(x, float), np.asarray(s, float)
     tau2, dof, q0 = between_variance(x, s)
-    fixed = (np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0)
+    fixed = fixed_by_frame(x, s)
     w = 1.0 / np.maximum(s**2 + tau2, 1e-300)
     mean = np.sum(w * x, axis=0) / np.sum(w, axis=0)
     mean_var = np.where(fixed, 0.0, 1.0 / np.sum(w, axis=0))
