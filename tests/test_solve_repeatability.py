@@ -19,7 +19,7 @@ from station.errors import CalibrationFileError
 from station.files.calfile import Calibration, load
 from station.files.combined import INCLUDED, combine, with_repeatability
 
-M, POSES, NOISE, TAU = 12, 20, 0.002, 0.01  # sensors, poses, reading noise and bias tau, m/s^2
+M, POSES, NOISE, TAU = 6, 20, 0.002, 0.01  # sensors, poses, reading noise and bias tau, m/s^2
 TRIALS = 400
 Z95 = stats.norm.ppf(0.975)
 DUMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"
