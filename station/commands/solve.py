@@ -64,9 +64,9 @@ def register(p) -> None:
         "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n"
         "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n"
         "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n"
-        "  station solve exp_3.h5 --repeatability exp_12.cal.json   # 1-sigma incl. the spread "
-        "between sessions (station combine exp_1.cal.json exp_2.cal.json --out exp_12.cal.json)"
-        "\n\n"
+        "  station combine exp_1.cal.json exp_2.cal.json --out exp_12.cal.json\n"
+        "  station solve exp_3.h5 --repeatability exp_12.cal.json   # + the spread between "
+        "sessions\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
