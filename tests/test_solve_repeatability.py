@@ -54,9 +54,9 @@ def unit_sessions(rng, k: int):
 def test_a_new_session_covers_the_units_bias_only_with_the_repeatability():
     """Per trial a new unit, two sessions combined (tau from them), a third solved alone: its bias
     of sensor (trial mod M) +- 1.96 sigma holds the unit's mean bias mu in 95 % of the trials with
-    the combined file's tau (binomial bounds: 3 s.d. of TRIALS independent trials; measured 92.0
-    %), and far less with its own 1-sigma (tau about 11x one session's bias sigma: P(|z| < 1.96 /
-    11) = 14 %; measured 11.5 %)."""
+    the combined file's tau (binomial bounds: 3 s.d. of TRIALS independent trials; measured 94.0
+    %), and far less with its own 1-sigma (tau about 10x one session's bias sigma: P(|z| < 1.96 /
+    10) = 16 %; measured 15.6 %)."""
     rng = np.random.default_rng(20261126)
     with_tau, own = [], []
     for trial in range(TRIALS):
