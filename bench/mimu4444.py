@@ -13,14 +13,28 @@ the 24 accelerometer channels as one redundant array and for each IMU's triad:
 - leave-one-pose-out |a| - g RMS (each pose predicted by the fit on the others);
 - each recording's calibration applied to the other two recordings' poses (|a| - g RMS);
 - the spread of each triad's scale factors and biases over the three recordings against their
-  reported 1-sigma (total and white-noise figures): median ratio, 1 = honest.
+  reported 1-sigma (total and white-noise figures): median ratio, 1 = honest;
+- the same ratio with ONE session's figure valid across recordings, without circularity: for
+  each recording k, the other two recordings' calibrations combined (`station combine`'s
+  `combine`, tau from them only), recording k's calibration given their repeatability
+  (`with_repeatability`, what `station solve --repeatability` does), and the spread over the
+  three recordings divided by recording k's 1-sigma (per held-out k, and with the mean of the
+  three held-out 1-sigma as the figures above use). Tau from 2 recordings rests on 1 dof per
+  parameter, pooled over the class (3 for a triad's biases): the figure is widened for it
+  (t quantile), and it scatters by itself - read it as honest within the band [0.5, 2], not to
+  the second digit;
+- unless --quick: the 24-channel array on the command line: `station solve exp_k.h5
+  --repeatability` of `station combine` of the other two, the same ratio over the 24 biases and
+  scale factors.
 
-    .venv/bin/python bench/mimu4444.py [--json] [--data DIR]
+    .venv/bin/python bench/mimu4444.py [--json] [--data DIR] [--quick]
 """
 
 import argparse
 import dataclasses
+import hashlib
 import json
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -90,12 +104,85 @@ def calibrations(sessions: dict) -> dict:
                    "applied_to_others_rms_m_s2": cross}
         if label != "array":
             figures["spread_over_sigma"] = _spread(list(fits.values()))
+            figures["with_repeatability"] = _with_repeatability(fits, label)
         (out["array"] if label == "array" else out["per_imu"]).update(
             figures if label == "array" else {label: figures})
     per = out["per_imu"].values()
     out["median_spread_over_sigma"] = {
         f"{what} {fig}": float(np.median([p["spread_over_sigma"][fig][what] for p in per]))
         for what in ("scale_factors", "biases") for fig in ("total", "white")}
+    out["median_spread_over_sigma_with_repeatability"] = {
+        f"{what} {held}": float(np.median([p["with_repeatability"][held][what] for p in per]))
+        for what in ("scale_factors", "biases")
+        for held in [*readings, "mean", *(f"{n} unwidened" for n in [*readings, "mean"])]}
+    return out
+
+
+def _with_repeatability(fits: dict, label: str) -> dict:
+    """{held-out recording or "mean": {"scale_factors", "biases": median over the three axes of
+    the spread over the recordings / the held-out recording's 1-sigma with the repeatability of
+    the other two combined}} ("mean": over the mean of the three held-out 1-sigma, as _spread);
+    "unwidened": the same with each 1-sigma divided by its t widening (tau of a triad's class
+    rests on 3 dof: t_3(0.975) / 1.96 = 1.6 when tau dominates)."""
+    from station.files.calfile import Calibration
+    from station.files.combined import INCLUDED, combine, with_repeatability
+
+    cals = {n: Calibration.from_result(f, "MIMU4444", [f"{label}_a{c}" for c in "xyz"], "m/s^2",
+                                       session={"stream": "imu"}) for n, f in fits.items()}
+    honest = {}
+    for held in cals:
+        rest = [n for n in cals if n != held]
+        pooled = combine([cals[n] for n in rest], rest)
+        honest[held] = with_repeatability(cals[held], pooled, "+".join(rest),
+                                          hashlib.sha256(pooled.dumps().encode()).hexdigest())
+    out = {}
+    for what, value, sigma in (("scale_factors", "scale_factors", "scale_factors_sigma"),
+                               ("biases", "bias", "bias_sigma")):
+        sd = np.array([getattr(c, value) for c in cals.values()]).std(axis=0, ddof=1)
+        key = "bias" if what == "biases" else what
+        for widened in (True, False):
+            sigmas = {n: getattr(c, sigma) / (1 if widened else c.fit[INCLUDED]["widening"][key])
+                      for n, c in honest.items()}
+            sigmas["mean"] = np.mean(list(sigmas.values()), axis=0)
+            for held, s in sigmas.items():
+                out.setdefault(held if widened else f"{held} unwidened", {})[what] = float(
+                    np.median(sd / s))
+    return out
+
+
+def array_on_the_command_line(sessions: dict, tmp: Path) -> dict:
+    """The 24-channel array through `station solve` / `station combine` / `station solve
+    --repeatability` (subprocesses): per held-out recording, the median over the 24 channels of
+    the spread over the three recordings / that recording's 1-sigma, without and with the
+    repeatability of the other two; and the taus of the combination."""
+    from station.files.calfile import load
+
+    def station(*argv):
+        subprocess.run([sys.executable, "-m", "station", *map(str, argv)], check=True,
+                       capture_output=True)
+
+    own = {}
+    for name, h5 in sessions.items():
+        station("solve", h5, "--magnitude", G, "--accept-suspect", "--force")
+        own[name] = load(h5.with_suffix(".cal.json"))
+    out = {}
+    for held, h5 in sessions.items():
+        rest = [n for n in sessions if n != held]
+        combined = tmp / f"without_{held}.cal.json"
+        subprocess.run([sys.executable, "-m", "station", "combine",
+                        *(str(sessions[n].with_suffix(".cal.json")) for n in rest),
+                        "--out", str(combined), "--force"], capture_output=True)  # 1: suspect
+        honest_path = tmp / f"{held}.honest.cal.json"
+        station("solve", h5, "--magnitude", G, "--accept-suspect", "--force", "--repeatability",
+                combined, "--out", honest_path)
+        honest = load(honest_path)
+        row = {"tau": honest.fit["repeatability_included"]["tau"]}
+        for what, value, sigma in (("scale_factors", "scale_factors", "scale_factors_sigma"),
+                                   ("biases", "bias", "bias_sigma")):
+            sd = np.array([getattr(c, value) for c in own.values()]).std(axis=0, ddof=1)
+            row[what] = {"one_session": float(np.median(sd / getattr(own[held], sigma))),
+                         "with_repeatability": float(np.median(sd / getattr(honest, sigma)))}
+        out[held] = row
     return out
 
 
@@ -129,6 +216,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true", help="one JSON object")
     parser.add_argument("--data", type=Path, default=DATA, help="the mimu4444-array folder")
+    parser.add_argument("--quick", action="store_true",
+                        help="leave out the 24-channel array on the command line")
     args = parser.parse_args(argv)
     dumps = sorted(args.data.glob("exp_*.bin"))
     if not dumps:
@@ -136,8 +225,10 @@ def main(argv=None) -> int:
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         result = {d.name: figures(d, Path(tmp)) for d in dumps}
-        result["calibrations"] = calibrations(
-            {d.stem: Path(tmp) / f"{d.stem}.h5" for d in dumps})
+        sessions = {d.stem: Path(tmp) / f"{d.stem}.h5" for d in dumps}
+        result["calibrations"] = calibrations(sessions)
+        if not args.quick:
+            result["array_command_line"] = array_on_the_command_line(sessions, Path(tmp))
     if args.json:
         print(json.dumps(result))
     else:

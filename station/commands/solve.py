@@ -31,6 +31,14 @@ recorded temperature channel), the temperature model fitted over them with its o
 likelihood ratio (`station.solve.temperature`), written as DIR/campaign.cal.json (version 6); the
 summary gives the orders and each tempco with its 1-sigma.
 The calibration file (`station.files.calfile`) holds the result with its uncertainties.
+
+--repeatability COMBINED.cal.json (a file of `station combine` over earlier sessions of the unit):
+each class's between-session tau (biases, scale factors, axis angles, entries of a) is added to
+this session's own 1-sigma, widened for the few degrees of freedom tau rests on
+(`station.files.combined.with_repeatability`): every 1-sigma written is then the figure for this
+session as a unit re-seated and switched on again, not only the scatter within it. The file says
+so (`fit.repeatability_included`: the combined file's name and sha256, each tau) and so does the
+output.
 """
 
 import dataclasses
@@ -55,7 +63,10 @@ def register(p) -> None:
         "  station solve xsens.h5 --magnitude 9.81744 --rest 0:50 --store   # an import\n"
         "  station solve fer.h5 --magnitude 9.81 --faces   # an import on a block's faces\n"
         "  station solve xsens.h5 --stream gyro --rest 0:50   # its gyro, from the turns\n"
-        "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n\n"
+        "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n"
+        "  station combine exp_1.cal.json exp_2.cal.json --out exp_12.cal.json\n"
+        "  station solve exp_3.h5 --repeatability exp_12.cal.json   # + the spread between "
+        "sessions\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -84,6 +95,9 @@ def register(p) -> None:
     p.add_argument("--tolerances", type=Path, metavar="FILE.toml",
                    help="judge the unit against the [tolerances] table of this TOML file (e.g. the "
                         "bench profile); default: the recorded bench profile's, if any")
+    p.add_argument("--repeatability", type=Path, metavar="COMBINED.cal.json",
+                   help="a combined calibration file of earlier sessions of the unit (`station "
+                        "combine`): its between-session spread tau is added to every 1-sigma")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -99,9 +113,11 @@ def run(args) -> int:
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
+    repeatability = None if args.repeatability is None else existing_file(
+        args.repeatability, "a combined calibration file (`station combine`)")
     cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect,
                         tolerances, still_values(args), store=args.store,
-                        faces=bool(args.faces))
+                        faces=bool(args.faces), repeatability=repeatability)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
@@ -115,7 +131,7 @@ def verdict_exit(verdict: dict | None) -> int:
 
 def solve_session(path, stream: str | None = None, nominal=None, magnitude: float | None = None,
                   accept_suspect: bool = False, tolerances=None, still: dict | None = None,
-                  store: bool = False, faces: bool = False):
+                  store: bool = False, faces: bool = False, repeatability=None):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
@@ -126,7 +142,10 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     `[tolerances]` of the bench profile the session was recorded with; none: no verdict.
     still: the still-pose detector's settings (`station.commands.still_values`); store: the
     result is also stored in the session as results/solve-<k> with its settings; faces: an
-    import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`)."""
+    import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`);
+    repeatability: the path of a combined calibration file (`station combine`) whose
+    between-session taus are added to every 1-sigma (`station.files.combined.with_repeatability`,
+    before the verdict, which then judges the unit with them)."""
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
     from station.protocols import lookup
@@ -181,6 +200,10 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
             cal = dataclasses.replace(cal, session={**(cal.session or {}), NO_NOISE: why})
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
+    if repeatability is not None:
+        from station.files.combined import with_repeatability_file
+
+        cal = with_repeatability_file(cal, repeatability)
     if tolerances is None or tolerances.empty:
         return cal
     return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
@@ -303,6 +326,8 @@ def read_nominal(path) -> np.ndarray:
 
 def summarise(cal, out) -> dict:
     """What the command reports about a calibration file."""
+    from station.files.combined import INCLUDED
+
     return {
         "calibration": str(out), "unit_serial": cal.unit_serial, "sensors": list(cal.sensors),
         "units": cal.units[0], "frame": cal.frame, "method": cal.fit["method"],
@@ -324,6 +349,7 @@ def summarise(cal, out) -> dict:
         "bias_sigma_white": None if cal.white is None else cal.white["bias_sigma"].tolist(),
         "noise": None if cal.noise is None else cal.noise.to_document(cal.units[0]),
         NO_NOISE: None if cal.noise is not None else (cal.session or {}).get(NO_NOISE),
+        "repeatability": cal.fit.get(INCLUDED),
     }
 
 
@@ -347,8 +373,21 @@ def _text(s: dict) -> str:
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *noise_lines(s), *suspect,
-                      f"written to {s['calibration']}", *judged])
+    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *repeatability_lines(s),
+                      *noise_lines(s), *suspect, f"written to {s['calibration']}", *judged])
+
+
+def repeatability_lines(s: dict) -> list:
+    """Lines saying the 1-sigma figures include a combined file's repeatability, if they do."""
+    rep = s.get("repeatability")
+    if rep is None:
+        return []
+    taus = ", ".join(f"{k.replace('_', ' ')} {rep['tau'][k]:.3g}"
+                     for k in ("bias", "scale_factors"))
+    return [f"every 1 sigma includes the spread between sessions of {rep['file']} (sha256 "
+            f"{rep['sha256'][:16]}..., {rep['sessions']} sessions): tau {taus}, widened x"
+            f"{rep['widening']['bias']:.3f} for its {rep['dof']['bias']} dof; this session's own "
+            f"bias 1 sigma: median {np.median(rep['session_sigma']['bias']):.2g}"]
 
 
 def noise_lines(s: dict) -> list:
@@ -386,7 +425,7 @@ def pose_lines(s: dict) -> list:
 
 
 CAMPAIGN_UNUSED = ("stream", "nominal", "magnitude", "store", "tolerances", "rest", "threshold",
-                   "still_channels", "min_still", "faces")
+                   "still_channels", "min_still", "faces", "repeatability")
 """`station solve` options that a thermal campaign refuses (they choose what one session
 calibrates)."""
 

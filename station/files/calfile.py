@@ -604,22 +604,29 @@ def load(path, unit_serial: str | None = None, sensors=None, units=None) -> Cali
     """Read a calibration file; refuse it unless it is for `unit_serial` / `sensors` / `units`
     (each checked when given)."""
     path = os.fspath(path)
+    cal = loads(read_text(path)[0], path)
+    cal.check_unit(unit_serial, sensors, units, where="the data")
+    return cal
+
+
+def read_text(path) -> tuple[str, bytes]:
+    """(text, bytes) of a calibration file, read once: at most MAX_BYTES, UTF-8 (the bytes for a
+    digest of exactly what was read)."""
+    path = os.fspath(path)
     try:
         size = os.path.getsize(path)
         if size > MAX_BYTES:
             raise CalibrationFileError(f"{path} holds {size} bytes; a calibration file is at most "
                                        f"{MAX_BYTES} bytes: is it the right file?")
         with open(path, "rb") as f:
-            text = f.read(MAX_BYTES + 1).decode("utf-8")
+            raw = f.read(MAX_BYTES + 1)
+        return raw.decode("utf-8"), raw
     except OSError as exc:
         raise CalibrationFileError(f"cannot read calibration file {path}: {exc.strerror}") \
             from None
     except UnicodeDecodeError:
         raise CalibrationFileError(f"{path} is not UTF-8 text; a calibration file is JSON") \
             from None
-    cal = loads(text, path)
-    cal.check_unit(unit_serial, sensors, units, where="the data")
-    return cal
 
 
 def loads(text: str, where: str = "calibration") -> Calibration:

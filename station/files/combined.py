@@ -9,12 +9,19 @@ the axis angles. The values of the invariants are those of the pooled a, so the 
 consistent; the joint covariance keeps the sessions' average correlation structure, scaled to the
 pooled sigmas. `fit.repeatability` holds each class's tau, dof and Q; `session.combined` the
 sources.
+
+`with_repeatability(cal, combined, ...)`: one NEW session's calibration with those taus added to
+its own 1-sigma (`station solve --repeatability COMBINED`), the figure valid for that session as a
+unit re-seated and switched on again; `fit.repeatability_included` says from which file.
 """
+
+import dataclasses
+import hashlib
 
 import numpy as np
 
 from station.errors import CalibrationFileError
-from station.files.calfile import Calibration, loads
+from station.files.calfile import Calibration, loads, read_text
 from station.solve import repeatability
 from station.solve.uncertainty import axis_angles
 
@@ -62,12 +69,21 @@ def _covariance(rho, pooled_a, pooled_b) -> np.ndarray | None:
     diagonal is the pooled sigmas squared."""
     if rho is None:
         return None
-    parts = [(pooled_a.mean_sigma.ravel(), pooled_a), (pooled_b.mean_sigma, pooled_b)]
-    mean_sd = np.concatenate([sd for sd, _ in parts])
-    tau2 = np.concatenate([np.where(p.sigma.ravel() > 0, p.tau**2, 0.0) for _, p in parts])
-    widen = np.concatenate([np.full(sd.size, p.widening) for sd, p in parts])
-    cov = rho * np.outer(mean_sd, mean_sd) + np.diag(tau2)
-    return cov * np.outer(widen, widen)
+    mean_sd = np.concatenate([pooled_a.mean_sigma.ravel(), pooled_b.mean_sigma])
+    return _plus_between(rho * np.outer(mean_sd, mean_sd),
+                         [(p.sigma, p.tau, p.widening) for p in (pooled_a, pooled_b)])
+
+
+def _plus_between(cov, classes) -> np.ndarray | None:
+    """cov of (a row-major, b) plus each class's between-session variance tau^2 on its diagonal
+    (not on entries whose next-session sigma is 0: fixed by the frame), times each class's
+    widening; classes: [(next-session sigma, tau, widening)] of a, then of b. None stays None."""
+    if cov is None:
+        return None
+    tau2 = np.concatenate([np.where(np.ravel(sigma) > 0, tau**2, 0.0)
+                           for sigma, tau, _ in classes])
+    widen = np.concatenate([np.full(np.size(sigma), w) for sigma, _, w in classes])
+    return (cov + np.diag(tau2)) * np.outer(widen, widen)
 
 
 def combine(cals, names) -> Calibration:
@@ -112,3 +128,96 @@ def combine(cals, names) -> Calibration:
         covariance=_covariance(_correlation([c.covariance for c in cals]), pooled["a"],
                                pooled["bias"]))
     return loads(cal.dumps(), "the combined calibration")  # the checks of a load
+
+
+INCLUDED = "repeatability_included"
+"""The key of a session's `fit` that says its 1-sigma figures include a combined file's
+between-session terms (`with_repeatability`): the file, its sha256, each class's tau, dof and
+widening, and the session's own 1-sigma of the biases and scale factors."""
+
+
+def with_repeatability(cal: Calibration, combined: Calibration, name: str,
+                       sha256: str) -> Calibration:
+    """One session's calibration `cal` with every 1-sigma the figure for the unit re-seated and
+    switched on again: each class's between-session tau of `combined` (a file of `station
+    combine`, named `name`, of digest `sha256`) added to the session's own variance and widened
+    for the dof tau was estimated on (`station.solve.repeatability.next_session_sigma`); the
+    covariance gains tau^2 on the diagonal of a and b alike. Refused (CalibrationFileError): a
+    combined file of another layout (number of sensors, axes, quantity, stream, frame), without
+    a repeatability section or with a tau that is not a finite number >= 0, and a calibration
+    that already includes one."""
+    if INCLUDED in cal.fit:
+        raise CalibrationFileError(
+            f"the calibration already includes the repeatability of "
+            f"{cal.fit[INCLUDED].get('file')!r}; solve the session again without it first")
+    terms = _terms(combined, name)
+    _check_layout(cal, combined, name)
+    own = {"a": cal.a_sigma, "bias": cal.bias_sigma, "scale_factors": cal.scale_factors_sigma,
+           "axis_angles": cal.axis_angles_sigma}
+    new = {}
+    for key, sigma in own.items():
+        tau, dof = terms[key]
+        wider, widen = repeatability.next_session_sigma(sigma.ravel(), tau**2, dof)
+        new[key] = (wider.reshape(sigma.shape), tau, widen)
+    fit = {**cal.fit, INCLUDED: {
+        "file": name, "sha256": sha256, "unit_serial": combined.unit_serial,
+        "sessions": combined.fit.get("sessions"),
+        "tau": {k: v[1] for k, v in new.items()}, "dof": {k: terms[k][1] for k in new},
+        "widening": {k: v[2] for k, v in new.items()},
+        "session_sigma": {"bias": cal.bias_sigma.tolist(),
+                          "scale_factors": cal.scale_factors_sigma.tolist()}}}
+    out = dataclasses.replace(
+        cal, a_sigma=new["a"][0], bias_sigma=new["bias"][0],
+        scale_factors_sigma=new["scale_factors"][0], axis_angles_sigma=new["axis_angles"][0],
+        covariance=_plus_between(cal.covariance, [new["a"], new["bias"]]), fit=fit)
+    return loads(out.dumps(), "the calibration with the repeatability")  # the checks of a load
+
+
+def with_repeatability_file(cal: Calibration, path) -> Calibration:
+    """`with_repeatability` of the combined calibration file at `path` (read once: its sha256 is
+    that of the bytes loaded)."""
+    text, raw = read_text(path)
+    return with_repeatability(cal, loads(text, str(path)), str(path),
+                              hashlib.sha256(raw).hexdigest())
+
+
+def _terms(combined: Calibration, name: str) -> dict:
+    """{class: (tau, dof)} of a combined file's `fit.repeatability`, checked."""
+    section = combined.fit.get("repeatability")
+    if not isinstance(section, dict) or not all(isinstance(section.get(k), dict)
+                                                for k in CLASSES):
+        raise CalibrationFileError(
+            f"{name} has no repeatability section (fit.repeatability with {', '.join(CLASSES)}): "
+            "it is not a file of `station combine`; give the combined file of two or more "
+            "sessions of the unit (station combine A.cal.json B.cal.json --out X.cal.json)")
+    terms = {}
+    for key in CLASSES:
+        tau, dof = section[key].get("tau"), section[key].get("dof")
+        if type(tau) not in (int, float) or not np.isfinite(tau) or tau < 0:
+            raise CalibrationFileError(
+                f"{name}: the between-session tau of {key} is {tau!r}, not a finite number >= 0; "
+                "the file is damaged or was edited: combine the sessions again (station combine)")
+        if type(dof) is not int or dof < 0 or (tau > 0 and dof == 0):
+            raise CalibrationFileError(
+                f"{name}: the degrees of freedom of {key}'s tau are {dof!r}, not a whole number "
+                ">= 1; the file is damaged or was edited: combine the sessions again")
+        terms[key] = (float(tau), dof)
+    return terms
+
+
+def _check_layout(cal: Calibration, combined: Calibration, name: str) -> None:
+    """Refuse a combined file of another layout than the session's: number of sensors m, axes d,
+    quantity (units), stream and frame (its tau of a is that frame's)."""
+    streams = {(c.get("session") or {}).get("stream") for c in
+               (combined.session or {}).get("combined", [{}]) if isinstance(c, dict)}
+    mine = (cal.session or {}).get("stream")
+    for what, theirs, ours in (("sensors (m)", len(combined.sensors), len(cal.sensors)),
+                               ("axes (d)", combined.a.shape[0], cal.a.shape[0]),
+                               ("quantity", combined.units[0], cal.units[0]),
+                               ("stream", ", ".join(sorted(map(str, streams))), str(mine)),
+                               ("frame", combined.frame, cal.frame)):
+        if theirs != ours:
+            raise CalibrationFileError(
+                f"{name} is of {what} {theirs!r} but this session's calibration has {ours!r}: "
+                "its repeatability is another layout's; give the combined file of sessions "
+                "solved like this one (same stream, sensors and frame)")

@@ -16,6 +16,9 @@ session is the prediction sigma sqrt(var(mu_p) + tau^2): the spread a new sessio
 mu_p, beside its own estimation noise. tau^2 is estimated from nu = P (K - 1) degrees of freedom;
 its share f of the prediction variance widens the figure by t_nu'(0.975) / 1.96, nu' = nu / f^2
 (Welch-Satterthwaite, as `uncertainty.estimation_widening` does for the per-pose term).
+A NEW single session of the unit, given the tau^2 of a combination of earlier ones, gets the same
+figure about its own estimate: sqrt(s_p^2 + tau^2), widened alike (`next_session_sigma`; `station
+solve --repeatability`).
 """
 
 from dataclasses import dataclass
@@ -53,6 +56,13 @@ def _q(x: np.ndarray, s2: np.ndarray, tau2: float) -> float:
     return float(np.sum(w * (x - mu) ** 2))
 
 
+def fixed_by_frame(x: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(P,) the parameters of estimates x (K, P) with 1-sigma s (K, P) that every session fixes:
+    0 +- 0 in each (the canonical frame's zeros of a), equal to rounding (1e-12 of the class's
+    largest |x|; a solver's zeros come out as +-1e-21, not 0)."""
+    return np.all(s == 0, axis=0) & (np.ptp(x, axis=0) <= 1e-12 * np.max(np.abs(x)))
+
+
 def between_variance(x, s) -> tuple[float, int, float]:
     """(tau^2, dof, Q at tau = 0) of estimates x (K, P) with 1-sigma s (K, P) over K sessions.
 
@@ -63,7 +73,7 @@ def between_variance(x, s) -> tuple[float, int, float]:
     from scipy.optimize import brentq  # here: `import station` stays light
 
     x, s = np.asarray(x, float), np.asarray(s, float)
-    varies = ~((np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0))
+    varies = ~fixed_by_frame(x, s)
     x, s2 = x[:, varies], s[:, varies] ** 2
     k, p = x.shape
     dof = p * (k - 1)
@@ -84,18 +94,30 @@ def between_variance(x, s) -> tuple[float, int, float]:
 def pool(x, s) -> Pooled:
     """The parameters of one class (x, s: (K, P) estimates and 1-sigma of K sessions) pooled into
     their mean and the 1-sigma for the next session (module docstring)."""
-    from scipy import stats
-
     x, s = np.asarray(x, float), np.asarray(s, float)
     tau2, dof, q0 = between_variance(x, s)
-    fixed = (np.ptp(x, axis=0) == 0) & np.all(s == 0, axis=0)
+    fixed = fixed_by_frame(x, s)
     w = 1.0 / np.maximum(s**2 + tau2, 1e-300)
     mean = np.sum(w * x, axis=0) / np.sum(w, axis=0)
     mean_var = np.where(fixed, 0.0, 1.0 / np.sum(w, axis=0))
-    total = mean_var + np.where(fixed, 0.0, tau2)
+    sigma, widen = next_session_sigma(np.sqrt(mean_var), tau2, dof, fixed)
+    return Pooled(mean=mean, mean_sigma=np.sqrt(mean_var), sigma=sigma, tau=float(np.sqrt(tau2)),
+                  dof=dof, q=q0, widening=widen)
+
+
+def next_session_sigma(sigma, tau2: float, dof: int, fixed=None) -> tuple[np.ndarray, float]:
+    """(the 1-sigma for the next session, widening) of parameters of one class known to `sigma`
+    (P,) (a pooled mean's, or one session's own) whose sessions spread by tau2 estimated on `dof`
+    degrees of freedom: widening x sqrt(sigma^2 + tau2), the widening t_nu'(0.975) / 1.96 with
+    nu' = dof / f^2, f the mean share of tau2 in the variance (module docstring; 1 when tau2 = 0).
+    Parameters `fixed` by the frame (default: those with sigma 0) stay 0."""
+    from scipy import stats
+
+    sigma = np.asarray(sigma, float)
+    fixed = sigma == 0 if fixed is None else np.asarray(fixed, bool)
+    total = sigma**2 + np.where(fixed, 0.0, tau2)
     widen = 1.0
-    if tau2 > 0:
+    if tau2 > 0 and not np.all(fixed):
         share = float(np.mean(tau2 / total[~fixed]))
         widen = float(stats.t.ppf(0.975, dof / share**2) / stats.norm.ppf(0.975))
-    return Pooled(mean=mean, mean_sigma=np.sqrt(mean_var), sigma=widen * np.sqrt(total),
-                  tau=float(np.sqrt(tau2)), dof=dof, q=q0, widening=widen)
+    return widen * np.sqrt(total), widen
