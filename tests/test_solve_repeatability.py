@@ -23,8 +23,6 @@ M, POSES, NOISE, TAU = 3, 20, 0.002, 0.01  # sensors, poses, reading noise and b
 TRIALS = 250
 Z95 = stats.norm.ppf(0.975)
 DUMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"
-if not DUMP.exists():
-    DUMP = Path("/work/shared/data/real/mimu4444-array")
 
 
 def array(rng, m: int = M) -> np.ndarray:
@@ -134,6 +132,15 @@ def test_the_repeatability_is_not_added_twice():
     combined = combine([one, two], ["one", "two"])
     with pytest.raises(CalibrationFileError, match="already includes"):
         with_repeatability(with_repeatability(new, combined, "c", "0"), combined, "c", "0")
+
+
+def test_a_session_with_the_repeatability_is_not_combined_again():
+    """Its 1-sigma holds tau already: pooling it would count the spread twice."""
+    rng = np.random.default_rng(9)
+    _, (one, two, new) = unit_sessions(rng, 3)
+    widened = with_repeatability(new, combine([one, two], ["one", "two"]), "c.cal.json", "0")
+    with pytest.raises(CalibrationFileError, match="solved with the repeatability of 'c.cal.json'"):
+        combine([one, widened], ["one", "new"])
 
 
 def test_solve_repeatability_on_the_command_line(tmp_path, capsys):

@@ -33,6 +33,12 @@ def _check_alike(cals, names) -> None:
     if len(cals) < 2:
         raise CalibrationFileError("combining needs the calibration files of at least 2 "
                                    "sessions of the unit; give two or more")
+    for cal, name in zip(cals, names, strict=True):
+        if INCLUDED in cal.fit:  # its 1-sigma holds a tau already: counted twice
+            raise CalibrationFileError(
+                f"{name} was solved with the repeatability of {cal.fit[INCLUDED].get('file')!r} "
+                "(station solve --repeatability): its 1-sigma holds the spread between sessions "
+                "already; combine the files solved without --repeatability")
     first = cals[0]
     for cal, name in zip(cals[1:], names[1:], strict=True):
         for what, mine, theirs in (("unit", cal.unit_serial, first.unit_serial),
