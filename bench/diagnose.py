@@ -151,14 +151,15 @@ def verdicts(runs, effect: str) -> dict:
     }
 
 
-def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False, **kwargs) -> dict:
-    """Per case: the verdicts, gaps and eps over m in {3, 6, 12} and `seeds` seeds; leave_out:
-    the hidden effect is removed from the candidates too (then `unexplained` is the right
-    verdict); kwargs: the sessions' timing, fs, n (`session`)."""
+def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False, first: int = 0,
+               **kwargs) -> dict:
+    """Per case: the verdicts, gaps and eps over m in {3, 6, 12} and `seeds` seeds (1000 m +
+    first + s); leave_out: the hidden effect is removed from the candidates too (then
+    `unexplained` is the right verdict); kwargs: the sessions' timing, fs, n (`session`)."""
     out = {}
     for case in cases:
         effect = parse(CASES[case])[0]
-        runs = [run_case(case, m, 1000 * m + s, leave_out, **kwargs) for m in LAYOUTS
+        runs = [run_case(case, m, 1000 * m + first + s, leave_out, **kwargs) for m in LAYOUTS
                 for s in range(seeds)]
         right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none")
                  and (effect != "none" or not r["unexplained"]) for r in runs]
@@ -187,13 +188,15 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False, **kwargs
 
 
 VARIANTS = {
-    "n12_200Hz": {"n": 12, "fs": 200.0},
-    "n8_long": {"n": 8, "timing": RotaryTiming()},
-    "fast_2turns": {"timing": RotaryTiming(rate=np.pi, max_accel=2.0, static=4.0, moving=10.0)},
+    "n12_200Hz": {"n": 12, "fs": 200.0, "first": 100},
+    "n8_long": {"n": 8, "timing": RotaryTiming(), "first": 200},
+    "fast_2turns": {"timing": RotaryTiming(rate=np.pi, max_accel=2.0, static=4.0, moving=10.0),
+                    "first": 300},
 }
 """Other sessions for the effect-free rate (`--none-variants`): 12 positions at 200 Hz; 8
 positions of the default timeline (10 s static, 25 s moving: 5 whole turns); twice the rate
-(2 whole turns in the short timeline)."""
+(2 whole turns in the short timeline). Seeds from 1000 m + first: a session of the same length
+and seed draws the same unit and noise, so the variants do not reuse the short sessions' seeds."""
 
 
 def interval(k: int, n: int) -> list:
