@@ -181,3 +181,15 @@ def test_a_clip_left_out_is_not_named_a_table_rate_error():
     assert "rails" in {u["statistic"] for u in result.unexplained}
     why = {r["effect"]: r["reason"] for r in result.resembles}
     assert "rails" in why["rate_error"]
+
+
+def test_a_name_beside_an_unexplained_tone_is_read_against_the_tones_dispersion():
+    # m = 12, seed 12000: a noise realisation in which scale_nonlinearity passes its step's
+    # threshold by a hair (log10 p -3.1 against -2.78); with the coning left out the tone at the
+    # table rate stays (about 4.7 x the noise over 2n = 40 features), and the LR over that
+    # dispersion is no longer significant: not named, only "resembles"
+    _, result = left_out("axis_wobble", 12, 12000)
+    assert result.effects == []
+    tone = result.fit_test["statistics"]["table_rate_tone"]
+    assert tone["log10_p"] < result.fit_test["threshold_log10_p"]
+    assert "scale_nonlinearity" in {r["effect"] for r in result.resembles}

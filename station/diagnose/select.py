@@ -132,8 +132,9 @@ def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None)
     """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
     final goodness-of-fit test; when it fails, every
     named effect's evidence is read again with the LR divided by the dispersion the gap leaves
-    (the largest failed mean-square gap of many features, so not `rails` nor the spectrum's: a
-    quasi-likelihood); the first effect no longer
+    (the largest failed mean-square gap of many features, so not `rails`, about 1 dof, nor
+    `spectrum`, a maximum over its grid; `table_rate_tone` is the mean of 2n squared features
+    at fixed points: a quasi-likelihood); the first effect no longer
     significant then, or whose own gap statistics (`own`: {effect: statistics}) still fail,
     and those after it, are not named (`not_named` in its evidence): they explain only part of a
     gap the library does not. Likewise an effect while a statistic of `unreadable` ({effect:
@@ -142,7 +143,7 @@ def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None)
     out = test_of(result.steps[-1])
     test = out[0]
     dispersion = max([test["statistics"][k]["gap"] for k in test["failed"]
-                      if k not in ("spectrum", "table_rate_tone", "rails")], default=1.0)
+                      if k not in ("spectrum", "rails")], default=1.0)
     for i, step in enumerate(result.steps[:-1]):
         e = step.evidence[step.chosen]
         quasi = (np.log(e["null_mass"]) + goodness.log_sf(
