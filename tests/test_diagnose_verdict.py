@@ -168,6 +168,8 @@ def test_a_weak_coning_the_whole_grid_misses_is_a_tone_at_the_table_rate():
     assert result.effects == []
     failed = {u["statistic"]: u for u in result.unexplained}
     assert "table_rate_tone" in failed and "spectrum" not in failed
+    top = failed["table_rate_tone"]["signature"]["peaks"][0]
+    assert top["sense"] == "with_table" and top["frequency"] == pytest.approx(1.0)
     assert result.fit_test["statistics"]["spectrum"]["log10_p"] > result.fit_test[
         "threshold_log10_p"]
 

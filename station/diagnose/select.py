@@ -122,10 +122,18 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
         spec["peaks"] = signature.peaks(spec, n, alpha)
     return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
                    unexplained=[{**test["statistics"][k], "statistic": k,
-                                 "signature": {"peaks": spec["peaks"]}
-                                 if k in ("spectrum", "table_rate_tone")
-                                 else signature.describe(data, result.final, k)}
+                                 "signature": _signature(data, result.final, spec, k)}
                                 for k in test["failed"]])
+
+
+def _signature(data, final: model.Model, spec: dict, statistic: str) -> dict:
+    """The signature of a failed statistic (station.diagnose.signature): the spectrum's peaks,
+    the once-per-revolution points, or the breakdown of a gap's features."""
+    if statistic == "spectrum":
+        return {"peaks": spec["peaks"]}
+    if statistic == "table_rate_tone":
+        return {"peaks": signature.tones(spec)}
+    return signature.describe(data, final, statistic)
 
 
 def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None) -> tuple:
