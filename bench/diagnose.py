@@ -8,7 +8,7 @@ the bound of the random-effects model at the true spread, `crlb(..., spread=s)`,
 smallest eps possible when the table's rate scatters unseen; with the table's encoder,
 `rate_error_encoder`, the nominal bound applies); then the time of one full 20-position,
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
-[--effects rate_error none] [--no-timing]`.
+[--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants]`.
 """
 
 import argparse
@@ -20,6 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
+from scipy.stats import binomtest
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
@@ -150,20 +151,22 @@ def verdicts(runs, effect: str) -> dict:
     }
 
 
-def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
-    """Per case: the verdicts, gaps and eps over m in {3, 6, 12} and `seeds` seeds; leave_out:
-    the hidden effect is removed from the candidates too (then `unexplained` is the right
-    verdict)."""
+def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False, first: int = 0,
+               **kwargs) -> dict:
+    """Per case: the verdicts, gaps and eps over m in {3, 6, 12} and `seeds` seeds (1000 m +
+    first + s); leave_out: the hidden effect is removed from the candidates too (then
+    `unexplained` is the right verdict); kwargs: the sessions' timing, fs, n (`session`)."""
     out = {}
     for case in cases:
         effect = parse(CASES[case])[0]
-        runs = [run_case(case, m, 1000 * m + s, leave_out) for m in LAYOUTS
+        runs = [run_case(case, m, 1000 * m + first + s, leave_out, **kwargs) for m in LAYOUTS
                 for s in range(seeds)]
         right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none")
                  and (effect != "none" or not r["unexplained"]) for r in runs]
         out[case] = {
             "sessions": len(runs),
             "right_rate": float(np.mean(right)),
+            "right_interval_95": interval(sum(right), len(right)),
             "verdicts": verdicts(runs, effect),
             "named": [r["named"] for r in runs],
             "unexplained": [r["unexplained"] for r in runs],
@@ -184,6 +187,24 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
     return out
 
 
+VARIANTS = {
+    "n12_200Hz": {"n": 12, "fs": 200.0, "first": 100},
+    "n8_long": {"n": 8, "timing": RotaryTiming(), "first": 200},
+    "fast_2turns": {"timing": RotaryTiming(rate=np.pi, max_accel=2.0, static=4.0, moving=10.0),
+                    "first": 300},
+}
+"""Other sessions for the effect-free rate (`--none-variants`): 12 positions at 200 Hz; 8
+positions of the default timeline (10 s static, 25 s moving: 5 whole turns); twice the rate
+(2 whole turns in the short timeline). Seeds from 1000 m + first: a session of the same length
+and seed draws the same unit and noise, so the variants do not reuse the short sessions' seeds."""
+
+
+def interval(k: int, n: int) -> list:
+    """Clopper-Pearson 95 % interval of a rate k / n."""
+    ci = binomtest(k, n).proportion_ci(0.95, method="exact")
+    return [float(ci.low), float(ci.high)]
+
+
 def timing() -> dict:
     """Wall time of one 20-position, 12-channel, 200 Hz session (10 s static, 25 s moving)."""
     d, _ = session("earth_rate", 12, 7, timing=RotaryTiming(), fs=200.0)
@@ -202,8 +223,14 @@ def main() -> None:
     parser.add_argument("--no-timing", action="store_true", help="skip the full-session timing")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="also hide each effect AND remove it from the candidates")
+    parser.add_argument("--none-variants", action="store_true",
+                        help="also the effect-free case at the other timelines and rates "
+                        "(VARIANTS)")
     args = parser.parse_args()
     out = {"acceptance": acceptance(args.seeds, args.effects)}
+    if args.none_variants:
+        out["none_variants"] = {k: acceptance(args.seeds, ["none"], **v)["none"]
+                                for k, v in VARIANTS.items()}
     if args.leave_one_out:
         out["leave_one_effect_out"] = acceptance(
             args.seeds, [c for c in args.effects if c not in ("none", "rate_error_encoder")],
@@ -215,6 +242,9 @@ def main() -> None:
         return
     if not args.no_timing:
         print(f"full session: {out['timing_full_session']['seconds']:.1f} s")
+    for case, r in out.get("none_variants", {}).items():
+        print(f"none {case:14s} right {r['right_rate']:.2f} of {r['sessions']} "
+              f"(95 % {r['right_interval_95']})")
     for case, r in out.get("leave_one_effect_out", {}).items():
         print(f"left out {case:19s} {r['verdicts']}")
     for case, r in out["acceptance"].items():

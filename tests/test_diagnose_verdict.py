@@ -141,3 +141,57 @@ def test_rate_factors_that_follow_the_sensor_axes_are_not_a_table_rate_error():
     # factors following the axes' cubic pattern (k2-like, about 3 sigma rms over the positions)
     # are seen nearly always
     assert np.mean(np.array(follows_p) < -3) > 0.9
+
+
+def test_the_table_rate_tone_test_holds_its_level_under_white_noise():
+    from station.diagnose import signature
+
+    rng = np.random.default_rng(7)
+    n, trials, alpha = 20, 4000, 0.05
+    grid = np.arange(1, 81) * 0.05
+
+    def white():
+        # each point: the mean over n positions of |C|^2 / E|C|^2, chi2(2n) / 2n
+        return {"frequency": grid, **{s: rng.chisquare(2 * n, grid.size) / (2 * n)
+                                      for s in ("with_table", "against_table", "axial")}}
+    alarms = sum(signature.tone_test(white(), n)["log10_p"] < np.log10(alpha)
+                 for _ in range(trials))
+    # two independent points, Bonferroni: 1 - (1 - alpha / 2)^2 <= rate <= alpha
+    assert binom.ppf(1e-4, trials, 1 - (1 - alpha / 2) ** 2) <= alarms
+    assert alarms <= binom.isf(1e-4, trials, alpha)
+
+
+def test_a_weak_coning_the_whole_grid_misses_is_a_tone_at_the_table_rate():
+    # 0.004 deg, m = 6, seed 6001: the largest of the 3 x 76 points does not pass its Bonferroni
+    # level (spectrum log10 p about -1.6), the once-per-revolution point does (about -3.0)
+    _, result = left_out("axis_wobble", 6, 6001)
+    assert result.effects == []
+    failed = {u["statistic"]: u for u in result.unexplained}
+    assert "table_rate_tone" in failed and "spectrum" not in failed
+    top = failed["table_rate_tone"]["signature"]["peaks"][0]
+    assert top["sense"] == "with_table" and top["frequency"] == pytest.approx(1.0)
+    assert result.fit_test["statistics"]["spectrum"]["log10_p"] > result.fit_test[
+        "threshold_log10_p"]
+
+
+def test_a_clip_left_out_is_not_named_a_table_rate_error():
+    # m = 3: the clipped readings lower |v_j| at the positions that reach the rail, which a
+    # table rate spread absorbs (log10 p about -340); the pile-up at the rails says the readings
+    # were cut, so rate_error is only "resembles" and the gaps stay unexplained
+    _, result = left_out("saturation", 3, 3000)
+    assert result.effects == []
+    assert "rails" in {u["statistic"] for u in result.unexplained}
+    why = {r["effect"]: r["reason"] for r in result.resembles}
+    assert "rails" in why["rate_error"]
+
+
+def test_a_name_beside_an_unexplained_tone_is_read_against_the_tones_dispersion():
+    # m = 12, seed 12000: a noise realisation in which scale_nonlinearity passes its step's
+    # threshold by a hair (log10 p -3.1 against -2.78); with the coning left out the tone at the
+    # table rate stays (about 4.7 x the noise over 2n = 40 features), and the LR over that
+    # dispersion is no longer significant: not named, only "resembles"
+    _, result = left_out("axis_wobble", 12, 12000)
+    assert result.effects == []
+    tone = result.fit_test["statistics"]["table_rate_tone"]
+    assert tone["log10_p"] < result.fit_test["threshold_log10_p"]
+    assert "scale_nonlinearity" in {r["effect"] for r in result.resembles}

@@ -110,29 +110,44 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
 
     def test_of(step):
         spec = signature.spectrum(data, step.model)
-        return goodness.test(step.gap, gap.dofs(data, step.model), alpha,
-                             {"spectrum": signature.test(spec, n)} if spec else None), spec
+        extra = {"spectrum": signature.test(spec, n),
+                 "table_rate_tone": signature.tone_test(spec, n)} if spec else None
+        return goodness.test(step.gap, gap.dofs(data, step.model), alpha, extra), spec
 
     result, (test, spec) = settle(result, test_of, alpha,
-                                  {k: e.GAPS for k, e in EXTENSIONS.items()})
+                                  {k: e.GAPS for k, e in EXTENSIONS.items()},
+                                  {k: getattr(e, "UNREADABLE_WITH", ()) for k, e in
+                                   EXTENSIONS.items()})
     if spec:
         spec["peaks"] = signature.peaks(spec, n, alpha)
     return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
                    unexplained=[{**test["statistics"][k], "statistic": k,
-                                 "signature": {"peaks": spec["peaks"]} if k == "spectrum"
-                                 else signature.describe(data, result.final, k)}
+                                 "signature": _signature(data, result.final, spec, k)}
                                 for k in test["failed"]])
 
 
-def settle(result: Diagnosis, test_of, alpha: float, own: dict) -> tuple:
+def _signature(data, final: model.Model, spec: dict, statistic: str) -> dict:
+    """The signature of a failed statistic (station.diagnose.signature): the spectrum's peaks,
+    the once-per-revolution points, or the breakdown of a gap's features."""
+    if statistic == "spectrum":
+        return {"peaks": spec["peaks"]}
+    if statistic == "table_rate_tone":
+        return {"peaks": signature.tones(spec)}
+    return signature.describe(data, final, statistic)
+
+
+def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None) -> tuple:
     """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
     final goodness-of-fit test; when it fails, every
     named effect's evidence is read again with the LR divided by the dispersion the gap leaves
-    (the largest failed mean-square gap of many features, so not `rails` nor `spectrum`: a
-    quasi-likelihood); the first effect no longer
+    (the largest failed mean-square gap of many features, so not `rails`, about 1 dof, nor
+    `spectrum`, a maximum over its grid; `table_rate_tone` is the mean of 2n squared features
+    at fixed points: a quasi-likelihood); the first effect no longer
     significant then, or whose own gap statistics (`own`: {effect: statistics}) still fail,
     and those after it, are not named (`not_named` in its evidence): they explain only part of a
-    gap the library does not."""
+    gap the library does not. Likewise an effect while a statistic of `unreadable` ({effect:
+    statistics}, e.g. `rails` for the effects read from the readings M) fails: that gap says
+    the data its evidence rests on carry something the model does not explain."""
     out = test_of(result.steps[-1])
     test = out[0]
     dispersion = max([test["statistics"][k]["gap"] for k in test["failed"]
@@ -142,9 +157,12 @@ def settle(result: Diagnosis, test_of, alpha: float, own: dict) -> tuple:
         quasi = (np.log(e["null_mass"]) + goodness.log_sf(
             e["lr"] / (e["null_scale"] * dispersion), e["null_dof"])) / np.log(10)
         left = [k for k in own.get(step.chosen, ()) if k in test["failed"]]
+        blind = [k for k in (unreadable or {}).get(step.chosen, ()) if k in test["failed"]]
         weak = dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence))
-        if left or weak:
+        if left or blind or weak:
             note = (f"leaves its own signature's gap unexplained ({', '.join(left)})" if left
+                    else f"its evidence rests on data that an unexplained gap says are "
+                    f"corrupted ({', '.join(blind)})" if blind
                     else f"explains only part of a gap left unexplained (log10 p {quasi:.1f} "
                     f"with the LR over that gap's dispersion {dispersion:.2f})")
             evidence = {**step.evidence, step.chosen: {**e, "not_named": note}}

@@ -2,6 +2,9 @@
 
 Each module exposes
 - `GAPS`: the gap statistics that hold its signature (not named while one stays unexplained);
+- optionally `UNREADABLE_WITH`: gap statistics whose failure says the data its evidence rests
+  on are corrupted (not named while one stays unexplained: rate_error and scale_nonlinearity,
+  read from the readings M, while `rails` fails);
 - `STAGE`: where the twin applies it ("rate", "motion", "sensed", "offset", "output");
 - `fit(ctx, prediction, r) -> Fitted`: its parameters from the residuals r (n, k, m) of the twin
   without it (`prediction`), by weighted least squares on the binned residuals;
@@ -17,6 +20,14 @@ Each module exposes
 from dataclasses import dataclass, field
 
 import numpy as np
+
+READ_FROM_M = ("rails",)
+"""`UNREADABLE_WITH` of the effects read from the Eq. (18) readings M (rate_error,
+scale_nonlinearity): a pile-up at the output rails that the model does not explain means some
+readings were cut by a clip, which lowers those sensors' M_ij at the positions where they reach
+the rail. Per-position factors (a table rate error: |v_j| through M_j) or a per-sensor
+quadratic fitted to M absorb that cut, so they are not named while `rails` stays unexplained (a
+clip left out of the candidates, m = 3, was named `rate_error` 3 of 3 times)."""
 
 
 @dataclass(frozen=True)

@@ -39,12 +39,13 @@ from scipy.stats import chi2
 from scipy.stats import f as f_law
 
 from station.diagnose import linear
-from station.diagnose.effects import Fitted
+from station.diagnose.effects import READ_FROM_M, Fitted
 from station.model.effects import rate_error
 
 GAPS = ("averaged",)
 """Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
 while one of them stays unexplained (station.diagnose.select.settle)."""
+UNREADABLE_WITH = READ_FROM_M
 STAGE = "rate"
 ENCODER_TOL = 1e-9
 """Precision of a rate factor read off an exact angle array (rounding only)."""

@@ -7,13 +7,14 @@ window not at all); linear in k2, fitted per sensor.
 import numpy as np
 
 from station.diagnose import linear
-from station.diagnose.effects import Fitted
+from station.diagnose.effects import READ_FROM_M, Fitted
 from station.model.effects import scale_nonlinearity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
 GAPS = ("averaged",)
 """Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
 while one of them stays unexplained (station.diagnose.select.settle)."""
+UNREADABLE_WITH = READ_FROM_M
 STAGE = "sensed"
 
 
