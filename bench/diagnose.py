@@ -8,7 +8,7 @@ the bound of the random-effects model at the true spread, `crlb(..., spread=s)`,
 smallest eps possible when the table's rate scatters unseen; with the table's encoder,
 `rate_error_encoder`, the nominal bound applies); then the time of one full 20-position,
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
-[--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants]`.
+[--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants] [--pairs]`.
 """
 
 import argparse
@@ -63,12 +63,27 @@ on a gyro 2.7 x quieter than the MEMS default (and counts 2.7 x finer, so that t
 its size in counts), the signal-to-noise of 2e-4 rad/s on the default one."""
 
 
+PAIRS = ("bias_drift+latency", "scale_nonlinearity+latency", "bias_drift+scale_nonlinearity",
+         "axis_wobble+latency", "bias_drift+axis_wobble")
+"""Sessions hiding two effects of CASES at once (`--pairs`; the right call: both named), each pair
+with signatures in different statistics (static means and trends, the rotating level, the
+spectrum at the table rate, the ramps)."""
+
+
+def hidden(case: str) -> list:
+    """The effect names a case hides: one, or two for a pair ("a+b")."""
+    return [parse(CASES[c])[0] for c in case.split("+")]
+
+
 def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
-    """(RotaryData, truth) of one simulated session hiding the effect of `case`."""
-    name, params = parse(CASES[case])
-    effects = {} if params is None else {name: params}
-    if case == "saturation":
-        effects = {name: Saturation(rail_below_peak(m, seed, timing, fs, n))}
+    """(RotaryData, truth) of one simulated session hiding the effect(s) of `case`."""
+    effects = {}
+    for one in case.split("+"):
+        name, params = parse(CASES[one])
+        if one == "saturation":
+            params = Saturation(rail_below_peak(m, seed, timing, fs, n))
+        if params is not None:
+            effects[name] = params
     rng = np.random.default_rng(seed)
     unit = gyro_array(rng, LAYOUTS[m], fs=fs, **UNITS.get(case, {}))
     sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
@@ -88,9 +103,8 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) ->
     """Diagnose one session; the named effects, the verdict, gaps and calibration errors.
     leave_out: the hidden effect is also removed from the candidates."""
     d, truth = session(case, m, seed, **kwargs)
-    hidden = parse(CASES[case])[0]
-    result = diagnose(d, candidates=tuple(e for e in EXTENSIONS if not (leave_out
-                                                                       and e == hidden)))
+    left_out = hidden(case) if leave_out else ()
+    result = diagnose(d, candidates=tuple(e for e in EXTENSIONS if e not in left_out))
     a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
     cov = crlb(a_true, v_true, d.sigma_m)
     bound = float(np.sqrt(np.trace(cov)))
@@ -199,6 +213,23 @@ positions of the default timeline (10 s static, 25 s moving: 5 whole turns); twi
 and seed draws the same unit and noise, so the variants do not reuse the short sessions' seeds."""
 
 
+def pairs(seeds: int, first: int = 400) -> dict:
+    """Per pair of PAIRS: how often both hidden effects are the first two named (nothing else
+    before them), over m in {3, 6, 12} and `seeds` seeds (1000 m + first + s), with the sessions
+    whose calibration got worse by more than 1 sd of eps at the bound."""
+    out = {}
+    for case in PAIRS:
+        runs = [run_case(case, m, 1000 * m + first + s) for m in LAYOUTS for s in range(seeds)]
+        both = [set(r["named"][:2]) == set(hidden(case)) for r in runs]
+        out[case] = {"sessions": len(runs), "both_named_rate": float(np.mean(both)),
+                     "both_named_interval_95": interval(sum(both), len(both)),
+                     "named": [r["named"] for r in runs],
+                     "unexplained": [r["unexplained"] for r in runs],
+                     "worse_by_more_than_1sd": sum(r["eps_after"] > r["eps_before"]
+                                                   + r["eps_sd_at_bound"] for r in runs)}
+    return out
+
+
 def interval(k: int, n: int) -> list:
     """Clopper-Pearson 95 % interval of a rate k / n."""
     ci = binomtest(k, n).proportion_ci(0.95, method="exact")
@@ -226,8 +257,12 @@ def main() -> None:
     parser.add_argument("--none-variants", action="store_true",
                         help="also the effect-free case at the other timelines and rates "
                         "(VARIANTS)")
+    parser.add_argument("--pairs", action="store_true",
+                        help="also sessions hiding two effects at once (PAIRS)")
     args = parser.parse_args()
     out = {"acceptance": acceptance(args.seeds, args.effects)}
+    if args.pairs:
+        out["pairs"] = pairs(args.seeds)
     if args.none_variants:
         out["none_variants"] = {k: acceptance(args.seeds, ["none"], **v)["none"]
                                 for k, v in VARIANTS.items()}
@@ -245,6 +280,9 @@ def main() -> None:
     for case, r in out.get("none_variants", {}).items():
         print(f"none {case:14s} right {r['right_rate']:.2f} of {r['sessions']} "
               f"(95 % {r['right_interval_95']})")
+    for case, r in out.get("pairs", {}).items():
+        print(f"pair {case:30s} both named {r['both_named_rate']:.2f} of {r['sessions']} "
+              f"(95 % {r['both_named_interval_95']})")
     for case, r in out.get("leave_one_effect_out", {}).items():
         print(f"left out {case:19s} {r['verdicts']}")
     for case, r in out["acceptance"].items():

@@ -22,6 +22,7 @@ from station.files.calfile import load
 from station.files.session import Session
 from station.reduce.rotary import rotary_readings
 from station.solve.uncertainty import eps_tail_probability
+from station.twin.rotary_bench import HOST_LATENCY
 from station.twin.served import BenchTwin
 
 POSITIONS = 8
@@ -76,8 +77,12 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
     with Session.open(session) as s:
         kinds = [e.kind for e in s.events()]
         assert kinds.count("position_done") == POSITIONS and "abort" not in kinds
+        # the twin's profile: the positions, and the waits that cover the host's latency on
+        # its 40x clock (HOST_LATENCY wall s each), recorded with the session
+        margin = HOST_LATENCY * 40.0
         assert s.unit_serial == "SIM-3" and s.metadata["bench"]["tables"]["protocol"] == {
-            "positions": POSITIONS}
+            "positions": POSITIONS, "rest": margin, "guard": margin, "steady": margin}
+        assert s.metadata["settings"]["steady"] == margin
     check_against_truth(session, summary["calibration"]["calibration"], truth)
 
 
