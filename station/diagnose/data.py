@@ -160,7 +160,8 @@ def from_session(session_or_path, stream: str = "imu", bin_seconds: float = 0.1)
     grid = recorded.arrays(session_or_path, stream)
     return _rotary_data(grid["counts"], grid["lsb"], grid["fs"], grid["rate"], grid["c"],
                         grid["angle"], grid["windows"], grid["a_nominal"], bin_seconds,
-                        grid["times"][:, 0], grid["times"], grid["rate_factors_sigma"])
+                        grid["times"][:, 0], grid["times"], grid["rate_factors_sigma"],
+                        _temperature(grid["temperature"], grid["times"].shape))
 
 
 def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
