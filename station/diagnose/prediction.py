@@ -6,7 +6,8 @@ the table's heading carry their own per-position heading or phase). The noise-fr
 series is built in the simulator's order (docs/simulator.md) with each model extension's `apply`,
 which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
 projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift,
-temperature at the recorded temperature; one bias per sensor, the mean of the data minus the rest) -> output (saturation, as an expectation).
+temperature at the recorded temperature; one bias per sensor, the mean of the data minus the
+rest) -> output (saturation, as an expectation).
 """
 
 from dataclasses import dataclass

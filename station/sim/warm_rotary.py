@@ -2,10 +2,11 @@
 
 `simulate_warm_rotary` runs `station.sim.rotary.simulate_rotary` (any other effects included),
 then moves each sample's biases by the `temperature` effect's bias tempcos at the unit's
-temperature T(t) (`station.model.effects.temperature.bias_offsets`), and records T as the session's `temperature` array (n, k) in K: the true temperature
-plus the temperature sensor's white noise, quantised (`KELVIN_LSB`), as a unit's own temperature
-channel gives it (`station.sim.heated`). Temperature histories (`session time (n, k), true table
-rate (n, k) -> K (n, k)`):
+temperature T(t) (`station.model.effects.temperature.bias_offsets`), and records T as the
+session's `temperature` array (n, k) in K: the true temperature plus the temperature sensor's
+white noise, quantised (`KELVIN_LSB`), as a unit's own temperature channel gives it
+(`station.sim.heated`). Temperature histories (session time (n, k), true table rate (n, k) ->
+K (n, k)):
 
 - `chamber_hump`: a chamber ramp up and back down over the session (not monotone in time);
 - `motor_heating`: the table's motor heats the unit while it spins, it cools at rest (the heat
