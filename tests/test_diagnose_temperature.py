@@ -26,7 +26,10 @@ DRIFT = BiasDrift(warmup=0.004, heating=0.0006)
 """The time-driven drift of bench/diagnose.py's bias_drift case."""
 
 
-def _session(seed, history, tempco=Temperature(), effects=None):
+NO_TEMPCO = Temperature()
+
+
+def _session(seed, history, tempco=NO_TEMPCO, effects=None):
     unit = gyro_array(np.random.default_rng(seed), TRIAD, fs=100.0)
     sim = simulate_warm_rotary(unit, 20, SHORT, history, tempco, effects=effects,
                                a_nominal=TRIAD)
@@ -82,3 +85,14 @@ def test_a_temperature_in_degc_is_refused():
         session_data.from_arrays({**sim.arrays, "temperature": np.full((n, k), 25.0)})
     with pytest.raises(InputError, match="shape"):
         session_data.from_arrays({**sim.arrays, "temperature": np.full((n, k + 1), 298.0)})
+
+
+def test_an_array_file_carries_the_temperature_to_the_diagnosis(tmp_path):
+    unit = gyro_array(np.random.default_rng(3006), TRIAD, fs=100.0)
+    sim = simulate_warm_rotary(unit, 20, SHORT, chamber_hump(1.0), NO_TEMPCO, a_nominal=TRIAD)
+    np.savez(tmp_path / "s.npz", **sim.arrays)
+    loaded = session_data.load(tmp_path / "s.npz")
+    assert np.array_equal(loaded.temperature, sim.arrays["temperature"])
+    np.savez(tmp_path / "bad.npz", **{**sim.arrays, "temperature": sim.arrays["temperature"][1:]})
+    with pytest.raises(InputError, match="temperature has shape"):
+        session_data.load(tmp_path / "bad.npz")
