@@ -138,14 +138,15 @@ def interval(k: int, n: int, level: float = 0.95) -> tuple:
     return float(lo), float(hi)
 
 
-def warm_acceptance(seeds: int, cases=tuple(WARM)) -> dict:
-    """Per WARM case over m in {3, 6, 12} and `seeds` seeds (1000 m + s): right (the right call
-    first and the name it is confused with absent; `none`: nothing named), the interval, and
-    how often `temperature` was offered."""
+def warm_acceptance(seeds: int, cases=tuple(WARM), first: int = 0) -> dict:
+    """Per WARM case over m in {3, 6, 12} and `seeds` seeds (1000 m + s, s from `first`): right
+    (the right call first and the name it is confused with absent; `none`: nothing named), the
+    interval, and how often `temperature` was offered."""
     out = {}
     for case in cases:
         want = WARM[case][0]
-        runs = [warm_case(case, m, 1000 * m + s) for m in LAYOUTS for s in range(seeds)]
+        runs = [warm_case(case, m, 1000 * m + s) for m in LAYOUTS
+                for s in range(first, first + seeds)]
         right = [(not r["named"]) if want == "none" else
                  (r["named"][:1] == [want] and WRONG[want] not in r["named"]) for r in runs]
         k = int(sum(right))
@@ -290,9 +291,11 @@ def main() -> None:
     parser.add_argument("--temperature", nargs="*", choices=list(WARM), default=None,
                         help="only the sessions recording the unit's temperature (issue 15): "
                         "these cases (default: all)")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="--temperature: seeds s from this one (1000 m + s)")
     args = parser.parse_args()
     if args.temperature is not None:
-        warm = warm_acceptance(args.seeds, args.temperature or tuple(WARM))
+        warm = warm_acceptance(args.seeds, args.temperature or tuple(WARM), args.first_seed)
         if args.json:
             print(json.dumps({"temperature": warm}, indent=1))
             return
