@@ -9,6 +9,11 @@ smallest eps possible when the table's rate scatters unseen; with the table's en
 `rate_error_encoder`, the nominal bound applies); then the time of one full 20-position,
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
 [--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants] [--pairs]`.
+
+`--temperature` (issue 15) runs instead the sessions that record the unit's temperature
+(`WARM`, `station.sim.warm_rotary`): heat-driven drift (the right call `temperature`, not
+`bias_drift`), time-driven drift (`bias_drift`, not `temperature`) and effect-free ones (`none`),
+with 95 % Clopper-Pearson intervals of the rates right.
 """
 
 import argparse
@@ -28,10 +33,12 @@ from station.diagnose.effects import EXTENSIONS
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse
 from station.model.effects.saturation import Saturation
+from station.model.effects.temperature import Temperature
 from station.model.frames import eps
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
+from station.sim.warm_rotary import chamber_hump, motor_heating, simulate_warm_rotary, slow_ramp
 from station.solve.uncertainty import crlb
 
 SHORT = RotaryTiming(static=4.0, moving=10.0)
@@ -88,6 +95,77 @@ def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: in
     unit = gyro_array(rng, LAYOUTS[m], fs=fs, **UNITS.get(case, {}))
     sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
     return session_data.from_arrays(sim.arrays), sim.truth
+
+
+TEMPCO = 1e-4
+"""rad/s per K: size of the simulated bias tempcos (0.006 deg/s/K, below a MEMS datasheet's
+0.01-0.05); each sensor's is TEMPCO times a random sign and a factor in [0.5, 1.5]."""
+WARM = {
+    "temperature_hump": ("temperature", chamber_hump(3.0), "none", True),
+    "temperature_motor": ("temperature", motor_heating(4.0, tau=30.0), "none", True),
+    "bias_drift_ramp": ("bias_drift", slow_ramp(1.0), CASES["bias_drift"], False),
+    "bias_drift_flat": ("bias_drift", slow_ramp(0.0), CASES["bias_drift"], False),
+    "none_flat": ("none", slow_ramp(0.0), "none", False),
+    "none_ramp": ("none", slow_ramp(2.0), "none", False),
+}
+"""Case -> (right call, temperature history (K), other hidden effect, bias tempcos or not), on
+the default MEMS gyro (short sessions as CASES): heat-driven drift with a chamber going up 3 K
+and back down (not monotone in time) or with the table's motor heating the unit while it spins
+(4 K per rad/s, tau 30 s); time-driven drift (CASES' bias_drift) with the temperature rising 1 K
+over the session, unrelated, or flat; no effect with the temperature flat or rising 2 K."""
+WRONG = {"temperature": "bias_drift", "bias_drift": "temperature"}
+"""Right call -> the name it must not be confused with."""
+
+
+def warm_session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
+    """(RotaryData, truth) of one simulated session recording the unit's temperature."""
+    _, history, other, tempco = WARM[case]
+    name, params = parse(other)
+    rng = np.random.default_rng(seed)
+    unit = gyro_array(rng, LAYOUTS[m], fs=fs)
+    bias = TEMPCO * rng.choice([-1.0, 1.0], m) * rng.uniform(0.5, 1.5, m) if tempco else 0.0
+    sim = simulate_warm_rotary(unit, n, timing, history, Temperature(bias=tuple(np.ravel(bias))
+                                                                     if tempco else 0.0),
+                               effects={} if params is None else {name: params},
+                               a_nominal=LAYOUTS[m])
+    return session_data.from_arrays(sim.arrays), sim.truth
+
+
+def warm_case(case: str, m: int, seed: int) -> dict:
+    """Diagnose one session of `warm_session`: the names, and the fitted tempcos against the
+    truth (z-scores) when `temperature` is named."""
+    d, truth = warm_session(case, m, seed)
+    result = diagnose(d)
+    fitted = result.final.fitted.get("temperature")
+    z = None
+    if fitted is not None:
+        true = np.broadcast_to(np.asarray(truth["temperature"]["bias"], float), (m,))
+        z = ((fitted.value("bias") - true) / fitted.sigma["bias"]).tolist()
+    return {"case": case, "m": m, "seed": seed, "named": result.effects,
+            "unexplained": [u["statistic"] for u in result.unexplained],
+            "offered": "temperature" in result.steps[0].evidence, "tempco_z": z}
+
+
+def warm_acceptance(seeds: int, cases=tuple(WARM), first: int = 0) -> dict:
+    """Per WARM case over m in {3, 6, 12} and `seeds` seeds (1000 m + s, s from `first`): right
+    (the right call first and the name it is confused with absent; `none`: nothing named), the
+    interval, and how often `temperature` was offered."""
+    out = {}
+    for case in cases:
+        want = WARM[case][0]
+        runs = [warm_case(case, m, 1000 * m + s) for m in LAYOUTS
+                for s in range(first, first + seeds)]
+        right = [(not r["named"]) if want == "none" else
+                 (r["named"][:1] == [want] and WRONG[want] not in r["named"]) for r in runs]
+        k = int(sum(right))
+        out[case] = {"sessions": len(runs), "right": k, "right_rate": k / len(runs),
+                     "interval_95": interval(k, len(runs)),
+                     "offered": int(sum(r["offered"] for r in runs)),
+                     "named": [r["named"] for r in runs],
+                     "unexplained": [r["unexplained"] for r in runs],
+                     "tempco_z_max": max((max(map(abs, r["tempco_z"])) for r in runs
+                                          if r["tempco_z"]), default=None)}
+    return out
 
 
 def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
@@ -259,7 +337,22 @@ def main() -> None:
                         "(VARIANTS)")
     parser.add_argument("--pairs", action="store_true",
                         help="also sessions hiding two effects at once (PAIRS)")
+    parser.add_argument("--temperature", nargs="*", choices=list(WARM), default=None,
+                        help="only the sessions recording the unit's temperature (issue 15): "
+                        "these cases (default: all)")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="--temperature: seeds s from this one (1000 m + s)")
     args = parser.parse_args()
+    if args.temperature is not None:
+        warm = warm_acceptance(args.seeds, args.temperature or tuple(WARM), args.first_seed)
+        if args.json:
+            print(json.dumps({"temperature": warm}, indent=1))
+            return
+        for case, r in warm.items():
+            lo, hi = r["interval_95"]
+            print(f"{case:18s} right {r['right']} / {r['sessions']} (95 % {lo:.2f}-{hi:.2f}), "
+                  f"offered {r['offered']}, max |z| tempco {r['tempco_z_max']}")
+        return
     out = {"acceptance": acceptance(args.seeds, args.effects)}
     if args.pairs:
         out["pairs"] = pairs(args.seeds)

@@ -16,6 +16,7 @@ import numpy as np
 from station.diagnose import recorded
 from station.errors import CalibrationInputError
 from station.files.session import Session
+from station.model.temperature import check_kelvin
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
 
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
@@ -37,6 +38,8 @@ class RotaryData:
     bin : samples per bin of the binned residuals.
     rate_factors_sigma : (n,) 1-sigma of `rate_factors` (0: read off an exact angle array;
         recorded sessions: the IMU timing of the turning time).
+    temperature : (n, k) the unit's recorded temperature at the samples, K (its own temperature
+        channel), or None when the session records none.
     """
 
     counts: np.ndarray
@@ -52,6 +55,7 @@ class RotaryData:
     bin: int
     times: np.ndarray | None = None
     rate_factors_sigma: np.ndarray | None = None
+    temperature: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -156,7 +160,8 @@ def from_session(session_or_path, stream: str = "imu", bin_seconds: float = 0.1)
     grid = recorded.arrays(session_or_path, stream)
     return _rotary_data(grid["counts"], grid["lsb"], grid["fs"], grid["rate"], grid["c"],
                         grid["angle"], grid["windows"], grid["a_nominal"], bin_seconds,
-                        grid["times"][:, 0], grid["times"], grid["rate_factors_sigma"])
+                        grid["times"][:, 0], grid["times"], grid["rate_factors_sigma"],
+                        _temperature(grid["temperature"], grid["times"].shape))
 
 
 def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
@@ -191,15 +196,30 @@ def from_arrays(arrays: dict, bin_seconds: float = 0.1) -> RotaryData:
     return _rotary_data(counts, np.broadcast_to(np.asarray(arrays["lsb"], float), (m,)), fs,
                         rate, float(arrays["c_cmd"]), start[:, None] + angle - angle[:, :1],
                         windows, None if nominal is None else np.asarray(nominal, float),
-                        bin_seconds, np.asarray(arrays["t0"], float))
+                        bin_seconds, np.asarray(arrays["t0"], float),
+                        temperature=_temperature(arrays.get("temperature"), (n, k)))
+
+
+def _temperature(values, shape: tuple) -> np.ndarray | None:
+    """The recorded temperature (n, k) in K, checked (shape, finite, kelvin), or None."""
+    if values is None:
+        return None
+    t = np.asarray(values, float)
+    if t.shape != shape:
+        raise CalibrationInputError(
+            f"temperature has shape {t.shape}, expected {shape}.",
+            "Give the unit's temperature in K at every sample, (positions, samples).")
+    check_kelvin(t.ravel(), "the recorded temperature")
+    return t
 
 
 def _rotary_data(counts, lsb, fs, rate, c, angle, windows, a_nominal, bin_seconds, t0,
-                 times=None, rate_factors_sigma=None) -> RotaryData:
+                 times=None, rate_factors_sigma=None, temperature=None) -> RotaryData:
     """The RotaryData of checked arrays; the rotating window cut to whole turns per position."""
     r0, r1 = windows["rotating"]
     rot_stop = np.array([whole_revolutions(a, r0, r1)[0] for a in angle])
     sd = np.zeros(len(angle)) if rate_factors_sigma is None else np.asarray(rate_factors_sigma)
     return RotaryData(counts=counts, lsb=np.array(lsb, float), fs=fs, t0=t0, rate=rate, c=c,
                       angle=angle, windows=windows, rot_stop=rot_stop, a_nominal=a_nominal,
-                      bin=max(1, round(bin_seconds * fs)), times=times, rate_factors_sigma=sd)
+                      bin=max(1, round(bin_seconds * fs)), times=times, rate_factors_sigma=sd,
+                      temperature=temperature)

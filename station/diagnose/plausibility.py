@@ -17,6 +17,7 @@ it lies more than Z_LIMIT sigma beyond the bound):
   % of full scale);
 - axis_wobble: half-angle <= WOBBLE_MAX_DEG;
 - g_sensitivity: |G| <= G_SENSITIVITY_MAX deg/s per g (rad/s gyros only);
+- temperature: |bias tempco_i| <= TEMPCO_MAX deg/s per K (rad/s gyros only);
 - bias_drift, saturation: any fitted value.
 """
 
@@ -45,6 +46,9 @@ WOBBLE_MAX_DEG = 0.1
 """Coning half-angle of a rate table's axis (bearing run-out), degrees."""
 G_SENSITIVITY_MAX = 1.0
 """deg/s per g: ten times a MEMS gyro's datasheet g-sensitivity."""
+TEMPCO_MAX = 0.1
+"""deg/s per K: a MEMS gyro's bias tempco over its range (datasheets: 0.005-0.05 deg/s/K; the
+unit's zero-rate output over -40..85 C stays within a few deg/s)."""
 
 
 @dataclass(frozen=True)
@@ -148,9 +152,21 @@ def g_sensitivity(fitted, site: Site) -> str:
     return ""
 
 
+def temperature(fitted, site: Site) -> str:
+    """See the module table."""
+    if not site.rad_per_s:
+        return ""
+    k, s = _value(fitted, "bias")
+    high = np.radians(TEMPCO_MAX)
+    if _beyond(np.abs(k), s, high=high):
+        return (f"bias tempco up to {np.degrees(np.max(np.abs(k))):.3g} deg/s per K, above "
+                f"{TEMPCO_MAX:g}")
+    return ""
+
+
 RANGES = {"earth_rate": earth_rate, "latency": latency, "rate_error": rate_error,
           "scale_nonlinearity": scale_nonlinearity, "axis_wobble": axis_wobble,
-          "g_sensitivity": g_sensitivity}
+          "g_sensitivity": g_sensitivity, "temperature": temperature}
 """Effect -> its range check; effects not listed accept any fitted value."""
 
 

@@ -5,8 +5,9 @@ the table is the fitted axis u_j = v_j / |v_j| completed by an arbitrary azimuth
 the table's heading carry their own per-position heading or phase). The noise-free expected
 series is built in the simulator's order (docs/simulator.md) with each model extension's `apply`,
 which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
-projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift; one
-bias per sensor, the mean of the data minus the rest) -> output (saturation, as an expectation).
+projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift,
+temperature at the recorded temperature; one bias per sensor, the mean of the data minus the
+rest) -> output (saturation, as an expectation).
 """
 
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ import numpy as np
 from station.model import sensing
 
 ORDER = ("rate_error", "axis_wobble", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
-         *sensing.OUTPUT)
+         "temperature", *sensing.OUTPUT)
 """Names of the model extensions in the order the twin applies them: the motion, then the sensor
 output chain's (station.model.sensing)."""
 
@@ -81,6 +82,9 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
     sensor = {name: extensions[name].params(fitted[name]) for name in active
               if stage[name] in ("sensed", "offset")}
     z = sensing.sensed(s, data.t, sensor) + sensing.offsets(data.t_session, rate, sensor)
+    for name in active:
+        if stage[name] == "temperature":
+            z = z + extensions[name].apply(ctx, fitted[name])
     b = (data.y - z).mean((0, 1))
     z = mu = z + b
     for name in active:

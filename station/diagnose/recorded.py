@@ -52,7 +52,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.files.session import nominal_layout
-from station.reduce.rotary import position_spins, position_windows
+from station.reduce.rotary import position_spins, position_windows, rotary_channels
 from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
 
 RAMP_BAND = (0.1, 0.9)
@@ -67,20 +67,24 @@ def is_rotary(events) -> bool:
 
 
 def arrays(session, stream: str = "imu") -> dict:
-    """The grid of a recorded rotary session: counts (n, k, m), lsb (m,), fs, times (n, k),
-    rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None; see the module
-    docstring for what is cut."""
+    """The grid of a recorded rotary session: counts (n, k, m) and lsb (m,) of the gyros
+    (`station.reduce.rotary.rotary_channels`), fs, times (n, k), rate (n, k), c, angle (n, k),
+    windows (name -> (2,)), a_nominal or None, temperature (n, k) in K (the stream's first
+    channel in K) or None; see the module docstring for what is cut."""
     events, table = session.events(), _States(session.table())
     clock = session.stream(stream, columns=("seq", "device_time", "host_time"))
     stream_windows = StreamWindows(session, stream, events, clock)
     t, spec = stream_windows.t, clock.spec
     fs = spec.rate_hz
+    gyros = rotary_channels(session, stream)
+    kelvin = [i for i, unit in enumerate(spec.units) if unit == "K"]
+    lsb = 1.0 / np.asarray(spec.counts_per_unit, float)
     pos = {}
     for j, p in _spans(session.path, events).items():
         # the position's own stretch, read from the file: everything below is local to it
         index, counts = stream_windows.read(p["s0"], p["done"])
         tj, seq = t[index], clock.seq[index]
-        y = counts / np.asarray(spec.counts_per_unit)
+        y = counts[:, gyros] * lsb[gyros]
         _complete(tj, seq, fs, p["s0"], p["r1"], j)
         p.update(_ramps(tj, y, p, j))
         _complete(tj, seq, fs, p["s0"], p["te"], j)
@@ -106,10 +110,11 @@ def arrays(session, stream: str = "imu") -> dict:
     angle = np.stack([a0 + c * f * _swept(tj, p)
                       for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors,
                                                    strict=True)])
-    return {"counts": counts, "lsb": 1.0 / np.asarray(spec.counts_per_unit),
+    return {"counts": counts[..., gyros], "lsb": lsb[gyros],
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": np.array([sd for _, sd in factors]),
-            "a_nominal": nominal_layout(session.metadata, len(spec.channels))}
+            "a_nominal": nominal_layout(session.metadata, len(gyros)),
+            "temperature": counts[..., kelvin[0]] * lsb[kelvin[0]] if kelvin else None}
 
 
 def _stretches(idx) -> list:

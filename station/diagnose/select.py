@@ -98,10 +98,13 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
 
 def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int = 3,
              candidates=tuple(EXTENSIONS), site=None, progress=None) -> Diagnosis:
-    """Run the workflow on a session (station.diagnose.data.RotaryData); `site` gives what the
+    """Run the workflow on a session (station.diagnose.data.RotaryData); candidates the session
+    cannot show (an extension's `available(data)` False) are not offered; `site` gives what the
     physical ranges need (station.diagnose.plausibility.Site; default: latitude unknown);
     `progress` as `greedy`'s."""
     site = site or plausibility.Site()
+    candidates = tuple(c for c in candidates
+                       if getattr(EXTENSIONS[c], "available", lambda d: True)(data))
     result = greedy(model.nominal(data), candidates,
                     lambda current, names: model.fit(data, list(names), current, iterations),
                     lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,

@@ -81,6 +81,10 @@ NPZ_KEYS = {"y": 3, "lsb": None, "fs": 0, "t0": 1, "rate_cmd": 1, "c_cmd": 0, "s
             "seg_spinup": 1, "seg_settle": 1, "seg_rotating": 1, "seg_spindown": 1,
             "a_nominal": 2}
 """Required keys of a rotary array file and their number of dimensions (None: 0 or 1)."""
+OPTIONAL_NPZ_KEYS = ("angle", "temperature")
+"""Optional arrays of a rotary array file: the table's reported angle ((k,) or (n, k), rad) and
+the unit's recorded temperature ((n, k), K; read by `station diagnose`, not by `station import`,
+which names it among the arrays it leaves out)."""
 
 
 @dataclass(frozen=True)
@@ -263,7 +267,8 @@ def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
         raise CalibrationInputError(f"{path} lacks the arrays {missing}.",
                                     "Give a rotary array file (docs/simulator.md).")
     with np.load(path, allow_pickle=False) as f:
-        arrays = {key: f[key] for key in [*NPZ_KEYS, *(["angle"] if "angle" in headers else [])]}
+        arrays = {key: f[key] for key in [*NPZ_KEYS, *(k for k in OPTIONAL_NPZ_KEYS
+                                                         if k in headers)]}
     for key, ndim in NPZ_KEYS.items():
         a = arrays[key]
         dims_ok = a.ndim <= 1 if ndim is None else a.ndim == ndim
@@ -277,13 +282,16 @@ def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
                                     "y holds integer counts, (positions, samples, sensors).")
     n, k, m = y.shape
     shapes = {"lsb": [(), (m,)], "t0": [(n,)], "rate_cmd": [(k,)], "a_nominal": [(3, m)],
-              "angle": [(k,), (n, k)]}
+              "angle": [(k,), (n, k)], "temperature": [(n, k)]}
     for key, allowed in shapes.items():
         if key in arrays and arrays[key].shape not in allowed:
             raise CalibrationInputError(f"{path}: {key} has shape {arrays[key].shape}, expected "
                                         f"{' or '.join(map(str, allowed))}.", "Check the file.")
-    if "angle" in arrays and not np.all(np.isfinite(arrays["angle"])):
-        raise CalibrationInputError(f"{path}: angle holds NaN or infinite values.", "Check it.")
+    for key in OPTIONAL_NPZ_KEYS:
+        if key in arrays and (arrays[key].dtype.kind not in "iuf"
+                              or not np.all(np.isfinite(arrays[key]))):
+            raise CalibrationInputError(f"{path}: {key} holds NaN, infinite or non-numeric "
+                                        "values.", "Check it.")
     if not (np.all(arrays["lsb"] > 0) and arrays["fs"] > 0):
         raise CalibrationInputError(f"{path}: lsb and fs must be positive.", "Check the file.")
     for key in (k for k in NPZ_KEYS if k.startswith("seg_")):

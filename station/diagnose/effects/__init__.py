@@ -12,6 +12,10 @@ Each module exposes
   (station.model.effects), which the twin runs through the one sensor output chain
   (station.model.sensing); at the other stages: `apply(ctx, fitted, x, ...)`, its distortion at
   its stage, through the simulator's own effect function (imported, never copied);
+- at the stage "temperature": `apply(ctx, fitted)`, the (n, k, m) offsets at the session's recorded
+  temperature, added beside the sensor chain's offsets;
+- optionally `available(data) -> bool`: False when the session cannot show the effect (temperature:
+  no recorded temperature); the candidate is then not offered (station.diagnose.select.diagnose);
 - optionally `calibration_options(fitted) -> dict | None`: keyword arguments of
   `station.calibrate` when the extension enters the calibration's own model (rate_error: the
   magnitudes' spread) instead of a correction of the readings M; None: corrected for.
@@ -98,6 +102,7 @@ def _registry() -> dict:
         rate_error,
         saturation,
         scale_nonlinearity,
+        temperature,
     )
 
     return {
@@ -108,6 +113,7 @@ def _registry() -> dict:
         "saturation": saturation,
         "axis_wobble": axis_wobble,
         "latency": latency,
+        "temperature": temperature,
     }
 
 

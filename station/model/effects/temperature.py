@@ -48,6 +48,14 @@ def apply(temperature: float, heating: bool, p: Temperature) -> tuple:
     reached by heating (True) or by cooling (False)."""
     x = float(check_kelvin(temperature)[0]) - p.t_ref
     ratio = 1.0 + np.asarray(p.scale) * x + np.asarray(p.scale2) * x**2
-    offset = np.asarray(p.bias) * x + np.asarray(p.bias2) * x**2 \
-        + (0.5 if heating else -0.5) * np.asarray(p.hysteresis)
+    offset = bias_offsets(x, p) + (0.5 if heating else -0.5) * np.asarray(p.hysteresis)
     return ratio, offset
+
+
+def bias_offsets(x, p: Temperature) -> np.ndarray:
+    """Bias offsets bias_i x + bias2_i x^2 at temperature differences x = T - t_ref (K): a
+    scalar x gives (m,) or a scalar, an array x (...) gives (..., m) or (..., 1); no
+    hysteresis (it needs the direction of each change)."""
+    x = np.asarray(x, float)
+    x = x[..., None] if x.ndim else x
+    return np.asarray(p.bias) * x + np.asarray(p.bias2) * x**2
