@@ -267,8 +267,7 @@ def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
         raise CalibrationInputError(f"{path} lacks the arrays {missing}.",
                                     "Give a rotary array file (docs/simulator.md).")
     with np.load(path, allow_pickle=False) as f:
-        arrays = {key: f[key] for key in [*NPZ_KEYS, *(k for k in OPTIONAL_NPZ_KEYS
-                                                         if k in headers)]}
+        arrays = {key: f[key] for key in [*NPZ_KEYS, *optional_arrays(headers)]}
     for key, ndim in NPZ_KEYS.items():
         a = arrays[key]
         dims_ok = a.ndim <= 1 if ndim is None else a.ndim == ndim
@@ -302,12 +301,18 @@ def read_npz(path, max_bytes: int = MAX_BYTES) -> dict:
     return arrays
 
 
+def optional_arrays(headers: dict) -> list:
+    """The OPTIONAL_NPZ_KEYS an .npz holds as arrays (headers: `_npz_headers`); one that is a
+    single number or a string (a `temperature = 21.5` tag) is metadata (`npz_metadata`)."""
+    return [k for k in OPTIONAL_NPZ_KEYS if k in headers and len(headers[k][0]) >= 1]
+
+
 def npz_metadata(path, max_bytes: int = MAX_BYTES) -> tuple:
     """({name: value}, notes) of the arrays of an .npz that are not rotary data: fixed-width
     strings (as a string or a list of them) and single numbers are kept, loaded without pickle;
     other numeric arrays are named in the notes and left out."""
     headers = _npz_headers(path, max_bytes)
-    names = sorted(set(headers) - set(NPZ_KEYS) - {"angle"})
+    names = sorted(set(headers) - set(NPZ_KEYS) - set(optional_arrays(headers)))
     kept, notes = {}, []
     with np.load(path, allow_pickle=False) as f:
         for name in names:
