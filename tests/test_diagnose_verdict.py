@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from station.diagnose import diagnose, goodness, plausibility
+from station.diagnose import diagnose, gap, goodness, plausibility
 from station.diagnose.effects import EXTENSIONS, Fitted
 from station.model.earth import OMEGA_EARTH
 
@@ -29,6 +29,23 @@ def test_the_fit_test_holds_its_family_wise_level_under_white_noise():
     # Bonferroni keeps the family-wise rate at or below alpha (here independent: 1-(1-a/4)^4)
     assert alarms <= binom.isf(1e-4, trials, alpha)
     assert alarms >= binom.ppf(1e-4, trials, 1 - (1 - alpha / 4) ** 4)
+
+
+@pytest.mark.parametrize("turns", [1, 2, 3.7])
+def test_the_harmonic_coefficients_of_white_noise_are_independent_and_blind_to_the_level(turns):
+    """Over one turn the half-way waves overlap each other and the level (sin(theta / 2) is
+    0.9 of a constant): the harmonics statistic must still be a mean of independent N(0, 1)
+    squares, so that its chi2(12 n m) law holds, and a level offset (the `averaged`
+    statistic's) must not enter it."""
+    theta = np.linspace(0, 2 * np.pi * turns, round(200 * turns), endpoint=False)
+    basis = gap.harmonic_basis(theta)
+    draws = np.random.default_rng(4).standard_normal((20000, theta.size))
+    coef = draws @ basis.T
+    q = basis.shape[0]
+    # sample covariance of 20000 draws: each entry within 5 standard errors (1 / sqrt(20000)
+    # off the diagonal, sqrt(2 / 20000) on it) of the identity
+    assert np.all(np.abs(np.cov(coef.T) - np.eye(q)) < 5 * np.sqrt(2 / 20000))
+    assert np.allclose(basis @ np.full(theta.size, 3.0), 0, atol=1e-9)
 
 
 def test_an_inflated_gap_fails_and_is_named_first():

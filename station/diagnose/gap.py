@@ -7,7 +7,10 @@ to within the white noise" (sigma from the static windows):
   orientation: the Earth rate, warm-up, bias walk).
 - `trend`: slopes within the static and the rotating windows.
 - `harmonics`: Fourier coefficients of the rotating windows (whole revolutions) at 1, 2 and 3
-  times the table rate and half-way between (0.5, 1.5, 2.5).
+  times the table rate and half-way between (0.5, 1.5, 2.5), on a basis made orthonormal and
+  free of the window's level (`harmonic_basis`): over few revolutions the half-way waves overlap
+  each other and the level, and the level carries the fitted M's static noise (the `averaged`
+  statistic's), so the raw coefficients are neither independent nor white.
 - `transients`: mean residuals over spin-up and over spin-down, each over its null sd (white
   noise plus the share of the noise of M_j that the fitted level carries into the ramp).
 - `rails`: the rail pile-up deviance (station.diagnose.rails) per sensor and sign that holds the
@@ -31,6 +34,17 @@ def _slopes(r, t, sigma):
     return np.einsum("k,nkm->nm", tc, r) / (sigma * np.sqrt(np.sum(tc**2)))
 
 
+def harmonic_basis(theta: np.ndarray) -> np.ndarray:
+    """(2 len(HARMONICS), K) orthonormal rows spanning cos(h theta), sin(h theta) net of the
+    constant, in that order (Gram-Schmidt by QR: row i is the part of wave i that the constant
+    and the waves before it do not hold). White noise of unit variance projects onto them as
+    independent N(0, 1) coefficients whatever the span of theta; a wave the others already hold
+    (sin(theta / 2) over one turn is mostly the level) keeps only its own remainder."""
+    waves = np.concatenate([[np.cos(h * theta), np.sin(h * theta)] for h in HARMONICS])
+    q, _ = np.linalg.qr(np.vstack([np.ones_like(theta), waves]).T)
+    return q[:, 1:].T
+
+
 def features(data, model) -> dict:
     """{statistic: (n, q, m) normalised residual features (N(0, 1) under white noise)} of the
     statistics built from features (all but `averaged`'s calibration chi2 and `rails`):
@@ -48,8 +62,7 @@ def features(data, model) -> dict:
         sl = slice(r0, data.rot_stop[j])
         rj, theta = r[j, sl], data.angle[j, sl] - data.angle[j, r0]
         slopes.append(_slopes(rj[None], data.t[sl], sig)[0])
-        basis = np.concatenate([[np.cos(h * theta), np.sin(h * theta)] for h in HARMONICS])
-        coef.append((basis @ rj) * np.sqrt(2 / theta.size) / sig)
+        coef.append(harmonic_basis(theta) @ rj / sig)
     trend = np.stack([_slopes(r[:, s0:s1], data.t[s0:s1], sig), np.array(slopes)], 1)
     trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig / np.sqrt(1 + _level_noise(data, a, z))
              for a, z in (data.windows["spinup"], data.windows["spindown"])]
