@@ -48,11 +48,12 @@ Earth rate (7.29e-5 rad/s) is hidden on a gyro 10 x quieter (interval means 1e-5
 REAL = [ROOT.parent / "shared" / "data" / "real", Path("/work/shared/data/real")]
 
 
-def session(case: str, seed: int):
-    """(StaticData, truth) of one simulated free-static session hiding `case`."""
+def session(case: str, seed: int, poses: int = 20, still: float = 4.0, move: float = 2.0):
+    """(StaticData, truth) of one simulated free-static session hiding `case`: `poses` still
+    intervals of `still` s, turns of `move` s between them."""
     acc_fx, gyro_fx, sigma = CASES[case]
     unit = accelerometer_triad(np.random.default_rng(seed), fs=FS)
-    sim = simulate_static(unit, 20, effects=parse_all(list(acc_fx)))
+    sim = simulate_static(unit, poses, still, move, effects=parse_all(list(acc_fx)))
     acc = sim.arrays["y"][0] * sim.arrays["lsb"]
     gyro = static_gyro(sim.truth, len(acc), np.random.default_rng(seed + 1000), sigma=sigma,
                        effects=parse_all(list(gyro_fx)))
@@ -138,6 +139,36 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
     return out
 
 
+SPEED = {"poses": 40, "still": 12.0, "move": 3.0}
+"""The speed session of issue 21: 40 poses in 10 min at 100 Hz, accelerometer triad + gyro."""
+
+
+SPEED_CASES = ("none", "bias_drift", "g_sensitivity")
+"""Effect-free, and hiding effects that the loop names in one or more steps."""
+
+
+def speed(seeds: int) -> dict:
+    """Wall time of `diagnose_static` (every candidate) on 10-minute sessions of 40 poses, 6
+    channels at 100 Hz, beside its baseline in the same run: the calibration without effects
+    that the diagnosis starts from (`station.diagnose.static.base`), best of 3."""
+    runs = []
+    for case in SPEED_CASES:
+        for s in range(seeds):
+            data, _ = session(case, 300 + s, **SPEED)
+            base_s = min(_timed(base, data)[1] for _ in range(3))
+            result, seconds = _timed(diagnose_static, data)
+            runs.append({"case": case, "samples": int(data.x.shape[0]), "channels": data.c,
+                         "diagnose_s": seconds, "baseline_s": base_s, "named": result.effects})
+    return {**SPEED, "fs": FS, "limit_s": 60.0, "runs": runs}
+
+
+def _timed(f, *args):
+    """(f(*args), wall seconds)."""
+    start = time.perf_counter()
+    out = f(*args)
+    return out, time.perf_counter() - start
+
+
 def recordings(root: Path, tmp: Path) -> dict:
     """{unit: session file} of the three real recordings imported into sessions."""
     xs = root / "imutk-xsens"
@@ -201,6 +232,13 @@ def show(out: dict) -> None:
               f"{r['sessions']}  {r['seconds_median']:.1f} s{extra}  {r['verdicts']}")
     for case, r in out.get("leave_one_effect_out", {}).items():
         print(f"left out {case:20s} {r['verdicts']}")
+    if "speed" in out:
+        sp = out["speed"]
+        for r in sp["runs"]:
+            print(f"speed, {r['case']}: {sp['poses']} poses, {r['samples']} samples x "
+                  f"{r['channels']} channels: diagnose {r['diagnose_s']:.1f} s (limit "
+                  f"{sp['limit_s']:.0f} s), baseline "
+                  f"calibration {r['baseline_s']:.2f} s, named {r['named']}")
     for unit, r in (out.get("real") or {}).items():
         print(f"\n{unit}: {r['effects']}  ({r['intervals']} intervals, {r['seconds']:.1f} s, "
               f"within gap {r['white_noise_within']:.2f})")
@@ -222,8 +260,12 @@ def main() -> None:
     parser.add_argument("--no-real", action="store_true", help="skip the real recordings")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="also hide each effect AND remove it from the candidates")
+    parser.add_argument("--speed", action="store_true",
+                        help="also time the diagnosis of 10-minute sessions of 40 poses")
     args = parser.parse_args()
     out = {"acceptance": acceptance(args.seeds, args.cases)}
+    if args.speed:
+        out["speed"] = speed(args.seeds)
     if args.leave_one_out:
         out["leave_one_effect_out"] = acceptance(
             args.seeds, [c for c in args.cases if c not in ("none", "earth_rate")], True)
