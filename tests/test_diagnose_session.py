@@ -133,9 +133,12 @@ def test_cli_diagnoses_an_h5_session(clean):
     assert doc["effects"] == [] and doc["positions"] == POSITIONS
 
 
-@pytest.mark.parametrize("effect", ["none", "earth_rate"])
+@pytest.mark.parametrize("effect", ["none", "earth_rate", "latency=delay=1e-4"])
 def test_imported_npz_gives_the_same_effects(tmp_path, effect):
-    # the Earth's own rate (2.7 x it would be implausible), on a gyro 2.7 x quieter (and finer)
+    """The Earth's own rate (2.7 x it would be implausible), on a gyro 2.7 x quieter (and finer);
+    a delay common to all sensors, which the IMU's own timing of the ramps would absorb: the
+    imported session's table states are stamped at the sample instants, so they time the ramps
+    (metadata table_timing)."""
     name, params = parse(effect)
     quiet = 2e-4 / OMEGA_EARTH
     unit = gyro_array(np.random.default_rng(7), A_MODEL[:, :6], fs=100.0,

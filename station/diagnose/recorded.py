@@ -31,7 +31,11 @@ projected on the position's Eq. (18) reading, f(t) = (y - static mean) . D / |D|
 rotating minus the static mean, run from 0 to 1 on the spin-up; a straight line through the
 samples with 0.1 < f < 0.9 gives the ramp's start and slope (likewise down from 1 on the
 spin-down). A latency common to all sensors is absorbed there (it is not identifiable against
-the table's timing); latencies differing between sensors remain. The rate profile is the
+the table's timing); latencies differing between sensors remain. A session whose table states
+are stamped at the IMU's sample instants (metadata `table_timing` "sample": an imported array
+file, `station.files.importers.import_npz`) is timed by the table instead: the same line through
+the table's reported rate over c, and the rate and angle are the table's own at each sample, so
+a common latency stays in the data, as in the array file. The rate profile is the
 commanded rate c (the table's recorded set point) times that trapezoid; the table angle is the
 recorded angle at rest before the spin-up (exact: a still table's angle does not depend on the
 reading's stamp) plus the integral of that rate profile times the position's rate factor: the
@@ -79,14 +83,17 @@ def arrays(session, stream: str = "imu") -> dict:
     gyros = rotary_channels(session, stream)
     kelvin = [i for i, unit in enumerate(spec.units) if unit == "K"]
     lsb = 1.0 / np.asarray(spec.counts_per_unit, float)
+    spans = _spans(session.path, events)
+    c = _commanded(session.path, table, spans.values())
+    by_table = session.metadata.get("table_timing") == "sample"
     pos = {}
-    for j, p in _spans(session.path, events).items():
+    for j, p in spans.items():
         # the position's own stretch, read from the file: everything below is local to it
         index, counts = stream_windows.read(p["s0"], p["done"])
         tj, seq = t[index], clock.seq[index]
         y = counts[:, gyros] * lsb[gyros]
         _complete(tj, seq, fs, p["s0"], p["r1"], j)
-        p.update(_ramps(tj, y, p, j))
+        p.update(_table_ramps(table, c, p, j) if by_table else _ramps(tj, y, p, j))
         _complete(tj, seq, fs, p["s0"], p["te"], j)
         pos[j] = p
     _check_rate(clock, stream_windows, fs, pos)
@@ -100,21 +107,44 @@ def arrays(session, stream: str = "imu") -> dict:
             raise _lossy(j, t[idx[0]], t[idx[-1]], max(lost, len(idx) - len(got)))
         row[:] = row_counts
     times = t[index]
-    c = _commanded(session.path, table, pos.values())
+    motion = _table_motion if by_table else _imu_timed_motion
+    rate, angle, factors_sigma = motion(session.path, table, c, times, pos)
+    return {"counts": counts[..., gyros], "lsb": lsb[gyros],
+            "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
+            "rate_factors_sigma": factors_sigma,
+            "a_nominal": nominal_layout(session.metadata, len(gyros)),
+            "temperature": counts[..., kelvin[0]] * lsb[kelvin[0]] if kelvin else None}
+
+
+def _imu_timed_motion(path, table, c: float, times, pos: dict) -> tuple:
+    """(rate, angle (n, k), rate factors' 1-sigma (n,)): c times the IMU-timed trapezoid, and
+    the table's angle at rest before each spin-up (exact: a still table's angle does not depend
+    on the reading's time stamp) plus c times the position's rate factor times its integral."""
     rate = np.stack([c * _fraction(tj, p) for tj, p in zip(times, pos.values(), strict=True)])
-    # the table's angle at rest before each spin-up (exact: a still table's angle does not depend
-    # on the reading's time stamp)
-    start = [_rest_angle(session.path, table, p["s0"], p["s1"], j, "static window")
+    start = [_rest_angle(path, table, p["s0"], p["s1"], j, "static window")
              for j, p in pos.items()]
     factors = [_rate_factor(table, p, c, a0) for p, a0 in zip(pos.values(), start, strict=True)]
     angle = np.stack([a0 + c * f * _swept(tj, p)
                       for tj, p, a0, (f, _) in zip(times, pos.values(), start, factors,
                                                    strict=True)])
-    return {"counts": counts[..., gyros], "lsb": lsb[gyros],
-            "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
-            "rate_factors_sigma": np.array([sd for _, sd in factors]),
-            "a_nominal": nominal_layout(session.metadata, len(gyros)),
-            "temperature": counts[..., kelvin[0]] * lsb[kelvin[0]] if kelvin else None}
+    return rate, angle, np.array([sd for _, sd in factors])
+
+
+def _table_motion(path, table, c: float, times, pos: dict) -> tuple:
+    """(rate, angle (n, k), zeros (n,)): the table's reported rate and angle at each sample, its
+    states being stamped at the sample instants (an exact angle array: its rate factors have no
+    timing error)."""
+    rate, angle = np.empty(times.shape), np.empty(times.shape)
+    for row, (tj, (j, p)) in enumerate(zip(times, pos.items(), strict=True)):
+        rows = table.rows(p["s0"], p["done"])
+        if rows.size < 2:
+            raise CalibrationInputError(
+                f"the session {path} holds {rows.size} table state(s) in position {j + 1}, "
+                "though its metadata says they are stamped at every sample.",
+                "Import the array file again (station import npz).")
+        rate[row] = np.interp(tj, table.time[rows], table.rate[rows])
+        angle[row] = np.interp(tj, table.time[rows], table.angle[rows])
+    return rate, angle, np.zeros(len(pos))
 
 
 def _stretches(idx) -> list:
@@ -174,6 +204,18 @@ def _ramps(t, y, p, j) -> dict:
     sd_scale = 0.5 * (1 / up + 1 / down) * np.sqrt(var_means @ d**2) / (d @ d)
     return {"ts": ts, "up": up, "te": te, "down": down, "turning": half_down - half_up,
             "turning_sd": float(np.sqrt(sd_up**2 + sd_down**2 + sd_scale**2))}
+
+
+def _table_ramps(table, c: float, p, j) -> dict:
+    """`_ramps` from the table's reported rate over c, for states stamped at the sample
+    instants (an exact profile: the lines' 1-sigma is their scatter, 0 for a trapezoid)."""
+    rows = table.rows(p["s1"], p["done"])
+    tt, f = table.time[rows], table.rate[rows] / c
+    ts, up, half_up, sd_up = _line(tt, f, p["s1"], p["r0"], j, "spin-up of the table")
+    te, down, half_down, sd_down = _line(tt, 1 - f, p["r1"], p["done"], j,
+                                         "spin-down of the table")
+    return {"ts": ts, "up": up, "te": te, "down": down, "turning": half_down - half_up,
+            "turning_sd": float(np.hypot(sd_up, sd_down))}
 
 
 def _line(t, f, t0, t1, j, what) -> tuple:
@@ -271,12 +313,13 @@ def _swept(t, p) -> np.ndarray:
 
 
 class _States:
-    """The table states read for windows: `time`, `angle`, `rate_setpoint`, `still` (not moving)
-    of every state, and `rows(t0, t1)`, the states whose time lies in [t0, t1] found by
+    """The table states read for windows: `time`, `rate`, `angle`, `rate_setpoint`, `still` (not
+    moving) of every state, and `rows(t0, t1)`, the states whose time lies in [t0, t1] found by
     `np.searchsorted` (`station.reduce.windows.window_ranges`), not by masks over the table."""
 
     def __init__(self, table):
         self.time, self.angle, self.rate_setpoint = table.time, table.angle, table.rate_setpoint
+        self.rate = table.rate
         self.still = ~table.flag("moving")
         self._runs = increasing_runs(table.time)
 

@@ -244,6 +244,7 @@ def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX
     metadata = {"protocol": "rotary", "unit_serial": unit_serial,
                 "a_nominal": arrays["a_nominal"].tolist(),
                 "settings": {"rate": float(arrays["c_cmd"])},
+                "table_timing": "sample",  # one table state at each sample's instant, exact
                 "import": {"format": "npz", "source": str(path), "sha256": _sha256(path),
                            "metadata": extra, "notes": notes}}
     _log_notes(notes)
