@@ -34,6 +34,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
+from station.files.session.torn import verified_rows
 from station.solve.calibrate import CalibrationResult
 
 _TABLE_KINDS = {**{c: ("f", ()) for c in TABLE_COLUMNS}, "status": ("u", ())}
@@ -300,8 +301,9 @@ def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None)
     read over the rows [start, stop) of their common length (stop None: to that length); `rows`
     the file row of each value read, None when every row of [start, stop) was (no chunk damaged,
     the common case). A chunk that does not read back (its fletcher32 checksum fails) is a
-    SessionFormatError, or with `drop_damaged` its rows are left out of every column read, as
-    samples the link lost (the sequence numbers show the gap; `station.files.session.check` names
+    SessionFormatError, or with `drop_damaged` its rows are left out of every column read (but
+    those its old checksum vouches for after a rewrite cut by a kill, `torn`), as samples the
+    link lost (the sequence numbers show the gap; `station.files.session.check` names
     the positions they belong to)."""
     for ds in datasets.values():
         ds.refresh()
@@ -331,7 +333,12 @@ def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
         try:
             values[a - start:b - start] = ds[a:b]
         except OSError:
-            intact[a - start:b - start] = False
+            # a rewrite cut by a kill keeps the rows its old checksum vouches for (`torn`)
+            kept = verified_rows(ds, first)
+            good = min(b, first + (0 if kept is None else len(kept)))
+            if good > a:
+                values[a - start:good - start] = kept[a - first:good - first]
+            intact[max(good, a) - start:b - start] = False
     return values, intact
 
 

@@ -48,6 +48,7 @@ from station.files.session.format import (
     last_completed_position,
 )
 from station.files.session.reader import Session, read_events, read_spec
+from station.files.session.torn import repair_tail
 from station.solve.calibrate import CalibrationResult
 
 
@@ -123,7 +124,10 @@ class SessionWriter:
         clear_open_flags(path)
         f = _reopen(path)
         try:
+            torn = _repair_torn_tails(f)
             dropped = _truncate_to_common_length(f)
+            for name, rows in torn.items():
+                dropped[name] = max(dropped.get(name, 0), rows)
             f.swmr_mode = True
         except BaseException:
             f.close()
@@ -451,6 +455,17 @@ def _extend(ds, values) -> None:
     n = ds.shape[0]
     ds.resize(n + len(values), axis=0)
     ds[n:] = values
+
+
+def _repair_torn_tails(f) -> dict:
+    """Rewrite the last chunks that a kill cut short (`torn.repair_tail`) in every grown column,
+    so that appending can read them again; returns the rows dropped per group, where any were."""
+    dropped = {}
+    for name, g in [*f["streams"].items(), ("events", f["events"])]:
+        lost = [repair_tail(g[c]) for c in _grown(name)]
+        if any(lost):
+            dropped[name] = max(lost)
+    return dropped
 
 
 def _truncate_to_common_length(f) -> dict:

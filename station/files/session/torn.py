@@ -1,0 +1,112 @@
+"""Chunks whose rewrite a kill cut short: the rows their old checksum still vouches for.
+
+A session's columns grow by appends, and HDF5 rewrites the last chunk of a column in place on
+every flush: the chunk's data first, then the 4-byte fletcher32 checksum after it (HDF5 filter
+H5Z_FILTER_FLETCHER32; the checksum is H5_checksum_fletcher32 over the chunk's bytes taken as
+big-endian 16-bit words, sums with end-around carry, i.e. modulo 65535). A writer killed inside
+that write leaves the new rows (some of them) beside the OLD checksum, and the chunk no longer
+reads back: every row of it, the durable ones flushed before included, would be lost.
+
+The old checksum was computed over the chunk as it stood after the last complete flush: its first
+r rows and the fill value (zero bytes) after them. The rows the chunk still holds before r are the
+same bytes (an append never rewrites earlier rows with other values), so the prefix r whose
+checksum equals the stored one is found from prefix sums of the current bytes (one pass) and its
+rows are intact; the rows after it are the interrupted flush's, never reported durable, and are
+dropped. A damaged chunk (a flipped or zeroed block) matches no prefix, except by a chance
+collision of the 32-bit checksum, and stays unreadable.
+"""
+
+import numpy as np
+
+MODULUS = 65535
+
+
+def verified_rows(ds, start: int) -> np.ndarray | None:
+    """The rows [start, start + r) of the chunk of `ds` that begins at row `start` which its
+    stored checksum still vouches for (largest such r within the dataset's extent), or None when
+    the chunk is not a fletcher32-only chunk with a zero fill, or no prefix matches."""
+    if not _plain_fletcher32(ds):
+        return None
+    offset = (start,) + (0,) * (ds.ndim - 1)
+    try:
+        mask, raw = ds.id.read_direct_chunk(offset)
+    except (OSError, KeyError, ValueError):
+        return None
+    row_bytes = ds.dtype.itemsize * int(np.prod(ds.chunks[1:], dtype=np.int64))
+    data = np.frombuffer(raw, np.uint8)[:-4]
+    if mask != 0 or len(raw) < 4 or data.size != row_bytes * ds.chunks[0]:
+        return None
+    rows = min(ds.chunks[0], ds.shape[0] - start)
+    sums = _prefix_sums(data, row_bytes, rows)
+    stored = int.from_bytes(raw[-4:], "little")
+    wanted = {_reduced(stored), _reduced(int.from_bytes(raw[-4:], "big"))}
+    hits = [r for r in range(rows, -1, -1) if sums[r] in wanted]
+    if not hits:
+        return None
+    r = hits[0]
+    return data[:r * row_bytes].view(ds.dtype).reshape(r, *ds.shape[1:]).copy()
+
+
+def torn_tail(ds, start: int) -> bool:
+    """Whether the chunk of `ds` at row `start`, one that does not read back, is a rewrite cut by
+    a kill: one of the column's last two chunks (a flush rewrites the last and may fill it and
+    start the next) whose old checksum still vouches for a prefix of its rows."""
+    last = (ds.shape[0] - 1) // ds.chunks[0] * ds.chunks[0]
+    return start >= last - ds.chunks[0] and verified_rows(ds, start) is not None
+
+
+def repair_tail(ds) -> int:
+    """Before appending to `ds` again: when one of its last two chunks does not read back, cut
+    the column at that chunk's start and write back the rows its checksum vouches for (with a
+    fresh checksum); returns the rows dropped (0 when the tail reads back)."""
+    size, n = ds.chunks[0], ds.shape[0]
+    last = (n - 1) // size * size if n else 0
+    torn = [start for start in (last - size, last) if start >= 0 and not _reads(ds, start, n)]
+    if not torn:
+        return 0
+    start = torn[0]
+    rows = verified_rows(ds, start)
+    kept = 0 if rows is None else len(rows)
+    ds.resize(start, axis=0)
+    if kept:
+        ds.resize(start + kept, axis=0)
+        ds[start:] = rows
+    return n - start - kept
+
+
+def _reads(ds, start: int, n: int) -> bool:
+    """Whether the rows of the chunk at `start` read back (their checksum holds)."""
+    try:
+        ds[start:min(start + ds.chunks[0], n)]
+    except OSError:
+        return False
+    return True
+
+
+def _plain_fletcher32(ds) -> bool:
+    """Chunked, fletcher32 the only filter, a zero fill value: the layout `verified_rows` reads."""
+    filters = ds.id.get_create_plist().get_nfilters()
+    fill = np.asarray(ds.fillvalue, ds.dtype).reshape(1)
+    return (ds.chunks is not None and ds.fletcher32 and filters == 1
+            and not np.any(fill.view(np.uint8)))
+
+
+def _prefix_sums(data: np.ndarray, row_bytes: int, rows: int) -> list:
+    """[(sum2, sum1) mod 65535 of the chunk's first r rows followed by zero bytes, r = 0..rows].
+
+    Byte j lies in word j // 2, high byte when j is even: it adds c_j b_j to sum1 (c_j = 256 or
+    1) and (W - j // 2) c_j b_j to sum2, W the chunk's number of words (each word's value enters
+    sum2 once per word from it to the end)."""
+    b = data.astype(np.int64)
+    j = np.arange(b.size)
+    words = (b.size + 1) // 2
+    value = np.where(j % 2 == 0, 256, 1) * b
+    s1 = np.concatenate([[0], np.cumsum(value)])
+    s2 = np.concatenate([[0], np.cumsum((words - j // 2) * value)])
+    ends = np.arange(rows + 1) * row_bytes
+    return list(zip((s2[ends] % MODULUS).tolist(), (s1[ends] % MODULUS).tolist(), strict=True))
+
+
+def _reduced(checksum: int) -> tuple:
+    """(sum2, sum1) of a stored checksum, modulo 65535 (0xffff and 0 are the same residue)."""
+    return (checksum >> 16) % MODULUS, (checksum & 0xFFFF) % MODULUS
