@@ -13,7 +13,8 @@ same bytes (an append never rewrites earlier rows with other values), so the pre
 checksum equals the stored one is found from prefix sums of the current bytes (one pass) and its
 rows are intact; the rows after it are the interrupted flush's, never reported durable, and are
 dropped. A damaged chunk (a flipped or zeroed block) matches no prefix, except by a chance
-collision of the 32-bit checksum, and stays unreadable.
+collision of the 32-bit checksum, and stays unreadable; a zero checksum (a zeroed chunk, or bytes
+read past a truncated file's end) vouches for nothing.
 """
 
 import numpy as np
@@ -39,7 +40,9 @@ def verified_rows(ds, start: int) -> np.ndarray | None:
     rows = min(ds.chunks[0], ds.shape[0] - start)
     sums = _prefix_sums(data, row_bytes, rows)
     stored = int.from_bytes(raw[-4:], "little")
-    wanted = {_reduced(stored), _reduced(int.from_bytes(raw[-4:], "big"))}
+    # a zero checksum is that of zero bytes: a zeroed chunk, or one read past a truncated
+    # file's end, would vouch for rows of zeros; it vouches for nothing
+    wanted = {_reduced(stored), _reduced(int.from_bytes(raw[-4:], "big"))} - {(0, 0)}
     hits = [r for r in range(rows, -1, -1) if sums[r] in wanted]
     if not hits:
         return None
