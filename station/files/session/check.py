@@ -22,7 +22,7 @@ import sys
 import numpy as np
 
 from station.errors import SessionFormatError
-from station.files.session.torn import torn_tail
+from station.files.session.torn import tail_rows
 
 BASE_LIMIT = 5.0
 """Seconds any file may take to be read through, plus `SECONDS_PER_BYTE` of its size."""
@@ -158,7 +158,7 @@ def _dataset(ds, problems: list) -> list:
         try:
             ds[start:start + step]
         except Exception as e:  # noqa: BLE001
-            if torn_tail(ds, start):  # a flush cut by a kill: the durable rows read (`torn`)
+            if tail_rows(ds, start) is not None:  # a flush cut by a kill (`torn`)
                 continue
             out.append({"dataset": ds.name, "rows": [start, min(start + step, ds.shape[0])],
                         "error": str(e)})

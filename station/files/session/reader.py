@@ -34,7 +34,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
-from station.files.session.torn import verified_rows
+from station.files.session.torn import tail_rows
 from station.solve.calibrate import CalibrationResult
 
 _TABLE_KINDS = {**{c: ("f", ()) for c in TABLE_COLUMNS}, "status": ("u", ())}
@@ -334,7 +334,7 @@ def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
             values[a - start:b - start] = ds[a:b]
         except OSError:
             # a rewrite cut by a kill keeps the rows its old checksum vouches for (`torn`)
-            kept = verified_rows(ds, first)
+            kept = tail_rows(ds, first)
             good = min(b, first + (0 if kept is None else len(kept)))
             if good > a:
                 values[a - start:good - start] = kept[a - first:good - first]

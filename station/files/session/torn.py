@@ -43,28 +43,32 @@ def verified_rows(ds, start: int) -> np.ndarray | None:
     # a zero checksum is that of zero bytes: a zeroed chunk, or one read past a truncated
     # file's end, would vouch for rows of zeros; it vouches for nothing
     wanted = {_reduced(stored), _reduced(int.from_bytes(raw[-4:], "big"))} - {(0, 0)}
-    hits = [r for r in range(rows, -1, -1) if sums[r] in wanted]
-    if not hits:
+    r = next((r for r in range(rows, -1, -1) if sums[r] in wanted), None)
+    if r is None:
         return None
-    r = hits[0]
     return data[:r * row_bytes].view(ds.dtype).reshape(r, *ds.shape[1:]).copy()
 
 
-def torn_tail(ds, start: int) -> bool:
-    """Whether the chunk of `ds` at row `start`, one that does not read back, is a rewrite cut by
-    a kill: one of the column's last two chunks (a flush rewrites the last and may fill it and
-    start the next) whose old checksum still vouches for a prefix of its rows."""
-    last = (ds.shape[0] - 1) // ds.chunks[0] * ds.chunks[0]
-    return start >= last - ds.chunks[0] and verified_rows(ds, start) is not None
+def tail_starts(ds) -> list:
+    """First rows of the column's last two chunks: a flush rewrites the last one, and may fill
+    it and start the next, so only these can be torn by a kill."""
+    size, n = ds.chunks[0], ds.shape[0]
+    last = (n - 1) // size * size if n else 0
+    return [start for start in (last - size, last) if start >= 0]
+
+
+def tail_rows(ds, start: int) -> np.ndarray | None:
+    """`verified_rows` of the chunk at row `start` when it is one of the column's last two (a
+    rewrite cut by a kill), None elsewhere: damage in earlier chunks is never read as a tear."""
+    return verified_rows(ds, start) if start in tail_starts(ds) else None
 
 
 def repair_tail(ds) -> int:
     """Before appending to `ds` again: when one of its last two chunks does not read back, cut
     the column at that chunk's start and write back the rows its checksum vouches for (with a
     fresh checksum); returns the rows dropped (0 when the tail reads back)."""
-    size, n = ds.chunks[0], ds.shape[0]
-    last = (n - 1) // size * size if n else 0
-    torn = [start for start in (last - size, last) if start >= 0 and not _reads(ds, start, n)]
+    n = ds.shape[0]
+    torn = [start for start in tail_starts(ds) if not _reads(ds, start, n)]
     if not torn:
         return 0
     start = torn[0]
