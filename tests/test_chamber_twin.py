@@ -123,7 +123,7 @@ def test_unit_temperature_of_the_past_is_interpolated():
 
 
 def plain_client(twin) -> ModbusTcpClient:
-    client = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=0.5)
+    client = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=5.0)  # a busy host may be slow
     assert client.connect()
     return client
 

@@ -21,7 +21,8 @@ from drivers.twins.table import TableTwin
 from station.sim.table import TablePhysics
 
 MAP = TableRegisterMap.load("table_modbus")
-TIMEOUT, RETRIES = 0.1, 1
+TIMEOUT, RETRIES = 0.5, 1  # long enough for a busy host; the slow fault waits 2.5x
+PATIENT = 5.0  # plain clients of tests that are not about timeouts
 
 
 pytestmark = pytest.mark.usefixtures("quiet_pymodbus")
@@ -150,7 +151,7 @@ def test_little_endian_word_order_round_trips_through_the_twin():
         table.set_rate(-1.25)
         assert physics.state().rate_setpoint == -1.25
         assert table.state().rate_setpoint == -1.25
-        raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=TIMEOUT)
+        raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=PATIENT)
         try:
             words = raw.read_holding_registers(MAP.registers["rate_setpoint"], count=2).registers
         finally:
@@ -160,7 +161,7 @@ def test_little_endian_word_order_round_trips_through_the_twin():
 
 def test_twin_answers_bad_writes_like_a_controller(bench):
     physics, twin, _ = bench
-    raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=TIMEOUT, retries=0)
+    raw = ModbusTcpClient("127.0.0.1", port=twin.port, timeout=PATIENT, retries=0)
     try:
         assert raw.write_register(MAP.registers["rate"], 5).exception_code == 2  # read-only
         assert raw.write_register(MAP.registers["rate_setpoint"], 5).exception_code == 2  # half
