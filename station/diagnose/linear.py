@@ -85,3 +85,29 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
         g = g + np.einsum(f"{sub}mp,{sub}m,m->{out}p", x, rp, w[part]).reshape(-1, p)
     cov = np.linalg.pinv(h)
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)
+
+
+def phase_fit(data, r: np.ndarray, tone, sigma: np.ndarray) -> tuple:
+    """A tone of one amplitude and a free phase per position. tone(phase_deg) -> (n, k, m) its
+    signature at unit amplitude and that phase (for every position); each of the two quadrature
+    signatures (0 and 90 degrees) is reduced to its centred bins and static means as it comes
+    and let go: the tone of any phases is combined from them (a per-position factor commutes
+    with the bins' centring within a position, not with the static means' across positions,
+    which are centred after). Returns (free, phase, lf, static): the per-position fit of the
+    quadrature pair (its h gives the null law), the phases (n,) in radians, the global fit of
+    the amplitude on the tone of those phases, and that tone's static-window means (n, m)."""
+    s0, s1 = data.windows["static"]
+    w = weights(data, sigma)
+    rc = centred(data, r)
+    quadrature = []
+    for deg in (0.0, 90.0):
+        x = tone(deg)
+        quadrature.append((centred_bins(data, x), x[:, s0:s1].mean(1)))
+        del x
+    free = fit_binned(rc, [(b, m - m.mean(0)) for b, m in quadrature], w, "position")
+    phase = np.arctan2(free.theta[:, 1], free.theta[:, 0])
+    c, s = np.cos(phase), np.sin(phase)
+    (b0, m0), (b90, m90) = quadrature
+    bins = c[:, None, None] * b0 + s[:, None, None] * b90
+    means = c[:, None] * m0 + s[:, None] * m90
+    return free, phase, fit_binned(rc, [(bins, means - means.mean(0))], w, "global"), means

@@ -25,15 +25,21 @@ from station.solve.calibrate import CalibrationResult, calibrate
 
 @dataclass(frozen=True)
 class Model:
-    """A fitted model: calibration, extensions {name: Fitted} in the order added, twin output
-    (`prediction`: its rate, mu, z and b; omega and s None)."""
+    """A fitted model: calibration, extensions {name: Fitted} in the order added, the twin's
+    context, and its deviance's parts."""
 
     calibration: CalibrationResult
     fitted: dict
     ctx: twin.Context
-    prediction: twin.Prediction
     chi2: float
     rails: float
+
+    @property
+    def prediction(self) -> twin.Prediction:
+        """The twin's output, made again on each call: several models are held at once (the
+        steps, the best candidate, the one being fitted) and each output is of the session's
+        size, so a model keeps only what makes it."""
+        return twin.predict(self.ctx, self.fitted, EXTENSIONS)
 
     @property
     def names(self) -> tuple:
@@ -66,7 +72,8 @@ def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
     to the twin of `ctx` (except those the calibration models itself), their standard error and
     the options of station.calibrate."""
     inside, options = _in_calibration(fitted)
-    added = twin.predict(ctx, fitted, EXTENSIONS).z - twin.predict(ctx, inside, EXTENSIONS).z
+    added = twin.predict(ctx, fitted, EXTENSIONS).z
+    added -= twin.predict(ctx, inside, EXTENSIONS).z  # one twin output held at a time
     return (data.reduced.M - data.reduce(added).M, noise(data, "saturation" in fitted),
             options)
 
@@ -74,13 +81,10 @@ def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
     """The Model of a calibration and fitted extensions: twin output and deviance."""
     ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
-    pred = twin.predict(ctx, fitted, EXTENSIONS)
+    pred = replace(twin.predict(ctx, fitted, EXTENSIONS), s=None)  # z and mu are read (memory)
     chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
     exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
-    # a model keeps its twin's output (z, mu), not the motion and sensed signal the extensions
-    # were fitted to: several models are held at once, each of the session's size
-    return Model(calibration, dict(fitted), ctx, replace(pred, omega=None, s=None), chi2,
-                 rails.deviance(rails.observed(data), exp))
+    return Model(calibration, dict(fitted), ctx, chi2, rails.deviance(rails.observed(data), exp))
 
 
 def nominal(data) -> Model:
@@ -94,13 +98,20 @@ def fit(data, names, start: Model, iterations: int = 3) -> Model:
     for _ in range(iterations):
         ctx = twin.context(data, cal.a, cal.v, data.sigma)
         for name in names:
-            others = {k: f for k, f in fitted.items() if k != name}
-            pred = twin.predict(ctx, others, EXTENSIONS)
-            fitted[name] = EXTENSIONS[name].fit(ctx, pred, twin.residual(ctx, pred))
+            fitted[name] = _fit_one(ctx, fitted, name)
         fitted = {name: fitted[name] for name in names}
         m_corrected, sigma, options = readings(data, ctx, fitted)
         cal = calibrate(m_corrected, data.c, sigma=sigma, **options)
     return evaluate(data, cal, fitted)
+
+
+def _fit_one(ctx: twin.Context, fitted: dict, name: str):
+    """The extension `name` fitted to the residuals of the twin with the other `fitted` ones
+    (the twin's output lives only while this runs)."""
+    pred = twin.predict(ctx, {k: f for k, f in fitted.items() if k != name}, EXTENSIONS)
+    r = twin.residual(ctx, pred)
+    pred = replace(pred, mu=None, z=None)  # the extensions read the rate and s (memory)
+    return EXTENSIONS[name].fit(ctx, pred, r)
 
 
 def _in_calibration(fitted: dict) -> tuple[dict, dict]:

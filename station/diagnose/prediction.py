@@ -35,12 +35,12 @@ class Context:
 
 @dataclass(frozen=True)
 class Prediction:
-    """The twin's noise-free series: rate (n, k) true table rate, omega (n, k, d), s = a^T omega
-    (n, k, m), mu (n, k, m) the output before clipping, z (n, k, m) the expected output, b (m,)
-    the biases."""
+    """The twin's noise-free series: rate (n, k) true table rate, s = a^T omega (n, k, m) the
+    sensed rate, mu (n, k, m) the output before clipping, z (n, k, m) the expected output, b (m,)
+    the biases. Each (n, k, m) array is of the session's size: a Prediction is made for one use
+    and dropped (station.diagnose.model.Model recomputes its own)."""
 
     rate: np.ndarray
-    omega: np.ndarray
     s: np.ndarray
     mu: np.ndarray
     z: np.ndarray
@@ -79,18 +79,20 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
         if stage[name] == "motion":
             omega = extensions[name].apply(ctx, fitted[name], omega, rate)
     s = omega @ ctx.a
+    del omega  # (n, k, d): no extension reads it once s is made
     sensor = {name: extensions[name].params(fitted[name]) for name in active
               if stage[name] in ("sensed", "offset")}
     z = sensing.sensed(s, data.t, sensor) + sensing.offsets(data.t_session, rate, sensor)
     for name in active:
         if stage[name] == "temperature":
-            z = z + extensions[name].apply(ctx, fitted[name])
-    b = (data.y - z).mean((0, 1))
-    z = mu = z + b
+            z += extensions[name].apply(ctx, fitted[name])
+    b = data.y.mean((0, 1)) - z.mean((0, 1))
+    z += b  # in place: z is this function's own array (the sum above made it)
+    mu = z
     for name in active:
         if stage[name] == "output":
             z = extensions[name].apply(ctx, fitted[name], z)
-    return Prediction(rate, omega, s, mu, z, b)
+    return Prediction(rate, s, mu, z, b)
 
 
 def residual(ctx: Context, prediction: Prediction) -> np.ndarray:

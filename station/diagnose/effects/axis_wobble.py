@@ -29,11 +29,8 @@ def _tone(ctx, rate, phase_deg: float) -> np.ndarray:
 
 def fit(ctx, prediction, r) -> Fitted:
     """beta (degrees) and the phases; see the module docstring."""
-    s0, s90 = _tone(ctx, prediction.rate, 0.0), _tone(ctx, prediction.rate, 90.0)
-    free = linear.fit(ctx.data, r, [s0, s90], ctx.sigma, "position")
-    phase = np.arctan2(free.theta[:, 1], free.theta[:, 0])
-    tone = np.cos(phase)[:, None, None] * s0 + np.sin(phase)[:, None, None] * s90
-    lf = linear.fit(ctx.data, r, [tone], ctx.sigma, "global")
+    free, phase, lf, _ = linear.phase_fit(
+        ctx.data, r, lambda deg: _tone(ctx, prediction.rate, deg), ctx.sigma)
     amp, amp_sigma = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
     n = phase.size
     return Fitted(

@@ -32,14 +32,11 @@ def _tone(ctx, heading_deg: float) -> np.ndarray:
 
 def fit(ctx, prediction, r) -> Fitted:
     """N (horizontal rate), the headings h_j and U; see the module docstring."""
-    s0, s90 = _tone(ctx, 0.0), _tone(ctx, 90.0)
-    free = linear.fit(ctx.data, r, [s0, s90], ctx.sigma, "position")
-    heading = np.arctan2(free.theta[:, 1], free.theta[:, 0])
-    tone = np.cos(heading)[:, None, None] * s0 + np.sin(heading)[:, None, None] * s90
-    lf = linear.fit(ctx.data, r, [tone], ctx.sigma, "global")
+    free, heading, lf, static = linear.phase_fit(ctx.data, r, lambda deg: _tone(ctx, deg),
+                                                 ctx.sigma)
     horizontal = float(lf.theta[0, 0])
     s0, s1 = ctx.data.windows["static"]
-    vertical, vertical_sigma = _vertical(ctx, r[:, s0:s1].mean(1), horizontal * tone)
+    vertical, vertical_sigma = _vertical(ctx, r[:, s0:s1].mean(1), horizontal * static)
     n = heading.size
     vertical_gain = vertical**2 / vertical_sigma**2
     return Fitted(
@@ -59,10 +56,11 @@ def fit(ctx, prediction, r) -> Fitted:
 
 def _vertical(ctx, means: np.ndarray, horizontal: np.ndarray) -> tuple[float, float]:
     """U and its sigma from the static means (n, m) of the data minus the twin without the
-    Earth rate, b_i + a_i . (U u_j + horizontal part)."""
+    Earth rate, b_i + a_i . (U u_j + horizontal part); `horizontal` (n, m) that part's static
+    means."""
     s0, s1 = ctx.data.windows["static"]
     k = s1 - s0
-    b = means - horizontal[:, s0:s1].mean(1)  # (n, m)
+    b = means - horizontal  # (n, m)
     n, m = b.shape
     proj = (ctx.orientation[:, :, 2] @ ctx.a)  # (n, m): a_i . u_j
     x = np.zeros((n * m, m + 1))

@@ -22,7 +22,9 @@ def fit(ctx, prediction, r) -> Fitted:
     """delay (m,) in seconds by least squares per sensor."""
     data, s = ctx.data, prediction.s
     step = 1.0 / data.fs
-    unit = (latency.apply(s, data.t, Latency(step)) - s) / step
+    unit = latency.apply(s, data.t, Latency(step))
+    unit -= s  # in place: one signal of the session's size at a time
+    unit /= step
     lf = linear.fit(data, r, [unit], ctx.sigma, "sensor")
     return Fitted(
         "latency",

@@ -21,11 +21,12 @@ STAGE = "sensed"
 def fit(ctx, prediction, r) -> Fitted:
     """k2 (m,) by least squares per sensor on the signature of unit k2."""
     s = prediction.s
-    unit = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0)) - s
+    unit = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
+    unit -= s  # in place: one signal of the session's size at a time
     lf = linear.fit(ctx.data, r, [unit], ctx.sigma, "sensor")
     return Fitted(
         "scale_nonlinearity",
-        {"k2": lf.theta[:, 0], "peak_signal": np.abs(s).max((0, 1))},
+        {"k2": lf.theta[:, 0], "peak_signal": np.maximum(s.max((0, 1)), -s.min((0, 1)))},
         {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(s.shape[-1], np.nan)},
         dof=lf.theta.shape[0],
         reduction=lf.reduction(),
