@@ -4,7 +4,9 @@ Per size (rotary positions): `station simulate` (12-gyro array) writes the array
 import npz` makes it a session file, `station replay` reduces and solves it; each step runs in a
 fresh child process whose peak RSS (`resource.getrusage(RUSAGE_CHILDREN).ru_maxrss` of a child
 that runs only that step) and wall time are measured. A baseline child only imports
-`station.replay`. Diagnose is measured at one size (`--diagnose-at`, default 500 positions).
+`station.replay`. Diagnose is measured at one size (`--diagnose-at`, default 500 positions) on
+its own session at `--diagnose-fs` (default 200 Hz, the simulator's rate: its memory grows with
+the samples, 12 gyros x 7000 a position).
 
 Acceptance (issue 17): the replay time grows at most linearly (exponent of a power-law fit of the
 time against the positions <= 1.1; the fit over all sizes is flattened by the start-up, so the
@@ -62,16 +64,32 @@ def exponent(sizes, times) -> float:
     return float(np.polyfit(np.log(sizes), np.log(times), 1)[0])
 
 
-def measure(sizes, fs: float, diagnose_at: int | None, work: Path) -> dict:
+def session(n: int, fs: float, work: Path) -> tuple:
+    """(session file, simulate's figures, import's figures) of a simulated rotary session of n
+    positions at fs Hz, its array file deleted."""
+    npz, h5 = work / f"rotary{n}_{fs:g}.npz", work / f"rotary{n}_{fs:g}.h5"
+    sim = station("simulate", "--positions", n, "--fs", fs, "--seed", 1, "--out", npz)
+    imp = station("import", "npz", h5, npz)
+    npz.unlink()
+    return h5, sim, imp
+
+
+def diagnosed(n: int, fs: float, work: Path) -> dict:
+    """station diagnose's wall time and peak RSS on a session of n positions at fs Hz."""
+    h5, _, _ = session(n, fs, work)
+    diag = station("diagnose", h5, "--json")
+    h5.unlink()
+    return {"positions": n, "fs_hz": fs, "grid_values": int(round(n * 35 * fs)) * 12,
+            "wall_s": diag["wall_s"], "peak_rss_mb": diag["peak_rss_mb"], "limit_mb": 2048,
+            "ok": diag["peak_rss_mb"] < 2048}
+
+
+def measure(sizes, fs: float, diagnose_at: int | None, diagnose_fs: float, work: Path) -> dict:
     """The figures of every size, the baseline and diagnose (see the module docstring)."""
     rows = []
     baseline = child("import station.replay")
-    diagnose = None
     for n in sizes:
-        npz, h5 = work / f"rotary{n}.npz", work / f"rotary{n}.h5"
-        sim = station("simulate", "--positions", n, "--fs", fs, "--seed", 1, "--out", npz)
-        imp = station("import", "npz", h5, npz)
-        npz.unlink()
+        h5, sim, imp = session(n, fs, work)
         size_mb = h5.stat().st_size / MB
         rep = station("replay", h5, "--json")
         limit = 200 + 0.2 * size_mb
@@ -81,13 +99,9 @@ def measure(sizes, fs: float, diagnose_at: int | None, work: Path) -> dict:
                      "simulate_s": sim["wall_s"], "simulate_peak_rss_mb": sim["peak_rss_mb"],
                      "import_s": imp["wall_s"], "import_peak_rss_mb": imp["peak_rss_mb"]})
         print(f"{n} positions: {rows[-1]}", file=sys.stderr, flush=True)
-        if n == diagnose_at:
-            diag = station("diagnose", h5, "--json")
-            diagnose = {"positions": n, "wall_s": diag["wall_s"],
-                        "peak_rss_mb": diag["peak_rss_mb"], "limit_mb": 2048,
-                        "ok": diag["peak_rss_mb"] < 2048}
-            print(f"diagnose: {diagnose}", file=sys.stderr, flush=True)
         h5.unlink()
+    diagnose = diagnosed(diagnose_at, diagnose_fs, work) if diagnose_at else None
+    print(f"diagnose: {diagnose}", file=sys.stderr, flush=True)
     sizes, times = [r["positions"] for r in rows], [r["replay_s"] for r in rows]
     p = exponent(sizes, times) if len(rows) > 1 else float("nan")
     last = exponent(sizes[-2:], times[-2:]) if len(rows) > 1 else float("nan")
@@ -115,7 +129,7 @@ def show(result: dict) -> None:
           f"{'ok' if result['rss_ok'] else 'FAILS'}")
     d = result["diagnose"]
     if d:
-        print(f"diagnose at {d['positions']} positions: {d['wall_s']:.1f} s, "
+        print(f"diagnose at {d['positions']} positions, {d['fs_hz']:g} Hz: {d['wall_s']:.1f} s, "
               f"{d['peak_rss_mb']:.0f} MB ({'ok' if d['ok'] else 'FAILS'}: < 2048 MB)")
 
 
@@ -125,11 +139,14 @@ def main() -> None:
     ap.add_argument("--fs", type=float, default=20.0, help="sample rate, Hz")
     ap.add_argument("--diagnose-at", type=int, default=500,
                     help="positions at which diagnose is measured (0: not measured)")
+    ap.add_argument("--diagnose-fs", type=float, default=200.0,
+                    help="sample rate of diagnose's session, Hz (the simulator's default)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory(prefix="scale_replay") as work:
-        result = measure(sizes, args.fs, args.diagnose_at or None, Path(work))
+        result = measure(sizes, args.fs, args.diagnose_at or None, args.diagnose_fs,
+                         Path(work))
     if args.json:
         print(json.dumps(result, indent=1))
     else:
