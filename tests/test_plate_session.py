@@ -14,11 +14,13 @@ import threading
 import numpy as np
 import pytest
 from scipy import stats
+from technicians import QuitsAt
 
 import station
-from station.acquire.bench import BenchProfile, record
-from station.acquire.operator import ConsoleOperator
-from station.errors import ProtocolError, SessionFormatError
+from station.acquire.bench import BenchProfile, record, resume
+from station.acquire.operator import ConsoleOperator, OperatorAbort
+from station.commands.record import solve_plate
+from station.errors import InputError, ProtocolError, SessionFormatError
 from station.files.calfile import load
 from station.files.session import Session
 from station.files.session.units import recorded_units
@@ -80,8 +82,8 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     serials = [f"SIM-11-U{k}" for k in range(1, UNITS + 1)]
     streams = ["imu", "imu2", "imu3"]
     assert summary["positions_done"] == POSITIONS
-    assert [(u["unit_serial"], u["stream"]) for u in summary["units"]] == list(zip(serials,
-                                                                                   streams))
+    assert [(u["unit_serial"], u["stream"]) for u in summary["units"]] == list(
+        zip(serials, streams, strict=True))
     # each unit's samples: about a sample per 1/100 s of the session, the same for every unit
     counts = [u["samples"] for u in summary["units"]]
     assert max(counts) - min(counts) < 0.05 * max(counts)
@@ -144,6 +146,34 @@ def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):
         assert any("SIM-7-U2" in d for d in aborts[0].detail["devices"])
         done = [e.position for e in events if e.kind == "position_done"]
         assert done == [0]  # position 1 complete, position 2 lost with the unit
+
+
+def test_an_aborted_plate_session_resumes_with_every_unit(tmp_path):
+    """The technician walks away at the 4th position (abort, table stopped); `station resume`
+    with the plate's profile refuses a profile that lists other units, then completes the session
+    with all three units, each solved against its own truth."""
+    path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
+    with BenchTwin(seed=6, speed=40, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
+        profile.write_text(twin.profile_text())
+        bench = BenchProfile.load(profile)
+        with pytest.raises(OperatorAbort):
+            record(bench, path, QuitsAt(f"position 4/{POSITIONS}"))
+        assert not twin.bench.table.state().running
+        two = tmp_path / "two.toml"  # the third unit's [[imu]] table left out
+        two.write_text(profile.read_text().rsplit("[[imu]]", 1)[0] + "[table]"
+                       + profile.read_text().split("[table]", 1)[1])
+        with pytest.raises(InputError, match="resume with the bench profile the session was "):
+            resume(BenchProfile.load(two), path, ConsoleOperator(io.StringIO(""),
+                                                                 io.StringIO()))
+        assert resume(bench, path, ConsoleOperator(io.StringIO(""), io.StringIO())) == 3
+        truth = twin.truth()
+    with Session.open(path) as s:
+        done = sorted({e.position for e in s.events() if e.kind == "position_done"})
+        assert done == list(range(POSITIONS)) and s.closed_cleanly
+    summaries = solve_plate(path)
+    assert [c["stream"] for c in summaries] == ["imu", "imu2", "imu3"]
+    for unit, summary in zip(truth["units"], summaries, strict=True):
+        check_unit(path, summary["calibration"], unit["stream"], unit)
 
 
 PLATE = """[bench]
