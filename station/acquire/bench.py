@@ -1,7 +1,9 @@
 """A calibration bench: its profile (TOML, described in `station record --help` and
 docs/protocols.md), its devices opened from it, and a session recorded or resumed on it.
 
-`BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem);
+`BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem); one
+[imu] section, or an [[imu]] table per unit of several on one rotary table (`BenchUnit`: a driver
+and a stream each, docs/protocols.md "Several units on one table");
 `record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
 into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
 The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed
