@@ -116,6 +116,15 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
                                        zip(serials, streams, lines, strict=True))
     assert np.allclose(load(tmp_path / "b.SIM-11-U2.cal.json").scale_factors,
                        load(files[1]).scale_factors)
+    # `station replay` re-reduces every unit's stream as the solve did: the same scale factors
+    replayed = subprocess.run([*STATION, "replay", str(session), "--json"], check=False,
+                              text=True, capture_output=True, timeout=120)
+    assert replayed.returncode == 0, replayed.stderr
+    units = json.loads(replayed.stdout)["units"]
+    assert [(u["unit_serial"], u["stream"]) for u in units] == list(
+        zip(serials, streams, strict=True))
+    for unit, file in zip(units, files, strict=True):
+        assert np.allclose(unit["scale_factors"], load(file).scale_factors, rtol=1e-9)
 
 
 def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):
