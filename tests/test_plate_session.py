@@ -263,3 +263,12 @@ def test_session_units_that_are_not_units_of_the_file_are_refused(units, message
 
 def test_a_one_unit_session_has_no_units_entry():
     assert recorded_units({"unit_serial": "SN1"}, {"imu": None}, "s.h5") == []
+
+
+def test_one_imu_section_is_one_unit_on_stream_imu_as_before():
+    bench = BenchProfile.load("drivers/profiles/bench_serial.toml")
+    assert not bench.plate and len(bench.units) == 1
+    unit = bench.units[0]
+    assert (unit.unit_serial, unit.stream, unit.mounting) == ("SN0001", "imu", None)
+    assert (unit.link, unit.address) == (bench.link, bench.imu_address) == ("serial",
+                                                                           "/dev/ttyUSB0")

@@ -159,8 +159,9 @@ def run(args) -> int:
                     print(json.dumps(info), flush=True)
                 else:
                     table = info.get("table")
-                    print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
-                          f"({info['imu']['rate_hz']:g} Hz)\n"
+                    imus = info.get("units", [info["imu"]])
+                    print("".join(f"{imu['link']} IMU twin on {imu['port']} "
+                                  f"({imu['rate_hz']:g} Hz)\n" for imu in imus)
                           + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
                           + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
                              if args.chamber else "")
