@@ -1,7 +1,9 @@
 """A calibration bench: its profile (TOML, described in `station record --help` and
 docs/protocols.md), its devices opened from it, and a session recorded or resumed on it.
 
-`BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem);
+`BenchProfile.load` checks a profile (`drivers.profile.ProfileError` names any problem); one
+[imu] section, or an [[imu]] table per unit of several on one rotary table (`BenchUnit`: a driver
+and a stream each, docs/protocols.md "Several units on one table");
 `record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
 into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
 The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed
@@ -10,7 +12,6 @@ The rotary table is commanded to stop as soon as its driver is connected and whe
 
 import contextlib
 import dataclasses
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,15 +19,36 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import InputError
+from station.files.session.units import SERIAL, SessionUnit, unit_stream
 
-SERIAL = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
-"""A unit serial: it names files (sessions/<serial>-<date>.h5), so no path separators."""
+
+@dataclass(frozen=True)
+class BenchUnit:
+    """One IMU of the bench: a unit on the table's plate (docs/protocols.md "Several units").
+
+    unit_serial : its serial ([[imu]] unit_serial; one [imu]: the bench's)
+    link, imu, address : its link, device profile (rate applied) and address, as `BenchProfile`'s
+    stream      : its stream in the session ("imu", "imu2", ...: `unit_stream`)
+    mounting    : (3, 3) rotation plate frame -> unit frame ([[imu]] mounting, rows), or None
+    """
+
+    unit_serial: str
+    link: str
+    imu: object
+    address: str | dict
+    stream: str = "imu"
+    mounting: np.ndarray | None = None
+
+    def session_unit(self) -> SessionUnit:
+        """What the session file records about the unit (`station.files.session.units`)."""
+        return SessionUnit(self.stream, self.unit_serial, self.mounting)
 
 
 @dataclass(frozen=True)
 class BenchProfile:
     """A parsed bench profile; `imu` is a SerialImuProfile, CanProfile or MavlinkProfile with the
-    rate applied."""
+    rate applied. `units`: every IMU (`BenchUnit`), the first the one `link`, `imu` and
+    `imu_address` describe; several when the profile lists `[[imu]]` tables (rotary only)."""
 
     source: str
     unit_serial: str
@@ -46,11 +68,16 @@ class BenchProfile:
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
     spins: int = 0  # rotary on a two-axis table: spins of the position axis after the positions
     chamber: object = None  # rotary: station.protocols.thermal.ChamberSettings of [chamber]
+    units: tuple = ()  # every BenchUnit (one [imu]: the one unit)
+
+    @property
+    def plate(self) -> bool:
+        """Several units on the table, each with its own stream and serial ([[imu]] tables)."""
+        return len(self.units) > 1
 
     @classmethod
     def load(cls, path) -> "BenchProfile":
         """Read and check a bench profile; `drivers.profile.ProfileError` names any problem."""
-        from drivers import LINKS, driver_class
         from drivers.profile import ProfileError, Section, load_profile
         from station.protocols import KINDS, kinds_with
         from station.solve.verdict import Tolerances
@@ -77,30 +104,23 @@ class BenchProfile:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
             except InputError as exc:
                 raise ProfileError(f"{path}: {exc}") from None
-        bench, imu, proto = (section(n) for n in ("bench", "imu", "protocol"))
+        bench, proto = section("bench"), section("protocol")
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)
-        if not SERIAL.fullmatch(serial) or not 0 < speed < 1e4:
+        if not SERIAL.match(serial) or not 0 < speed < 1e4:
             raise ProfileError(f"{path}: [bench] needs a unit_serial of 1-64 letters, digits, '.', "
                                f"'_' or '-' (it names the session file; got {serial!r}) and a "
                                f"clock_speed between 0 and 1e4 (got {speed!r})")
-        link = imu.get("link", str, choices=tuple(LINKS))
-        dev = driver_class(link).profile_type.load(device(imu.get("profile", str)))
-        rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
-        if not 0 < rate <= 1e5:
-            raise ProfileError(f"{path}: [imu] rate_hz = {rate!r}; give the IMU's output rate in "
-                               "Hz (0 < rate_hz <= 100000)")
-        dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
-        if link in ("serial", "mavlink"):  # mavlink: a serial port or udpin:HOST:PORT
-            address = imu.get("port", str)
-        else:
-            address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
-            if imu.has("bitrate"):
-                address["bitrate"] = imu.get("bitrate", int)
+        units = _units(profile, serial, path)
+        dev = units[0].imu
         kind = proto.get("kind", str, default="rotary", choices=tuple(kinds_with("acquire")))
+        if len(units) > 1 and (not KINDS[kind].table or "chamber" in profile.tables):
+            raise ProfileError(f"{path}: several [[imu]] units share a rotary table's session; "
+                               f"a {kind} session{' with a [chamber]' if KINDS[kind].table else ''}"
+                               " records one unit: give one [imu]")
         fields = {"source": profile.source, "unit_serial": serial, "clock_speed": speed,
-                  "link": link, "imu": dev, "imu_address": address, "protocol": kind,
-                  "tables": profile.tables}
+                  "link": units[0].link, "imu": dev, "imu_address": units[0].address,
+                  "protocol": kind, "tables": profile.tables, "units": units}
         if KINDS[kind].table:
             table = section("table")
             fields.update(_table_fields(profile, table), **_settings(kind, proto, path))
@@ -140,9 +160,66 @@ class BenchProfile:
 
                 fields["fixture"] = FixtureSpec.from_section(
                     section("fixture"), fields["layout"].shape[1], fields["layout"])
-        for s in (bench, imu, proto):
+        for s in (bench, proto):
             s.finish()
         return cls(**fields)
+
+
+def _units(profile, serial: str, path) -> tuple:
+    """The bench's `BenchUnit`s: one [imu] section (the bench's unit_serial), or the [[imu]]
+    tables, each with its own unit_serial and optional mounting, their streams "imu", "imu2",
+    ...; ProfileError names a repeated serial or address."""
+    from drivers.profile import ProfileError, Section
+
+    tables = profile.tables.get("imu")
+    if isinstance(tables, dict):
+        return (_unit(profile, Section(profile.source, "imu", tables), serial, 0),)
+    if not (isinstance(tables, list) and tables and all(isinstance(t, dict) for t in tables)):
+        raise ProfileError(f"{path}: no [imu] section (or [[imu]] tables, one per unit on the "
+                           "table); see `station record --help`")
+    units = tuple(_unit(profile, Section(profile.source, f"imu #{k + 1}", t), None, k)
+                  for k, t in enumerate(tables))
+    for what, values in (("unit_serial", [u.unit_serial for u in units]),
+                         ("address", [repr(u.address) for u in units])):
+        if len(set(values)) != len(values):
+            raise ProfileError(f"{path}: the [[imu]] units repeat a {what} ({values}); each unit "
+                               "has its own serial and its own port or CAN channel")
+    return units
+
+
+def _unit(profile, imu, serial: str | None, k: int) -> BenchUnit:
+    """Unit k of the bench from its [imu] section (`drivers.profile.Section`); serial: the
+    bench's for a one-unit [imu], None for an [[imu]] table (its own unit_serial, mounting)."""
+    from drivers import LINKS, driver_class
+    from drivers.profile import ProfileError
+
+    link = imu.get("link", str, choices=tuple(LINKS))
+    dev = driver_class(link).profile_type.load(_device(profile, imu.get("profile", str)))
+    rate = imu.get("rate_hz", float, default=dev.imu.rate_hz)
+    if not 0 < rate <= 1e5:
+        raise ProfileError(f"{imu.source}: [{imu.name}] rate_hz = {rate!r}; give the IMU's output "
+                           "rate in Hz (0 < rate_hz <= 100000)")
+    dev = dataclasses.replace(dev, imu=dataclasses.replace(dev.imu, rate_hz=rate))
+    if link in ("serial", "mavlink"):  # mavlink: a serial port or udpin:HOST:PORT
+        address = imu.get("port", str)
+    else:
+        address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
+        if imu.has("bitrate"):
+            address["bitrate"] = imu.get("bitrate", int)
+    mounting = None
+    if serial is None:
+        serial = imu.get("unit_serial", str)
+        if not SERIAL.match(serial):
+            raise imu.error("unit_serial", f"{serial!r}: 1-64 letters, digits, '.', '_' or '-' "
+                                           "(it names the unit's calibration file)")
+        if imu.has("mounting"):
+            mounting = np.array(imu.get_rows("mounting", 3, 3), float)
+            if not np.allclose(mounting @ mounting.T, np.eye(3), atol=1e-6) or \
+                    np.linalg.det(mounting) < 0:
+                raise imu.error("mounting", "must be a rotation (plate frame -> unit frame, 3 "
+                                            "orthonormal rows, determinant +1)")
+    imu.finish()
+    return BenchUnit(serial, link, dev, address, unit_stream(k), mounting)
 
 
 def _spins(fields: dict, proto, path) -> int:
@@ -280,19 +357,26 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
     spec = StreamSpec.from_profile(bench.imu.imu)
     metadata = {"unit_serial": bench.unit_serial,
                 "bench": {"profile": bench.source, "tables": bench.tables},
-                "profiles": {"imu": load_profile(bench.imu.source).tables}, **(extra or {})}
+                "profiles": {u.stream: load_profile(u.imu.source).tables
+                             for u in bench.units}, **(extra or {})}
+    if bench.plate:
+        metadata["units"] = [u.session_unit().to_json() for u in bench.units]
     kind = KINDS[bench.protocol]
-    with bench_devices(bench, clock, kind.table) as (imu, table):
+    with bench_devices(bench, clock, kind.table) as (imu, table), \
+            plate_drivers(bench, clock) as others:
         kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
-                              LiveView(clock) if live else None)
+                              LiveView(clock) if live else None, **others)
     with Session.open(out) as session:
         done = session.last_completed_position()
-        samples = len(session.stream("imu").seq)
+        samples = {u.stream: len(session.stream(u.stream, columns=("seq",)).seq)
+                   for u in bench.units}
         meta = session.metadata  # a fixture's plan fixes the count
         planned = len(meta.get("fixture_poses") or meta.get("axes") or ()) or bench.positions
+    plate = {"units": [{"unit_serial": u.unit_serial, "stream": u.stream,
+                        "samples": samples[u.stream]} for u in bench.units]} if bench.plate else {}
     return {"session": str(out), "unit_serial": bench.unit_serial, "protocol": bench.protocol,
             "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
-            "samples": samples,
+            "samples": sum(samples.values()), **plate,
             "wall_seconds": time.perf_counter() - start}
 
 
@@ -310,15 +394,19 @@ def resume(bench: BenchProfile, path, operator) -> int:
     """
     from drivers.clock import ScaledClock
     from station.files.session import Session, SessionWriter, StreamSpec
+    from station.files.session.units import recorded_units
 
     with Session.open(path) as session:
-        metadata, recorded, end = session.metadata, session.specs.get("imu"), session.last_instant()
-    kind = _check_same_bench(bench, path, metadata, recorded,
+        metadata, specs, end = session.metadata, session.specs, session.last_instant()
+        units = recorded_units(metadata, specs, path)
+    kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
+    _check_same_units(bench, path, units, specs)
     clock = ScaledClock(bench.clock_speed, start=end + 1.0)
     with (bench_devices(bench, clock, kind.table) as (imu, table),
+          plate_drivers(bench, clock) as others,
           SessionWriter.resume(path, clock=clock) as writer):
-        return kind.entry("resume")(writer, metadata, imu, table, operator, clock)
+        return kind.entry("resume")(writer, metadata, imu, table, operator, clock, **others)
 
 
 def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec):
@@ -344,6 +432,41 @@ def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec)
         raise InputError(f"the profile's IMU stream differs from the recorded one in {differ}: "
                          "resume with the device profile and rate the session was recorded with")
     return kind
+
+
+def _check_same_units(bench: BenchProfile, path, units: list, specs: dict) -> None:
+    """InputError unless the bench's units are the session's (serials and streams, in order;
+    none for a one-unit session and bench) and each unit's stream the recorded one."""
+    from station.files.session import StreamSpec
+
+    recorded = [(u.stream, u.unit_serial) for u in units]
+    mounted = [(u.stream, u.unit_serial) for u in bench.units] if bench.plate else []
+    if recorded != mounted:
+        raise InputError(f"{path} recorded the units {recorded or 'of one [imu]'}, the profile "
+                         f"has {mounted or 'one [imu]'}: resume with the bench profile the "
+                         "session was recorded with")
+    for unit in bench.units[1:]:
+        spec = StreamSpec.from_profile(unit.imu.imu)
+        differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
+                  if getattr(specs[unit.stream], name) != getattr(spec, name)]
+        if differ:
+            raise InputError(f"unit {unit.unit_serial}: the profile's IMU stream differs from "
+                             f"the recorded one in {differ}: resume with the device profile and "
+                             "rate the session was recorded with")
+
+
+@contextlib.contextmanager
+def plate_drivers(bench: BenchProfile, clock):
+    """{"others": {stream: opened driver}} of the bench's units after the first (a plate of
+    several units), {} for one unit: the keyword the rotary protocol takes; closed on exit."""
+    from drivers import open_imu
+
+    if not bench.plate:
+        yield {}
+        return
+    with contextlib.ExitStack() as stack:
+        yield {"others": {u.stream: stack.enter_context(open_imu(u.link, u.address, u.imu, clock))
+                          for u in bench.units[1:]}}
 
 
 @contextlib.contextmanager

@@ -43,10 +43,12 @@ class Recorder:
     drain_timeout : wall seconds `drain` waits for the samples in flight
     busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
                     processes) can hold the reader that long, which is many seconds of a fast clock
+    lock          : the lock of every access to the writer (default its own; `PlateRecorder`
+                    shares one between the recorders of one writer)
     """
 
     def __init__(self, writer, imu, stream: str = "imu", clock=None, interval: float = 0.003,
-                 drain_timeout: float = 30.0, busy_grace: float = 2.0):
+                 drain_timeout: float = 30.0, busy_grace: float = 2.0, lock=None):
         self.writer = writer
         self.imu = imu
         self.stream = stream
@@ -60,7 +62,7 @@ class Recorder:
         self._last_arrival = None  # (clock, wall) time of the last block
         self._offset = np.inf  # arrival_offset of the samples so far
         self._last_seq = None
-        self._lock = threading.Lock()
+        self._lock = lock or threading.Lock()
         self._stop = threading.Event()
         self._thread = None
 
@@ -171,3 +173,95 @@ class Recorder:
                 time.sleep(self.interval)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc
+
+
+class PlateRecorder:
+    """Several units on one table into one writer: a `Recorder` per unit (its own reader thread
+    and stream) sharing one lock on the writer, seen by a protocol as one Recorder.
+
+    imus  : {stream: opened IMU driver}, the first the unit whose stream carries `stream`
+    names : {stream: the unit in words, e.g. "unit SN7 (stream imu2)"}
+
+    Every guard applies per unit: `check` and `drain` raise the first unit's RecordingError that
+    fails, its message starting with the unit's name and its cause kept (a lost link is a
+    ConnectionError, which the protocol recovers from); the error carries the name as `unit`.
+    `sampled_until` is the least advanced unit's; `reconnect` reopens the units that failed.
+    Events and table states are recorded once, through the first unit's recorder.
+    """
+
+    def __init__(self, writer, imus: dict, names: dict, clock=None, **options):
+        lock = threading.Lock()
+        self.units = {stream: Recorder(writer, imu, stream, clock, lock=lock, **options)
+                      for stream, imu in imus.items()}
+        self.names = names
+        self._first = next(iter(self.units.values()))
+        self.writer, self.stream, self.clock = writer, self._first.stream, self._first.clock
+
+    def start(self) -> "PlateRecorder":
+        """Start every unit's reader thread."""
+        for recorder in self.units.values():
+            recorder.start()
+        return self
+
+    def stop(self) -> None:
+        """End every unit's reader thread (the devices and the writer stay open)."""
+        for recorder in self.units.values():
+            recorder.stop()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def error(self):
+        """The failure of the first unit whose reader failed, None while all read."""
+        return next((r.error for r in self.units.values() if r.error is not None), None)
+
+    @property
+    def samples(self) -> int:
+        """Samples recorded, every unit's."""
+        return sum(r.samples for r in self.units.values())
+
+    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
+        """`Recorder.event`: once for the session."""
+        return self._first.event(kind, position, detail)
+
+    def table(self, reading) -> None:
+        """`Recorder.table`: once for the session."""
+        self._first.table(reading)
+
+    def sampled_until(self) -> float:
+        """Sampling instant of the newest sample every unit has delivered."""
+        return min(r.sampled_until() for r in self.units.values())
+
+    def check(self, stale: float) -> None:
+        """`Recorder.check` of every unit, the failing one named."""
+        for stream, recorder in self.units.items():
+            self._named(stream, recorder.check, stale)
+
+    def drain(self, until: float, stale: float) -> None:
+        """`Recorder.drain` of every unit, the failing one named."""
+        for stream, recorder in self.units.items():
+            self._named(stream, recorder.drain, until, stale)
+
+    def reconnect(self) -> None:
+        """Reopen every unit whose reader failed (`Recorder.reconnect`); the driver's
+        ConnectionError, with the unit's name in a note, while one is still missing."""
+        for stream, recorder in self.units.items():
+            if recorder.error is not None:
+                try:
+                    recorder.reconnect()
+                except ConnectionError as exc:
+                    exc.add_note(f"{self.names[stream]} is missing")
+                    raise
+
+    def _named(self, stream: str, call, *args) -> None:
+        """`call(*args)`; its RecordingError again with the unit's name first."""
+        try:
+            call(*args)
+        except RecordingError as exc:
+            named = RecordingError(f"{self.names[stream]}: {exc}")
+            named.unit = self.names[stream]
+            raise named from exc.__cause__

@@ -6,8 +6,10 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     unit_serial = "SN42"          # serial number of the unit under calibration
     clock_speed = 1.0             # optional; > 1 only against `station twin --speed`
 
-    [imu]
-    link = "serial"               # or "can"
+    [imu]                         # several units on one rotary table: an [[imu]] table per
+    link = "serial"               # or "can"; unit, with these keys, its own unit_serial and
+                                  # optionally its mounting (3 rows: plate frame -> unit frame;
+                                  # docs/protocols.md "Several units on one table")
     profile = "imu12_serial"      # device profile: path (relative to this file) or bundled name
     port = "/dev/ttyUSB0"         # serial: device path or pyserial URL
     # interface = "socketcan"     # can: python-can interface, channel and optional bitrate
@@ -54,7 +56,8 @@ The three protocols (docs/protocols.md):
   accelerometer channel; default the identity for a triad), used to tell where "up" is.
 
 The protocol runs through the recorder into a crash-safe session file; `--solve` then writes its
-calibration file as `station solve` does. Examples of bench profiles: drivers/profiles/bench_*.toml;
+calibration file as `station solve` does (several units: one per unit,
+<session>.<unit serial>.cal.json). Examples of bench profiles: drivers/profiles/bench_*.toml;
 `station twin` writes one for its virtual devices.
 """
 
@@ -92,7 +95,7 @@ def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
     from station.commands import existing_file, new_file, table_words
-    from station.commands.solve import verdict_exit
+    from station.commands.solve import unit_line, units_exit, verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
 
@@ -110,7 +113,9 @@ def run(args) -> int:
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
     try:
         summary = record(bench, out, operator, live=args.live)
-        if args.solve:
+        if args.solve and bench.plate:
+            summary["calibrations"] = solve_plate(out, args.accept_suspect)
+        elif args.solve:
             summary["calibration"] = solve(out, args.accept_suspect)
     except BaseException as err:
         err.add_note(f"{table_words(err)}{out} keeps the completed positions")
@@ -118,14 +123,29 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
+        units = f" of {len(summary['units'])} units" if bench.plate else ""
         print(f"recorded {summary['positions_done']} of {summary['positions_planned']} positions "
-              f"({summary['samples']} samples) into {out} in {summary['wall_seconds']:.1f} s")
-        if args.solve:
+              f"({summary['samples']} samples{units}) into {out} in "
+              f"{summary['wall_seconds']:.1f} s")
+        if args.solve and bench.plate:
+            print("\n".join(unit_line(s) for s in summary["calibrations"]))
+        elif args.solve:
             print(f"calibration: {summary['calibration']['calibration']} (chi2/dof "
                   f"{summary['calibration']['chi2_per_dof']:.2f})")
             if summary["calibration"]["verdict"]:
                 print(words(summary["calibration"]["verdict"]))
+    if args.solve and bench.plate:
+        return units_exit(summary["calibrations"])
     return verdict_exit(summary["calibration"]["verdict"]) if args.solve else 0
+
+
+def solve_plate(path, accept_suspect: bool = False) -> list:
+    """Solve every unit of a session recorded with several units as `station solve` does, into
+    <session>.<unit serial>.cal.json each; their summaries."""
+    from station.commands.solve import session_units, solve_units, unit_files
+
+    units = session_units(path)
+    return solve_units(path, units, unit_files(path, units), accept_suspect=accept_suspect)
 
 
 def solve(path, accept_suspect: bool = False) -> dict:

@@ -10,7 +10,9 @@ stream again over the serial wire protocol (a pty twin) and records it into the 
 OUT. Still-pose sessions (iron, free-static, imported) take the detector's settings (--rest,
 --threshold, --still-channels, --min-still; docs/stillness.md) and list the poses found and every
 candidate rejected, with the reason; --faces solves an import's poses as the faces of a right-angle
-block (Eq. 15 constraints).
+block (Eq. 15 constraints). A session of several units on one table (docs/protocols.md) replays
+every unit's stream, each stored under its own name (NAME-<stream>, replay-<stream>-<k>), unless
+--stream chooses one.
 """
 
 import dataclasses
@@ -63,55 +65,87 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_session, new_file, progress, working
-    from station.commands.solve import pose_lines, poses
-    from station.files.session import Session
-    from station.protocols import KINDS
-    from station.replay import free_name, replay, replay_into, replay_raw, stimulus
-    from station.solve.quality import check_fit
+    from station.commands import existing_session, new_file, progress
+    from station.replay import replay_raw
 
     existing_session(args.session, None if args.raw else _positions(args.positions))
-    if args.raw is not None:
-        raw = new_file(args.raw, option="file for the raw replay")
-        with progress(f"replaying {args.session} through the serial twin into {raw}",
-                      "samples") as advance:
-            replay_raw(args.session, raw, progress=advance)
-        summary = {"session": str(args.session), "raw_replay": str(args.raw)}
-    else:
-        settings = _settings(args)
-        with working(f"reducing and solving {args.session}"):
-            if args.store or args.name:
-                name = args.name or free_name(args.session)
-                reduced, result = replay_into(args.session, name, settings)
-            else:
-                name = None
-                reduced, result = replay(args.session, settings)
-        summary = {"session": str(args.session), "results": name,
-                   "positions": int(reduced.M.shape[1]), "method": result.method,
-                   "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
-                   "settings": dataclasses.asdict(settings),
-                   "scale_factors": result.scale_factors.tolist(),
-                   "scale_factors_sigma": result.scale_factors_sigma.tolist(),
-                   "magnitude": result.magnitude, **poses(reduced)}
-        with Session.open(args.session) as session:
-            summary["stimulus"] = stimulus(session, settings)[1]
-            hand = KINDS[session.protocol].still
-        check = check_fit(result, pose_term=hand)
-        summary.update(status=check.status, status_reasons=check.problems)
+    if args.raw is None:
+        return _replay_units(args)
+    raw = new_file(args.raw, option="file for the raw replay")
+    with progress(f"replaying {args.session} through the serial twin into {raw}",
+                  "samples") as advance:
+        replay_raw(args.session, raw, progress=advance)
     if args.json:
-        print(json.dumps(summary))
-    elif args.raw is not None:
-        print(f"{args.session}: raw stream replayed through the serial twin into {args.raw}")
+        print(json.dumps({"session": str(args.session), "raw_replay": str(args.raw)}))
     else:
-        where = "not stored (--store keeps it)" if summary["results"] is None else \
-            f"stored as results/{summary['results']}"
-        print(f"{args.session}: {summary['positions']} positions, {summary['method']} "
-              f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}")
-        print("\n".join(pose_lines(summary)))
-        print("scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"]))
-        if summary["status"] == "suspect":
-            print(f"SUSPECT fit: {'; '.join(summary['status_reasons'])}")
+        print(f"{args.session}: raw stream replayed through the serial twin into {args.raw}")
     return 0
+
+
+def _replay_units(args) -> int:
+    """Reduce and solve again the stream the settings name, or with several units on one table
+    (`station.files.session.units`) and no --stream each unit's, stored (--store, --name) under
+    a name per unit (NAME-<stream>); print each."""
+    from station.commands.solve import session_units
+
+    settings = _settings(args)
+    units = [] if settings.stream is not None else session_units(args.session)
+    if not units:
+        summary = _replay(args, settings, args.name)
+        print(json.dumps(summary) if args.json else _text(summary))
+        return 0
+    summaries = [{"stream": u.stream, "unit_serial": u.unit_serial,
+                  **_replay(args, dataclasses.replace(settings, stream=u.stream),
+                            args.name and f"{args.name}-{u.stream}", f"replay-{u.stream}")}
+                 for u in units]
+    print(json.dumps({"units": summaries}) if args.json else "\n".join(
+        f"unit {s['unit_serial']} (stream {s['stream']}):\n{_text(s)}" for s in summaries))
+    return 0
+
+
+def _replay(args, settings, name: str | None, prefix: str = "replay") -> dict:
+    """The summary of one stream's replay with `settings`, stored as results/`name` (None with
+    --store: the first free `prefix`-k; without --store: not stored)."""
+    from station.commands import working
+    from station.commands.solve import poses
+    from station.files.session import Session
+    from station.protocols import KINDS
+    from station.replay import free_name, replay, replay_into, stimulus
+    from station.solve.quality import check_fit
+
+    with working(f"reducing and solving {args.session}"):
+        if args.store or name:
+            name = name or free_name(args.session, prefix)
+            reduced, result = replay_into(args.session, name, settings)
+        else:
+            reduced, result = replay(args.session, settings)
+    summary = {"session": str(args.session), "results": name,
+               "positions": int(reduced.M.shape[1]), "method": result.method,
+               "frame": result.frame, "chi2_per_dof": result.chi2 / result.dof,
+               "settings": dataclasses.asdict(settings),
+               "scale_factors": result.scale_factors.tolist(),
+               "scale_factors_sigma": result.scale_factors_sigma.tolist(),
+               "magnitude": result.magnitude, **poses(reduced)}
+    with Session.open(args.session) as session:
+        summary["stimulus"] = stimulus(session, settings)[1]
+        hand = KINDS[session.protocol].still
+    check = check_fit(result, pose_term=hand)
+    return {**summary, "status": check.status, "status_reasons": check.problems}
+
+
+def _text(summary: dict) -> str:
+    """A replay's summary in words."""
+    from station.commands.solve import pose_lines
+
+    where = "not stored (--store keeps it)" if summary["results"] is None else \
+        f"stored as results/{summary['results']}"
+    lines = [f"{summary['session']}: {summary['positions']} positions, {summary['method']} "
+             f"({summary['frame']} frame), chi2/dof {summary['chi2_per_dof']:.2f}; {where}",
+             *pose_lines(summary),
+             "scale factors: " + " ".join(f"{k:.5f}" for k in summary["scale_factors"])]
+    if summary["status"] == "suspect":
+        lines.append(f"SUSPECT fit: {'; '.join(summary['status_reasons'])}")
+    return "\n".join(lines)
 
 
 def _settings(args):

@@ -109,19 +109,93 @@ def run(args) -> int:
     if is_campaign(args.session):
         return _run_campaign(args)
     existing_session(args.session)
-    out = new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)
+    units = [] if args.stream is not None else session_units(args.session)
+    outs = unit_files(args.out or args.session, units, args.force) if units else \
+        [new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)]
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
     repeatability = None if args.repeatability is None else existing_file(
         args.repeatability, "a combined calibration file (`station combine`)")
-    cal = solve_session(args.session, args.stream, nominal, args.magnitude, args.accept_suspect,
-                        tolerances, still_values(args), store=args.store,
-                        faces=bool(args.faces), repeatability=repeatability)
+    options = {"nominal": nominal, "magnitude": args.magnitude,
+               "accept_suspect": args.accept_suspect, "tolerances": tolerances,
+               "still": still_values(args), "store": args.store, "faces": bool(args.faces),
+               "repeatability": repeatability}
+    if units:
+        summaries = solve_units(args.session, units, outs, args.force, **options)
+        print(json.dumps({"units": summaries}, indent=2) if args.json
+              else "\n".join(unit_line(s) for s in summaries))
+        return units_exit(summaries)
+    out = outs[0]
+    cal = solve_session(args.session, args.stream, **options)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
     return verdict_exit(cal.verdict)
+
+
+def session_units(path) -> list:
+    """The units of a session recorded with several on one table
+    (`station.files.session.units.SessionUnit`), [] for a one-unit session."""
+    from station.files.session import Session
+    from station.files.session.units import recorded_units
+
+    with Session.open(path) as session:
+        return recorded_units(session.metadata, session.specs, path)
+
+
+def unit_files(base, units: list, force: bool | None = False) -> list:
+    """The calibration file of each unit: BASE.<unit serial>.cal.json, BASE the session (or --out)
+    without its .h5 or .cal.json suffix; refused (before anything is solved) where one exists."""
+    from station.commands import new_file
+
+    base = Path(base)
+    name = base.name.removesuffix(".cal.json").removesuffix(".h5")
+    return [new_file(base.with_name(f"{name}.{u.unit_serial}.cal.json"), force=force)
+            for u in units]
+
+
+def solve_units(path, units: list, outs: list, force: bool = False, **options) -> list:
+    """Solve every unit's stream of a session with several units on one table (`solve_session`
+    each, the same options) and write its calibration file `outs[k]`; the summaries, each with
+    its `stream`. A unit whose fit is suspect gets no file; once every unit is done,
+    SuspectFitError names those units (the others' files are written)."""
+    from station.errors import SuspectFitError
+
+    summaries, suspect = [], []
+    for unit, out in zip(units, outs, strict=True):
+        try:
+            cal = solve_session(path, unit.stream, **options)
+        except SuspectFitError as exc:
+            suspect.append(f"unit {unit.unit_serial} (stream {unit.stream}): {exc}")
+            continue
+        cal.save(out, overwrite=force)
+        summaries.append({"stream": unit.stream, **summarise(cal, out)})
+    if suspect:
+        written = ", ".join(s["calibration"] for s in summaries) or "none"
+        raise SuspectFitError(f"{len(suspect)} of {len(units)} units have suspect fits and no "
+                              f"calibration file (written: {written}): " + "; ".join(suspect))
+    return summaries
+
+
+def unit_line(s: dict) -> str:
+    """One line on one unit of a session with several (`solve_units`' summary): serial, stream,
+    fit, quality gate, verdict, file."""
+    from station.solve.verdict import words
+
+    gate_words = ("SUSPECT: " + "; ".join(s["status_reasons"]) if s["status"] == "suspect"
+                  else "quality gate passed")
+    verdict = s["verdict"]
+    judged = f", verdict {verdict['overall']}" if verdict else ""
+    failed = f"\n{words(verdict)}" if verdict and verdict["overall"] != "PASS" else ""
+    return (f"unit {s['unit_serial']} (stream {s['stream']}): {len(s['sensors'])} sensors, "
+            f"{s['positions']} positions, chi2/dof {s['chi2_per_dof']:.2f}, {gate_words}"
+            f"{judged}; written to {s['calibration']}{failed}")
+
+
+def units_exit(summaries: list) -> int:
+    """The worst `verdict_exit` of the units' summaries."""
+    return max(verdict_exit(s["verdict"]) for s in summaries)
 
 
 def verdict_exit(verdict: dict | None) -> int:
@@ -148,6 +222,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     before the verdict, which then judges the unit with them)."""
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
+    from station.files.session.units import unit_serial
     from station.protocols import lookup
     from station.replay import (
         ReplaySettings,
@@ -175,7 +250,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version,
                 "stimulus": stimulus(session, settings)[1]}
-        file = {"unit_serial": session.unit_serial,
+        file = {"unit_serial": unit_serial(session.metadata, session.specs, stream, path)
+                               or session.unit_serial,
                 "counts_per_unit": np.asarray(spec.counts_per_unit)[channels]}
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))

@@ -14,7 +14,9 @@ two-axis one (register map table_two_axis: a position axis with a rate mode) and
 fixture: `station record` sets each orientation itself, `--positions` angles of the position axis
 spread over a turn with the rate axis spinning, then one spin of the position axis itself
 (docs/protocols.md "Two-axis sessions"); the truth printed with --json then gives the unit-frame
-`axes` of those positions.
+`axes` of those positions. With `--units N` the table carries a plate of N units (serial links),
+each with its own truth, its fixed mounting on the plate and its own pty; the profile lists them as
+`[[imu]]` tables (docs/protocols.md "Several units on one table") and the truth gives each unit's.
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who
@@ -62,7 +64,8 @@ def register(p) -> None:
         "  station twin --protocol static --speed 20 --profile-out hand.toml\n"
         "  station twin --protocol static --link mavlink --udp --profile-out fc.toml\n"
         "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned\n"
-        "  station twin --two-axis --speed 40 --positions 8 --profile-out two_axis.toml"
+        "  station twin --two-axis --speed 40 --positions 8 --profile-out two_axis.toml\n"
+        "  station twin --units 3 --speed 40 --positions 8 --profile-out plate.toml   # 3 units"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
                    help="bench profile to write (default twin_bench.toml; overwritten)")
@@ -80,6 +83,10 @@ def register(p) -> None:
     p.add_argument("--two-axis", action="store_true",
                    help="rotary: a two-axis table (position axis with a rate mode, profile "
                         "table_two_axis) that sets every orientation itself; no fixture")
+    p.add_argument("--units", type=int, default=1,
+                   help="rotary: units on one plate on the table (default 1), each with its own "
+                        "truth (seed [SEED, 3, k]), mounting on the plate and pty; the profile "
+                        "lists them as [[imu]] tables (SIGUSR1 unplugs the first)")
     p.add_argument("--chamber", action="store_true",
                    help="rotary: the unit streams its temperature (imu12_serial_temp) from inside "
                         "a thermal chamber twin (Modbus TCP on 127.0.0.1) that sets its biases "
@@ -110,8 +117,13 @@ def run(args) -> int:
     from station.commands import given_values
     from station.errors import InputError, StationError
 
-    if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0:
-        raise InputError("--positions, --mountings, --speed and --lifetime must be positive")
+    if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0 \
+            or args.units < 1:
+        raise InputError("--positions, --mountings, --units, --speed and --lifetime must be "
+                         "positive")
+    if args.units > 1 and (args.protocol != "rotary" or args.chamber):
+        raise InputError("--units: several units share the rotary table (--protocol rotary, "
+                         "no --chamber)")
     if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
         raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
     if args.chamber and (args.protocol != "rotary" or args.cube or args.two_axis
@@ -147,8 +159,9 @@ def run(args) -> int:
                     print(json.dumps(info), flush=True)
                 else:
                     table = info.get("table")
-                    print(f"{info['imu']['link']} IMU twin on {info['imu']['port']} "
-                          f"({info['imu']['rate_hz']:g} Hz)\n"
+                    imus = info.get("units", [info["imu"]])
+                    print("".join(f"{imu['link']} IMU twin on {imu['port']} "
+                                  f"({imu['rate_hz']:g} Hz)\n" for imu in imus)
                           + (f"Modbus table twin on 127.0.0.1:{table['port']}\n" if table else "")
                           + (f"Modbus thermal chamber twin on 127.0.0.1:{info['chamber']['port']}\n"
                              if args.chamber else "")

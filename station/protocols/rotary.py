@@ -71,9 +71,10 @@ from drivers.errors import CanBusError, SerialPortError, TableError
 from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
-from station.acquire.recorder import Recorder, RecordingError
+from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
+from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
 from station.protocols.planned import fixture_instruction, rotary_plan
 from station.protocols.still import StillSettings, StreamTap
@@ -440,8 +441,11 @@ class RotaryProtocol:
         when its windows were all in, complete it once the table rests and go on with the next."""
         j = self.position
         self._stop_table(exc)
+        unit = getattr(exc, "unit", None)  # one of several units on the table: which
+        lost = f"the IMU of {unit}" if unit else "the IMU"
         self.recorder.event("fault", j, {"device": "imu", "state": self.state,
-                                         "error": f"{type(exc).__name__}: {exc}"})
+                                         "error": f"{type(exc).__name__}: {exc}",
+                                         **({"unit": unit} if unit else {})})
         then = self._completed() if self._windows_in() else "restart"
         if then == "restart":
             self._count_again(exc)
@@ -449,7 +453,7 @@ class RotaryProtocol:
             return then  # nothing left to record: the session is complete without the IMU
         for attempt in range(1, self.settings.retries + 2):
             self.operator.wait(Instruction(
-                f"the IMU was lost during position {j + 1} ({exc.__cause__}); the table was "
+                f"{lost} was lost during position {j + 1} ({exc.__cause__}); the table was "
                 "stopped. Reconnect the IMU's cable without moving the unit, then confirm"))
             self.recorder.event("resume", j, {"after": "imu lost", "attempt": attempt})
             try:
@@ -457,7 +461,7 @@ class RotaryProtocol:
                 return then
             except ConnectionError as again:
                 self.operator.prompt(f"the IMU is still missing: {again}")
-        raise ProtocolError(f"the IMU did not come back after {self.settings.retries + 1} "
+        raise ProtocolError(f"{lost} did not come back after {self.settings.retries + 1} "
                             "reconnections; check its power and cable, then resume the "
                             "session") from exc
 
@@ -523,9 +527,10 @@ class RotaryProtocol:
         if (any(isinstance(e, TableError) for e in causes)
                 or getattr(exc, "table_stopped", None) is False):
             devices.append(getattr(self.table, "where", "rotary table"))
+        unit = next((f" of {e.unit}" for e in causes if hasattr(e, "unit")), "")
         for e in causes:
             if isinstance(e, SerialPortError | CanBusError):
-                devices.append(f"IMU on {getattr(e, 'port', None) or e.channel}")
+                devices.append(f"IMU{unit} on {getattr(e, 'port', None) or e.channel}")
                 break
         return devices
 
@@ -632,14 +637,16 @@ class Unwatched:
         return contextlib.nullcontext(self)
 
 
-def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
+def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None,
+                     others: dict | None = None) -> int:
     """Run the rotary protocol recorded in `metadata` into `writer` (`SessionWriter.create`d or
     `.resume`d), from the position after the last completed one; returns that first position
     (len(axes) when nothing was left to record). `view`: a `station.acquire.live_view.LiveView` to
-    show.
+    show. `others`: {stream: opened driver} of the other units on the table's plate (metadata
+    `units`, `station.files.session.units`), recorded beside `imu` by one `PlateRecorder`.
 
     The IMU link's counters (CRC failures, gaps, ...) are recorded at the end as a `note` event
-    with a `link` detail, for the report."""
+    with a `link` detail (and with several units, its `stream`), for the report."""
     view = view or Unwatched()
     protocol = view.follow(
         RotaryProtocol.from_metadata(metadata, table, view.observe_operator(operator), clock))
@@ -648,19 +655,29 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     if first < len(protocol.axes):
         spec = writer.specs["imu"]
         tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
-        with Recorder(writer, tap, clock=clock) as recorder, view.show():
+        recorder = (PlateRecorder(writer, {"imu": tap, **others}, unit_names(metadata, writer),
+                                  clock=clock) if others else Recorder(writer, tap, clock=clock))
+        with recorder, view.show():
             try:
                 protocol.run(view.observe_recorder(recorder), first, tap)
             finally:
-                stats = getattr(imu, "stats", None)
-                if stats is not None:
-                    recorder.event("note", None, {"text": "link statistics",
-                                                  "link": _counters(stats)})
+                for stream, device in {"imu": imu, **(others or {})}.items():
+                    stats = getattr(device, "stats", None)
+                    if stats is not None:
+                        recorder.event("note", None, {"text": "link statistics",
+                                                      "link": _counters(stats),
+                                                      **({"stream": stream} if others else {})})
     return first
 
 
+def unit_names(metadata: dict, writer) -> dict:
+    """{stream: "unit <serial> (stream <name>)"} of a session with several units."""
+    units = recorded_units(metadata, writer.specs, writer.path)
+    return {u.stream: f"unit {u.unit_serial} (stream {u.stream})" for u in units}
+
+
 def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict,
-                   view=None) -> None:
+                   view=None, others: dict | None = None) -> None:
     """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's settings at `suggested_axes(bench.positions)`; on a two-axis table
     (`bench.spins` > 0) at `position_angles(bench.positions)` of the position axis then
@@ -668,9 +685,10 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
     at the planned fixture poses (`station.protocols.planned`, its expected eps told before the
     session), run with the opened `imu` and `table` drivers into the new
     session file `out` (stream `spec`, `metadata` with the table's register map added to its
-    device profiles); `view` a LiveView to show, or None."""
+    device profiles); `view` a LiveView to show, or None. `others`: {stream: opened driver} of
+    the bench's other units on the plate (`bench.units`), each with its own stream."""
     from drivers.profile import load_profile
-    from station.files.session import SessionWriter
+    from station.files.session import SessionWriter, StreamSpec
 
     if bench.fixture is None:
         phis = position_angles(bench.positions) if bench.spins else None
@@ -686,8 +704,10 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
         metadata = {**protocol.metadata(), **metadata,
                     "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
     metadata["profiles"]["table"] = load_profile(bench.table_source).tables
-    with SessionWriter.create(out, metadata, {"imu": spec}, clock=clock) as writer:
-        continue_session(writer, metadata, imu, table, operator, clock, view)
+    streams = {"imu": spec, **{u.stream: StreamSpec.from_profile(u.imu.imu)
+                               for u in bench.units if u.stream in (others or {})}}
+    with SessionWriter.create(out, metadata, streams, clock=clock) as writer:
+        continue_session(writer, metadata, imu, table, operator, clock, view, others)
 
 
 def _counters(stats) -> dict:

@@ -63,3 +63,29 @@ class MountedUnit:
             source, axis = self.inner
             omega = omega + source.true_rates(times)[:, None] * np.asarray(axis, float)
         return self.unit.sample(omega, times, self.effects)
+
+
+class Plate:
+    """Several `MountedUnit`s fixed on one plate on the table: the technician (or fixture) sets
+    the plate's orientation (table frame -> plate frame) and unit k takes `mountings[k] @` it,
+    `mountings[k]` being its fixed rotation plate frame -> unit frame. The table axis is then one
+    physical axis for all, and each unit sees it in its own frame."""
+
+    def __init__(self, units: list, mountings: list):
+        if len(units) != len(mountings) or not units:
+            raise ValueError("a plate needs one mounting per unit")
+        self.units = list(units)
+        self.mountings = [np.asarray(r, float) for r in mountings]
+        self._orientation = np.eye(3)
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """The plate's orientation now."""
+        return self._orientation
+
+    @orientation.setter
+    def orientation(self, value) -> None:
+        at = self.units[0].table.clock.now()
+        self._orientation = np.asarray(value, float)
+        for unit, mounting in zip(self.units, self.mountings, strict=True):
+            unit.mount(mounting @ self._orientation, at)

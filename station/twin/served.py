@@ -32,6 +32,7 @@ from typing import Self
 import numpy as np
 
 from station.errors import InputError
+from station.files.session.units import unit_stream
 from station.model.fixture import Fixture
 from station.model.two_axis import position_axes
 from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
@@ -76,16 +77,25 @@ class BenchTwin:
                 cone, set by the station (`station.model.two_axis.position_angles`), then the
                 profile's default spin of the position axis; `truth()["axes"]` are the unit-frame
                 directions of those positions, exact (the geometry of `station.model.two_axis`)
+    units     : units on one plate (`station.sim.live.Plate`; serial links): the bench's unit
+                and units - 1 more, unit k drawn from the seed [seed, 3, k] (its own
+                sensitivities, biases and noise) and fixed on the plate at `plate_mounting(k)`;
+                the fixture mounts the plate, the suggested axes being directions in the plate
+                frame = unit 1's; each unit streams on its own pty
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
-                 cube: bool = False, two_axis: bool = False):
+                 cube: bool = False, two_axis: bool = False, units: int = 1):
         from station.twin.rotary_bench import VirtualBench
 
         if cube and two_axis:
             raise InputError("a two-axis table sets the unit's orientation itself: --cube and "
                              "--two-axis exclude each other")
+        if units < 1 or (units > 1 and (cube or two_axis or imu != "serial")):
+            raise InputError(f"--units {units}: the twin serves 1 or more units, several on the "
+                             "one-axis table's plate with serial links only (no --cube, no "
+                             "--two-axis)")
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime, fixture=not two_axis, two_axis=two_axis)
         self.seed = seed
@@ -103,8 +113,9 @@ class BenchTwin:
                                  for j, s in enumerate(steps)]
             self.axes = np.array([i.orientation[:, 2] for i in self.instructions])
         self.mounted = []  # the positions mounted, 1-based, in order
+        self.plate = _plate(self.bench, units) if units > 1 else None
         self.error = None
-        self._watch = None  # the pty watched for the station's open
+        self._streams = []  # [PortWatch, SerialTwin] of each unit: started when the port opens
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
 
@@ -118,9 +129,11 @@ class BenchTwin:
             self._mount(1)
         if b.kind == "serial":
             b.table_twin.start()
-            b.imu_twin = SerialTwin(b.profile, b.source, b.clock, max_lag=np.inf,
-                                    unread_after=UNREAD_AFTER)
-            self._watch = PortWatch(b.imu_twin.port)
+            sources = [b.source] if self.plate is None else self.plate.units
+            twins = [SerialTwin(b.profile, source, b.clock, max_lag=np.inf,
+                                unread_after=UNREAD_AFTER) for source in sources]
+            b.imu_twin = twins[0]
+            self._streams = [[PortWatch(twin.port), twin] for twin in twins]
         else:
             b.start()
         self._thread.start()
@@ -130,8 +143,10 @@ class BenchTwin:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join()
-        if self._watch is not None:
-            self._watch.close()
+        for watch, twin in self._streams:
+            watch.close()
+            if twin is not self.bench.imu_twin:
+                twin.stop()
         self.bench.close()
 
     def __enter__(self) -> Self:
@@ -145,10 +160,13 @@ class BenchTwin:
         b = self.bench
         imu = {"link": "serial", "port": b.imu_twin.port} if b.kind == "serial" else \
             {"link": "can", "interface": "virtual", "channel": b.can_channel}
-        return {"imu": {**imu, "profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz},
+        served = {"profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz}
+        units = {} if self.plate is None else {"units": [
+            {"link": "serial", "port": twin.port, **served} for _, twin in self._streams]}
+        return {"imu": {**imu, **served},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
                           "profile": "table_two_axis" if b.two_axis else "table_fixture"},
-                "clock_speed": b.clock.speed}
+                "clock_speed": b.clock.speed, **units}
 
     def toggle(self, device: str) -> bool:
         """Lose `device` ("imu": unplugged, "table": silent) if it is there, else bring it back;
@@ -157,20 +175,31 @@ class BenchTwin:
         if device == "table":
             b.table_twin.silent = not b.table_twin.silent
             return b.table_twin.silent
-        return _toggle_imu(b.imu_twin)
+        twins = {unit_stream(k): twin for k, (_, twin) in enumerate(self._streams)}
+        if device != "imu" and device not in twins:
+            raise InputError(f"the bench has no device {device!r}; it has the table and "
+                             f"{sorted(twins) or ['imu']}")
+        return _toggle_imu(twins.get(device, b.imu_twin))
 
     def profile_text(self, unit_serial: str | None = None) -> str:
         """A bench profile (`station record --profile`) pointing at these devices."""
         a = self.addresses()
         serial = unit_serial or f"SIM-{self.seed}"
-        imu = "\n".join(f"{k} = {_toml(v)}" for k, v in a["imu"].items())
+        imu = "[imu]\n" + "\n".join(f"{k} = {_toml(v)}" for k, v in a["imu"].items())
+        if self.plate is not None:
+            imu = "\n\n".join(
+                "[[imu]]\n" + "\n".join(f"{k} = {_toml(v)}" for k, v in unit.items())
+                + f"\nunit_serial = {_toml(plate_serial(serial, k))}\n"
+                f"mounting = {json.dumps(np.round(mounting, 15).tolist())}"
+                for k, (unit, mounting) in enumerate(zip(a["units"], self.plate.mountings,
+                                                         strict=True)))
         table = "\n".join(f"{k} = {_toml(v)}" for k, v in a["table"].items())
         from station.twin.rotary_bench import MARGINS
 
         margins = self.bench.with_margins(RotarySettings())  # waits the fast clock multiplies
         return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
                 f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
-                f"[imu]\n{imu}\n\n[table]\n{table}\n\n"
+                f"{imu}\n\n[table]\n{table}\n\n"
                 f"[protocol]\npositions = {self.positions}\n"
                 + "".join(f"{k} = {getattr(margins, k)!r}\n" for k in MARGINS)
                 + _fixture_section(self.cube))
@@ -179,8 +208,15 @@ class BenchTwin:
         """The simulated unit and the mountings made (JSON-ready)."""
         t = self.bench.truth()
         axes = {"axes": self.axes.tolist()} if self.bench.two_axis else {}
+        units = {} if self.plate is None else {"units": [
+            {"stream": unit_stream(k), "a": unit.unit.a.tolist(), "bias": unit.unit.bias.tolist(),
+             "mounting": mounting.tolist(),
+             "orientations": (mounting @ t.orientations).tolist()}
+            for k, (unit, mounting) in enumerate(zip(self.plate.units, self.plate.mountings,
+                                                     strict=True))]}
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
-                "orientations": t.orientations.tolist(), "mounted": self.mounted, **axes}
+                "orientations": t.orientations.tolist(), "mounted": self.mounted, **axes,
+                **units}
 
     def _mount(self, position: int) -> None:
         """Mount the unit in `position` (1-based; beyond the plan: the plan's position modulo
@@ -198,13 +234,43 @@ class BenchTwin:
         position the station asks for."""
         try:
             while not self._stop.wait(0.002):
-                if self._watch is not None and self._watch.opened():
-                    self.bench.imu_twin.start()
+                for watch, twin in self._streams:
+                    if watch.opened():
+                        twin.start()
                 if self.bench.fixture is not None and \
                         (position := self.bench.fixture.pending()) is not None:
                     self._mount(position)
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
+
+
+def plate_mounting(k: int) -> np.ndarray:
+    """The twin's mounting of unit k (0-based) on the plate, plate frame -> unit frame: unit 0
+    square to the plate, unit k turned 110k degrees about (1, 2, 2) / 3 (a generic rotation: each
+    unit sees every position's axis in another direction of its frame)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(110.0 * k) * np.array([1.0, 2.0, 2.0]) / 3.0
+                                ).as_matrix()
+
+
+def plate_serial(serial: str, k: int) -> str:
+    """The serial the twin's profile gives unit k (0-based) of the plate `serial`."""
+    return f"{serial}-U{k + 1}"
+
+
+def _plate(bench, units: int):
+    """The bench's unit and units - 1 more (seeds [seed, 3, k]) on one `Plate`, which the
+    technician (the fixture) now mounts."""
+    from station.sim.layouts import gyro_array
+    from station.sim.live import MountedUnit, Plate
+
+    extra = [MountedUnit(gyro_array(np.random.default_rng([bench.seed, 3, k]), fs=bench.rate_hz,
+                                    counts_per_unit=bench.profile.imu.scale), bench.table)
+             for k in range(1, units)]
+    plate = Plate([bench.mounted, *extra], [plate_mounting(k) for k in range(units)])
+    bench.technician.mounted = plate
+    return plate
 
 
 def _cube(unit) -> FixtureSpec:
@@ -389,13 +455,13 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime, cube, two_axis)."""
+    rate_hz, lifetime, cube, two_axis, units)."""
     if getattr(options, "link", "serial") != "serial":
         raise InputError("the rotary bench's IMU streams over the serial link only (--link "
                          "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
                      options.lifetime, getattr(options, "cube", False),
-                     getattr(options, "two_axis", False))
+                     getattr(options, "two_axis", False), getattr(options, "units", 1))
 
 
 def iron_twin(options) -> HandTwin:

@@ -4,6 +4,7 @@
     writer.py   SessionWriter (create, append, events, resume) and write_results
     reader.py   Session: reads a file, also while a writer is live (SWMR read)
     check.py    checked: the whole file read back in a child process under a time limit
+    units.py    the units of a session of several units on one table (metadata `units`)
     _repair.py  the HDF5 superblock's open-for-write flags a killed writer leaves, cleared on resume
 
 This namespace is the public interface; the modules' other names are the package's own.
