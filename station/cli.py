@@ -50,6 +50,9 @@ COMMANDS = {
     "devices": ("devices", "list serial ports and CAN interfaces"),
 }
 
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+"""Thread counts of the BLAS libraries numpy may use, read when numpy is first imported."""
+
 EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141
 
@@ -111,8 +114,17 @@ def configure_logging(verbose: bool) -> None:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL if not verbose else logging.INFO)
 
 
+def one_blas_thread() -> None:
+    """One BLAS thread, unless the environment names a count (before numpy is imported: the
+    commands import it). The station's matrices are small; on a busy host idle BLAS threads
+    spin on the cores that the recorder's threads need (docs/cli.md, "Threads")."""
+    for var in BLAS_THREADS:
+        os.environ.setdefault(var, "1")
+
+
 def main(argv=None) -> int:
     """Run one command; errors the station raises on purpose become one line and an exit code."""
+    one_blas_thread()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     configure_logging(args.verbose)
