@@ -72,7 +72,8 @@ def main() -> None:
                     "stderr_tail": demo.stderr.strip()[-300:]},
            "suite": {"exit": suite.returncode, "seconds": suite_s,
                      **pytest_counts(suite.stdout),
-                     "failures": re.findall(r"^(?:FAILED|ERROR) \S+", suite.stdout, re.M),
+                     "failures": re.findall(r"^(?:FAILED|ERROR) .*", suite.stdout, re.M),
+                     "error_lines": re.findall(r"^E .*", suite.stdout, re.M)[:60],
                      "closing": suite.stdout.strip().splitlines()[-1:]}}
     if args.json:
         print(json.dumps(out, indent=1))
