@@ -4,6 +4,7 @@ afterwards, each resumed run continues from the last completed position, and the
 completed by `station resume` calibrates as well as an uninterrupted one."""
 
 import json
+import os
 import random
 import signal
 import subprocess
@@ -59,9 +60,11 @@ print("done", flush=True)
 
 def run_and_kill(path, mode, delay):
     """Run the worker; SIGKILL it `delay` wall seconds after its first flush (unless it finished
-    first). Returns (last reported flushed counts, finished)."""
+    first). Returns (last reported flushed counts, finished). The worker's temporary files (its
+    twin's pty directory, which a killed process cannot remove) go beside the session file."""
     proc = subprocess.Popen([sys.executable, "-c", WORKER, str(path), mode],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TMPDIR": str(path.parent)})
     lines, first = [], threading.Event()
 
     def read():  # a line cut by the kill is left out
