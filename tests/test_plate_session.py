@@ -125,6 +125,22 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
         zip(serials, streams, strict=True))
     for unit, file in zip(units, files, strict=True):
         assert np.allclose(unit["scale_factors"], load(file).scale_factors, rtol=1e-9)
+    # `station diagnose` takes one unit at a time: refused without --stream, naming the streams
+    diagnosed = subprocess.run([*STATION, "diagnose", str(session)], check=False, text=True,
+                               capture_output=True, timeout=120)
+    assert diagnosed.returncode == 2 and "--stream imu" in diagnosed.stderr
+    assert all(st in diagnosed.stderr for st in streams)
+    wrong = subprocess.run([*STATION, "diagnose", str(session), "--stream", "imu4"],
+                           check=False, text=True, capture_output=True, timeout=120)
+    assert wrong.returncode == 2 and "no unit on stream 'imu4'" in wrong.stderr
+    second = subprocess.run([*STATION, "diagnose", str(session), "--stream", "imu2", "--json"],
+                            check=False, text=True, capture_output=True, timeout=300)
+    assert second.returncode == 0, second.stderr
+    before = json.loads(second.stdout)["calibration_before"]
+    # its nominal fit is unit 2's: within 4 sigma of unit 2's file, far from unit 1's
+    gap = [np.max(np.abs(np.subtract(before["scale_factors"], load(f).scale_factors))
+                  / np.array(before["scale_factors_sigma"])) for f in files[:2]]
+    assert gap[1] < 4 < 10 < gap[0], gap
 
 
 def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):

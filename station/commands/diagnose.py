@@ -21,6 +21,7 @@ from station.diagnose.plausibility import Site
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
 from station.files.session import Session
+from station.files.session.units import recorded_units
 from station.reduce.stillness import StillOptions
 from station.report import diagnosis as report
 
@@ -49,8 +50,25 @@ def register(p) -> None:
     p.add_argument("--latitude", type=float, metavar="DEG",
                    help="site latitude, degrees north: an Earth rate is named only when it "
                    "matches the Earth's there (without it: its magnitude only)")
+    p.add_argument("--stream", metavar="NAME",
+                   help="the unit to diagnose in a rotary session of several units on one table "
+                   "(its stream: imu, imu2, ...); a one-unit session has only imu")
     still_arguments(p)
     p.set_defaults(run=run)
+
+
+def unit_stream(recorded, path, stream: str | None) -> str:
+    """The stream to diagnose: `stream`, one of the session's units (station.files.session.units)
+    or imu for a one-unit session; a session of several units needs it named."""
+    streams = [u.stream for u in recorded_units(recorded.metadata, recorded.specs, path)]
+    if stream is None and streams:
+        raise InputError(f"{path} holds {len(streams)} units on one table (streams "
+                         f"{', '.join(streams)}): diagnose one at a time, e.g. --stream "
+                         f"{streams[0]}")
+    if stream is not None and stream not in (streams or ["imu"]):
+        raise InputError(f"{path} has no unit on stream {stream!r}; its units' streams: "
+                         f"{', '.join(streams or ['imu'])}")
+    return stream or "imu"
 
 
 def run(args) -> int:
@@ -70,7 +88,11 @@ def run(args) -> int:
         existing_session(path)
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
-            session = data.from_session(recorded) if rotary else None
+            session = data.from_session(recorded, unit_stream(recorded, path, args.stream)) \
+                if rotary else None
+    if not rotary and args.stream is not None:
+        raise InputError(f"{path} is not a rotary recording of several units: --stream is for "
+                         "those (station twin --units)")
     if rotary and still != StillOptions():
         raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
                          "--min-still are for still-pose (free-static) sessions")
