@@ -431,12 +431,18 @@ def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec)
                          "or use its bench profile")
     if recorded is None:
         raise InputError(f"{path} has no imu stream to continue")
-    differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
-              if getattr(recorded, name) != getattr(spec, name)]
+    differ = _stream_differences(recorded, spec)
     if differ:
         raise InputError(f"the profile's IMU stream differs from the recorded one in {differ}: "
                          "resume with the device profile and rate the session was recorded with")
     return kind
+
+
+def _stream_differences(recorded, spec) -> list:
+    """The fields of a recorded stream's StreamSpec that a profile's differs in (counts that
+    would not mean what the recorded ones do)."""
+    return [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
+            if getattr(recorded, name) != getattr(spec, name)]
 
 
 def _check_same_units(bench: BenchProfile, path, units: list, specs: dict) -> None:
@@ -451,9 +457,7 @@ def _check_same_units(bench: BenchProfile, path, units: list, specs: dict) -> No
                          f"has {mounted or 'one [imu]'}: resume with the bench profile the "
                          "session was recorded with")
     for unit in bench.units[1:]:
-        spec = StreamSpec.from_profile(unit.imu.imu)
-        differ = [name for name in ("channels", "units", "counts_per_unit", "rate_hz")
-                  if getattr(specs[unit.stream], name) != getattr(spec, name)]
+        differ = _stream_differences(specs[unit.stream], StreamSpec.from_profile(unit.imu.imu))
         if differ:
             raise InputError(f"unit {unit.unit_serial}: the profile's IMU stream differs from "
                              f"the recorded one in {differ}: resume with the device profile and "
