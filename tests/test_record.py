@@ -5,7 +5,6 @@ result checked against the twin's truth with bounds from theory."""
 import io
 import json
 import os
-import signal
 import subprocess
 import sys
 
@@ -13,6 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 from technicians import QuitsAt
+from twinproc import TwinProcess
 
 import station
 from station.acquire.bench import BenchProfile, record, resume
@@ -50,12 +50,9 @@ def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) 
 
 def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
     profile, session = tmp_path / "twin.toml", tmp_path / "session.h5"
-    twin = subprocess.Popen(
-        [*STATION, "twin", "--speed", "40", "--positions", str(POSITIONS), "--seed", "3",
-         "--profile-out", str(profile), "--lifetime", "300", "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        started = json.loads(twin.stdout.readline())
+    with TwinProcess("--speed", "40", "--positions", str(POSITIONS), "--seed", "3",
+                     "--profile-out", str(profile), "--lifetime", "300") as twin:
+        started = twin.started
         assert started["profile"] == str(profile) and started["clock_speed"] == 40.0
         assert os.path.exists(started["imu"]["port"])
         # the technician: one Enter per mounting prompt
@@ -68,11 +65,7 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
         assert rec.stderr.count("(the fixture mounts it)") == POSITIONS  # no key press needed
         assert [f"position {j}/{POSITIONS} captured" in rec.stderr
                 for j in range(1, POSITIONS + 1)] == [True] * POSITIONS
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    truth = json.loads(out.splitlines()[-1])["truth"]
+    truth = twin.truth
     assert truth["mounted"] == list(range(1, POSITIONS + 1))  # each position once, in order
     with Session.open(session) as s:
         kinds = [e.kind for e in s.events()]

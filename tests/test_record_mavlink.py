@@ -6,13 +6,13 @@ sensitivities and biases within their sigmas of the twin's truth."""
 
 import io
 import json
-import signal
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 from scipy import stats
+from twinproc import TwinProcess
 
 from station import cli
 from station.acquire.bench import BenchProfile, record
@@ -62,12 +62,10 @@ def _record_in_process(tmp) -> dict:
 def _record_by_the_commands(tmp) -> dict:
     """`station twin ... --udp` in one process, `station record` in another; the twin's truth
     (printed when it stops)."""
-    twin = subprocess.Popen(
-        [*STATION, "twin", "--protocol", "static", "--link", "mavlink", "--udp", "--speed", "25",
-         "--positions", "12", "--seed", "12", "--profile-out", str(tmp / "b.toml"),
-         "--lifetime", "200", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        started = json.loads(twin.stdout.readline())
+    with TwinProcess("--protocol", "static", "--link", "mavlink", "--udp", "--speed", "25",
+                     "--positions", "12", "--seed", "12", "--profile-out", str(tmp / "b.toml"),
+                     "--lifetime", "200") as twin:
+        started = twin.started
         assert started["imu"]["link"] == "mavlink"
         assert started["imu"]["port"].startswith("udpin:127.0.0.1:")
         rec = subprocess.run([*STATION, "record", "--profile", str(tmp / "b.toml"), "--out",
@@ -75,11 +73,7 @@ def _record_by_the_commands(tmp) -> dict:
                              text=True, capture_output=True, timeout=180)
         assert rec.returncode == 0, rec.stderr
         assert json.loads(rec.stdout)["positions_done"] == 12
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    truth = json.loads(out.splitlines()[-1])["truth"]
+    truth = twin.truth
     assert truth["turns"] == 12
     return truth
 

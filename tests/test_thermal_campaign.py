@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 from scipy.stats import t as student
+from twinproc import TwinProcess
 
 from drivers.errors import ChamberAlarm, ChamberDoorOpen, ChamberTimeout, DeviceLostError
 from station.acquire.bench import BenchProfile
@@ -194,19 +195,12 @@ def test_station_twin_chamber_serves_the_thermal_bench(tmp_path):
     """`station twin --chamber`: the chamber's address among the devices, and a bench profile
     whose [chamber] points at it, for a unit streaming its temperature."""
     profile = tmp_path / "thermal.toml"
-    twin = subprocess.Popen([*STATION, "twin", "--chamber", "--speed", "20", "--positions", "6",
-                             "--profile-out", str(profile), "--lifetime", "30", "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        info = json.loads(twin.stdout.readline())
+    with TwinProcess("--chamber", "--speed", "20", "--positions", "6", "--profile-out",
+                     str(profile), "--lifetime", "30") as twin:
         bench = BenchProfile.load(profile)
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    assert bench.chamber.port == info["chamber"]["port"] and bench.chamber.host == "127.0.0.1"
-    assert bench.imu.imu.units[-1] == "K"
-    truth = json.loads(out)["truth"]
+    assert bench.chamber.port == twin.started["chamber"]["port"]
+    assert bench.chamber.host == "127.0.0.1" and bench.imu.imu.units[-1] == "K"
+    truth = twin.truth
     assert truth["temperature"]["bias"] == TRUTH.bias and truth["chamber"]["air"] == ROOM
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
+from twinproc import TwinProcess
 
 import station
 from drivers.clock import ScaledClock
@@ -74,13 +75,9 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
     the cone and one spin of the position axis, set by the station over Modbus; `station solve`
     then finds the twin's unit within the statistical bounds."""
     profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
-    twin = subprocess.Popen(
-        [*STATION, "twin", "--two-axis", "--speed", "40", "--positions", str(CONE), "--seed", "3",
-         "--profile-out", str(profile), "--lifetime", "200", "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
-    try:
-        started = json.loads(twin.stdout.readline())
-        assert started["table"]["profile"] == "table_two_axis"
+    with TwinProcess("--two-axis", "--speed", "40", "--positions", str(CONE), "--seed", "3",
+                     "--profile-out", str(profile), "--lifetime", "200", env=ENV) as twin:
+        assert twin.started["table"]["profile"] == "table_two_axis"
         rec = station_run("record", "--profile", str(profile), "--out", str(session), "--json")
         assert rec.returncode == 0, rec.stderr
         summary = json.loads(rec.stdout)
@@ -98,11 +95,7 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
         assert diagnosed.returncode == 2
         assert f"spins the position axis of a two-axis table at position(s) {CONE + 1}" in \
             diagnosed.stderr
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    truth = json.loads(out.splitlines()[-1])["truth"]
+    truth = twin.truth
     assert truth["orientations"] == []  # nobody mounted anything
     axes = np.array(truth["axes"])
     assert axes.shape == (CONE + 1, 3) and np.allclose(axes[-1], position_axis())
@@ -132,12 +125,8 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
     spin again on the same twin and the file solves within the statistical bounds."""
     cone = 5  # with c, the 6 directions Eq. (7)'s g needs
     profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
-    twin = subprocess.Popen(
-        [*STATION, "twin", "--two-axis", "--speed", "40", "--positions", str(cone), "--seed", "6",
-         "--profile-out", str(profile), "--lifetime", "200", "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV)
-    try:
-        json.loads(twin.stdout.readline())
+    with TwinProcess("--two-axis", "--speed", "40", "--positions", str(cone), "--seed", "6",
+                     "--profile-out", str(profile), "--lifetime", "200", env=ENV) as twin:
         rec = subprocess.Popen(  # --json: the prompts on stderr
             [*STATION, "record", "--profile", str(profile), "--out", str(session), "--json"],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -156,11 +145,7 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
         assert resumed.returncode == 0, resumed.stderr
         solved = station_run("solve", str(session), "--out", str(cal), "--json")
         assert solved.returncode == 0, solved.stderr
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    truth = json.loads(out.splitlines()[-1])["truth"]
+    truth = twin.truth
     with Session.open(session) as s:
         starts = [e for e in s.events() if e.kind == "position_start"]
         reduced = rotary_readings(s)

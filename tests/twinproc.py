@@ -1,0 +1,46 @@
+"""`station twin` in its own process, as a technician runs it beside `station record`."""
+
+import json
+import signal
+import subprocess
+import sys
+
+STATION = [sys.executable, "-m", "station"]
+
+
+class TwinProcess:
+    """`station twin ARGS --json` (a context manager). `started` is the first line it prints (its
+    devices, once it serves them). On exit it is stopped by SIGINT, as Ctrl-C would; when the block
+    ended normally it must then exit 0, and `truth` is the truth its last line prints.
+
+    args : the twin's options (without --json); env : its environment (None: this one's)
+    """
+
+    def __init__(self, *args: str, env: dict | None = None):
+        self.process = subprocess.Popen([*STATION, "twin", *args, "--json"], env=env, text=True,
+                                        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        self.started: dict = {}
+        self.truth: dict = {}
+
+    def __enter__(self) -> "TwinProcess":
+        try:
+            self.started = json.loads(self.process.stdout.readline())
+        except BaseException:
+            self._stop()
+            raise
+        return self
+
+    def __exit__(self, kind, *_) -> None:
+        out, err = self._stop()
+        if kind is None:
+            assert self.process.returncode == 0, err
+            self.truth = json.loads(out.splitlines()[-1])["truth"]
+
+    def _stop(self) -> tuple:
+        """SIGINT, then the rest of its output; killed if it does not stop within 30 s."""
+        self.process.send_signal(signal.SIGINT)
+        try:
+            return self.process.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            return self.process.communicate()
