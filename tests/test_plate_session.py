@@ -140,6 +140,25 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     gap = [np.max(np.abs(np.subtract(before["scale_factors"], load(f).scale_factors))
                   / np.array(before["scale_factors_sigma"])) for f in files[:2]]
     assert gap[1] < 4 < 10 < gap[0], gap
+    # `station report`: one report per unit, each of its unit's stream and calibration
+    reported = subprocess.run([*STATION, "report", str(session), "--json"], check=False,
+                              text=True, capture_output=True, timeout=300)
+    assert reported.returncode == 0, reported.stderr
+    reports = json.loads(reported.stdout)["units"]
+    assert [(r["unit_serial"], r["stream"]) for r in reports] == list(
+        zip(serials, streams, strict=True))
+    for r, file, count, serial in zip(reports, files, counts, serials, strict=True):
+        assert r["files"][0] == str(tmp_path / f"plate.{serial}.html")
+        assert r["samples"] == count and r["sensors"] == 12
+        assert r["chi2_per_dof"] == pytest.approx(load(file).fit["chi2"] / load(file).fit["dof"])
+    one = subprocess.run([*STATION, "report", str(session), "--stream", "imu3", "--out",
+                          str(tmp_path / "u3.html"), "--json"], check=False, text=True,
+                         capture_output=True, timeout=300)
+    assert one.returncode == 0, one.stderr
+    assert json.loads(one.stdout)["unit_serial"] == serials[2]
+    wrong = subprocess.run([*STATION, "report", str(session), "--stream", "imu4"], check=False,
+                           text=True, capture_output=True, timeout=60)
+    assert wrong.returncode == 2 and "no stream 'imu4'" in wrong.stderr
 
 
 def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):

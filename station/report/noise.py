@@ -101,10 +101,10 @@ def _slopes(ax, tau, theta, unit: str) -> None:
                         (tau[len(tau) // 2], dev[len(tau) // 2]), fontsize=7)
 
 
-def add_to_report(report, session) -> None:
-    """A section and a figure per stream of the session whose static data give its noise; a
-    stream without enough static data gets a line saying so."""
-    for name in session.specs:
+def add_to_report(report, session, streams) -> None:
+    """A section and a figure per stream of `streams` (of the session) whose static data give its
+    noise; a stream without enough static data gets a line saying so."""
+    for name in streams:
         try:
             noise = session_noise(session, name)
         except CalibrationInputError as exc:

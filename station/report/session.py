@@ -37,6 +37,7 @@ from scipy import stats
 from station.errors import CalibrationInputError, InputError
 from station.files.jsonable import jsonable
 from station.files.session import Session
+from station.files.session.units import unit_serial
 from station.protocols import KINDS
 from station.reduce.rotary import position_spins, position_windows
 from station.reduce.timeline import sample_times, segment_breaks
@@ -105,11 +106,13 @@ class Report:
 # ------------------------------------------------------------------------------------ building
 
 
-def build(path, result: str | None = None) -> Report:
+def build(path, result: str | None = None, stream: str | None = None) -> Report:
     """The report of the session file `path`, with the calibration `results/<result>` (default:
-    the newest stored one, else computed for a rotary session)."""
+    the newest stored one, else computed for a rotary session). `stream`: one unit's stream of a
+    session with several units on one table (its serial, stored results, health and noise);
+    None: every stream, the first unit's calibration."""
     with Session.open(path) as session:
-        report = Report(str(path), _session_summary(session))
+        report = Report(str(path), _session_summary(session, stream))
         if not session.closed_cleanly:
             report.warnings.append(
                 "The session file was not closed cleanly (the recording is still running or was "
@@ -118,12 +121,13 @@ def build(path, result: str | None = None) -> Report:
         hand = getattr(KINDS.get(session.protocol), "still", False)
         _protocol_warnings(report, events, session.metadata)
         _fixture_poses(report, session.metadata)
-        calibration = _calibration(session, result, report)
-        for name in session.specs:
+        calibration = _calibration(session, result, report, stream)
+        streams = list(session.specs) if stream is None else [stream]
+        for name in streams:
             _stream_health(report, name, session.stream(name, columns=("seq", "host_time")),
                            events)
         _table_stability(report, session.table(), events, session.metadata)
-        noise.add_to_report(report, session)
+        noise.add_to_report(report, session, streams)
     if calibration is not None:
         cal, channels, units = calibration
         _fit(report, cal, channels, hand)
@@ -135,12 +139,14 @@ def build(path, result: str | None = None) -> Report:
     return report
 
 
-def _session_summary(session) -> dict:
-    """What the file says about itself, before any analysis."""
+def _session_summary(session, stream: str | None) -> dict:
+    """What the file says about itself, before any analysis (about the unit on `stream`)."""
     meta = session.metadata
     planned = meta.get("axes")
+    serial = None if stream is None else unit_serial(meta, session.specs, stream, session.path)
     return {
-        "unit_serial": session.unit_serial, "protocol": session.protocol,
+        "unit_serial": serial or session.unit_serial,
+        **({} if serial is None else {"stream": stream}), "protocol": session.protocol,
         "created": session.created, "software_version": session.software_version,
         "closed_cleanly": session.closed_cleanly,
         **({"positions_planned": len(planned)} if isinstance(planned, list) else {}),
@@ -189,11 +195,14 @@ def _protocol_warnings(report, events, metadata) -> None:
             rows, ("time (s)", "event", "position", "detail"))))
 
 
-def _calibration(session, name, report):
-    """(CalibrationResult, channel names, units) to report, or None with a warning saying why."""
-    names = session.result_names
+def _calibration(session, name, report, stream: str | None):
+    """(CalibrationResult, channel names, units) to report, or None with a warning saying why;
+    `stream`: only that stream's results (None: any)."""
+    names = [n for n in session.result_names
+             if stream is None or session.results(n).stream == stream]
     if name is not None and name not in names:
-        raise InputError(f"{session.path} has no results named {name!r}; it has "
+        raise InputError(f"{session.path} has no results named {name!r}"
+                         f"{'' if stream is None else f' of stream {stream}'}; it has "
                          f"{', '.join(names) or 'none'} (omit --result to use the newest)")
     kind = KINDS.get(session.protocol)
     if names:
@@ -214,7 +223,7 @@ def _calibration(session, name, report):
                                "the result to see the fit in this report.")
         return None
     try:
-        settings = ReplaySettings()
+        settings = ReplaySettings(stream=stream)
         stream = calibrated_stream(session, settings)
         readings, cal = solve_recorded(session, settings, command="the report")
     except CalibrationInputError as exc:
