@@ -23,6 +23,9 @@ the 24 accelerometer channels as one redundant array and for each IMU's triad:
   parameter, pooled over the class (3 for a triad's biases): the figure is widened for it
   (t quantile), and it scatters by itself - read it as honest within the band [0.5, 2], not to
   the second digit;
+- the same with the taus of the array's 8 IMUs pooled (one model: `station solve
+  --repeatability` of the 8 IMUs' combined files of the other two recordings; 24 dof per class,
+  widened by at most 1.05);
 - unless --quick: the 24-channel array on the command line: `station solve exp_k.h5
   --repeatability` of `station combine` of the other two, the same ratio over the 24 biases and
   scale factors.
@@ -89,6 +92,7 @@ def calibrations(sessions: dict) -> dict:
             readings[name] = imported_readings(s, "imu")
     out = {"poses": {n: int(r.M.shape[1]) for n, r in readings.items()}, "array": {},
            "per_imu": {}}
+    lot = {}
     for label, rows in [("array", slice(None))] + [(f"imu{i}", slice(3 * i, 3 * i + 3))
                                                    for i in range(IMUS)]:
         fits = {n: calibrate_still(_rows(r, rows), G) for n, r in readings.items()}
@@ -105,8 +109,11 @@ def calibrations(sessions: dict) -> dict:
         if label != "array":
             figures["spread_over_sigma"] = _spread(list(fits.values()))
             figures["with_repeatability"] = _with_repeatability(fits, label)
+            lot[label] = fits
         (out["array"] if label == "array" else out["per_imu"]).update(
             figures if label == "array" else {label: figures})
+    for label, fits in lot.items():
+        out["per_imu"][label]["with_lot_repeatability"] = _with_repeatability(fits, label, lot)
     per = out["per_imu"].values()
     out["median_spread_over_sigma"] = {
         f"{what} {fig}": float(np.median([p["spread_over_sigma"][fig][what] for p in per]))
@@ -115,26 +122,33 @@ def calibrations(sessions: dict) -> dict:
         f"{what} {held}": float(np.median([p["with_repeatability"][held][what] for p in per]))
         for what in ("scale_factors", "biases")
         for held in [*readings, "mean", *(f"{n} unwidened" for n in [*readings, "mean"])]}
+    out["median_spread_over_sigma_with_lot_repeatability"] = {
+        f"{what} {held}": float(np.median([p["with_lot_repeatability"][held][what] for p in per]))
+        for what in ("scale_factors", "biases") for held in [*readings, "mean"]}
     return out
 
 
-def _with_repeatability(fits: dict, label: str) -> dict:
+def _with_repeatability(fits: dict, label: str, lot: dict | None = None) -> dict:
     """{held-out recording or "mean": {"scale_factors", "biases": median over the three axes of
     the spread over the recordings / the held-out recording's 1-sigma with the repeatability of
     the other two combined}} ("mean": over the mean of the three held-out 1-sigma, as _spread);
     "unwidened": the same with each 1-sigma divided by its t widening (tau of a triad's class
-    rests on 3 dof: t_3(0.975) / 1.96 = 1.6 when tau dominates)."""
-    from station.files.calfile import Calibration
+    rests on 3 dof: t_3(0.975) / 1.96 = 1.6 when tau dominates). `lot` ({label: fits} of every
+    IMU): the taus of the other two recordings pooled over all the array's IMUs, one model
+    (`station solve --repeatability` of the 8 combined files; 24 dof per class)."""
     from station.files.combined import INCLUDED, combine, with_repeatability
 
-    cals = {n: Calibration.from_result(f, "MIMU4444", [f"{label}_a{c}" for c in "xyz"], "m/s^2",
-                                       session={"stream": "imu"}) for n, f in fits.items()}
+    cals = _cals(fits, label)
+    lots = {k: _cals(f, k) for k, f in (lot or {label: fits}).items()}
     honest = {}
     for held in cals:
         rest = [n for n in cals if n != held]
-        pooled = combine([cals[n] for n in rest], rest)
-        honest[held] = with_repeatability(cals[held], pooled, "+".join(rest),
-                                          hashlib.sha256(pooled.dumps().encode()).hexdigest())
+        sources = []
+        for k, unit in lots.items():
+            pooled = combine([unit[n] for n in rest], rest)
+            sources.append((pooled, f"{k}:{'+'.join(rest)}",
+                            hashlib.sha256(pooled.dumps().encode()).hexdigest()))
+        honest[held] = with_repeatability(cals[held], sources)
     out = {}
     for what, value, sigma in (("scale_factors", "scale_factors", "scale_factors_sigma"),
                                ("biases", "bias", "bias_sigma")):
@@ -148,6 +162,14 @@ def _with_repeatability(fits: dict, label: str) -> dict:
                 out.setdefault(held if widened else f"{held} unwidened", {})[what] = float(
                     np.median(sd / s))
     return out
+
+
+def _cals(fits: dict, label: str) -> dict:
+    """{recording: the calibration file content of one IMU's fit}."""
+    from station.files.calfile import Calibration
+
+    return {n: Calibration.from_result(f, "MIMU4444", [f"{label}_a{c}" for c in "xyz"], "m/s^2",
+                                       session={"stream": "imu"}) for n, f in fits.items()}
 
 
 def array_on_the_command_line(sessions: dict, tmp: Path) -> dict:

@@ -21,6 +21,7 @@ from station.files.combined import INCLUDED, combine, with_repeatability
 
 M, POSES, NOISE, TAU = 3, 20, 0.002, 0.01  # sensors, poses, reading noise and bias tau, m/s^2
 TRIALS = 250
+LOT = 8  # units of one model whose combined files are pooled
 Z95 = stats.norm.ppf(0.975)
 DUMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"
 
@@ -59,13 +60,53 @@ def test_a_new_session_covers_the_units_bias_only_with_the_repeatability():
     with_tau, own = [], []
     for trial in range(TRIALS):
         mu, (one, two, new) = unit_sessions(rng, 3)
-        honest = with_repeatability(new, combine([one, two], ["one", "two"]), "12", "0" * 64)
+        honest = with_repeatability(new, [(combine([one, two], ["one", "two"]), "12", "0" * 64)])
         i = trial % M
         with_tau.append(abs(honest.bias[i] - mu[i]) <= Z95 * honest.bias_sigma[i])
         own.append(abs(new.bias[i] - mu[i]) <= Z95 * new.bias_sigma[i])
     bound = 3 * np.sqrt(0.95 * 0.05 / TRIALS)
     assert abs(np.mean(with_tau) - 0.95) <= bound, np.mean(with_tau)
     assert np.mean(own) < 0.5, np.mean(own)
+
+
+def test_a_lot_of_units_of_one_model_pools_its_tau():
+    """Per trial a new lot of LOT units of one model (alike repeatability TAU, each its own mean
+    biases), two sessions of each combined per unit; a third session of the first unit with the
+    lot's LOT combined files: its taus pooled rest on LOT x M dof, so the widening is small
+    (at most t of 24 dof, 1.053, where one unit's file, 3 dof, widens by 1.3-1.6), and the +-1.96
+    sigma interval still holds the unit's mean bias in 95 % of the trials (binomial bounds: 3 s.d.
+    of TRIALS independent trials)."""
+    rng = np.random.default_rng(20261127)
+    covered, widening, alone = [], [], []
+    for trial in range(TRIALS // 2):
+        a = array(rng)
+        units = [(mu, [session(rng, a, mu + rng.normal(0, TAU, M)) for _ in range(2)])
+                 for mu in rng.normal(0, 0.2, (LOT, M))]
+        sources = [(combine(cals, ["one", "two"]), f"unit{u}.cal.json", f"{u:064d}")
+                   for u, (_, cals) in enumerate(units)]
+        mu = units[0][0]
+        new = session(rng, a, mu + rng.normal(0, TAU, M))
+        honest = with_repeatability(new, sources)
+        i = trial % M
+        covered.append(abs(honest.bias[i] - mu[i]) <= Z95 * honest.bias_sigma[i])
+        widening.append(honest.fit[INCLUDED]["widening"]["bias"])
+        alone.append(with_repeatability(new, sources[:1]).fit[INCLUDED]["widening"]["bias"])
+    record = honest.fit[INCLUDED]
+    assert [f["file"] for f in record["files"]] == [f"unit{u}.cal.json" for u in range(LOT)]
+    assert record["dof"]["bias"] == LOT * M
+    # the widening t_nu'(0.975) / 1.96 with nu' = dof / f^2 >= dof: at most t_24's, 1.053
+    assert max(widening) <= stats.t.ppf(0.975, LOT * M) / Z95 + 1e-12
+    assert np.median(alone) > 1.3 > 1.1 > max(widening), (np.median(alone), max(widening))
+    bound = 3 * np.sqrt(0.95 * 0.05 / (TRIALS // 2))
+    assert abs(np.mean(covered) - 0.95) <= bound, np.mean(covered)
+
+
+def test_the_same_combined_file_is_not_pooled_twice():
+    rng = np.random.default_rng(10)
+    _, (one, two, new) = unit_sessions(rng, 3)
+    combined = combine([one, two], ["one", "two"])
+    with pytest.raises(CalibrationFileError, match="given twice"):
+        with_repeatability(new, [(combined, "c", "0"), (combined, "c2", "0")])
 
 
 def test_the_sigmas_and_the_covariance_include_tau():
@@ -75,10 +116,11 @@ def test_the_sigmas_and_the_covariance_include_tau():
     rng = np.random.default_rng(5)
     _, (one, two, new) = unit_sessions(rng, 3)
     combined = combine([one, two], ["one", "two"])
-    honest = with_repeatability(new, combined, "one+two.cal.json", "ab" * 32)
+    honest = with_repeatability(new, [(combined, "one+two.cal.json", "ab" * 32)])
     record = honest.fit[INCLUDED]
     tau = combined.fit["repeatability"]["bias"]["tau"]
-    assert record["file"] == "one+two.cal.json" and record["sha256"] == "ab" * 32
+    assert record["files"][0]["file"] == "one+two.cal.json"
+    assert record["files"][0]["sha256"] == "ab" * 32
     assert record["tau"]["bias"] == tau > 0
     share = np.mean(tau**2 / (new.bias_sigma**2 + tau**2))
     widen = stats.t.ppf(0.975, M / share**2) / Z95  # dof = P (K - 1) = M
@@ -102,7 +144,7 @@ def test_a_combined_file_without_sound_taus_is_refused(change, match):
     rng = np.random.default_rng(6)
     _, (one, two, new) = unit_sessions(rng, 3)
     with pytest.raises(CalibrationFileError, match=match):
-        with_repeatability(new, change(combine([one, two], ["one", "two"])), "x.cal.json", "0")
+        with_repeatability(new, [(change(combine([one, two], ["one", "two"])), "x.cal.json", "0")])
 
 
 def _tau(cal: Calibration, tau: float) -> Calibration:
@@ -122,8 +164,8 @@ def test_a_combined_file_of_another_layout_is_refused(other, match):
     olds = [session(rng, a, mu, other.get("stream", "acc"), other.get("units", "m/s^2"))
             for _ in range(2)]
     with pytest.raises(CalibrationFileError, match=match):
-        with_repeatability(session(rng, a[:, :M], mu[:M]), combine(olds, ["one", "two"]),
-                           "x.cal.json", "0")
+        with_repeatability(session(rng, a[:, :M], mu[:M]),
+                           [(combine(olds, ["one", "two"]), "x.cal.json", "0")])
 
 
 def test_the_repeatability_is_not_added_twice():
@@ -131,14 +173,14 @@ def test_the_repeatability_is_not_added_twice():
     _, (one, two, new) = unit_sessions(rng, 3)
     combined = combine([one, two], ["one", "two"])
     with pytest.raises(CalibrationFileError, match="already includes"):
-        with_repeatability(with_repeatability(new, combined, "c", "0"), combined, "c", "0")
+        with_repeatability(with_repeatability(new, [(combined, "c", "0")]), [(combined, "c", "0")])
 
 
 def test_a_session_with_the_repeatability_is_not_combined_again():
     """Its 1-sigma holds tau already: pooling it would count the spread twice."""
     rng = np.random.default_rng(9)
     _, (one, two, new) = unit_sessions(rng, 3)
-    widened = with_repeatability(new, combine([one, two], ["one", "two"]), "c.cal.json", "0")
+    widened = with_repeatability(new, [(combine([one, two], ["one", "two"]), "c.cal.json", "0")])
     with pytest.raises(CalibrationFileError, match="solved with the repeatability of 'c.cal.json'"):
         combine([one, widened], ["one", "new"])
 
@@ -166,13 +208,25 @@ def test_solve_repeatability_on_the_command_line(tmp_path, capsys):
     cal = load(h5.with_suffix(".cal.json"))
     tau = load(combined).fit["repeatability"]["bias"]["tau"]
     assert tau > 0
-    assert cal.fit[INCLUDED]["sha256"] == hashlib.sha256(combined.read_bytes()).hexdigest()
-    assert cal.fit[INCLUDED]["file"] == str(combined)
+    [record] = cal.fit[INCLUDED]["files"]
+    assert record["sha256"] == hashlib.sha256(combined.read_bytes()).hexdigest()
+    assert record["file"] == str(combined) and record["sessions"] == 2
     assert summary["repeatability"]["tau"]["bias"] == tau
     assert np.all(cal.bias_sigma >= np.hypot(plain.bias_sigma, tau))
     assert np.allclose(cal.bias, plain.bias)
     code, out = station(capsys, "solve", h5, "--repeatability", combined, "--force")
     assert code == 0 and "includes the spread between sessions of" in out
+    # a second unit of the model: both files pooled, their dof added, both named
+    for name in ("wed", "thu"):
+        session(rng, a, rng.normal(0, 0.03, 3)).save(tmp_path / f"{name}.cal.json")
+    other = tmp_path / "unit2.cal.json"
+    assert station(capsys, "combine", tmp_path / "wed.cal.json", tmp_path / "thu.cal.json",
+                   "--out", other)[0] == 0
+    code, out = station(capsys, "solve", h5, "--repeatability", combined, other, "--force")
+    assert code == 0 and str(other) in out
+    pooled = load(h5.with_suffix(".cal.json")).fit[INCLUDED]
+    assert [f["file"] for f in pooled["files"]] == [str(combined), str(other)]
+    assert pooled["dof"]["bias"] == 2 * cal.fit[INCLUDED]["dof"]["bias"]
     code, _, err = station_with_errors(capsys, "solve", h5, "--force", "--repeatability",
                                        tmp_path / "plain.cal.json")
     assert code == 2 and "no repeatability section" in err

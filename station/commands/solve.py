@@ -36,9 +36,11 @@ The calibration file (`station.files.calfile`) holds the result with its uncerta
 each class's between-session tau (biases, scale factors, axis angles, entries of a) is added to
 this session's own 1-sigma, widened for the few degrees of freedom tau rests on
 (`station.files.combined.with_repeatability`): every 1-sigma written is then the figure for this
-session as a unit re-seated and switched on again, not only the scatter within it. The file says
-so (`fit.repeatability_included`: the combined file's name and sha256, each tau) and so does the
-output.
+session as a unit re-seated and switched on again, not only the scatter within it. Several
+combined files, one per unit of the same model, pool their taus (weighted by dof): a model's tau
+from a lot of units rests on many more dof than one unit's, so it is widened far less. The file
+says so (`fit.repeatability_included`: each combined file's name and sha256, each tau) and so does
+the output.
 """
 
 import dataclasses
@@ -66,7 +68,8 @@ def register(p) -> None:
         "  station solve campaigns/SN42   # a thermal campaign: the temperature model\n"
         "  station combine exp_1.cal.json exp_2.cal.json --out exp_12.cal.json\n"
         "  station solve exp_3.h5 --repeatability exp_12.cal.json   # + the spread between "
-        "sessions\n\n"
+        "sessions\n"
+        "  station solve u1.h5 --repeatability lot/*.cal.json   # the tau of the model's units\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -95,9 +98,10 @@ def register(p) -> None:
     p.add_argument("--tolerances", type=Path, metavar="FILE.toml",
                    help="judge the unit against the [tolerances] table of this TOML file (e.g. the "
                         "bench profile); default: the recorded bench profile's, if any")
-    p.add_argument("--repeatability", type=Path, metavar="COMBINED.cal.json",
+    p.add_argument("--repeatability", type=Path, nargs="+", metavar="COMBINED.cal.json",
                    help="a combined calibration file of earlier sessions of the unit (`station "
-                        "combine`): its between-session spread tau is added to every 1-sigma")
+                        "combine`): its between-session spread tau is added to every 1-sigma; "
+                        "several (one per unit of the same model): their taus pooled")
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -115,8 +119,8 @@ def run(args) -> int:
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
-    repeatability = None if args.repeatability is None else existing_file(
-        args.repeatability, "a combined calibration file (`station combine`)")
+    repeatability = None if args.repeatability is None else [existing_file(
+        path, "a combined calibration file (`station combine`)") for path in args.repeatability]
     options = {"nominal": nominal, "magnitude": args.magnitude,
                "accept_suspect": args.accept_suspect, "tolerances": tolerances,
                "still": still_values(args), "store": args.store, "faces": bool(args.faces),
@@ -217,8 +221,9 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     still: the still-pose detector's settings (`station.commands.still_values`); store: the
     result is also stored in the session as results/solve-<k> with its settings; faces: an
     import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`);
-    repeatability: the path of a combined calibration file (`station combine`) whose
-    between-session taus are added to every 1-sigma (`station.files.combined.with_repeatability`,
+    repeatability: the paths of combined calibration files (`station combine`; one per unit of
+    the model: pooled) whose between-session taus are added to every 1-sigma
+    (`station.files.combined.with_repeatability`,
     before the verdict, which then judges the unit with them)."""
     from station.files.calfile import Calibration
     from station.files.session import Session, nominal_layout
@@ -277,9 +282,9 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
     if repeatability is not None:
-        from station.files.combined import with_repeatability_file
+        from station.files.combined import with_repeatability_files
 
-        cal = with_repeatability_file(cal, repeatability)
+        cal = with_repeatability_files(cal, repeatability)
     if tolerances is None or tolerances.empty:
         return cal
     return dataclasses.replace(cal, verdict=verdict(cal, tolerances, names, layout))
@@ -460,10 +465,11 @@ def repeatability_lines(s: dict) -> list:
         return []
     taus = ", ".join(f"{k.replace('_', ' ')} {rep['tau'][k]:.3g}"
                      for k in ("bias", "scale_factors"))
-    return [f"every 1 sigma includes the spread between sessions of {rep['file']} (sha256 "
-            f"{rep['sha256'][:16]}..., {rep['sessions']} sessions): tau {taus}, widened x"
-            f"{rep['widening']['bias']:.3f} for its {rep['dof']['bias']} dof; this session's own "
-            f"bias 1 sigma: median {np.median(rep['session_sigma']['bias']):.2g}"]
+    files = ", ".join(f"{f['file']} (sha256 {f['sha256'][:16]}..., unit {f['unit_serial']}, "
+                      f"{f['sessions']} sessions)" for f in rep["files"])
+    return [f"every 1 sigma includes the spread between sessions of {files}: tau {taus}, "
+            f"widened x{rep['widening']['bias']:.3f} for its {rep['dof']['bias']} dof; this "
+            f"session's own bias 1 sigma: median {np.median(rep['session_sigma']['bias']):.2g}"]
 
 
 def noise_lines(s: dict) -> list:

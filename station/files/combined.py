@@ -10,9 +10,12 @@ consistent; the joint covariance keeps the sessions' average correlation structu
 pooled sigmas. `fit.repeatability` holds each class's tau, dof and Q; `session.combined` the
 sources.
 
-`with_repeatability(cal, combined, ...)`: one NEW session's calibration with those taus added to
-its own 1-sigma (`station solve --repeatability COMBINED`), the figure valid for that session as a
-unit re-seated and switched on again; `fit.repeatability_included` says from which file.
+`with_repeatability(cal, sources)`: one NEW session's calibration with those taus added to its own
+1-sigma (`station solve --repeatability COMBINED`), the figure valid for that session as a unit
+re-seated and switched on again; `fit.repeatability_included` says from which files. Several
+combined files, one per unit of one model (a lot whose repeatability is alike), pool each class's
+tau^2 weighted by its dof: the tau of a model rests on many more dof than one unit's (a triad's
+biases from two sessions: 3), so it needs far less widening.
 """
 
 import dataclasses
@@ -36,7 +39,7 @@ def _check_alike(cals, names) -> None:
     for cal, name in zip(cals, names, strict=True):
         if INCLUDED in cal.fit:  # its 1-sigma holds a tau already: counted twice
             raise CalibrationFileError(
-                f"{name} was solved with the repeatability of {cal.fit[INCLUDED].get('file')!r} "
+                f"{name} was solved with the repeatability of {included_files(cal.fit)} "
                 "(station solve --repeatability): its 1-sigma holds the spread between sessions "
                 "already; combine the files solved without --repeatability")
     first = cals[0]
@@ -142,22 +145,28 @@ between-session terms (`with_repeatability`): the file, its sha256, each class's
 widening, and the session's own 1-sigma of the biases and scale factors."""
 
 
-def with_repeatability(cal: Calibration, combined: Calibration, name: str,
-                       sha256: str) -> Calibration:
+def with_repeatability(cal: Calibration, sources: list) -> Calibration:
     """One session's calibration `cal` with every 1-sigma the figure for the unit re-seated and
-    switched on again: each class's between-session tau of `combined` (a file of `station
-    combine`, named `name`, of digest `sha256`) added to the session's own variance and widened
-    for the dof tau was estimated on (`station.solve.repeatability.next_session_sigma`); the
-    covariance gains tau^2 on the diagonal of a and b alike. Refused (CalibrationFileError): a
-    combined file of another layout (number of sensors, axes, quantity, stream, frame), without
-    a repeatability section or with a tau that is not a finite number >= 0, and a calibration
-    that already includes one."""
+    switched on again. `sources`: [(combined, name, sha256)], files of `station combine` (named
+    `name`, of digest `sha256`) of this unit or of units of its model; each class's
+    between-session tau^2, pooled over them weighted by dof (`pooled_terms`), is added to the
+    session's own variance and widened for the dof tau was estimated on
+    (`station.solve.repeatability.next_session_sigma`); the covariance gains tau^2 on the
+    diagonal of a and b alike. Refused (CalibrationFileError): a combined file of another layout
+    (number of sensors, axes, quantity, stream, frame), without a repeatability section or with a
+    tau that is not a finite number >= 0, and a calibration that already includes one."""
     if INCLUDED in cal.fit:
         raise CalibrationFileError(
-            f"the calibration already includes the repeatability of "
-            f"{cal.fit[INCLUDED].get('file')!r}; solve the session again without it first")
-    terms = _terms(combined, name)
-    _check_layout(cal, combined, name)
+            f"the calibration already includes the repeatability of {included_files(cal.fit)}; "
+            "solve the session again without it first")
+    digests = [sha256 for _, _, sha256 in sources]
+    if len(set(digests)) != len(digests):
+        raise CalibrationFileError(
+            "the same combined file is given twice: its sessions would count twice in tau; give "
+            "each combined file once")
+    terms = pooled_terms([(combined, name) for combined, name, _ in sources])
+    for combined, name, _ in sources:
+        _check_layout(cal, combined, name)
     own = {"a": cal.a_sigma, "bias": cal.bias_sigma, "scale_factors": cal.scale_factors_sigma,
            "axis_angles": cal.axis_angles_sigma}
     new = {}
@@ -166,8 +175,8 @@ def with_repeatability(cal: Calibration, combined: Calibration, name: str,
         wider, widen = repeatability.next_session_sigma(sigma.ravel(), tau**2, dof)
         new[key] = (wider.reshape(sigma.shape), tau, widen)
     fit = {**cal.fit, INCLUDED: {
-        "file": name, "sha256": sha256, "unit_serial": combined.unit_serial,
-        "sessions": combined.fit.get("sessions"),
+        "files": [{"file": name, "sha256": sha256, "unit_serial": combined.unit_serial,
+                   "sessions": combined.fit.get("sessions")} for combined, name, sha256 in sources],
         "tau": {k: v[1] for k, v in new.items()}, "dof": {k: terms[k][1] for k in new},
         "widening": {k: v[2] for k, v in new.items()},
         "session_sigma": {"bias": cal.bias_sigma.tolist(),
@@ -179,12 +188,36 @@ def with_repeatability(cal: Calibration, combined: Calibration, name: str,
     return loads(out.dumps(), "the calibration with the repeatability")  # the checks of a load
 
 
-def with_repeatability_file(cal: Calibration, path) -> Calibration:
-    """`with_repeatability` of the combined calibration file at `path` (read once: its sha256 is
-    that of the bytes loaded)."""
-    text, raw = read_text(path)
-    return with_repeatability(cal, loads(text, str(path)), str(path),
-                              hashlib.sha256(raw).hexdigest())
+def with_repeatability_files(cal: Calibration, paths) -> Calibration:
+    """`with_repeatability` of the combined calibration files at `paths` (each read once: its
+    sha256 is that of the bytes loaded)."""
+    sources = []
+    for path in paths:
+        text, raw = read_text(path)
+        sources.append((loads(text, str(path)), str(path), hashlib.sha256(raw).hexdigest()))
+    return with_repeatability(cal, sources)
+
+
+def included_files(fit: dict) -> str:
+    """The combined files a calibration's 1-sigma includes (`fit.repeatability_included`), named
+    for a message; the one `file` of calibrations written before several could be pooled."""
+    record = fit.get(INCLUDED) or {}
+    files = record.get("files")
+    names = [f.get("file") for f in files if isinstance(f, dict)] if isinstance(files, list) \
+        else [record.get("file")]
+    return ", ".join(repr(n) for n in names)
+
+
+def pooled_terms(sources) -> dict:
+    """{class: (tau, dof)} pooled over the combined files `sources` [(combined, name)]: tau^2 the
+    dof-weighted mean of theirs (the pooled variance of units alike), dof their sum."""
+    terms = [_terms(combined, name) for combined, name in sources]
+    out = {}
+    for key in CLASSES:
+        dof = sum(t[key][1] for t in terms)
+        tau2 = sum(t[key][1] * t[key][0] ** 2 for t in terms) / dof if dof else 0.0
+        out[key] = (float(np.sqrt(tau2)), dof)
+    return out
 
 
 def _terms(combined: Calibration, name: str) -> dict:
