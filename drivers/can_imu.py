@@ -50,12 +50,15 @@ class CanSection:
     frames  : names of the DBC messages that make one sample, in the order the device sends them
     counter : name of the sample-counter signal present in every one of those frames
     signals : `[can.signals]`, channel name -> "MESSAGE.SIGNAL"
+    id_offset : added to every DBC frame id on the wire (default 0): the unit's node offset, so
+              that several units of one model share a bus, each configured to its own ids
     """
 
     dbc: Path
     frames: tuple
     counter: str
     signals: dict
+    id_offset: int = 0
 
     @classmethod
     def parse(cls, s: Section) -> "CanSection":
@@ -64,8 +67,9 @@ class CanSection:
         counter = s.get("counter", str)
         sub = s.sub("signals")
         signals = {channel: sub.get(channel, str) for channel in list(sub.table)}
+        id_offset = s.get("id_offset", int, default=0)
         s.finish()
-        return cls(dbc, frames, counter, signals)
+        return cls(dbc, frames, counter, signals, id_offset)
 
 
 @dataclass(frozen=True)
@@ -93,11 +97,13 @@ class CanProfile:
 
 @dataclass(frozen=True)
 class _Slot:
-    """One frame of a sample: its position in the sample, its DBC message, its channel columns."""
+    """One frame of a sample: its position in the sample, its DBC message, its channel columns,
+    its id on the wire (the DBC's plus the profile's id_offset)."""
 
     index: int
     message: object
     columns: tuple  # (signal name, column) pairs
+    frame_id: int
 
 
 class FrameLayout:
@@ -134,9 +140,22 @@ class FrameLayout:
             raise ProfileError(f"counter {self.counter!r} must have one width in all frames")
         self.counter_modulus = 1 << widths.pop()
         self.lo, self.hi = (np.array(r, dtype=np.int64) for r in zip(*ranges, strict=True))
-        self.slots = tuple(_Slot(i, m, tuple(columns[m.name])) for i, m in enumerate(messages))
-        self.by_id = {(m.frame_id, m.is_extended_frame): s
-                      for m, s in zip(messages, self.slots, strict=True)}
+        self.slots = tuple(_Slot(i, m, tuple(columns[m.name]),
+                                 _wire_id(m, can_section.id_offset, profile.source))
+                           for i, m in enumerate(messages))
+        self.by_id = {(s.frame_id, s.message.is_extended_frame): s for s in self.slots}
+
+
+def _wire_id(message, offset: int, source: str) -> int:
+    """The id of `message` on the wire: its DBC id plus the unit's id_offset, within the range
+    of its frame format (11 bits standard, 29 extended)."""
+    bits = 29 if message.is_extended_frame else 11
+    wire = message.frame_id + offset
+    if not 0 <= wire < 1 << bits:
+        raise ProfileError(f"{source}: [can] id_offset {offset} puts frame {message.name} "
+                           f"(id {message.frame_id:#x}) at {wire:#x}, outside the {bits}-bit ids "
+                           "of its frame format; choose the offset the unit is configured to")
+    return wire
 
 
 def _raw_range(sig) -> tuple:

@@ -109,6 +109,9 @@ def profile_dict() -> dict:
     (lambda d: d["can"].update(frames=["IMU_GYRO_A", "NOPE"]), "'NOPE' .* is not in"),
     (lambda d: d["can"]["signals"].update(g1="IMU_GYRO_A.G9"), "'G9' is not in frame"),
     (lambda d: d["can"].update(counter="G1"), "not in frame 'IMU_GYRO_B'"),
+    (lambda d: d["can"].update(id_offset=0x700), r"id_offset 1792 puts frame IMU_GYRO_A \(id "
+                                                 r"0x180\) at 0x880, outside the 11-bit ids"),
+    (lambda d: d["can"].update(id_offset=-0x181), "at -0x1, outside"),
 ])
 def test_bad_profiles_are_refused_with_a_clear_message(edit, message):
     data = profile_dict()

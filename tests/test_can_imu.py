@@ -1,5 +1,6 @@
 """CAN IMU driver against its virtual twin on a python-can virtual bus (no mocks)."""
 
+import dataclasses
 import os
 import time
 import uuid
@@ -20,14 +21,15 @@ def pattern(k: np.ndarray) -> np.ndarray:
     return (k[:, None] * 7919 + 1013 * np.arange(M)) % 16384 - 8192
 
 
-def counting_source():
-    """A source that returns `pattern` of the running sample number, whatever the times."""
+def counting_source(mirrored: bool = False):
+    """A source that returns `pattern` of the running sample number, whatever the times
+    (`mirrored`: -1 - pattern, another unit's counts in the same range)."""
     state = {"k": 0}
 
     def source(times):
         k = state["k"] + np.arange(len(times))
         state["k"] += len(times)
-        return pattern(k)
+        return -1 - pattern(k) if mirrored else pattern(k)
 
     return source
 
@@ -105,6 +107,29 @@ def test_lost_frames_are_counted_and_foreign_frames_ignored(tmp_path):
     assert (stats.incomplete, stats.orphaned, stats.gaps, stats.dropped) == (2, 4, 3, 3)
     assert (stats.unknown, stats.short) == (3, 1)
     assert stats.frames == stats.used + stats.unknown + stats.short + stats.orphaned
+
+
+def test_two_units_on_one_bus_each_decoded_by_its_id_offset(tmp_path):
+    """Two units of one model on one bus, node offsets 0 and 0x10 (ids 0x180-0x182 and
+    0x190-0x192): each driver decodes exactly its own unit's samples (another pattern per unit)
+    and counts the other's frames as unknown; its raw log replays with its offset."""
+    name, n = channel(), 300
+    second = dataclasses.replace(PROFILE, can=dataclasses.replace(PROFILE.can, id_offset=0x10))
+    log = tmp_path / "second.blf"
+    with (CanImu(virtual(name), PROFILE) as first_imu,
+          CanImu(virtual(name), second, log_path=log) as second_imu,
+          CanImuTwin(name, PROFILE, counting_source(), samples=n) as one,
+          CanImuTwin(name, second, counting_source(mirrored=True), samples=n) as two):
+        assert one.wait(timeout=20) and two.wait(timeout=20)
+        blocks = [read_all(first_imu, n), read_all(second_imu, n)]
+    for imu, got, twin in zip((first_imu, second_imu), blocks, (one, two), strict=True):
+        np.testing.assert_array_equal(np.concatenate([b.counts for b in got]),
+                                      np.array(twin.sent_counts))
+        assert (imu.stats.samples, imu.stats.unknown, imu.stats.incomplete) == (n, 3 * n, 0)
+    assert not np.array_equal(np.array(one.sent_counts), np.array(two.sent_counts))
+    replayed, _ = replay(log, second)
+    np.testing.assert_array_equal(replayed.counts, np.array(two.sent_counts))
+
 
 
 def test_failing_log_is_counted_and_decoding_goes_on(tmp_path):

@@ -107,6 +107,6 @@ class CanImuTwin:
                 continue
             values = counter | {name: int(row[col]) for name, col in slot.columns}
             data = slot.message.encode(values, scaling=False, padding=True)
-            self.bus.send(can.Message(arbitration_id=slot.message.frame_id, data=data,
+            self.bus.send(can.Message(arbitration_id=slot.frame_id, data=data,
                                       is_extended_id=slot.message.is_extended_frame))
         return complete
