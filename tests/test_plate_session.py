@@ -17,6 +17,8 @@ from scipy import stats
 from technicians import QuitsAt
 
 import station
+import station.commands.solve
+from drivers.profile import ProfileError
 from station.acquire.bench import BenchProfile, record, resume
 from station.acquire.operator import ConsoleOperator, OperatorAbort
 from station.errors import InputError, ProtocolError, SessionFormatError
@@ -159,6 +161,41 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     wrong = subprocess.run([*STATION, "report", str(session), "--stream", "imu4"], check=False,
                            text=True, capture_output=True, timeout=60)
     assert wrong.returncode == 2 and "no stream 'imu4'" in wrong.stderr
+
+
+def test_three_can_units_on_one_bus_recorded_and_solved_each_against_its_truth(tmp_path):
+    """Three units of one model on ONE CAN bus, each configured to its own node (id_offset 0,
+    0x10, 0x20 in its [[imu]] table), one driver each, recorded into one session: each stream
+    holds its own unit's samples (solved within its bounds against its own truth), none the
+    others' frames."""
+    path = tmp_path / "s.h5"
+    # python-can's virtual bus hands every frame to every driver in this process: 3 units x 3
+    # frames x 3 drivers per sample, so a slower clock and rate than the serial plate's
+    with BenchTwin("can", seed=12, speed=10, positions=POSITIONS, rate_hz=50,
+                   units=UNITS) as twin:
+        (tmp_path / "b.toml").write_text(twin.profile_text())
+        bench = BenchProfile.load(tmp_path / "b.toml")
+        assert [u.imu.can.id_offset for u in bench.units] == [0, 0x10, 0x20]
+        assert len({(u.address["interface"], u.address["channel"]) for u in bench.units}) == 1
+        record(bench, path, ConsoleOperator(stdin=io.StringIO(), stdout=io.StringIO()))
+        truth = twin.truth()
+    for k, unit in enumerate(truth["units"]):
+        cal = station.commands.solve.solve_session(path, unit["stream"])
+        cal.save(tmp_path / f"u{k}.cal.json")
+        check_unit(path, tmp_path / f"u{k}.cal.json", unit["stream"], unit)
+    with Session.open(path) as s:
+        assert [e.kind for e in s.events()].count("position_done") == POSITIONS
+
+
+def test_can_units_sharing_a_bus_at_the_same_ids_are_refused(tmp_path):
+    """Two [[imu]] units on one CAN bus without their own id_offset would each decode the
+    other's frames: refused, naming both units and the ids, with the fix."""
+    with BenchTwin("can", seed=12, speed=40, positions=POSITIONS, rate_hz=100, units=2) as twin:
+        text = twin.profile_text().replace("id_offset = 16", "id_offset = 0")
+    (tmp_path / "b.toml").write_text(text)
+    with pytest.raises(ProfileError, match=r"units SIM-12-U1 and SIM-12-U2 share the CAN bus .* "
+                                           r"0x180, 0x181, 0x182; configure each unit"):
+        BenchProfile.load(tmp_path / "b.toml")
 
 
 def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):

@@ -180,11 +180,33 @@ def _units(profile, serial: str, path) -> tuple:
     units = tuple(_unit(profile, Section(profile.source, f"imu #{k + 1}", t), None, k)
                   for k, t in enumerate(tables))
     for what, values in (("unit_serial", [u.unit_serial for u in units]),
-                         ("address", [repr(u.address) for u in units])):
+                         ("address", [repr(u.address) for u in units if u.link != "can"])):
         if len(set(values)) != len(values):
             raise ProfileError(f"{path}: the [[imu]] units repeat a {what} ({values}); each unit "
-                               "has its own serial and its own port or CAN channel")
+                               "has its own serial and its own port (CAN units may share a bus, "
+                               "each at its own id_offset)")
+    _check_shared_buses([u for u in units if u.link == "can"], path)
     return units
+
+
+def _check_shared_buses(units: list, path) -> None:
+    """Refuse CAN units on one bus (interface and channel) whose frame ids on the wire meet: each
+    driver would decode the other's frames as its own."""
+    from drivers.can_imu import FrameLayout
+    from drivers.profile import ProfileError
+
+    seen = {}
+    for u in units:
+        bus = (u.address["interface"], u.address["channel"])
+        ids = {s.frame_id for s in FrameLayout(u.imu).slots}
+        for other, other_ids in seen.get(bus, []):
+            if ids & other_ids:
+                raise ProfileError(
+                    f"{path}: units {other.unit_serial} and {u.unit_serial} share the CAN bus "
+                    f"{':'.join(bus)} and both send frame ids "
+                    f"{', '.join(f'{i:#x}' for i in sorted(ids & other_ids))}; configure each "
+                    "unit to its own node and give its [[imu]] table that id_offset")
+        seen.setdefault(bus, []).append((u, ids))
 
 
 def _unit(profile, imu, serial: str | None, k: int) -> BenchUnit:
@@ -206,6 +228,15 @@ def _unit(profile, imu, serial: str | None, k: int) -> BenchUnit:
         address = {"interface": imu.get("interface", str), "channel": imu.get("channel", str)}
         if imu.has("bitrate"):
             address["bitrate"] = imu.get("bitrate", int)
+        if imu.has("id_offset"):  # this unit's node: its ids on the shared bus
+            from drivers.can_imu import FrameLayout
+
+            offset = imu.get("id_offset", int)
+            dev = dataclasses.replace(dev, can=dataclasses.replace(dev.can, id_offset=offset))
+            try:
+                FrameLayout(dev)
+            except ProfileError as exc:
+                raise imu.error("id_offset", str(exc).split(": ", 1)[-1]) from None
     mounting = None
     if serial is None:
         serial = imu.get("unit_serial", str)

@@ -21,6 +21,7 @@ stops answering (`drivers.twins.table.TableTwin.silent`, the station's requests 
 answers again. The table's physics go on meanwhile: a table turning when its link died turns on.
 """
 
+import dataclasses
 import json
 import os
 import termios
@@ -77,11 +78,12 @@ class BenchTwin:
                 cone, set by the station (`station.model.two_axis.position_angles`), then the
                 profile's default spin of the position axis; `truth()["axes"]` are the unit-frame
                 directions of those positions, exact (the geometry of `station.model.two_axis`)
-    units     : units on one plate (`station.sim.live.Plate`; serial links): the bench's unit
-                and units - 1 more, unit k drawn from the seed [seed, 3, k] (its own
-                sensitivities, biases and noise) and fixed on the plate at `plate_mounting(k)`;
-                the fixture mounts the plate, the suggested axes being directions in the plate
-                frame = unit 1's; each unit streams on its own pty
+    units     : units on one plate (`station.sim.live.Plate`): the bench's unit and units - 1
+                more, unit k drawn from the seed [seed, 3, k] (its own sensitivities, biases and
+                noise) and fixed on the plate at `plate_mounting(k)`; the fixture mounts the
+                plate, the suggested axes being directions in the plate frame = unit 1's; each
+                unit streams on its own pty (serial), or all on the bench's one virtual CAN bus,
+                unit k at id_offset PLATE_ID_STEP * k (can: in this process only)
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
@@ -92,10 +94,10 @@ class BenchTwin:
         if cube and two_axis:
             raise InputError("a two-axis table sets the unit's orientation itself: --cube and "
                              "--two-axis exclude each other")
-        if units < 1 or (units > 1 and (cube or two_axis or imu != "serial")):
+        if units < 1 or (units > 1 and (cube or two_axis or imu not in ("serial", "can"))):
             raise InputError(f"--units {units}: the twin serves 1 or more units, several on the "
-                             "one-axis table's plate with serial links only (no --cube, no "
-                             "--two-axis)")
+                             "one-axis table's plate with serial or CAN links only (no --cube, "
+                             "no --two-axis)")
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime, fixture=not two_axis, two_axis=two_axis)
         self.seed = seed
@@ -116,6 +118,7 @@ class BenchTwin:
         self.plate = _plate(self.bench, units) if units > 1 else None
         self.error = None
         self._streams = []  # [PortWatch, SerialTwin] of each unit: started when the port opens
+        self._can_units = []  # the CanImuTwin of each unit of a CAN plate
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
 
@@ -134,10 +137,24 @@ class BenchTwin:
                                 unread_after=UNREAD_AFTER) for source in sources]
             b.imu_twin = twins[0]
             self._streams = [[PortWatch(twin.port), twin] for twin in twins]
+        elif self.plate is not None:
+            self._start_can_plate()
         else:
             b.start()
         self._thread.start()
         return self
+
+    def _start_can_plate(self) -> None:
+        """Every unit of the plate streaming on the bench's virtual CAN bus, unit k's frames at
+        id_offset PLATE_ID_STEP * k (`drivers.can_imu.CanSection`)."""
+        from drivers.twins.can import CanImuTwin
+
+        b = self.bench
+        b.table_twin.start()
+        for k, source in enumerate(self.plate.units):
+            twin = CanImuTwin(b.can_channel, plate_can_profile(b.profile, k), source, b.clock)
+            self._can_units.append(twin.start(b.clock_start))
+        b.imu_twin = self._can_units[0]
 
     def close(self) -> None:
         self._stop.set()
@@ -147,6 +164,8 @@ class BenchTwin:
             watch.close()
             if twin is not self.bench.imu_twin:
                 twin.stop()
+        for twin in self._can_units[1:]:
+            twin.stop()
         self.bench.close()
 
     def __enter__(self) -> Self:
@@ -162,7 +181,8 @@ class BenchTwin:
             {"link": "can", "interface": "virtual", "channel": b.can_channel}
         served = {"profile": b.profile.source, "rate_hz": b.profile.imu.rate_hz}
         units = {} if self.plate is None else {"units": [
-            {"link": "serial", "port": twin.port, **served} for _, twin in self._streams]}
+            {"link": "serial", "port": twin.port, **served} for _, twin in self._streams] or [
+            {**imu, "id_offset": PLATE_ID_STEP * k, **served} for k in range(len(self._can_units))]}
         return {"imu": {**imu, **served},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
                           "profile": "table_two_axis" if b.two_axis else "table_fixture"},
@@ -252,6 +272,16 @@ def plate_mounting(k: int) -> np.ndarray:
 
     return Rotation.from_rotvec(np.radians(110.0 * k) * np.array([1.0, 2.0, 2.0]) / 3.0
                                 ).as_matrix()
+
+
+PLATE_ID_STEP = 0x10
+"""The id offset between two units of the twin's CAN plate (the example DBC's ids 0x180-0x182)."""
+
+
+def plate_can_profile(profile, k: int):
+    """The CAN device profile of unit k (0-based) of the twin's plate: id_offset PLATE_ID_STEP k."""
+    return dataclasses.replace(profile, can=dataclasses.replace(profile.can,
+                                                                id_offset=PLATE_ID_STEP * k))
 
 
 def plate_serial(serial: str, k: int) -> str:
