@@ -22,7 +22,9 @@ from drivers.clock import ScaledClock
 from drivers.profile import ProfileError
 from drivers.rotary_table import RotaryTable, TableError, TableRegisterMap, TableTimeout
 from drivers.twins.table import TableTwin
-from station.acquire.bench import BenchProfile, stop_table
+from station.acquire.bench import BenchProfile, record, stop_table
+from station.acquire.operator import ConsoleOperator
+from station.commands.solve import solve_session
 from station.errors import CalibrationInputError
 from station.files.calfile import load
 from station.files.session import Event, Session
@@ -32,6 +34,7 @@ from station.reduce.rotary import position_spins, rotary_readings
 from station.sim.table import PositionAxis, TablePhysics
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
+from station.twin.served import BenchTwin
 
 ROOT = Path(__file__).resolve().parent.parent
 PROFILES = ROOT / "drivers" / "profiles"
@@ -161,6 +164,29 @@ def test_station_twin_refuses_a_two_axis_bench_it_cannot_serve(tmp_path, args, w
     refused = station_run("twin", *args, "--profile-out", str(tmp_path / "p.toml"), timeout=30)
     assert refused.returncode == 2 and words in refused.stderr, refused.stderr
     assert not (tmp_path / "p.toml").exists()
+
+
+def test_three_units_on_a_two_axis_table_recorded_and_solved_each_against_its_truth(tmp_path):
+    """A plate of three units (each its own truth and mounting) on the two-axis table, no
+    operator: the station sets the cone positions and the spin itself; each unit, turned about
+    the same two physical axes, sees them in its own frame and is solved within the statistical
+    bounds against its own truth and axes (ALARM per unit)."""
+    path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
+    with BenchTwin(seed=9, speed=40, positions=6, rate_hz=100, two_axis=True,
+                   units=3) as twin:
+        profile.write_text(twin.profile_text())
+        bench = BenchProfile.load(profile)
+        assert bench.plate and bench.spins == 1
+        record(bench, path, ConsoleOperator(stdin=io.StringIO(), stdout=io.StringIO()))
+        truth = twin.truth()
+    for unit in truth["units"]:
+        with Session.open(path) as s:
+            sigma = rotary_readings(s, unit["stream"]).sigma
+        cal = solve_session(path, unit["stream"])
+        check_solution(cal, unit["a"], unit["bias"], unit["axes"], sigma)
+    # the units' axes: one physical axis each time, in three frames
+    first, second = (np.array(u["axes"]) for u in truth["units"][:2])
+    assert np.allclose(np.linalg.norm(second, axis=1), 1) and not np.allclose(first, second)
 
 
 class AbortsInTheSpin:

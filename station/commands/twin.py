@@ -16,7 +16,8 @@ spread over a turn with the rate axis spinning, then one spin of the position ax
 (docs/protocols.md "Two-axis sessions"); the truth printed with --json then gives the unit-frame
 `axes` of those positions. With `--units N` the table carries a plate of N units (serial links),
 each with its own truth, its fixed mounting on the plate and its own pty; the profile lists them as
-`[[imu]]` tables (docs/protocols.md "Several units on one table") and the truth gives each unit's.
+`[[imu]]` tables (docs/protocols.md "Several units on one table") and the truth gives each unit's
+(with --two-axis the plate sits on the position axis and each unit's `axes` are in its frame).
 
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who

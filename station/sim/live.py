@@ -85,7 +85,11 @@ class Plate:
 
     @orientation.setter
     def orientation(self, value) -> None:
-        at = self.units[0].table.clock.now()
-        self._orientation = np.asarray(value, float)
+        self.mount(value, self.units[0].table.clock.now())
+
+    def mount(self, orientation, at: float) -> None:
+        """The plate takes `orientation` from clock time `at` on (`MountedUnit.mount`), each unit
+        its mounting times it."""
+        self._orientation = np.asarray(orientation, float)
         for unit, mounting in zip(self.units, self.mountings, strict=True):
             unit.mount(mounting @ self._orientation, at)

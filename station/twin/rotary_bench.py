@@ -171,9 +171,10 @@ class VirtualBench:
         self.imu_twin = None
 
     def _turn_unit(self, phi: float, arrival: float) -> None:
-        """The position axis was commanded to `phi`: the unit on it has that orientation from
-        the clock time `arrival` on."""
-        self.mounted.mount(orientation(phi), arrival)
+        """The position axis was commanded to `phi`: what it carries (the unit, or a plate of
+        units: the technician's `mounted`) has that orientation from the clock time `arrival`
+        on."""
+        self.technician.mounted.mount(orientation(phi), arrival)
 
     def with_margins(self, settings: RotarySettings) -> RotarySettings:
         """`settings` with rest, guard and steady of at least HOST_LATENCY wall seconds of this

@@ -94,10 +94,9 @@ class BenchTwin:
         if cube and two_axis:
             raise InputError("a two-axis table sets the unit's orientation itself: --cube and "
                              "--two-axis exclude each other")
-        if units < 1 or (units > 1 and (cube or two_axis or imu not in ("serial", "can"))):
-            raise InputError(f"--units {units}: the twin serves 1 or more units, several on the "
-                             "one-axis table's plate with serial or CAN links only (no --cube, "
-                             "no --two-axis)")
+        if units < 1 or (units > 1 and (cube or imu not in ("serial", "can"))):
+            raise InputError(f"--units {units}: the twin serves 1 or more units, several on a "
+                             "plate with serial or CAN links only (no --cube)")
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
                                   lifetime=lifetime, fixture=not two_axis, two_axis=two_axis)
         self.seed = seed
@@ -231,7 +230,8 @@ class BenchTwin:
         units = {} if self.plate is None else {"units": [
             {"stream": unit_stream(k), "a": unit.unit.a.tolist(), "bias": unit.unit.bias.tolist(),
              "mounting": mounting.tolist(),
-             "orientations": (mounting @ t.orientations).tolist()}
+             "orientations": (mounting @ t.orientations).tolist(),
+             **({"axes": (self.axes @ mounting.T).tolist()} if self.bench.two_axis else {})}
             for k, (unit, mounting) in enumerate(zip(self.plate.units, self.plate.mountings,
                                                      strict=True))]}
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
@@ -291,14 +291,20 @@ def plate_serial(serial: str, k: int) -> str:
 
 def _plate(bench, units: int):
     """The bench's unit and units - 1 more (seeds [seed, 3, k]) on one `Plate`, which the
-    technician (the fixture) now mounts."""
+    technician (the fixture), or a two-axis table's position axis, now moves; on a two-axis
+    table each unit also turns about the position axis, in its frame its mounting times unit
+    0's."""
     from station.sim.layouts import gyro_array
     from station.sim.live import MountedUnit, Plate
 
+    mountings = [plate_mounting(k) for k in range(units)]
+    inner = bench.mounted.inner
     extra = [MountedUnit(gyro_array(np.random.default_rng([bench.seed, 3, k]), fs=bench.rate_hz,
-                                    counts_per_unit=bench.profile.imu.scale), bench.table)
+                                    counts_per_unit=bench.profile.imu.scale), bench.table,
+                         orientation=mountings[k] @ bench.mounted.orientation,
+                         inner=None if inner is None else (inner[0], mountings[k] @ inner[1]))
              for k in range(1, units)]
-    plate = Plate([bench.mounted, *extra], [plate_mounting(k) for k in range(units)])
+    plate = Plate([bench.mounted, *extra], mountings)
     bench.technician.mounted = plate
     return plate
 
