@@ -19,6 +19,7 @@ from technicians import QuitsAt
 import station
 from station.acquire.bench import BenchProfile, record, resume
 from station.acquire.operator import ConsoleOperator, OperatorAbort
+from station.commands.record import solve_plate
 from station.errors import InputError, ProtocolError, SessionFormatError
 from station.files.calfile import load
 from station.files.session import Session
@@ -172,11 +173,10 @@ def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):
         assert done == [0]  # position 1 complete, position 2 lost with the unit
 
 
-def test_an_aborted_plate_session_is_kept_and_its_resume_refused(tmp_path):
+def test_an_aborted_plate_session_resumes_with_every_unit(tmp_path):
     """The technician walks away at the 4th position (abort, table stopped); `station resume`
-    refuses a profile that lists other units, and refuses the plate's own profile too (resuming
-    several units is not supported: a resumed position once came out corrupted); the completed
-    positions stay in the file."""
+    with the plate's profile refuses a profile that lists other units, then completes the session
+    with all three units, each solved against its own truth."""
     path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
     with BenchTwin(seed=6, speed=40, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
         profile.write_text(twin.profile_text())
@@ -190,12 +190,15 @@ def test_an_aborted_plate_session_is_kept_and_its_resume_refused(tmp_path):
         with pytest.raises(InputError, match="resume with the bench profile the session was "):
             resume(BenchProfile.load(two), path, ConsoleOperator(io.StringIO(""),
                                                                  io.StringIO()))
-        with pytest.raises(InputError, match="3 units on one table: resuming such a session is "
-                                             "not supported yet"):
-            resume(bench, path, ConsoleOperator(io.StringIO(""), io.StringIO()))
+        assert resume(bench, path, ConsoleOperator(io.StringIO(""), io.StringIO())) == 3
+        truth = twin.truth()
     with Session.open(path) as s:
         done = sorted({e.position for e in s.events() if e.kind == "position_done"})
-        assert done == [0, 1, 2] and s.closed_cleanly
+        assert done == list(range(POSITIONS)) and s.closed_cleanly
+    summaries = solve_plate(path)
+    assert [c["stream"] for c in summaries] == ["imu", "imu2", "imu3"]
+    for unit, summary in zip(truth["units"], summaries, strict=True):
+        check_unit(path, summary["calibration"], unit["stream"], unit)
 
 
 PLATE = """[bench]

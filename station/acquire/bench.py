@@ -402,15 +402,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
     _check_same_units(bench, path, units, specs)
-    if units:
-        raise InputError(f"{path} holds {len(units)} units on one table: resuming such a "
-                         "session is not supported yet (a resumed position once came out with "
-                         "its rotating window corrupted); the completed positions stay in the "
-                         "file: record the session again")
     clock = ScaledClock(bench.clock_speed, start=end + 1.0)
-    with (bench_devices(bench, clock, kind.table) as (imu, table),
-          plate_drivers(bench, clock) as others,
-          SessionWriter.resume(path, clock=clock) as writer):
+    with (table_driver(bench, clock) if kind.table else contextlib.nullcontext() as table,
+          SessionWriter.resume(path, clock=clock) as writer,
+          imu_driver(bench, clock) as imu, plate_drivers(bench, clock) as others):
         return kind.entry("resume")(writer, metadata, imu, table, operator, clock, **others)
 
 
