@@ -390,7 +390,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     else the resumed counts would not mean what the recorded ones do. The clock continues after
     the session's last recorded instant (a reboot restarts the host's monotonic time), and a
     rotary table is commanded to stop as soon as it is connected (a killed station may have left it
-    turning; `station resume` stops it even earlier, `stop_table`).
+    turning; `station resume` stops it even earlier, `stop_table`). The IMU ports (every unit's)
+    are opened last, once the session file is resumed, right before the recorder reads them: a
+    port open and unread meanwhile starts the segment with a backlog (docs/protocols.md
+    "Margins").
     """
     from drivers.clock import ScaledClock
     from station.files.session import Session, SessionWriter, StreamSpec
