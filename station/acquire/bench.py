@@ -421,7 +421,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     else the resumed counts would not mean what the recorded ones do. The clock continues after
     the session's last recorded instant (a reboot restarts the host's monotonic time), and a
     rotary table is commanded to stop as soon as it is connected (a killed station may have left it
-    turning; `station resume` stops it even earlier, `stop_table`).
+    turning; `station resume` stops it even earlier, `stop_table`). The IMU ports (every unit's)
+    are opened last, once the session file is resumed, right before the recorder reads them: a
+    port open and unread meanwhile starts the segment with a backlog (docs/protocols.md
+    "Margins").
     """
     from drivers.clock import ScaledClock
     from station.files.session import Session, SessionWriter, StreamSpec
@@ -433,15 +436,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
     _check_same_units(bench, path, units, specs)
-    if units:
-        raise InputError(f"{path} holds {len(units)} units on one table: resuming such a "
-                         "session is not supported yet (a resumed position once came out with "
-                         "its rotating window corrupted); the completed positions stay in the "
-                         "file: record the session again")
     clock = ScaledClock(bench.clock_speed, start=end + 1.0)
-    with (bench_devices(bench, clock, kind.table) as (imu, table),
-          plate_drivers(bench, clock) as others,
-          SessionWriter.resume(path, clock=clock) as writer):
+    with (table_driver(bench, clock) if kind.table else contextlib.nullcontext() as table,
+          SessionWriter.resume(path, clock=clock) as writer,
+          imu_driver(bench, clock) as imu, plate_drivers(bench, clock) as others):
         return kind.entry("resume")(writer, metadata, imu, table, operator, clock, **others)
 
 

@@ -38,8 +38,13 @@ class Recorder:
     """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
 
     clock    : the session's clock (default: the writer's, shared with the devices, or WallClock)
-    interval : wall seconds between two reads, so that each block holds several samples (a pty
-               holds 4 KB: 3 ms between reads carry 1.3 MB/s, 23000 frames of 58 bytes)
+    interval : wall seconds the reader waits once the driver has no sample, so that each block
+               holds several samples; while blocks come it reads on at once. (It used to wait
+               after every block: a port hands over at most its buffer a read (a pty 4 KB, 70
+               frames of 58 bytes), and on a busy host the wait and the interpreter's lock made
+               a read about as rare as a fast stream fills the buffer (3 units at 100 Hz on a 40x
+               clock), so a backlog never drained: no sample of the segment arrived promptly and
+               every instant `arrival_offset` gave it came out late by the backlog.)
     drain_timeout : wall seconds `drain` waits for the samples in flight
     busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
                     processes) can hold the reader that long, which is many seconds of a fast clock
@@ -161,16 +166,19 @@ class Recorder:
         self._last_seq = int(seq[-1])
 
     def _read(self) -> None:
+        """The reader thread: a block as soon as the driver has one, a pause of `interval` only
+        once it has none (see `interval`)."""
         try:
             while not self._stop.is_set():
                 block = self.imu.read_block(timeout=0.0)
-                if block is not None and len(block):
-                    self._last_arrival = (self.clock.now(), time.monotonic())
-                    with self._lock:
-                        self.writer.append(self.stream, block)
-                    self.samples += len(block)
-                    self._follow(block)
-                time.sleep(self.interval)
+                if block is None or not len(block):
+                    time.sleep(self.interval)
+                    continue
+                self._last_arrival = (self.clock.now(), time.monotonic())
+                with self._lock:
+                    self.writer.append(self.stream, block)
+                self.samples += len(block)
+                self._follow(block)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc
 
