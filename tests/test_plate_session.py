@@ -6,15 +6,13 @@ not describe units are refused with the fix."""
 
 import io
 import json
-import signal
-import subprocess
-import sys
 import threading
 
 import numpy as np
 import pytest
 from scipy import stats
 from technicians import QuitsAt
+from twinproc import TwinProcess, station_run
 
 import station
 import station.commands.solve
@@ -33,7 +31,6 @@ from station.twin.served import BenchTwin
 
 POSITIONS = 8
 UNITS = 3
-STATION = [sys.executable, "-m", "station"]
 FALSE_ALARM = 1e-3
 """False-alarm probability of each family of checks over the whole session (Bonferroni over the
 units and their sensors)."""
@@ -78,23 +75,14 @@ def instant_lags(session) -> np.ndarray:
 
 def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp_path):
     profile, session = tmp_path / "plate.toml", tmp_path / "plate.h5"
-    twin = subprocess.Popen(
-        [*STATION, "twin", "--speed", "40", "--positions", str(POSITIONS), "--seed", "11",
-         "--units", str(UNITS), "--rate-hz", "100", "--profile-out", str(profile),
-         "--lifetime", "300", "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        started = json.loads(twin.stdout.readline())
-        assert len({u["port"] for u in started["units"]}) == UNITS  # a pty per unit
-        rec = subprocess.run([*STATION, "record", "--profile", str(profile), "--out",
-                              str(session), "--solve", "--json"], check=False, text=True,
-                             capture_output=True, timeout=240)
+    with TwinProcess("--speed", "40", "--positions", str(POSITIONS), "--seed", "11", "--units",
+                     str(UNITS), "--rate-hz", "100", "--profile-out", str(profile),
+                     "--lifetime", "300") as twin:
+        assert len({u["port"] for u in twin.started["units"]}) == UNITS  # a pty per unit
+        rec = station_run("record", "--profile", profile, "--out", session, "--solve", "--json",
+                          timeout=240)
         assert rec.returncode == 0, rec.stderr
-    finally:
-        twin.send_signal(signal.SIGINT)
-        out, err = twin.communicate(timeout=30)
-    assert twin.returncode == 0, err
-    truth = json.loads(out.splitlines()[-1])["truth"]
+    truth = twin.truth
     summary = json.loads(rec.stdout)
     serials = [f"SIM-11-U{k}" for k in range(1, UNITS + 1)]
     streams = ["imu", "imu2", "imu3"]
@@ -121,11 +109,9 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     assert min(np.max(np.abs(scales[i] - scales[j])) for i, j in ((0, 1), (0, 2), (1, 2))) \
         > 10 * max(load(f).scale_factors_sigma.max() for f in files)
     # `station solve` on the session: the same files, refused while they exist, then a line each
-    again = subprocess.run([*STATION, "solve", str(session)], check=False, text=True,
-                           capture_output=True, timeout=120)
+    again = station_run("solve", str(session), timeout=120)
     assert again.returncode == 2 and "exists" in again.stderr and files[0] in again.stderr
-    again = subprocess.run([*STATION, "solve", str(session), "--out", str(tmp_path / "b")],
-                           check=False, text=True, capture_output=True, timeout=120)
+    again = station_run("solve", str(session), "--out", str(tmp_path / "b"), timeout=120)
     assert again.returncode == 0, again.stderr
     lines = again.stdout.splitlines()
     assert len(lines) == UNITS and all(f"unit {s} (stream {st})" in line and "quality gate "
@@ -134,8 +120,7 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     assert np.allclose(load(tmp_path / "b.SIM-11-U2.cal.json").scale_factors,
                        load(files[1]).scale_factors)
     # `station replay` re-reduces every unit's stream as the solve did: the same scale factors
-    replayed = subprocess.run([*STATION, "replay", str(session), "--json"], check=False,
-                              text=True, capture_output=True, timeout=120)
+    replayed = station_run("replay", str(session), "--json", timeout=120)
     assert replayed.returncode == 0, replayed.stderr
     units = json.loads(replayed.stdout)["units"]
     assert [(u["unit_serial"], u["stream"]) for u in units] == list(
@@ -143,15 +128,12 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
     for unit, file in zip(units, files, strict=True):
         assert np.allclose(unit["scale_factors"], load(file).scale_factors, rtol=1e-9)
     # `station diagnose` takes one unit at a time: refused without --stream, naming the streams
-    diagnosed = subprocess.run([*STATION, "diagnose", str(session)], check=False, text=True,
-                               capture_output=True, timeout=120)
+    diagnosed = station_run("diagnose", str(session), timeout=120)
     assert diagnosed.returncode == 2 and "--stream imu" in diagnosed.stderr
     assert all(st in diagnosed.stderr for st in streams)
-    wrong = subprocess.run([*STATION, "diagnose", str(session), "--stream", "imu4"],
-                           check=False, text=True, capture_output=True, timeout=120)
+    wrong = station_run("diagnose", str(session), "--stream", "imu4", timeout=120)
     assert wrong.returncode == 2 and "no unit on stream 'imu4'" in wrong.stderr
-    second = subprocess.run([*STATION, "diagnose", str(session), "--stream", "imu2", "--json"],
-                            check=False, text=True, capture_output=True, timeout=300)
+    second = station_run("diagnose", str(session), "--stream", "imu2", "--json", timeout=300)
     assert second.returncode == 0, second.stderr
     before = json.loads(second.stdout)["calibration_before"]
     # its nominal fit is unit 2's: within 4 sigma of unit 2's file, far from unit 1's
@@ -159,8 +141,7 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
                   / np.array(before["scale_factors_sigma"])) for f in files[:2]]
     assert gap[1] < 4 < 10 < gap[0], gap
     # `station report`: one report per unit, each of its unit's stream and calibration
-    reported = subprocess.run([*STATION, "report", str(session), "--json"], check=False,
-                              text=True, capture_output=True, timeout=300)
+    reported = station_run("report", str(session), "--json", timeout=300)
     assert reported.returncode == 0, reported.stderr
     reports = json.loads(reported.stdout)["units"]
     assert [(r["unit_serial"], r["stream"]) for r in reports] == list(
@@ -169,13 +150,11 @@ def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp
         assert r["files"][0] == str(tmp_path / f"plate.{serial}.html")
         assert r["samples"] == count and r["sensors"] == 12
         assert r["chi2_per_dof"] == pytest.approx(load(file).fit["chi2"] / load(file).fit["dof"])
-    one = subprocess.run([*STATION, "report", str(session), "--stream", "imu3", "--out",
-                          str(tmp_path / "u3.html"), "--json"], check=False, text=True,
-                         capture_output=True, timeout=300)
+    one = station_run("report", session, "--stream", "imu3", "--out", tmp_path / "u3.html",
+                      "--json")
     assert one.returncode == 0, one.stderr
     assert json.loads(one.stdout)["unit_serial"] == serials[2]
-    wrong = subprocess.run([*STATION, "report", str(session), "--stream", "imu4"], check=False,
-                           text=True, capture_output=True, timeout=60)
+    wrong = station_run("report", str(session), "--stream", "imu4", timeout=60)
     assert wrong.returncode == 2 and "no stream 'imu4'" in wrong.stderr
 
 

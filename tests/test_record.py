@@ -6,13 +6,12 @@ import io
 import json
 import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 from scipy import stats
 from technicians import QuitsAt
-from twinproc import TwinProcess
+from twinproc import STATION, TwinProcess
 
 import station
 from station.acquire.bench import BenchProfile, record, resume
@@ -26,7 +25,6 @@ from station.twin.rotary_bench import HOST_LATENCY
 from station.twin.served import BenchTwin
 
 POSITIONS = 8
-STATION = [sys.executable, "-m", "station"]
 
 
 def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) -> None:

@@ -7,12 +7,11 @@ sensitivities and biases within their sigmas of the twin's truth."""
 import io
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 from scipy import stats
-from twinproc import TwinProcess
+from twinproc import STATION, TwinProcess
 
 from station import cli
 from station.acquire.bench import BenchProfile, record
@@ -25,7 +24,6 @@ FALSE_ALARM = 1e-3
 """Two-sided false-alarm probability of each check (Bonferroni over the values it checks)."""
 
 
-STATION = [sys.executable, "-m", "station"]
 
 
 @pytest.fixture(scope="module", params=["pty", "udp"])

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 from scipy.stats import t as student
-from twinproc import TwinProcess
+from twinproc import STATION, TwinProcess
 
 from drivers.errors import ChamberAlarm, ChamberDoorOpen, ChamberTimeout, DeviceLostError
 from station.acquire.bench import BenchProfile
@@ -35,7 +35,6 @@ from station.protocols.thermal import ROOM, run_campaign
 from station.sim.thermal import unit_at
 from station.twin.thermal import TRUTH, ThermalTwin
 
-STATION = [sys.executable, "-m", "station"]
 SPEED = 80.0
 ALPHA = 0.01
 """False-alarm probability of each statistical check, over all the values it checks."""

@@ -5,17 +5,15 @@ during the spin, and the safety of both axes (every stop stops both)."""
 
 import io
 import json
-import os
 import signal
 import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import stats
-from twinproc import TwinProcess
+from twinproc import ENV, STATION, TwinProcess, station_run
 
 import station
 from drivers.clock import ScaledClock
@@ -38,20 +36,12 @@ from station.twin.served import BenchTwin
 
 ROOT = Path(__file__).resolve().parent.parent
 PROFILES = ROOT / "drivers" / "profiles"
-STATION = [sys.executable, "-m", "station"]
-ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 TWO_AXIS = TableRegisterMap.load("table_two_axis")
 CONE = 8  # positions on the cone of the acceptance session, then one spin of the position axis
 ALARM = 1e-4  # false-alarm probability of each statistical check
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
 
 pytestmark = pytest.mark.usefixtures("quiet_pymodbus")
-
-
-def station_run(*args, timeout=120) -> subprocess.CompletedProcess:
-    """`station ARGS` with stdin closed: nobody answers."""
-    return subprocess.run([*STATION, *args], stdin=subprocess.DEVNULL, capture_output=True,
-                          text=True, timeout=timeout, env=ENV, check=False)
 
 
 def check_solution(cal, truth_a, truth_bias, axes, sigma, rate=1.0) -> None:
@@ -79,7 +69,7 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
     then finds the twin's unit within the statistical bounds."""
     profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
     with TwinProcess("--two-axis", "--speed", "40", "--positions", str(CONE), "--seed", "3",
-                     "--profile-out", str(profile), "--lifetime", "200", env=ENV) as twin:
+                     "--profile-out", str(profile), "--lifetime", "200") as twin:
         assert twin.started["table"]["profile"] == "table_two_axis"
         rec = station_run("record", "--profile", str(profile), "--out", str(session), "--json")
         assert rec.returncode == 0, rec.stderr
@@ -129,7 +119,7 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
     cone = 5  # with c, the 6 directions Eq. (7)'s g needs
     profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
     with TwinProcess("--two-axis", "--speed", "40", "--positions", str(cone), "--seed", "6",
-                     "--profile-out", str(profile), "--lifetime", "200", env=ENV) as twin:
+                     "--profile-out", str(profile), "--lifetime", "200") as twin:
         rec = subprocess.Popen(  # --json: the prompts on stderr
             [*STATION, "record", "--profile", str(profile), "--out", str(session), "--json"],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

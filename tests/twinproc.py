@@ -1,11 +1,22 @@
-"""`station twin` in its own process, as a technician runs it beside `station record`."""
+"""`station` commands in their own processes, as a technician runs them: `station_run` one
+command with nobody at the keyboard, `TwinProcess` a `station twin` beside `station record`."""
 
 import json
+import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 STATION = [sys.executable, "-m", "station"]
+ENV = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+"""The commands' environment: this checkout's station, whatever the working directory."""
+
+
+def station_run(*args, timeout: float = 300) -> subprocess.CompletedProcess:
+    """`station ARGS` with stdin closed (nobody answers): its exit code and output, as text."""
+    return subprocess.run([*STATION, *map(str, args)], stdin=subprocess.DEVNULL, env=ENV,
+                          capture_output=True, text=True, timeout=timeout, check=False)
 
 
 class TwinProcess:
@@ -13,11 +24,11 @@ class TwinProcess:
     devices, once it serves them). On exit it is stopped by SIGINT, as Ctrl-C would; when the block
     ended normally it must then exit 0, and `truth` is the truth its last line prints.
 
-    args : the twin's options (without --json); env : its environment (None: this one's)
+    args : the twin's options (without --json)
     """
 
-    def __init__(self, *args: str, env: dict | None = None):
-        self.process = subprocess.Popen([*STATION, "twin", *args, "--json"], env=env, text=True,
+    def __init__(self, *args: str):
+        self.process = subprocess.Popen([*STATION, "twin", *args, "--json"], env=ENV, text=True,
                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         self.started: dict = {}
         self.truth: dict = {}
