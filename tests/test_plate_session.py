@@ -172,8 +172,14 @@ def test_three_can_units_on_one_bus_recorded_and_solved_each_against_its_truth(t
         bench = BenchProfile.load(tmp_path / "b.toml")
         assert [u.imu.can.id_offset for u in bench.units] == [0, 0x10, 0x20]
         assert len({(u.address["interface"], u.address["channel"]) for u in bench.units}) == 1
-        record(bench, path, ConsoleOperator(stdin=io.StringIO(), stdout=io.StringIO()))
+        said = io.StringIO()
+        record(bench, path, ConsoleOperator(stdin=io.StringIO(), stdout=said))
         truth = twin.truth()
+    # every captured position confirmed for every unit, each with its own windows' samples
+    for u in bench.units:
+        lines = [line for line in said.getvalue().splitlines()
+                 if line.startswith(f"  unit {u.unit_serial} (stream {u.stream}): static ")]
+        assert len(lines) == POSITIONS and all("rotating" in line for line in lines), lines
     for k, unit in enumerate(truth["units"]):
         cal = station.commands.solve.solve_session(path, unit["stream"])
         cal.save(tmp_path / f"u{k}.cal.json")

@@ -244,14 +244,17 @@ class RotaryProtocol:
             return fixture_instruction(j, len(self.axes), self.fixture_poses[j])
         return instruction(j, len(self.axes), self.axes[j])
 
-    def run(self, recorder, first: int = 0, tap: StreamTap | None = None) -> None:
+    def run(self, recorder, first: int = 0, tap: StreamTap | dict | None = None) -> None:
         """Run positions first..n-1 into `recorder` (a started `station.acquire.recorder.Recorder`);
-        the table is stopped whatever happens. `tap`: the StreamTap the recorder reads, for the
-        quality of each captured position (None: confirmations without it)."""
+        the table is stopped whatever happens. `tap`: the StreamTap the recorder reads, or
+        {stream: StreamTap} of every unit on a plate (`PlateRecorder`), for the quality of each
+        captured position (None: confirmations without it)."""
         if not 0 <= first < len(self.axes):
             raise InputError(f"first position {first} is outside 0..{len(self.axes) - 1}")
         self.recorder, self.position, self.state = recorder, first, "mount"
-        self.tap, self._windows, self._static_noise = tap, {}, []
+        self.taps = {} if tap is None else tap if isinstance(tap, dict) else \
+            {recorder.stream: tap}
+        self._windows, self._static_noise = {}, {stream: [] for stream in self.taps}
         self._rotated = None  # (position, clock time) of the last rotating window's end
         try:
             while self.state != "done":
@@ -406,24 +409,32 @@ class RotaryProtocol:
 
     def _quality(self) -> str:
         """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
-        position just captured; "" without a tap. The static noise is compared with the median of
-        the earlier positions' (the same unit at rest), out of line beyond the stillness
-        detector's `enter`; the tap then forgets the position's samples."""
-        if self.tap is None:
-            return ""
-        t, z = self.tap.samples(self._windows["static"][0])
-        unit = self.recorder.writer.specs[self.recorder.stream].units[0]
-        reference = np.median(self._static_noise, axis=0) if self._static_noise else None
+        position just captured, each unit's on its own line (named) when there are several; ""
+        without a tap."""
+        if len(self.taps) == 1:
+            return ": " + self._unit_quality(*self.taps.items())
+        return "".join(f"\n  {self.recorder.names[stream]}: {self._unit_quality((stream, tap))}"
+                       for stream, tap in self.taps.items())
+
+    def _unit_quality(self, tapped) -> str:
+        """"static ...; rotating ..." of one unit's (stream, StreamTap) `tapped`. The static noise
+        is compared with the median of the unit's earlier positions' (it at rest), out of line
+        beyond the stillness detector's `enter`; the tap then forgets the position's samples."""
+        stream, tap = tapped
+        t, z = tap.samples(self._windows["static"][0])
+        unit = self.recorder.writer.specs[stream].units[0]
+        earlier = self._static_noise[stream]
+        reference = np.median(earlier, axis=0) if earlier else None
         words = []
         for name, window in self._windows.items():
-            q = window_quality(t, z, window, self.tap.rate_hz, self.tap.lsb,
+            q = window_quality(t, z, window, tap.rate_hz, tap.lsb,
                                reference if name == "static" else None, StillSettings.enter, name,
                                self.position)
             words.append(f"{name} {describe(q, unit, 'the earlier static windows')}")
             if name == "static":
-                self._static_noise.append(q.noise)
-        self.tap.forget(self.clock.now())
-        return ": " + "; ".join(words)
+                earlier.append(q.noise)
+        tap.forget(self.clock.now())
+        return "; ".join(words)
 
     def _restart(self) -> str:
         j = self.position
@@ -653,13 +664,15 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        spec = writer.specs["imu"]
-        tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
-        recorder = (PlateRecorder(writer, {"imu": tap, **others}, unit_names(metadata, writer),
-                                  clock=clock) if others else Recorder(writer, tap, clock=clock))
+        taps = {stream: StreamTap(view.observe_imu(device) if stream == "imu" else device,
+                                  writer.specs[stream].rate_hz,
+                                  writer.specs[stream].counts_per_unit)
+                for stream, device in {"imu": imu, **(others or {})}.items()}
+        recorder = (PlateRecorder(writer, taps, unit_names(metadata, writer), clock=clock)
+                    if others else Recorder(writer, taps["imu"], clock=clock))
         with recorder, view.show():
             try:
-                protocol.run(view.observe_recorder(recorder), first, tap)
+                protocol.run(view.observe_recorder(recorder), first, taps)
             finally:
                 for stream, device in {"imu": imu, **(others or {})}.items():
                     stats = getattr(device, "stats", None)
