@@ -369,6 +369,30 @@ def test_live_view_windows_stillness_and_instructions():
     assert "position 5/8" not in text and "rotating window (2 turns)" not in text
 
 
+def test_live_view_shows_every_unit_of_a_plate():
+    """Two units observed (a plate): each its own named IMU and link rows with its own samples
+    and sequence gaps; the stillness follows the first unit only (the second's motion does not
+    make the view say moving)."""
+    clock = StepClock()
+    view = LiveView(clock, rate_hz=200.0)
+    view.follow(RotaryProtocol(table=None, operator=None, clock=clock, axes=suggested_axes(8)))
+    first, second = (view.observe_imu(None, name=f"unit SN-{k} (stream {s})")
+                     for k, s in ((1, "imu"), (2, "imu2")))
+    rng = np.random.default_rng(5)
+    for block in range(30):
+        seq = np.arange(20 * block, 20 * block + 20)
+        for proxy, scale, skip in ((first, 1, 0), (second, 100, 5 * (block == 10))):
+            counts = np.round(scale * 1000 * rng.standard_normal((20, 3))).astype(int)
+            view.on_samples(SampleBlock(counts, seq + skip, np.full(20, np.nan),
+                                        np.full(20, clock.t), ("x", "y", "z")),
+                            1000.0, proxy._feed)
+        clock.t += 0.1
+    text = render_text(view)
+    for name, gaps in (("SN-1 \\(stream imu\\)", 0), ("SN-2 \\(stream imu2\\)", 1)):
+        assert re.search(rf"IMU unit {name}\s+\d+ samples/s, 600 received, {gaps} sequence", text)
+    assert text.count("the driver keeps no counters") == 2 and view.still
+
+
 def test_position_progress_counts_the_captured_positions():
     from station.acquire.progress import PositionProgress
 

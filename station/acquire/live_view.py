@@ -2,8 +2,9 @@
 
 Shown: the protocol phase in words, position k of n, a progress bar per window (static: seconds of
 the static window elapsed; rotating: table angle swept of the whole turns asked), the table's rate,
-setpoint and state, the IMU's samples per second, the link's CRC and gap counters, a stillness
-indicator, and the instruction the technician has to carry out now and the next one.
+setpoint and state, each IMU's samples per second and its link's CRC and gap counters (every unit
+of a plate, named), a stillness indicator (the first IMU's), and the instruction the technician
+has to carry out now and the next one.
 
 The view is fed through a small observer interface (`LiveView.on_event`, `on_table`, `on_samples`,
 `on_message`). The recorder and the protocol have no observer hook, so the view wraps the three
@@ -70,21 +71,17 @@ class LiveView:
         self.rate_hz = rate_hz
         self.window = window
         self.enter, self.leave = enter, leave
-        self.imu = None
+        self.feeds = []  # one `_Feed` per observed IMU, the first's samples feed the stillness
         self._lock = threading.Lock()
         self._windows = {}  # "static"/"rotating" -> (start clock time or angle, end or None)
         self._table = None
         self._message = ""
-        self._arrivals = collections.deque()  # (clock time, samples)
         self._recent = collections.deque()  # SI sample blocks of the last `window` s
         self._recent_count = 0
         self._reference = None  # quietest per-channel variance so far
         self._next_stillness = -math.inf  # clock time of the next stillness update
         self.dispersion = math.nan
         self.still = None
-        self.samples = 0
-        self.seq_gaps = 0
-        self._last_seq = None
         self.display_error = None  # the first exception of a callback (shown, never raised)
 
     # -- observer interface ----------------------------------------------------------------------
@@ -118,23 +115,31 @@ class LiveView:
         with self._lock:
             self._message = text
 
-    def on_samples(self, block, counts_per_unit=None) -> None:
-        """A block of samples arrived (`drivers.samples.SampleBlock`); `counts_per_unit` converts
-        its counts to SI (only the stillness statistic uses them, so any scale works)."""
+    @property
+    def samples(self) -> int:
+        """Samples received from the first IMU."""
+        return self.feeds[0].samples if self.feeds else 0
+
+    @property
+    def seq_gaps(self) -> int:
+        """Sequence gaps of the first IMU."""
+        return self.feeds[0].seq_gaps if self.feeds else 0
+
+    def on_samples(self, block, counts_per_unit=None, feed=None) -> None:
+        """A block of samples arrived (`drivers.samples.SampleBlock`) from the IMU of `feed`
+        (default the first); `counts_per_unit` converts its counts to SI (only the stillness
+        statistic uses them, so any scale works)."""
         now = self.clock.now()
+        with self._lock:
+            if feed is None:
+                feed = self.feeds[0] if self.feeds else self._add_feed(None, "")
+            feed.arrived(block, now)
+            if feed is not self.feeds[0]:
+                return
         x = np.asarray(block.counts, float)
         if counts_per_unit is not None:
             x = x / np.asarray(counts_per_unit, float)
         with self._lock:
-            seq = np.asarray(block.seq)
-            if self._last_seq is not None:
-                steps = np.diff(np.concatenate([[self._last_seq], seq]))
-                self.seq_gaps += int(np.sum(steps > 1))
-            self._last_seq = int(seq[-1])
-            self.samples += len(seq)
-            self._arrivals.append((now, len(seq)))
-            while self._arrivals and self._arrivals[0][0] < now - 1.0:
-                self._arrivals.popleft()
             self._recent.append(x)
             self._recent_count += len(x)
             keep = max(2, int(self.window * self.rate_hz)) if self.rate_hz else math.inf
@@ -152,10 +157,16 @@ class LiveView:
         self.protocol = protocol
         return protocol
 
-    def observe_imu(self, imu, counts_per_unit=None):
-        """A proxy of the IMU driver for the recorder: every block read also feeds the view."""
-        self.imu = imu
-        return _ObservedImu(imu, self, counts_per_unit)
+    def observe_imu(self, imu, counts_per_unit=None, name: str = ""):
+        """A proxy of the IMU driver for the recorder: every block read also feeds the view
+        (`name`: the unit's, shown when there are several)."""
+        with self._lock:
+            feed = self._add_feed(imu, name)
+        return _ObservedImu(imu, self, counts_per_unit, feed)
+
+    def _add_feed(self, imu, name: str) -> "_Feed":
+        self.feeds.append(_Feed(imu, name))
+        return self.feeds[-1]
 
     def observe_operator(self, operator):
         """A proxy of the operator for the protocol: what the technician is told feeds the view."""
@@ -195,7 +206,7 @@ class LiveView:
         n, j, state = len(p.axes), p.position, p.state
         with self._lock:
             windows, table, message = dict(self._windows), self._table, self._message
-            fps = self._fps()
+            feeds = [(f.name, f.fps(), f.samples, f.seq_gaps, f.imu) for f in self.feeds]
         grid = Table.grid(padding=(0, 2))
         grid.add_column(style="bold", no_wrap=True)
         grid.add_column()
@@ -205,9 +216,11 @@ class LiveView:
         for name, (fraction, words) in self._window_progress(windows, table).items():
             grid.add_row(f"{name} window", Group(words, ProgressBar(1.0, fraction, 40)))
         grid.add_row("table", self._table_words(table))
-        grid.add_row("IMU", f"{fps:.0f} samples/s, {self.samples} received, "
-                            f"{self.seq_gaps} sequence gap(s)")
-        grid.add_row("link", self._counter_words())
+        for name, fps, samples, gaps, imu in feeds:
+            named = f" {escape(name)}" if len(feeds) > 1 else ""
+            grid.add_row(f"IMU{named}", f"{fps:.0f} samples/s, {samples} received, "
+                                        f"{gaps} sequence gap(s)")
+            grid.add_row(f"link{named}", _counter_words(imu))
         grid.add_row("stillness", self._stillness_words())
         if state == "mount" and j < n:  # the station waits for this mounting: say it, and only it
             grid.add_row("[bold yellow]do now[/]",
@@ -251,12 +264,6 @@ class LiveView:
         return (f"{table.rate:+.4f} rad/s (setpoint {table.rate_setpoint:+.4f}), {still}{inner}; "
                 f"flags: {', '.join(flags) or 'none'}")
 
-    def _counter_words(self) -> str:
-        stats = getattr(self.imu, "stats", None)
-        shown = [f"{name.replace('_', ' ')} {getattr(stats, name)}" for name in COUNTERS
-                 if isinstance(getattr(stats, name, None), int)]
-        return ", ".join(shown) or "the driver keeps no counters"
-
     def _stillness_words(self) -> str:
         if self.still is None:
             return "measuring..."
@@ -264,13 +271,6 @@ class LiveView:
         return f"{word} (dispersion {self.dispersion:.1f}; still below {self.enter:g})"
 
     # -- statistics ------------------------------------------------------------------------------
-
-    def _fps(self) -> float:
-        """Samples per second of the session clock over the last second of arrivals."""
-        if len(self._arrivals) < 2:
-            return 0.0
-        span = self._arrivals[-1][0] - self._arrivals[0][0]
-        return sum(k for _, k in list(self._arrivals)[1:]) / span if span > 0 else 0.0
 
     def _update_stillness(self, x) -> None:
         """Dispersion of the latest window against the quietest one seen, with hysteresis."""
@@ -284,6 +284,43 @@ class LiveView:
             self.still = False
         elif not self.still and self.dispersion < self.enter:
             self.still = True
+
+
+def _counter_words(imu) -> str:
+    """The link counters of an IMU driver's `stats` (COUNTERS)."""
+    stats = getattr(imu, "stats", None)
+    shown = [f"{name.replace('_', ' ')} {getattr(stats, name)}" for name in COUNTERS
+             if isinstance(getattr(stats, name, None), int)]
+    return ", ".join(shown) or "the driver keeps no counters"
+
+
+class _Feed:
+    """What the view keeps of one IMU's stream: the driver (for its counters), the unit's name,
+    the samples and sequence gaps received, the arrivals of the last second."""
+
+    def __init__(self, imu, name: str):
+        self.imu, self.name = imu, name
+        self.samples = self.seq_gaps = 0
+        self._last_seq = None
+        self._arrivals = collections.deque()  # (clock time, samples)
+
+    def arrived(self, block, now: float) -> None:
+        """Count a block received at clock time `now`."""
+        seq = np.asarray(block.seq)
+        if self._last_seq is not None:
+            self.seq_gaps += int(np.sum(np.diff(np.concatenate([[self._last_seq], seq])) > 1))
+        self._last_seq = int(seq[-1])
+        self.samples += len(seq)
+        self._arrivals.append((now, len(seq)))
+        while self._arrivals and self._arrivals[0][0] < now - 1.0:
+            self._arrivals.popleft()
+
+    def fps(self) -> float:
+        """Samples per second of the session clock over the last second of arrivals."""
+        if len(self._arrivals) < 2:
+            return 0.0
+        span = self._arrivals[-1][0] - self._arrivals[0][0]
+        return sum(k for _, k in list(self._arrivals)[1:]) / span if span > 0 else 0.0
 
 
 class _Observed:
@@ -308,14 +345,14 @@ class _Observed:
 class _ObservedImu(_Observed):
     """The IMU driver: `read_block` also hands the block to the view."""
 
-    def __init__(self, imu, view, counts_per_unit):
+    def __init__(self, imu, view, counts_per_unit, feed):
         super().__init__(imu, view, {})
-        self._counts_per_unit = counts_per_unit
+        self._counts_per_unit, self._feed = counts_per_unit, feed
 
     def read_block(self, *args, **kwargs):
         block = self._target.read_block(*args, **kwargs)
         if block is not None and len(block):
-            self._view.guarded(self._view.on_samples, block, self._counts_per_unit)
+            self._view.guarded(self._view.on_samples, block, self._counts_per_unit, self._feed)
         return block
 
 

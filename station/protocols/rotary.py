@@ -635,7 +635,7 @@ class Unwatched:
     def follow(self, protocol):
         return protocol
 
-    def observe_imu(self, imu):
+    def observe_imu(self, imu, name: str = ""):
         return imu
 
     def observe_operator(self, operator):
@@ -664,11 +664,12 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     last = writer.last_completed_position
     first = 0 if last is None else last + 1
     if first < len(protocol.axes):
-        taps = {stream: StreamTap(view.observe_imu(device) if stream == "imu" else device,
+        names = unit_names(metadata, writer) if others else {}
+        taps = {stream: StreamTap(view.observe_imu(device, name=names.get(stream, "")),
                                   writer.specs[stream].rate_hz,
                                   writer.specs[stream].counts_per_unit)
                 for stream, device in {"imu": imu, **(others or {})}.items()}
-        recorder = (PlateRecorder(writer, taps, unit_names(metadata, writer), clock=clock)
+        recorder = (PlateRecorder(writer, taps, names, clock=clock)
                     if others else Recorder(writer, taps["imu"], clock=clock))
         with recorder, view.show():
             try:
