@@ -63,17 +63,19 @@ def z_scores(fit, truth: Temperature) -> tuple:
             (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0])
 
 
-def probe(unit, temperature: float, truth: Temperature, rng, n: int = 500):
-    """(noise-free readings (3, n) of `unit` at `temperature`, true specific forces (3, n))."""
+def probe(unit, temperature: float, truth: Temperature, rng, n: int = 500,
+          magnitude: float = G):
+    """(noise-free readings (m, n) of `unit` at `temperature`, true stimuli (3, n) of
+    `magnitude`: specific forces of |g| by default, or rates of a gyro unit)."""
     at = unit_at(unit, temperature, True, truth)
     u = rng.standard_normal((3, n))
-    v = G * u / np.linalg.norm(u, axis=0)
+    v = magnitude * u / np.linalg.norm(u, axis=0)
     return at.a.T @ v + at.bias[:, None], v
 
 
-def magnitude_errors(v) -> np.ndarray:
-    """| |v_j| | - g of calibrated vectors (3, n)."""
-    return np.linalg.norm(v, axis=0) - G
+def magnitude_errors(v, magnitude: float = G) -> np.ndarray:
+    """|v_j| - magnitude (default g) of calibrated vectors (3, n)."""
+    return np.linalg.norm(v, axis=0) - magnitude
 
 
 def direct_calibration(unit, temperature: float, truth: Temperature):
