@@ -21,7 +21,8 @@ the orders the likelihood-ratio tests choose (as `station solve DIR`). Printed:
   the same unit with those 6 setpoints, each session solved alone by `station solve FILE`'s
   path): ratio of the RMS magnitude errors on noise-free probe readings of 1 rad/s, as
   bench/temperature.py defines it (<= 1.2 asked); for the first `--direct` seeds;
-- wall time per campaign. A campaign the twin spoils (the loaded host falls behind the fast clock:
+- each soak calibration's chi2 / dof (JSON; a spoilt position shows there), and the wall time per
+  campaign. A campaign the twin spoils (the loaded host falls behind the fast clock:
   a reduction refuses a window) is run once more and counted.
 
     bench/thermal_campaign.py [--seeds N] [--direct K] [--quick] [--json]
@@ -121,7 +122,8 @@ def campaign(seed: int, name: str, direct: bool) -> dict:
            "soaks_K": [s.temperature for s in c.soaks],
            "z_true_orders": z_scores(fixed.model, truth),
            "orders": chosen.model.orders, "z_chosen_orders": z_scores(chosen.model, truth),
-           "suspect": bool(chosen.problems)}
+           "suspect": bool(chosen.problems),
+           "soak_chi2_per_dof": [r.chi2 / r.dof for r in chosen.soaks]}
     if direct:
         cal = Calibration.from_temperature_fit(chosen, c.unit_serial, c.sensors, c.units)
         out["apply"] = apply_errors(seed, truth, unit, cal, c.rate)
