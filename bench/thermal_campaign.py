@@ -253,13 +253,13 @@ def main(argv=None) -> int:
     seeds, direct = (2, 1) if args.quick else (args.seeds, args.direct)
     start = time.perf_counter()
     runs, failures = [], []
-    for name in TRUTHS:
-        for seed in range(seeds):
+    for seed in range(seeds):
+        for name in TRUTHS:
             result = run(seed, name, seed < direct, failures)
             if result is not None:
                 runs.append(result)
-            print(f"{name} seed {seed}: {'lost' if result is None else result['wall_s']}",
-                  file=sys.stderr, flush=True)
+            print(json.dumps(result or {"seed": seed, "truth": name, "lost": True}),
+                  file=sys.stderr, flush=True)  # the runs so far, should the bench be stopped
     out = {"seeds": seeds, "speed": SPEED, "positions": POSITIONS, "failures": failures,
            "lost": 2 * seeds - len(runs), "summary": summary(runs), "runs": runs,
            "seconds": round(time.perf_counter() - start, 1)}
