@@ -12,9 +12,12 @@ are fitted twice by `station.solve.temperature.fit_temperature`: at the true ord
 the orders the likelihood-ratio tests choose (as `station solve DIR`). Printed:
 
 - z = (estimate - truth) / sigma of every linear tempco (12 bias, 12 scale per campaign), the truth
-  taken at the fit's T_ref: spread (std) with its 95 % chi2 interval for normal z, mean, max |z|
-  against the Bonferroni bound of false-alarm probability ALPHA, the fraction |z| > 3 against its
-  0.27 % with a 95 % Clopper-Pearson interval (`bench/diagnose.py` `interval`);
+  taken at the fit's T_ref, against its law (scale: N(0, 1); bias: Student's t of BIAS_DOF, the
+  static windows' scatter pooled over the soaks, `station.reduce.rotary.pooled_static_bias`):
+  rms with its 95 % interval, spread (std), mean, max |z| against the Bonferroni bound of
+  false-alarm probability ALPHA, the fraction |z| > 3 against the law's (0.27 % normal) with a
+  95 % Clopper-Pearson interval (`bench/diagnose.py` `interval`). The z of one campaign share its
+  soaks' temperatures and table, so the intervals, which take them independent, are a guide;
 - the order selection: how often each truth is given its orders, with the Clopper-Pearson interval;
 - the model (chosen orders) applied at 6 temperatures between and beside the soaks (APPLY_AT)
   against a calibration made at that very temperature through the drivers (one more campaign of
@@ -40,7 +43,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import norm
+from scipy.stats import t as student
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -63,6 +67,8 @@ POSITIONS = 8
 """Positions per soak: 6 (the fewest Eq. 16 allows for 12 gyros) leaves some seeds' scale factors
 ill-determined (z of 10 and more at the true orders)."""
 ALPHA = 0.01
+BIAS_DOF = len(SETPOINTS) * (POSITIONS - 1)
+"""Degrees of freedom of the bias sigmas: the static windows' scatter pooled over the soaks."""
 QUADRATIC = Temperature(bias=TRUTH.bias, scale=TRUTH.scale, bias2=1.5e-7,
                         scale2=(4e-7, -4e-7) * 6, t_ref=TRUTH.t_ref)
 """A true quadratic law: x^2 departs from its best line over the soaks by about 500 K^2 at the
@@ -164,18 +170,23 @@ def run(seed: int, name: str, direct: bool, failures: list) -> dict | None:
     return None
 
 
-def z_summary(z) -> dict:
-    """Spread, mean, max |z| and the tail fraction of z-scores (module docstring)."""
+def z_summary(z, dof: int | None = None) -> dict:
+    """Spread, mean, max |z| and the tail fraction of z-scores against their reference law:
+    N(0, 1), or Student's t of `dof` (the bias tempcos: sigmas pooled over the soaks); the
+    spread's 95 % interval from that of the mean square (variance E z^4 - (E z^2)^2 / n)."""
     z = np.asarray(z, float)
     n = z.size
+    law = norm() if dof is None else student(dof)
     over = int(np.sum(np.abs(z) > 3))
-    return {"n": n, "spread": float(z.std()), "mean": float(z.mean()),
-            "spread_interval_95": [float(np.sqrt(chi2.ppf(q, n - 1) / (n - 1)))
-                                   for q in (0.025, 0.975)],
+    half = norm.isf(0.025) * np.sqrt((law.moment(4) - law.var() ** 2) / n)
+    return {"n": n, "law": "N(0, 1)" if dof is None else f"t({dof})", "spread": float(z.std()),
+            "rms": float(np.sqrt(np.mean(z**2))), "mean": float(z.mean()),
+            "expected_spread": float(law.std()),
+            "rms_interval_95": [float(np.sqrt(max(law.var() + h, 0.0))) for h in (-half, half)],
             "max_abs": float(np.abs(z).max()),
-            "bonferroni_bound": float(norm.isf(ALPHA / (2 * n))),
+            "bonferroni_bound": float(law.isf(ALPHA / (2 * n))),
             "over_3": over / n, "over_3_interval_95": interval(over, n),
-            "over_3_expected": float(2 * norm.sf(3))}
+            "over_3_expected": float(2 * law.sf(3))}
 
 
 def summary(runs: list) -> dict:
@@ -193,7 +204,8 @@ def summary(runs: list) -> dict:
                                               for r in mine}),
                      "suspect": sum(r["suspect"] for r in mine)}
         for key in ("z_true_orders", "z_chosen_orders"):
-            out[name][key] = {q: z_summary(np.ravel([r[key][q] for r in mine]))
+            out[name][key] = {q: z_summary(np.ravel([r[key][q] for r in mine]),
+                                           BIAS_DOF if q == "bias" else None)
                               for q in ("bias", "scale")}
         applied = [r["apply"] for r in mine if "apply" in r]
         if applied:
@@ -222,13 +234,14 @@ def text(out: dict) -> str:
                      f"{s['suspect']} suspect")
         for key in ("z_true_orders", "z_chosen_orders"):
             for q, z in s[key].items():
-                a, b = z["spread_interval_95"]
+                a, b = z["rms_interval_95"]
                 c, d = z["over_3_interval_95"]
-                lines.append(f"  {key[2:].replace('_', ' ')}, {q} z ({z['n']}): spread "
-                             f"{z['spread']:.3f} (normal: {a:.3f} .. {b:.3f}), mean "
-                             f"{z['mean']:+.3f}, max |z| {z['max_abs']:.2f} (Bonferroni "
-                             f"{z['bonferroni_bound']:.2f}), |z| > 3 {z['over_3']:.2%} "
-                             f"({c:.2%} .. {d:.2%}; expected 0.27 %)")
+                lines.append(f"  {key[2:].replace('_', ' ')}, {q} z ({z['n']}, {z['law']}): "
+                             f"rms {z['rms']:.3f} ({a:.3f} .. {b:.3f}), spread "
+                             f"{z['spread']:.3f}, mean {z['mean']:+.3f}, max |z| "
+                             f"{z['max_abs']:.2f} (Bonferroni {z['bonferroni_bound']:.2f}), "
+                             f"|z| > 3 {z['over_3']:.2%} ({c:.2%} .. {d:.2%}; expected "
+                             f"{z['over_3_expected']:.2%})")
         if "apply" in s:
             a = s["apply"]
             lines.append(f"  apply at {len(a['temperatures_K'])} temperatures ({a['seeds']} "
