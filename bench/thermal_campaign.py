@@ -53,6 +53,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from thermalsim import magnitude_errors, probe  # noqa: E402
 
 from bench.diagnose import interval  # noqa: E402
+from station.cli import EXIT_INTERRUPTED  # noqa: E402
 from station.cli import main as station  # noqa: E402
 from station.commands.solve import solve_session  # noqa: E402
 from station.files.calfile import Calibration  # noqa: E402
@@ -90,6 +91,8 @@ def record(seed: int, truth: Temperature, setpoints, directory: Path):
         with contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
             code = station(["record", "--profile", str(profile), "--out",
                             str(directory / "camp")])
+        if code == EXIT_INTERRUPTED:  # Ctrl-C or kill: the bench stops, no second attempt
+            raise KeyboardInterrupt
         if code != 0 or twin.error is not None:
             raise RuntimeError(f"station record exit {code}, twin {twin.error!r}: "
                            f"{log.getvalue().strip().splitlines()[-1:]}")
