@@ -28,7 +28,8 @@ the orders the likelihood-ratio tests choose (as `station solve DIR`). Printed:
   campaign. A campaign the twin spoils (the loaded host falls behind the fast clock:
   a reduction refuses a window) is run once more and counted.
 
-    bench/thermal_campaign.py [--seeds N] [--direct K] [--quick] [--json]
+    bench/thermal_campaign.py [--seeds N] [--direct K] [--speed X] [--truths linear quadratic]
+                              [--quick] [--json]
 
 (-P: do not put bench/ on sys.path, where bench/serial.py would hide pyserial.)
 """
@@ -80,10 +81,10 @@ APPLY_AT = (268.15, 278.15, 293.15, 303.15, 323.15, 328.15)
 """K: inside the soaks' range (263.15 .. 333.15 K), none a soak's."""
 
 
-def record(seed: int, truth: Temperature, setpoints, directory: Path):
+def record(seed: int, truth: Temperature, setpoints, directory: Path, speed: float):
     """Record a campaign of `seed`'s unit under `truth` at `setpoints` into `directory`/camp by
     `station record`; the twin's unit (SensorUnit) is returned."""
-    with ThermalTwin(seed=seed, speed=SPEED, positions=POSITIONS, setpoints=setpoints,
+    with ThermalTwin(seed=seed, speed=speed, positions=POSITIONS, setpoints=setpoints,
                      effect=truth) as twin:
         profile = directory / "bench.toml"
         profile.write_text(twin.profile_text())
@@ -116,13 +117,13 @@ def z_scores(model, truth: Temperature) -> dict:
             "scale": ((model.scale[:, 0] - scale) / model.scale_sigma[:, 0]).tolist()}
 
 
-def campaign(seed: int, name: str, direct: bool) -> dict:
+def campaign(seed: int, name: str, direct: bool, speed: float) -> dict:
     """One campaign of `seed` under truth `name`: z at the true and the chosen orders, the
     chosen orders, and with `direct` the apply figures (module docstring)."""
     truth, orders = TRUTHS[name]
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="thermal-bench-") as tmp:
-        unit = record(seed, truth, SETPOINTS, Path(tmp))
+        unit = record(seed, truth, SETPOINTS, Path(tmp), speed)
         wall = time.perf_counter() - start
         c = campaign_soaks(Path(tmp) / "camp")
         fixed = fit_temperature(c.soaks, c.rate, orders=orders, names=c.sensors)
@@ -135,16 +136,16 @@ def campaign(seed: int, name: str, direct: bool) -> dict:
            "soak_chi2_per_dof": [r.chi2 / r.dof for r in chosen.soaks]}
     if direct:
         cal = Calibration.from_temperature_fit(chosen, c.unit_serial, c.sensors, c.units)
-        out["apply"] = apply_errors(seed, truth, unit, cal, c.rate)
+        out["apply"] = apply_errors(seed, truth, unit, cal, c.rate, speed)
     return out
 
 
-def apply_errors(seed: int, truth: Temperature, unit, cal, rate: float) -> dict:
+def apply_errors(seed: int, truth: Temperature, unit, cal, rate: float, speed: float) -> dict:
     """Squared magnitude errors summed, with counts, of the model `cal` and of calibrations made
     at each APPLY_AT temperature (a campaign of those setpoints, each session solved alone) on
     noise-free probe readings of `unit` at |rate|."""
     with tempfile.TemporaryDirectory(prefix="thermal-direct-") as tmp:
-        same = record(seed, truth, APPLY_AT, Path(tmp))
+        same = record(seed, truth, APPLY_AT, Path(tmp), speed)
         if not (np.array_equal(same.a, unit.a) and np.array_equal(same.bias, unit.bias)):
             raise RuntimeError(f"seed {seed}: the twin made another unit for the direct "
                                "calibrations")
@@ -161,12 +162,12 @@ def apply_errors(seed: int, truth: Temperature, unit, cal, rate: float) -> dict:
             "direct_sq": float(np.sum(np.square(there))), "n": int(np.size(model))}
 
 
-def run(seed: int, name: str, direct: bool, failures: list) -> dict | None:
+def run(seed: int, name: str, direct: bool, speed: float, failures: list) -> dict | None:
     """`campaign`, once more when the twin spoils it; None (and the failures noted) when it
     fails twice."""
     for attempt in range(2):
         try:
-            return campaign(seed, name, direct)
+            return campaign(seed, name, direct, speed)
         except Exception as exc:  # noqa: BLE001 - a spoilt campaign is counted, not fatal
             failures.append({"seed": seed, "truth": name, "attempt": attempt,
                              "error": f"{type(exc).__name__}: {exc}"[:400]})
@@ -225,8 +226,8 @@ def summary(runs: list) -> dict:
 
 def text(out: dict) -> str:
     """The figures in words."""
-    lines = [f"{out['seeds']} seeds per truth, speed {SPEED:g}x, {POSITIONS} positions a soak; "
-             f"{len(out['failures'])} spoilt campaign(s) run again, {out['lost']} lost"]
+    lines = [f"{out['seeds']} seeds per truth, speed {out['speed']:g}x, {POSITIONS} positions a "
+             f"soak; {len(out['failures'])} spoilt campaign(s) run again, {out['lost']} lost"]
     for name in TRUTHS:
         s = out["summary"].get(name)
         if s is None:
@@ -263,6 +264,10 @@ def main(argv=None) -> int:
     p.add_argument("--direct", type=int, default=3,
                    help="seeds (the first) whose model is checked against calibrations made at "
                         "APPLY_AT (one more campaign each)")
+    p.add_argument("--speed", type=float, default=SPEED,
+                   help=f"the twin's clock speed (default {SPEED:g}; to see the z do not move "
+                        "with it)")
+    p.add_argument("--truths", nargs="+", choices=list(TRUTHS), default=list(TRUTHS))
     p.add_argument("--quick", action="store_true", help="2 seeds, 1 direct (a check it runs)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
@@ -270,14 +275,14 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     runs, failures = [], []
     for seed in range(seeds):
-        for name in TRUTHS:
-            result = run(seed, name, seed < direct, failures)
+        for name in args.truths:
+            result = run(seed, name, seed < direct, args.speed, failures)
             if result is not None:
                 runs.append(result)
             print(json.dumps(result or {"seed": seed, "truth": name, "lost": True}),
                   file=sys.stderr, flush=True)  # the runs so far, should the bench be stopped
-    out = {"seeds": seeds, "speed": SPEED, "positions": POSITIONS, "failures": failures,
-           "lost": 2 * seeds - len(runs), "summary": summary(runs), "runs": runs,
+    out = {"seeds": seeds, "speed": args.speed, "positions": POSITIONS, "failures": failures,
+           "lost": len(args.truths) * seeds - len(runs), "summary": summary(runs), "runs": runs,
            "seconds": round(time.perf_counter() - start, 1)}
     print(json.dumps(out, indent=2) if args.json else text(out))
     return 0
