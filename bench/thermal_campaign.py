@@ -16,8 +16,10 @@ the orders the likelihood-ratio tests choose (as `station solve DIR`). Printed:
   static windows' scatter pooled over the soaks, `station.reduce.rotary.pooled_static_bias`):
   rms with its 95 % interval, spread (std), mean, max |z| against the Bonferroni bound of
   false-alarm probability ALPHA, the fraction |z| > 3 against the law's (0.27 % normal) with a
-  95 % Clopper-Pearson interval (`bench/diagnose.py` `interval`). The z of one campaign share its
-  soaks' temperatures and table, so the intervals, which take them independent, are a guide;
+  95 % Clopper-Pearson interval (`bench/diagnose.py` `interval`). The bias z are independent;
+  the scale z of one campaign are strongly correlated (`joint_chi2`), so their intervals, which
+  take them independent, are too narrow: the joint chi2 of the 12 scale tempcos per campaign,
+  summed, against chi2(12 N) is their test;
 - the order selection: how often each truth is given its orders, with the Clopper-Pearson interval;
 - the model (chosen orders) applied at 6 temperatures between and beside the soaks (APPLY_AT)
   against a calibration made at that very temperature through the drivers (one more campaign of
@@ -44,7 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 from scipy.stats import t as student
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,6 +119,23 @@ def z_scores(model, truth: Temperature) -> dict:
             "scale": ((model.scale[:, 0] - scale) / model.scale_sigma[:, 0]).tolist()}
 
 
+def joint_chi2(model, truth: Temperature) -> dict:
+    """chi2 of a TemperatureModel's linear bias tempcos and, apart, of its linear scale tempcos
+    against `truth` with their full covariance (m dof each). The scale tempcos of the m sensors
+    are strongly correlated (their soaks' calibrations share the positions' directions: on the
+    twin's 8 positions one eigenvalue of their correlation is 9 of 12), so their z are not m
+    independent values; this is the test that takes that into account."""
+    bias, scale = linear_truth(truth, model.t_ref)
+    m, pb = model.bias.shape
+    ps = model.scale.shape[1]
+    out = {}
+    for q, error, rows in (("bias", model.bias[:, 0] - bias, np.arange(m) * pb),
+                           ("scale", model.scale[:, 0] - scale, m * pb + np.arange(m) * ps)):
+        cov = model.covariance[np.ix_(rows, rows)]
+        out[q] = float(error @ np.linalg.solve(cov, error))
+    return out
+
+
 def campaign(seed: int, name: str, direct: bool, speed: float) -> dict:
     """One campaign of `seed` under truth `name`: z at the true and the chosen orders, the
     chosen orders, and with `direct` the apply figures (module docstring)."""
@@ -131,6 +150,7 @@ def campaign(seed: int, name: str, direct: bool, speed: float) -> dict:
     out = {"seed": seed, "truth": name, "wall_s": round(wall, 1),
            "soaks_K": [s.temperature for s in c.soaks],
            "z_true_orders": z_scores(fixed.model, truth),
+           "chi2_true_orders": joint_chi2(fixed.model, truth),
            "orders": chosen.model.orders, "z_chosen_orders": z_scores(chosen.model, truth),
            "suspect": bool(chosen.problems),
            "soak_chi2_per_dof": [r.chi2 / r.dof for r in chosen.soaks]}
@@ -193,6 +213,16 @@ def z_summary(z, dof: int | None = None) -> dict:
             "over_3_expected": float(2 * law.sf(3))}
 
 
+def scale_chi2(values, m: int) -> dict:
+    """The campaigns' joint chi2 of the m linear scale tempcos (`joint_chi2`): their sum per
+    degree of freedom with the 95 % interval of chi2(m N) / (m N), the largest against the
+    Bonferroni bound of chi2(m) at ALPHA over the N campaigns."""
+    n, k = len(values), m * len(values)
+    return {"campaigns": n, "per_dof": float(np.sum(values) / k),
+            "per_dof_interval_95": [float(chi2.ppf(q, k) / k) for q in (0.025, 0.975)],
+            "max": float(np.max(values)), "bonferroni_bound": float(chi2.isf(ALPHA / n, m))}
+
+
 def summary(runs: list) -> dict:
     """Per truth: the z figures (bias, scale) at the true and at the chosen orders, the order
     selection rate; the apply ratio over every run with it."""
@@ -211,6 +241,9 @@ def summary(runs: list) -> dict:
             out[name][key] = {q: z_summary(np.ravel([r[key][q] for r in mine]),
                                            BIAS_DOF if q == "bias" else None)
                               for q in ("bias", "scale")}
+        joint = [r["chi2_true_orders"]["scale"] for r in mine if "chi2_true_orders" in r]
+        if joint:
+            out[name]["scale_chi2_true_orders"] = scale_chi2(joint, len(TRUTH.scale))
         applied = [r["apply"] for r in mine if "apply" in r]
         if applied:
             n = sum(a["n"] for a in applied)
@@ -246,6 +279,13 @@ def text(out: dict) -> str:
                              f"{z['max_abs']:.2f} (Bonferroni {z['bonferroni_bound']:.2f}), "
                              f"|z| > 3 {z['over_3']:.2%} ({c:.2%} .. {d:.2%}; expected "
                              f"{z['over_3_expected']:.2%})")
+        if "scale_chi2_true_orders" in s:
+            c = s["scale_chi2_true_orders"]
+            lo, hi = c["per_dof_interval_95"]
+            lines.append(f"  true orders, scale tempcos' joint chi2 (full covariance, "
+                         f"{c['campaigns']} campaigns): {c['per_dof']:.3f} per dof ({lo:.3f} .. "
+                         f"{hi:.3f}), largest {c['max']:.1f} (Bonferroni "
+                         f"{c['bonferroni_bound']:.1f})")
         if "apply" in s:
             a = s["apply"]
             lines.append(f"  apply at {len(a['temperatures_K'])} temperatures ({a['seeds']} "
