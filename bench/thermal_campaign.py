@@ -68,8 +68,9 @@ from station.twin.thermal import SETPOINTS, TRUTH, ThermalTwin  # noqa: E402
 SPEED = 80.0
 """Clock speed of the twin: faster, the loaded 2-core host falls behind (spoilt windows)."""
 POSITIONS = 8
-"""Positions per soak: 6 (the fewest Eq. 16 allows for 12 gyros) leaves some seeds' scale factors
-ill-determined (z of 10 and more at the true orders)."""
+"""Positions per soak. 6 (the fewest Eq. 16 allows for 12 gyros) leave some seeds' scale factors
+ill-determined (seed 0: scale tempco sigmas 2 to 35 ppm/K, against about 1 to 2 at 8 positions,
+and z of 10 and more at the true orders, not checked with their joint chi2)."""
 ALPHA = 0.01
 BIAS_DOF = len(SETPOINTS) * (POSITIONS - 1)
 """Degrees of freedom of the bias sigmas: the static windows' scatter pooled over the soaks."""
