@@ -99,7 +99,7 @@ def record(seed: int, truth: Temperature, setpoints, directory: Path, speed: flo
             raise KeyboardInterrupt
         if code != 0 or twin.error is not None:
             raise RuntimeError(f"station record exit {code}, twin {twin.error!r}: "
-                           f"{log.getvalue().strip().splitlines()[-1:]}")
+                               f"{log.getvalue().strip().splitlines()[-1:]}")
         return twin.bench.unit
 
 
