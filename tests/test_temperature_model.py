@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy.stats import binom, norm
+from scipy.stats import binom, kstest, norm
 from scipy.stats import t as t_dist
 from thermalsim import (
     BETWEEN,
@@ -29,18 +29,13 @@ from station.model.temperature import Soak
 from station.reduce.still import StillReadings
 from station.reduce.stillness import detect_still
 from station.sim.layouts import accelerometer_triad
+from station.sim.profile import RotaryTiming
 from station.sim.static import simulate_static
 from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
 from station.solve.temperature import FALSE_ALARM, fit_temperature, still_soak
 
 ALPHA = 0.01
 """False-alarm probability of each statistical check below."""
-
-
-GLS_T19 = 1.064
-"""sd of the slope's z of a straight line fitted to 4 points at x = -35, -15, 15, 35 K with
-weights 1 / s_k^2, s_k^2 ~ sigma^2 chi2(19) / 19 independent (2e5 draws of that arithmetic alone,
-numpy; 1.057 for one point's t(19))."""
 
 
 def spread_bounds(n: int) -> tuple:
@@ -101,22 +96,45 @@ def test_applied_between_the_soaks_it_is_as_good_as_a_calibration_made_there():
     assert stale > 5 * np.sqrt(np.mean(np.square(direct_errors)))
 
 
+def t_spread(dof: int) -> float:
+    """sd of Student's t of `dof` degrees of freedom."""
+    return float(np.sqrt(dof / (dof - 2)))
+
+
 def test_the_rotary_gyro_path_recovers_its_tempcos():
     """A 12-gyro unit's rotary sessions at 4 soaks through the Eq. 18 reduction (`rotary_fit`):
     the linear tempcos' z over 15 seeds. The scale z are N(0, 1) (sigmas from thousands of
-    samples). A bias sigma is the scatter of 20 static means (19 dof): a soak's bias z is t(19)
-    (sd sqrt(19/17) = 1.057), and the least squares over 4 soaks weighted by those estimated
-    sigmas spreads its slope's z to GLS_T19 (tails bounded by t(19)'s Bonferroni quantile)."""
+    samples). The bias sigmas are the scatter of 20 static means per soak pooled over the 4
+    soaks (`pooled_static_bias`, 76 dof): a bias z is t(76), sd 1.013."""
     z_bias, z_scale = (np.ravel(z) for z in zip(*(z_scores(rotary_fit(seed), GYRO_TRUTH)
                                                   for seed in range(15)), strict=True))
     low, high = spread_bounds(z_scale.size)
     print(f"gyro z spread: scale {z_scale.std():.3f}, bias {z_bias.std():.3f} (bounds {low:.3f} "
-          f".. {high:.3f}, bias up to {high - 1 + GLS_T19:.3f}); max |z| "
+          f".. {high:.3f}, bias up to {high - 1 + t_spread(76):.3f}); max |z| "
           f"{np.abs(z_scale).max():.2f}, {np.abs(z_bias).max():.2f}")
     assert low < z_scale.std() < high
-    assert low < z_bias.std() < high - 1 + GLS_T19
+    assert low < z_bias.std() < high - 1 + t_spread(76)
     assert np.abs(z_scale).max() < norm.isf(ALPHA / (2 * z_scale.size))
-    assert np.abs(z_bias).max() < t_dist.isf(ALPHA / (2 * z_bias.size), 19)
+    assert np.abs(z_bias).max() < t_dist.isf(ALPHA / (2 * z_bias.size), 76)
+
+
+def test_pooled_static_bias_makes_a_short_campaigns_bias_z_students_t():
+    """The thermal campaign's short soaks (8 positions, 5 s static windows, 1 rad/s, 100 Hz, as
+    the thermal twin's profile): each soak's own scatter has 7 dof, and weighting the soaks by
+    those estimated sigmas spread the bias tempcos' z to 1.19 (2400 values). Pooled over the 4
+    soaks (28 dof) the z of 50 seeds x 12 gyros are t(28): their mean square is 28/26 within its
+    ALPHA bound (the variance of t^2 is E t^4 - (E t^2)^2, E t^4 = 3 nu^2 / ((nu - 2)(nu - 4))),
+    and a Kolmogorov-Smirnov test against t(28) passes at ALPHA."""
+    timing = RotaryTiming(rate=1.0, static=5.0, moving=12.0)
+    z = np.ravel([z_scores(rotary_fit(seed, positions=8, timing=timing, fs=100.0),
+                           GYRO_TRUTH)[0] for seed in range(50)])
+    nu = 4 * 7
+    mean_sq = nu / (nu - 2)
+    var_sq = 3 * nu**2 / ((nu - 2) * (nu - 4)) - mean_sq**2
+    bound = norm.isf(ALPHA / 2) * np.sqrt(var_sq / z.size)
+    print(f"bias z mean square {np.mean(z**2):.3f} (t({nu}): {mean_sq:.3f} +- {bound:.3f})")
+    assert abs(np.mean(z**2) - mean_sq) < bound
+    assert kstest(z, t_dist(nu).cdf).pvalue > ALPHA
 
 
 def test_hysteresis_moves_the_bias_by_its_width_between_heating_and_cooling():

@@ -74,11 +74,10 @@ def test_a_four_setpoint_campaign_recovers_the_true_tempcos(tmp_path, capsys):
     z_bias = (model.bias[:, 0] - TRUTH.bias) / model.bias_sigma[:, 0]
     z_scale = (model.scale[:, 0] - np.asarray(TRUTH.scale)) / model.scale_sigma[:, 0]
     # Bonferroni over the 24 values, ALPHA in all. A bias 1-sigma comes from the scatter of 6
-    # static windows per soak (5 dof each); the fit weights the 4 soaks by these estimated
-    # sigmas, so the z is not a Student t of 20 pooled dof (measured: |z| up to 4.7 against its
-    # 4.22): its tail is bounded by the fewest dof that enter it, 5. A scale factor's 1-sigma
-    # comes from thousands of samples per window (normal).
-    assert np.all(np.abs(z_bias) < student.isf(ALPHA / 48, 5)), z_bias
+    # static windows per soak pooled over the 4 soaks (`pooled_static_bias`): the z is Student's
+    # t of 4 x 5 = 20 dof. A scale factor's 1-sigma comes from thousands of samples per window
+    # (normal).
+    assert np.all(np.abs(z_bias) < student.isf(ALPHA / 48, 20)), z_bias
     assert np.all(np.abs(z_scale) < norm.isf(ALPHA / 48)), z_scale
 
     rng = np.random.default_rng(7)

@@ -13,7 +13,7 @@ from station.model.earth import normal_gravity
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
 from station.reduce.eq18 import reduce_arrays
-from station.reduce.rotary import static_bias
+from station.reduce.rotary import pooled_static_bias
 from station.sim.layouts import accelerometer_triad, gyro_array
 from station.sim.rotary import simulate_rotary
 from station.sim.thermal import simulate_soaks, soak_recordings, unit_at
@@ -40,18 +40,17 @@ def thermal_fit(seed: int, truth: Temperature = TRUE_LINEAR, orders=None):
     return unit, fit_temperature(simulate_soaks(unit, SOAKS, truth), G, orders=orders)
 
 
-def rotary_fit(seed: int, truth: Temperature = GYRO_TRUTH):
-    """The linear TemperatureFit of a 12-gyro unit's rotary sessions (20 positions) at
-    GYRO_SOAKS, each through the Eq. 18 reduction with its biases from the static windows
-    (`static_bias`), as `station solve` gets them."""
-    unit = gyro_array(np.random.default_rng(seed))
-    soaks = []
-    sims = soak_recordings(unit, GYRO_SOAKS, truth, lambda u: simulate_rotary(u, 20))
-    for temp, sim in zip(GYRO_SOAKS, sims, strict=True):
-        reduced = reduce_arrays(sim.arrays)
-        bias = static_bias(reduced)
-        soaks.append(Soak(temp, reduced.M, reduced.sigma, bias=bias["bias"],
-                          bias_sigma=bias["bias_sigma"]))
+def rotary_fit(seed: int, truth: Temperature = GYRO_TRUTH, positions: int = 20, timing=None,
+               fs: float = 200.0):
+    """The linear TemperatureFit of a 12-gyro unit's rotary sessions (`positions` each, default
+    RotaryTiming, `fs` Hz) at GYRO_SOAKS, each through the Eq. 18 reduction with its biases from
+    the static windows (`pooled_static_bias`), as `station solve` gets them."""
+    unit = gyro_array(np.random.default_rng(seed), fs=fs)
+    sims = soak_recordings(unit, GYRO_SOAKS, truth,
+                           lambda u: simulate_rotary(u, positions, timing))
+    reduced = [reduce_arrays(sim.arrays) for sim in sims]
+    soaks = [Soak(temp, r.M, r.sigma, bias=b["bias"], bias_sigma=b["bias_sigma"])
+             for temp, r, b in zip(GYRO_SOAKS, reduced, pooled_static_bias(reduced), strict=True)]
     return fit_temperature(soaks, float(sims[0].arrays["c_cmd"]),
                            orders={"bias": 1, "scale": 1})
 
@@ -63,17 +62,19 @@ def z_scores(fit, truth: Temperature) -> tuple:
             (model.scale[:, 0] - truth.scale) / model.scale_sigma[:, 0])
 
 
-def probe(unit, temperature: float, truth: Temperature, rng, n: int = 500):
-    """(noise-free readings (3, n) of `unit` at `temperature`, true specific forces (3, n))."""
+def probe(unit, temperature: float, truth: Temperature, rng, n: int = 500,
+          magnitude: float = G):
+    """(noise-free readings (m, n) of `unit` at `temperature`, true stimuli (3, n) of
+    `magnitude`: specific forces of |g| by default, or rates of a gyro unit)."""
     at = unit_at(unit, temperature, True, truth)
     u = rng.standard_normal((3, n))
-    v = G * u / np.linalg.norm(u, axis=0)
+    v = magnitude * u / np.linalg.norm(u, axis=0)
     return at.a.T @ v + at.bias[:, None], v
 
 
-def magnitude_errors(v) -> np.ndarray:
-    """| |v_j| | - g of calibrated vectors (3, n)."""
-    return np.linalg.norm(v, axis=0) - G
+def magnitude_errors(v, magnitude: float = G) -> np.ndarray:
+    """|v_j| - magnitude (default g) of calibrated vectors (3, n)."""
+    return np.linalg.norm(v, axis=0) - magnitude
 
 
 def direct_calibration(unit, temperature: float, truth: Temperature):

@@ -7,7 +7,8 @@ eq18`). On a two-axis table's spin of the position axis (`rotate_start`/`rotate_
 `axis: "position"`, `station.protocols.rotary`) the cut follows the position axis' angle, recorded
 at the window's two bounds with the instants it was read and interpolated linearly between them
 (the protocol held that axis' rate within its tolerance all along). Eq. (18) readings carry no
-bias; `static_bias` gives the calibration file its biases from the static windows.
+bias; `static_bias` gives the calibration file its biases from the static windows
+(`pooled_static_bias`: several sessions of one unit, their scatter pooled).
 """
 
 import math
@@ -208,3 +209,26 @@ def static_bias(reduced: Reduced) -> dict:
     return {"bias": reduced.static_mean.mean(axis=1),
             "bias_sigma": reduced.static_mean.std(axis=1, ddof=1) / np.sqrt(n),
             "bias_source": "static windows of the rotary protocol (mean over positions)"}
+
+
+def pooled_static_bias(sessions) -> list:
+    """`static_bias` of several rotary sessions of one unit (`Reduced` each, e.g. a thermal
+    campaign's soaks) whose static windows scatter alike: each session's biases the mean of its
+    static windows, their 1-sigma the scatter pooled over the sessions / sqrt(n) per sensor.
+
+    With n_k positions a session's own scatter has n_k - 1 degrees of freedom (5 to 7 in a short
+    soak): a fit weighting sessions by such estimated sigmas gives z-scores far heavier-tailed
+    than its sigmas say (a tempco's z spread 1.19 for 7 dof against 1). The pooled variance
+    sum_k (n_k - 1) s_k^2 / sum_k (n_k - 1) has sum_k (n_k - 1) degrees of freedom, and a z
+    standardised by it is Student's t of those (Student 1908; e.g. Montgomery, "Design and
+    Analysis of Experiments", 2017, sec. 2.4.4). It assumes the same white noise and
+    between-position variation at every session, as the sensor model has it: the `temperature`
+    effect moves biases and scale factors, not the noise."""
+    single = [static_bias(r) for r in sessions]  # refuses a session of one position
+    dof = [r.M.shape[1] - 1 for r in sessions]
+    var = sum(d * r.static_mean.var(axis=1, ddof=1)
+              for d, r in zip(dof, sessions, strict=True)) / sum(dof)
+    source = (f"static windows of the rotary protocol (mean over positions; scatter pooled over "
+              f"{len(sessions)} sessions, {sum(dof)} dof)")
+    return [{**b, "bias_sigma": np.sqrt(var / (d + 1)), "bias_source": source}
+            for d, b in zip(dof, single, strict=True)]

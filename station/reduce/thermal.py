@@ -2,9 +2,10 @@
 
 Each session done is a rotary session at one chamber setpoint: its gyro channels (every channel
 not in K) reduce to Eq. (18) readings (`rotary_readings`) with their biases from the static windows
-(`static_bias`), the readings `station.solve.temperature.fit_temperature` takes; the soak's
-temperature is the mean of the session's recorded temperature channel (the unit's own sensor,
-K) over the whole session, not the setpoint nor the chamber's air.
+(`pooled_static_bias`: their scatter pooled over the soaks, so a tempco's z is Student's t of
+sum(n_k - 1) degrees of freedom), the readings `station.solve.temperature.fit_temperature` takes;
+the soak's temperature is the mean of the session's recorded temperature channel (the unit's own
+sensor, K) over the whole session, not the setpoint nor the chamber's air.
 """
 
 import math
@@ -16,7 +17,7 @@ from station.errors import CalibrationInputError
 from station.files.campaign import Campaign
 from station.files.session import Session
 from station.model.temperature import Soak, check_kelvin
-from station.reduce.rotary import rotary_channels, rotary_readings, static_bias
+from station.reduce.rotary import pooled_static_bias, rotary_channels, rotary_readings
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,7 @@ def campaign_soaks(path) -> CampaignSoaks:
         raise CalibrationInputError(
             f"{campaign.directory}: {len(done)} soak(s) recorded; a temperature model needs at "
             "least 2.", f"Continue the campaign: `station resume {campaign.directory}`.")
-    soaks, first = [], None
+    reduced, temperatures, first = [], [], None
     for _setpoint, file in done:
         with Session.open(file) as session:
             spec = session.specs["imu"]
@@ -61,11 +62,11 @@ def campaign_soaks(path) -> CampaignSoaks:
                     "session.", "Solve sessions of one unit, one device profile and one rate.")
             first = key
             gyros = rotary_channels(session)
-            reduced = rotary_readings(session)
-            bias = static_bias(reduced)
-            soaks.append(Soak(session_temperature(session, file), reduced.M, reduced.sigma,
-                              bias=bias["bias"], bias_sigma=bias["bias_sigma"]))
+            reduced.append(rotary_readings(session))
+            temperatures.append(session_temperature(session, file))
             unit_serial = session.unit_serial
+    soaks = [Soak(t, r.M, r.sigma, bias=b["bias"], bias_sigma=b["bias_sigma"])
+             for t, r, b in zip(temperatures, reduced, pooled_static_bias(reduced), strict=True)]
     channels, units, counts, rate = first
     return CampaignSoaks(soaks, [str(f) for _, f in done], rate, [channels[i] for i in gyros],
                          [units[i] for i in gyros], np.asarray(counts)[gyros], unit_serial)
