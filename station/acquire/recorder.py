@@ -38,13 +38,14 @@ class Recorder:
     """Records `imu` into `writer`'s stream `stream` until `stop()`; a context manager.
 
     clock    : the session's clock (default: the writer's, shared with the devices, or WallClock)
-    interval : wall seconds the reader waits once the driver has no sample, so that each block
-               holds several samples; while blocks come it reads on at once. (It used to wait
-               after every block: a port hands over at most its buffer a read (a pty 4 KB, 70
-               frames of 58 bytes), and on a busy host the wait and the interpreter's lock made
-               a read about as rare as a fast stream fills the buffer (3 units at 100 Hz on a 40x
-               clock), so a backlog never drained: no sample of the segment arrived promptly and
-               every instant `arrival_offset` gave it came out late by the backlog.)
+    interval : wall seconds the reader waits once it has caught up (the driver has no sample, or
+               fewer than half what one interval brings), so that each block holds several
+               samples; while larger blocks come (a backlog) it reads on at once. A port hands
+               over at most its buffer a read (a pty 4 KB, 70 frames of 58 bytes): a reader that
+               waited after every block fell behind a fast stream on a busy host (3 units at 100
+               Hz on a 40x clock) and never drained the backlog, so no sample of the segment
+               arrived promptly and every instant `arrival_offset` gave it came out late by it;
+               one that never waits spins on single samples and starves the other threads.
     drain_timeout : wall seconds `drain` waits for the samples in flight
     busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
                     processes) can hold the reader that long, which is many seconds of a fast clock
@@ -126,11 +127,13 @@ class Recorder:
                     f"rate{advice}")
             time.sleep(self.interval)
 
-    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
-        """Record a protocol event now (see `station.files.session.EVENT_KINDS`); returns the clock
-        time stored with it (stamped before waiting for the writer, which a block may be
-        holding)."""
-        time = self.clock.now()
+    def event(self, kind: str, position: int | None = None, detail: dict | None = None,
+              time: float | None = None) -> float:
+        """Record a protocol event (see `station.files.session.EVENT_KINDS`) at clock `time`
+        (default now, stamped before waiting for the writer, which a block may be holding; a
+        window's bound: the instant of the table reading it was cut at); returns the time
+        stored."""
+        time = self.clock.now() if time is None else float(time)
         with self._lock:
             self.writer.event(kind, position, detail, time=time)
         return time
@@ -166,19 +169,21 @@ class Recorder:
         self._last_seq = int(seq[-1])
 
     def _read(self) -> None:
-        """The reader thread: a block as soon as the driver has one, a pause of `interval` only
-        once it has none (see `interval`)."""
+        """The reader thread: blocks as they come, a pause of `interval` once caught up (see
+        `interval`)."""
+        caught_up = 0.5 * self.rate_hz * getattr(self.clock, "speed", 1.0) * self.interval
         try:
             while not self._stop.is_set():
                 block = self.imu.read_block(timeout=0.0)
-                if block is None or not len(block):
-                    time.sleep(self.interval)
-                    continue
-                self._last_arrival = (self.clock.now(), time.monotonic())
-                with self._lock:
-                    self.writer.append(self.stream, block)
-                self.samples += len(block)
-                self._follow(block)
+                if block is not None and len(block):
+                    self._last_arrival = (self.clock.now(), time.monotonic())
+                    with self._lock:
+                        self.writer.append(self.stream, block)
+                    self.samples += len(block)
+                    self._follow(block)
+                    if len(block) >= caught_up:
+                        continue
+                time.sleep(self.interval)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc
 
@@ -232,9 +237,10 @@ class PlateRecorder:
         """Samples recorded, every unit's."""
         return sum(r.samples for r in self.units.values())
 
-    def event(self, kind: str, position: int | None = None, detail: dict | None = None) -> float:
+    def event(self, kind: str, position: int | None = None, detail: dict | None = None,
+              time: float | None = None) -> float:
         """`Recorder.event`: once for the session."""
-        return self._first.event(kind, position, detail)
+        return self._first.event(kind, position, detail, time)
 
     def table(self, reading) -> None:
         """`Recorder.table`: once for the session."""

@@ -349,7 +349,7 @@ class RotaryProtocol:
         s, j = self.settings, self.position
         self.operator.prompt(f"position {j + 1}: rotating window ({s.revolutions} turns)")
         start = self._bound()
-        begun = self.recorder.event("rotate_start", j, self._angle_detail(start))
+        begun = self.recorder.event("rotate_start", j, self._angle_detail(start), start.time)
         sweep = 2 * np.pi * (s.revolutions + 0.25)
         deadline = self.clock.now() + sweep / abs(s.rate) + s.timeout
         reading = start
@@ -366,7 +366,8 @@ class RotaryProtocol:
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
                                     f"{swept:.2f} rad in the rotating window); check the table's "
                                     "encoder")
-        end = self.recorder.event("rotate_end", j, self._angle_detail(self._bound()))
+        bound = self._bound()
+        end = self.recorder.event("rotate_end", j, self._angle_detail(bound), bound.time)
         self._windows["rotating"] = (begun, end)
         self._rotated = (j, end)
         self._hold(s.guard, self._on_rate, "the table's rate changed after the rotating window")
@@ -566,7 +567,10 @@ class RotaryProtocol:
         """A rotating window's bound: the table read `BOUND_READS` times, the reading with the
         shortest round trip kept. Its time is the most certain (the rule of the least delay, as
         NTP's): a spin of the position axis is cut from its two bounds alone, and on a busy host
-        one late reply misplaces the cut by the rate times half its round trip."""
+        one late reply misplaces the cut by the rate times half its round trip. The window's event
+        is stamped with this reading's time, not when it is recorded: the reads after it (and a
+        busy host) would otherwise put the bound seconds of a fast clock after the angle it
+        records, and cut the window short of the turns it swept."""
         return min((self._poll() for _ in range(BOUND_READS)), key=lambda r: r.round_trip)
 
     def _until(self, condition, hold: float, what: str, imu: bool = True) -> None:
