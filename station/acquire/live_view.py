@@ -362,7 +362,7 @@ class _ObservedRecorder(_Observed):
     def __init__(self, recorder, view):
         super().__init__(recorder, view, {"table": view.on_table})
 
-    def event(self, kind, position=None, detail=None, time=None):
-        time = self._target.event(kind, position, detail, time)
+    def event(self, kind, position=None, detail=None, *at):
+        time = self._target.event(kind, position, detail, *at)  # at: the bound's time, if any
         self._view.guarded(self._view.on_event, kind, position, detail, time=time)
         return time

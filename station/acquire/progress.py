@@ -48,8 +48,8 @@ class _Counted:
     def __getattr__(self, name):
         return getattr(self._recorder, name)
 
-    def event(self, kind, position=None, detail=None, time=None):
-        time = self._recorder.event(kind, position, detail, time)
+    def event(self, kind, position=None, detail=None, *at):
+        time = self._recorder.event(kind, position, detail, *at)  # at: the bound's time, if any
         if kind == "position_done" and position is not None:
             self._bar.done(position)
         return time
