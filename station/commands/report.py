@@ -45,9 +45,9 @@ def run(args) -> int:
     if out.resolve() == args.session.resolve():
         raise InputError("--out would overwrite the session file; choose an .html name")
     existing_session(args.session)
-    if args.stream is not None and args.stream not in _streams(args.session):
+    if args.stream is not None and args.stream not in (streams := _streams(args.session)):
         raise InputError(f"{args.session} has no stream {args.stream!r}; its streams are "
-                         f"{', '.join(_streams(args.session))} (omit --stream for them all)")
+                         f"{', '.join(streams)} (omit --stream for them all)")
     units = [] if args.stream is not None else session_units(args.session)
     if not units:
         return _print([_report(args.session, args.result, args.stream, out)], args.json)

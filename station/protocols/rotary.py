@@ -413,15 +413,14 @@ class RotaryProtocol:
         position just captured, each unit's on its own line (named) when there are several; ""
         without a tap."""
         if len(self.taps) == 1:
-            return ": " + self._unit_quality(*self.taps.items())
-        return "".join(f"\n  {self.recorder.names[stream]}: {self._unit_quality((stream, tap))}"
+            return ": " + self._unit_quality(*next(iter(self.taps.items())))
+        return "".join(f"\n  {self.recorder.names[stream]}: {self._unit_quality(stream, tap)}"
                        for stream, tap in self.taps.items())
 
-    def _unit_quality(self, tapped) -> str:
-        """"static ...; rotating ..." of one unit's (stream, StreamTap) `tapped`. The static noise
-        is compared with the median of the unit's earlier positions' (it at rest), out of line
+    def _unit_quality(self, stream: str, tap) -> str:
+        """"static ...; rotating ..." of one unit's stream and its StreamTap. The static noise is
+        compared with the median of the unit's earlier positions' (it at rest), out of line
         beyond the stillness detector's `enter`; the tap then forgets the position's samples."""
-        stream, tap = tapped
         t, z = tap.samples(self._windows["static"][0])
         unit = self.recorder.writer.specs[stream].units[0]
         earlier = self._static_noise[stream]

@@ -198,16 +198,15 @@ def _protocol_warnings(report, events, metadata) -> None:
 def _calibration(session, name, report, stream: str | None):
     """(CalibrationResult, channel names, units) to report, or None with a warning saying why;
     `stream`: only that stream's results (None: any)."""
-    names = [n for n in session.result_names
-             if stream is None or session.results(n).stream == stream]
-    if name is not None and name not in names:
+    chosen = {r.name: r for r in map(session.results, session.result_names)
+              if stream is None or r.stream == stream}
+    if name is not None and name not in chosen:
         raise InputError(f"{session.path} has no results named {name!r}"
                          f"{'' if stream is None else f' of stream {stream}'}; it has "
-                         f"{', '.join(names) or 'none'} (omit --result to use the newest)")
+                         f"{', '.join(chosen) or 'none'} (omit --result to use the newest)")
     kind = KINDS.get(session.protocol)
-    if names:
-        chosen = [session.results(n) for n in names]
-        stored = session.results(name) if name else max(chosen, key=lambda r: r.created)
+    if chosen:
+        stored = chosen[name] if name else max(chosen.values(), key=lambda r: r.created)
         spec = session.specs[stored.stream]
         report.summary["result"] = f"results/{stored.name} ({stored.created})"
         if stored.calibration is None:
