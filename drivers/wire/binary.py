@@ -362,14 +362,13 @@ class BinaryFrameParser:
         """Which frames (rows of (raw seq, raw ticks, counts...)) repeat none of the `REPEATS`
         frames before them (earlier blocks' kept in `_recent`)."""
         rows = np.vstack([self._recent, keys])
-        first = len(self._recent)
-        at = np.arange(first, len(rows))
-        fresh = np.ones(len(keys), bool)
-        for lag in range(1, min(REPEATS, len(rows) - 1) + 1):
-            ok = at >= lag
-            fresh[ok] &= ~np.all(rows[at[ok]] == rows[at[ok] - lag], axis=1)
+        at = np.arange(len(self._recent), len(rows))
+        before = at[:, None] - np.arange(1, REPEATS + 1)  # (frame, lag): the frames compared with
+        same = (before >= 0) & (rows[np.maximum(before, 0), 0] == rows[at, 0][:, None])
+        frame, lag = np.nonzero(same)  # the same number: the whole rows compared only there
+        same[frame, lag] = np.all(rows[at[frame]] == rows[before[frame, lag]], axis=1)
         self._recent = rows[-REPEATS:]
-        return fresh
+        return ~same.any(axis=1)
 
     def _count_skips(self, ends: np.ndarray) -> None:
         """Count the bytes between accepted frames (ending at `ends`) and the resyncs; the last
