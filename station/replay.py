@@ -74,6 +74,9 @@ class ReplaySettings:
                 that detect still poses (`station.reduce.stillness.StillOptions`; None: default)
     faces     : the still poses are faces of a right-angle block (kinds with `Kind.faces`:
                 an import), solved with the right-angle constraints of Eq. (15)
+    channels  : names of the stream's calibrated channels to calibrate, in this order (None: all
+                of them), e.g. one IMU's triad of an array recorded as one stream: the others'
+                readings are left out of the solve (`channel_rows`)
     """
 
     stream: str | None = None
@@ -87,6 +90,7 @@ class ReplaySettings:
     still_channels: str | None = None
     min_still: float | None = None
     faces: bool = False
+    channels: tuple | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -105,6 +109,12 @@ class ReplaySettings:
             object.__setattr__(self, "rest", self.still.rest)
         if not isinstance(self.faces, bool):
             raise InputError(f"faces must be true or false, got {self.faces!r}")
+        if self.channels is not None:
+            channels = tuple(self.channels)
+            if not channels or len(set(channels)) != len(channels) or not all(
+                    isinstance(c, str) and c for c in channels):
+                raise InputError(f"channels must be distinct channel names, got {self.channels!r}")
+            object.__setattr__(self, "channels", channels)
 
     @property
     def still(self) -> StillOptions | None:
@@ -136,7 +146,7 @@ def solve_recorded(session, settings: ReplaySettings, nominal=None,
     magnitude, _ = stimulus(session, settings)
     readings = reduce_recorded(session, settings, command)
     if kind.nominal_frame and nominal is None:
-        nominal = recorded_layout(session.metadata, readings.M.shape[0], session.path)
+        nominal = recorded_layout(session, settings)
     return readings, kind.entry("solve")(readings, magnitude, nominal=nominal,
                                          method=settings.method, refine=settings.refine)
 
@@ -208,6 +218,9 @@ def reduce_recorded(session, settings: ReplaySettings, command: str = "replay"):
                              "iron session recognises its faces always): leave it out")
         options["faces"] = True
     readings = kind.entry("reduce")(session, calibrated_stream(session, settings), **options)
+    rows = channel_rows(session, settings)
+    if rows is not None:
+        readings = readings.sensors(rows)
     completed = sorted(_completed(session.events())) or list(range(readings.M.shape[1]))
     return _select(readings, completed, settings.positions, path)
 
@@ -223,6 +236,47 @@ def calibrated_stream(session, settings: ReplaySettings) -> str:
         raise CalibrationInputError(f"{session.path} has no stream {stream!r}.",
                                     f"Choose one of {sorted(session.specs)} with --stream.")
     return stream
+
+
+def calibrated_channels(session, stream: str) -> np.ndarray:
+    """Indices into `stream`'s channels of those its session's kind calibrates (`Kind.channels`:
+    e.g. a rotary session's gyros; default every channel)."""
+    kind = KINDS.get(session.protocol)
+    if kind is not None and kind.has("channels"):
+        return np.asarray(kind.entry("channels")(session, stream))
+    return np.arange(len(session.specs[stream].channels))
+
+
+def solved_channels(session, settings: ReplaySettings) -> np.ndarray:
+    """Indices into the calibrated stream's channels of those the settings calibrate, in order:
+    the kind's (`calibrated_channels`), or the ones `settings.channels` names."""
+    channels = calibrated_channels(session, calibrated_stream(session, settings))
+    rows = channel_rows(session, settings)
+    return channels if rows is None else channels[rows]
+
+
+def channel_rows(session, settings: ReplaySettings) -> np.ndarray | None:
+    """Rows of the calibrated channels (`calibrated_channels`) that `settings.channels` names, in
+    its order; None when it names none (all). Refused: a name the stream does not calibrate,
+    fewer than 3 (a frame needs a triad), and a gyro triad calibrated by carrying gravity
+    (`carried`: calibrated whole, with the accelerometer)."""
+    if settings.channels is None:
+        return None
+    stream = calibrated_stream(session, settings)
+    spec = session.specs[stream]
+    names = [spec.channels[i] for i in calibrated_channels(session, stream)]
+    unknown = [c for c in settings.channels if c not in names]
+    if unknown:
+        raise InputError(f"{session.path}: stream {stream!r} has no calibrated channel "
+                         f"{', '.join(map(repr, unknown))}; --channels takes names among "
+                         f"{', '.join(names)}")
+    if len(settings.channels) < 3:
+        raise InputError(f"--channels names {len(settings.channels)} channel(s); a calibration "
+                         "needs at least 3 (a triad) to span the frame: name a whole triad")
+    if carried(session, stream):
+        raise InputError(f"{session.path}: the gyro triad {stream!r} is calibrated whole, from "
+                         "the turns between the accelerometer's poses: leave --channels out")
+    return np.array([names.index(c) for c in settings.channels])
 
 
 def stimulus(session, settings: ReplaySettings) -> tuple[float, str]:
@@ -264,16 +318,22 @@ def recorded_magnitude(metadata: dict, stimulus: tuple, path) -> float:
     return abs(float(value))
 
 
-def recorded_layout(metadata: dict, m: int, path) -> np.ndarray:
-    """The nominal layout (3 x m) the (untrusted) metadata records as `a_nominal`; refused when
-    there is none."""
-    nominal = nominal_layout(metadata, m)
+def recorded_layout(session, settings: ReplaySettings, refuse: bool = True):
+    """The nominal layout (3 x m) of the channels the settings calibrate (`channel_rows`) that an
+    open session's (untrusted) metadata records as `a_nominal`; when it records none: refused, or
+    None unless `refuse`."""
+    stream = calibrated_stream(session, settings)
+    m = len(calibrated_channels(session, stream))
+    nominal = nominal_layout(session.metadata, m)
     if nominal is None:
+        if not refuse:
+            return None
         raise CalibrationInputError(
-            f"{path} records no usable nominal layout a_nominal (3 x {m}).",
+            f"{session.path} records no usable nominal layout a_nominal (3 x {m}).",
             "Give one with --nominal (a CSV of 3 rows, a column per sensor), or check that the "
             "session file is from a still-pose protocol.")
-    return nominal
+    rows = channel_rows(session, settings)
+    return nominal if rows is None else nominal[:, rows]
 
 
 def _select(readings, completed: list, positions, path):
@@ -296,9 +356,10 @@ def replay_into(path, name: str, settings: ReplaySettings | None = None):
     settings = settings or ReplaySettings()
     with Session.open(path) as session:
         stream = calibrated_stream(session, settings)
+        channels = solved_channels(session, settings)
     reduced, result = replay(path, settings)
     write_results(path, name, stream, reduced.M, result, reduced.sigma,
-                  settings=dataclasses.asdict(settings))
+                  settings=dataclasses.asdict(settings), channels=channels.tolist())
     return reduced, result
 
 

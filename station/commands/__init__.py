@@ -114,6 +114,25 @@ def faces_argument(p) -> None:
                         "the six axis-aligned directions")
 
 
+def channels_argument(p) -> None:
+    """`--channels` on parser `p` (solve, replay): calibrate some of the stream's channels."""
+    p.add_argument("--channels", type=channel_names, metavar="NAME,NAME,...",
+                   help="calibrate only these of the stream's calibrated channels, in this order "
+                        "(at least a triad), e.g. one IMU of an array imported as one stream: "
+                        "--channels acc1_x,acc1_y,acc1_z")
+
+
+def channel_names(text: str) -> tuple:
+    """The channel names of a comma-separated `--channels` value."""
+    import argparse
+
+    names = tuple(name.strip() for name in text.split(","))
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"{text!r}: give channel names separated by commas, "
+                                         "e.g. --channels ax1,ay1,az1")
+    return names
+
+
 def still_values(args) -> dict:
     """{rest, threshold, still_channels, min_still} of the options `still_arguments` added, the
     rest period parsed from START:END seconds (None where not given)."""

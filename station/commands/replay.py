@@ -22,7 +22,7 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import faces_argument, still_arguments
+    from station.commands import channels_argument, faces_argument, still_arguments
 
     p.description = __doc__
     p.epilog = (
@@ -57,6 +57,7 @@ def register(p) -> None:
                                     "stream in m/s^2)")
     still_arguments(p)
     faces_argument(p)
+    channels_argument(p)
     p.add_argument("--raw", type=Path, metavar="OUT",
                    help="replay the raw stream through the serial twin into new session OUT "
                         "(rotary sessions only)")
@@ -158,6 +159,7 @@ def _settings(args):
 
     given = {"trim": args.trim, "positions": _positions(args.positions), "method": args.method,
              "magnitude": args.magnitude, "stream": args.stream, "faces": args.faces,
+             "channels": args.channels,
              **still_values(args)}
     changes = {k: v for k, v in given.items() if v is not None}
     if args.no_refine:

@@ -55,7 +55,7 @@ NO_NOISE = "no_noise_figures"
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import faces_argument, still_arguments
+    from station.commands import channels_argument, faces_argument, still_arguments
 
     p.description = __doc__
     p.epilog = (
@@ -69,7 +69,8 @@ def register(p) -> None:
         "  station combine exp_1.cal.json exp_2.cal.json --out exp_12.cal.json\n"
         "  station solve exp_3.h5 --repeatability exp_12.cal.json   # + the spread between "
         "sessions\n"
-        "  station solve u1.h5 --repeatability lot/*.cal.json   # the tau of the model's units\n\n"
+        "  station solve u1.h5 --repeatability lot/*.cal.json   # the tau of the model's units\n"
+        "  station solve array.h5 --channels imu3_ax,imu3_ay,imu3_az   # one IMU of an array\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
     )
@@ -88,6 +89,7 @@ def register(p) -> None:
                         "its local gravity in m/s^2; an import: standard gravity 9.80665)")
     still_arguments(p)
     faces_argument(p)
+    channels_argument(p)
     p.add_argument("--store", action="store_true",
                    help="also store the result in the session as results/solve-<k>, with its "
                         "settings (`station report` then shows it and its poses)")
@@ -124,7 +126,7 @@ def run(args) -> int:
     options = {"nominal": nominal, "magnitude": args.magnitude,
                "accept_suspect": args.accept_suspect, "tolerances": tolerances,
                "still": still_values(args), "store": args.store, "faces": bool(args.faces),
-               "repeatability": repeatability}
+               "repeatability": repeatability, "channels": args.channels}
     if units:
         summaries = solve_units(args.session, units, outs, args.force, **options)
         print(json.dumps({"units": summaries}, indent=2) if args.json
@@ -209,7 +211,8 @@ def verdict_exit(verdict: dict | None) -> int:
 
 def solve_session(path, stream: str | None = None, nominal=None, magnitude: float | None = None,
                   accept_suspect: bool = False, tolerances=None, still: dict | None = None,
-                  store: bool = False, faces: bool = False, repeatability=None):
+                  store: bool = False, faces: bool = False, repeatability=None,
+                  channels: tuple | None = None):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
@@ -224,17 +227,20 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     repeatability: the paths of combined calibration files (`station combine`; one per unit of
     the model: pooled) whose between-session taus are added to every 1-sigma
     (`station.files.combined.with_repeatability`,
-    before the verdict, which then judges the unit with them)."""
+    before the verdict, which then judges the unit with them); channels: names of the
+    calibrated channels to calibrate (`station.replay.channel_rows`; None: all)."""
     from station.files.calfile import Calibration
-    from station.files.session import Session, nominal_layout
+    from station.files.session import Session
     from station.files.session.units import unit_serial
     from station.protocols import lookup
     from station.replay import (
         ReplaySettings,
         calibrated_stream,
         carried,
+        recorded_layout,
         recorded_noise,
         solve_recorded,
+        solved_channels,
         stimulus,
     )
     from station.solve.quality import check_fit
@@ -242,14 +248,14 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
 
     with Session.open(path) as session:
         settings = ReplaySettings(stream=stream, magnitude=magnitude, faces=faces,
+                                  channels=channels,
                                   **(still or {}))
         stream = calibrated_stream(session, settings)
         settings = dataclasses.replace(settings, stream=stream)
         kind = lookup(session.protocol, "reduce", f"{path} records a {session.protocol!r} "
                       "session", "station solve")
         spec = session.specs[stream]
-        channels = (kind.entry("channels")(session, stream) if kind.has("channels")
-                    else np.arange(len(spec.channels)))
+        channels = solved_channels(session, settings)
         names = [spec.channels[i] for i in channels]
         info = {"path": str(Path(path).resolve()), "stream": stream,
                 "protocol": session.protocol, "created": session.created,
@@ -259,7 +265,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                                or session.unit_serial,
                 "counts_per_unit": np.asarray(spec.counts_per_unit)[channels]}
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
-        layout = nominal if nominal is not None else nominal_layout(session.metadata, len(channels))
+        layout = nominal if nominal is not None else recorded_layout(session, settings, False)
         solved = None
         if carried(session, stream):
             cal = carried_calibration(session, settings, nominal, names, info, file, store,

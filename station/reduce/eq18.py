@@ -44,6 +44,12 @@ class Reduced:
         return Reduced(**{name: getattr(self, name)[..., keep]
                           for name in self.__dataclass_fields__})
 
+    def sensors(self, rows) -> "Reduced":
+        """The readings of the sensors `rows` (row indices), in that order."""
+        rows = list(rows)
+        return Reduced(**{name: value[rows] if value.ndim == 2 else value
+                          for name, value in vars(self).items()})
+
 
 def _windows(window, n: int, k: int, name: str) -> np.ndarray:
     """(n, 2) [start, stop) windows from a (2,) or (n, 2) array, checked against k samples."""

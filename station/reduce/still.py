@@ -54,6 +54,11 @@ class StillReadings:
         return dataclasses.replace(self, M=self.M[:, keep], sigma=self.sigma[:, keep],
                                    windows=self.windows[keep], mountings=self.mountings[keep])
 
+    def sensors(self, rows):
+        """The readings of the sensors `rows` (row indices), in that order."""
+        rows = list(rows)
+        return dataclasses.replace(self, M=self.M[rows], sigma=self.sigma[rows])
+
     def constraints(self) -> Constraints | None:
         """Inner-product constraints between the poses: None, equal magnitudes only."""
         return None
