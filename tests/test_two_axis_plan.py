@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 from layouts import A_MODEL
+from scipy import stats
 from twinproc import station_run
 
 import station
@@ -16,7 +17,7 @@ from drivers.profile import ProfileError
 from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
 from station.commands.solve import solve_session
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
 from station.files.session import Session
 from station.model.two_axis import position_angles, rate_axis, spin_axes
 from station.protocols.planned import PlanSpec, two_axis_plan
@@ -175,27 +176,29 @@ def test_a_plan_section_sets_the_largest_count_and_leaves_the_spins_to_the_plan(
 # -- a session on the two-axis twin ---------------------------------------------------------------
 
 def test_record_sets_the_planned_angles_and_spins_and_the_session_solves(tmp_path):
-    """`record` with a [plan] (at most 6 positions) on the in-process two-axis twin: the plan's
-    expected eps told first, the position axis set to the planned angles, then the spin; the
-    metadata keeps phis and spins (what `station resume` rebuilds the protocol from); the
-    calibration is consistent with the bound of the planned stimuli and the twin's truth."""
+    """`record` on the in-process two-axis twin whose profile has a [plan] (`BenchTwin(plan=
+    True)`, at most 6 positions): the plan's expected eps told first, the position axis set to
+    the planned angles, then the spin; the metadata keeps phis and spins (what `station resume`
+    rebuilds the protocol from); every reading is a^T (w u_j) at the planned stimuli and the
+    calibration is consistent with their bound and the twin's truth."""
     most = 6
-    with BenchTwin(seed=11, speed=40, positions=most, two_axis=True) as twin:
-        text = twin.profile_text().replace("[protocol]\n",
-                                           "[protocol]\nrevolutions = 1\nstatic = 3.0\n")
-        (tmp_path / "b.toml").write_text(text + "\n" + PLAN)
+    with BenchTwin(seed=11, speed=40, positions=most, two_axis=True, plan=True) as twin:
+        (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         said = io.StringIO()
         summary = record(bench, tmp_path / "s.h5", ConsoleOperator(io.StringIO(), said))
         truth = twin.truth()
+    np.testing.assert_array_equal(bench.plan.layout, A_MODEL)  # the twin's unit, nominal
+    assert bench.plan.noise_density == pytest.approx(DENSITY)
     told = two_axis_plan(bench.plan, bench.settings, most)  # what `station plan` tells
+    assert len(told.phis) + told.spins == most and told.spins >= 1
     assert summary["positions_done"] == summary["positions_planned"] == most
     assert said.getvalue().startswith(f"plan: {len(told.phis)} positions on the cone and "
                                       f"{told.spins} spin(s) of the position axis, expected eps")
     with Session.open(tmp_path / "s.h5") as s:
         metadata = s.metadata
         starts = [e for e in s.events() if e.kind == "position_start"]
-        sigma = rotary_readings(s).sigma
+        reduced = rotary_readings(s)
     assert metadata["phis"] == pytest.approx(told.phis.tolist(), abs=1e-12)
     assert metadata["spins"] == told.spins
     assert metadata["plan"]["expected_eps"] == pytest.approx(told.eps, rel=1e-12)
@@ -205,7 +208,16 @@ def test_record_sets_the_planned_angles_and_spins_and_the_session_solves(tmp_pat
     resumed = RotaryProtocol.from_metadata(json.loads(json.dumps(metadata)), None, None, None)
     np.testing.assert_allclose(resumed.phis, told.phis)
     assert resumed.spins == told.spins
-    a = np.array(truth["a"])
+    # the twin's unit turned about the planned axes: each reading within its sigma's quantile
+    a, axes = np.array(truth["a"]), told.axes()
+    np.testing.assert_allclose(truth["axes"], axes, atol=1e-12)
+    k = stats.norm.ppf(1 - ALARM / (2 * reduced.M.size))
+    assert np.all(np.abs(reduced.M - a.T @ axes.T) < k * reduced.sigma)
     cal = solve_session(tmp_path / "s.h5")
     assert eps_tail_probability(station.eps(a, cal.a),
-                                station.crlb(a, told.axes().T, sigma)) > ALARM
+                                station.crlb(a, axes.T, reduced.sigma)) > ALARM
+
+
+def test_the_twin_refuses_a_plan_without_a_two_axis_table():
+    with pytest.raises(InputError, match="--plan plans the positions of a two-axis table"):
+        BenchTwin(positions=6, plan=True)
