@@ -28,7 +28,7 @@ from station.solve.plan import expected_eps
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.served import BenchTwin
 
-DENSITY = np.radians(0.01)  # rad/s/sqrt(Hz): the twin's gyros (station.sim.layouts.gyro_array)
+DENSITY = float(np.radians(0.01))  # rad/s/sqrt(Hz): the twin gyros (sim.layouts.gyro_array)
 SETTINGS = RotarySettings()  # rate 1 rad/s, 2 revolutions, static 10 s
 # one position's Eq. (18) reading: the mean over 2 turns at 1 rad/s (4 pi s) minus the mean of the
 # 10 s static window, white noise of density N: sigma^2 = N^2 (1 / (4 pi) + 1 / 10)
@@ -158,6 +158,10 @@ def test_a_two_axis_profile_without_a_plan_section_says_what_to_add(tmp_path):
     ("table_two_axis", "", "[plan]\nnoise_density = 1e-4\n", "layout: missing"),
     ("table_two_axis", "", PLAN + "wedge = true\n", "unknown keys \\['wedge'\\]"),
     ("table_two_axis", "", PLAN.replace(f"{DENSITY!r}", "-1.0"), "noise_density must be"),
+    ("table_two_axis", "", PLAN.replace(f"{DENSITY!r}", "inf"), "noise_density must be"),
+    ("table_two_axis", "", PLAN.replace("[[1.0,", "[[nan,"), "layout: must be finite"),
+    ("table_two_axis", "", PLAN + "[fixture]\nnoise_density = 1e-4\nwedge = true\n",
+     "remove the \\[plan\\] section"),
 ])
 def test_a_plan_section_that_cannot_serve_is_refused(tmp_path, table, protocol, plan, words):
     with pytest.raises(ProfileError, match=words):

@@ -66,9 +66,11 @@ class PlanSpec:
                                 f"their nominal axes, 3 lists of {channels} numbers")
         spec = cls(np.array(layout, float), section.get("noise_density", float),
                    section.get("threshold", float, default=0.025))
-        if not spec.noise_density > 0 or not 0 <= spec.threshold < 1:
+        if not 0 < spec.noise_density < np.inf or not 0 <= spec.threshold < 1:
             raise ProfileError(f"{section.source}: [{section.name}] noise_density must be "
-                               "positive (SI unit / sqrt(Hz)) and threshold in [0, 1)")
+                               "positive and finite (SI unit / sqrt(Hz)) and threshold in [0, 1)")
+        if not np.all(np.isfinite(spec.layout)):
+            raise section.error("layout", "must be finite numbers")
         if np.linalg.matrix_rank(spec.layout) < 3:
             raise section.error("layout", "the axes must span 3 dimensions")
         section.finish()
