@@ -72,13 +72,13 @@ def test_the_plan_identifies_g_through_its_spins_and_not_without_them(default_pl
 def test_the_expected_eps_holds_against_monte_carlo(default_plan):
     """Readings a^T (rate u_j) + N(0, sigma^2) at the planned stimuli for the 12-gyro nominal
     layout, solved by `station.calibrate` (closed form + ML, as bench/plan.py does): the RMS eps
-    of TRIALS sessions against the expected eps.
+    of `trials` sessions against the expected eps.
 
     Tolerance: the RMS of n squared errors has a relative standard error of at most 1 / sqrt(2 n)
     (a single chi-square component; eps^2 sums many, which only narrows it), 4 of them; plus the
     most by which ML's eps^2 exceeded trace(CRLB) in docs/solvers.md's efficiency table (1.029 at
     n = 100, 0.987 +- 0.014 at n = 20), i.e. 1.5 % in eps."""
-    trials = 600
+    trials = 1000
     plan = default_plan
     v = SETTINGS.rate * plan.axes().T
     rng = np.random.default_rng(2026)
