@@ -222,6 +222,13 @@ def test_record_sets_the_planned_angles_and_spins_and_the_session_solves(tmp_pat
                                 station.crlb(a, axes.T, reduced.sigma)) > ALARM
 
 
-def test_the_twin_refuses_a_plan_without_a_two_axis_table():
+def test_the_twin_refuses_a_plan_without_a_two_axis_table(tmp_path):
     with pytest.raises(InputError, match="--plan plans the positions of a two-axis table"):
         BenchTwin(positions=6, plan=True)
+    for protocol in ("rotary", "static"):
+        refused = station_run("twin", "--plan", "--protocol", protocol, "--profile-out",
+                              tmp_path / "p.toml", timeout=30)
+        assert refused.returncode == 2, refused.stderr
+        assert "--plan plans the positions of a two-axis table: give --two-axis" in \
+            refused.stderr
+    assert not (tmp_path / "p.toml").exists()

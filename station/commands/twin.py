@@ -132,13 +132,15 @@ def run(args) -> int:
     if args.units > 1 and (args.protocol != "rotary" or args.chamber):
         raise InputError("--units: several units share the rotary table (--protocol rotary, "
                          "no --chamber)")
-    if (args.table_log or args.two_axis or args.plan) and not KINDS[args.protocol].table:
-        raise InputError(f"--table-log, --two-axis, --plan: a {args.protocol} bench has no "
-                         "rotary table")
-    if args.chamber and (args.protocol != "rotary" or args.cube or args.two_axis or args.plan
+    if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
+        raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
+    if args.plan and not args.two_axis:
+        raise InputError("--plan plans the positions of a two-axis table: give --two-axis "
+                         "(--cube plans a fixture's poses)")
+    if args.chamber and (args.protocol != "rotary" or args.cube or args.two_axis
                          or args.link != "serial"):
         raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube, no "
-                         "--two-axis, no --plan)")
+                         "--two-axis)")
     with given_values():
         if args.chamber:
             from station.twin.thermal import thermal_twin
