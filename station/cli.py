@@ -29,8 +29,8 @@ COMMANDS = {
     "demo": ("demo", "calibrate a 12-gyro unit on the virtual bench through the real drivers"),
     "record": ("record", "record a session (rotary, iron or static) with the devices of a bench "
                          "profile"),
-    "plan": ("plan", "plan a session's positions on the bench's fixture, with their expected "
-                     "error"),
+    "plan": ("plan", "plan a session's positions on the bench's fixture or two-axis table, "
+                     "with their expected error"),
     "twin": ("twin", "run the virtual bench's devices (serial IMU, Modbus table) for `record`"),
     "resume": ("resume", "continue a rotary session after a kill, pause or abort"),
     "replay": ("replay", "re-reduce and re-solve a recorded rotary, iron or free-static session"),

@@ -66,6 +66,7 @@ class BenchProfile:
     table_source: str | None = None  # the register map's profile file
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
+    plan: object = None  # rotary on a two-axis table: station.protocols.planned.PlanSpec of [plan]
     spins: int = 0  # rotary on a two-axis table: spins of the position axis after the positions
     chamber: object = None  # rotary: station.protocols.thermal.ChamberSettings of [chamber]
     units: tuple = ()  # every BenchUnit (one [imu]: the one unit)
@@ -94,11 +95,12 @@ class BenchProfile:
             return Section(profile.source, name, table)
 
         unknown = sorted(set(profile.tables) - {"bench", "imu", "table", "protocol", "tolerances",
-                                                "fixture", "chamber"})
+                                                "fixture", "plan", "chamber"})
         if unknown:
             raise ProfileError(f"{path}: unknown sections {unknown}; a bench profile has [bench], "
                                "[imu], [table] (rotary), [protocol], [fixture] (rotary, static), "
-                               "[chamber] (a thermal campaign, rotary) and [tolerances]")
+                               "[plan] (a two-axis table), [chamber] (a thermal campaign, "
+                               "rotary) and [tolerances]")
         if "tolerances" in profile.tables:  # refused now, not after the session was recorded
             try:
                 Tolerances.from_table(profile.tables["tolerances"], "[tolerances]")
@@ -129,15 +131,21 @@ class BenchProfile:
 
                 fields["fixture"] = FixtureSpec.from_section(section("fixture"),
                                                              len(dev.imu.channels))
-            fields["positions"] = (proto.get("positions", int, default=40)
-                                   if "fixture" in fields else proto.get("positions", int))
             fields["spins"] = _spins(fields, proto, path)
+            if "plan" in profile.tables:
+                fields["plan"] = _plan(fields, section("plan"), len(dev.imu.channels), path)
+            fields["positions"] = (proto.get("positions", int, default=40)
+                                   if "fixture" in fields or "plan" in fields
+                                   else proto.get("positions", int))
             table.finish()
             if "chamber" in profile.tables:
                 fields["chamber"] = _chamber(section("chamber"), device, dev.imu)
             if fields["positions"] < 1:
                 raise ProfileError(f"{path}: [protocol] positions must be at least 1")
         else:
+            if "plan" in profile.tables:
+                raise ProfileError(f"{path}: [plan] plans the positions of a two-axis table; a "
+                                   f"{kind} session has none: remove the section")
             if "chamber" in profile.tables:
                 raise ProfileError(f"{path}: a thermal campaign records rotary sessions; remove "
                                    f"the [chamber] section of this {kind} bench")
@@ -256,25 +264,49 @@ def _unit(profile, imu, serial: str | None, k: int) -> BenchUnit:
 def _spins(fields: dict, proto, path) -> int:
     """[protocol] spins of a rotary session on a two-axis table: the spins of the position axis
     after `positions` positions on the cone (default 1: without one the directions lie on one
-    cone, docs/protocols.md "Two-axis sessions"); 0 for a one-axis table or a fixture."""
+    cone, docs/protocols.md "Two-axis sessions"); 0 for a one-axis table, a fixture, or a [plan]
+    (whose plan chooses them)."""
     from drivers.profile import ProfileError
 
     table = fields["table_map"]
-    if not table.two_axis or "fixture" in fields:
+    planned = "plan" in fields["tables"]
+    if not table.two_axis or "fixture" in fields or planned:
         if proto.has("spins"):
             raise ProfileError(f"{path}: [protocol] spins: only a two-axis table (without a "
-                               "[fixture]) spins its position axis; remove the key")
+                               "[fixture]) spins its position axis, as many times as [plan] "
+                               "says when there is one; remove the key")
         return 0
-    if not table.rate_mode:
-        raise ProfileError(f"{path}: the two-axis table's register map has no rate mode of the "
-                           "position axis, which a two-axis session needs (positions on the rate "
-                           "axis alone lie on one cone); use a profile with one, e.g. "
-                           "table_two_axis (docs/devices.md)")
+    _rate_mode(table, path)
     spins = proto.get("spins", int, default=1)
     if spins < 1:
         raise ProfileError(f"{path}: [protocol] spins = {spins}: a two-axis session needs at "
                            "least one spin of the position axis")
     return spins
+
+
+def _rate_mode(table, path) -> None:
+    """Refuse a two-axis register map `table` without the position axis' rate mode."""
+    from drivers.profile import ProfileError
+
+    if not table.rate_mode:
+        raise ProfileError(f"{path}: the two-axis table's register map has no rate mode of the "
+                           "position axis, which a two-axis session needs (positions on the rate "
+                           "axis alone lie on one cone); use a profile with one, e.g. "
+                           "table_two_axis (docs/devices.md)")
+
+
+def _plan(fields: dict, section, channels: int, path):
+    """The [plan] section's `station.protocols.planned.PlanSpec`: a two-axis table with the rate
+    mode, no [fixture] (docs/protocols.md "Two-axis sessions")."""
+    from drivers.profile import ProfileError
+    from station.protocols.planned import PlanSpec
+
+    if not fields["table_map"].two_axis or "fixture" in fields:
+        raise ProfileError(f"{path}: [plan] plans the positions a two-axis table sets itself; "
+                           "this table has no position axis or the profile has a [fixture] "
+                           "(whose section plans its poses): remove the [plan] section")
+    _rate_mode(fields["table_map"], path)
+    return PlanSpec.from_section(section, channels)
 
 
 def _device(profile, name: str) -> str:

@@ -32,6 +32,10 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     noise_density = 1.7e-4        # (`station plan`; docs/protocols.md, "Fixture and plan")
     wedge = true
 
+    [plan]                        # two-axis table, optional: the position axis' angles and the
+    layout = [[...], [...], [...]]  # spins are then planned (`station plan`; docs/protocols.md
+    noise_density = 1.7e-4        # "Two-axis sessions"); `spins` is the plan's
+
     [chamber]                     # rotary, optional: a thermal campaign (docs/protocols.md,
     host = "192.168.0.60"         # "Thermal sessions"): the chamber's Modbus TCP address (or
     setpoints = [263.15, 313.15]  # serial_port), setpoints in K, ramp, stability, window,
@@ -46,7 +50,8 @@ The three protocols (docs/protocols.md):
 - rotary (`station.protocols.rotary`): gyros on a rotary table, Eq. (18) of Rupniewski; the
   technician re-mounts the unit and presses Enter; Ctrl-D or Ctrl-C aborts and stops the table;
   on a two-axis table nobody does anything: the station sets the position axis at `positions`
-  angles spread over a turn, then spins it `spins` times (docs/protocols.md "Two-axis sessions");
+  angles spread over a turn, then spins it `spins` times, or at the angles and spins its [plan]
+  plans (docs/protocols.md "Two-axis sessions");
 - iron (`station.protocols.iron`): accelerometers in a right-angle iron, standing on its faces
   (keys: mountings, faces, hold, gravity, ...), Hwangbo & Kanade's constraints;
 - static (`station.protocols.static`): accelerometers turned by hand into free still poses (keys:

@@ -14,7 +14,10 @@ two-axis one (register map table_two_axis: a position axis with a rate mode) and
 fixture: `station record` sets each orientation itself, `--positions` angles of the position axis
 spread over a turn with the rate axis spinning, then one spin of the position axis itself
 (docs/protocols.md "Two-axis sessions"); the truth printed with --json then gives the unit-frame
-`axes` of those positions. With `--units N` the table carries a plate of N units (serial links),
+`axes` of those positions. `--two-axis --plan` writes a [plan] section (the unit's nominal layout
+and noise density) into the profile: `station record` then sets the angles and spins it plans (at
+most `--positions` positions; `station plan` prints them), and the truth's `axes` are theirs.
+With `--units N` the table carries a plate of N units (serial links),
 each with its own truth, its fixed mounting on the plate and its own pty; the profile lists them as
 `[[imu]]` tables (docs/protocols.md "Several units on one table") and the truth gives each unit's
 (with --two-axis the plate sits on the position axis and each unit's `axes` are in its frame).
@@ -66,6 +69,7 @@ def register(p) -> None:
         "  station twin --protocol static --link mavlink --udp --profile-out fc.toml\n"
         "  station twin --cube --speed 40 --profile-out cube.toml   # fixture poses, planned\n"
         "  station twin --two-axis --speed 40 --positions 8 --profile-out two_axis.toml\n"
+        "  station twin --two-axis --plan --speed 40 --profile-out planned.toml   # [plan]\n"
         "  station twin --units 3 --speed 40 --positions 8 --profile-out plate.toml   # 3 units"
     )
     p.add_argument("--profile-out", type=Path, default=Path("twin_bench.toml"),
@@ -84,6 +88,9 @@ def register(p) -> None:
     p.add_argument("--two-axis", action="store_true",
                    help="rotary: a two-axis table (position axis with a rate mode, profile "
                         "table_two_axis) that sets every orientation itself; no fixture")
+    p.add_argument("--plan", action="store_true",
+                   help="--two-axis: the profile gets a [plan] section; `station record` sets "
+                        "the angles and spins it plans (at most --positions positions)")
     p.add_argument("--units", type=int, default=1,
                    help="rotary: units on one plate on the table (default 1), each with its own "
                         "truth (seed [SEED, 3, k]), mounting on the plate and pty; the profile "
@@ -127,6 +134,9 @@ def run(args) -> int:
                          "no --chamber)")
     if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
         raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
+    if args.plan and not args.two_axis:
+        raise InputError("--plan plans the positions of a two-axis table: give --two-axis "
+                         "(--cube plans a fixture's poses)")
     if args.chamber and (args.protocol != "rotary" or args.cube or args.two_axis
                          or args.link != "serial"):
         raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube, no "

@@ -19,6 +19,13 @@ the plan's (`poses` is not used). The noise of one position's Eq. (18) reading i
 rotating-window mean over the whole turns (2 pi revolutions / |c| s) minus a static-window mean
 (`static` s): for white noise of density N, sigma^2 = N^2 (|c| / (2 pi revolutions) + 1 /
 static); a still pose's reading is the mean of `hold` s: sigma^2 = N^2 / hold.
+
+On a two-axis table (docs/protocols.md "Two-axis sessions") the table sets every position itself:
+no fixture, and the profile's [plan] section gives what the planner needs (layout, noise_density,
+threshold, as above). The candidates are the rate axis at position angles every `GRID_DEG` (the
+cone of `station.model.two_axis`) and a spin of the position axis (c); `two_axis_plan` gives the
+cone positions' angles and the count of spins. A spin's reading is that of a rate-axis position of
+the same settings (the same rate, whole turns and static window), so it has the same noise.
 """
 
 from dataclasses import dataclass
@@ -26,8 +33,53 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.acquire.operator import Instruction
-from station.errors import InputError
+from station.errors import CalibrationInputError, InputError
+from station.model import two_axis
 from station.model.fixture import Fixture, picture
+
+GRID_DEG = 5.0
+"""Spacing (deg) of the position angles a two-axis plan chooses from."""
+
+
+@dataclass(frozen=True)
+class PlanSpec:
+    """What the planner needs of the unit: the [plan] section of a two-axis bench profile, and the
+    planning keys of a [fixture] section (`FixtureSpec.from_section`)."""
+
+    layout: np.ndarray  # (3, m) nominal axes
+    noise_density: float
+    threshold: float = 0.025
+
+    @classmethod
+    def from_section(cls, section, channels: int, layout=None) -> "PlanSpec":
+        """Parse the keys layout (unless `layout` is given: the nominal layout the profile gave
+        elsewhere, static: [protocol] layout), noise_density and threshold of a
+        `drivers.profile.Section`, then refuse any key nobody read; `channels`: the calibrated
+        channels' count."""
+        from drivers.profile import ProfileError
+
+        if layout is None:
+            default = np.eye(3).tolist() if channels == 3 else None
+            layout = section.get_rows("layout", 3, channels, default)
+        if layout is None:
+            raise section.error("layout", f"missing; the unit has {channels} channels: give "
+                                f"their nominal axes, 3 lists of {channels} numbers")
+        spec = cls(np.array(layout, float), section.get("noise_density", float),
+                   section.get("threshold", float, default=0.025))
+        if not 0 < spec.noise_density < np.inf or not 0 <= spec.threshold < 1:
+            raise ProfileError(f"{section.source}: [{section.name}] noise_density must be "
+                               "positive and finite (SI unit / sqrt(Hz)) and threshold in [0, 1)")
+        if not np.all(np.isfinite(spec.layout)):
+            raise section.error("layout", "must be finite numbers")
+        if np.linalg.matrix_rank(spec.layout) < 3:
+            raise section.error("layout", "the axes must span 3 dimensions")
+        section.finish()
+        return spec
+
+    def table(self) -> dict:
+        """The section as TOML values (for a bench profile written by a twin)."""
+        return {"layout": self.layout.tolist(), "noise_density": self.noise_density,
+                "threshold": self.threshold}
 
 
 @dataclass(frozen=True)
@@ -41,37 +93,24 @@ class FixtureSpec:
 
     @classmethod
     def from_section(cls, section, channels: int, layout=None) -> "FixtureSpec":
-        """Parse a `drivers.profile.Section`; `channels`: the calibrated channels' count; `layout`:
-        the nominal layout the profile gave elsewhere (static: [protocol] layout)."""
+        """Parse a `drivers.profile.Section`: the fixture's keys, then the planning keys
+        (`PlanSpec.from_section`, whose arguments these are)."""
         from drivers.profile import ProfileError
 
-        if layout is None:
-            default = np.eye(3).tolist() if channels == 3 else None
-            layout = section.get_rows("layout", 3, channels, default)
-        if layout is None:
-            raise section.error("layout", f"missing; the unit has {channels} channels: give "
-                                f"their nominal axes, 3 lists of {channels} numbers")
         try:
-            spec = cls(Fixture(np.array(section.get_rows("mounting", 3, 3, np.eye(3).tolist())),
-                               section.get("wedge", bool, default=False),
-                               section.get("wedge_deg", float, default=45.0)),
-                       np.array(layout, float), section.get("noise_density", float),
-                       section.get("threshold", float, default=0.025))
+            fixture = Fixture(np.array(section.get_rows("mounting", 3, 3, np.eye(3).tolist())),
+                              section.get("wedge", bool, default=False),
+                              section.get("wedge_deg", float, default=45.0))
         except InputError as exc:
             raise ProfileError(f"{section.source}: [fixture] {exc}") from None
-        if not spec.noise_density > 0 or not 0 <= spec.threshold < 1:
-            raise ProfileError(f"{section.source}: [fixture] noise_density must be positive (SI "
-                               "unit / sqrt(Hz)) and threshold in [0, 1)")
-        if np.linalg.matrix_rank(spec.layout) < 3:
-            raise section.error("layout", "the axes must span 3 dimensions")
-        section.finish()
-        return spec
+        plan = PlanSpec.from_section(section, channels, layout)
+        return cls(fixture, plan.layout, plan.noise_density, plan.threshold)
 
     def table(self) -> dict:
         """The section as TOML values (for a bench profile written by a twin)."""
-        return {"layout": self.layout.tolist(), "noise_density": self.noise_density,
+        return {**PlanSpec(self.layout, self.noise_density, self.threshold).table(),
                 "mounting": self.fixture.mounting.tolist(), "wedge": self.fixture.wedge,
-                "wedge_deg": self.fixture.wedge_deg, "threshold": self.threshold}
+                "wedge_deg": self.fixture.wedge_deg}
 
 
 @dataclass(frozen=True)
@@ -117,6 +156,59 @@ def static_plan(spec: FixtureSpec, settings) -> FixturePlan:
     pose at most once, biases estimated."""
     return _plan(spec, spec.noise_density / np.sqrt(settings.hold), settings.gravity,
                  most=len(spec.fixture.poses()), estimate_bias=True, distinct=True)
+
+
+@dataclass(frozen=True)
+class TwoAxisPlan:
+    """The planned positions of a two-axis session: the cone positions' angles of the position
+    axis in increasing order (so that it moves little), then `spins` spins of the position axis;
+    the per-count and final expected eps."""
+
+    phis: np.ndarray  # (n,) rad
+    spins: int
+    expected: np.ndarray
+    eps: float
+    sigma: float  # one position's reading noise, SI units
+
+    def axes(self) -> np.ndarray:
+        """(n + spins, 3) unit-frame spin axes in the order of the session
+        (`station.model.two_axis.spin_axes`)."""
+        return two_axis.spin_axes(self.phis, self.spins)
+
+    def prompt(self) -> str:
+        """What the technician is told before the session."""
+        return (f"plan: {len(self.phis)} positions on the cone and {self.spins} spin(s) of the "
+                f"position axis, expected eps {self.eps:.3g} (Eq. 19, sqrt of the Cramer-Rao "
+                "bound)")
+
+    def words(self) -> list:
+        """Each position in the technician's words, as the session will set it."""
+        n = len(self.phis) + self.spins
+        return [f"position {j + 1}/{n}: position axis to {np.degrees(phi):.1f} deg, the rate "
+                "axis spins" for j, phi in enumerate(self.phis)] + \
+               [f"position {j + 1}/{n}: the position axis spins"
+                for j in range(len(self.phis), n)]
+
+
+def two_axis_plan(spec: PlanSpec, settings, most: int) -> TwoAxisPlan:
+    """The plan of a two-axis session (`RotarySettings`), at most `most` positions: the rate axis
+    at position angles every GRID_DEG, or a spin of the position axis (its +c and -c carry the
+    same information; the session alternates them, `two_axis.spin_signs`)."""
+    from station.solve.plan import plan
+
+    grid = np.radians(np.arange(0.0, 360.0, GRID_DEG))
+    up = np.vstack([two_axis.rate_axis(grid), two_axis.position_axis()])
+    sigma = reading_noise(spec.noise_density, settings)
+    try:
+        chosen = plan(spec.layout, up, sigma, abs(settings.rate), threshold=spec.threshold,
+                      most=most)
+    except CalibrationInputError:
+        raise InputError(f"no plan of at most {most} positions on the two-axis table identifies "
+                         "the [plan] layout: allow more ([protocol] positions), or check the "
+                         "layout") from None
+    cone = chosen.chosen[chosen.chosen < len(grid)]
+    return TwoAxisPlan(np.sort(grid[cone]), int(np.sum(chosen.chosen == len(grid))),
+                       chosen.expected, chosen.eps, sigma)
 
 
 def _plan(spec: FixtureSpec, sigma: float, magnitude: float, **options) -> FixturePlan:

@@ -76,7 +76,7 @@ from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
-from station.protocols.planned import fixture_instruction, rotary_plan
+from station.protocols.planned import fixture_instruction, rotary_plan, two_axis_plan
 from station.protocols.still import StillSettings, StreamTap
 from station.reduce.window_quality import describe, window_quality
 
@@ -698,28 +698,34 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
     """`station record`'s rotary session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's settings at `suggested_axes(bench.positions)`; on a two-axis table
     (`bench.spins` > 0) at `position_angles(bench.positions)` of the position axis then
-    `bench.spins` spins of it, set by the table itself; or, when the profile describes a fixture,
-    at the planned fixture poses (`station.protocols.planned`, its expected eps told before the
-    session), run with the opened `imu` and `table` drivers into the new
-    session file `out` (stream `spec`, `metadata` with the table's register map added to its
-    device profiles); `view` a LiveView to show, or None. `others`: {stream: opened driver} of
-    the bench's other units on the plate (`bench.units`), each with its own stream."""
+    `bench.spins` spins of it, set by the table itself, or with a [plan] (`bench.plan`) at the
+    planned angles and spins (`station.protocols.planned.two_axis_plan`); or, when the profile
+    describes a fixture, at the planned fixture poses (`station.protocols.planned`); a plan's
+    expected eps is told before the session. Run with the opened `imu` and `table` drivers into
+    the new session file `out` (stream `spec`, `metadata` with the table's register map added to
+    its device profiles); `view` a LiveView to show, or None. `others`: {stream: opened driver}
+    of the bench's other units on the plate (`bench.units`), each with its own stream."""
     from drivers.profile import load_profile
     from station.files.session import SessionWriter, StreamSpec
 
-    if bench.fixture is None:
+    plan = None
+    if bench.fixture is not None:
+        plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
+        protocol = RotaryProtocol(table, operator, clock, bench.settings,
+                                  fixture_poses=plan.instructions())
+    elif bench.plan is not None:
+        plan = two_axis_plan(bench.plan, bench.settings, bench.positions)
+        protocol = RotaryProtocol(table, operator, clock, bench.settings, plan.axes(),
+                                  phis=plan.phis, spins=plan.spins)
+    else:
         phis = position_angles(bench.positions) if bench.spins else None
         axes = spin_axes(phis, bench.spins) if bench.spins else suggested_axes(bench.positions)
         protocol = RotaryProtocol(table, operator, clock, bench.settings, axes, phis=phis,
                                   spins=bench.spins)
-        metadata = {**protocol.metadata(), **metadata}
-    else:
-        plan = rotary_plan(bench.fixture, bench.settings, bench.positions)
+    metadata = {**protocol.metadata(), **metadata}
+    if plan is not None:
         operator.prompt(plan.prompt())
-        protocol = RotaryProtocol(table, operator, clock, bench.settings,
-                                  fixture_poses=plan.instructions())
-        metadata = {**protocol.metadata(), **metadata,
-                    "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
+        metadata["plan"] = {"expected_eps": plan.eps, "reading_sigma": plan.sigma}
     metadata["profiles"]["table"] = load_profile(bench.table_source).tables
     streams = {"imu": spec, **{u.stream: StreamSpec.from_profile(u.imu.imu)
                                for u in bench.units if u.stream in (others or {})}}

@@ -6,7 +6,8 @@ on a pty and a Modbus server, and a fixture or technician that follows the proto
   `mount` register), mounts the unit in position j of `suggested_axes(positions)` when asked for
   it (with `cube`: the planned pose j of a lettered cube on a wedge, the profile's [fixture]);
   with `two_axis` the bench's table is a two-axis one instead (profile table_two_axis): no fixture
-  and nobody mounts anything, the station sets each orientation through the position axis;
+  and nobody mounts anything, the station sets each orientation through the position axis (with
+  `plan`: at the angles and spins its profile's [plan] plans);
 - `HandTwin`: the hand bench (`station.twin.hand_bench.HandBench`) whose technician turns the
   unit on a metronome through the iron's or the free-static protocol's sequence; the static
   bench's triad streams over the serial link or MAVLink (a flight controller, pty or UDP).
@@ -36,7 +37,14 @@ from station.errors import InputError
 from station.files.session.units import unit_stream
 from station.model.fixture import Fixture
 from station.model.two_axis import position_axes
-from station.protocols.planned import FixtureSpec, fixture_instruction, rotary_plan, static_plan
+from station.protocols.planned import (
+    FixtureSpec,
+    PlanSpec,
+    fixture_instruction,
+    rotary_plan,
+    static_plan,
+    two_axis_plan,
+)
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
 
 UNREAD_AFTER = 2.0
@@ -78,6 +86,9 @@ class BenchTwin:
                 cone, set by the station (`station.model.two_axis.position_angles`), then the
                 profile's default spin of the position axis; `truth()["axes"]` are the unit-frame
                 directions of those positions, exact (the geometry of `station.model.two_axis`)
+    plan      : with two_axis, the bench profile gets a [plan] section (the unit's nominal layout
+                and noise density) and the positions are the plan `station record` makes from it
+                (`station.protocols.planned.two_axis_plan`, at most `positions`), `axes` theirs
     units     : units on one plate (`station.sim.live.Plate`): the bench's unit and units - 1
                 more, unit k drawn from the seed [seed, 3, k] (its own sensitivities, biases and
                 noise) and fixed on the plate at `plate_mounting(k)`; the fixture mounts the
@@ -88,12 +99,16 @@ class BenchTwin:
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
-                 cube: bool = False, two_axis: bool = False, units: int = 1):
+                 cube: bool = False, two_axis: bool = False, units: int = 1,
+                 plan: bool = False):
         from station.twin.rotary_bench import VirtualBench
 
         if cube and two_axis:
             raise InputError("a two-axis table sets the unit's orientation itself: --cube and "
                              "--two-axis exclude each other")
+        if plan and not two_axis:
+            raise InputError("--plan plans the positions of a two-axis table: give --two-axis "
+                             "(--cube plans a fixture's poses)")
         if units < 1 or (units > 1 and (cube or imu not in ("serial", "can"))):
             raise InputError(f"--units {units}: the twin serves 1 or more units, several on a "
                              "plate with serial or CAN links only (no --cube)")
@@ -102,8 +117,10 @@ class BenchTwin:
         self.seed = seed
         self.positions = positions
         self.cube = _cube(self.bench.unit) if cube else None
+        self.plan = _unit_plan(self.bench.unit) if plan else None
         if two_axis:
-            self.axes = position_axes(positions, 1)
+            self.axes = (position_axes(positions, 1) if self.plan is None else
+                         two_axis_plan(self.plan, RotarySettings(), positions).axes())
             self.instructions = []
         elif self.cube is None:
             self.axes = suggested_axes(positions)
@@ -221,7 +238,8 @@ class BenchTwin:
                 f"{imu}\n\n[table]\n{table}\n\n"
                 f"[protocol]\npositions = {self.positions}\n"
                 + "".join(f"{k} = {getattr(margins, k)!r}\n" for k in MARGINS)
-                + _fixture_section(self.cube))
+                + _planning_section("fixture", self.cube)
+                + _planning_section("plan", self.plan))
 
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
@@ -309,22 +327,28 @@ def _plate(bench, units: int):
     return plate
 
 
-def _cube(unit) -> FixtureSpec:
-    """The twin's fixture: a lettered cube holding the unit square, on a 45-degree wedge; the
-    plan's layout and noise are the unit's nominal ones."""
+def _unit_plan(unit) -> PlanSpec:
+    """What the planner needs of the twin's unit: its nominal layout and noise density."""
     from station.sim.layouts import A_MODEL
 
-    return FixtureSpec(Fixture(wedge=True), A_MODEL, float(np.max(unit.noise_density)))
+    return PlanSpec(A_MODEL, float(np.max(unit.noise_density)))
 
 
-def _fixture_section(spec: FixtureSpec | None, layout: bool = True) -> str:
-    """The [fixture] section of a bench profile ("" without a fixture); layout False: without
-    the layout (a static profile gives it in [protocol])."""
+def _cube(unit) -> FixtureSpec:
+    """The twin's fixture: a lettered cube holding the unit square, on a 45-degree wedge; the
+    plan's layout and noise are the unit's nominal ones (`_unit_plan`)."""
+    plan = _unit_plan(unit)
+    return FixtureSpec(Fixture(wedge=True), plan.layout, plan.noise_density)
+
+
+def _planning_section(name: str, spec, layout: bool = True) -> str:
+    """The [fixture] or [plan] section of a bench profile from a FixtureSpec or PlanSpec ("" for
+    None); layout False: without the layout (a static profile gives it in [protocol])."""
     if spec is None:
         return ""
     lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
              for k, v in spec.table().items() if layout or k != "layout"]
-    return "\n[fixture]\n" + "\n".join(lines) + "\n"
+    return f"\n[{name}]\n" + "\n".join(lines) + "\n"
 
 
 class HandTwin:
@@ -425,7 +449,7 @@ class HandTwin:
                 f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
                 + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
-                + _fixture_section(self.cube, layout=False))
+                + _planning_section("fixture", self.cube, layout=False))
 
     def toggle(self, device: str) -> bool:
         """Unplug the IMU (`device` "imu", the only one) if it is there, else plug it back; True
@@ -491,13 +515,14 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime, cube, two_axis, units)."""
+    rate_hz, lifetime, cube, two_axis, units, plan)."""
     if getattr(options, "link", "serial") != "serial":
         raise InputError("the rotary bench's IMU streams over the serial link only (--link "
                          "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
                      options.lifetime, getattr(options, "cube", False),
-                     getattr(options, "two_axis", False), getattr(options, "units", 1))
+                     getattr(options, "two_axis", False), getattr(options, "units", 1),
+                     getattr(options, "plan", False))
 
 
 def iron_twin(options) -> HandTwin:
