@@ -49,8 +49,9 @@ def test_station_demo_json_meets_the_acceptance(tmp_path, capsys):
 
 def test_demo_over_the_can_link_meets_the_acceptance(tmp_path):
     # python-can's virtual bus costs about a core at 40x (3 frames per sample in Python threads):
-    # run at 20x so a slower CI host keeps up with the link
-    s = run_demo(tmp_path / "can.h5", imu="can", seed=2, positions=20, speed=20.0)
+    # run at 10x so the link keeps up beside the other test worker on a busy host (at 20x it
+    # failed once in bench/under_load.py: two CPU hogs and two test workers on 2 cores)
+    s = run_demo(tmp_path / "can.h5", imu="can", seed=2, positions=20, speed=10.0)
     check_summary(s, 20)
     assert s["link"]["incomplete"] == 0 and s["link"]["errors"] == 0
 
