@@ -130,7 +130,7 @@ class SteppedClock:
     realtime = False
     speed = math.inf
 
-    def __init__(self, start: float = 0.0, step: float = 0.05, backstop: float = 0.05):
+    def __init__(self, start: float = 0.0, step: float = 0.25, backstop: float = 0.05):
         if not (step > 0 and math.isfinite(step) and math.isfinite(start)):
             raise ValueError(f"a stepped clock needs a finite start and a positive step, got "
                              f"start {start!r}, step {step!r}")

@@ -28,19 +28,18 @@ class SerialImu:
 
     port         : device path ("/dev/ttyUSB0") or pyserial URL
     clock        : station clock for host timestamps and read timeouts (WallClock by default)
-    read_timeout : wall seconds one low-level read may wait for a first byte (default 0.01; 0 on
-                   a stepped clock, whose reader waits on the clock instead: `drivers.clock`)
+    read_timeout : wall seconds one low-level read may wait for a first byte (on a stepped clock
+                   only for bytes the twin has sent: `drivers.clock`)
     """
 
     profile_type = SerialImuProfile
 
-    def __init__(self, port: str, profile, clock=None, read_timeout: float | None = None):
+    def __init__(self, port: str, profile, clock=None, read_timeout: float = 0.01):
         self.port = str(port)
         self.profile = (profile if isinstance(profile, SerialImuProfile)
                         else SerialImuProfile.load(profile))
         self.clock = clock or WallClock()
-        self.read_timeout = (read_timeout if read_timeout is not None
-                             else 0.01 if self.clock.realtime else 0.0)
+        self.read_timeout = read_timeout
         imu, serial_section = self.profile.imu, self.profile.serial
         self.parser = (BinaryFrameParser(serial_section.frame, imu.channels, imu.scale)
                        if serial_section.protocol == "binary"
@@ -114,15 +113,17 @@ class SerialImu:
     def backlog(self) -> bool:
         """Has the port bytes on their way that were not read yet (never when closed)? What a
         reader on a `drivers.clock.SteppedClock` has to take before time moves on: the bytes the
-        twin booked on the clock's ledger (a pty may not show them yet) or the port holds."""
-        port = self._serial
-        return port is not None and (self.clock.in_flight(self.port) or port.in_waiting > 0)
+        twin booked on the clock's ledger (a pty may not show them yet)."""
+        return self._serial is not None and self.clock.in_flight(self.port)
 
     def _read(self):
         """What the port has now, or the first byte within `read_timeout`; None if the device was
         lost (the error is kept in `_lost`)."""
         try:
-            data = self._serial.read(self._serial.in_waiting or 1)
+            waiting = self._serial.in_waiting
+            if not (waiting or self.clock.realtime or self.clock.in_flight(self.port)):
+                return b""  # lockstep time: nothing sent, nothing to wait for
+            data = self._serial.read(waiting or 1)
             self.clock.taken(self.port, len(data))
             return data
         except (serial.SerialException, OSError) as exc:
