@@ -129,6 +129,7 @@ class SteppedClock:
 
     realtime = False
     speed = math.inf
+    lost = None  # the error every wait raises once the time's source is gone (a remote clock)
 
     def __init__(self, start: float = 0.0, step: float = 0.25, backstop: float = 0.05):
         if not (step > 0 and math.isfinite(step) and math.isfinite(start)):
@@ -230,6 +231,9 @@ class SteppedClock:
             self._waiting[me] = until
             self._move_if_quiet()
             while me in self._waiting:
+                if self.lost is not None:
+                    del self._waiting[me]
+                    raise self.lost
                 if stop is not None and stop.is_set():
                     del self._waiting[me]
                     self._move_if_quiet()
@@ -238,13 +242,28 @@ class SteppedClock:
                 self._move_if_quiet()
             self._seen[me] = self._nudges
 
-    def _wake(self, which) -> None:
-        """Wake the waiting members for which `which(until)` is true (they work from now on)."""
-        woken = [t for t, until in self._waiting.items() if which(until)]
-        for thread in woken:
-            del self._waiting[thread]
+    def advance_to(self, instant: float) -> None:
+        """Move time forward to `instant` at once, if it is later (a resumed session goes on after
+        its last recorded instant); the sleepers it passes wake."""
+        with self._cond:
+            if instant > self._t:
+                self._t = float(instant)
+                self._wake(lambda until: until is None or until <= self._t)
+
+    def _wake(self, which, flight: bool = False) -> list:
+        """Wake the waiting members for which `which(until)` is true (they work from now on); a
+        member in another process (`drivers.clock_link`) is told the time, and whether data is in
+        flight. Returns those woken."""
+        woken = [m for m, until in self._waiting.items()
+                 if which(until) or (getattr(m, "idle", False) and which(None))]
+        for member in woken:
+            del self._waiting[member]
+            if hasattr(member, "wake"):
+                self._seen[member] = self._nudges
+                member.wake(self._t, flight)
         if woken:
             self._cond.notify_all()
+        return woken
 
     def _move_if_quiet(self) -> None:
         """With the lock held: move time to the earliest instant a sleeper waits for, once every
@@ -256,7 +275,7 @@ class SteppedClock:
         if any(t not in self._waiting for t in self._members) or all(self._members.values()):
             return
         if any(_busy(probe) for probe in self._probes):
-            self._wake(lambda until: until is None)  # a reader has data to take
+            self._wake(lambda until: until is None, flight=True)  # a reader has data to take
             return
         instants = [until for until in self._waiting.values() if until is not None]
         if not instants:

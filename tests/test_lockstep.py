@@ -205,3 +205,77 @@ def test_a_session_is_the_same_on_an_idle_and_on_a_busy_host(tmp_path, imu):
     assert len(a["streams/imu/seq"]) > 2000
     for name in a:
         assert np.array_equal(a[name], b[name], equal_nan=a[name].dtype.kind == "f"), name
+
+
+def test_a_station_in_another_process_keeps_lockstep_over_the_socket():
+    """`station record` in another process than `station twin`: a `RemoteClock` on the served
+    clock's socket. A producer on the served clock, a consumer on the remote one: the consumer
+    sees each delivery at its instant, the same with random delays, and time waits for the bytes
+    the ledger says are on their way to the remote reader."""
+    from drivers.clock_link import ClockServer, RemoteClock
+
+    def run(seed):
+        served = SteppedClock(step=0.1)
+        server = ClockServer(served)
+        remote = RemoteClock(server.path)  # not `connect`: the socket, as another process
+        try:
+            delays = random.Random(seed)
+            items, log, stop = [], [], threading.Event()
+
+            def produce():
+                while not stop.is_set():
+                    served.pace(stop)
+                    time.sleep(delays.random() * 0.002)
+                    items.append(round(served.now(), 9))
+                    served.nudge()
+
+            def consume():
+                for _ in range(15):
+                    remote.sleep(0.05)
+                    target = round(remote.now() + 0.05, 9)
+                    while target not in items:
+                        time.sleep(delays.random() * 0.002)
+                        remote.idle()
+                    log.append((round(remote.now(), 9), len(items)))
+                stop.set()
+
+            (producer,) = _threads(served, produce, producer=(0,))
+            (consumer,) = _threads(remote, consume)
+            consumer.join(60)
+            producer.join(60)
+            assert not consumer.is_alive()
+            return log
+        finally:
+            remote.close()
+            server.close()
+
+    runs = [run(seed) for seed in range(2)]
+    assert runs[0] == runs[1]
+    assert np.allclose(np.diff([t for t, _ in runs[0]]), 0.1)
+
+
+def test_the_served_clock_waits_for_bytes_the_remote_reader_has_not_taken():
+    from drivers.clock_link import ClockServer, RemoteClock
+
+    served = SteppedClock(step=0.1)
+    server = ClockServer(served)
+    remote = RemoteClock(server.path)
+    try:
+        remote.forget("port")  # the remote reader opened the port
+        served.sent("port", 58)
+        seen = []
+
+        def reader():
+            while not remote.in_flight("port"):  # woken until told bytes are on their way
+                remote.idle()
+            seen.append(remote.now())
+            remote.taken("port", 58)
+            remote.sleep(1.0)
+            seen.append(remote.now())
+
+        (thread,) = _threads(remote, reader)
+        thread.join(20)
+        assert seen == [0.0, pytest.approx(1.0)]
+    finally:
+        remote.close()
+        server.close()
