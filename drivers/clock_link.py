@@ -10,7 +10,7 @@ wait (`WAIT <instant or none> <1 if one of them idles>`), when one works again (
 took from a link (`TAKEN <link> <n>`), a link it (re)opened (`FORGET <link>`) and a resumed
 session's start (`START <instant>`). The server answers `TIME <instant> <in flight>` whenever it
 wakes the remote side: time moved to its instant, or the remote side has something to look at
-(a nudge, bytes on their way). Time never moves while the remote side works, so both processes
+(a nudge, bytes on their way); `STARTED <instant> 0` answers a `START`. Time never moves while the remote side works, so both processes
 see the same instants in the same order, on any host.
 """
 
@@ -145,7 +145,7 @@ class _Remote:
                 if instant > c._t:
                     c._t = instant
                     c._wake(lambda until: until is not None and until <= c._t)
-                self._send(f"TIME {c._t!r} 0")
+                self._send(f"STARTED {c._t!r} 0")
                 return
             else:
                 raise ValueError(f"unknown lockstep message {words!r}")
@@ -174,6 +174,7 @@ class RemoteClock(SteppedClock):
                 "`station twin` and use the bench profile it writes") from exc
         self._lines = self._socket.makefile("r", encoding="ascii")
         self._joined, self._reported, self._flight = False, None, False
+        self._started = threading.Event()
         self._t = self._read_time()
         threading.Thread(target=self._receive, name="clock link", daemon=True).start()
 
@@ -185,11 +186,14 @@ class RemoteClock(SteppedClock):
     # -- what the served clock decides --------------------------------------------------------
 
     def advance_to(self, instant: float) -> None:
-        """Ask the served clock to move forward to `instant` (a resumed session's start)."""
+        """Ask the served clock to move forward to `instant` (a resumed session's start); returns
+        once it has answered (so it has also booked every line sent before)."""
         with self._cond:
+            self._started.clear()
             self._send(f"START {instant!r}")
-            while self._t < instant and self.lost is None:
-                self._cond.wait(self.backstop)
+        while not self._started.wait(self.backstop):
+            if self.lost is not None:
+                raise self.lost
 
     def in_flight(self, link: str) -> bool:
         """Did the served clock say bytes are on their way to this process's readers?"""
@@ -205,11 +209,17 @@ class RemoteClock(SteppedClock):
             self._send(f"FORGET {link}")
 
     def _read_time(self) -> float:
-        words = self._lines.readline().split()
-        if len(words) != 3 or words[0] != "TIME":
-            raise ClockLinkError(f"{self.path} is not a lockstep clock (got {words!r})")
-        self._flight = words[2] == "1"
-        return float(words[1])
+        """The instant of the next `TIME` line (a `STARTED` one on the way sets `_started`)."""
+        while True:
+            words = self._lines.readline().split()
+            if len(words) != 3 or words[0] not in ("TIME", "STARTED"):
+                raise ClockLinkError(f"{self.path} is not a lockstep clock (got {words!r})")
+            if words[0] == "TIME":
+                self._flight = words[2] == "1"
+                return float(words[1])
+            with self._cond:
+                self._t = max(self._t, float(words[1]))
+            self._started.set()
 
     def _receive(self) -> None:
         """The served clock's wake-ups, until the link ends."""

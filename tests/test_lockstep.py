@@ -262,6 +262,7 @@ def test_the_served_clock_waits_for_bytes_the_remote_reader_has_not_taken():
     remote = RemoteClock(server.path)
     try:
         remote.forget("port")  # the remote reader opened the port
+        remote.advance_to(0.0)  # answered: the served clock has booked the forget
         served.sent("port", 58)
         seen = []
 
