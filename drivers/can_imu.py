@@ -409,10 +409,17 @@ class CanImu:
         if self.bus is None:
             raise CanBusError(self.channel,
                               f"CAN bus {self.channel} is not open; call open() first")
-        with self._receiver.lock:
-            if not self._assembler.ready() and self._receiver.lost is None:
-                self._receiver.data_ready.wait(timeout / self._clock.speed)
-            block, lost = self._assembler.take(), self._receiver.lost
+        deadline = self._clock.now() + timeout
+        while True:
+            with self._receiver.lock:
+                if not self._assembler.ready() and self._receiver.lost is None \
+                        and self._clock.realtime:
+                    self._receiver.data_ready.wait(timeout / self._clock.speed)
+                block, lost = self._assembler.take(), self._receiver.lost
+            if block is not None or lost is not None or self._clock.realtime \
+                    or self._clock.now() >= deadline:
+                break
+            self._clock.idle()  # lockstep time: wait for the twin's next delivery
         if block is None and lost is not None:
             self._disconnect()
             raise CanBusError(self.channel, f"CAN IMU on {self.channel} was lost ({lost}). The "

@@ -29,6 +29,16 @@ import time
 
 PACE = 0.002
 """Wall seconds a streaming twin waits between two looks at what is due, on a real-time clock."""
+REPLY = 0.5
+"""Wall seconds a device driver waits for a reply (a Modbus request) on a real-time clock."""
+LOCKSTEP_REPLY = 30.0
+"""... and on a stepped clock: a reply late because the host is busy is no fault there (time waits
+for it), and a request sent again would ask a twin's physics twice."""
+
+
+def reply_timeout(clock) -> float:
+    """Wall seconds a device driver on `clock` waits for a reply."""
+    return REPLY if clock.realtime else LOCKSTEP_REPLY
 
 
 class WallClock:

@@ -17,6 +17,7 @@ import serial
 from drivers.clock import WallClock
 from drivers.errors import DeviceLostError, SerialPortError
 from drivers.profile import SerialImuProfile
+from drivers.samples import SampleBlock
 from drivers.wire import SerialStats
 from drivers.wire.ascii import AsciiLineParser
 from drivers.wire.binary import BinaryFrameParser
@@ -87,7 +88,9 @@ class SerialImu:
 
     def read_block(self, timeout: float = 0.1):
         """The samples completed within `timeout` clock seconds: a SampleBlock as soon as one sample
-        is decoded, None if none came. Raises DeviceLostError if the device is lost."""
+        is decoded (on a stepped clock: once the bytes the twin has sent are all read, so a block
+        is what the twin delivered, whatever the host's timing), None if none came. Raises
+        DeviceLostError if the device is lost."""
         if self._serial is None and self._lost is None:
             raise SerialPortError(self.port,
                                   f"serial port {self.port} is not open; call open() first")
@@ -95,20 +98,25 @@ class SerialImu:
             error, self._lost = self._lost, None
             raise error
         deadline = self.clock.now() + timeout
+        blocks = []
         while True:
             data = self._read()
             if data is None:  # lost: hand out the last decodable frames first
                 block = self.parser.decode(b"", self.clock.now(), final=True).block
-                if len(block):
-                    return block
+                if len(block) or blocks:
+                    return SampleBlock.concat([b for b in (*blocks, block) if len(b)])
                 error, self._lost = self._lost, None
                 raise error
             if data:
                 block = self.parser.decode(data, self.clock.now()).block
                 if len(block):
-                    return block
+                    blocks.append(block)
+            if blocks and (self.clock.realtime or not self.clock.in_flight(self.port)):
+                return SampleBlock.concat(blocks)
             if self.clock.now() >= deadline:
-                return None
+                return SampleBlock.concat(blocks) if blocks else None
+            if not (data or self.clock.realtime or self.clock.in_flight(self.port)):
+                self.clock.idle()  # lockstep time: wait for the twin's next delivery
 
     def backlog(self) -> bool:
         """Has the port bytes on their way that were not read yet (never when closed)? What a

@@ -171,8 +171,10 @@ class SerialTwin(Streamer):
         for i in twice:
             frames[i] = frames[i] * 2
         self.duplicated.extend(seq[fate <= CORRUPTED][twice].tolist())
-        written = self.link.write(b"".join(frames), self._stop, full=self.clock.nudge)
-        self.clock.sent(self.port, written)
+        data = b"".join(frames)
+        self.clock.sent(self.port, len(data))  # booked first: in flight until the reader took it
+        written = self.link.write(data, self._stop, full=self.clock.nudge)
+        self.clock.sent(self.port, written - len(data))  # what the pty did not take is gone
         self.clock.nudge()  # the reader has bytes to take
         ends = np.cumsum([len(f) for f in frames])
         sent = np.flatnonzero(fate <= CORRUPTED)

@@ -52,9 +52,6 @@ _channels = itertools.count()
 BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error",
               "effects", "two_axis"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
-LOCKSTEP_TABLE = {"timeout": 30.0}
-"""The table driver's reply timeout (wall s) in lockstep time: a reply late because the host is
-busy is not a fault there (lockstep time waits for it), and a retry would ask the physics twice."""
 MARGINS = ("rest", "guard", "steady")
 """The rotary settings that must cover the host's latency (`VirtualBench.with_margins`)."""
 HOST_LATENCY = 0.05
@@ -258,8 +255,7 @@ class VirtualBench:
     def drivers(self):
         """(imu, table): the station's real drivers connected to the twins, closed on exit; the
         table driver stops the table on exit whatever happened."""
-        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock,
-                            **({} if self.clock.realtime else LOCKSTEP_TABLE))
+        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock)
         with contextlib.ExitStack() as stack:
             imu = stack.enter_context(open_imu(self.kind, self.imu_address, self.profile,
                                                self.clock))
