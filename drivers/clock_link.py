@@ -196,12 +196,14 @@ class RemoteClock(SteppedClock):
                 raise self.lost
 
     def in_flight(self, link: str) -> bool:
-        """Did the served clock say bytes are on their way to this process's readers?"""
+        """Did the served clock say bytes are on their way to this process's readers, and has
+        no reader taken any since? (It says so again, if need be, once told.)"""
         return self._flight
 
     def taken(self, link: str, n: int) -> None:
         if n:
             with self._cond:
+                self._flight = False
                 self._send(f"TAKEN {link} {n}")
 
     def forget(self, link: str) -> None:

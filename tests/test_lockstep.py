@@ -280,3 +280,29 @@ def test_the_served_clock_waits_for_bytes_the_remote_reader_has_not_taken():
     finally:
         remote.close()
         server.close()
+
+
+def test_station_twin_and_station_record_in_two_processes_record_the_same_session(tmp_path):
+    """`station twin` (lockstep time, the default for a rotary bench) and `station record` in
+    two processes share the twin's clock over its socket: the same seed recorded twice gives the
+    same samples, host times, table states and events, with no keyboard and no wall clock."""
+    from twinproc import STATION, TwinProcess
+
+    import subprocess
+
+    def session(name):
+        profile, path = tmp_path / f"{name}.toml", tmp_path / f"{name}.h5"
+        with TwinProcess("--positions", "6", "--seed", "3", "--rate-hz", "100",
+                         "--profile-out", str(profile), "--lifetime", "600") as twin:
+            assert "lockstep" in twin.started and "clock_speed" not in twin.started
+            rec = subprocess.run([*STATION, "record", "--profile", str(profile), "--out",
+                                  str(path), "--json"], stdin=subprocess.DEVNULL, text=True,
+                                 capture_output=True, timeout=600, check=False)
+            assert rec.returncode == 0, rec.stderr
+        return _contents(path)
+
+    a, b = session("a"), session("b")
+    assert sorted(a) == sorted(b) and len(a["streams/imu/seq"]) > 3000
+    for name in a:
+        if name != "metadata":  # it names each twin's ports
+            assert np.array_equal(a[name], b[name], equal_nan=a[name].dtype.kind == "f"), name

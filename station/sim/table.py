@@ -337,16 +337,20 @@ class MountingFixture:
     """A motorised fixture that re-mounts the unit in the positions of a plan, commanded through
     the table's controller (the `mount` register of `drivers.rotary_table`). `request(n)` asks
     for position n (1-based; 0: none); whoever moves the unit (the virtual bench's fixture
-    thread) takes `pending()` and reports `done(n)`. Asking again for the position held needs
-    no move. Thread-safe."""
+    thread) takes `pending()` and reports `done(n)`, or `on_request(n)`, when set, moves it at
+    once, before the request returns (lockstep time: the station's next read sees the move
+    whatever the host's timing). Asking again for the position held needs no move. Thread-safe."""
 
     def __init__(self):
         self._lock = threading.Lock()
         self._requested = self._held = 0
+        self.on_request = None
 
     def request(self, position: int) -> None:
         with self._lock:
             self._requested = int(position)
+        if self.on_request is not None and self.pending() is not None:
+            self.on_request(int(position))
 
     def pending(self) -> int | None:
         """The position asked for and not yet held, or None."""

@@ -165,6 +165,8 @@ class BenchTwin:
             self.clock_server = ClockServer(b.clock)
         if b.fixture is not None:
             self._mount(1)
+            if not b.clock.realtime:
+                b.fixture.on_request = self._mount_at_once
         if b.kind == "serial":
             b.table_twin.start()
             sources = [b.source] if self.plate is None else self.plate.units
@@ -293,6 +295,13 @@ class BenchTwin:
         self.bench.technician.wait(self.instructions[j])
         self.mounted.append(position)
         self.bench.fixture.done(position)
+
+    def _mount_at_once(self, position: int) -> None:
+        """`_mount` inside the station's request (lockstep time); a failure kept in `error`."""
+        try:
+            self._mount(position)
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = exc
 
     def _fixture(self) -> None:
         """Start the serial stream when the station opens the port; mount the unit in each
@@ -498,6 +507,13 @@ class HandTwin:
         return {"a": t.a.tolist(), "bias": t.bias.tolist(), "a_nominal": t.a_nominal.tolist(),
                 "gravity": t.gravity, "up": t.up.tolist(), "turns": self.turns,
                 **({"gyro": {"a": gyro.a.tolist(), "bias": gyro.bias.tolist()}} if gyro else {})}
+
+    def _mount_at_once(self, position: int) -> None:
+        """`_mount` inside the station's request (lockstep time); a failure kept in `error`."""
+        try:
+            self._mount(position)
+        except Exception as exc:  # noqa: BLE001 - reported by the command
+            self.error = exc
 
     def _fixture(self) -> None:
         """Start the stream when the station opens the port (MAVLink: wait for its stream
