@@ -1,21 +1,25 @@
-"""The station on a busy host: `station demo` and the test suite beside CPU hogs.
+"""The station on a busy host: `station demo`, thermal campaigns and the test suite beside CPU hogs.
 
-Starts `--hogs` processes that spin a core each (default 2: a load of 2x this 2-core machine with
-the work itself), then runs `station demo --json` and the test suite (`pytest`, quiet by the
-pyproject's addopts: a second -q drops the closing counts line; or the files given with
---tests), and prints the demo's exit code and eps ratio and the suite's pass, fail and
-error counts; the hogs are stopped whatever happens. One JSON object with --json.
+Starts `--hogs` processes that spin a core each (default 2), then runs `station demo --json`
+`--demos` times, `--thermal` thermal campaigns on the thermal twin (recorded and solved), and the
+test suite (`pytest`, quiet by the pyproject's addopts; or the files given with --tests; skipped
+with --no-suite), all at nice 19 with --nice; prints each demo's exit code, verdict, eps ratio
+and real-time factor, each campaign's exit code, the suite's pass, fail and error counts and the
+load average after each part; the hogs are stopped whatever happens. One JSON object with --json.
 
-    .venv/bin/python -P bench/under_load.py [--hogs 2] [--tests tests/test_demo.py ...] [--json]
+    .venv/bin/python -P bench/under_load.py [--hogs 6] [--nice] [--demos 5] [--thermal 3]
+        [--no-suite] [--tests tests/test_demo.py ...] [--json]
 """
 
 import argparse
 import contextlib
 import json
 import multiprocessing
+import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -55,53 +59,101 @@ def pytest_counts(output: str) -> dict:
     return found
 
 
+THERMAL = """
+import sys
+from pathlib import Path
+from station.cli import main
+from station.twin.thermal import ThermalTwin
+out, seed = Path(sys.argv[1]), int(sys.argv[2])
+with ThermalTwin(seed=seed, positions=6) as twin:
+    (out.parent / f"thermal{seed}.toml").write_text(twin.profile_text())
+    sys.exit(main(["record", "--profile", str(out.parent / f"thermal{seed}.toml"), "--out",
+                   str(out), "--solve", "--json"]))
+"""
+"""A thermal campaign on the in-process thermal twin (lockstep time), recorded and solved."""
+
+
+def run(cmd: list, nice: bool, timeout: float) -> tuple:
+    """(CompletedProcess, wall seconds) of `cmd` in the repository, at nice 19 if asked."""
+    start = time.perf_counter()
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          preexec_fn=(lambda: os.nice(19)) if nice else None, check=False)
+    return done, time.perf_counter() - start
+
+
+def demos(k: int, nice: bool) -> list:
+    """`station demo --json` k times: exit, verdict, eps ratio, wall seconds, real-time factor."""
+    out = []
+    for _ in range(k):
+        done, seconds = run([sys.executable, "-m", "station", "demo", "--json"], nice, 3600)
+        summary = json.loads(done.stdout) if done.stdout.strip().startswith("{") else {}
+        out.append({"exit": done.returncode, "seconds": seconds,
+                    "verdict": (summary.get("verdict") or {}).get("overall"),
+                    "eps_over_sqrt_crlb": summary.get("eps_over_sqrt_crlb"),
+                    "real_time_factor": summary.get("real_time_factor"),
+                    "stderr_tail": done.stderr.strip()[-300:]})
+    return out
+
+
+def thermals(k: int, nice: bool) -> list:
+    """k thermal campaigns (seeds 1..k) recorded and solved (`THERMAL`): exit, wall seconds."""
+    out = []
+    with tempfile.TemporaryDirectory(prefix="under-load-") as tmp:
+        for seed in range(1, k + 1):
+            done, seconds = run([sys.executable, "-c", THERMAL, str(Path(tmp) / f"camp{seed}"),
+                                 str(seed)], nice, 3600)
+            out.append({"exit": done.returncode, "seconds": seconds,
+                        "stderr_tail": done.stderr.strip()[-300:]})
+    return out
+
+
+def suite(tests: list, nice: bool) -> dict:
+    """The test suite (or `tests`): counts, failures, wall seconds."""
+    done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *tests],
+                        nice, 7200)
+    return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
+            "failures": re.findall(r"^(?:FAILED|ERROR) .*", done.stdout, re.M),
+            "error_lines": re.findall(r"^E .*", done.stdout, re.M)[:60],
+            "closing": done.stdout.strip().splitlines()[-1:]}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hogs", type=int, default=2, help="CPU-bound processes beside the work")
+    parser.add_argument("--nice", action="store_true", help="run the work at nice 19")
+    parser.add_argument("--demos", type=int, default=1, help="station demo runs (default 1)")
+    parser.add_argument("--thermal", type=int, default=0,
+                        help="thermal campaigns recorded and solved (default 0)")
+    parser.add_argument("--no-suite", action="store_true", help="skip the test suite")
     parser.add_argument("--tests", nargs="*", default=[], help="test files (default: all)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    stop = multiprocessing.Event()
-    hogs = [multiprocessing.Process(target=spin, args=(stop,), daemon=True)
-            for _ in range(args.hogs)]
-    for hog in hogs:
-        hog.start()
-    try:
-        start = time.perf_counter()
-        demo = subprocess.run([sys.executable, "-m", "station", "demo", "--json"], cwd=ROOT,
-                              capture_output=True, text=True, timeout=1800)
-        demo_s = time.perf_counter() - start
-        summary = json.loads(demo.stdout) if demo.stdout.strip().startswith("{") else {}
-        start = time.perf_counter()
-        suite = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
-                                *args.tests], cwd=ROOT, capture_output=True, text=True,
-                               timeout=7200)
-        suite_s = time.perf_counter() - start
-    finally:
-        stop.set()
-        for hog in hogs:
-            hog.join(5)
-    out = {"hogs": args.hogs,
-           "demo": {"exit": demo.returncode, "seconds": demo_s,
-                    "eps_over_sqrt_crlb": summary.get("eps_over_sqrt_crlb"),
-                    "verdict": (summary.get("verdict") or {}).get("overall"),
-                    "stderr_tail": demo.stderr.strip()[-300:]},
-           "suite": {"exit": suite.returncode, "seconds": suite_s,
-                     **pytest_counts(suite.stdout),
-                     "failures": re.findall(r"^(?:FAILED|ERROR) .*", suite.stdout, re.M),
-                     "error_lines": re.findall(r"^E .*", suite.stdout, re.M)[:60],
-                     "closing": suite.stdout.strip().splitlines()[-1:]}}
+    with hogging(args.hogs):
+        load = []
+        out = {"hogs": args.hogs, "nice": args.nice, "demo": demos(args.demos, args.nice)}
+        load.append(os.getloadavg()[0])
+        out["thermal"] = thermals(args.thermal, args.nice)
+        load.append(os.getloadavg()[0])
+        if not args.no_suite:
+            out["suite"] = suite(args.tests, args.nice)
+            load.append(os.getloadavg()[0])
+        out["load_average_1min"] = load
     if args.json:
         print(json.dumps(out, indent=1))
         return
-    d, s = out["demo"], out["suite"]
-    print(f"{args.hogs} CPU hogs beside the work")
-    print(f"demo: exit {d['exit']} in {d['seconds']:.0f} s, eps / sqrt(trace CRLB) "
-          f"{d['eps_over_sqrt_crlb']}, verdict {d['verdict']}")
-    print(f"suite: {s['passed']} passed, {s['failed']} failed, {s['errors']} errors, "
-          f"{s['skipped']} skipped in {s['seconds']:.0f} s")
-    for failure in s["failures"]:
-        print(f"  {failure}")
+    print(f"{args.hogs} CPU hogs beside the work{' (at nice 19)' if args.nice else ''}; load "
+          f"average after each part {', '.join(f'{x:.1f}' for x in load)}")
+    for d in out["demo"]:
+        print(f"demo: exit {d['exit']} in {d['seconds']:.0f} s, verdict {d['verdict']}, eps / "
+              f"sqrt(trace CRLB) {d['eps_over_sqrt_crlb']}, {d['real_time_factor']} x real time")
+    for t in out["thermal"]:
+        print(f"thermal campaign: exit {t['exit']} in {t['seconds']:.0f} s")
+    if "suite" in out:
+        s = out["suite"]
+        print(f"suite: {s['passed']} passed, {s['failed']} failed, {s['errors']} errors, "
+              f"{s['skipped']} skipped in {s['seconds']:.0f} s")
+        for failure in s["failures"]:
+            print(f"  {failure}")
 
 
 if __name__ == "__main__":

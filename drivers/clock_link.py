@@ -1,17 +1,17 @@
 """Lockstep time across processes: `station twin` and `station record` on one stepped clock.
 
-The process that runs the twins owns the `drivers.clock.SteppedClock` and serves it on a Unix
-socket (`ClockServer`; its path goes in the bench profile as `[bench] lockstep`). A station
-connects with `connect(path)`: in the twin's own process that is the served clock itself (the
-in-process twins of the tests), elsewhere a `RemoteClock`, a stepped clock whose threads take part
-in the served one as one member. The remote side reports, one line each, when all its threads
-wait (`WAIT <instant or none> <1 if one of them idles>`), when one works again (`WORK`), whether it takes part at all
+The process that runs the twins owns the `drivers.clock.SteppedClock` and serves it on a Unix socket
+(`ClockServer`; its path goes in the bench profile as `[bench] lockstep`). A station connects with
+`connect(path)`: in the twin's own process that is the served clock itself (the in-process twins of
+the tests), elsewhere a `RemoteClock`, a stepped clock whose threads take part in the served one as
+one member. The remote side reports, one line each, when all its threads wait (`WAIT <instant or
+none> <1 if one of them idles>`), when one works again (`WORK`), whether it takes part at all
 (`JOIN`, `LEAVE`: a station with no thread on the clock does not hold time), the bytes its reader
 took from a link (`TAKEN <link> <n>`), a link it (re)opened (`FORGET <link>`) and a resumed
 session's start (`START <instant>`). The server answers `TIME <instant> <in flight>` whenever it
-wakes the remote side: time moved to its instant, or the remote side has something to look at
-(a nudge, bytes on their way); `STARTED <instant> 0` answers a `START`. Time never moves while the remote side works, so both processes
-see the same instants in the same order, on any host.
+wakes the remote side: time moved to its instant, or the remote side has something to look at (a
+nudge, bytes on their way); `STARTED <instant> 0` answers a `START`. Time never moves while the
+remote side works, so both processes see the same instants in the same order, on any host.
 """
 
 import contextlib

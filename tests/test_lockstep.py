@@ -286,9 +286,9 @@ def test_station_twin_and_station_record_in_two_processes_record_the_same_sessio
     """`station twin` (lockstep time, the default for a rotary bench) and `station record` in
     two processes share the twin's clock over its socket: the same seed recorded twice gives the
     same samples, host times, table states and events, with no keyboard and no wall clock."""
-    from twinproc import STATION, TwinProcess
-
     import subprocess
+
+    from twinproc import STATION, TwinProcess
 
     def session(name):
         profile, path = tmp_path / f"{name}.toml", tmp_path / f"{name}.h5"

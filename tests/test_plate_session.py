@@ -75,7 +75,7 @@ def instant_lags(session) -> np.ndarray:
 
 def test_three_units_on_one_table_recorded_and_solved_each_against_its_truth(tmp_path):
     profile, session = tmp_path / "plate.toml", tmp_path / "plate.h5"
-    with TwinProcess("--speed", "40", "--positions", str(POSITIONS), "--seed", "11", "--units",
+    with TwinProcess("--positions", str(POSITIONS), "--seed", "11", "--units",
                      str(UNITS), "--rate-hz", "100", "--profile-out", str(profile),
                      "--lifetime", "300") as twin:
         assert len({u["port"] for u in twin.started["units"]}) == UNITS  # a pty per unit
@@ -165,9 +165,8 @@ def test_three_can_units_on_one_bus_recorded_and_solved_each_against_its_truth(t
     others' frames."""
     path = tmp_path / "s.h5"
     # python-can's virtual bus hands every frame to every driver in this process: 3 units x 3
-    # frames x 3 drivers per sample, so a slower clock and rate than the serial plate's
-    with BenchTwin("can", seed=12, speed=10, positions=POSITIONS, rate_hz=50,
-                   units=UNITS) as twin:
+    # frames x 3 drivers per sample, so a lower rate than the serial plate's (lockstep time)
+    with BenchTwin("can", seed=12, positions=POSITIONS, rate_hz=50, units=UNITS) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         assert [u.imu.can.id_offset for u in bench.units] == [0, 0x10, 0x20]
@@ -191,7 +190,7 @@ def test_three_can_units_on_one_bus_recorded_and_solved_each_against_its_truth(t
 def test_can_units_sharing_a_bus_at_the_same_ids_are_refused(tmp_path):
     """Two [[imu]] units on one CAN bus without their own id_offset would each decode the
     other's frames: refused, naming both units and the ids, with the fix."""
-    with BenchTwin("can", seed=12, speed=40, positions=POSITIONS, rate_hz=100, units=2) as twin:
+    with BenchTwin("can", seed=12, positions=POSITIONS, rate_hz=100, units=2) as twin:
         text = twin.profile_text().replace("id_offset = 16", "id_offset = 0")
     (tmp_path / "b.toml").write_text(text)
     with pytest.raises(ProfileError, match=r"units SIM-12-U1 and SIM-12-U2 share the CAN bus .* "
@@ -236,7 +235,7 @@ def test_an_aborted_plate_session_resumes_with_every_unit(tmp_path):
     in both segments (a CI run once found the first unit's resumed instants seconds late: its
     rotating window of position 4 held the spin-up; `tests/test_recorder_backlog.py`)."""
     path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
-    with BenchTwin(seed=6, speed=40, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
+    with BenchTwin(seed=6, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
         profile.write_text(twin.profile_text())
         bench = BenchProfile.load(profile)
         with pytest.raises(OperatorAbort):
@@ -250,7 +249,7 @@ def test_an_aborted_plate_session_resumes_with_every_unit(tmp_path):
                                                                  io.StringIO()))
         assert resume(bench, path, ConsoleOperator(io.StringIO(""), io.StringIO())) == 3
         truth = twin.truth()
-        guard = bench.settings.guard  # the bench's margins (`VirtualBench.with_margins`): 2 s
+        guard = bench.settings.guard  # the bench's margins (`VirtualBench.with_margins`): 1 s
     with Session.open(path) as s:
         done = sorted({e.position for e in s.events() if e.kind == "position_done"})
         assert done == list(range(POSITIONS)) and s.closed_cleanly

@@ -1,12 +1,12 @@
 """Virtual CAN IMU: sends the frames of a device profile on a python-can virtual bus.
 
-The twin opens `can.Bus(interface="virtual", channel=channel)`; a driver on another virtual bus
-with the same channel name (in the same process) receives exactly what a real unit would send.
-Samples come from `source(times) -> counts (k, m) int` (times in seconds of the shared clock,
-e.g. `station.model.unit.SensorUnit.sample`), paced at the profile's rate by the clock, clipped to
-the range of each signal like a saturating ADC, and split into the profile's frames with
-`cantools` (on a `drivers.clock.SteppedClock`, the samples due at each step, time moving on once
-the station has decoded them). Fault knobs: `drop`, the (seq, frame index) pairs that never reach the bus;
+The twin opens `can.Bus(interface="virtual", channel=channel)`; a driver on another virtual bus with
+the same channel name (in the same process) receives exactly what a real unit would send. Samples
+come from `source(times) -> counts (k, m) int` (times in seconds of the shared clock, e.g.
+`station.model.unit.SensorUnit.sample`), paced at the profile's rate by the clock, clipped to the
+range of each signal like a saturating ADC, and split into the profile's frames with `cantools` (on
+a `drivers.clock.SteppedClock`, the samples due at each step, time moving on once the station has
+decoded them). Fault knobs: `drop`, the (seq, frame index) pairs that never reach the bus;
 `duplicate`, the sequence numbers whose frames are all sent twice (the sample repeated).
 """
 

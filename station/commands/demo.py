@@ -2,9 +2,9 @@
 
 The virtual bench (a 12-gyro unit streaming over a pseudo-terminal or a virtual CAN bus, a Modbus
 rotary table on 127.0.0.1, a simulated technician) runs in lockstep time: the bench's clock moves on
-only when the station has taken what the twins sent, so the session is the same on any host and
-runs as fast as the host allows (`--speed X`: a real-time clock X times the wall's). The station runs
-the rotary protocol through its ordinary drivers, records the session file, reduces it (Eq. 18 of
+only when the station has taken what the twins sent, so the session is the same on any host and runs
+as fast as the host allows (`--speed X`: a real-time clock X times the wall's). The station runs the
+rotary protocol through its ordinary drivers, records the session file, reduces it (Eq. 18 of
 Rupniewski), calibrates, and compares the result with the simulator's truth: eps (Eq. 19) against
 the Cramer-Rao bound sqrt(trace(CRLB)).
 """

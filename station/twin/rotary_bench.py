@@ -6,12 +6,13 @@
         bench.truth()     # what the station should find
 
 One clock drives everything (`drivers.clock`: lockstep time by default, the same samples on any
-host; a `ScaledClock` with `speed`, for what must meet the wall clock): the rotary table physics (`station.sim.table`) served over
-Modbus TCP on 127.0.0.1 (`drivers.twins.table.TableTwin`), a 12-gyro unit (`station.sim.layouts.
-gyro_array`, Rupniewski Section IV) mounted on that table (`station.sim.live.MountedUnit`) and
-streaming through a pseudo-terminal (`drivers.twins.serial.SerialTwin`) or a python-can virtual bus
-(`drivers.twins.can.CanImuTwin`), and the technician who re-mounts the unit between positions.
-The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
+host; a `ScaledClock` with `speed`, for what must meet the wall clock): the rotary table physics
+(`station.sim.table`) served over Modbus TCP on 127.0.0.1 (`drivers.twins.table.TableTwin`), a
+12-gyro unit (`station.sim.layouts. gyro_array`, Rupniewski Section IV) mounted on that table
+(`station.sim.live.MountedUnit`) and streaming through a pseudo-terminal
+(`drivers.twins.serial.SerialTwin`) or a python-can virtual bus (`drivers.twins.can.CanImuTwin`),
+and the technician who re-mounts the unit between positions. The station side opens the ordinary
+drivers on the twins' addresses (`drivers()`).
 
 `record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
 left by a killed or paused run on a new bench built from the file's `virtual_bench` metadata (or
