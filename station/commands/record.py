@@ -5,6 +5,7 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     [bench]
     unit_serial = "SN42"          # serial number of the unit under calibration
     clock_speed = 1.0             # optional; > 1 only against `station twin --speed`
+    # lockstep = "/tmp/lockstep-.../clock.sock"   # written by `station twin`: its stepped clock
 
     [imu]                         # several units on one rotary table: an [[imu]] table per
     link = "serial"               # or "can"; unit, with these keys, its own unit_serial and
