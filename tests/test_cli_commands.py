@@ -25,7 +25,7 @@ POSITIONS = 7
 def recorded(tmp_path_factory):
     """(session path, truth) of a short session over the twin's virtual CAN link."""
     tmp = tmp_path_factory.mktemp("cli")
-    with BenchTwin("can", seed=4, speed=30, positions=POSITIONS) as twin:
+    with BenchTwin("can", seed=4, positions=POSITIONS) as twin:
         (tmp / "bench.toml").write_text(twin.profile_text("SN-CLI"))
         operator = ConsoleOperator(stdin=io.StringIO("\n" * POSITIONS), stdout=io.StringIO())
         record(BenchProfile.load(tmp / "bench.toml"), tmp / "s.h5", operator)

@@ -41,7 +41,7 @@ def white_sigma(unit) -> np.ndarray:
 
 def test_rotary_positions_are_confirmed_with_their_samples_and_noise(tmp_path):
     path = tmp_path / "rotary.h5"
-    with VirtualBench(seed=3, speed=40.0, remount_time=1.0) as bench:
+    with VirtualBench(seed=3, remount_time=1.0) as bench:
         record_rotary(bench, path, FAST, suggested_axes(3))
         said = [m for m in bench.technician.messages if "captured" in m]
         sigma = white_sigma(bench.unit)

@@ -30,7 +30,7 @@ P = 3  # the position most corruptions hit (0-based)
 def clean(tmp_path_factory):
     """A recorded 8-position rotary session (12 gyros, 200 Hz, seed 11)."""
     path = tmp_path_factory.mktemp("corruption") / "clean.h5"
-    with VirtualBench("serial", seed=11, speed=40.0) as bench:
+    with VirtualBench("serial", seed=11) as bench:
         record_rotary(bench, path, RotarySettings(), suggested_axes(POSITIONS))
     return path
 

@@ -56,7 +56,7 @@ def gap_bounds(result, d) -> dict:
 
 
 def record(path, positions=POSITIONS, **bench):
-    with VirtualBench(seed=3, speed=40.0, remount_time=1.0, **bench) as b:
+    with VirtualBench(seed=3, remount_time=1.0, **bench) as b:
         record_rotary(b, path, FAST, suggested_axes(positions))
     return path
 

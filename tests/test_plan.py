@@ -256,7 +256,7 @@ def test_a_cube_without_wedge_is_refused_by_station_plan(tmp_path):
 
 def test_record_asks_for_the_planned_poses_and_the_twins_technician_sets_them(tmp_path):
     positions = 8
-    with BenchTwin(seed=7, speed=40, positions=positions, cube=True) as twin:
+    with BenchTwin(seed=7, positions=positions, cube=True) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         said = io.StringIO()

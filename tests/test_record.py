@@ -78,7 +78,7 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
 
 
 def test_end_of_input_aborts_and_stops_the_table(tmp_path):
-    with BenchTwin(seed=5, speed=40, positions=POSITIONS) as twin:
+    with BenchTwin(seed=5, positions=POSITIONS) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         # a table without the fixture: the technician mounts the unit and presses Enter; the
@@ -106,7 +106,7 @@ def test_an_aborted_session_resumes_with_the_devices_of_its_bench_profile(tmp_pa
     from station.cli import main
 
     path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
-    with BenchTwin(seed=6, speed=40, positions=POSITIONS) as twin:
+    with BenchTwin(seed=6, positions=POSITIONS) as twin:
         profile.write_text(twin.profile_text())
         bench = BenchProfile.load(profile)
         with pytest.raises(OperatorAbort):  # the technician walks away at the 4th position
@@ -143,7 +143,7 @@ def test_station_resume_stops_a_turning_table_before_anything_else(tmp_path):
     import time
 
     path, profile, log = tmp_path / "s.h5", tmp_path / "b.toml", tmp_path / "writes.log"
-    with BenchTwin(seed=7, speed=40, positions=POSITIONS) as twin:
+    with BenchTwin(seed=7, positions=POSITIONS) as twin:
         profile.write_text(twin.profile_text())
         with pytest.raises(OperatorAbort):
             record(BenchProfile.load(profile), path, QuitsAt(f"position 2/{POSITIONS}"))

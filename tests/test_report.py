@@ -71,7 +71,7 @@ def recorded(tmp_path_factory):
     reduced and solved (results/rotary): (path, the view, what the view printed)."""
     path = tmp_path_factory.mktemp("bench") / "bench.h5"
     screen = Console(file=io.StringIO(), force_terminal=True, width=130, record=True)
-    with VirtualBench("serial", seed=3, speed=40.0) as bench, \
+    with VirtualBench("serial", seed=3) as bench, \
             bench.drivers() as (imu, table):
         view = LiveView(bench.clock)
         protocol = view.follow(RotaryProtocol(table, view.observe_operator(bench.technician),

@@ -121,7 +121,7 @@ def test_a_session_aborted_and_resumed_mounts_each_position_it_records(tmp_path)
     from station.reduce.rotary import rotary_readings
 
     positions = 6
-    with BenchTwin(seed=4, speed=40, positions=positions) as twin:
+    with BenchTwin(seed=4, positions=positions) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         assert bench.table_map.fixture

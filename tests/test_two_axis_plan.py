@@ -186,7 +186,7 @@ def test_record_sets_the_planned_angles_and_spins_and_the_session_solves(tmp_pat
     rebuilds the protocol from); every reading is a^T (w u_j) at the planned stimuli and the
     calibration is consistent with their bound and the twin's truth."""
     most = 6
-    with BenchTwin(seed=11, speed=40, positions=most, two_axis=True, plan=True) as twin:
+    with BenchTwin(seed=11, positions=most, two_axis=True, plan=True) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         said = io.StringIO()

@@ -162,7 +162,7 @@ def test_three_units_on_a_two_axis_table_recorded_and_solved_each_against_its_tr
     the same two physical axes, sees them in its own frame and is solved within the statistical
     bounds against its own truth and axes (ALARM per unit)."""
     path, profile = tmp_path / "s.h5", tmp_path / "b.toml"
-    with BenchTwin(seed=9, speed=40, positions=6, rate_hz=100, two_axis=True,
+    with BenchTwin(seed=9, positions=6, rate_hz=100, two_axis=True,
                    units=3) as twin:
         profile.write_text(twin.profile_text())
         bench = BenchProfile.load(profile)
@@ -203,7 +203,7 @@ def test_an_abort_during_the_spin_stops_both_axes_and_the_session_resumes_and_so
     # 6 on the cone: with c, the 6 directions Eq. (7)'s g needs (+-c are one for it)
     cone, path, cal = 6, tmp_path / "two_axis.h5", tmp_path / "cal.json"
     phis = position_angles(cone)
-    with VirtualBench(seed=4, speed=40.0, two_axis=True) as bench:
+    with VirtualBench(seed=4, two_axis=True) as bench:
         a, bias = bench.unit.a.copy(), bench.unit.bias.copy()
         quitter = AbortsInTheSpin(bench, cone + 1)
         original = bench.technician

@@ -98,6 +98,8 @@ def test_the_virtual_bench_turns_its_unit_with_the_position_axis():
     from station.model.two_axis import orientation
     from station.twin.rotary_bench import VirtualBench
 
+    # a real-time clock: nothing reads the IMU here, and in lockstep time a twin whose port is
+    # full waits for its reader (docs/simulator.md "Time on the virtual bench")
     with VirtualBench(seed=2, speed=40.0, two_axis=True) as bench, \
             bench.drivers() as (_, table):
         assert np.allclose(bench.mounted.orientation_at(bench.clock.now()), orientation(0.0))
@@ -123,7 +125,7 @@ def test_a_two_axis_session_records_with_no_mounting_and_the_unit_follows_phi(tm
     fast = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
     phis = position_angles(3)
     path = tmp_path / "two_axis.h5"
-    with VirtualBench(seed=3, speed=40.0, two_axis=True) as bench:
+    with VirtualBench(seed=3, two_axis=True) as bench:
         record_rotary(bench, path, fast, phis=phis)
         truth = bench.truth()
     assert len(truth.orientations) == 0  # nobody mounted anything
@@ -163,7 +165,7 @@ def test_resume_sets_phi_again_for_the_positions_left(tmp_path):
             threading.Thread(target=wait, daemon=True).start()
         return watch
 
-    with VirtualBench(seed=3, speed=40.0, two_axis=True) as bench, \
+    with VirtualBench(seed=3, two_axis=True) as bench, \
             pytest.raises(TableFault):
         a = bench.unit.a  # the resumed bench is built from the same seed: the same unit
         record_rotary(bench, path, fast, phis=phis, watch=fault_after_the_first_position(bench))

@@ -125,7 +125,7 @@ def session(tmp_path_factory):
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
     path = tmp_path_factory.mktemp("verdict") / "s.h5"
-    with VirtualBench("serial", seed=5, speed=40.0) as bench:
+    with VirtualBench("serial", seed=5) as bench:
         record_rotary(bench, path, RotarySettings(), suggested_axes(8))
     return path
 
