@@ -129,8 +129,8 @@ class SerialTwin(Streamer):
     def _run(self) -> None:
         try:
             self._stream()
-        except Exception as exc:  # reported by stop()
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once (Streamer._failed)
+            self._failed(exc)
 
     def _stream(self) -> None:
         next_seq = 0

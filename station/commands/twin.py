@@ -36,7 +36,10 @@ back at the next SIGUSR1), SIGUSR2 silences the rotary table (its Modbus server 
 again at the next SIGUSR2), e.g. `kill -USR1 <twin pid>`: to try `station record`'s reconnection,
 pause and `station resume`. `--speed` makes the twin's clock run faster
 than the wall; the profile tells `station record` to use the same speed. With --json, the truth
-(sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
+(sensitivity matrix, biases, mountings) is printed as JSON when the twin stops. A virtual device
+that stops on an error of its own (its simulation, not a signal) ends the twin at once: its error
+line names the device and the error, e.g. `station twin: the serial IMU twin stopped: ValueError:
+...` (exit code 1; `drivers.twins.failure`).
 
 `--link mavlink` (with `--protocol static`) serves the hand bench's triad as a flight controller
 speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU with the
@@ -123,7 +126,7 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.commands import given_values
-    from station.errors import InputError, StationError
+    from station.errors import InputError
 
     if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0 \
             or args.units < 1:
@@ -158,6 +161,7 @@ def run(args) -> int:
         devices[signal.SIGHUP] = "chamber"
     previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    twin.failures.on_failure = lambda words: stop.set()  # a twin stopped: end with its error
     try:
         with twin:
             for number, device in devices.items():
@@ -184,8 +188,6 @@ def run(args) -> int:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-    if twin.error is not None:
-        raise StationError(f"the fixture failed: {twin.error}")
     if args.json:
         print(json.dumps({"truth": truth}), flush=True)
     return 0
