@@ -25,10 +25,10 @@ how often, anyone asked: the same instant always gets the same value to the last
 nobody asks for an instant still to come: the grid is then integrated ahead, and a command given
 meanwhile acts only after it).
 
-`unit_temperature(t)` answers for any instant since the start (one or an array of them),
-interpolated linearly between the grid points, so an IMU twin may ask for its own sample times
-however late a busy host makes it ask. The whole history is kept: 8 bytes a step, 290 kB an hour of
-clock time at a 0.1 s step.
+`unit_temperature(t)` answers for any instant (one or an array of them), interpolated linearly
+between the grid points (before the start: the room temperature, where the unit sat), so an IMU
+twin may ask for its own sample times however late a busy host makes it ask. The whole history is
+kept: 8 bytes a step, 290 kB an hour of clock time at a 0.1 s step.
 """
 
 import math
@@ -132,14 +132,10 @@ class ChamberPhysics:
 
     def unit_temperature(self, t=None):
         """The unit's temperature at clock time `t` (default now; a float, or an array of times
-        for an array of temperatures), K, interpolated between grid points; times before the
-        start are refused."""
+        for an array of temperatures), K, interpolated between grid points; the room's before
+        the start."""
         with self._lock:
-            x = self._grid(self.clock.now() if t is None else t)
-            if np.min(x) < 0:
-                first = self._start + float(np.min(x)) * self.step
-                raise ValueError(f"unit temperature at {first} s asked, before the chamber's "
-                                 f"history (it starts at {self._start} s)")
+            x = np.maximum(self._grid(self.clock.now() if t is None else t), 0.0)
             self._advance_to(math.ceil(np.max(x)))
             k = np.floor(x).astype(np.int64)
             before, after = self._units[k], self._units[np.minimum(k + 1, self._k)]
