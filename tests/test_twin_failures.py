@@ -164,18 +164,21 @@ def test_a_modbus_twin_whose_physics_breaks_closes_and_tells_at_once():
 
 @pytest.mark.parametrize("imu, lost", [("serial", "did not come back"),
                                        ("can", "no IMU sample for")])
-def test_the_stations_error_names_the_twin_that_broke_and_why(imu, lost, tmp_path):
+def test_the_stations_error_names_the_twin_that_broke_and_why(imu, lost, tmp_path, caplog):
     """The IMU twin's unit breaks 20 s of clock into the session: the serial port goes at once
     (the protocol's reconnections fail), the CAN bus goes silent (the recorder's guard); either
-    way the error that ends the session says which twin stopped and why."""
+    way the bench warns at once, before the station gives up, and the error that ends the session
+    says which twin stopped and why."""
     bench = VirtualBench(imu, seed=3, speed=40.0, rate_hz=50.0, remount_time=1.0)
     with pytest.raises(StationError, match=lost) as info, bench:
         bench.unit.sample = Breaks(bench.unit.sample, lambda v, times, *_: times[-1] >= 20.0)
         record_rotary(bench, tmp_path / "s.h5", RotarySettings(), suggested_axes(4))
     notes = " ".join(getattr(info.value, "__notes__", ()))
-    name = {"serial": "serial IMU", "can": "CAN IMU"}[imu]
-    assert f"the virtual bench failed: the {name} twin stopped: RuntimeError: {BROKE}" in notes
+    words = f"the {dict(serial='serial', can='CAN')[imu]} IMU twin stopped: RuntimeError: {BROKE}"
+    assert f"the virtual bench failed: {words}" in notes
     assert bench.failures.failed[0][1].args == (BROKE,)
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warnings[0] == words and "aborted" in warnings[-1]  # told before the station knew
 
 
 def test_station_twin_ends_at_once_naming_the_twin(monkeypatch, tmp_path, capsys):

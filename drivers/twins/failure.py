@@ -10,15 +10,19 @@ The twin side, `fail(twin, exc, silence)` in the thread's `except Exception` blo
 - the twin's `on_error(exc)` is called, if its owner set one.
 
 The owner side, `Failures`: the failures of one bench's twins. `watch(twin, name)` sets the twin's
-`on_error`; each failure is kept with the twin's name and told at once to `on_failure(words)`
-(`station twin` ends then, its error line naming the twin and the cause). Leaving the bench's
-`with` (`after`), an error the station raised meanwhile (e.g. "no IMU sample for 10 s") gets a note
-saying which twin stopped and why; without one, the failure is raised as a `TwinError`.
+`on_error`; each failure is kept with the twin's name and told at once to `on_failure(words)`: a
+warning in the log, unless the owner says otherwise (`station twin` ends then, its error line
+naming the twin and the cause). Leaving the bench's `with` (`after`), an error the station raised
+meanwhile (e.g. "no IMU sample for 10 s") gets a note saying which twin stopped and why; without
+one, the failure is raised as a `TwinError`.
 """
 
+import logging
 import threading
 
 from drivers.errors import TwinError
+
+log = logging.getLogger(__name__)
 
 
 def fail(twin, exc: Exception, silence=None) -> None:
@@ -40,12 +44,12 @@ class Failures:
     """The failures of one bench's twins, each told at once (see the module docstring).
 
     failed     : [(name, exception)] in the order they came
-    on_failure : optional callable(words), called in the failing twin's thread
+    on_failure : callable(words), called in the failing twin's thread (default: a warning)
     """
 
     def __init__(self):
         self.failed = []
-        self.on_failure = None
+        self.on_failure = log.warning
         self._lock = threading.Lock()
 
     def watch(self, twin, name: str):
@@ -75,5 +79,4 @@ class Failures:
     def _report(self, name: str, exc: Exception) -> None:
         with self._lock:
             self.failed.append((name, exc))
-        if self.on_failure is not None:
-            self.on_failure(self.words())
+        self.on_failure(self.words())

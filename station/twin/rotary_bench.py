@@ -13,8 +13,9 @@ streaming through a pseudo-terminal (`drivers.twins.serial.SerialTwin`) or a pyt
 The station side opens the ordinary drivers on the twins' addresses (`drivers()`).
 
 A twin that cannot go on (an error in its thread: the source, the physics) goes silent at once and
-is kept in the bench's `failures` (`drivers.twins.failure`): the error that then ends the `with`
-(e.g. the recorder's "no IMU sample") carries a note naming the twin and its error.
+is kept in the bench's `failures` (`drivers.twins.failure`), a warning logged at once: the error
+that then ends the `with` (e.g. the recorder's "no IMU sample") carries a note naming the twin and
+its error.
 
 `record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
 left by a killed or paused run on a new bench built from the file's `virtual_bench` metadata (or
