@@ -10,6 +10,7 @@ error counts; the hogs are stopped whatever happens. One JSON object with --json
 """
 
 import argparse
+import contextlib
 import json
 import multiprocessing
 import re
@@ -25,6 +26,21 @@ def spin(stop) -> None:
     """Keep one core busy until `stop` is set."""
     while not stop.is_set():
         sum(range(10000))
+
+
+@contextlib.contextmanager
+def hogging(n: int):
+    """`n` processes spinning a core each while the block runs; stopped whatever happens."""
+    stop = multiprocessing.Event()
+    hogs = [multiprocessing.Process(target=spin, args=(stop,), daemon=True) for _ in range(n)]
+    for hog in hogs:
+        hog.start()
+    try:
+        yield hogs
+    finally:
+        stop.set()
+        for hog in hogs:
+            hog.join(5)
 
 
 def pytest_counts(output: str) -> dict:

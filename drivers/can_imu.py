@@ -313,6 +313,7 @@ class _Receiver(can.Listener):
         self.lock = threading.Lock()
         self.data_ready = threading.Condition(self.lock)
         self.lost = None  # the bus' exception once the link is lost
+        self.received = 0  # frames handed to this listener by the present bus
 
     def on_message_received(self, msg: can.Message) -> None:
         now = self.clock.now()
@@ -321,8 +322,10 @@ class _Receiver(can.Listener):
                 self.assembler.feed(msg, now)
             except Exception as exc:  # noqa: BLE001 - a decoder bug must not kill the notifier
                 self._count(exc)
+            self.received += 1
             if self.assembler.ready():
                 self.data_ready.notify_all()
+        self.clock.nudge()  # a reader waiting on a stepped clock looks again
         if self.logger is not None:
             try:
                 self.logger.on_message_received(msg)
@@ -394,7 +397,7 @@ class CanImu:
         if self._receiver is None:
             logger = can.Logger(self.log_path) if self.log_path is not None else None
             self._receiver = _Receiver(self._assembler, self._clock, logger)
-        self._receiver.lost = None
+        self._receiver.lost, self._receiver.received = None, 0
         self.bus = bus
         self._notifier = can.Notifier(bus, [self._receiver], timeout=0.1)
         self.connections += 1
@@ -406,16 +409,35 @@ class CanImu:
         if self.bus is None:
             raise CanBusError(self.channel,
                               f"CAN bus {self.channel} is not open; call open() first")
-        with self._receiver.lock:
-            if not self._assembler.ready() and self._receiver.lost is None:
-                self._receiver.data_ready.wait(timeout / self._clock.speed)
-            block, lost = self._assembler.take(), self._receiver.lost
+        deadline = self._clock.now() + timeout
+        while True:
+            with self._receiver.lock:
+                if not self._assembler.ready() and self._receiver.lost is None \
+                        and self._clock.realtime:
+                    self._receiver.data_ready.wait(timeout / self._clock.speed)
+                block, lost = self._assembler.take(), self._receiver.lost
+            if block is not None or lost is not None or self._clock.realtime \
+                    or self._clock.now() >= deadline:
+                break
+            self._clock.idle()  # lockstep time: wait for the twin's next delivery
         if block is None and lost is not None:
             self._disconnect()
             raise CanBusError(self.channel, f"CAN IMU on {self.channel} was lost ({lost}). The "
                               "samples read so far are kept; reconnect the adapter and call open() "
                               "to continue.") from lost
         return block
+
+    def backlog(self) -> int:
+        """Frames the bus has received that are not decoded yet, where the interface tells
+        (python-can's virtual bus, whose queue counts every frame put in it; otherwise 0), plus
+        the decoded samples not read yet: what a reader on a `drivers.clock.SteppedClock` has to
+        take before time moves on."""
+        bus, receiver = self.bus, self._receiver
+        if bus is None or receiver is None:
+            return 0
+        queue = getattr(bus, "queue", None)
+        queued = queue.unfinished_tasks - receiver.received if queue is not None else 0
+        return queued + int(self._assembler.ready())
 
     def close(self) -> None:
         """Stop decoding, shut the bus down and close the log; a sample still missing frames counts

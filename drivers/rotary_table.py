@@ -48,7 +48,7 @@ from typing import Self
 
 from pymodbus.client import ModbusTcpClient
 
-from drivers.clock import WallClock
+from drivers.clock import WallClock, reply_timeout
 from drivers.errors import (
     TableBusy,
     TableError,
@@ -262,18 +262,19 @@ class TableReading:
 class RotaryTable:
     """Synchronous rotary-table client; one Modbus transaction per call, bounded retries.
 
-    timeout       : seconds to wait for each reply
+    timeout       : wall seconds to wait for each reply (default `drivers.clock.reply_timeout`)
     retries       : extra tries after a timeout or a busy answer (busy ones `busy_backoff` s apart)
     stop_patience : seconds the driver keeps trying to stop the table after a failure
     clock         : stamps `TableReading.time` (share the recorder's clock)
     """
 
-    def __init__(self, host: str, port: int, register_map: TableRegisterMap, timeout=0.5,
+    def __init__(self, host: str, port: int, register_map: TableRegisterMap, timeout=None,
                  retries=2, busy_backoff=0.05, stop_patience=2.0, clock=None):
         self.host, self.port, self.map = host, port, register_map
+        self.clock = clock or WallClock()
+        timeout = reply_timeout(self.clock) if timeout is None else timeout
         self.timeout, self.retries, self.busy_backoff = timeout, int(retries), busy_backoff
         self.stop_patience = stop_patience
-        self.clock = clock or WallClock()
         self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
 
     def __enter__(self) -> Self:

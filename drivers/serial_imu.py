@@ -17,6 +17,7 @@ import serial
 from drivers.clock import WallClock
 from drivers.errors import DeviceLostError, SerialPortError
 from drivers.profile import SerialImuProfile
+from drivers.samples import SampleBlock
 from drivers.wire import SerialStats
 from drivers.wire.ascii import AsciiLineParser
 from drivers.wire.binary import BinaryFrameParser
@@ -28,7 +29,8 @@ class SerialImu:
 
     port         : device path ("/dev/ttyUSB0") or pyserial URL
     clock        : station clock for host timestamps and read timeouts (WallClock by default)
-    read_timeout : wall seconds one low-level read may wait for a first byte
+    read_timeout : wall seconds one low-level read may wait for a first byte (on a stepped clock
+                   only for bytes the twin has sent: `drivers.clock`)
     """
 
     profile_type = SerialImuProfile
@@ -70,6 +72,7 @@ class SerialImu:
                 "plugged in, that the path is right and that no other program holds the "
                 "port.") from exc
         self.parser.reset()
+        self.clock.forget(self.port)
         self.connections += 1
         return self
 
@@ -85,7 +88,9 @@ class SerialImu:
 
     def read_block(self, timeout: float = 0.1):
         """The samples completed within `timeout` clock seconds: a SampleBlock as soon as one sample
-        is decoded, None if none came. Raises DeviceLostError if the device is lost."""
+        is decoded (on a stepped clock: once the bytes the twin has sent are all read, so a block
+        is what the twin delivered, whatever the host's timing), None if none came. Raises
+        DeviceLostError if the device is lost."""
         if self._serial is None and self._lost is None:
             raise SerialPortError(self.port,
                                   f"serial port {self.port} is not open; call open() first")
@@ -93,26 +98,42 @@ class SerialImu:
             error, self._lost = self._lost, None
             raise error
         deadline = self.clock.now() + timeout
+        blocks = []
         while True:
             data = self._read()
             if data is None:  # lost: hand out the last decodable frames first
                 block = self.parser.decode(b"", self.clock.now(), final=True).block
-                if len(block):
-                    return block
+                if len(block) or blocks:
+                    return SampleBlock.concat([b for b in (*blocks, block) if len(b)])
                 error, self._lost = self._lost, None
                 raise error
             if data:
                 block = self.parser.decode(data, self.clock.now()).block
                 if len(block):
-                    return block
+                    blocks.append(block)
+            if blocks and (self.clock.realtime or not self.clock.in_flight(self.port)):
+                return SampleBlock.concat(blocks)
             if self.clock.now() >= deadline:
-                return None
+                return SampleBlock.concat(blocks) if blocks else None
+            if not (data or self.clock.realtime or self.clock.in_flight(self.port)):
+                self.clock.idle()  # lockstep time: wait for the twin's next delivery
+
+    def backlog(self) -> bool:
+        """Has the port bytes on their way that were not read yet (never when closed)? What a
+        reader on a `drivers.clock.SteppedClock` has to take before time moves on: the bytes the
+        twin booked on the clock's ledger (a pty may not show them yet)."""
+        return self._serial is not None and self.clock.in_flight(self.port)
 
     def _read(self):
         """What the port has now, or the first byte within `read_timeout`; None if the device was
         lost (the error is kept in `_lost`)."""
         try:
-            return self._serial.read(self._serial.in_waiting or 1)
+            waiting = self._serial.in_waiting
+            if not (waiting or self.clock.realtime or self.clock.in_flight(self.port)):
+                return b""  # lockstep time: nothing sent, nothing to wait for
+            data = self._serial.read(waiting or 1)
+            self.clock.taken(self.port, len(data))
+            return data
         except (serial.SerialException, OSError) as exc:
             self._close_port()
             self._lost = DeviceLostError(

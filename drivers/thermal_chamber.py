@@ -28,7 +28,7 @@ from typing import Self
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
-from drivers.clock import WallClock
+from drivers.clock import WallClock, reply_timeout
 from drivers.errors import (
     ChamberAlarm,
     ChamberDoorOpen,
@@ -236,7 +236,7 @@ class ThermalChamber:
 
     host, port   : Modbus TCP address; or serial_port: Modbus RTU on that port (profile's line
                    settings)
-    timeout      : seconds to wait for each reply
+    timeout      : wall seconds to wait for each reply (default `drivers.clock.reply_timeout`)
     retries      : extra tries after a timeout, a lost link, a bad reply or a busy answer
     safe_kelvin  : if given, leaving the `with` block on an exception calls `safe(safe_kelvin)`
                    and says on the exception whether it worked (`chamber_safe`)
@@ -244,16 +244,17 @@ class ThermalChamber:
     """
 
     def __init__(self, register_map: ChamberRegisterMap, host: str | None = None, port: int = 502,
-                 serial_port: str | None = None, timeout: float = 0.5, retries: int = 2,
+                 serial_port: str | None = None, timeout: float | None = None, retries: int = 2,
                  safe_kelvin: float | None = None, clock=None):
         if (host is None) == (serial_port is None):
             raise ValueError("give the chamber's host (Modbus TCP) or its serial_port (Modbus "
                              "RTU), not both")
+        self.clock = clock or WallClock()
+        timeout = reply_timeout(self.clock) if timeout is None else timeout
         self.map, self.timeout, self.retries = register_map, timeout, int(retries)
         self.safe_kelvin = safe_kelvin
         if safe_kelvin is not None:
             self._check_setpoint(safe_kelvin)
-        self.clock = clock or WallClock()
         if host is not None:
             self.where = f"thermal chamber at {host}:{port}"
             self._words = link_words

@@ -35,7 +35,7 @@ from station.protocols.thermal import ROOM, run_campaign
 from station.sim.thermal import unit_at
 from station.twin.thermal import TRUTH, ThermalTwin
 
-SPEED = 80.0
+SPEED = None  # lockstep time (drivers.clock.SteppedClock)
 ALPHA = 0.01
 """False-alarm probability of each statistical check, over all the values it checks."""
 

@@ -5,12 +5,12 @@ with the same channel name (in the same process) receives exactly what a real un
 Samples come from `source(times) -> counts (k, m) int` (times in seconds of the shared clock,
 e.g. `station.model.unit.SensorUnit.sample`), paced at the profile's rate by the clock, clipped to
 the range of each signal like a saturating ADC, and split into the profile's frames with
-`cantools`. Fault knobs: `drop`, the (seq, frame index) pairs that never reach the bus;
+`cantools` (on a `drivers.clock.SteppedClock`, the samples due at each step, time moving on once
+the station has decoded them). Fault knobs: `drop`, the (seq, frame index) pairs that never reach the bus;
 `duplicate`, the sequence numbers whose frames are all sent twice (the sample repeated).
 """
 
 import threading
-import time
 from typing import Self
 
 import can
@@ -19,8 +19,6 @@ import numpy as np
 from drivers.can_imu import CanProfile, FrameLayout
 from drivers.clock import WallClock
 from drivers.twins.failure import fail
-
-_POLL_S = 0.002  # wall time between two bursts of due samples
 
 
 class CanImuTwin:
@@ -52,6 +50,7 @@ class CanImuTwin:
     def start(self, start_time=None) -> "CanImuTwin":
         """Start streaming; sample 0 is at `start_time` (default: now)."""
         self.start_time = self.clock.now() if start_time is None else float(start_time)
+        self.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
 
@@ -77,12 +76,15 @@ class CanImuTwin:
         t0, sent = self.start_time, 0
         total = self.samples if self.samples is not None else float("inf")
         try:
+            if not self.clock.realtime:
+                self.clock.pace(self._stop)  # lockstep: the first delivery comes after start
             while sent < total and not self._stop.is_set():
                 due = min(total, int((self.clock.now() - t0) * self.rate_hz) + 1)
                 if due > sent:
                     self._send(t0, np.arange(sent, due))
                     sent = due
-                time.sleep(_POLL_S)
+                    self.clock.nudge()
+                self.clock.pace(self._stop)
         except Exception as exc:  # noqa: BLE001 - told at once (drivers.twins.failure)
             fail(self, exc)
 

@@ -124,9 +124,10 @@ class PtyLink:
             return True
         return any(_target(fd) == slave for fd in glob.glob("/proc/[0-9]*/fd/*") if fd != mine)
 
-    def write(self, data: bytes, stop: threading.Event) -> int:
+    def write(self, data: bytes, stop: threading.Event, full=None) -> int:
         """Write while the pty accepts bytes; stop early on unplug, `stop` or no reader. Bytes
-        written."""
+        written. `full()`, when given, is called each time the pty is full (e.g. the clock's
+        `nudge`, so that the reader takes what is there)."""
         view, done = memoryview(data), 0
         while done < len(data) and not stop.is_set() and not self.unread():
             with self._lock:
@@ -139,6 +140,8 @@ class PtyLink:
                 except BlockingIOError:
                     master = self._master
                     self._blocked_since = self._blocked_since or time.monotonic()
+            if full is not None:
+                full()
             with contextlib.suppress(OSError, ValueError):  # unplugged meanwhile
                 select.select([], [master], [], 0.02)
         return done

@@ -5,7 +5,9 @@ The driver opens `twin.port` exactly as it would open /dev/ttyUSB0: the device e
 reopening; `unread_after` tells it when nobody reads).
 
 Frames are paced by the shared clock: frame `seq` carries the data `source(times)` at
-`time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time. Writes
+`time = start + seq / rate_hz`; with a ScaledClock the stream runs faster than real time; with a
+SteppedClock the frames due are sent at each step of lockstep time, and time moves on only once
+the station has read them (`drivers.clock`). Writes
 wait while the pty is full (like hardware flow control); if the twin falls more than `max_lag`
 seconds of clock time behind, it skips frames like a device whose buffer overflows. With
 `unread_after`, a pty that has accepted nothing for that many wall seconds has no reader (the
@@ -25,8 +27,6 @@ Fault knobs (attributes, changeable while streaming):
   again from 0 (the frame numbers of the log go on; `restarts` holds the first of each new run).
 Every frame's fate is logged (`log()`), so tests know exactly what an ideal reader gets.
 """
-
-import time
 
 import numpy as np
 
@@ -133,17 +133,21 @@ class SerialTwin(Streamer):
             self._failed(exc)
 
     def _stream(self) -> None:
+        """Send the frames due, then wait (`clock.pace`) until more are (on a stepped clock: each
+        step, the first after start, so a driver opened at the start instant loses nothing)."""
         next_seq = 0
+        if not self.clock.realtime:
+            self.clock.pace(self._stop)
         while not self._stop.is_set():
             due = int(np.floor((self.clock.now() - self.start_time) * self.rate_hz)) + 1
             if due <= next_seq:
-                time.sleep(0.002)
+                self.clock.pace(self._stop)
                 continue
             if self.link.unread():  # nobody reads the port: the frames due are lost
                 skipped = np.arange(next_seq, due)
                 self._log.append((skipped, np.full(len(skipped), OVERFLOW, np.int8)))
                 next_seq = due
-                time.sleep(0.002)
+                self.clock.pace(self._stop)
                 continue
             if due - next_seq > self.max_lag * self.rate_hz:  # buffer overflow: skip the oldest
                 skipped = np.arange(next_seq, due - int(self.max_lag * self.rate_hz))
@@ -167,7 +171,11 @@ class SerialTwin(Streamer):
         for i in twice:
             frames[i] = frames[i] * 2
         self.duplicated.extend(seq[fate <= CORRUPTED][twice].tolist())
-        written = self.link.write(b"".join(frames), self._stop)
+        data = b"".join(frames)
+        self.clock.sent(self.port, len(data))  # booked first: in flight until the reader took it
+        written = self.link.write(data, self._stop, full=self.clock.nudge)
+        self.clock.sent(self.port, written - len(data))  # what the pty did not take is gone
+        self.clock.nudge()  # the reader has bytes to take
         ends = np.cumsum([len(f) for f in frames])
         sent = np.flatnonzero(fate <= CORRUPTED)
         fate[sent[ends > written]] = OVERFLOW if self.plugged else UNPLUGGED

@@ -8,7 +8,8 @@ from drivers.twins.failure import fail
 
 class Streamer:
     """Base of a twin that streams from one background thread over `self.link` (set by the
-    subclass: anything with plug, unplug, plugged and close). The subclass defines `_run` (which
+    subclass: anything with plug, unplug, plugged and close) on `self.clock` (`drivers.clock`; the
+    thread takes part in a stepped clock as a producer). The subclass defines `_run` (which
     hands its exception to `_failed`) and starts it with `_launch(name)` from its `start()`. A
     context manager: `start()` on entry, `stop()` on exit.
 
@@ -42,6 +43,7 @@ class Streamer:
         """Start `_run` in the background thread `name`; returns self."""
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
 

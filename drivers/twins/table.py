@@ -159,9 +159,13 @@ class TableTwin:
         return self._serve_request(func_code, start, address, registers, values)
 
     def _serve_request(self, func_code, start, address, registers, values) -> ExcCodes | None:
-        """Apply a write to the physics, or refresh the register image for a read."""
+        """Apply a write to the physics (and nudge the clock: a fixture waiting for a command on
+        a lockstep clock looks at once), or refresh the register image for a read."""
         if values:
-            return self._write(address, values)
+            try:
+                return self._write(address, values)
+            finally:
+                self.table.clock.nudge()
         self._refresh(start, registers)
         return None
 

@@ -68,6 +68,7 @@ class BenchProfile:
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
     plan: object = None  # rotary on a two-axis table: station.protocols.planned.PlanSpec of [plan]
     spins: int = 0  # rotary on a two-axis table: spins of the position axis after the positions
+    lockstep: str | None = None  # `station twin`'s lockstep clock (its socket), instead of speed
     chamber: object = None  # rotary: station.protocols.thermal.ChamberSettings of [chamber]
     units: tuple = ()  # every BenchUnit (one [imu]: the one unit)
 
@@ -109,6 +110,11 @@ class BenchProfile:
         bench, proto = section("bench"), section("protocol")
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)
+        lockstep = bench.get("lockstep", str, default=None)
+        if lockstep is not None and "clock_speed" in bench.table:
+            raise ProfileError(f"{path}: [bench] gives both lockstep (the virtual bench's stepped "
+                               "clock) and clock_speed (a real-time clock); keep the one `station "
+                               "twin` wrote")
         if not SERIAL.match(serial) or not 0 < speed < 1e4:
             raise ProfileError(f"{path}: [bench] needs a unit_serial of 1-64 letters, digits, '.', "
                                f"'_' or '-' (it names the session file; got {serial!r}) and a "
@@ -121,6 +127,7 @@ class BenchProfile:
                                f"a {kind} session{' with a [chamber]' if KINDS[kind].table else ''}"
                                " records one unit: give one [imu]")
         fields = {"source": profile.source, "unit_serial": serial, "clock_speed": speed,
+                  "lockstep": lockstep,
                   "link": units[0].link, "imu": dev, "imu_address": units[0].address,
                   "protocol": kind, "tables": profile.tables, "units": units}
         if KINDS[kind].table:
@@ -404,19 +411,34 @@ def _layout(proto, imu, path) -> np.ndarray:
     return a
 
 
+def bench_clock(bench: BenchProfile, start: float | None = None):
+    """The clock of a session on `bench`: `station twin`'s lockstep clock when the profile names
+    it ([bench] lockstep: `drivers.clock_link`), else the wall clock, scaled by clock_speed; a
+    resumed session's goes on at `start` (after its last recorded instant)."""
+    from drivers.clock import ScaledClock, WallClock
+
+    if bench.lockstep is not None:
+        from drivers.clock_link import connect
+
+        return connect(bench.lockstep, start)
+    if start is None:
+        return WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
+    return ScaledClock(bench.clock_speed, start=start)
+
+
 def record(bench: BenchProfile, out, operator, live: bool = False,
-           extra: dict | None = None) -> dict:
+           extra: dict | None = None, clock=None) -> dict:
     """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
     and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
-    while recording, for kinds that have one; extra: more metadata (a thermal soak's)."""
-    from drivers.clock import ScaledClock, WallClock
+    while recording, for kinds that have one; extra: more metadata (a thermal soak's); clock: the
+    session's (default `bench_clock`; a thermal campaign's own)."""
     from drivers.profile import load_profile
     from station.acquire.live_view import LiveView
     from station.files.session import Session, StreamSpec
     from station.protocols import KINDS
 
     start = time.perf_counter()
-    clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
+    clock = clock or bench_clock(bench)
     spec = StreamSpec.from_profile(bench.imu.imu)
     metadata = {"unit_serial": bench.unit_serial,
                 "bench": {"profile": bench.source, "tables": bench.tables},
@@ -443,7 +465,7 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
             "wall_seconds": time.perf_counter() - start}
 
 
-def resume(bench: BenchProfile, path, operator) -> int:
+def resume(bench: BenchProfile, path, operator, clock=None) -> int:
     """Continue the session `path` (killed, paused or aborted; a kind of `station.protocols.KINDS`
     with a `resume`) with the devices of `bench` from the position after its last completed one;
     returns that position (the number of positions when none was left).
@@ -453,12 +475,12 @@ def resume(bench: BenchProfile, path, operator) -> int:
     else the resumed counts would not mean what the recorded ones do. The clock continues after
     the session's last recorded instant (a reboot restarts the host's monotonic time), and a
     rotary table is commanded to stop as soon as it is connected (a killed station may have left it
-    turning; `station resume` stops it even earlier, `stop_table`). The IMU ports (every unit's)
+    turning; `station resume` stops it even earlier, `stop_table`); a lockstep `clock` (a thermal
+    campaign's) is moved forward to that instant. The IMU ports (every unit's)
     are opened last, once the session file is resumed, right before the recorder reads them: a
     port open and unread meanwhile starts the segment with a backlog (docs/protocols.md
     "Margins").
     """
-    from drivers.clock import ScaledClock
     from station.files.session import Session, SessionWriter, StreamSpec
     from station.files.session.units import recorded_units
 
@@ -468,7 +490,10 @@ def resume(bench: BenchProfile, path, operator) -> int:
     kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
     _check_same_units(bench, path, units, specs)
-    clock = ScaledClock(bench.clock_speed, start=end + 1.0)
+    if clock is None or clock.realtime:
+        clock = bench_clock(bench, start=end + 1.0)
+    else:
+        clock.advance_to(end + 1.0)
     with (table_driver(bench, clock) if kind.table else contextlib.nullcontext() as table,
           SessionWriter.resume(path, clock=clock) as writer,
           imu_driver(bench, clock) as imu, plate_drivers(bench, clock) as others):

@@ -46,9 +46,10 @@ class Recorder:
                Hz on a 40x clock) and never drained the backlog, so no sample of the segment
                arrived promptly and every instant `arrival_offset` gave it came out late by it;
                one that never waits spins on single samples and starves the other threads.
-    drain_timeout : wall seconds `drain` waits for the samples in flight
-    busy_grace    : wall seconds of silence always tolerated: a busy host (an HDF5 flush, other
-                    processes) can hold the reader that long, which is many seconds of a fast clock
+    drain_timeout : wall seconds `drain` waits for the samples in flight (a real-time clock's)
+    busy_grace    : wall seconds of silence always tolerated on a real-time clock: a busy host (an
+                    HDF5 flush, other processes) can hold the reader that long, which is many
+                    seconds of a fast clock; lockstep time does not move while the host is busy
     lock          : the lock of every access to the writer (default its own; `PlateRecorder`
                     shares one between the recorders of one writer)
     """
@@ -73,19 +74,30 @@ class Recorder:
         self._thread = None
 
     def start(self) -> "Recorder":
-        """Start the reader thread."""
+        """Start the reader thread. On a stepped clock (`drivers.clock.SteppedClock`) the calling
+        thread (the protocol's) and the reader take part in lockstep time, and time waits while
+        the driver holds data not read yet (its `backlog()`, where it has one)."""
         self._last_arrival = (self.clock.now(), time.monotonic())
         self._stop.clear()
         self._thread = threading.Thread(target=self._read, name="recorder", daemon=True)
+        self.clock.enlist()
+        self.clock.enlist(self._thread)
+        if hasattr(self.imu, "backlog"):
+            self.clock.watch(self.imu.backlog)
         self._thread.start()
         return self
 
     def stop(self) -> None:
-        """End the reader thread now (the devices and the writer stay open)."""
+        """End the reader thread now (the devices and the writer stay open); the calling thread
+        leaves lockstep time."""
         self._stop.set()
+        self.clock.nudge()
         if self._thread is not None:
             self._thread.join()
             self._thread = None
+        if hasattr(self.imu, "backlog"):
+            self.clock.unwatch(self.imu.backlog)
+        self.clock.leave()
 
     def __enter__(self) -> Self:
         return self.start()
@@ -116,7 +128,7 @@ class Recorder:
         deadline = time.monotonic() + self.drain_timeout
         while self.sampled_until() < until:
             self.check(stale)
-            if time.monotonic() > deadline:
+            if self.clock.realtime and time.monotonic() > deadline:
                 speed = getattr(self.clock, "speed", 1.0)
                 advice = (f"; the virtual bench runs {speed:g}x faster than the wall clock: "
                           f"give --speed {max(1.0, speed / 4):g} (or close other programs)"
@@ -125,7 +137,7 @@ class Recorder:
                     f"the IMU samples lag {until - self.sampled_until():.1f} s behind after "
                     f"waiting {self.drain_timeout} s: the host is too busy for this link's "
                     f"rate{advice}")
-            time.sleep(self.interval)
+            self.clock.idle(self.interval)
 
     def event(self, kind: str, position: int | None = None, detail: dict | None = None,
               time: float | None = None) -> float:
@@ -152,7 +164,8 @@ class Recorder:
             raise RecordingError(f"recording of the IMU stopped: {self.error}") from self.error
         clock, wall = self._last_arrival
         silent = self.clock.now() - clock
-        if silent > stale and time.monotonic() - wall > self.busy_grace:
+        busy = self.clock.realtime and time.monotonic() - wall <= self.busy_grace
+        if silent > stale and not busy:
             raise RecordingError(f"no IMU sample for {silent:.1f} s (limit {stale} s); check the "
                                  "IMU's power and cable, then record the session again")
 
@@ -170,8 +183,10 @@ class Recorder:
 
     def _read(self) -> None:
         """The reader thread: blocks as they come, a pause of `interval` once caught up (see
-        `interval`)."""
-        caught_up = 0.5 * self.rate_hz * getattr(self.clock, "speed", 1.0) * self.interval
+        `interval`; on a stepped clock it reads until the driver has nothing, then idles until
+        the twin sends more)."""
+        caught_up = (0.5 * self.rate_hz * self.clock.speed * self.interval
+                     if self.clock.realtime else 1)
         try:
             while not self._stop.is_set():
                 block = self.imu.read_block(timeout=0.0)
@@ -181,9 +196,10 @@ class Recorder:
                         self.writer.append(self.stream, block)
                     self.samples += len(block)
                     self._follow(block)
+                    self.clock.nudge()  # a protocol draining the stream looks again
                     if len(block) >= caught_up:
                         continue
-                time.sleep(self.interval)
+                self.clock.idle(self.interval, self._stop)
         except Exception as exc:  # noqa: BLE001 - handed to the protocol by check()
             self.error = exc
 

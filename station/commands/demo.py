@@ -1,7 +1,9 @@
 """`station demo`: a whole calibration session on the virtual bench, through the real drivers.
 
 The virtual bench (a 12-gyro unit streaming over a pseudo-terminal or a virtual CAN bus, a Modbus
-rotary table on 127.0.0.1, a simulated technician) runs on a time-compressed clock. The station runs
+rotary table on 127.0.0.1, a simulated technician) runs in lockstep time: the bench's clock moves on
+only when the station has taken what the twins sent, so the session is the same on any host and
+runs as fast as the host allows (`--speed X`: a real-time clock X times the wall's). The station runs
 the rotary protocol through its ordinary drivers, records the session file, reduces it (Eq. 18 of
 Rupniewski), calibrates, and compares the result with the simulator's truth: eps (Eq. 19) against
 the Cramer-Rao bound sqrt(trace(CRLB)).
@@ -34,8 +36,10 @@ def register(p) -> None:
     p.add_argument("--imu", choices=("serial", "can"), default="serial",
                    help="IMU link: binary frames over a pty (default) or a virtual CAN bus")
     p.add_argument("--positions", type=int, default=20, help="number of positions n (default 20)")
-    p.add_argument("--speed", type=float, default=40.0,
-                   help="clock speed, simulated seconds per wall second (default 40)")
+    p.add_argument("--speed", type=float, default=None,
+                   help="a real-time clock this many times faster than the wall (simulated s per "
+                        "wall s); default: lockstep time, the same session on any host, as fast "
+                        "as it allows")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
     p.add_argument("--out", type=Path,
                    help="keep the session file here (.h5; default: a temporary file, deleted)")
@@ -51,8 +55,8 @@ def run(args) -> int:
     from station.errors import InputError
     from station.solve.identifiability import check_positions
 
-    if not args.speed > 0:
-        raise InputError("--speed must be positive (simulated s per wall s)")
+    if args.speed is not None and not (0 < args.speed < float("inf")):
+        raise InputError("--speed must be positive and finite (simulated s per wall s)")
     if args.out is not None:
         new_file(args.out)
     check_positions((12, args.positions), 3)  # before recording, not after
@@ -71,10 +75,12 @@ def run(args) -> int:
     return verdict_exit(summary["verdict"])
 
 
-def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, speed: float = 40.0,
+def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20,
+             speed: float | None = None,
              settings=None, live: bool = False) -> dict:
     """Record, reduce and calibrate one session on the virtual bench; the summary as a dict.
-    live: show the live view (station.acquire.live_view) while recording."""
+    live: show the live view (station.acquire.live_view) while recording. speed: None for lockstep
+    time (`drivers.clock.SteppedClock`), else a real-time clock that many times the wall's."""
     import station
     from station.acquire.live_view import LiveView
     from station.acquire.progress import PositionProgress
@@ -90,10 +96,12 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
     start = time.perf_counter()
     settings = settings or RotarySettings()
     with VirtualBench(imu, seed=seed, speed=speed) as bench:
-        bench.technician.period = bench.metronome(settings)  # positions on a seeded grid
+        if bench.clock.realtime:  # positions on a seeded grid (lockstep time needs none)
+            bench.technician.period = bench.metronome(settings)
         view = LiveView(bench.clock) if live else PositionProgress(progress)
         record_rotary(bench, path, settings, suggested_axes(positions), view=view)
         truth = bench.truth()
+        simulated = bench.clock.now() - bench.clock_start
     recorded = time.perf_counter() - start
     with Session.open(path) as session:
         reduced, result = solve_recorded(session, ReplaySettings(), nominal=truth.a_nominal)
@@ -125,6 +133,7 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20, spee
         "eps_p_value": eps_tail_probability(eps, crlb),
         "verdict": judged,
         "record_seconds": recorded, "wall_seconds": time.perf_counter() - start,
+        "simulated_seconds": simulated, "real_time_factor": simulated / recorded,
     }
 
 
@@ -161,5 +170,8 @@ def _print(s: dict) -> None:
         f"eps = {s['eps']:.3g}, sqrt(trace CRLB) = {s['sqrt_trace_crlb']:.3g}, ratio "
         f"{s['eps_over_sqrt_crlb']:.2f} (p = {s['eps_p_value']:.2g} for an efficient solver); "
         f"chi2/dof = {s['chi2_per_dof']:.2f}; {s['samples']} samples "
-        f"used; recorded in {s['record_seconds']:.1f} s, total {s['wall_seconds']:.1f} s wall")
+        f"used; {s['simulated_seconds']:.0f} s of bench time recorded in "
+        f"{s['record_seconds']:.1f} s ({s['real_time_factor']:.0f}x real time, "
+        f"{'lockstep' if s['speed'] is None else 'a real-time clock'}), total "
+        f"{s['wall_seconds']:.1f} s wall")
     console.print(words(s["verdict"]), markup=False)

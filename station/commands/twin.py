@@ -34,8 +34,12 @@ then runs until Ctrl-C or `--lifetime` wall seconds. A device can be lost on the
 brought back while the twin runs: SIGUSR1 unplugs the IMU (its pty is closed; the same port comes
 back at the next SIGUSR1), SIGUSR2 silences the rotary table (its Modbus server stops answering;
 again at the next SIGUSR2), e.g. `kill -USR1 <twin pid>`: to try `station record`'s reconnection,
-pause and `station resume`. `--speed` makes the twin's clock run faster
-than the wall; the profile tells `station record` to use the same speed. With --json, the truth
+pause and `station resume`. A rotary bench (and `--chamber`) runs in lockstep time: the twin serves
+its stepped clock on a Unix socket named in the profile ([bench] lockstep), and `station record`
+takes part in it, so the session is the same on any host and runs as fast as the host allows
+(`drivers.clock_link`). `--speed` gives a real-time clock instead, that many times faster than the
+wall (the profile tells `station record` the same speed): what the lag, silence and reconnect
+guards need. With --json, the truth
 (sensitivity matrix, biases, mountings) is printed as JSON when the twin stops. A virtual device
 that stops on an error of its own (its simulation, not a signal) ends the twin at once: its error
 line names the device and the error, e.g. `station twin: the serial IMU twin stopped: ValueError:
@@ -110,8 +114,11 @@ def register(p) -> None:
                    help="--link mavlink: over UDP on 127.0.0.1 instead of a pty")
     p.add_argument("--mountings", type=int, default=2,
                    help="iron: mountings, each followed by the six faces (default 2)")
-    p.add_argument("--speed", type=float, default=1.0,
-                   help="clock speed, simulated seconds per wall second (default 1)")
+    p.add_argument("--speed", type=float, default=None,
+                   help="a real-time clock this many times faster than the wall (simulated s per "
+                        "wall s); default: rotary benches (and --chamber) run in lockstep time "
+                        "with `station record`, the same session on any host; the hand benches "
+                        "(iron, static) at 1")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
     p.add_argument("--rate-hz", type=float, default=200.0, help="IMU sample rate (default 200)")
     p.add_argument("--lifetime", type=float, default=3600.0,
@@ -128,8 +135,10 @@ def run(args) -> int:
     from station.commands import given_values
     from station.errors import InputError
 
-    if args.positions < 1 or args.mountings < 1 or not args.speed > 0 or not args.lifetime > 0 \
-            or args.units < 1:
+    if args.speed is None and not KINDS[args.protocol].table:
+        args.speed = 1.0  # the hand benches keep a real-time clock
+    if args.positions < 1 or args.mountings < 1 or not args.lifetime > 0 or args.units < 1 \
+            or not (args.speed is None or 0 < args.speed < float("inf")):
         raise InputError("--positions, --mountings, --units, --speed and --lifetime must be "
                          "positive")
     if args.units > 1 and (args.protocol != "rotary" or args.chamber):

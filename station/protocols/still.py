@@ -88,6 +88,12 @@ class StreamTap:
         self.imu.open()
         return self
 
+    def backlog(self):
+        """The driver's data on its way (`drivers.serial_imu.SerialImu.backlog`); 0 if it cannot
+        tell."""
+        backlog = getattr(self.imu, "backlog", None)
+        return backlog() if backlog is not None else 0
+
     def read_block(self, timeout: float = 0.0):
         block = self.imu.read_block(timeout=timeout)
         if block is not None and len(block):

@@ -204,10 +204,10 @@ def run_campaign(bench, campaign, operator) -> dict:
     """Soak and record every soak of `campaign` (a station.files.campaign.Campaign) not done, on
     the devices of the bench profile `bench` (with its `chamber`); returns a summary. Faults and
     Ctrl-C leave the chamber at its safe setpoint and the table stopped (module docstring)."""
-    from drivers.clock import ScaledClock, WallClock
+    from station.acquire.bench import bench_clock
 
     settings = bench.chamber
-    clock = WallClock() if bench.clock_speed == 1.0 else ScaledClock(bench.clock_speed)
+    clock = bench_clock(bench)
     recorded = []
     try:
         with settings.chamber(clock) as chamber:
@@ -240,9 +240,9 @@ def _soak_and_record(k: int, campaign, bench, chamber, clock, operator) -> str:
     try:
         with watch:
             if path.exists():
-                resume(bench, path, operator)
+                resume(bench, path, operator, clock)
             else:
-                record(bench, path, operator, extra={"thermal": thermal})
+                record(bench, path, operator, extra={"thermal": thermal}, clock=clock)
     finally:
         campaign.update(k, chamber_during=watch.trace)
     watch.check(path)
@@ -267,11 +267,13 @@ class ChamberWatch:
         self._thread = threading.Thread(target=self._run, name="chamber-watch", daemon=True)
 
     def __enter__(self) -> "ChamberWatch":
+        self.clock.enlist(self._thread)  # a station thread on a lockstep clock
         self._thread.start()
         return self
 
     def __exit__(self, *exc) -> None:
         self._stop.set()
+        self.clock.nudge()
         self._thread.join()
         if self.error is not None:
             interrupts.withdraw(self.error)
@@ -280,9 +282,10 @@ class ChamberWatch:
         from drivers.errors import ChamberError
 
         due = self.clock.now()
-        while not self._stop.wait(0.05):
-            if self.clock.now() < due:
-                continue
+        while not self._stop.is_set():
+            self.clock.sleep(due - self.clock.now(), self._stop)
+            if self._stop.is_set():
+                return
             due += self.poll
             try:
                 r = self.chamber.state()

@@ -5,7 +5,8 @@
         bench.technician  # the simulated technician (station.acquire.operator.SimulatedTechnician)
         bench.truth()     # what the station should find
 
-One `ScaledClock` drives everything: the rotary table physics (`station.sim.table`) served over
+One clock drives everything (`drivers.clock`: lockstep time by default, the same samples on any
+host; a `ScaledClock` with `speed`, for what must meet the wall clock): the rotary table physics (`station.sim.table`) served over
 Modbus TCP on 127.0.0.1 (`drivers.twins.table.TableTwin`), a 12-gyro unit (`station.sim.layouts.
 gyro_array`, Rupniewski Section IV) mounted on that table (`station.sim.live.MountedUnit`) and
 streaming through a pseudo-terminal (`drivers.twins.serial.SerialTwin`) or a python-can virtual bus
@@ -33,7 +34,7 @@ from typing import Self
 import numpy as np
 
 from drivers import driver_class, open_imu
-from drivers.clock import ScaledClock
+from drivers.clock import ScaledClock, SteppedClock
 from drivers.rotary_table import RotaryTable as TableDriver
 from drivers.rotary_table import TableRegisterMap
 from drivers.twins.can import CanImuTwin
@@ -63,7 +64,9 @@ HOST_LATENCY = 0.05
 """Wall seconds every protocol margin (rest, guard, steady) covers on the virtual bench. Sample
 instants are estimated from the least delayed arrival, so they are late by the smallest host
 latency of a segment (14 ms measured on a loaded 2-core host); the fast clock multiplies it, and
-a shorter margin lets a window take samples of the previous mounting or of a ramp
+a shorter margin lets a window take samples of the previous mounting or of a ramp. In lockstep time
+a sample reaches the station at most one step of the clock after it was taken, whatever the host:
+the margins cover that step.
 (docs/protocols.md)."""
 
 
@@ -117,7 +120,8 @@ class VirtualBench:
 
     imu           : "serial" (binary frames over a pty) or "can" (python-can virtual bus)
     seed          : seed of the unit, the table and the technician
-    speed         : clock speed, simulated seconds per wall second
+    speed         : clock speed, simulated seconds per wall second (a `ScaledClock`); None (the
+                    default): lockstep time (`SteppedClock`), as fast as the host allows
     rate_hz       : IMU sample rate (the profiles' 2 kHz is more than a demo needs)
     remount_time  : simulated seconds the technician takes to re-mount the unit
     placement_deg : the technician's placement error (standard deviation per axis), degrees
@@ -137,7 +141,7 @@ class VirtualBench:
                     mounts the unit
     """
 
-    def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 40.0,
+    def __init__(self, imu: str = "serial", seed: int = 1, speed: float | None = None,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
                  lifetime: float = 3600.0, clock_start: float = 0.0,
                  rate_error: dict | None = None, effects: dict | None = None,
@@ -147,7 +151,8 @@ class VirtualBench:
         self.kind = imu
         self.seed, self.rate_hz = int(seed), float(rate_hz)
         self.remount_time, self.placement_deg = float(remount_time), float(placement_deg)
-        self.clock = ScaledClock(speed, clock_start)
+        self.clock = (SteppedClock(clock_start) if speed is None
+                      else ScaledClock(speed, clock_start))
         self.clock_start = float(clock_start)
         profile = driver_class(imu).profile_type.load(IMU_KINDS[imu])
         self.profile = dataclasses.replace(
@@ -186,8 +191,9 @@ class VirtualBench:
 
     def with_margins(self, settings: RotarySettings) -> RotarySettings:
         """`settings` with rest, guard and steady of at least HOST_LATENCY wall seconds of this
-        bench's clock (2 s at 40x; a real bench at 1x keeps its settings)."""
-        least = HOST_LATENCY * self.clock.speed
+        bench's clock (2 s at 40x; a real bench at 1x keeps its settings), or one step of
+        lockstep time."""
+        least = HOST_LATENCY * self.clock.speed if self.clock.realtime else self.clock.step
         return dataclasses.replace(settings, **{name: max(getattr(settings, name), least)
                                                 for name in MARGINS})
 
@@ -207,7 +213,8 @@ class VirtualBench:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
         hidden = {k: v for k, v in (("rate_error", self.rate_error), ("effects", self.effects),
                                     ("two_axis", self.two_axis)) if v}
-        return {"imu": self.kind, "seed": self.seed, "speed": self.clock.speed,
+        return {"imu": self.kind, "seed": self.seed,
+                "speed": self.clock.speed if self.clock.realtime else None,
                 "rate_hz": self.rate_hz, "remount_time": self.remount_time,
                 "placement_deg": self.placement_deg, **hidden}
 

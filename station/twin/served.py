@@ -60,6 +60,19 @@ kept as a backlog for the resume. The recorder itself gives up on a silence that
 (`Recorder.busy_grace`), so a station that reads at all never loses a frame to it."""
 
 
+def _clock_address(clock, server) -> dict:
+    """How `station record` finds the bench's clock: the lockstep clock's socket, or the speed of
+    a real-time one."""
+    return {"lockstep": server.path} if server is not None else {"clock_speed": clock.speed}
+
+
+def _clock_line(address: dict) -> str:
+    """The [bench] line of a profile for `_clock_address`."""
+    if "lockstep" in address:
+        return f"lockstep = {_toml(address['lockstep'])}"
+    return f"clock_speed = {address['clock_speed']!r}"
+
+
 class PortWatch:
     """Tells (once) when a program opens the pty `port`: pyserial configures the terminal then."""
 
@@ -103,7 +116,7 @@ class BenchTwin:
                 unit k at id_offset PLATE_ID_STEP * k (can: in this process only)
     """
 
-    def __init__(self, imu: str = "serial", seed: int = 1, speed: float = 1.0,
+    def __init__(self, imu: str = "serial", seed: int = 1, speed: float | None = None,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
                  cube: bool = False, two_axis: bool = False, units: int = 1,
                  plan: bool = False):
@@ -140,7 +153,9 @@ class BenchTwin:
         self.plate = _plate(self.bench, units) if units > 1 else None
         self.error = self.on_error = None  # the fixture thread's (drivers.twins.failure)
         self.failures.watch(self, "fixture")
-        self._streams = []  # [PortWatch, SerialTwin] of each unit: started when the port opens
+        self.clock_server = None  # serves the lockstep clock (speed None) to `station record`
+        self._streams = []  # [PortWatch or None, SerialTwin] of each unit: started when the port
+        # opens (lockstep time: at once, time moving only while a station takes part)
         self._can_units = []  # the CanImuTwin of each unit of a CAN plate
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
@@ -151,6 +166,10 @@ class BenchTwin:
         from drivers.twins.serial import SerialTwin
 
         b = self.bench
+        if not b.clock.realtime:
+            from drivers.clock_link import ClockServer
+
+            self.clock_server = ClockServer(b.clock)
         if b.fixture is not None:
             self._mount(1)
         if b.kind == "serial":
@@ -161,11 +180,15 @@ class BenchTwin:
             for k, twin in enumerate(twins):
                 b.failures.watch(twin, _imu_name("serial", k, twins))
             b.imu_twin = twins[0]
-            self._streams = [[PortWatch(twin.port), twin] for twin in twins]
+            if b.clock.realtime:
+                self._streams = [[PortWatch(twin.port), twin] for twin in twins]
+            else:
+                self._streams = [[None, twin.start(b.clock_start)] for twin in twins]
         elif self.plate is not None:
             self._start_can_plate()
         else:
             b.start()
+        b.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
 
@@ -184,15 +207,19 @@ class BenchTwin:
 
     def close(self) -> None:
         self._stop.set()
+        self.bench.clock.nudge()
         if self._thread.is_alive():
             self._thread.join()
         for watch, twin in self._streams:
-            watch.close()
+            if watch is not None:
+                watch.close()
             if twin is not self.bench.imu_twin:
                 twin.stop()
         for twin in self._can_units[1:]:
             twin.stop()
         self.bench.close()
+        if self.clock_server is not None:
+            self.clock_server.close()
 
     @property
     def failures(self):
@@ -218,7 +245,7 @@ class BenchTwin:
         return {"imu": {**imu, **served},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
                           "profile": "table_two_axis" if b.two_axis else "table_fixture"},
-                "clock_speed": b.clock.speed, **units}
+                **_clock_address(b.clock, self.clock_server), **units}
 
     def toggle(self, device: str) -> bool:
         """Lose `device` ("imu": unplugged, "table": silent) if it is there, else bring it back;
@@ -250,7 +277,7 @@ class BenchTwin:
 
         margins = self.bench.with_margins(RotarySettings())  # waits the fast clock multiplies
         return (f"# Bench profile of the virtual bench (station twin), written {time.ctime()}.\n"
-                f"[bench]\nunit_serial = {_toml(serial)}\nclock_speed = {a['clock_speed']!r}\n\n"
+                f"[bench]\nunit_serial = {_toml(serial)}\n{_clock_line(a)}\n\n"
                 f"{imu}\n\n[table]\n{table}\n\n"
                 f"[protocol]\npositions = {self.positions}\n"
                 + "".join(f"{k} = {getattr(margins, k)!r}\n" for k in MARGINS)
@@ -287,9 +314,10 @@ class BenchTwin:
         """Start the serial stream when the station opens the port; mount the unit in each
         position the station asks for."""
         try:
-            while not self._stop.wait(0.002):
+            while not self._stop.is_set():
+                self.bench.clock.idle(0.002, self._stop)  # lockstep: until a move or a command
                 for watch, twin in self._streams:
-                    if watch.opened():
+                    if watch is not None and watch.opened():
                         twin.start()
                 if self.bench.fixture is not None and \
                         (position := self.bench.fixture.pending()) is not None:

@@ -36,7 +36,7 @@ class ThermalTwin:
                 safe)
     """
 
-    def __init__(self, seed: int = 1, speed: float = 50.0, positions: int = 6,
+    def __init__(self, seed: int = 1, speed: float | None = None, positions: int = 6,
                  rate_hz: float = 100.0, lifetime: float = 3600.0, setpoints=SETPOINTS,
                  effect: Temperature = TRUTH, chamber: dict | None = None,
                  soak: dict | None = None):

@@ -1,0 +1,282 @@
+"""Lockstep time (`drivers.clock.SteppedClock`): time moves only when every thread that takes part
+waits, and a session on the virtual bench is the same whatever the host's speed.
+
+The clock's rules are tested with plain threads whose work is slowed by random wall-clock delays
+(what a busy host does): what each thread sees at each clock instant must not change. Then the
+real station: the same seeded rotary session recorded twice on the virtual bench, once with the
+host slowed by CPU hogs, gives identical sample arrays, table states and events."""
+
+import multiprocessing
+import random
+import threading
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from drivers.clock import ScaledClock, SteppedClock, WallClock
+from station.protocols.rotary import RotarySettings, suggested_axes
+from station.twin.rotary_bench import VirtualBench, record_rotary
+
+
+def _threads(clock, *targets, producer=()):
+    """Threads of `targets`, every one enlisted before any starts (as the recorder enlists its
+    reader and the protocol's thread), started; `producer`: the indices of the producers."""
+    threads = [threading.Thread(target=t, daemon=True) for t in targets]
+    for k, thread in enumerate(threads):
+        clock.enlist(thread, producer=k in producer)
+    for thread in threads:
+        thread.start()
+    return threads
+
+
+def test_time_stands_still_without_a_station_thread():
+    """A twin alone (a producer) never moves time, however long it waits."""
+    clock = SteppedClock(start=5.0, step=0.1)
+    stop = threading.Event()
+    (producer,) = _threads(clock, lambda: [clock.pace(stop) for _ in range(3)], producer=(0,))
+    producer.join(0.5)
+    assert producer.is_alive() and clock.now() == 5.0
+    stop.set()
+    producer.join(5)
+    assert not producer.is_alive() and clock.now() == 5.0
+
+
+def test_time_jumps_to_the_earliest_sleeper_and_wakes_each_at_its_instant():
+    clock = SteppedClock(step=1.0)
+    seen = []
+    lock = threading.Lock()
+
+    def sleeper(dt, times):
+        for _ in range(times):
+            clock.sleep(dt)
+            with lock:
+                seen.append((round(clock.now(), 9), dt))
+
+    threads = _threads(clock, lambda: sleeper(0.3, 4), lambda: sleeper(0.5, 2))
+    for t in threads:
+        t.join(10)
+    assert sorted(seen) == [(0.3, 0.3), (0.5, 0.5), (0.6, 0.3), (0.9, 0.3), (1.0, 0.5),
+                            (1.2, 0.3)]
+    assert clock.now() == pytest.approx(1.2)
+
+
+def _producer_consumer(clock, delays: random.Random, steps: int = 40) -> list:
+    """A producer appends one item per step (`pace`), then nudges; a consumer idles until the item
+    of the present instant is there and records (instant, items it saw). Random wall delays
+    everywhere, as a busy host would make them."""
+    items, log, stop = [], [], threading.Event()
+    guard = threading.Lock()
+
+    def jitter():
+        time.sleep(delays.random() * 0.002)
+
+    def produce():
+        while not stop.is_set():
+            clock.pace(stop)
+            jitter()
+            with guard:
+                items.append(round(clock.now(), 9))
+            clock.nudge()
+
+    def consume():
+        for _ in range(steps):
+            clock.sleep(clock.step * 0.5)  # wake half-way between two deliveries
+            jitter()
+            target = round(clock.now() + clock.step * 0.5, 9)  # the next delivery's instant
+            while True:
+                with guard:
+                    there = target in items
+                if there:
+                    break
+                jitter()
+                clock.idle()
+            log.append((round(clock.now(), 9), len(items)))
+        stop.set()
+
+    producer, consumer = _threads(clock, produce, consume, producer=(0,))
+    consumer.join(60)
+    producer.join(60)
+    assert not consumer.is_alive() and not producer.is_alive()
+    return log
+
+
+def test_a_waiter_sees_the_same_thing_at_the_same_instant_whatever_the_delays():
+    """The consumer proceeds at exactly the instant the item it waits for is delivered, with the
+    same number of items, whatever random delays the host adds: the nudge after each delivery
+    (and the rule that a member nudged while it worked looks again before idling) leave no lost
+    wake-up for time to slip through."""
+    runs = [_producer_consumer(SteppedClock(step=0.1), random.Random(seed)) for seed in range(3)]
+    assert runs[0] == runs[1] == runs[2]
+    instants = [t for t, _ in runs[0]]
+    assert np.allclose(np.diff(instants), 0.1)  # one delivery each, never one step late
+
+
+def test_a_probe_holds_time_while_data_is_in_flight():
+    """Time does not move while a probe says data is in flight (the pty's bytes on their way),
+    even when every member waits; the idle members are woken to take it."""
+    clock = SteppedClock(step=0.1)
+    flight = threading.Event()
+    flight.set()
+    clock.watch(flight.is_set)
+    woken = []
+
+    def reader():
+        clock.idle()
+        woken.append(clock.now())
+        flight.clear()  # took the data
+        clock.sleep(1.0)
+
+    (thread,) = _threads(clock, reader)
+    thread.join(10)
+    assert woken == [0.0] and clock.now() == pytest.approx(1.0)
+
+
+def test_the_ledger_keeps_time_until_the_reader_took_what_was_sent():
+    clock = SteppedClock()
+    clock.taken("port", 100)  # the reader may take before the twin books it
+    assert not clock.in_flight("port")
+    clock.sent("port", 150)
+    assert clock.in_flight("port")
+    clock.taken("port", 50)
+    assert not clock.in_flight("port")
+    clock.sent("port", 10)
+    clock.forget("port")  # reopened: pyserial flushed the input
+    assert not clock.in_flight("port")
+
+
+def test_real_time_clocks_keep_their_verbs():
+    """The lockstep verbs are no-ops on real-time clocks (one code path for devices and
+    recorder), and a scaled clock refuses a speed it cannot keep."""
+    for clock in (WallClock(), ScaledClock(100.0)):
+        clock.enlist()
+        clock.nudge()
+        clock.sent("x", 3)
+        assert not clock.in_flight("x") and clock.realtime
+        before = clock.now()
+        clock.sleep(0.001 * clock.speed)
+        assert clock.now() > before
+    with pytest.raises(ValueError, match="positive and finite"):
+        ScaledClock(float("inf"))
+    assert not SteppedClock().realtime
+
+
+SHORT = RotarySettings(static=2.0, revolutions=1)
+
+
+def _record(path, imu: str) -> None:
+    with VirtualBench(imu, seed=21, rate_hz=100.0, remount_time=1.0) as bench:
+        record_rotary(bench, path, SHORT, suggested_axes(3))
+
+
+def _spin(stop) -> None:
+    while not stop.is_set():
+        sum(range(10000))
+
+
+def _contents(path) -> dict:
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda name, obj: out.__setitem__(name, obj[()])
+                     if isinstance(obj, h5py.Dataset) and not name.startswith("results")
+                     else None)
+    return out
+
+
+@pytest.mark.parametrize("imu", ["serial", "can"])
+def test_a_session_is_the_same_on_an_idle_and_on_a_busy_host(tmp_path, imu):
+    """The same seed recorded twice in lockstep time, the second time beside two CPU hogs (with
+    the suite's other worker: four busy processes on two cores): every sample, host time, table
+    state and event is identical."""
+    _record(tmp_path / "a.h5", imu)
+    stop = multiprocessing.Event()
+    hogs = [multiprocessing.Process(target=_spin, args=(stop,), daemon=True) for _ in range(2)]
+    for hog in hogs:
+        hog.start()
+    try:
+        _record(tmp_path / "b.h5", imu)
+    finally:
+        stop.set()
+        for hog in hogs:
+            hog.join(5)
+    a, b = _contents(tmp_path / "a.h5"), _contents(tmp_path / "b.h5")
+    assert sorted(a) == sorted(b)
+    assert len(a["streams/imu/seq"]) > 2000
+    for name in a:
+        assert np.array_equal(a[name], b[name], equal_nan=a[name].dtype.kind == "f"), name
+
+
+def test_a_station_in_another_process_keeps_lockstep_over_the_socket():
+    """`station record` in another process than `station twin`: a `RemoteClock` on the served
+    clock's socket. A producer on the served clock, a consumer on the remote one: the consumer
+    sees each delivery at its instant, the same with random delays, and time waits for the bytes
+    the ledger says are on their way to the remote reader."""
+    from drivers.clock_link import ClockServer, RemoteClock
+
+    def run(seed):
+        served = SteppedClock(step=0.1)
+        server = ClockServer(served)
+        remote = RemoteClock(server.path)  # not `connect`: the socket, as another process
+        try:
+            delays = random.Random(seed)
+            items, log, stop = [], [], threading.Event()
+
+            def produce():
+                while not stop.is_set():
+                    served.pace(stop)
+                    time.sleep(delays.random() * 0.002)
+                    items.append(round(served.now(), 9))
+                    served.nudge()
+
+            def consume():
+                for _ in range(15):
+                    remote.sleep(0.05)
+                    target = round(remote.now() + 0.05, 9)
+                    while target not in items:
+                        time.sleep(delays.random() * 0.002)
+                        remote.idle()
+                    log.append((round(remote.now(), 9), len(items)))
+                stop.set()
+
+            (producer,) = _threads(served, produce, producer=(0,))
+            (consumer,) = _threads(remote, consume)
+            consumer.join(60)
+            producer.join(60)
+            assert not consumer.is_alive()
+            return log
+        finally:
+            remote.close()
+            server.close()
+
+    runs = [run(seed) for seed in range(2)]
+    assert runs[0] == runs[1]
+    assert np.allclose(np.diff([t for t, _ in runs[0]]), 0.1)
+
+
+def test_the_served_clock_waits_for_bytes_the_remote_reader_has_not_taken():
+    from drivers.clock_link import ClockServer, RemoteClock
+
+    served = SteppedClock(step=0.1)
+    server = ClockServer(served)
+    remote = RemoteClock(server.path)
+    try:
+        remote.forget("port")  # the remote reader opened the port
+        remote.advance_to(0.0)  # answered: the served clock has booked the forget
+        served.sent("port", 58)
+        seen = []
+
+        def reader():
+            while not remote.in_flight("port"):  # woken until told bytes are on their way
+                remote.idle()
+            seen.append(remote.now())
+            remote.taken("port", 58)
+            remote.sleep(1.0)
+            seen.append(remote.now())
+
+        (thread,) = _threads(remote, reader)
+        thread.join(20)
+        assert seen == [0.0, pytest.approx(1.0)]
+    finally:
+        remote.close()
+        server.close()
