@@ -162,14 +162,16 @@ def test_a_modbus_twin_whose_physics_breaks_closes_and_tells_at_once():
             chamber.state()
 
 
+@pytest.mark.parametrize("speed", [40.0, None], ids=["40x", "lockstep"])
 @pytest.mark.parametrize("imu, lost", [("serial", "did not come back"),
                                        ("can", "no IMU sample for")])
-def test_the_stations_error_names_the_twin_that_broke_and_why(imu, lost, tmp_path, caplog):
+def test_the_stations_error_names_the_twin_that_broke_and_why(imu, lost, speed, tmp_path,
+                                                              caplog):
     """The IMU twin's unit breaks 20 s of clock into the session: the serial port goes at once
     (the protocol's reconnections fail), the CAN bus goes silent (the recorder's guard); either
     way the bench warns at once, before the station gives up, and the error that ends the session
-    says which twin stopped and why."""
-    bench = VirtualBench(imu, seed=3, speed=40.0, rate_hz=50.0, remount_time=1.0)
+    says which twin stopped and why - on a real-time clock and in lockstep time."""
+    bench = VirtualBench(imu, seed=3, speed=speed, rate_hz=50.0, remount_time=1.0)
     with pytest.raises(StationError, match=lost) as info, bench:
         bench.unit.sample = Breaks(bench.unit.sample, lambda v, times, *_: times[-1] >= 20.0)
         record_rotary(bench, tmp_path / "s.h5", RotarySettings(), suggested_axes(4))
