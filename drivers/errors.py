@@ -20,6 +20,8 @@
           +-- ChamberAlarm                 the chamber's alarm bit is set: it needs the operator
           +-- ChamberDoorOpen              the chamber's door is open
           +-- ChamberRangeError (ValueError) 2 a setpoint or ramp outside the profile's limits
+     +-- TwinError (RuntimeError)       1  a virtual device (drivers.twins) stopped on an error of
+                                           its own: the simulation failed, not a device
 
 The station's own errors are drawn in `station.errors`; the command line catches both roots.
 """
@@ -106,6 +108,13 @@ class ChamberRangeError(ChamberError, ValueError):
     """A setpoint or ramp rate outside the limits the chamber's profile allows; nothing was sent."""
 
     exit_code = 2
+
+
+class TwinError(DeviceError, RuntimeError):
+    """A virtual device stopped on an error of its own (`drivers.twins.failure`): the message
+    names the twin and the error, its cause is the error."""
+
+    exit_code = 1
 
 
 class CanBusError(LinkError):

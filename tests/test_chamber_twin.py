@@ -5,6 +5,7 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
@@ -118,8 +119,38 @@ def test_unit_temperature_of_the_past_is_interpolated():
     clock.t = 400.0
     p.state()
     assert p.unit_temperature(50.0) == pytest.approx(early, abs=p.step**2 / 8 * 0.1 / 120)
-    with pytest.raises(ValueError, match="before the kept history"):
-        p.unit_temperature(-1.0)
+    assert p.unit_temperature(-1.0) == ROOM  # before the start: where the unit sat
+
+
+def test_a_late_question_gets_the_value_an_early_one_got():
+    """A busy host makes the IMU twin ask for its sample times late: asked after the physics ran
+    100 000 steps further (the old history kept 20 000), every instant gets, to the last bit, the
+    value a physics asked in order, a sample block at a time, got (the commands alike)."""
+    times = np.arange(0.0, 600.0, 0.01)
+
+    def chamber(ask_on_time: bool):
+        clock, p = physics()
+        p.set_setpoint(ROOM + 30.0)
+        p.run()
+        got, sent = [], 0
+        for now in np.arange(0.0, 600.0, 0.37):  # the chamber's polls and the twin's blocks
+            clock.t = now
+            if now >= 250.0 and p.setpoint > ROOM:
+                p.set_setpoint(ROOM - 10.0)
+            p.state()
+            due = np.searchsorted(times, now, side="right")
+            if ask_on_time and due > sent:
+                got.append(p.unit_temperature(times[sent:due]))
+                sent = due
+        return clock, p, np.concatenate(got or [[]])
+
+    _, on_time, got = chamber(ask_on_time=True)
+    clock, late, _ = chamber(ask_on_time=False)
+    clock.t = 20000.0
+    late.state()
+    asked = times[: len(got)]
+    np.testing.assert_array_equal(late.unit_temperature(asked), got)
+    assert [late.unit_temperature(t) for t in asked[::997]] == list(got[::997])
 
 
 def plain_client(twin) -> ModbusTcpClient:

@@ -18,13 +18,16 @@ import numpy as np
 
 from drivers.can_imu import CanProfile, FrameLayout
 from drivers.clock import WallClock
+from drivers.twins.failure import fail
 
 
 class CanImuTwin:
     """Streams `samples` samples (or until `stop()`), starting at sequence number `first_seq`.
 
     `sent_seq` / `sent_counts` record every sample whose frames all went out, so tests can compare
-    the driver's output with what was sent; `error` holds an exception raised by the source.
+    the driver's output with what was sent. An exception raised while streaming (e.g. by the
+    source) ends the stream at once, silent from then on: it is kept in `error` and told to
+    `on_error(exc)` if the owner set one (`drivers.twins.failure`).
     """
 
     def __init__(self, channel: str, profile: CanProfile, source, clock=None, samples=None,
@@ -40,6 +43,7 @@ class CanImuTwin:
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self.sent_seq, self.sent_counts = [], []
         self.error = None
+        self.on_error = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"CanImuTwin {channel}", daemon=True)
 
@@ -81,8 +85,8 @@ class CanImuTwin:
                     sent = due
                     self.clock.nudge()
                 self.clock.pace(self._stop)
-        except Exception as exc:  # noqa: BLE001 - reported to the caller through `error`
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once (drivers.twins.failure)
+            fail(self, exc)
 
     def _send(self, t0: float, index: np.ndarray) -> None:
         """Sample the source at the due times and put their frames on the bus."""

@@ -59,7 +59,8 @@ class ChamberTwin:
         self.requests = 0
         self._faults = collections.deque()
         self._modem = None
-        self._thread = ServerThread("ChamberTwin", lifetime)
+        self.error = self.on_error = None  # drivers.twins.failure
+        self._thread = ServerThread("ChamberTwin", lifetime, self)
 
     def start(self) -> "ChamberTwin":
         """Start serving; returns once the server listens."""
@@ -112,7 +113,8 @@ class ChamberTwin:
     async def _open(self):
         """Create and start the pymodbus server for the link."""
         first, count = self.map.span
-        device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
+        action = self._thread.guarded(self._action)  # an error there fails the twin
+        device = SimDevice(id=self.map.device_id, action=action, simdata=[
             SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
         if self.link == "tcp":
             server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_pdu=self._trace,

@@ -193,8 +193,8 @@ class MavlinkTwin(Streamer):
                 self._serve(self.link.read())
                 if not self._send_due():
                     time.sleep(0.002)
-        except Exception as exc:  # reported by stop()
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once (Streamer._failed)
+            self._failed(exc)
 
     def _serve(self, data: bytes) -> None:
         """Answer the SET_MESSAGE_INTERVAL commands in `data` addressed to this vehicle."""

@@ -3,18 +3,26 @@
 `ServerThread.start(make_server)` runs `make_server()` (a coroutine function returning a started
 pymodbus server) in the thread and returns once it listens; the server stops on `close()` or by
 itself after `lifetime` seconds, so a forgotten twin never outlives its test.
+
+The twin's Modbus action hook goes through `guarded`: an exception there (e.g. from the physics)
+is no Modbus exception reply but the twin failing (`drivers.twins.failure.fail`, on the `owner`
+twin: its `error` and `on_error`): the server closes at once, the request unanswered. So does an
+error that ends the server's loop once it serves.
 """
 
 import asyncio
 import contextlib
 import threading
 
+from drivers.twins.failure import fail
+
 
 class ServerThread:
-    """The thread, loop and life of one twin's Modbus server."""
+    """The thread, loop and life of the Modbus server of `owner` (a twin with `error` and
+    `on_error`)."""
 
-    def __init__(self, name: str, lifetime: float):
-        self.name, self.lifetime = name, lifetime
+    def __init__(self, name: str, lifetime: float, owner):
+        self.name, self.lifetime, self.owner = name, lifetime, owner
         self.server = None
         self._loop = asyncio.new_event_loop()
         self._stopping = None
@@ -38,6 +46,17 @@ class ServerThread:
             self._loop.call_soon_threadsafe(self._stop, first)
             self._thread.join(10)
 
+    def guarded(self, action):
+        """The pymodbus action hook `action`, whose exception fails the owner twin: the server
+        closes and the request gets no reply."""
+        async def hook(*args):
+            try:
+                return await action(*args)
+            except Exception as exc:  # noqa: BLE001 - told at once (drivers.twins.failure)
+                fail(self.owner, exc, self._stopping.set)
+                raise asyncio.CancelledError from exc  # no reply
+        return hook
+
     def _stop(self, first) -> None:
         if first is not None:
             first()
@@ -47,7 +66,9 @@ class ServerThread:
         asyncio.set_event_loop(self._loop)
         try:
             self._loop.run_until_complete(self._main(make_server))
-        except Exception as exc:  # noqa: BLE001 - reported by start()
+        except Exception as exc:  # noqa: BLE001 - reported by start(), or told once serving
+            if self._ready.is_set():
+                fail(self.owner, exc)
             self._error = exc
             self._ready.set()
         finally:

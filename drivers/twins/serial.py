@@ -129,8 +129,8 @@ class SerialTwin(Streamer):
     def _run(self) -> None:
         try:
             self._stream()
-        except Exception as exc:  # reported by stop()
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once (Streamer._failed)
+            self._failed(exc)
 
     def _stream(self) -> None:
         """Send the frames due, then wait (`clock.pace`) until more are (on a stepped clock: each

@@ -87,7 +87,8 @@ class TableTwin:
         self._cut = False  # the next reply is sent short
         self.silent = False
         self._faults = collections.deque()
-        self._thread = ServerThread("table twin", lifetime)
+        self.error = self.on_error = None  # drivers.twins.failure
+        self._thread = ServerThread("table twin", lifetime, self)
 
     def start(self) -> "TableTwin":
         """Start serving; returns once the port is known."""
@@ -123,7 +124,8 @@ class TableTwin:
     async def _open(self):
         """The server, listening on an ephemeral port of 127.0.0.1 (`port`)."""
         first, count = self.map.span
-        device = SimDevice(id=self.map.device_id, action=self._action, simdata=[
+        action = self._thread.guarded(self._action)  # an error there fails the twin
+        device = SimDevice(id=self.map.device_id, action=action, simdata=[
             SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
         server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace)
         self._server = server

@@ -40,7 +40,10 @@ takes part in it, so the session is the same on any host and runs as fast as the
 (`drivers.clock_link`). `--speed` gives a real-time clock instead, that many times faster than the
 wall (the profile tells `station record` the same speed): what the lag, silence and reconnect
 guards need. With --json, the truth
-(sensitivity matrix, biases, mountings) is printed as JSON when the twin stops.
+(sensitivity matrix, biases, mountings) is printed as JSON when the twin stops. A virtual device
+that stops on an error of its own (its simulation, not a signal) ends the twin at once: its error
+line names the device and the error, e.g. `station twin: the serial IMU twin stopped: ValueError:
+...` (exit code 1; `drivers.twins.failure`).
 
 `--link mavlink` (with `--protocol static`) serves the hand bench's triad as a flight controller
 speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU with the
@@ -130,7 +133,7 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.commands import given_values
-    from station.errors import InputError, StationError
+    from station.errors import InputError
 
     if args.speed is None and not KINDS[args.protocol].table:
         args.speed = 1.0  # the hand benches keep a real-time clock
@@ -167,6 +170,7 @@ def run(args) -> int:
         devices[signal.SIGHUP] = "chamber"
     previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    twin.failures.on_failure = lambda words: stop.set()  # a twin stopped: end with its error
     try:
         with twin:
             for number, device in devices.items():
@@ -193,8 +197,6 @@ def run(args) -> int:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
-    if twin.error is not None:
-        raise StationError(f"the fixture failed: {twin.error}")
     if args.json:
         print(json.dumps({"truth": truth}), flush=True)
     return 0

@@ -38,6 +38,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from drivers import open_imu
 from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
+from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
 from station.acquire.operator import SimulatedTechnician
 from station.errors import InputError
@@ -266,6 +267,7 @@ class HandBench:
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
         self.twin = None
+        self.failures = Failures()  # the IMU twin's, told at once (drivers.twins.failure)
 
     def start(self, unread_after: float | None = None) -> Self:
         """Start the IMU stream (MAVLink: the heartbeat; the IMU when the station asks for it);
@@ -273,13 +275,17 @@ class HandBench:
         if self.link == "mavlink":
             from drivers.twins.mavlink import MavlinkTwin
 
-            self.twin = MavlinkTwin(self.profile, self.rig, self.clock, udp_port=self.udp_port,
-                                    max_lag=np.inf, unread_after=unread_after).start()
+            self.twin = self.failures.watch(MavlinkTwin(
+                self.profile, self.rig, self.clock, udp_port=self.udp_port, max_lag=np.inf,
+                unread_after=unread_after), "MAVLink flight controller")
+            self.twin.start()
             return self
         # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
         # samples whatever the host's load (frames before the driver opens the port are lost)
-        self.twin = SerialTwin(self.profile, self.rig, self.clock, max_lag=np.inf,
-                               unread_after=unread_after).start(0.0)
+        self.twin = self.failures.watch(SerialTwin(self.profile, self.rig, self.clock,
+                                                   max_lag=np.inf, unread_after=unread_after),
+                                        "serial IMU")
+        self.twin.start(0.0)
         return self
 
     def close(self) -> None:
@@ -291,8 +297,11 @@ class HandBench:
     def __enter__(self) -> Self:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, exc, trace) -> None:
+        """Close; the IMU twin's failure becomes a note on the error leaving the `with`, or a
+        TwinError (`drivers.twins.failure.Failures.after`)."""
         self.close()
+        self.failures.after(exc)
 
     @contextlib.contextmanager
     def driver(self):

@@ -14,6 +14,11 @@ host; a `ScaledClock` with `speed`, for what must meet the wall clock): the rota
 and the technician who re-mounts the unit between positions. The station side opens the ordinary
 drivers on the twins' addresses (`drivers()`).
 
+A twin that cannot go on (an error in its thread: the source, the physics) goes silent at once and
+is kept in the bench's `failures` (`drivers.twins.failure`), a warning logged at once: the error
+that then ends the `with` (e.g. the recorder's "no IMU sample") carries a note naming the twin and
+its error.
+
 `record_rotary` records a rotary session on the bench; `resume_rotary` continues a session file
 left by a killed or paused run on a new bench built from the file's `virtual_bench` metadata (or
 the `bench` of `station demo`), its clock starting after the last recorded instant (the recorded
@@ -34,6 +39,7 @@ from drivers.clock import ScaledClock, SteppedClock
 from drivers.rotary_table import RotaryTable as TableDriver
 from drivers.rotary_table import TableRegisterMap
 from drivers.twins.can import CanImuTwin
+from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
 from station.acquire.operator import SimulatedTechnician
@@ -170,8 +176,10 @@ class VirtualBench:
         self.technician = BenchTechnician(self, remount_time, placement_deg,
                                           np.random.default_rng([seed, 1]))
         self.fixture = MountingFixture() if fixture else None
-        self.table_twin = TableTwin(self.table, self.table_map, lifetime, position=self.position,
-                                    fixture=self.fixture)
+        self.failures = Failures()  # of every twin of the bench, told at once
+        self.table_twin = self.failures.watch(
+            TableTwin(self.table, self.table_map, lifetime, position=self.position,
+                      fixture=self.fixture), "rotary table")
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.source = self.mounted  # what the IMU twin streams (station.twin.thermal: heated)
         self.imu_twin = None
@@ -230,6 +238,7 @@ class VirtualBench:
             else:
                 self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
                                            self.clock)
+            self.failures.watch(self.imu_twin, "CAN IMU" if self.kind == "can" else "serial IMU")
             # sample n is taken at clock_start + n / rate_hz, whenever the host gets round to it,
             # and the unit's noise is indexed by that instant: a seeded bench repeats its samples
             # (those sent before the driver listens are lost)
@@ -249,8 +258,11 @@ class VirtualBench:
     def __enter__(self) -> Self:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, exc, trace) -> None:
+        """Close; a twin's failure becomes a note on the error leaving the `with`, or a TwinError
+        (`drivers.twins.failure.Failures.after`)."""
         self.close()
+        self.failures.after(exc)
 
     @contextlib.contextmanager
     def drivers(self):

@@ -20,6 +20,11 @@ IMU, SIGUSR2 for the table): the IMU's pty is closed (`drivers.twins.serial.Seri
 station's serial driver gets an I/O error) and reopened behind the same port; the Modbus server
 stops answering (`drivers.twins.table.TableTwin.silent`, the station's requests time out) and
 answers again. The table's physics go on meanwhile: a table turning when its link died turns on.
+
+A twin that cannot go on (an error in its thread) is told at once to the bench's `failures`
+(`drivers.twins.failure`), named: the IMU streams and the table's Modbus server, and the fixture
+or technician thread, whose failure takes the table's controller down (`BenchTwin`) or unplugs the
+IMU (`HandTwin`). `station twin` ends then, its error line naming the twin and the cause.
 """
 
 import dataclasses
@@ -33,6 +38,7 @@ from typing import Self
 
 import numpy as np
 
+from drivers.twins.failure import fail
 from station.errors import InputError
 from station.files.session.units import unit_stream
 from station.model.fixture import Fixture
@@ -145,7 +151,8 @@ class BenchTwin:
             self.axes = np.array([i.orientation[:, 2] for i in self.instructions])
         self.mounted = []  # the positions mounted, 1-based, in order
         self.plate = _plate(self.bench, units) if units > 1 else None
-        self.error = None
+        self.error = self.on_error = None  # the fixture thread's (drivers.twins.failure)
+        self.failures.watch(self, "fixture")
         self.clock_server = None  # serves the lockstep clock (speed None) to `station record`
         self._streams = []  # [PortWatch or None, SerialTwin] of each unit: started when the port
         # opens (lockstep time: at once, time moving only while a station takes part)
@@ -172,6 +179,8 @@ class BenchTwin:
             sources = [b.source] if self.plate is None else self.plate.units
             twins = [SerialTwin(b.profile, source, b.clock, max_lag=np.inf,
                                 unread_after=UNREAD_AFTER) for source in sources]
+            for k, twin in enumerate(twins):
+                b.failures.watch(twin, _imu_name("serial", k, twins))
             b.imu_twin = twins[0]
             if b.clock.realtime:
                 self._streams = [[PortWatch(twin.port), twin] for twin in twins]
@@ -194,6 +203,7 @@ class BenchTwin:
         b.table_twin.start()
         for k, source in enumerate(self.plate.units):
             twin = CanImuTwin(b.can_channel, plate_can_profile(b.profile, k), source, b.clock)
+            b.failures.watch(twin, _imu_name("CAN", k, self.plate.units))
             self._can_units.append(twin.start(b.clock_start))
         b.imu_twin = self._can_units[0]
 
@@ -213,11 +223,17 @@ class BenchTwin:
         if self.clock_server is not None:
             self.clock_server.close()
 
+    @property
+    def failures(self):
+        """The failures of the bench's twins (`drivers.twins.failure.Failures`)."""
+        return self.bench.failures
+
     def __enter__(self) -> Self:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, exc, trace) -> None:
         self.close()
+        self.failures.after(exc)
 
     def addresses(self) -> dict:
         """Where the station finds the devices."""
@@ -315,8 +331,8 @@ class BenchTwin:
                 if self.bench.fixture is not None and \
                         (position := self.bench.fixture.pending()) is not None:
                     self._mount(position)
-        except Exception as exc:  # noqa: BLE001 - reported by the command
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once: the table's controller dies
+            fail(self, exc, self.bench.table_twin.die)
 
 
 def plate_mounting(k: int) -> np.ndarray:
@@ -438,7 +454,8 @@ class HandTwin:
             poses = len(guided)
         self.settings = {"poses": poses} if static else {"mountings": mountings}
         self.turns = 0
-        self.error = None
+        self.error = self.on_error = None  # the technician thread's (drivers.twins.failure)
+        self.failures.watch(self, "technician")
         self._watch = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
@@ -452,8 +469,8 @@ class HandTwin:
         if b.link == "mavlink":
             b.start(unread_after=UNREAD_AFTER)
         else:
-            b.twin = SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf,
-                                unread_after=UNREAD_AFTER)
+            b.twin = b.failures.watch(SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf,
+                                                 unread_after=UNREAD_AFTER), "serial IMU")
             self._watch = PortWatch(b.twin.port)
         self._thread.start()
         return self
@@ -465,11 +482,17 @@ class HandTwin:
             self._watch.close()
         self.bench.close()
 
+    @property
+    def failures(self):
+        """The failures of the bench's twins (`drivers.twins.failure.Failures`)."""
+        return self.bench.failures
+
     def __enter__(self) -> Self:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, exc, trace) -> None:
         self.close()
+        self.failures.after(exc)
 
     def profile_text(self, unit_serial: str | None = None) -> str:
         """A bench profile (`station record --profile`) for this protocol and device."""
@@ -530,8 +553,13 @@ class HandTwin:
                     return
                 self.bench.technician.wait(instruction)
                 self.turns += 1
-        except Exception as exc:  # noqa: BLE001 - reported by the command
-            self.error = exc
+        except Exception as exc:  # noqa: BLE001 - told at once: the IMU is unplugged
+            fail(self, exc, self.bench.twin.unplug)
+
+
+def _imu_name(link: str, k: int, units: list) -> str:
+    """The words naming unit k's IMU twin (0-based) of `units` on the bench."""
+    return f"{link} IMU" + (f" of unit {k + 1}" if len(units) > 1 else "")
 
 
 def _toggle_imu(twin) -> bool:

@@ -55,8 +55,9 @@ class ThermalTwin:
                                                                           rate_hz=rate_hz))
         b.stream_spec = StreamSpec.from_profile(b.profile.imu)
         self.physics = ChamberPhysics(b.clock, **(chamber or FAST_CHAMBER))
-        self.chamber = ChamberTwin(self.physics, ChamberRegisterMap.load("chamber_modbus"),
-                                   lifetime=lifetime)
+        self.chamber = self.failures.watch(
+            ChamberTwin(self.physics, ChamberRegisterMap.load("chamber_modbus"),
+                        lifetime=lifetime), "thermal chamber")
         b.source = HeatedUnit(b.mounted, self.physics.unit_temperature, effect,
                               b.profile.imu.scale[-1], seed=seed)
         self.effect, self.setpoints = effect, tuple(setpoints)
@@ -72,6 +73,12 @@ class ThermalTwin:
     def error(self):
         """What went wrong in the fixture's thread (None: nothing)."""
         return self.served.error
+
+    @property
+    def failures(self):
+        """The failures of the bench's twins, the chamber's too
+        (`drivers.twins.failure.Failures`)."""
+        return self.served.failures
 
     def start(self) -> Self:
         self.chamber.start()
@@ -89,8 +96,9 @@ class ThermalTwin:
     def __enter__(self) -> Self:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, kind, exc, trace) -> None:
         self.close()
+        self.failures.after(exc)
 
     def addresses(self) -> dict:
         """Where the station finds the devices (BenchTwin's, and the chamber)."""
