@@ -95,6 +95,8 @@ def test_a_streamer_whose_source_breaks_is_unplugged_and_tells_its_owner_at_once
         assert imu.read_block(timeout=GUARD) is not None
         armed.set()
         read_until_lost(clock, imu)  # the station's driver sees a lost device, not a silence
+        for ending in [t for t in threading.enumerate() if t.name == thread]:
+            ending.join(30)  # it tells its owner right after silencing the device
         (exc, told_in, silent), = owner.told
         assert str(exc) == BROKE and twin.error is exc
         assert told_in == thread and silent  # from the twin's thread, once it was unplugged
