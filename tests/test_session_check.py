@@ -10,12 +10,14 @@ depends on the host's speed."""
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_session_damage import write_session
 
+from drivers.samples import SampleBlock
 from station.cli import main
 from station.errors import SessionFormatError, SessionUncheckedError
-from station.files.session import check
+from station.files.session import SessionWriter, StreamSpec, check
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "sessions" / "rotary-12gyro.h5"
@@ -148,3 +150,19 @@ def test_an_unchanged_file_is_surveyed_once_a_changed_one_again(session, launche
         fh.write(b"\0")
     check.checked(session)
     assert launches == [str(session)] * 2
+
+
+def test_a_live_writers_file_is_read_as_live_a_killed_ones_as_closed(tmp_path):
+    """Flagged open for write and locked by a live writer: read by HDF5's SWMR reader (inside a
+    flush the file may be shorter than its superblock says). Flagged with no lock (a killed
+    writer's): read as a closed file (test_session_damage: a truncated one)."""
+    spec = StreamSpec(["a", "b", "c"], "m/s^2", 1000.0, 100.0)
+    with SessionWriter.create(tmp_path / "live.h5", {"protocol": "check-test", "unit_serial": "L1"},
+                              {"imu": spec}) as w:
+        seq = np.arange(2000)
+        w.append("imu", SampleBlock(np.stack([seq % 7] * 3, 1).astype(np.int32), seq, seq / 100.0,
+                                    seq / 100.0))
+        w.flush()
+        assert check._held(str(tmp_path / "live.h5"))
+        check.checked(tmp_path / "live.h5")
+    assert not check._held(str(tmp_path / "live.h5"))

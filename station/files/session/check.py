@@ -77,6 +77,22 @@ def checked(path, positions=None, cpu_limit: int | None = None) -> None:
         raise SessionFormatError(describe(path, found))
 
 
+def _held(path: str) -> bool:
+    """True when a process holds a lock on `path`: a live writer (`SessionWriter` holds a shared
+    flock while it lives), or a reader through HDF5's file locking; False for a killed writer's
+    file (the kernel released its lock)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
 def cpu_seconds(size: int) -> int:
     """The CPU time (whole seconds, as RLIMIT_CPU counts) a check of a file of `size` bytes may
     use: `CPU_BASE` + size x `CPU_PER_BYTE`, rounded up."""
@@ -190,11 +206,8 @@ def survey(path) -> dict:
     "positions": [...]} (the positions whose sample rows are damaged, when the events tell)."""
     import h5py
 
-    from station.files.session._repair import open_flags
-    from station.files.session.format import LIBVER
-
     try:
-        f = h5py.File(path, "r", swmr=open_flags(path) != 0, libver=LIBVER)
+        f = _opened(path)
     except (OSError, SessionFormatError) as e:
         return {"problems": [f"not a readable HDF5 file ({e})"], "damaged": []}
     problems, damaged = [], []
@@ -216,6 +229,23 @@ def survey(path) -> dict:
         positions, recorded = _positions(f, damaged) if damaged and not problems else (None, 0)
     return {"problems": problems, "damaged": damaged, "positions": positions,
             "recorded": recorded}
+
+
+def _opened(path):
+    """`path` open for reading with h5py: a live writer's file as HDF5's SWMR reader sees it; a
+    killed writer's (flagged open for write, no lock held) as a closed file (`FlagsCleared`): its
+    length checked against its superblock and a metadata checksum failure an error at once, where
+    the SWMR reader retries, sleeping twice as long each time (0.27, 0.54, 1.1, 2.1, 4.3 s, ...
+    measured on one read past the end of a truncated file), for hours."""
+    import h5py
+
+    from station.files.session._repair import FlagsCleared, open_flags
+    from station.files.session.format import LIBVER
+
+    flags = open_flags(path)
+    if flags and not _held(path):
+        return h5py.File(FlagsCleared(path), "r", libver=LIBVER)
+    return h5py.File(path, "r", swmr=flags != 0, libver=LIBVER)
 
 
 def _attributes(obj) -> None:
