@@ -12,6 +12,7 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |    +-- CalibrationFileError        2  a calibration file this software must not use
      +-- MissingFileError (FileNotFoundError)  2  a file named on the command line is not there
      +-- SessionLockedError (RuntimeError)     1  another live process is writing the session file
+     +-- SessionUncheckedError (RuntimeError)  1  a session file's check did not finish: no verdict
      +-- AcquisitionError (RuntimeError)  3  the bench did not do what the session needs
      |    +-- RecordingError              3  the IMU stream stopped
      |    +-- ProtocolError               3  the bench did not behave as the protocol needs
@@ -74,6 +75,12 @@ class MissingFileError(StationError, FileNotFoundError):
 
 class SessionLockedError(StationError, RuntimeError):
     """Another live process is writing the session file."""
+
+
+class SessionUncheckedError(StationError, RuntimeError):
+    """The structure check of a session file (station.files.session.check) could not finish: out
+    of CPU time, stopped from outside, or hung. No verdict on the file: it was not found damaged
+    (that is a SessionFormatError); the message says how to go on."""
 
 
 class AcquisitionError(StationError, RuntimeError):

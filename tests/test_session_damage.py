@@ -1,9 +1,8 @@
 """Damaged session files are refused by name before anything is computed from them (issue 20):
-every chunk carries a fletcher32 checksum, claimed sizes are checked against the storage held,
-and a file the HDF5 library cannot get through in time is refused instead of hanging."""
+every chunk carries a fletcher32 checksum, and claimed sizes are checked against the storage held
+(a check that could not finish is no verdict: test_session_check.py)."""
 
 import struct
-import time
 
 import h5py
 import numpy as np
@@ -91,17 +90,18 @@ def test_a_claim_beyond_the_stored_data_is_refused(tmp_path):
         checked(path)
 
 
-def test_a_killed_truncated_file_is_refused_within_the_limit(tmp_path):
-    """A killed writer's flags on a truncated file: HDF5's SWMR reader retries for minutes."""
+def test_a_killed_truncated_file_is_refused(tmp_path):
+    """A killed writer's flags on a truncated file: read as a closed file, its length is checked
+    (HDF5's SWMR reader skips that check and retries each read past the end for hours)."""
     path = write_session(tmp_path / "s.h5")
     data = bytearray(path.read_bytes())
     data[11] = 0x05  # open for SWMR write, as a killed writer leaves it
     struct.pack_into("<I", data, 44, _lookup3(bytes(data[:44])))
-    path.write_bytes(bytes(data[:len(data) * 2 // 3]))
-    t0 = time.monotonic()
-    with pytest.raises(SessionFormatError, match="is damaged"):
-        checked(path, limit=3.0)
-    assert time.monotonic() - t0 < 6.0
+    path.write_bytes(bytes(data[:len(data) // 4]))  # metadata cut: the SWMR reader would sleep
+    with pytest.raises(SessionFormatError, match=f"is damaged: .*truncated file: eof = "
+                                                 f"{len(data) // 4}, .* stored_eof = "
+                                                 f"{len(data)}"):
+        checked(path)
 
 
 def test_changed_metadata_text_is_refused(tmp_path):

@@ -18,15 +18,27 @@ def existing_file(path, what: str, suffixes=()) -> Path:
     return path
 
 
-def existing_session(path, positions=None) -> Path:
+def existing_session(path, positions=None, check: bool = True) -> Path:
     """`path` as a Path if it names a session file that reads back intact: every object and
-    checksummed chunk, in a child process under a time limit (`station.files.session.check`);
-    with `positions` (0-based), damage in other positions' samples is let through."""
+    checksummed chunk, once, in a child process whose CPU time is bounded
+    (`station.files.session.check`); with `positions` (0-based), damage in other positions'
+    samples is let through; `check` False (--no-check): only that it is a file."""
     from station.files.session.check import checked
 
     path = existing_file(path, "a session file (.h5)")
-    checked(path, positions)
+    if check:
+        checked(path, positions)
     return path
+
+
+def no_check_argument(p) -> None:
+    """`--no-check` on parser `p` (the commands that read a session file)."""
+    p.add_argument("--no-check", action="store_true",
+                   help="skip the structure check of the session file (every object and chunk "
+                        "read in a child process first): for a file the check could not finish "
+                        "on (exit 1, 'could not be checked'); without it, damaged sample chunks "
+                        "are dropped as lost samples and damaged HDF5 metadata can hang the "
+                        "command (docs/cli.md)")
 
 
 def new_file(path, option: str = "--out", force: bool | None = None) -> Path:

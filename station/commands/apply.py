@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.commands import existing_file, existing_session, new_file
+from station.commands import existing_file, existing_session, new_file, no_check_argument
 from station.errors import InputError
 from station.model.temperature import check_kelvin
 
@@ -75,6 +75,7 @@ def register(p) -> None:
     p.add_argument("--extrapolate", action="store_true",
                    help="apply the temperature model outside its calibrated range (warns)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="print a machine-readable summary")
     p.set_defaults(run=run)
 
@@ -90,7 +91,7 @@ def run(args) -> int:
     check_temperature_options(args, cal)
     data = existing_file(args.data, "readings (CSV or a session .h5)")
     if data.suffix.lower() in HDF5_SUFFIXES:
-        existing_session(data)
+        existing_session(data, check=not args.no_check)
         time, z, temp = read_session(data, args.stream or solved_stream(cal), cal,
                                      args.temperature_column)
     else:

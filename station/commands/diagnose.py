@@ -12,6 +12,7 @@ from pathlib import Path
 from station.commands import (
     existing_file,
     existing_session,
+    no_check_argument,
     progress,
     still_arguments,
     still_values,
@@ -43,6 +44,7 @@ def register(p) -> None:
     p.add_argument("session", metavar="SESSION",
                    help="session (.h5: rotary, or free-static from station import) or rotary "
                    "data file (.npz)")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="print the diagnosis as JSON")
     p.add_argument("--report", metavar="FILE.html", help="write an HTML report with the plot")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level")
@@ -85,7 +87,7 @@ def run(args) -> int:
     if rotary:
         session = data.load(path)
     else:
-        existing_session(path)
+        existing_session(path, check=not args.no_check)
         with Session.open(path) as recorded:
             rotary = data.is_rotary(recorded)  # the one dispatch point for other protocols
             session = data.from_session(recorded, unit_stream(recorded, path, args.stream)) \

@@ -15,18 +15,22 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import no_check_argument
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station noise sessions/rotary-12gyro.h5\n"
         "  station noise rest.h5 --stream gyro --json\n"
         "  station noise rest.h5 --plot rest-allan.png\n\n"
-        "exit code 0: done; 2: bad input (no such stream, no or too little static data)"
+        "exit code 0: done; 1: the session file could not be checked (--no-check); 2: bad "
+        "input (no such stream, no or too little static data, a damaged file)"
     )
     p.add_argument("session", type=Path, help="session file (.h5)")
     p.add_argument("--stream", default="imu", metavar="NAME",
                    help="the stream to analyse (default: imu)")
     p.add_argument("--plot", type=Path, metavar="FILE.png",
                    help="write the Allan deviation plot (log-log, fitted slopes drawn)")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable figures")
     p.set_defaults(run=run)
 
@@ -40,7 +44,7 @@ def run(args) -> int:
 
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise InputError(f"--plot {args.plot} must name a .png file")
-    existing_session(args.session)
+    existing_session(args.session, check=not args.no_check)
     with Session.open(args.session) as session:
         found = session_noise(session, args.stream)
     if args.plot is not None:

@@ -22,7 +22,12 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import channels_argument, faces_argument, still_arguments
+    from station.commands import (
+        channels_argument,
+        faces_argument,
+        no_check_argument,
+        still_arguments,
+    )
 
     p.description = __doc__
     p.epilog = (
@@ -61,6 +66,7 @@ def register(p) -> None:
     p.add_argument("--raw", type=Path, metavar="OUT",
                    help="replay the raw stream through the serial twin into new session OUT "
                         "(rotary sessions only)")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
@@ -69,7 +75,8 @@ def run(args) -> int:
     from station.commands import existing_session, new_file, progress
     from station.replay import replay_raw
 
-    existing_session(args.session, None if args.raw else _positions(args.positions))
+    existing_session(args.session, None if args.raw else _positions(args.positions),
+                     check=not args.no_check)
     if args.raw is None:
         return _replay_units(args)
     raw = new_file(args.raw, option="file for the raw replay")

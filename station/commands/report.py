@@ -17,6 +17,8 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import no_check_argument
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station report sessions/SN42.h5\n"
@@ -33,6 +35,7 @@ def register(p) -> None:
                         "imu2, ...); default: a report per unit")
     p.add_argument("--json", action="store_true",
                    help="print the summary, warnings and files written as JSON")
+    no_check_argument(p)
     p.set_defaults(run=run)
 
 
@@ -44,7 +47,7 @@ def run(args) -> int:
     out = args.out or args.session.with_suffix(".html")
     if out.resolve() == args.session.resolve():
         raise InputError("--out would overwrite the session file; choose an .html name")
-    existing_session(args.session)
+    existing_session(args.session, check=not args.no_check)
     if args.stream is not None and args.stream not in (streams := _streams(args.session)):
         raise InputError(f"{args.session} has no stream {args.stream!r}; its streams are "
                          f"{', '.join(streams)} (omit --stream for them all)")

@@ -24,6 +24,8 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import no_check_argument
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station resume unit7.h5\n"
@@ -37,6 +39,7 @@ def register(p) -> None:
                    help="bench profile of the real devices (default: the one recorded with)")
     p.add_argument("--speed", type=float,
                    help="virtual bench: clock speed, simulated s per wall s (default: as recorded)")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
@@ -55,7 +58,7 @@ def run(args) -> int:
         from station.acquire.bench import stop_table
 
         stop_table(profile)
-    existing_session(args.session)
+    existing_session(args.session, check=not args.no_check)
 
     from drivers.errors import DeviceError
     from station.errors import AcquisitionError, OperatorAbort

@@ -55,7 +55,12 @@ NO_NOISE = "no_noise_figures"
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import channels_argument, faces_argument, still_arguments
+    from station.commands import (
+        channels_argument,
+        faces_argument,
+        no_check_argument,
+        still_arguments,
+    )
 
     p.description = __doc__
     p.epilog = (
@@ -72,7 +77,8 @@ def register(p) -> None:
         "  station solve u1.h5 --repeatability lot/*.cal.json   # the tau of the model's units\n"
         "  station solve array.h5 --channels imu3_ax,imu3_ay,imu3_az   # one IMU of an array\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
-        "MARGINAL (within 2 sigma of a limit), or the fit is suspect; 2: bad input"
+        "MARGINAL (within 2 sigma of a limit), or the fit is suspect, or the session file could\n"
+        "not be checked (--no-check skips the check); 2: bad input (a damaged file included)"
     )
     p.add_argument("session", type=Path,
                    help="session file (.h5) recorded by `station record` or `station import`")
@@ -104,6 +110,7 @@ def register(p) -> None:
                    help="a combined calibration file of earlier sessions of the unit (`station "
                         "combine`): its between-session spread tau is added to every 1-sigma; "
                         "several (one per unit of the same model): their taus pooled")
+    no_check_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -114,7 +121,7 @@ def run(args) -> int:
 
     if is_campaign(args.session):
         return _run_campaign(args)
-    existing_session(args.session)
+    existing_session(args.session, check=not args.no_check)
     units = [] if args.stream is not None else session_units(args.session)
     outs = unit_files(args.out or args.session, units, args.force) if units else \
         [new_file(args.out or args.session.with_suffix(".cal.json"), force=args.force)]

@@ -3,7 +3,7 @@
     format.py   names, version, columns, units and the data classes (StreamSpec, StreamData, ...)
     writer.py   SessionWriter (create, append, events, resume) and write_results
     reader.py   Session: reads a file, also while a writer is live (SWMR read)
-    check.py    checked: the whole file read back in a child process under a time limit
+    check.py    checked: the whole file read back once in a child process, its CPU time bounded
     units.py    the units of a session of several units on one table (metadata `units`)
     _repair.py  the HDF5 superblock's open-for-write flags a killed writer leaves, cleared on resume
 

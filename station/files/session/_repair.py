@@ -6,6 +6,7 @@ consistency flags at byte 11, four addresses, then a Jenkins lookup3 checksum of
 bytes (superblock versions 2 and 3).
 """
 
+import io
 import logging
 import os
 import struct
@@ -59,6 +60,45 @@ def clear_open_flags(path) -> None:
         fh.write(head)
         fh.flush()
         os.fsync(fh.fileno())
+
+
+class FlagsCleared(io.RawIOBase):
+    """A file read as `clear_open_flags` would leave it, without writing to it: the superblock's
+    open-for-write flags read as cleared, its checksum rewritten; every other byte as stored. A
+    read-only file object for h5py (`h5py.File(FlagsCleared(path), "r")`)."""
+
+    def __init__(self, path):
+        super().__init__()
+        head, _ = _superblock(path)
+        head[11] = 0
+        struct.pack_into("<I", head, 44, _lookup3(bytes(head[:44])))
+        self._head = bytes(head)
+        self._file = open(path, "rb", buffering=0)  # noqa: SIM115 - closed by close()
+
+    def readinto(self, buffer) -> int:
+        """Read into `buffer` from the current offset, the superblock's first 48 bytes replaced."""
+        at = self._file.tell()
+        n = self._file.readinto(buffer)
+        if at < len(self._head) and n:
+            end = min(len(self._head), at + n)
+            memoryview(buffer)[:end - at] = self._head[at:end]
+        return n
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return self._file.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._file.tell()
+
+    def readable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
 
 
 def _lookup3(data: bytes, initval: int = 0) -> int:

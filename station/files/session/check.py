@@ -1,14 +1,27 @@
 """A damaged session file found before a command trusts it: `checked(path)`.
 
 HDF5 parses a file's metadata in C while holding Python's GIL, so no Python timeout can stop it: a
-damaged object header can make the library loop, and its SWMR reader retries checksum failures for
-minutes. So `checked` reads the whole file in a child process (`python -m
-station.files.session.check FILE`) under a time limit: every group, attribute and dataset, each
-dataset chunk by chunk (HDF5 verifies the writer's fletcher32 checksum of every chunk as it reads
-it), and each dataset's claimed size against the storage the file really holds for it (a damaged
-header that claims 5e7 rows in a 1 MB file must not make a reader allocate gigabytes). A file that
-does not finish in time, crashes the child, or has damaged chunks is refused with one
+damaged object header can make the library loop. So `checked` reads the whole file in a child
+process (`python -m station.files.session.check FILE`, which imports h5py, numpy and the session
+modules, never the solver): every group, attribute and dataset, each dataset chunk by chunk (HDF5
+verifies the writer's fletcher32 checksum of every chunk as it reads it), and each dataset's
+claimed size against the storage the file really holds for it (a damaged header that claims 5e7
+rows in a 1 MB file must not make a reader allocate gigabytes). A file with damaged chunks or
+objects, or one that crashes the HDF5 library (SIGSEGV, SIGBUS, SIGABRT, ...), is refused with one
 `SessionFormatError` naming what is damaged and, for sample rows, the positions they belong to.
+
+The child's WORK is bounded, not the wall clock: a busy host slows a child down without making
+the file any less intact (issue 29: 61 of 249 commands at a load of 17-37 called intact files
+damaged under the former wall-clock limit, which counted the child's start-up). The child gets
+`cpu_seconds(size)` of CPU time (RLIMIT_CPU: SIGXCPU past it), and a wall-clock backstop of
+`WALL_FACTOR` times that only for a child that neither finishes nor spends its CPU (storage that
+does not answer). A check that could not finish (out of CPU time, stopped by a signal from
+outside, the backstop) is a `SessionUncheckedError` (exit code 1): no verdict, never "damaged";
+`--no-check` skips the check.
+
+A command reads each file once: the survey of a file is kept for the process by its path, device,
+inode, size and modification time (`_SURVEYS`), so a second look at an unchanged file launches no
+child.
 
 Files written before the checksums (no fletcher32 filter) are still read; damage inside their
 raw numbers cannot be seen here, only by the quality gate of the fit (`station.solve.quality`).
@@ -16,51 +29,140 @@ raw numbers cannot be seen here, only by the quality gate of the fit (`station.s
 
 import json
 import os
+import signal
 import subprocess
 import sys
 
 import numpy as np
 
-from station.errors import SessionFormatError
+from station.errors import SessionFormatError, SessionUncheckedError
 from station.files.session.torn import tail_rows
 
-BASE_LIMIT = 5.0
-"""Seconds any file may take to be read through, plus `SECONDS_PER_BYTE` of its size."""
-SECONDS_PER_BYTE = 1 / 50e6
+CPU_BASE = 10.0
+"""Seconds of CPU time any file's check may use, plus `CPU_PER_BYTE` of its size. Measured
+(2-core host): 0.5 s for a 1.2 MB session, 0.6 s for a 37 MB one of 500 positions, most of it
+Python's start and the imports; the survey itself reads about 300 MB/s."""
+CPU_PER_BYTE = 1 / 10e6
+WALL_FACTOR = 30
+"""The wall-clock backstop, in multiples of the CPU limit: at a load of 30 on 2 cores a child
+still gets 1/15 of a core, so only a hung child meets it."""
+CHILD = ("-m", "station.files.session.check")
+"""The interpreter's arguments that run the survey in the child, FILE after them."""
+CRASHES = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGFPE, signal.SIGILL})
+"""Signals that end a child inside the HDF5 library on the data it read: evidence of damage. Any
+other signal (SIGXCPU of the CPU limit, SIGKILL, SIGTERM, SIGINT) stopped it from outside."""
+AGAIN = "Run the command again, or add --no-check to skip the check (docs/cli.md)"
+"""What to do after a check stopped from outside or by the backstop."""
 SHOWN = 3
 """Damaged places a message names."""
 MAX_EXPANSION = 64
 """A compressed dataset may claim at most this many times the bytes it stores."""
 
+_SURVEYS = {}
+"""(real path, device, inode, size, mtime_ns) -> the survey of a check that finished."""
 
-def checked(path, positions=None, limit: float | None = None) -> None:
-    """Refuse `path` (SessionFormatError) unless every object and chunk of it reads back intact
-    within the time limit (default: `BASE_LIMIT` + its size / 50 MB/s). With `positions` (0-based),
+
+def checked(path, positions=None, cpu_limit: int | None = None) -> None:
+    """Refuse `path` (SessionFormatError) unless every object and chunk of it reads back intact;
+    SessionUncheckedError when the check could not finish within `cpu_limit` seconds of CPU time
+    (default `cpu_seconds` of its size) or the wall-clock backstop. With `positions` (0-based),
     damaged sample rows are allowed when they belong to other positions only (the reader drops
-    them: `Session.stream`)."""
+    them: `Session.stream`). Each version of a file is read once per process."""
     from station.files.session._repair import open_flags
 
     path = os.fspath(path)
     open_flags(path)  # not HDF5 at all, or a damaged superblock: said at once
-    limit = limit or BASE_LIMIT + os.path.getsize(path) * SECONDS_PER_BYTE
-    cmd = [sys.executable, "-m", "station.files.session.check", path]
+    found = _survey_once(path, cpu_limit)
+    if found["problems"] or found["damaged"] and not _spared(found, positions):
+        raise SessionFormatError(describe(path, found))
+
+
+def _held(path: str) -> bool:
+    """True when a process holds a lock on `path`: a live writer (`SessionWriter` holds a shared
+    flock while it lives), or a reader through HDF5's file locking; False for a killed writer's
+    file (the kernel released its lock)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
+
+
+def cpu_seconds(size: int) -> int:
+    """The CPU time (whole seconds, as RLIMIT_CPU counts) a check of a file of `size` bytes may
+    use: `CPU_BASE` + size x `CPU_PER_BYTE`, rounded up."""
+    return int(np.ceil(CPU_BASE + size * CPU_PER_BYTE))
+
+
+def _survey_once(path: str, cpu_limit: int | None) -> dict:
+    """The survey of `path` (`survey`) from a child, or the one this process already has of the
+    same file unchanged."""
+    st = os.stat(path)
+    key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    found = _SURVEYS.get(key)
+    if found is None:
+        found = _SURVEYS[key] = _survey_in_child(path, cpu_limit or cpu_seconds(st.st_size))
+    return found
+
+
+def _survey_in_child(path: str, cpu_limit: int) -> dict:
+    """`survey(path)` run by a child process limited to `cpu_limit` s of CPU time; a crash inside
+    the HDF5 library is damage (SessionFormatError), a child that could not finish is no verdict
+    (SessionUncheckedError)."""
+    cmd = [sys.executable, *CHILD, path]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    wall = WALL_FACTOR * cpu_limit
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          errors="replace", env=env) as child:
+        _limit_cpu(child.pid, cpu_limit)
+        try:
+            out, err = child.communicate(timeout=wall)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.communicate()
+            raise SessionUncheckedError(
+                f"{path} could not be checked: reading its HDF5 structure did not finish within "
+                f"{wall:.0f} s, nor spend its {cpu_limit} s of CPU time (the file's storage may "
+                f"not answer, or the host is overloaded); it was not found damaged. {AGAIN}"
+            ) from None
+    code = child.returncode
+    if code < 0 and -code not in CRASHES:
+        raise SessionUncheckedError(_stopped(path, -code, cpu_limit))
     try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=limit, env=env,
-                              check=False)
-    except subprocess.TimeoutExpired:
-        raise SessionFormatError(
-            f"{path} is damaged: reading its HDF5 structure did not finish within {limit:.0f} s "
-            "(the HDF5 library loops or retries on damaged metadata); nothing in it can be "
-            "trusted. Use an undamaged copy, or record the session again") from None
-    try:
-        survey = json.loads(done.stdout.splitlines()[-1])
+        return json.loads(out.splitlines()[-1])
     except (IndexError, ValueError):
+        why = f"signal {signal.Signals(-code).name}" if code < 0 else f"exit {code}"
+        last = err.strip().splitlines()[-1:] or [""]
         raise SessionFormatError(
-            f"{path} is damaged: the HDF5 library failed reading it (exit {done.returncode}); "
-            "use an undamaged copy, or record the session again") from None
-    if survey["problems"] or survey["damaged"] and not _spared(survey, positions):
-        raise SessionFormatError(describe(path, survey))
+            f"{path} is damaged: the HDF5 library failed reading it ({why}{': ' if last[0] else ''}"
+            f"{last[0][:200]}); use an undamaged copy, or record the session again") from None
+
+
+def _limit_cpu(pid: int, seconds: int) -> None:
+    """Give the child `pid` `seconds` of CPU time: SIGXCPU then, SIGKILL 5 s later (a child
+    already gone needs no limit)."""
+    import contextlib
+    import resource
+
+    with contextlib.suppress(ProcessLookupError):
+        resource.prlimit(pid, resource.RLIMIT_CPU, (seconds, seconds + 5))
+
+
+def _stopped(path: str, signum: int, cpu_limit: int) -> str:
+    """The words for a check child that a signal from outside the HDF5 library ended."""
+    if signum == signal.SIGXCPU:
+        return (f"{path} could not be checked: reading its HDF5 structure used its {cpu_limit} s "
+                "of CPU time without finishing (the HDF5 library may be looping on damaged "
+                "metadata); it was not found damaged. Use another copy of it, or add --no-check "
+                "to skip the check (docs/cli.md)")
+    return (f"{path} could not be checked: the check's child process was stopped by "
+            f"{signal.Signals(signum).name} before it finished (killed from outside, or out of "
+            f"memory); it was not found damaged. {AGAIN}")
 
 
 def _spared(survey: dict, positions) -> bool:
@@ -104,11 +206,8 @@ def survey(path) -> dict:
     "positions": [...]} (the positions whose sample rows are damaged, when the events tell)."""
     import h5py
 
-    from station.files.session._repair import open_flags
-    from station.files.session.format import LIBVER
-
     try:
-        f = h5py.File(path, "r", swmr=open_flags(path) != 0, libver=LIBVER)
+        f = _opened(path)
     except (OSError, SessionFormatError) as e:
         return {"problems": [f"not a readable HDF5 file ({e})"], "damaged": []}
     problems, damaged = [], []
@@ -130,6 +229,23 @@ def survey(path) -> dict:
         positions, recorded = _positions(f, damaged) if damaged and not problems else (None, 0)
     return {"problems": problems, "damaged": damaged, "positions": positions,
             "recorded": recorded}
+
+
+def _opened(path):
+    """`path` open for reading with h5py: a live writer's file as HDF5's SWMR reader sees it; a
+    killed writer's (flagged open for write, no lock held) as a closed file (`FlagsCleared`): its
+    length checked against its superblock and a metadata checksum failure an error at once, where
+    the SWMR reader retries, sleeping twice as long each time (0.27, 0.54, 1.1, 2.1, 4.3 s, ...
+    measured on one read past the end of a truncated file), for hours."""
+    import h5py
+
+    from station.files.session._repair import FlagsCleared, open_flags
+    from station.files.session.format import LIBVER
+
+    flags = open_flags(path)
+    if flags and not _held(path):
+        return h5py.File(FlagsCleared(path), "r", libver=LIBVER)
+    return h5py.File(path, "r", swmr=flags != 0, libver=LIBVER)
 
 
 def _attributes(obj) -> None:

@@ -9,6 +9,7 @@ import dataclasses
 import hashlib
 import json
 import os
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
@@ -35,7 +36,9 @@ from station.files.session.format import (
     last_completed_position,
 )
 from station.files.session.torn import tail_rows
-from station.solve.calibrate import CalibrationResult
+
+if TYPE_CHECKING:  # the solver (scipy) is imported where results are read: `_read_calibration`
+    from station.solve.calibrate import CalibrationResult
 
 _TABLE_KINDS = {**{c: ("f", ()) for c in TABLE_COLUMNS}, "status": ("u", ())}
 """dtype kind and trailing shape of each table column."""
@@ -386,9 +389,11 @@ LATER_FIELDS = ("parameter_covariance", "start", "pose_sigma", "a_sigma_white",
 """CalibrationResult fields added after format version 1 was first written: None when absent."""
 
 
-def _read_calibration(g, where, readings_shape) -> CalibrationResult:
+def _read_calibration(g, where, readings_shape) -> "CalibrationResult":
     """A `CalibrationResult` from its group; every field present or listed as None, arrays float,
     shapes consistent with the readings (m x n)."""
+    from station.solve.calibrate import CalibrationResult
+
     g = _child(g, "calibration", h5py.Group, where)
     where = f"{where}/calibration"
     none = set(_attr(g.attrs, "none_fields", list, where))
