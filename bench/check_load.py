@@ -5,7 +5,9 @@ The files, all intact, written before the hogs start: the example sessions in se
 ../shared/data/real/ is there, imported real recordings (imu_tk's Xsens MTi, imucal's Ferraris
 recording, one MPU-9150 of imucalib). Then `--hogs` processes spin a core each
 (bench/under_load.py's `spin`); once the 1-minute load average reaches `--load` (or after
-`--warmup` s), `--workers` threads run, in a shuffled order:
+`--warmup` s), `--workers` threads run, in a shuffled order (their processes load the host too:
+10 hogs and 10 workers give a load of 20-25 on 2 cores, and 1000 checks and 60 commands in about
+20 minutes), with a progress line on stderr every 50 jobs:
 
 - `--checks` checks (`station.files.session.check.checked`, its cache keeping nothing, so each
   launches its child): the part of a command that said "damaged" under load;
@@ -19,8 +21,8 @@ average sampled every 5 s. A full command costs 1-9 s of CPU and a check about 0
 whole commands at a load of 20 on 2 cores would take hours: the checks carry the count, the
 commands show the whole path.
 
-    .venv/bin/python -P bench/check_load.py [--checks 1000] [--commands 60] [--hogs 16]
-        [--workers 6] [--load 20] [--json]
+    .venv/bin/python -P bench/check_load.py [--checks 1000] [--commands 60] [--hogs 10]
+        [--workers 10] [--load 20] [--json]
 """
 
 import argparse
@@ -35,7 +37,8 @@ import sys
 import tempfile
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -169,6 +172,18 @@ class LoadSampler:
         return {"min": min(s), "median": statistics.median(s), "max": max(s), "samples": len(s)}
 
 
+def progress(futures: list, start: float, every: int = 50) -> list:
+    """The results of `futures` as they complete; a line on stderr every `every` of them."""
+    rows = []
+    for future in as_completed(futures):
+        rows.append(future.result())
+        if len(rows) % every == 0 or len(rows) == len(futures):
+            counts = Counter(r["outcome"] for r in rows)
+            print(f"{len(rows)}/{len(futures)} in {time.perf_counter() - start:.0f} s, load "
+                  f"{os.getloadavg()[0]:.1f}: {dict(counts)}", file=sys.stderr, flush=True)
+    return rows
+
+
 def warm_up(load: float, limit: float) -> float:
     """Wait until the 1-minute load average reaches `load` (at most `limit` s); the load then."""
     end = time.monotonic() + limit
@@ -213,7 +228,7 @@ def run(args, work: Path) -> dict:
         sampler = LoadSampler()
         start = time.perf_counter()
         with ThreadPoolExecutor(args.workers) as pool:
-            rows = list(pool.map(lambda job: job[0](job[1]), jobs))
+            rows = progress([pool.submit(do, what) for do, what in jobs], start)
         seconds = time.perf_counter() - start
         load = sampler.stop()
     finally:
@@ -251,8 +266,8 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--checks", type=int, default=1000, help="checks of intact files")
     p.add_argument("--commands", type=int, default=60, help="whole session-reading commands")
-    p.add_argument("--hogs", type=int, default=16, help="processes spinning a core each")
-    p.add_argument("--workers", type=int, default=6, help="checks and commands run at once")
+    p.add_argument("--hogs", type=int, default=10, help="processes spinning a core each")
+    p.add_argument("--workers", type=int, default=10, help="checks and commands run at once")
     p.add_argument("--load", type=float, default=20.0,
                    help="1-minute load average to reach before the jobs start")
     p.add_argument("--warmup", type=float, default=180.0,

@@ -9,6 +9,8 @@ claimed size against the storage the file really holds for it (a damaged header 
 rows in a 1 MB file must not make a reader allocate gigabytes). A file with damaged chunks or
 objects, or one that crashes the HDF5 library (SIGSEGV, SIGBUS, SIGABRT, ...), is refused with one
 `SessionFormatError` naming what is damaged and, for sample rows, the positions they belong to.
+A killed writer's file (flagged open for write, no lock held) is read as a closed file
+(`_opened`): HDF5's reader for a live writer's file retries every failed read for hours.
 
 The child's WORK is bounded, not the wall clock: a busy host slows a child down without making
 the file any less intact (issue 29: 61 of 249 commands at a load of 17-37 called intact files
@@ -40,8 +42,9 @@ from station.files.session.torn import tail_rows
 
 CPU_BASE = 10.0
 """Seconds of CPU time any file's check may use, plus `CPU_PER_BYTE` of its size. Measured
-(2-core host): 0.5 s for a 1.2 MB session, 0.6 s for a 37 MB one of 500 positions, most of it
-Python's start and the imports; the survey itself reads about 300 MB/s."""
+(2-core host, user + system): about 0.55 s for a 1.2 MB session and for a 37 MB one of 500
+positions alike, most of it Python's start and the imports of numpy and h5py; the survey itself
+reads about 300 MB/s (0.12 s for the 37 MB)."""
 CPU_PER_BYTE = 1 / 10e6
 WALL_FACTOR = 30
 """The wall-clock backstop, in multiples of the CPU limit: at a load of 30 on 2 cores a child
@@ -75,22 +78,6 @@ def checked(path, positions=None, cpu_limit: int | None = None) -> None:
     found = _survey_once(path, cpu_limit)
     if found["problems"] or found["damaged"] and not _spared(found, positions):
         raise SessionFormatError(describe(path, found))
-
-
-def _held(path: str) -> bool:
-    """True when a process holds a lock on `path`: a live writer (`SessionWriter` holds a shared
-    flock while it lives), or a reader through HDF5's file locking; False for a killed writer's
-    file (the kernel released its lock)."""
-    import fcntl
-
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    finally:
-        os.close(fd)
-    return False
 
 
 def cpu_seconds(size: int) -> int:
@@ -246,6 +233,22 @@ def _opened(path):
     if flags and not _held(path):
         return h5py.File(FlagsCleared(path), "r", libver=LIBVER)
     return h5py.File(path, "r", swmr=flags != 0, libver=LIBVER)
+
+
+def _held(path: str) -> bool:
+    """True when a process holds a lock on `path`: a live writer (`SessionWriter` holds a shared
+    flock while it lives), or a reader through HDF5's file locking; False for a killed writer's
+    file (the kernel released its lock)."""
+    import fcntl
+
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    return False
 
 
 def _attributes(obj) -> None:
