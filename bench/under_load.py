@@ -92,6 +92,8 @@ def demos(k: int, nice: bool) -> list:
                     "eps_over_sqrt_crlb": summary.get("eps_over_sqrt_crlb"),
                     "real_time_factor": summary.get("real_time_factor"),
                     "stderr_tail": done.stderr.strip()[-300:]})
+        print(f"demo {len(out)}/{k}: exit {done.returncode} in {seconds:.0f} s",
+              file=sys.stderr, flush=True)
     return out
 
 
@@ -104,6 +106,8 @@ def thermals(k: int, nice: bool) -> list:
                                  str(seed)], nice, 3600)
             out.append({"exit": done.returncode, "seconds": seconds,
                         "stderr_tail": done.stderr.strip()[-300:]})
+            print(f"thermal campaign {seed}/{k}: exit {done.returncode} in {seconds:.0f} s",
+                  file=sys.stderr, flush=True)
     return out
 
 
