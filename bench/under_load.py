@@ -112,12 +112,14 @@ def thermals(k: int, nice: bool) -> list:
 
 
 def suite(tests: list, nice: bool) -> dict:
-    """The test suite (or `tests`): counts, failures, wall seconds."""
+    """The test suite (or `tests`): counts, failures, wall seconds, the slowest tests (pytest's
+    --durations lines)."""
     done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *tests],
                         nice, 7200)
     return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
             "failures": re.findall(r"^(?:FAILED|ERROR) .*", done.stdout, re.M),
             "error_lines": re.findall(r"^E .*", done.stdout, re.M)[:60],
+            "slowest": re.findall(r"^\d+\.\d+s (?:call|setup|teardown) .*", done.stdout, re.M),
             "closing": done.stdout.strip().splitlines()[-1:]}
 
 

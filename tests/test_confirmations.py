@@ -64,7 +64,7 @@ def test_rotary_positions_are_confirmed_with_their_samples_and_noise(tmp_path):
 
 
 def test_iron_poses_are_confirmed_with_their_samples_and_noise(tmp_path):
-    with HandBench(seed=2, speed=40.0, period=20.0) as bench, bench.driver() as imu:
+    with HandBench(seed=2, period=20.0) as bench, bench.driver() as imu:
         settings = IronSettings(gravity=bench.gravity, mountings=1)
         protocol = IronProtocol(bench.technician, bench.clock, ACC4, settings)
         tap = StreamTap(imu, bench.stream_spec.rate_hz, bench.stream_spec.counts_per_unit)

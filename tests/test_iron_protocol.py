@@ -27,7 +27,7 @@ def recorded(tmp_path_factory):
     """One two-mounting session (12 poses) recorded on the bench at 40x: (path, truth, readings,
     result)."""
     path = tmp_path_factory.mktemp("iron") / "iron.h5"
-    truth, readings, result = record_iron_session(path, seed=SEED, speed=40.0, mountings=2)
+    truth, readings, result = record_iron_session(path, seed=SEED, mountings=2)
     return path, truth, readings, result
 
 
@@ -135,7 +135,7 @@ def test_a_technician_who_does_not_move_the_iron_times_out(tmp_path):
         def wait(self, instruction):
             self.prompt(instruction.text)
 
-    with HandBench(seed=1, speed=40.0) as bench, bench.driver() as imu:
+    with HandBench(seed=1) as bench, bench.driver() as imu:
         idle = Idle(bench.rig, bench.clock)
         protocol = IronProtocol(idle, bench.clock, ACC4,
                                 IronSettings(gravity=bench.gravity, timeout=8.0))

@@ -311,7 +311,7 @@ def test_a_static_session_on_the_cube_asks_for_each_planned_pose_once(tmp_path):
     # hand twin's technician sets the planned poses (1 deg off) on its metronome
     from station.twin.served import HandTwin
 
-    with HandTwin("static", seed=9, speed=40.0, cube=True) as twin:
+    with HandTwin("static", seed=9, cube=True) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text("SN-CUBE"))
         bench = BenchProfile.load(tmp_path / "b.toml")
         said = io.StringIO()

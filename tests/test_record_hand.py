@@ -19,8 +19,10 @@ FAMILY_FALSE_ALARM = 1e-3
 
 
 def _profile(tmp_path, bench: HandBench, protocol: str, extra: str = "") -> BenchProfile:
+    """A bench profile for `bench` (a lockstep bench's clock is passed to `record` itself)."""
     m = bench.layout.shape[1]
-    text = (f'[bench]\nunit_serial = "SN-HAND"\nclock_speed = {bench.clock.speed!r}\n\n'
+    speed = f"clock_speed = {bench.clock.speed!r}\n" if bench.clock.realtime else ""
+    text = (f'[bench]\nunit_serial = "SN-HAND"\n{speed}\n'
             f'[imu]\nlink = "serial"\nprofile = "acc{m}_serial"\nport = "{bench.twin.port}"\n\n'
             f'[protocol]\nkind = "{protocol}"\ngravity = {bench.gravity!r}\n{extra}')
     (tmp_path / "bench.toml").write_text(text)
@@ -43,10 +45,10 @@ def solved(request, tmp_path_factory):
     then `station solve --json`: (protocol, truth, session path, calibration, summary)."""
     kind, case = request.param, CASES[request.param]
     tmp = tmp_path_factory.mktemp(kind)
-    with HandBench(seed=8, speed=40.0, layout=case["layout"], mountings=case["mountings"],
+    with HandBench(seed=8, layout=case["layout"], mountings=case["mountings"],
                    period=20.0, placement_deg=case["placement_deg"]) as bench:
         profile = _profile(tmp, bench, kind, case["extra"])
-        summary = record(profile, tmp / "s.h5", bench.technician)
+        summary = record(profile, tmp / "s.h5", bench.technician, clock=bench.clock)
         truth = bench.truth()
     assert summary["protocol"] == kind and summary["positions_done"] == profile.positions
     code = cli.main(["solve", str(tmp / "s.h5"), "--json"])
@@ -126,7 +128,7 @@ def test_station_record_against_the_hand_twin_with_a_console_operator(protocol, 
     from station.acquire.operator import ConsoleOperator
     from station.twin.served import HandTwin
 
-    with HandTwin(protocol, seed=9, speed=40.0, poses=12, mountings=1) as twin:
+    with HandTwin(protocol, seed=9, poses=12, mountings=1) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text("SN-TWIN"))
         profile = BenchProfile.load(tmp_path / "b.toml")
         prompts = io.StringIO()

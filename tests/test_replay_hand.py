@@ -18,8 +18,8 @@ from station.replay import ReplaySettings, replay
 from station.twin.hand_bench import record_iron_session, record_static_session
 
 RECORDINGS = {
-    "iron": lambda path: record_iron_session(path, seed=2, speed=40.0, mountings=2),
-    "static": lambda path: record_static_session(path, seed=5, speed=40.0, poses=12),
+    "iron": lambda path: record_iron_session(path, seed=2, mountings=2),
+    "static": lambda path: record_static_session(path, seed=5, poses=12),
 }
 
 FALSE_ALARM = 1e-3

@@ -54,7 +54,7 @@ class Interrupting:
 
 def _bench(kind: str) -> HandBench:
     case = CASES[kind]
-    return HandBench(seed=SEED, speed=40.0, layout=case["layout"], mountings=case["mountings"],
+    return HandBench(seed=SEED, layout=case["layout"], mountings=case["mountings"],
                      period=20.0, placement_deg=case["placement_deg"])
 
 
@@ -71,7 +71,7 @@ def reference(tmp_path_factory):
         tmp = tmp_path_factory.mktemp(f"ref-{kind}")
         with _bench(kind) as bench:
             record(_profile(tmp, bench, kind, CASES[kind]["extra"]), tmp / "s.h5",
-                   bench.technician)
+                   bench.technician, clock=bench.clock)
         out[kind] = _solve(tmp / "s.h5")
     return out
 
@@ -85,13 +85,13 @@ def test_an_interrupted_hand_session_resumes_to_the_uninterrupted_calibration(
         profile = _profile(tmp_path, bench, kind, CASES[kind]["extra"])
         operator = Interrupting(bench, how, cue)
         with pytest.raises(KeyboardInterrupt if how == "ctrl-c" else RecordingError):
-            record(profile, path, operator)
+            record(profile, path, operator, clock=bench.clock)
         assert operator.fired
         with Session.open(path) as s:
             assert s.closed_cleanly and s.last_completed_position() == kept - 1
         if how == "unplug":
             bench.twin.plug()
-        assert resume(profile, path, bench.technician) == kept
+        assert resume(profile, path, bench.technician, clock=bench.clock) == kept
         assert profile.positions == POSES
     with Session.open(path) as s:
         events = s.events()
@@ -115,7 +115,8 @@ def test_an_interrupted_hand_session_resumes_to_the_uninterrupted_calibration(
 def test_station_resume_of_a_completed_hand_session_records_nothing(tmp_path, capsys):
     with _bench("static") as bench:
         _profile(tmp_path, bench, "static", CASES["static"]["extra"])
-        record(BenchProfile.load(tmp_path / "bench.toml"), tmp_path / "s.h5", bench.technician)
+        record(BenchProfile.load(tmp_path / "bench.toml"), tmp_path / "s.h5", bench.technician,
+               clock=bench.clock)
         capsys.readouterr()
         assert cli.main(["resume", str(tmp_path / "s.h5"), "--profile",
                          str(tmp_path / "bench.toml"), "--json"]) == 0

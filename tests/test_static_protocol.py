@@ -22,10 +22,10 @@ FAMILY_FALSE_ALARM = 1e-3
                 ids=lambda p: p[0])
 def recorded(request, tmp_path_factory):
     """A free-static session (triad: 18 poses, ellipsoid path; ACC4: 12 poses, joint-bias
-    factorization) recorded at 40x: (path, truth, readings, result, poses)."""
+    factorization) recorded in lockstep time: (path, truth, readings, result, poses)."""
     name, layout, poses = request.param
     path = tmp_path_factory.mktemp("static") / f"{name}.h5"
-    truth, readings, result = record_static_session(path, seed=5, speed=40.0, layout=layout,
+    truth, readings, result = record_static_session(path, seed=5, layout=layout,
                                                     poses=poses)
     return path, truth, readings, result, poses
 
@@ -100,7 +100,7 @@ class Repeating(HandTechnician):
 
 
 def test_a_repeated_pose_is_refused_and_asked_for_again(tmp_path):
-    with HandBench(seed=7, speed=40.0, layout=TRIAD, mountings=[np.eye(3)], period=20.0,
+    with HandBench(seed=7, layout=TRIAD, mountings=[np.eye(3)], period=20.0,
                    placement_deg=2.0) as bench:
         bench.technician = Repeating(bench.rig, bench.clock, [np.eye(3)], placement_deg=2.0,
                                      rng=7, period=20.0, repeat=3)

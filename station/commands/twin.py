@@ -25,16 +25,17 @@ each with its own truth, its fixed mounting on the plate and its own pty; the pr
 `--protocol iron` and `--protocol static` start the virtual hand bench instead
 (`station.twin.hand_bench`): an accelerometer unit on a serial pty, no table, and a technician who
 turns it on a 20 s metronome through the protocol's sequence (static: the guided poses; iron: a
-re-mounting, then the six faces, per mounting), starting when the station opens the port. The
-technician does not hear the station, so `station record` must keep up (it does with the default
-5 s hold) and records the turns in order.
+re-mounting, then the six faces, per mounting), starting when the station opens the port (in
+lockstep time: at clock 0, time standing still until `station record` takes part). The technician
+does not hear the station; with `--speed` `station record` must keep up (it does with the default
+5 s hold), and it records the turns in order.
 
 It prints the devices' addresses and writes a bench profile pointing at them (`--profile-out`),
 then runs until Ctrl-C or `--lifetime` wall seconds. A device can be lost on the real wire and
 brought back while the twin runs: SIGUSR1 unplugs the IMU (its pty is closed; the same port comes
 back at the next SIGUSR1), SIGUSR2 silences the rotary table (its Modbus server stops answering;
 again at the next SIGUSR2), e.g. `kill -USR1 <twin pid>`: to try `station record`'s reconnection,
-pause and `station resume`. A rotary bench (and `--chamber`) runs in lockstep time: the twin serves
+pause and `station resume`. Every bench runs in lockstep time by default: the twin serves
 its stepped clock on a Unix socket named in the profile ([bench] lockstep), and `station record`
 takes part in it, so the session is the same on any host and runs as fast as the host allows
 (`drivers.clock_link`). `--speed` gives a real-time clock instead, that many times faster than the
@@ -116,9 +117,8 @@ def register(p) -> None:
                    help="iron: mountings, each followed by the six faces (default 2)")
     p.add_argument("--speed", type=float, default=None,
                    help="a real-time clock this many times faster than the wall (simulated s per "
-                        "wall s); default: rotary benches (and --chamber) run in lockstep time "
-                        "with `station record`, the same session on any host; the hand benches "
-                        "(iron, static) at 1")
+                        "wall s); default: lockstep time with `station record`, the same session "
+                        "on any host")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
     p.add_argument("--rate-hz", type=float, default=200.0, help="IMU sample rate (default 200)")
     p.add_argument("--lifetime", type=float, default=3600.0,
@@ -135,8 +135,6 @@ def run(args) -> int:
     from station.commands import given_values
     from station.errors import InputError
 
-    if args.speed is None and not KINDS[args.protocol].table:
-        args.speed = 1.0  # the hand benches keep a real-time clock
     if args.positions < 1 or args.mountings < 1 or not args.lifetime > 0 or args.units < 1 \
             or not (args.speed is None or 0 < args.speed < float("inf")):
         raise InputError("--positions, --mountings, --units, --speed and --lifetime must be "

@@ -1,12 +1,13 @@
 """The virtual hand bench: an accelerometer unit turned by a technician - in a right-angle iron,
 or freely - streaming through the real serial wire protocol.
 
-    with HandBench(seed=1, speed=40) as bench, bench.driver() as imu:
+    with HandBench(seed=1) as bench, bench.driver() as imu:
         ...  # imu: a drivers.ImuDriver (serial) on the twin's pseudo-terminal
         bench.technician  # HandTechnician: turns the unit (or its iron), re-mounts it in the iron
         bench.truth()     # what the station should find
 
-One `ScaledClock` drives everything. The unit (by default `ACC4`: three orthogonal accelerometers
+One clock drives everything: lockstep time by default (`drivers.clock.SteppedClock`: the same
+samples on any host), a `ScaledClock` with `speed` (for what must meet the wall clock). The unit (by default `ACC4`: three orthogonal accelerometers
 and one skew one; `TRIAD` for a plain triad; `station.sim.layouts.accelerometer_triad` noise,
 biases and quantisation) sits in a `HandRig`: the unit is fixed in a mounting B (iron frame ->
 unit frame; the identity for free poses), the iron (or the unit itself) is turned to an attitude,
@@ -36,7 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from drivers import open_imu
-from drivers.clock import ScaledClock
+from drivers.clock import ScaledClock, SteppedClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
@@ -189,12 +190,15 @@ class HandTechnician(SimulatedTechnician):
         self.handling_time = float(handling_time)
         self.period = period
         self.remounts = 0
+        self.stop = None  # a threading.Event that ends a wait for the next turn (a twin closing)
 
     def wait(self, instruction) -> None:
         start = self.clock.now() + self.handling_time
         if self.period:
             start = self.period * np.ceil(start / self.period)
-        self.clock.sleep(start - 2.0 - self.clock.now())
+        self.clock.sleep(start - 2.0 - self.clock.now(), self.stop)
+        if self.stop is not None and self.stop.is_set():
+            return
         self.mounted.next_turn = start
         if instruction.orientation is not None:
             super().wait(instruction)
@@ -224,7 +228,8 @@ class HandBench:
     """Starts the simulated hand bench; `close()` (or leaving the `with`) stops it.
 
     seed          : seed of the unit, the mountings and the technician
-    speed         : clock speed, simulated seconds per wall second
+    speed         : clock speed, simulated seconds per wall second (a `ScaledClock`); None (the
+                    default): lockstep time (`SteppedClock`), the same samples on any host
     rate_hz       : IMU sample rate
     layout        : (3, m) nominal layout of the accelerometers (ACC4, TRIAD, ...)
     mountings     : (K, 3, 3) iron -> unit rotations used in turn, or a count of random ones
@@ -241,14 +246,14 @@ class HandBench:
     udp_port      : mavlink: send to the station over UDP on 127.0.0.1:udp_port, not a pty
     """
 
-    def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
+    def __init__(self, seed: int = 1, speed: float | None = None, rate_hz: float = 200.0, layout=ACC4,
                  mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
                  latitude_deg: float = 52.2, effects: dict | None = None, link: str = "serial",
                  udp_port: int | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
-        self.clock = ScaledClock(speed)
+        self.clock = SteppedClock() if speed is None else ScaledClock(speed)
         self.link, self.udp_port = link, udp_port
         self.profile = accel_profile(self.layout.shape[1], rate_hz, link)
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
@@ -315,7 +320,7 @@ class HandBench:
         return HandTruth(self.unit.a.copy(), self.unit.bias.copy(), self.gravity, up, self.layout)
 
 
-def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int = 2,
+def record_iron_session(path, seed: int = 1, speed: float | None = None, mountings: int = 2,
                         rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
                         period: float | None = 20.0):
     """Record an iron session of the ACC4 unit on a new bench into `path` (a new .h5), solve it and
@@ -333,8 +338,8 @@ def record_iron_session(path, seed: int = 1, speed: float = 40.0, mountings: int
     return truth, readings, result
 
 
-def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD, poses: int = 18,
-                          rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
+def record_static_session(path, seed: int = 1, speed: float | None = None, layout=TRIAD,
+                          poses: int = 18, rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
                           period: float | None = 20.0, placement_deg: float = 5.0):
     """Record a free-static session of a unit on `layout` on a new bench into `path` (a new .h5),
     solve it and keep the result as `results/live`; returns (HandTruth, StillReadings,
@@ -355,7 +360,8 @@ def record_static_session(path, seed: int = 1, speed: float = 40.0, layout=TRIAD
     return truth, readings, result
 
 
-def _record(path, bench: HandBench, protocol, unit_serial: str, seed: int, speed: float):
+def _record(path, bench: HandBench, protocol, unit_serial: str, seed: int,
+            speed: float | None):
     """Run `protocol` on the bench's serial driver into the new session `path`; the truth."""
     metadata = {**protocol.metadata(), "unit_serial": unit_serial,
                 "bench": {"kind": protocol.metadata()["protocol"], "seed": seed, "speed": speed}}

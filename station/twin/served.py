@@ -410,10 +410,14 @@ class HandTwin:
     protocol  : "static" (a triad turned by hand through the first `poses` guided poses, 5 deg
                 off each) or "iron" (the ACC4 unit in an iron square to 0.0002 deg, `mountings`
                 re-mountings, each followed by the six faces)
+    speed     : a real-time clock that many times faster than the wall; None (the default):
+                lockstep time, served to `station record` (`drivers.clock_link`); the MAVLink
+                link at 1x (its driver does not take part in lockstep time)
     period    : clock seconds between the technician's turns; each turn starts on a multiple of
-                it, and the first after the station opened the port. The technician does not
-                hear the station: `station record` must keep up (a pose takes it about
-                `hold` + 3 s), and then records the turns in order.
+                it, and the first after the station opened the port (lockstep: at clock 0, time
+                standing still until the station takes part). The technician does not hear the
+                station: on a real-time clock `station record` must keep up (a pose takes it
+                about `hold` + 3 s), and then records the turns in order.
     cube      : static: the triad sits in a lettered cube set on the table or a 45-degree wedge
                 (`station.model.fixture`, 1 deg off each pose); the bench profile gets its
                 [fixture] section and the technician sets the poses `station record` plans
@@ -424,13 +428,15 @@ class HandTwin:
                 request instead of its opening the port
     """
 
-    def __init__(self, protocol: str = "static", seed: int = 1, speed: float = 1.0,
+    def __init__(self, protocol: str = "static", seed: int = 1, speed: float | None = None,
                  poses: int = 18, mountings: int = 2, rate_hz: float = 200.0,
                  period: float = 20.0, cube: bool = False, link: str = "serial",
                  udp: bool = False):
         from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
+        if speed is None and link == "mavlink":
+            speed = 1.0  # the MAVLink driver does not take part in lockstep time (yet)
         self.protocol, self.seed = protocol, seed
         if udp and link != "mavlink":
             raise InputError("--udp serves the MAVLink link (--link mavlink)")
@@ -456,8 +462,10 @@ class HandTwin:
         self.turns = 0
         self.error = self.on_error = None  # the technician thread's (drivers.twins.failure)
         self.failures.watch(self, "technician")
+        self.clock_server = None  # serves the lockstep clock (speed None) to `station record`
         self._watch = None
         self._stop = threading.Event()
+        self.bench.technician.stop = self._stop
         self._thread = threading.Thread(target=self._fixture, name="fixture", daemon=True)
 
     def start(self) -> Self:
@@ -466,21 +474,32 @@ class HandTwin:
         from drivers.twins.serial import SerialTwin
 
         b = self.bench
+        if not b.clock.realtime:
+            from drivers.clock_link import ClockServer
+
+            self.clock_server = ClockServer(b.clock)
         if b.link == "mavlink":
             b.start(unread_after=UNREAD_AFTER)
         else:
             b.twin = b.failures.watch(SerialTwin(b.profile, b.rig, b.clock, max_lag=np.inf,
                                                  unread_after=UNREAD_AFTER), "serial IMU")
-            self._watch = PortWatch(b.twin.port)
+            if b.clock.realtime:
+                self._watch = PortWatch(b.twin.port)
+            else:  # lockstep: time stands still until the station takes part
+                b.twin.start(0.0)
+        b.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
 
     def close(self) -> None:
         self._stop.set()
+        self.bench.clock.nudge()
         self._thread.join(timeout=5.0)  # a turn being waited for ends within a period
         if self._watch is not None:
             self._watch.close()
         self.bench.close()
+        if self.clock_server is not None:
+            self.clock_server.close()
 
     @property
     def failures(self):
@@ -506,7 +525,7 @@ class HandTwin:
         return (f"# Bench profile of the virtual hand bench (station twin), written "
                 f"{time.ctime()}.\n[bench]\n"
                 f"unit_serial = {_toml(unit_serial or f'SIM-{self.seed}')}"
-                f"\nclock_speed = {b.clock.speed!r}\n\n[imu]\n"
+                f"\n{_clock_line(_clock_address(b.clock, self.clock_server))}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
                 + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
                 + _planning_section("fixture", self.cube, layout=False))
@@ -521,7 +540,7 @@ class HandTwin:
     def addresses(self) -> dict:
         b = self.bench
         return {"imu": {"link": b.link, "port": b.twin.port, "rate_hz": b.profile.imu.rate_hz},
-                "clock_speed": b.clock.speed}
+                **_clock_address(b.clock, self.clock_server)}
 
     def truth(self) -> dict:
         """The simulated unit, its gyro triad (MAVLink) and the up direction after each turn
@@ -538,12 +557,18 @@ class HandTwin:
         except Exception as exc:  # noqa: BLE001 - reported by the command
             self.error = exc
 
+    def _streaming(self) -> bool:
+        """Does the IMU stream? MAVLink: once the station asked for it; serial: once the station
+        opened the port (lockstep time: from the start, time standing still until then)."""
+        if self.bench.link == "mavlink":
+            return self.bench.twin.streaming.is_set()
+        return self._watch is None or self._watch.opened()
+
     def _fixture(self) -> None:
         """Start the stream when the station opens the port (MAVLink: wait for its stream
         request), then turn as instructed, in order."""
         try:
-            while not (self.bench.twin.streaming.is_set() if self._watch is None
-                       else self._watch.opened()):
+            while not self._streaming():
                 if self._stop.wait(0.002):
                     return
             if self._watch is not None:
