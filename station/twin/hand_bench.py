@@ -7,17 +7,17 @@ or freely - streaming through the real serial wire protocol.
         bench.truth()     # what the station should find
 
 One clock drives everything: lockstep time by default (`drivers.clock.SteppedClock`: the same
-samples on any host), a `ScaledClock` with `speed` (for what must meet the wall clock). The unit (by default `ACC4`: three orthogonal accelerometers
-and one skew one; `TRIAD` for a plain triad; `station.sim.layouts.accelerometer_triad` noise,
-biases and quantisation) sits in a `HandRig`: the unit is fixed in a mounting B (iron frame ->
-unit frame; the identity for free poses), the iron (or the unit itself) is turned to an attitude,
-and every change of attitude or mounting is a smooth turn of `turn_time` seconds (a raised-cosine
-slerp), so the station sees real motion between the still poses. The rig is the `source(times)` of
-`drivers.twins.serial.SerialTwin`; the profile is the bundled binary serial profile with an `[imu]`
-section for the accelerometers. With `link="mavlink"` a triad streams through
-`drivers.twins.mavlink.MavlinkTwin` instead (a flight controller's SCALED_IMU, profile
-`imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad beside it that senses the turns
-(`HandRig.rates`), read by the station's MAVLink driver.
+samples on any host), a `ScaledClock` with `speed` (for what must meet the wall clock). The unit (by
+default `ACC4`: three orthogonal accelerometers and one skew one; `TRIAD` for a plain triad;
+`station.sim.layouts.accelerometer_triad` noise, biases and quantisation) sits in a `HandRig`: the
+unit is fixed in a mounting B (iron frame -> unit frame; the identity for free poses), the iron (or
+the unit itself) is turned to an attitude, and every change of attitude or mounting is a smooth turn
+of `turn_time` seconds (a raised-cosine slerp), so the station sees real motion between the still
+poses. The rig is the `source(times)` of `drivers.twins.serial.SerialTwin`; the profile is the
+bundled binary serial profile with an `[imu]` section for the accelerometers. With `link="mavlink"`
+a triad streams through `drivers.twins.mavlink.MavlinkTwin` instead (a flight controller's
+SCALED_IMU, profile `imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad beside it that
+senses the turns (`HandRig.rates`), read by the station's MAVLink driver.
 
 Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
 In an iron that is the iron's squareness (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's
@@ -246,8 +246,8 @@ class HandBench:
     udp_port      : mavlink: send to the station over UDP on 127.0.0.1:udp_port, not a pty
     """
 
-    def __init__(self, seed: int = 1, speed: float | None = None, rate_hz: float = 200.0, layout=ACC4,
-                 mountings=3, handling_time: float = 3.0, period: float | None = None,
+    def __init__(self, seed: int = 1, speed: float | None = None, rate_hz: float = 200.0,
+                 layout=ACC4, mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
                  latitude_deg: float = 52.2, effects: dict | None = None, link: str = "serial",
                  udp_port: int | None = None):
@@ -339,8 +339,9 @@ def record_iron_session(path, seed: int = 1, speed: float | None = None, mountin
 
 
 def record_static_session(path, seed: int = 1, speed: float | None = None, layout=TRIAD,
-                          poses: int = 18, rate_hz: float = 200.0, settings=None, unit_serial: str | None = None,
-                          period: float | None = 20.0, placement_deg: float = 5.0):
+                          poses: int = 18, rate_hz: float = 200.0, settings=None,
+                          unit_serial: str | None = None, period: float | None = 20.0,
+                          placement_deg: float = 5.0):
     """Record a free-static session of a unit on `layout` on a new bench into `path` (a new .h5),
     solve it and keep the result as `results/live`; returns (HandTruth, StillReadings,
     CalibrationResult)."""
