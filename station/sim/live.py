@@ -46,6 +46,11 @@ class MountedUnit:
         at = max(float(at), self._mounts[-1][0])
         self._mounts.append((at, np.asarray(orientation, float)))
 
+    def mounting(self, times) -> np.ndarray:
+        """(k,) the index of the mounting each of `times` (clock s) has: 0 the initial one, then
+        one more at each `mount`."""
+        return self._which(np.atleast_1d(np.asarray(times, float)))
+
     def orientation_at(self, time: float) -> np.ndarray:
         """The orientation the samples at clock time `time` have."""
         return self._mounts[self._which(np.atleast_1d(float(time)))[0]][1]
