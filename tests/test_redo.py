@@ -1,0 +1,225 @@
+"""Redo, do not warn (issue 30, station.protocols.redo): a position whose window the live check
+flags is recorded again at once, up to the profile's redo_limit, then the session stops with a
+clear error; the superseded attempt stays in the file and the reduction takes the redo. The flags
+come from the virtual bench's fault knob (`spikes`, station.sim.spikes), in lockstep time."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from station.acquire.bench import BenchProfile
+from station.errors import InputError, RedoLimitError
+from station.files.session import Session
+from station.protocols.redo import Redo
+from station.protocols.rotary import RotarySettings, suggested_axes
+from station.reduce.rotary import check_samples, position_windows, rotary_readings
+from station.reduce.timeline import sample_times
+from station.replay import ReplaySettings, solve_recorded
+from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
+
+FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
+POSITIONS = 6
+SPOILED = [2, 4]
+"""Positions (1-based) whose first attempt the bench spikes."""
+
+
+def _attempts(events) -> dict:
+    """{position (0-based): [position_start details in order]}."""
+    starts = {}
+    for e in events:
+        if e.kind == "position_start":
+            starts.setdefault(e.position, []).append(e.detail)
+    return starts
+
+
+def _counts(session, t0: float, t1: float):
+    """The gyro counts of the samples whose instants lie in [t0, t1]."""
+    data = session.stream("imu")
+    t = sample_times(data.seq, data.host_time, data.spec.rate_hz)
+    return data.counts[(t >= t0) & (t <= t1)]
+
+
+def _superseded_windows(events, position: int) -> list:
+    """The (static_start, static_end) times of `position`'s attempts before its last one."""
+    windows, start = [], None
+    for e in events:
+        if e.position != position:
+            continue
+        if e.kind == "static_start":
+            start = e.time
+        elif e.kind == "static_end":
+            windows.append((start, e.time))
+    return windows[:-1]
+
+
+def test_spiked_positions_are_recorded_again_and_the_session_solves(tmp_path):
+    path = tmp_path / "redo.h5"
+    with VirtualBench(seed=3, remount_time=1.0, spikes=SPOILED) as bench:
+        record_rotary(bench, path, FAST, suggested_axes(POSITIONS))
+        said = bench.technician.messages
+        truth = bench.truth()
+    with Session.open(path) as s:
+        events = s.events()
+        attempts = _attempts(events)
+        # every spoiled position twice: the flagged attempt, then the redo naming its flags
+        assert {j: len(a) for j, a in attempts.items()} == {
+            j: 2 if j + 1 in SPOILED else 1 for j in range(POSITIONS)}
+        for j in SPOILED:
+            redo = attempts[j - 1][-1]
+            assert redo["redo"] == 1 and redo["again"] is True
+            assert any("beyond 8 standard deviations" in f for f in redo["flags"]), redo
+            assert any(m.startswith(f"position {j}: ") and "recording it again (redo 1 of at "
+                       "most 2)" in m for m in said)
+        assert [e.position for e in events if e.kind == "position_done"] == list(range(POSITIONS))
+        # the superseded windows are in the file, spiky, and not those the reduction takes
+        windows = position_windows(events)
+        for j in SPOILED:
+            (old,) = _superseded_windows(events, j - 1)
+            with pytest.raises(InputError, match="beyond 8 standard deviations"):
+                check_samples(j - 1, "static", _counts(s, *old))
+            assert windows[j - 1]["static"][0] > old[1]
+        readings = rotary_readings(s)
+        _, result = solve_recorded(s, ReplaySettings())
+    assert readings.M.shape == (12, POSITIONS)
+    # the readings are the true stimuli through the true unit (c = 1 rad/s): every residual
+    # within 6 of its 1-sigma, the spiked positions included
+    expected = truth.a.T @ truth.v(FAST.rate)
+    assert np.all(np.abs(readings.M - expected) < 6 * readings.sigma), \
+        np.abs(readings.M - expected) / readings.sigma
+    assert result.refined
+
+
+def test_past_the_redo_limit_the_session_stops_naming_the_position_and_resumes(tmp_path):
+    """redo_limit 0: the first flagged window stops the session with the position, the flag and
+    what to do; the file keeps what was recorded (the completed position, the flagged attempt's
+    samples, the abort) and is resumed to a session that solves."""
+    path = tmp_path / "limit.h5"
+    settings = replace(FAST, redo_limit=0)
+    with VirtualBench(seed=4, remount_time=1.0, spikes=[2]) as bench, \
+            pytest.raises(RedoLimitError) as info:
+        record_rotary(bench, path, settings, suggested_axes(4))
+    message = str(info.value)
+    assert message.startswith("position 2 was flagged on each of its 1 attempts (last: the "
+                              "static window holds"), message
+    assert "redo_limit is 0" in message and "raise [protocol] redo_limit" in message
+    assert "station resume" in message and "mounting" in message
+    with Session.open(path) as s:
+        events = s.events()
+        assert s.last_completed_position() == 0
+        (abort,) = [e for e in events if e.kind == "abort"]
+        assert abort.position == 1 and "RedoLimitError" in abort.detail["error"]
+        static = [e.time for e in events if e.position == 1 and e.kind in ("static_start",
+                                                                          "static_end")]
+        assert len(_counts(s, *static)) >= FAST.static * 200  # the flagged window is kept
+    assert resume_rotary(path, spikes=None) == 1
+    with Session.open(path) as s:
+        assert [e.position for e in s.events() if e.kind == "position_done"] == [0, 1, 2, 3]
+        assert rotary_readings(s).M.shape == (12, 4)
+
+
+KILLER = textwrap.dedent("""
+    import os, signal, sys
+    from station.protocols.rotary import RotarySettings, suggested_axes
+    from station.twin.rotary_bench import VirtualBench, record_rotary
+
+    path, at = sys.argv[1], sys.argv[2]
+    settings = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5,
+                              steady=0.5)
+
+    def watch(writer):
+        event, redo = writer.event, []
+
+        def kill_in_redo(kind, position=None, detail=None, **kw):
+            out = event(kind, position, detail, **kw)
+            redo.extend([1] if kind == "position_start" and (detail or {}).get("redo") else [])
+            if redo and kind == at:
+                os.kill(os.getpid(), signal.SIGKILL)
+            return out
+        writer.event = kill_in_redo
+
+    with VirtualBench(seed=5, remount_time=1.0, spikes=[2]) as bench:
+        record_rotary(bench, path, settings, suggested_axes(6), watch=watch)
+""")
+
+
+@pytest.mark.parametrize("at", ["position_start", "static_end", "rotate_end"])
+def test_a_kill_during_a_redo_resumes_to_a_solvable_session(at, tmp_path):
+    """SIGKILL of the recording process right after an event of a redo (its position_start, its
+    static window, its rotating window): `resume` records the position again from its start and
+    the session solves, the superseded attempts still in the file."""
+    path = tmp_path / "killed.h5"
+    run = subprocess.run([sys.executable, "-c", KILLER, str(path), at], capture_output=True,
+                         text=True, timeout=600, env={**os.environ, "PYTHONPATH": os.getcwd()})
+    assert run.returncode == -signal.SIGKILL, run.stderr[-2000:]
+    with Session.open(path) as s:
+        assert s.last_completed_position() == 0
+        assert sum(1 for e in s.events() if e.kind == "position_start" and e.position == 1) == 2
+    assert resume_rotary(path, spikes=None) == 1
+    with Session.open(path) as s:
+        events = s.events()
+        assert [e.position for e in events if e.kind == "position_done"] == list(range(6))
+        assert len(_superseded_windows(events, 1)) == (2 if at != "position_start" else 1)
+        assert rotary_readings(s).M.shape == (12, 6)
+        _, result = solve_recorded(s, ReplaySettings())
+    assert result.refined
+
+
+def test_the_redo_rule_counts_each_position_against_its_limit():
+    redo = Redo(2)
+    assert redo.attempt(4, ["the static window was not still"]) == {
+        "again": True, "redo": 1, "flags": ["the static window was not still"]}
+    assert redo.attempt(4, ["x"])["redo"] == 2
+    assert redo.attempt(5, ["y"])["redo"] == 1  # each position its own count
+    with pytest.raises(RedoLimitError, match=r"^position 5 was flagged on each of its 3 attempts "
+                                             r"\(last: z\) and redo_limit is 2\."):
+        redo.attempt(4, ["z"])
+
+
+@pytest.mark.parametrize("value", [-1, 11, 1.5, "2"])
+def test_a_bad_redo_limit_is_refused_naming_the_key(value, tmp_path):
+    with pytest.raises(InputError, match="redo_limit must be a whole number from 0"):
+        RotarySettings(redo_limit=value)
+    with pytest.raises(InputError, match="redo_limit must be a whole number from 0"):
+        RotarySettings(redo_limit=True)
+    profile = tmp_path / "bench.toml"
+    profile.write_text(textwrap.dedent(f"""
+        [bench]
+        unit_serial = "SN1"
+        [imu]
+        link = "serial"
+        profile = "imu12_serial"
+        port = "/dev/null"
+        [table]
+        host = "127.0.0.1"
+        port = 5020
+        [protocol]
+        positions = 6
+        redo_limit = {value!r}
+        """).replace("'", '"'))
+    with pytest.raises(ValueError, match="redo_limit"):  # ProfileError
+        BenchProfile.load(profile)
+
+
+def test_the_redo_limit_comes_from_the_profile(tmp_path):
+    profile = tmp_path / "bench.toml"
+    profile.write_text(textwrap.dedent("""
+        [bench]
+        unit_serial = "SN1"
+        [imu]
+        link = "serial"
+        profile = "imu12_serial"
+        port = "/dev/null"
+        [table]
+        host = "127.0.0.1"
+        port = 5020
+        [protocol]
+        positions = 6
+        redo_limit = 5
+        """))
+    assert BenchProfile.load(profile).settings.redo_limit == 5
