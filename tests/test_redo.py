@@ -3,6 +3,7 @@ flags is recorded again at once, up to the profile's redo_limit, then the sessio
 clear error; the superseded attempt stays in the file and the reduction takes the redo. The flags
 come from the virtual bench's fault knob (`spikes`, station.sim.spikes), in lockstep time."""
 
+import json
 import os
 import signal
 import subprocess
@@ -14,7 +15,9 @@ import numpy as np
 import pytest
 
 from station.acquire.bench import BenchProfile
+from station.cli import main
 from station.errors import InputError, RedoLimitError
+from station.files.calfile import load
 from station.files.session import Session
 from station.protocols.redo import Redo
 from station.protocols.rotary import RotarySettings, suggested_axes
@@ -22,6 +25,7 @@ from station.reduce.rotary import check_samples, position_windows, rotary_readin
 from station.reduce.timeline import sample_times
 from station.replay import ReplaySettings, solve_recorded
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
+from station.twin.thermal import TRUTH, ThermalTwin
 
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
 POSITIONS = 6
@@ -223,3 +227,42 @@ def test_the_redo_limit_comes_from_the_profile(tmp_path):
         redo_limit = 5
         """))
     assert BenchProfile.load(profile).settings.redo_limit == 5
+
+
+THERMAL_SPOILED = [2, 9, 16]
+"""The campaign's positions (soak s, position j: 6 (s - 1) + j) whose first attempt is spiky:
+position 2 at the first setpoint, 3 at the second, 4 at the third."""
+
+
+def test_a_thermal_campaign_with_spiky_windows_redoes_them_and_ends_solvable(tmp_path, capsys):
+    """The thermal twin (lockstep, 6 positions at 3 setpoints) spikes the first attempt at three
+    positions: each is recorded again, the campaign solves, and the 24 linear tempcos lie within
+    4 of their reported 1-sigma of the truth."""
+    profile = tmp_path / "bench.toml"
+    with ThermalTwin(seed=2, positions=6, setpoints=(263.15, 298.15, 333.15),
+                     spikes=THERMAL_SPOILED) as twin:
+        profile.write_text(twin.profile_text())
+        assert main(["record", "--profile", str(profile), "--out", str(tmp_path / "camp"),
+                     "--solve", "--json"]) == 0
+        assert twin.error is None
+    summary = json.loads(capsys.readouterr().out)
+    redone, flags = [], []
+    for k, soak in enumerate(summary["soaks"]):
+        with Session.open(tmp_path / "camp" / soak["file"]) as s:
+            events = s.events()
+        assert [e.position for e in events if e.kind == "position_done"] == list(range(6))
+        for e in events:
+            if e.kind == "position_start" and e.detail.get("redo"):
+                redone.append(6 * k + e.position + 1)
+                flags += e.detail["flags"]
+    # every spoiled position recorded again (and nothing else flagged by the live check)
+    assert sorted(redone) == THERMAL_SPOILED, redone
+    assert all("standard deviations" in f or "not still" in f for f in flags), flags
+    model = load(tmp_path / "camp" / "campaign.cal.json").temperature
+    z_bias = (model.bias[:, 0] - TRUTH.bias) / model.bias_sigma[:, 0]
+    z_scale = (model.scale[:, 0] - np.asarray(TRUTH.scale)) / model.scale_sigma[:, 0]
+    print(f"\nthermal campaign: {len(redone)} position(s) flagged and redone {sorted(redone)}; "
+          f"tempco errors in sigma: bias max |z| {np.abs(z_bias).max():.2f} (rms "
+          f"{np.sqrt(np.mean(z_bias**2)):.2f}), scale max |z| {np.abs(z_scale).max():.2f} (rms "
+          f"{np.sqrt(np.mean(z_scale**2)):.2f}); orders {model.orders}")
+    assert np.all(np.abs(z_bias) < 4) and np.all(np.abs(z_scale) < 4), (z_bias, z_scale)
