@@ -19,11 +19,15 @@ from station.cli import main
 from station.errors import InputError, RedoLimitError
 from station.files.calfile import load
 from station.files.session import Session
+from station.protocols.iron import IronProtocol, IronSettings
 from station.protocols.redo import Redo
 from station.protocols.rotary import RotarySettings, suggested_axes
+from station.protocols.still import record_poses
 from station.reduce.rotary import check_samples, position_windows, rotary_readings
+from station.reduce.still import pose_windows
 from station.reduce.timeline import sample_times
 from station.replay import ReplaySettings, solve_recorded
+from station.twin.hand_bench import ACC4, HandBench
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 from station.twin.thermal import TRUTH, ThermalTwin
 
@@ -130,6 +134,7 @@ def test_past_the_redo_limit_the_session_stops_naming_the_position_and_resumes(t
 KILLER = textwrap.dedent("""
     import os, signal, sys
     from station.protocols.rotary import RotarySettings, suggested_axes
+from station.protocols.still import record_poses
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
     path, at = sys.argv[1], sys.argv[2]
@@ -266,3 +271,62 @@ def test_a_thermal_campaign_with_spiky_windows_redoes_them_and_ends_solvable(tmp
           f"{np.sqrt(np.mean(z_bias**2)):.2f}), scale max |z| {np.abs(z_scale).max():.2f} (rms "
           f"{np.sqrt(np.mean(z_scale**2)):.2f}); orders {model.orders}")
     assert np.all(np.abs(z_bias) < 4) and np.all(np.abs(z_scale) < 4), (z_bias, z_scale)
+
+
+class SpikedPoses:
+    """The hand rig's counts (`station.twin.hand_bench.HandRig`, the bench's `source`) with a
+    spike of `size` counts on channel 1 every `every` s for `span` s after the end of the turns
+    `turns` (1-based, re-mountings included): single readings far beyond the noise that the
+    stillness detector lets pass (one in each of its 1 s windows) and the live check flags."""
+
+    def __init__(self, rig, turns, rate_hz: float, size: int, every: float = 2.0,
+                 span: float = 4.0):
+        self.rig, self.turns, self.rate_hz, self.size = rig, turns, rate_hz, size
+        self.every, self.span = every, span
+
+    def __call__(self, times):
+        times = np.atleast_1d(np.asarray(times, float))
+        counts = np.array(self.rig(times))
+        for k in self.turns:
+            if k < len(self.rig._turns):
+                after = times - (self.rig._turns[k][0] + self.rig.turn_time)
+                tick = np.round(after * self.rate_hz).astype(int) % round(self.every * self.rate_hz)
+                counts[(after >= 0) & (after < self.span) & (tick == 0), 0] += self.size
+        return counts
+
+
+def test_a_spiky_hand_pose_is_held_again_and_the_session_solves(tmp_path):
+    """Iron protocol, one mounting (6 faces), lockstep hand bench: the first window of faces 2 and
+    4 holds spikes; the technician is asked to hold the unit still, the next window is taken, the
+    superseded one stays in the file and the reduction takes the redo."""
+    path = tmp_path / "iron.h5"
+    bench = HandBench(seed=2, speed=None, period=20.0)
+    size = round(20 * bench.unit.sigma[0] * bench.profile.imu.scale[0])  # 20 sigma
+    bench.source = SpikedPoses(bench.rig, [3, 5], bench.stream_spec.rate_hz, size)  # faces 2, 4
+    with bench, bench.driver() as imu:
+        protocol = IronProtocol(bench.technician, bench.clock, ACC4,
+                                IronSettings(gravity=bench.gravity, mountings=1))
+        record_poses(protocol, imu, bench.stream_spec, bench.clock, path,
+                     {**protocol.metadata(), "unit_serial": "T"})
+        said = bench.technician.messages
+    assert sum("hold the unit still" in m for m in said) == 2
+    with Session.open(path) as s:
+        events = s.events()
+        attempts = _attempts(events)
+        assert {j: len(a) for j, a in attempts.items()} == {0: 1, 1: 2, 2: 1, 3: 2, 4: 1, 5: 1}
+        for j in (1, 3):
+            redo = attempts[j][-1]
+            assert redo["redo"] == 1 and redo["face_asked"] == attempts[j][0]["face_asked"]
+            assert len(redo["flags"]) == 1, redo
+            assert redo["flags"][0].startswith("the still window holds ")
+            assert redo["flags"][0].endswith(" beyond 8 standard deviations of its own noise "
+                                             "(channels 1)"), redo
+        ends = [e for e in events if e.kind == "static_end"]
+        windows, _ = pose_windows(events)
+        for j in (1, 3):
+            old, new = [e.detail["window"] for e in ends if e.position == j]
+            with pytest.raises(InputError, match="beyond 8 standard deviations"):
+                check_samples(j, "still", _counts(s, *old))
+            assert windows[j].tolist() == new
+        _, result = solve_recorded(s, ReplaySettings())
+    assert result.refined

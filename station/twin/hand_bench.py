@@ -6,16 +6,17 @@ or freely - streaming through the real serial wire protocol.
         bench.technician  # HandTechnician: turns the unit (or its iron), re-mounts it in the iron
         bench.truth()     # what the station should find
 
-One `ScaledClock` drives everything. The unit (by default `ACC4`: three orthogonal accelerometers
-and one skew one; `TRIAD` for a plain triad; `station.sim.layouts.accelerometer_triad` noise,
-biases and quantisation) sits in a `HandRig`: the unit is fixed in a mounting B (iron frame ->
-unit frame; the identity for free poses), the iron (or the unit itself) is turned to an attitude,
-and every change of attitude or mounting is a smooth turn of `turn_time` seconds (a raised-cosine
-slerp), so the station sees real motion between the still poses. The rig is the `source(times)` of
-`drivers.twins.serial.SerialTwin`; the profile is the bundled binary serial profile with an `[imu]`
-section for the accelerometers. With `link="mavlink"` a triad streams through
-`drivers.twins.mavlink.MavlinkTwin` instead (a flight controller's SCALED_IMU, profile
-`imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad beside it that senses the turns
+One clock drives everything (a `ScaledClock`, or lockstep time with `speed=None`). The unit (by
+default `ACC4`: three orthogonal accelerometers and one skew one; `TRIAD` for a plain triad;
+`station.sim.layouts.accelerometer_triad` noise, biases and quantisation) sits in a `HandRig`: the
+unit is fixed in a mounting B (iron frame -> unit frame; the identity for free poses), the iron (or
+the unit itself) is turned to an attitude, and every change of attitude or mounting is a smooth
+turn of `turn_time` seconds (a raised-cosine slerp), so the station sees real motion between the
+still poses. The rig is the `source(times)` of `drivers.twins.serial.SerialTwin`; the profile is
+the bundled binary serial profile with an `[imu]` section for the accelerometers. With
+`link="mavlink"` a triad streams through `drivers.twins.mavlink.MavlinkTwin` instead (a flight
+controller's SCALED_IMU, profile `imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad
+beside it that senses the turns
 (`HandRig.rates`), read by the station's MAVLink driver.
 
 Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
@@ -36,7 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from drivers import open_imu
-from drivers.clock import ScaledClock
+from drivers.clock import ScaledClock, SteppedClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
@@ -224,7 +225,8 @@ class HandBench:
     """Starts the simulated hand bench; `close()` (or leaving the `with`) stops it.
 
     seed          : seed of the unit, the mountings and the technician
-    speed         : clock speed, simulated seconds per wall second
+    speed         : clock speed, simulated seconds per wall second; None: lockstep time
+                    (`drivers.clock.SteppedClock`), as fast as the host allows
     rate_hz       : IMU sample rate
     layout        : (3, m) nominal layout of the accelerometers (ACC4, TRIAD, ...)
     mountings     : (K, 3, 3) iron -> unit rotations used in turn, or a count of random ones
@@ -241,14 +243,14 @@ class HandBench:
     udp_port      : mavlink: send to the station over UDP on 127.0.0.1:udp_port, not a pty
     """
 
-    def __init__(self, seed: int = 1, speed: float = 40.0, rate_hz: float = 200.0, layout=ACC4,
-                 mountings=3, handling_time: float = 3.0, period: float | None = None,
+    def __init__(self, seed: int = 1, speed: float | None = 40.0, rate_hz: float = 200.0,
+                 layout=ACC4, mountings=3, handling_time: float = 3.0, period: float | None = None,
                  turn_time: float = 2.0, placement_deg: float = 0.0002,
                  latitude_deg: float = 52.2, effects: dict | None = None, link: str = "serial",
                  udp_port: int | None = None):
         rng = np.random.default_rng(seed)
         self.layout = np.asarray(layout, float)
-        self.clock = ScaledClock(speed)
+        self.clock = SteppedClock() if speed is None else ScaledClock(speed)
         self.link, self.udp_port = link, udp_port
         self.profile = accel_profile(self.layout.shape[1], rate_hz, link)
         self.stream_spec = StreamSpec.from_profile(self.profile.imu)
@@ -266,6 +268,7 @@ class HandBench:
                            effects=from_json(effects or {}), gyro=self.gyro)
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
+        self.source = self.rig  # what the IMU twin streams (a test may wrap it: tests/test_redo.py)
         self.twin = None
         self.failures = Failures()  # the IMU twin's, told at once (drivers.twins.failure)
 
@@ -282,7 +285,7 @@ class HandBench:
             return self
         # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
         # samples whatever the host's load (frames before the driver opens the port are lost)
-        self.twin = self.failures.watch(SerialTwin(self.profile, self.rig, self.clock,
+        self.twin = self.failures.watch(SerialTwin(self.profile, self.source, self.clock,
                                                    max_lag=np.inf, unread_after=unread_after),
                                         "serial IMU")
         self.twin.start(0.0)
