@@ -16,8 +16,7 @@ still poses. The rig is the `source(times)` of `drivers.twins.serial.SerialTwin`
 the bundled binary serial profile with an `[imu]` section for the accelerometers. With
 `link="mavlink"` a triad streams through `drivers.twins.mavlink.MavlinkTwin` instead (a flight
 controller's SCALED_IMU, profile `imu6_scaled_mavlink`, on a pty or over UDP), with a gyro triad
-beside it that senses the turns
-(`HandRig.rates`), read by the station's MAVLink driver.
+beside it that senses the turns (`HandRig.rates`), read by the station's MAVLink driver.
 
 Each turn misses its target by a random rotation of `placement_deg` per axis (standard deviation).
 In an iron that is the iron's squareness (default 0.0002 deg, 0.7 arc second): Hwangbo & Kanade's
