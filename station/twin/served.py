@@ -590,14 +590,14 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime, cube, two_axis, units, plan)."""
+    rate_hz, lifetime, cube, two_axis, units, plan, spikes)."""
     if getattr(options, "link", "serial") != "serial":
         raise InputError("the rotary bench's IMU streams over the serial link only (--link "
                          "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
                      options.lifetime, getattr(options, "cube", False),
                      getattr(options, "two_axis", False), getattr(options, "units", 1),
-                     getattr(options, "plan", False))
+                     getattr(options, "plan", False), getattr(options, "spikes", None))
 
 
 def iron_twin(options) -> HandTwin:

@@ -137,6 +137,6 @@ class ThermalTwin:
 
 
 def thermal_twin(options) -> ThermalTwin:
-    """`station twin --chamber` (options: seed, speed, positions, rate_hz, lifetime)."""
+    """`station twin --chamber` (options: seed, speed, positions, rate_hz, lifetime, spikes)."""
     return ThermalTwin(options.seed, options.speed, options.positions, options.rate_hz,
-                       options.lifetime)
+                       options.lifetime, spikes=getattr(options, "spikes", None))
