@@ -27,6 +27,7 @@ from station.reduce.rotary import check_samples, position_windows, rotary_readin
 from station.reduce.still import pose_windows
 from station.reduce.timeline import sample_times
 from station.replay import ReplaySettings, solve_recorded
+from station.report.session import build
 from station.twin.hand_bench import ACC4, HandBench
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 from station.twin.thermal import TRUTH, ThermalTwin
@@ -101,6 +102,10 @@ def test_spiked_positions_are_recorded_again_and_the_session_solves(tmp_path):
     assert np.all(np.abs(readings.M - expected) < 6 * readings.sigma), \
         np.abs(readings.M - expected) / readings.sigma
     assert result.refined
+    report = build(path)  # the session report lists the redos with their flags
+    assert report.summary["redos"] == len(SPOILED)
+    page = report.html()
+    assert page.count("<td>redo</td>") == len(SPOILED) and "beyond 8 standard deviations" in page
 
 
 def test_past_the_redo_limit_the_session_stops_naming_the_position_and_resumes(tmp_path):
