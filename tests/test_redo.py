@@ -335,3 +335,12 @@ def test_a_spiky_hand_pose_is_held_again_and_the_session_solves(tmp_path):
             assert windows[j].tolist() == new
         _, result = solve_recorded(s, ReplaySettings())
     assert result.refined
+
+
+@pytest.mark.parametrize("args", [["--spikes", "2,x"], ["--spikes", "1.5"], ["--spikes", "0"],
+                                  ["--protocol", "iron", "--spikes", "2"],
+                                  ["--units", "2", "--spikes", "2"]])
+def test_a_bad_spikes_knob_is_refused_naming_the_option(args, tmp_path, capsys):
+    assert main(["twin", *args, "--profile-out", str(tmp_path / "t.toml")]) == 2
+    assert "--spikes" in capsys.readouterr().err
+    assert not (tmp_path / "t.toml").exists()
