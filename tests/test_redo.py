@@ -19,6 +19,7 @@ from station.cli import main
 from station.errors import InputError, RedoLimitError
 from station.files.calfile import load
 from station.files.session import Session
+from station.model.two_axis import position_angles
 from station.protocols.iron import IronProtocol, IronSettings
 from station.protocols.redo import Redo
 from station.protocols.rotary import RotarySettings, suggested_axes
@@ -108,6 +109,21 @@ def test_spiked_positions_are_recorded_again_and_the_session_solves(tmp_path):
     assert page.count("<td>redo</td>") == len(SPOILED) and "beyond 8 standard deviations" in page
 
 
+def test_a_two_axis_session_redoes_a_spiky_cone_position_and_solves(tmp_path):
+    """Two-axis table (the station sets each orientation through the position axis, lockstep):
+    the same rule; position 3 on the cone is spiked, recorded again, and the session solves."""
+    path = tmp_path / "two_axis.h5"
+    with VirtualBench(seed=4, two_axis=True, spikes=[3]) as bench:
+        record_rotary(bench, path, FAST, phis=position_angles(6), spins=1)
+    with Session.open(path) as s:
+        attempts = _attempts(s.events())
+        assert {j: len(a) for j, a in attempts.items()} == {j: 2 if j == 2 else 1
+                                                            for j in range(7)}
+        assert attempts[2][-1]["redo"] == 1 and "phi" not in attempts[2][-1]  # not re-set
+        _, result = solve_recorded(s, ReplaySettings())
+    assert result.refined
+
+
 def test_past_the_redo_limit_the_session_stops_naming_the_position_and_resumes(tmp_path):
     """redo_limit 0: the first flagged window stops the session with the position, the flag and
     what to do; the file keeps what was recorded (the completed position, the flagged attempt's
@@ -139,7 +155,6 @@ def test_past_the_redo_limit_the_session_stops_naming_the_position_and_resumes(t
 KILLER = textwrap.dedent("""
     import os, signal, sys
     from station.protocols.rotary import RotarySettings, suggested_axes
-from station.protocols.still import record_poses
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
     path, at = sys.argv[1], sys.argv[2]

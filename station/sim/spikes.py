@@ -4,16 +4,17 @@ gives them (issue 30: a campaign must record such a position again, not keep it)
 `SpikySource(source, mounted, spikes, counts_per_unit, seed)` is the IMU twin's sample source
 `source` (times -> counts) with spikes added to the first attempt at chosen positions:
 
-- a position is a mounting of the unit (`station.sim.live.MountedUnit.mount`: the technician, the
-  fixture or a two-axis table's position axis) that the table turned at; positions are counted
-  from 1 over the bench's life (a thermal campaign's soak s, position j is (s - 1) n + j for n
-  positions a soak), a mounting the table never turned at (a fixture holding its first position
-  before the session asks for it) is none;
+- a position is a placement of the unit (`station.sim.live.MountedUnit.placement`: an
+  orientation set by the technician, the fixture or a two-axis table's position axis) that the
+  table turned at; positions are counted from 1 over the bench's life (a thermal campaign's soak
+  s, position j is (s - 1) n + j for n positions a soak); a placement the table never turned at
+  is none, and a two-axis table's spin of its position axis, which keeps the placement of the
+  position before it, is no position of its own (never spiked);
 - `spikes` chooses them: a list of positions, or a chance per position (a number in [0, 1], each
   position drawn from the seed);
-- the first attempt at a position lasts from its mounting until the table has turned and come to
-  rest again: its static and rotating windows. A redo of the position (the same mounting, turned
-  again) is clean;
+- the first attempt at a position lasts from its placement until the table has turned and come
+  to rest again: its static and rotating windows. A redo of the position (the same placement,
+  turned again) is clean;
 - in it each sample is spiked with probability `DENSITY`: one sensor channel (of the first
   `channels`, not a temperature) gets `SIZE` rad/s of either sign, hundreds of its noise's
   standard deviations.
@@ -53,7 +54,7 @@ def check_spikes(spikes) -> None:
 class SpikySource:
     """`times -> counts`: `source`'s counts with spikes in the first attempt at the positions
     `spikes` chooses (module docstring). `mounted`: the `MountedUnit` the source reads (its
-    mountings, its table's motion); `counts_per_unit` the stream's scale; `channels`: the sensor
+    placements, its table's motion); `counts_per_unit` the stream's scale; `channels`: the sensor
     columns that may spike (default: the unit's m)."""
 
     def __init__(self, source, mounted, spikes, counts_per_unit, seed: int = 1,
@@ -64,9 +65,9 @@ class SpikySource:
         scale = np.atleast_1d(np.asarray(counts_per_unit, float))
         self.size = SIZE * (np.full(self.channels, scale[0]) if scale.size == 1
                             else scale[: self.channels])
-        self.turned = 0  # positions: mountings the table turned at, so far
-        self._phase = {}  # mounting -> 0 not turned yet, 1 turning, 2 first attempt over
-        self._position = {}  # mounting -> its position (1-based), once seen
+        self.turned = 0  # positions: placements the table turned at, so far
+        self._phase = {}  # placement -> 0 not turned yet, 1 turning, 2 first attempt over
+        self._position = {}  # placement -> its position (1-based), once seen
         self._rng = {}  # position -> its spikes' generator
 
     def spoiled(self, position: int) -> bool:
@@ -79,7 +80,7 @@ class SpikySource:
     def __call__(self, times) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
         counts = np.array(self.source(times), dtype=np.int64)
-        which = self.mounted.mounting(times)
+        which = self.mounted.placement(times)
         moving = self._rates(times) > MOVING
         for k in np.unique(which):
             here = np.flatnonzero(which == k)
@@ -97,7 +98,7 @@ class SpikySource:
         return rates
 
     def _first_attempt(self, k: int, moving: np.ndarray) -> int:
-        """How many of mounting k's samples (in time order, `moving`: the table turning at each)
+        """How many of placement k's samples (in time order, `moving`: the table turning at each)
         belong to its first attempt; counts the position when the table starts turning."""
         if k not in self._position:
             self._position[k] = self.turned + 1
