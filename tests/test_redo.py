@@ -29,6 +29,7 @@ from station.reduce.still import pose_windows
 from station.reduce.timeline import sample_times
 from station.replay import ReplaySettings, solve_recorded
 from station.report.session import build
+from station.sim.spikes import DENSITY, SIZE, SpikySource
 from station.twin.hand_bench import ACC4, HandBench
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 from station.twin.thermal import TRUTH, ThermalTwin
@@ -359,3 +360,43 @@ def test_a_bad_spikes_knob_is_refused_naming_the_option(args, tmp_path, capsys):
     assert main(["twin", *args, "--profile-out", str(tmp_path / "t.toml")]) == 2
     assert "--spikes" in capsys.readouterr().err
     assert not (tmp_path / "t.toml").exists()
+
+
+class TurnTwice:
+    """A `MountedUnit` stand-in for `SpikySource`: 12 channels of zero counts, one placement,
+    its table turning at 1 rad/s over [3, 5) s and again over [8, 10) s (the first
+    attempt, then a redo)."""
+
+    class Table:
+        @staticmethod
+        def true_rates(times):
+            t = np.asarray(times)
+            return np.where(((t >= 3) & (t < 5)) | ((t >= 8) & (t < 10)), 1.0, 0.0)
+
+    class Unit:
+        m = 12
+
+    table, unit, inner = Table(), Unit(), None
+
+    @staticmethod
+    def placement(times):
+        return np.zeros(len(times), int)
+
+    def __call__(self, times):
+        return np.zeros((len(times), 12), np.int64)
+
+
+@pytest.mark.parametrize("cut", [1, 333, 777])
+def test_spikes_fall_in_the_first_attempt_whatever_the_blocks(cut):
+    """Position 1 (the one placement, the table turned at it) spiked from its placement to the end
+    of its first turn, the redo clean, the samples the same however the twin's host
+    cuts the stream into blocks."""
+    times = np.arange(1200) / 100.0
+    whole = SpikySource(TurnTwice(), TurnTwice(), [1], 1e6, seed=3)(times)
+    source = SpikySource(TurnTwice(), TurnTwice(), [1], 1e6, seed=3)
+    parts = np.vstack([source(times[:cut]), source(times[cut:])])
+    assert np.array_equal(whole, parts)
+    hit = np.flatnonzero(whole.any(axis=1))
+    assert hit.size > 0.5 * DENSITY * 500 and times[hit].max() < 5.0
+    assert set(np.unique(np.abs(whole[whole != 0]))) == {round(SIZE * 1e6)}
+    assert not SpikySource(TurnTwice(), TurnTwice(), [2], 1e6)(times).any()  # no position 2

@@ -8,8 +8,9 @@ gives them (issue 30: a campaign must record such a position again, not keep it)
   orientation set by the technician, the fixture or a two-axis table's position axis) that the
   table turned at; positions are counted from 1 over the bench's life (a thermal campaign's soak
   s, position j is (s - 1) n + j for n positions a soak); a placement the table never turned at
-  is none, and a two-axis table's spin of its position axis, which keeps the placement of the
-  position before it, is no position of its own (never spiked);
+  is none (its samples, in no window, are spiked as the next position's would be), and a two-axis
+  table's spin of its position axis, which keeps the placement of the position before it, is no
+  position of its own (never spiked);
 - `spikes` chooses them: a list of positions, or a chance per position (a number in [0, 1], each
   position drawn from the seed);
 - the first attempt at a position lasts from its placement until the table has turned and come
