@@ -24,6 +24,7 @@ from station.protocols.iron import IronProtocol, IronSettings
 from station.protocols.redo import Redo
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.protocols.still import record_poses
+from station.protocols.thermal import ROOM
 from station.reduce.rotary import check_samples, position_windows, rotary_readings
 from station.reduce.still import pose_windows
 from station.reduce.timeline import sample_times
@@ -400,3 +401,24 @@ def test_spikes_fall_in_the_first_attempt_whatever_the_blocks(cut):
     assert hit.size > 0.5 * DENSITY * 500 and times[hit].max() < 5.0
     assert set(np.unique(np.abs(whole[whole != 0]))) == {round(SIZE * 1e6)}
     assert not SpikySource(TurnTwice(), TurnTwice(), [2], 1e6)(times).any()  # no position 2
+
+
+def test_a_campaign_past_its_redo_limit_stops_safe_and_resumes(tmp_path, capsys):
+    """redo_limit 0 in the bench profile: the campaign's first spiky window stops it (exit 3)
+    naming the position and the flag, the table stopped and the chamber at its safe setpoint;
+    `station resume DIR` records that position again (the twin spikes first attempts only) and
+    the campaign solves."""
+    profile, camp = tmp_path / "bench.toml", tmp_path / "camp"
+    with ThermalTwin(seed=3, positions=6, setpoints=(283.15, 313.15), spikes=[2]) as twin:
+        profile.write_text(twin.profile_text().replace("[protocol]\n",
+                                                       "[protocol]\nredo_limit = 0\n"))
+        assert main(["record", "--profile", str(profile), "--out", str(camp)]) == 3
+        err = capsys.readouterr().err
+        assert "position 2 was flagged on each of its 1 attempts" in err
+        assert "beyond 8 standard deviations" in err and "redo_limit is 0" in err
+        assert not twin.bench.table.state().running and twin.physics.setpoint == ROOM
+        assert main(["resume", str(camp)]) == 0
+    assert main(["solve", str(camp)]) == 0
+    with Session.open(camp / "soak_1_283K.h5") as s:
+        starts = [e.position for e in s.events() if e.kind == "position_start"]
+    assert starts.count(1) == 2  # the flagged attempt and the resumed one, both kept
