@@ -17,6 +17,8 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |    +-- RecordingError              3  the IMU stream stopped
      |    +-- ProtocolError               3  the bench did not behave as the protocol needs
      |         +-- SessionPaused          3  the operator stopped; the session can be resumed
+     |         +-- FlaggedWindow          3  a window the live check flags: recorded again
+     |         +-- RedoLimitError         3  a position still flagged after its redo_limit redos
      |         +-- SoakError              3  a thermal soak did not settle
      |              +-- SoakTimeout       3  the unit still warmed or cooled at the soak's timeout
      +-- SuspectFitError                1  a fit inconsistent with its noise: not written as good
@@ -99,6 +101,21 @@ class ProtocolError(AcquisitionError):
 
 class SessionPaused(ProtocolError):
     """The table stopped answering and the operator chose to stop; the session can be resumed."""
+
+
+class FlaggedWindow(ProtocolError):
+    """A window the protocol saw go wrong while recording it (the table moved during a static
+    window, its rate left the tolerance while rotating): the protocol records the position again
+    (station.protocols.redo) instead of ending the session. `flag` says what was wrong."""
+
+    def __init__(self, flag: str):
+        super().__init__(flag)
+        self.flag = flag
+
+
+class RedoLimitError(ProtocolError):
+    """A position's window was still flagged after the bench profile's `redo_limit` redos
+    (station.protocols.redo); the message names the position, the flag and what to do."""
 
 
 class SuspectFitError(StationError):

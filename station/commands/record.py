@@ -27,6 +27,8 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     kind = "rotary"               # "rotary" (default), "iron" or "static"
     positions = 20                # rotary; any other key: a field of the protocol's settings
     # spins = 1                   # two-axis table: spins of the position axis after the positions
+    # redo_limit = 2              # a flagged window is recorded again at once, at most this often
+                                  # per position; then the session stops (docs/protocols.md)
 
     [fixture]                     # rotary, optional: a lettered cube (and wedge) to mount the
     layout = [[...], [...], [...]]  # unit in; the positions are then planned fixture poses

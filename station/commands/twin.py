@@ -119,6 +119,13 @@ def register(p) -> None:
                    help="a real-time clock this many times faster than the wall (simulated s per "
                         "wall s); default: lockstep time with `station record`, the same session "
                         "on any host")
+    p.add_argument("--spikes", metavar="POSITIONS|CHANCE",
+                   help="rotary (and --chamber): a fault knob, spiky windows in the first attempt "
+                        "at these positions (1-based over the twin's life, e.g. 2,9: a campaign "
+                        "of 6 positions a soak, position 3 of soak 2 is 9) or, with a decimal "
+                        "point, at each position with this chance (e.g. 0.1); `station record` "
+                        "records them again (docs/simulator.md, docs/protocols.md \"Redo, do not "
+                        "warn\")")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated unit (default 1)")
     p.add_argument("--rate-hz", type=float, default=200.0, help="IMU sample rate (default 200)")
     p.add_argument("--lifetime", type=float, default=3600.0,
@@ -129,6 +136,23 @@ def register(p) -> None:
     p.add_argument("--json", action="store_true",
                    help="machine-readable addresses, and the truth when stopping")
     p.set_defaults(run=run)
+
+
+def _spikes(text: str | None):
+    """--spikes: None, a list of positions ("2,9") or, with a decimal point, a chance ("0.1");
+    InputError naming the option otherwise (`station.sim.spikes.check_spikes`)."""
+    from station.errors import InputError
+    from station.sim.spikes import check_spikes
+
+    if text is None:
+        return None
+    try:
+        spikes = float(text) if "." in text else [int(p) for p in text.split(",")]
+        check_spikes(spikes)
+    except (ValueError, InputError):
+        raise InputError(f"--spikes {text!r}: give positions from 1 (e.g. 2,9) or a chance "
+                         "from 0 to 1 with a decimal point (e.g. 0.1)") from None
+    return spikes
 
 
 def run(args) -> int:
@@ -151,6 +175,10 @@ def run(args) -> int:
                          or args.link != "serial"):
         raise InputError("--chamber serves the rotary bench with its serial IMU (no --cube, no "
                          "--two-axis)")
+    args.spikes = _spikes(args.spikes)
+    if args.spikes is not None and (args.protocol != "rotary" or args.units > 1):
+        raise InputError("--spikes spoils the windows of one unit on the rotary table "
+                         "(--protocol rotary, --units 1)")
     with given_values():
         if args.chamber:
             from station.twin.thermal import thermal_twin

@@ -155,7 +155,7 @@ class IronProtocol:
         self.watcher.request()
         self.operator.wait(Instruction(f"pose {j + 1}/{self.poses}: stand the iron on its face "
                                        f"{face} and let go", mounting(FACE_UP[face])))
-        self.recorder.event("position_start", j, {"mounting": self._mounting(), "face_asked": face})
+        self.watcher.start(j, {"mounting": self._mounting(), "face_asked": face})
         return "settle"
 
     def _settle(self) -> str:

@@ -41,11 +41,16 @@ Any other exception - a table fault, a silent IMU, the operator aborting, Ctrl-C
 table at once and records an `abort` event, so the session file stays consistent (complete
 positions end with `position_done`; `run(first=...)` continues after the last one).
 
-Each captured position is confirmed to the operator with its quality when the protocol reads a
-copy of the stream (`run(..., tap=StreamTap)`, as `continue_session` does): the samples found and
-due in the static and rotating windows through the reduction's own checks, and the static noise
-against the median of the earlier positions' static windows
-(`station.reduce.window_quality`).
+Each captured position is checked, once the table rests and every sample is in, when the protocol
+reads a copy of the stream (`run(..., tap=StreamTap)`, as `continue_session` does): the samples
+found and due in the static and rotating windows through the reduction's own checks (spikes, a
+stuck channel), and the static noise against the median of the earlier accepted positions' static
+windows (`station.reduce.window_quality`), on the gyro channels. Redo, do not warn
+(`station.protocols.redo`): a flagged position - or one whose table moved during the static window
+or left its rate while rotating - is not completed: the table is stopped and the position recorded
+again at once from its rest (a new `position_start`, detail `redo`, `flags`), up to the settings'
+`redo_limit` times, then the session stops with `RedoLimitError`. An accepted position is
+confirmed to the operator with its quality and completed (`position_done`).
 
 On a two-axis table (`phis`, `spins`; `station.model.two_axis`, docs/protocols.md "Two-axis
 sessions") the mount step sets the position axis to phi_j and the rate axis spins, as above, for the
@@ -72,14 +77,18 @@ from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
-from station.errors import InputError, ProtocolError, SessionPaused
+from station.errors import FlaggedWindow, InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
 from station.protocols.planned import fixture_instruction, rotary_plan, two_axis_plan
+from station.protocols.redo import REDO_LIMIT, Redo, check_redo_limit, window_flags
 from station.protocols.still import StillSettings, StreamTap
+from station.reduce.rotary import gyro_columns
 from station.reduce.window_quality import describe, window_quality
 
+AGAINST = "the earlier static windows"
+"""What a static window's noise is compared with, in the confirmations and flags."""
 BOUND_READS = 5
 """Table reads at each bound of a rotating window, the one with the shortest round trip kept."""
 
@@ -100,6 +109,8 @@ class RotarySettings:
     timeout     : longest wait for the table to reach rest or the rate
     stale       : longest silence of the IMU before the session is aborted
     retries     : how often one position may be recorded again after a lost IMU or table
+    redo_limit  : how often one position may be recorded again after a flagged window
+                  (`station.protocols.redo`)
     """
 
     rate: float = 1.0
@@ -113,6 +124,7 @@ class RotarySettings:
     timeout: float = 60.0
     stale: float = 10.0
     retries: int = 3
+    redo_limit: int = REDO_LIMIT
 
     def __post_init__(self):
         if not (math.isfinite(self.rate) and self.rate != 0):
@@ -121,6 +133,7 @@ class RotarySettings:
             raise InputError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
         if not (isinstance(self.retries, int) and self.retries >= 0):
             raise InputError(f"retries must be a whole number >= 0, got {self.retries!r}")
+        check_redo_limit(self.redo_limit)
         durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
         bad = [n for n in durations if not getattr(self, n) > 0]
         if bad:
@@ -255,6 +268,7 @@ class RotaryProtocol:
         self.taps = {} if tap is None else tap if isinstance(tap, dict) else \
             {recorder.stream: tap}
         self._windows, self._static_noise = {}, {stream: [] for stream in self.taps}
+        self.redo = Redo(self.settings.redo_limit)
         self._rotated = None  # (position, clock time) of the last rotating window's end
         try:
             while self.state != "done":
@@ -267,6 +281,8 @@ class RotaryProtocol:
                     self.state = self._reconnect(exc)
                 except TableTimeout as exc:
                     self.state = self._pause(exc)
+                except FlaggedWindow as exc:
+                    self.state = self._redo([exc.flag])
         except SessionPaused:
             raise  # table stopped and `pause` recorded already
         except BaseException as exc:
@@ -357,10 +373,9 @@ class RotaryProtocol:
             self.clock.sleep(s.poll)
             reading = self._poll()
             if not self._on_rate(reading):
-                raise ProtocolError(f"the table's rate {self.motion(reading)[0]:.4f} rad/s left "
-                                    f"{self._rate():g} +- {s.tolerance:g} rad/s while recording "
-                                    f"position {j + 1}; check the table and record this position "
-                                    "again")
+                raise FlaggedWindow(f"the table's rate {self.motion(reading)[0]:.4f} rad/s left "
+                                    f"{self._rate():g} +- {s.tolerance:g} rad/s in the rotating "
+                                    "window")
             if self.clock.now() > deadline:
                 swept = abs(self.motion(reading)[1] - self.motion(start)[1])
                 raise ProtocolError(f"the table angle did not advance as commanded (swept "
@@ -379,18 +394,27 @@ class RotaryProtocol:
         return "rest"
 
     def _rest(self) -> str:
-        self._done()
-        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured"
-                             + self._quality())
+        """The table at rest and every sample in: the position's windows checked
+        (`_captured`); a flagged one is recorded again (`_redo`), else the position is done."""
+        self._to_rest()
+        words, flags = self._captured()
+        if flags:
+            return self._redo(flags)
+        self.recorder.event("position_done", self.position)
+        self.operator.prompt(f"position {self.position + 1}/{len(self.axes)} captured" + words)
         self.position += 1
         return "mount" if self.position < len(self.axes) else "done"
 
-    def _done(self, detail: dict | None = None, imu: bool = True) -> None:
-        """The table at rest, its spin-down and rest in the file (imu False: the IMU is lost, the
-        table alone is watched): record `position_done`."""
+    def _to_rest(self, imu: bool = True) -> None:
+        """Wait until the table rests and its spin-down and rest are in the file (imu False: the
+        IMU is lost, the table alone is watched)."""
         self._until(lambda r: r.resting, self.settings.rest, "the table to stop", imu)
         if imu:
             self.recorder.drain(self.clock.now(), self.settings.stale)
+
+    def _done(self, detail: dict | None = None, imu: bool = True) -> None:
+        """The table at rest (`_to_rest`): record `position_done`."""
+        self._to_rest(imu)
         self.recorder.event("position_done", self.position, detail)
 
     def _angle_detail(self, reading) -> dict:
@@ -408,39 +432,66 @@ class RotaryProtocol:
         return (self._rotated is not None and self._rotated[0] == self.position
                 and self.recorder.sampled_until() >= self._rotated[1])
 
-    def _quality(self) -> str:
-        """": static ...; rotating ..." (`station.reduce.window_quality.describe`) for the
-        position just captured, each unit's on its own line (named) when there are several; ""
-        without a tap."""
-        if len(self.taps) == 1:
-            return ": " + self._unit_quality(*next(iter(self.taps.items())))
-        return "".join(f"\n  {self.recorder.names[stream]}: {self._unit_quality(stream, tap)}"
-                       for stream, tap in self.taps.items())
+    def _captured(self) -> tuple[str, list]:
+        """(": static ...; rotating ..." (`station.reduce.window_quality.describe`), the flags
+        (`station.protocols.redo.window_flags`)) of the position just captured, each unit's words
+        on their own line (named) and its flags named when there are several; ("", []) without a
+        tap. The static noise of an accepted position becomes a reference for the next ones."""
+        named = len(self.taps) > 1
+        words, flags, noise = [], [], {}
+        for stream, tap in self.taps.items():
+            qualities = self._unit_quality(stream, tap)
+            unit = self.recorder.writer.specs[stream].units[0]
+            text = "; ".join(f"{name} {describe(q, unit, AGAINST)}"
+                             for name, q in qualities.items())
+            name = self.recorder.names[stream] if named else ""
+            words.append(f"\n  {name}: {text}" if named else f": {text}")
+            flags += [f"{name}: {f}" if named else f
+                      for f in window_flags(qualities, AGAINST)]
+            noise[stream] = qualities["static"].noise
+        if not flags:
+            for stream, n in noise.items():
+                self._static_noise[stream].append(n)
+        return "".join(words), flags
 
-    def _unit_quality(self, stream: str, tap) -> str:
-        """"static ...; rotating ..." of one unit's stream and its StreamTap. The static noise is
-        compared with the median of the unit's earlier positions' (it at rest), out of line
-        beyond the stillness detector's `enter`; the tap then forgets the position's samples."""
+    def _unit_quality(self, stream: str, tap) -> dict:
+        """{"static": WindowQuality, "rotating": ...} of one unit's stream and its StreamTap, its
+        gyro channels (a temperature channel is not calibrated, `gyro_columns`). The static noise
+        is compared with the median of the unit's earlier accepted positions' (it at rest), out of
+        line beyond the stillness detector's `enter`; the tap then forgets the position's
+        samples."""
         t, z = tap.samples(self._windows["static"][0])
-        unit = self.recorder.writer.specs[stream].units[0]
+        keep = gyro_columns(self.recorder.writer.specs[stream].units)
         earlier = self._static_noise[stream]
         reference = np.median(earlier, axis=0) if earlier else None
-        words = []
-        for name, window in self._windows.items():
-            q = window_quality(t, z, window, tap.rate_hz, tap.lsb,
-                               reference if name == "static" else None, StillSettings.enter, name,
-                               self.position)
-            words.append(f"{name} {describe(q, unit, 'the earlier static windows')}")
-            if name == "static":
-                earlier.append(q.noise)
+        qualities = {name: window_quality(t, z[:, keep], window, tap.rate_hz, tap.lsb[keep],
+                                          reference if name == "static" else None,
+                                          StillSettings.enter, name, self.position)
+                     for name, window in self._windows.items()}
         tap.forget(self.clock.now())
-        return "; ".join(words)
+        return qualities
 
     def _restart(self) -> str:
+        self.operator.prompt(f"position {self.position + 1}: recording it again (leave the unit "
+                             "mounted)")
+        return self._start_again({"again": True})
+
+    def _redo(self, flags: list) -> str:
+        """A window of this position was flagged (`flags`): stop the table and record the position
+        again from its rest, without re-mounting (`station.protocols.redo`); RedoLimitError past
+        the profile's redo_limit."""
+        self._rotated = None  # the flagged attempt is not completed, whatever happens next
+        self.table.stop()
+        detail = self.redo.attempt(self.position, flags)
+        self.operator.prompt(self.redo.words(self.position, flags) + "; leave the unit mounted")
+        return self._start_again(detail)
+
+    def _start_again(self, detail: dict) -> str:
+        """Record a new `position_start` of this position with `detail` (the windows before it
+        are superseded): the position is recorded again from its rest."""
         j = self.position
-        self.operator.prompt(f"position {j + 1}: recording it again (leave the unit mounted)")
         again = {"spin": "position"} if self._spun(j) else {}
-        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist(), "again": True,
+        self.recorder.event("position_start", j, {"axis": self.axes[j].tolist(), **detail,
                                                   **again})
         return "still"
 
@@ -590,11 +641,12 @@ class RotaryProtocol:
             self.clock.sleep(s.poll)
 
     def _hold(self, duration: float, condition, problem: str) -> None:
-        """Poll for `duration` s; ProtocolError(problem) if `condition(reading)` fails once."""
+        """Poll for `duration` s; FlaggedWindow(problem) if `condition(reading)` fails once (the
+        position is recorded again)."""
         end = self.clock.now() + duration
         while True:
             if not condition(self._poll()):
-                raise ProtocolError(f"{problem} (position {self.position + 1}); record it again")
+                raise FlaggedWindow(problem)
             if self.clock.now() >= end:
                 return
             self.clock.sleep(min(self.settings.poll, max(0.0, end - self.clock.now())))

@@ -161,7 +161,7 @@ class StaticProtocol:
         self.watcher.request()
         self.operator.wait(Instruction(f"pose {j + 1}/{self.settings.poses}: {words}, and let go",
                                        mounting(up)))
-        self.recorder.event("position_start", j, {"pose_asked": name})
+        self.watcher.start(j, {"pose_asked": name})
         return "settle"
 
     def _settle(self) -> str:

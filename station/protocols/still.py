@@ -5,6 +5,7 @@ press to know when a pose begins: it watches the stream (`StreamTap`) and finds 
 itself (`station.reduce.stillness.detect_still`: dispersion with hysteresis, a minimum still time, a
 timeout). `PoseWatcher` does the watching for a protocol:
 
+- `start(position, detail)`: record the pose's `position_start` (kept for a redo);
 - `request()`  : a new pose was asked for: only a still interval that began after the last pose
                  (its window, or the start of a settled pose not held, e.g. the iron's
                  re-mounting) counts: the unit was moved since (before the first pose: after now).
@@ -16,7 +17,11 @@ timeout). `PoseWatcher` does the watching for a protocol:
                  window does not depend on when the host polled) and returns the window's mean
                  and its quality (`station.reduce.window_quality`: samples found / due, noise
                  against the detector's rest noise); a motion records a `note`, tells the
-                 operator and returns None (settle again).
+                 operator and returns None (settle again). Redo, do not warn
+                 (`station.protocols.redo`): a flagged window (spikes, samples missing, not
+                 still) is recorded again at once: a new `position_start` of the pose (detail
+                 `redo`, `flags`), the technician asked to hold the unit still, the next `hold` s
+                 taken; `RedoLimitError` past the settings' `redo_limit`.
 
 The offline reduction (`station.reduce.still.still_readings`) does not trust the live polling.
 
@@ -35,6 +40,7 @@ from station.acquire.recorder import Recorder
 from station.errors import InputError, ProtocolError
 from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
+from station.protocols.redo import REDO_LIMIT, Redo, check_redo_limit, window_flags
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import WindowQuality, describe, window_quality
@@ -49,6 +55,8 @@ class StillSettings:
     window, enter, leave, min_still, rest_length : stillness detector (station.reduce.stillness)
     lookback  : seconds of stream the detector looks at (enough for a rest stretch and a pose)
     poll, timeout, stale : time between checks, longest wait for a still pose, longest IMU silence
+    redo_limit : how often one pose may be recorded again after a flagged window
+                 (`station.protocols.redo`)
     """
 
     gravity: float = STANDARD_GRAVITY
@@ -62,8 +70,10 @@ class StillSettings:
     poll: float = 0.25
     timeout: float = 60.0
     stale: float = 10.0
+    redo_limit: int = REDO_LIMIT
 
     def __post_init__(self):
+        check_redo_limit(self.redo_limit)
         positive = ("gravity", "hold", "window", "min_still", "rest_length", "lookback", "poll",
                     "timeout", "stale")
         bad = [n for n in positive if not getattr(self, n) > 0]
@@ -133,6 +143,13 @@ class PoseWatcher:
         self.tap = tap
         self.channels = slice(None) if channels is None else np.asarray(channels)
         self._since = self._start = self._last = self._noise = None
+        self.redo = Redo(settings.redo_limit, "pose")
+        self._asked = {}  # the detail of the pose's position_start
+
+    def start(self, position: int, detail: dict) -> None:
+        """Record the `position_start` of pose `position` with `detail` (a redo repeats it)."""
+        self._asked = dict(detail)
+        self.recorder.event("position_start", position, detail)
 
     def request(self) -> None:
         """A new pose is asked for: still intervals that began before the last pose's window
@@ -155,7 +172,19 @@ class PoseWatcher:
     def hold(self, position: int) -> tuple[np.ndarray, WindowQuality] | None:
         """(mean reading (m,), quality of the `channels`) of the `hold` s window of the pose at
         `position` after `settle`, or None when the unit moved (the next still interval must begin
-        after the motion)."""
+        after the motion). A flagged window is recorded again at once (the module docstring)."""
+        while True:
+            held = self._window(position)
+            flags = [] if held is None else window_flags({"still": held[1]}, "the rest noise")
+            if not flags:
+                return held
+            self.recorder.event("position_start", position,
+                                {**self._asked, **self.redo.attempt(position, flags)})
+            self.operator.prompt(self.redo.words(position, flags) + ": hold the unit still")
+            self._start = self._last  # the next window follows the flagged one
+
+    def _window(self, position: int) -> tuple[np.ndarray, WindowQuality] | None:
+        """One `hold` s window of the pose from `_start` (`hold`)."""
         s = self.settings
         self.recorder.event("static_start", position, {"still_since": self._start})
         end = self._start + s.hold

@@ -132,9 +132,15 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
 
 
 def rotary_channels(session, stream: str = "imu") -> np.ndarray:
-    """Indices of the gyro channels of a rotary session's stream: every channel not in K (a unit's
-    temperature is recorded beside its gyros, never calibrated as one: a thermal campaign)."""
-    return np.array([i for i, u in enumerate(session.specs[stream].units) if u != "K"])
+    """Indices of the gyro channels of a rotary session's stream (`gyro_columns`)."""
+    return gyro_columns(session.specs[stream].units)
+
+
+def gyro_columns(units) -> np.ndarray:
+    """Indices of the channels of `units` (a stream's channel units) a rotary session calibrates:
+    every channel not in K (a unit's temperature is recorded beside its gyros, never calibrated as
+    one: a thermal campaign)."""
+    return np.array([i for i, u in enumerate(units) if u != "K"])
 
 
 def _selection(channels, m: int):

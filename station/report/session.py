@@ -174,23 +174,28 @@ def _fixture_poses(report, metadata) -> None:
 
 
 def _protocol_warnings(report, events, metadata) -> None:
-    """Positions completed, aborts and faults, from the event list."""
+    """Positions completed, aborts, faults and redos (a flagged window recorded again), from the
+    event list."""
     done = sorted({e.position for e in events if e.kind == "position_done"})
     report.summary["positions"] = len(done)
     planned = report.summary.get("positions_planned")
     if planned is not None and len(done) < planned:
         report.warnings.append(f"Only {len(done)} of the {planned} planned positions were "
                                "completed; resume the session to record the others.")
+    redos = {id(e) for e in events if e.kind == "position_start" and e.detail.get("redo")}
+    if redos:  # flagged windows recorded again (station.protocols.redo)
+        report.summary["redos"] = len(redos)
     notable = [e for e in events if e.kind in ("session_resumed", "pause", "resume", "fault",
-                                               "note", "abort")]
+                                               "note", "abort") or id(e) in redos]
     for e in notable:
         if e.kind in ("abort", "fault"):
             where = "" if e.position is None else f" at position {e.position + 1}"
             why = e.detail.get("error") or e.detail.get("text") or ""
             report.warnings.append(f"The protocol recorded a {e.kind}{where}: {why}".rstrip(": "))
     if notable:
-        rows = [(f"{e.time:.1f}", e.kind, "" if e.position is None else str(e.position + 1),
-                 _short(e.detail)) for e in notable]
+        rows = [(f"{e.time:.1f}", "redo" if id(e) in redos else e.kind,
+                 "" if e.position is None else str(e.position + 1), _short(e.detail))
+                for e in notable]
         report.sections.append(html.section("events", "Notable events", html.table(
             rows, ("time (s)", "event", "position", "detail"))))
 

@@ -1,5 +1,7 @@
 """A sensor unit mounted on the live rotary table: the sample source of the serial/CAN twins."""
 
+import itertools
+
 import numpy as np
 
 from station.model import sensing
@@ -45,6 +47,15 @@ class MountedUnit:
         axis arriving at its setpoint), never before the mounting set last takes effect."""
         at = max(float(at), self._mounts[-1][0])
         self._mounts.append((at, np.asarray(orientation, float)))
+
+    def placement(self, times) -> np.ndarray:
+        """(k,) the placement each of `times` (clock s) has: 0 the initial orientation, one more
+        at each `mount` that changes it (a mounting that keeps the orientation, e.g. a fixture
+        asked again for the position it holds, or a two-axis table's position axis held where it
+        is, is the same placement)."""
+        changed = [0] + [int(not np.allclose(a, b, atol=1e-12))
+                         for (_, a), (_, b) in itertools.pairwise(self._mounts)]
+        return np.cumsum(changed)[self._which(np.atleast_1d(np.asarray(times, float)))]
 
     def orientation_at(self, time: float) -> np.ndarray:
         """The orientation the samples at clock time `time` have."""

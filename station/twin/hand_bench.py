@@ -271,6 +271,7 @@ class HandBench:
                            effects=from_json(effects or {}), gyro=self.gyro)
         self.technician = HandTechnician(self.rig, self.clock, mountings, handling_time,
                                          placement_deg, np.random.default_rng([seed, 1]), period)
+        self.source = self.rig  # what the IMU twin streams (a test may wrap it: tests/test_redo.py)
         self.twin = None
         self.failures = Failures()  # the IMU twin's, told at once (drivers.twins.failure)
 
@@ -287,7 +288,7 @@ class HandBench:
             return self
         # frame n is sampled at clock n / rate_hz: with the technician's metronome, the same
         # samples whatever the host's load (frames before the driver opens the port are lost)
-        self.twin = self.failures.watch(SerialTwin(self.profile, self.rig, self.clock,
+        self.twin = self.failures.watch(SerialTwin(self.profile, self.source, self.clock,
                                                    max_lag=np.inf, unread_after=unread_after),
                                         "serial IMU")
         self.twin.start(0.0)

@@ -52,12 +52,13 @@ from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
+from station.sim.spikes import SpikySource, check_spikes
 from station.sim.table import MountingFixture, PositionAxis, TablePhysics
 
 IMU_KINDS = {"serial": "imu12_serial", "can": "imu12_can"}
 _channels = itertools.count()
 BENCH_KEYS = {"imu", "seed", "speed", "rate_hz", "remount_time", "placement_deg", "rate_error",
-              "effects", "two_axis"}
+              "effects", "two_axis", "spikes"}
 """The `VirtualBench` arguments a session records (`VirtualBench.metadata`)."""
 MARGINS = ("rest", "guard", "steady")
 """The rotary settings that must cover the host's latency (`VirtualBench.with_margins`)."""
@@ -140,13 +141,15 @@ class VirtualBench:
                     table_fixture): `self.fixture`, a `station.sim.table.MountingFixture`, holds
                     what the station asks for; whoever serves it (`station.twin.served.BenchTwin`)
                     mounts the unit
+    spikes        : a fault knob: the positions (1-based, over the bench's life) whose first
+                    attempt is spiky, or a chance per position (`station.sim.spikes`); None: none
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float | None = None,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
                  lifetime: float = 3600.0, clock_start: float = 0.0,
                  rate_error: dict | None = None, effects: dict | None = None,
-                 two_axis: bool = False, fixture: bool = False):
+                 two_axis: bool = False, fixture: bool = False, spikes=None):
         if imu not in IMU_KINDS:
             raise InputError(f"unknown IMU link {imu!r}; choose one of {sorted(IMU_KINDS)}")
         self.kind = imu
@@ -182,6 +185,8 @@ class VirtualBench:
                       fixture=self.fixture), "rotary table")
         self.can_channel = f"virtual-bench-{os.getpid()}-{next(_channels)}"
         self.source = self.mounted  # what the IMU twin streams (station.twin.thermal: heated)
+        check_spikes(spikes)
+        self.spikes = list(spikes) if isinstance(spikes, list | tuple) else spikes
         self.imu_twin = None
 
     def _turn_unit(self, phi: float, arrival: float) -> None:
@@ -213,7 +218,7 @@ class VirtualBench:
     def metadata(self) -> dict:
         """What a session records about the bench: enough to build it again (`from_metadata`)."""
         hidden = {k: v for k, v in (("rate_error", self.rate_error), ("effects", self.effects),
-                                    ("two_axis", self.two_axis)) if v}
+                                    ("two_axis", self.two_axis), ("spikes", self.spikes)) if v}
         return {"imu": self.kind, "seed": self.seed,
                 "speed": self.clock.speed if self.clock.realtime else None,
                 "rate_hz": self.rate_hz, "remount_time": self.remount_time,
@@ -228,15 +233,23 @@ class VirtualBench:
                              f"station's virtual benches (keys {sorted(BENCH_KEYS)})")
         return cls(**{**bench, **overrides})
 
+    def streamed(self):
+        """What the IMU twin streams: `source`, spiked by the `spikes` knob when it is set
+        (`station.sim.spikes.SpikySource`)."""
+        if not self.spikes:
+            return self.source
+        return SpikySource(self.source, self.mounted, self.spikes, self.profile.imu.scale,
+                           self.seed)
+
     def start(self) -> Self:
         """Start the Modbus server and the IMU stream (or stop what started and raise)."""
         try:
             self.table_twin.start()
             if self.kind == "serial":
-                self.imu_twin = SerialTwin(self.profile, self.source, self.clock,
+                self.imu_twin = SerialTwin(self.profile, self.streamed(), self.clock,
                                            max_lag=np.inf)  # flow control: never skip frames
             else:
-                self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.mounted,
+                self.imu_twin = CanImuTwin(self.can_channel, self.profile, self.streamed(),
                                            self.clock)
             self.failures.watch(self.imu_twin, "CAN IMU" if self.kind == "can" else "serial IMU")
             # sample n is taken at clock_start + n / rate_hz, whenever the host gets round to it,

@@ -114,12 +114,14 @@ class BenchTwin:
                 plate, the suggested axes being directions in the plate frame = unit 1's; each
                 unit streams on its own pty (serial), or all on the bench's one virtual CAN bus,
                 unit k at id_offset PLATE_ID_STEP * k (can: in this process only)
+    spikes    : the fault knob of spiky first attempts (`VirtualBench`, `station.sim.spikes`; one
+                unit only: a plate's units stream unspiked)
     """
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float | None = None,
                  positions: int = 20, rate_hz: float = 200.0, lifetime: float = 3600.0,
                  cube: bool = False, two_axis: bool = False, units: int = 1,
-                 plan: bool = False):
+                 plan: bool = False, spikes=None):
         from station.twin.rotary_bench import VirtualBench
 
         if cube and two_axis:
@@ -132,7 +134,8 @@ class BenchTwin:
             raise InputError(f"--units {units}: the twin serves 1 or more units, several on a "
                              "plate with serial or CAN links only (no --cube)")
         self.bench = VirtualBench(imu, seed=seed, speed=speed, rate_hz=rate_hz, remount_time=0.0,
-                                  lifetime=lifetime, fixture=not two_axis, two_axis=two_axis)
+                                  lifetime=lifetime, fixture=not two_axis, two_axis=two_axis,
+                                  spikes=spikes)
         self.seed = seed
         self.positions = positions
         self.cube = _cube(self.bench.unit) if cube else None
@@ -176,7 +179,7 @@ class BenchTwin:
                 b.fixture.on_request = self._mount_at_once
         if b.kind == "serial":
             b.table_twin.start()
-            sources = [b.source] if self.plate is None else self.plate.units
+            sources = [b.streamed()] if self.plate is None else self.plate.units
             twins = [SerialTwin(b.profile, source, b.clock, max_lag=np.inf,
                                 unread_after=UNREAD_AFTER) for source in sources]
             for k, twin in enumerate(twins):
@@ -612,14 +615,14 @@ def _hand_instructions(protocol: str, poses: int, mountings: int) -> list:
 
 def rotary_twin(options) -> BenchTwin:
     """`station twin --protocol rotary`: a serial `BenchTwin` (options: seed, speed, positions,
-    rate_hz, lifetime, cube, two_axis, units, plan)."""
+    rate_hz, lifetime, cube, two_axis, units, plan, spikes)."""
     if getattr(options, "link", "serial") != "serial":
         raise InputError("the rotary bench's IMU streams over the serial link only (--link "
                          "mavlink serves the static bench)")
     return BenchTwin("serial", options.seed, options.speed, options.positions, options.rate_hz,
                      options.lifetime, getattr(options, "cube", False),
                      getattr(options, "two_axis", False), getattr(options, "units", 1),
-                     getattr(options, "plan", False))
+                     getattr(options, "plan", False), getattr(options, "spikes", None))
 
 
 def iron_twin(options) -> HandTwin:

@@ -34,12 +34,15 @@ class ThermalTwin:
     chamber   : ChamberPhysics arguments (default FAST_CHAMBER)
     soak      : the profile's [chamber] soak keys (stability, window, soak_timeout, poll, ramp,
                 safe)
+    spikes    : the fault knob of spiky first attempts (`station.sim.spikes`): the positions,
+                counted over the campaign (soak s, position j: (s - 1) positions + j), or a chance
+                per position
     """
 
     def __init__(self, seed: int = 1, speed: float | None = None, positions: int = 6,
                  rate_hz: float = 100.0, lifetime: float = 3600.0, setpoints=SETPOINTS,
                  effect: Temperature = TRUTH, chamber: dict | None = None,
-                 soak: dict | None = None):
+                 soak: dict | None = None, spikes=None):
         from drivers.profile import SerialImuProfile
         from drivers.thermal_chamber import ChamberRegisterMap
         from drivers.twins.chamber import ChamberTwin
@@ -48,7 +51,8 @@ class ThermalTwin:
         from station.sim.heated import HeatedUnit
         from station.twin.served import BenchTwin
 
-        self.served = BenchTwin("serial", seed, speed, positions, rate_hz, lifetime)
+        self.served = BenchTwin("serial", seed, speed, positions, rate_hz, lifetime,
+                                spikes=spikes)
         b = self.served.bench
         profile = SerialImuProfile.load("imu12_serial_temp")
         b.profile = dataclasses.replace(profile, imu=dataclasses.replace(profile.imu,
@@ -133,6 +137,6 @@ class ThermalTwin:
 
 
 def thermal_twin(options) -> ThermalTwin:
-    """`station twin --chamber` (options: seed, speed, positions, rate_hz, lifetime)."""
+    """`station twin --chamber` (options: seed, speed, positions, rate_hz, lifetime, spikes)."""
     return ThermalTwin(options.seed, options.speed, options.positions, options.rate_hz,
-                       options.lifetime)
+                       options.lifetime, spikes=getattr(options, "spikes", None))
