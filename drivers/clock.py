@@ -238,7 +238,7 @@ class SteppedClock:
             if until is None and self._seen.get(me) != self._nudges:
                 self._seen[me] = self._nudges  # nudged while it worked: look again first
                 return
-            self._waiting[me] = until
+            self._waiting[me] = None if until is None else float(until)  # not a numpy scalar
             self._move_if_quiet()
             while me in self._waiting:
                 if self.lost is not None:

@@ -40,7 +40,7 @@ import serial
 from pymavlink.dialects.v20 import common as mavlink
 
 from drivers import LinkStats
-from drivers.clock import WallClock
+from drivers.clock import WallClock, reply_timeout
 from drivers.errors import DeviceLostError, MavlinkError, ProfileError, SerialPortError
 from drivers.profile import ImuSection, Section, load_profile
 from drivers.samples import SampleBlock
@@ -65,7 +65,8 @@ class MavlinkSection:
     fields        : the message field of each [imu] channel, in channel order (xacc ... zmag)
     baudrate      : serial link speed (ignored on UDP)
     request_stream: ask for the message at [imu] rate_hz with MAV_CMD_SET_MESSAGE_INTERVAL
-    wait_s        : wall seconds `open()` waits for the first IMU message
+    wait_s        : wall seconds `open()` waits for the first IMU message (on a stepped clock
+                    at least `drivers.clock.reply_timeout`: a loaded host's twin answers late)
     """
 
     message: ImuMessage
@@ -301,6 +302,11 @@ class _SerialLink:
         SerialException when the device is gone."""
         return self._serial.read(self._serial.in_waiting or 1)
 
+    def waiting(self) -> bool:
+        """Has the port bytes to read now? OSError or SerialException when the device is
+        gone."""
+        return self._serial.in_waiting > 0
+
     def write(self, data: bytes) -> None:
         self._serial.write(data)
 
@@ -336,6 +342,10 @@ class _UdpLink:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.buffer)
         sock.setblocking(False)
         self._socket = sock
+
+    def waiting(self) -> bool:
+        """Has a datagram come that was not read yet?"""
+        return bool(select.select([self._socket], [], [], 0)[0])
 
     def read(self) -> bytes:
         """The datagrams waiting now (one message each, usually; at most `drain`), or the first
@@ -398,6 +408,7 @@ class MavlinkImu:
         if self._open:
             return self
         self._link.open()
+        self.clock.forget(self.address)  # what came before the port opened is not ours
         self._open = True
         self.decoder.reset()
         self.connections += 1
@@ -439,21 +450,38 @@ class MavlinkImu:
             raise MavlinkError(self.address, f"MAVLink link {self.address} is not open; call "
                                              "open() first")
         deadline = self.clock.now() + timeout
+        blocks = []
         while True:
             block = self._read()
             if block is not None and len(block):
-                return block
-            if not self._open:
+                blocks.append(block)
+            if not self._open:  # lost: the last samples first, the error at the next call
+                if blocks:
+                    return SampleBlock.concat(blocks)
                 error, self._lost = self._lost, None
                 raise error
+            flight = self.clock.in_flight(self.address)
+            if blocks and (self.clock.realtime or not flight):
+                return SampleBlock.concat(blocks)
             if self.clock.now() >= deadline:
-                return None
+                return SampleBlock.concat(blocks) if blocks else None
+            if not (self.clock.realtime or flight):
+                self.clock.idle()  # lockstep time: wait for the twin's next delivery
+
+    def backlog(self) -> bool:
+        """Has the link bytes on their way that were not read yet (never when closed)? What a
+        reader on a `drivers.clock.SteppedClock` has to take before time moves on."""
+        return self._open and self.clock.in_flight(self.address)
 
     def _read(self):
         """The samples in what the link has now (None if nothing came); on a lost serial device
         the link is closed and the error kept in `_lost`."""
         try:
+            if not (self.clock.realtime or self.clock.in_flight(self.address)
+                    or self._link.waiting()):
+                return None  # lockstep time: nothing sent, nothing to wait for
             data = self._link.read()
+            self.clock.taken(self.address, len(data))
         except (serial.SerialException, OSError) as exc:
             self.close()
             self._lost = DeviceLostError(
@@ -466,7 +494,8 @@ class MavlinkImu:
     def _first_block(self) -> SampleBlock:
         """The first IMU samples (asking for the stream); MavlinkError after `wait_s`."""
         section = self.profile.mavlink
-        deadline, asked, heard = time.monotonic() + section.wait_s, -math.inf, 0
+        deadline = time.monotonic() + max(section.wait_s, reply_timeout(self.clock))
+        asked, heard = -math.inf, 0
         while time.monotonic() < deadline:
             # ask again every REQUEST_EVERY s, and at once when the first message comes (on UDP
             # the station can answer only once it has heard from the flight controller)
@@ -480,6 +509,8 @@ class MavlinkImu:
                 raise error
             if block is not None and len(block):
                 return block
+            if not (self.clock.realtime or self.clock.in_flight(self.address)):
+                time.sleep(0.002)  # lockstep time stands still until the stream starts
         raise MavlinkError(self.address, self._silence())
 
     def _silence(self) -> str:

@@ -18,7 +18,9 @@ dialect (MAVLink 2, or 1 with `mavlink1`), one packet sequence counter over all 
   a request for another message is answered MAV_RESULT_UNSUPPORTED; with `answer=False` requests
   are ignored (a vehicle whose stream must be enabled in its own configuration).
 
-Samples are paced by the shared clock as in `drivers.twins.serial.SerialTwin`: if the twin falls
+Samples are paced by the shared clock as in `drivers.twins.serial.SerialTwin` (on a stepped clock
+each step, every byte booked on the clock's ledger until the station took it; lockstep time stands
+still until the station asks for the IMU stream): if the twin falls
 more than `max_lag` clock seconds behind it skips samples; on the pty, `unread_after` (wall
 seconds) makes a port nobody reads lose the samples due (`drivers.twins.pty.PtyLink`); on UDP a
 message nobody listens for is lost, as on a real network.
@@ -120,7 +122,7 @@ class MavlinkTwin(Streamer):
     """A flight controller with the IMU of `profile` (see the module docstring).
 
     source   : callable times (k,) in clock seconds -> counts (k, m) integers
-    clock    : shared clock (WallClock or ScaledClock)
+    clock    : shared clock (`drivers.clock`: wall, scaled or stepped)
     udp_port : send over UDP to 127.0.0.1:udp_port instead of a pty
     stream   : stream the IMU from `start()` without waiting for a request
     """
@@ -188,10 +190,25 @@ class MavlinkTwin(Streamer):
     # -- the flight controller -------------------------------------------------------------------
 
     def _run(self) -> None:
+        """Answer requests and send what is due; then wait: a real-time clock 2 ms, a stepped
+        clock its next step (`clock.pace`) once streaming. Before the station asks for the IMU,
+        the twin listens without waiting on a stepped clock, so lockstep time stands still until
+        the stream starts; meanwhile it sends a heartbeat each wall second (over UDP the station
+        can ask only once it has heard the vehicle)."""
         try:
+            beat = time.monotonic()
             while not self._stop.is_set():
                 self._serve(self.link.read())
-                if not self._send_due():
+                if self._send_due():
+                    continue
+                if self.clock.realtime:
+                    time.sleep(0.002)
+                elif self.streaming.is_set():
+                    self.clock.pace(self._stop)
+                else:  # a heartbeat a wall second, for a station that answers only once heard
+                    if time.monotonic() - beat > 1.0:
+                        beat = time.monotonic()
+                        self._write([self._heartbeat()])
                     time.sleep(0.002)
         except Exception as exc:  # noqa: BLE001 - told at once (Streamer._failed)
             self._failed(exc)
@@ -232,9 +249,7 @@ class MavlinkTwin(Streamer):
         with self._lock:
             out, self._garbage = [self._garbage], b""
         while self._next_beat <= now:
-            out.append(self._pack(self._encoder.heartbeat_encode(
-                mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
-                mavlink.MAV_STATE_STANDBY)))
+            out.append(self._heartbeat())
             self._next_beat += 1.0
         seq = np.zeros(0, np.int64)
         if self.streaming.is_set():
@@ -256,6 +271,12 @@ class MavlinkTwin(Streamer):
             gone = lost[-len(seq):] & (fate <= CORRUPTED)
             fate[gone] = UNPLUGGED if not self.plugged else OVERFLOW
         return True
+
+    def _heartbeat(self) -> bytes:
+        """One HEARTBEAT, packed: a quadrotor running PX4, in standby."""
+        return self._pack(self._encoder.heartbeat_encode(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
+            mavlink.MAV_STATE_STANDBY))
 
     def _imu(self, seq: np.ndarray) -> list:
         """The IMU messages of samples `seq` (dropped ones empty), logged with their fates."""
@@ -297,9 +318,18 @@ class MavlinkTwin(Streamer):
         self._log.append((seq, fate, times, np.asarray(values, float)))
 
     def _write(self, frames: list) -> int:
-        """Write `frames` (b"" for none); how many of them, from the first, the link took."""
+        """Write `frames` (b"" for none); how many of them, from the first, the link took. The
+        bytes are booked on the clock's ledger first (in flight until the station took them:
+        `drivers.clock`), what the link did not take is unbooked, and the reader nudged."""
+        ends = np.cumsum([len(f) for f in frames])
+        self.clock.sent(self.port, int(ends[-1]))
         if isinstance(self.link, UdpSender):
             sent = self.link.send([f for f in frames if f])
-            return int(np.searchsorted(np.cumsum([bool(f) for f in frames]), sent, "right"))
-        written = self.link.write(b"".join(frames), self._stop)
-        return int(np.searchsorted(np.cumsum([len(f) for f in frames]), written, "right"))
+            took = int(np.searchsorted(np.cumsum([bool(f) for f in frames]), sent, "right"))
+            written = int(ends[took - 1]) if took else 0
+        else:
+            written = self.link.write(b"".join(frames), self._stop, full=self.clock.nudge)
+            took = int(np.searchsorted(ends, written, "right"))
+        self.clock.sent(self.port, written - int(ends[-1]))
+        self.clock.nudge()
+        return took

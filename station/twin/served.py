@@ -414,8 +414,7 @@ class HandTwin:
                 off each) or "iron" (the ACC4 unit in an iron square to 0.0002 deg, `mountings`
                 re-mountings, each followed by the six faces)
     speed     : a real-time clock that many times faster than the wall; None (the default):
-                lockstep time, served to `station record` (`drivers.clock_link`); the MAVLink
-                link at 1x (its driver does not take part in lockstep time)
+                lockstep time, served to `station record` (`drivers.clock_link`)
     period    : clock seconds between the technician's turns; each turn starts on a multiple of
                 it, and the first after the station opened the port (lockstep: at clock 0, time
                 standing still until the station takes part). The technician does not hear the
@@ -438,8 +437,6 @@ class HandTwin:
         from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
         static = protocol == "static"
-        if speed is None and link == "mavlink":
-            speed = 1.0  # the MAVLink driver does not take part in lockstep time (yet)
         self.protocol, self.seed = protocol, seed
         if udp and link != "mavlink":
             raise InputError("--udp serves the MAVLink link (--link mavlink)")
