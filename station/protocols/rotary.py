@@ -62,7 +62,6 @@ The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 
 import contextlib
 import logging
-import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -72,6 +71,7 @@ from drivers.rotary_table import TableTimeout, not_stopped
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
+from station import limits
 from station.errors import InputError, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
@@ -115,16 +115,27 @@ class RotarySettings:
     retries: int = 3
 
     def __post_init__(self):
-        if not (math.isfinite(self.rate) and self.rate != 0):
-            raise InputError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
-        if not (isinstance(self.revolutions, int) and self.revolutions >= 1):
-            raise InputError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
-        if not (isinstance(self.retries, int) and self.retries >= 0):
-            raise InputError(f"retries must be a whole number >= 0, got {self.retries!r}")
-        durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
-        bad = [n for n in durations if not getattr(self, n) > 0]
+        """Refuse settings no bench runs (`SETTING_LIMITS`), naming the setting and its range."""
+        rate = limits.number(self.rate, "rotary setting rate", -MAX_RATE, MAX_RATE)
+        if rate == 0:
+            raise InputError("rotary setting rate = 0: the table rate must be a non-zero number "
+                             "of rad/s")
+        limits.whole(self.revolutions, "rotary setting revolutions", 1, MAX_REVOLUTIONS)
+        limits.whole(self.retries, "rotary setting retries", 0, MAX_RETRIES)
+        bad = [n for n in SETTING_LIMITS
+               if type(getattr(self, n)) in (int, float) and not getattr(self, n) > 0]
         if bad:
             raise InputError(f"rotary settings {bad} must be positive")
+        for name, high in SETTING_LIMITS.items():
+            limits.number(getattr(self, name), f"rotary setting {name}", 0.0, high)
+
+
+MAX_RATE, MAX_REVOLUTIONS, MAX_RETRIES, MAX_POSITIONS = 50.0, 1000, 100, 10000
+"""Largest |table rate| (rad/s), revolutions per window, retries and positions of a session."""
+SETTING_LIMITS = {"static": 3600.0, "rest": 3600.0, "guard": 3600.0, "steady": 3600.0,
+                  "tolerance": 10.0, "poll": 60.0, "timeout": 3600.0, "stale": 3600.0}
+"""Largest value of each duration (s) and of the rate tolerance (rad/s): beyond, a session would
+wait for hours (each also must be positive)."""
 
 
 def suggested_axes(n: int) -> np.ndarray:
@@ -224,9 +235,13 @@ class RotaryProtocol:
         try:
             settings = RotarySettings(**metadata["settings"])
             axes = np.asarray(metadata["axes"], float)
+            if axes.ndim != 2 or not 1 <= len(axes) <= MAX_POSITIONS or axes.shape[1] != 3 \
+                    or not np.all(np.linalg.norm(axes, axis=1) > 0):
+                raise InputError(f"axes: give 1 to {MAX_POSITIONS} non-zero directions of 3 "
+                                 f"numbers each (got shape {axes.shape})")
             phis = metadata.get("phis")
             phis = None if phis is None else np.asarray(phis, float)
-            spins = metadata.get("spins", 0)
+            spins = limits.whole(metadata.get("spins", 0), "spins", 0, MAX_POSITIONS)
             poses = metadata.get("fixture_poses")
             if poses is not None:
                 poses = [{"words": str(p["words"]), "picture": str(p["picture"]),

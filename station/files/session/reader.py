@@ -7,7 +7,6 @@ imports no driver (the reduction reads sessions and never touches devices).
 
 import dataclasses
 import hashlib
-import json
 import os
 from typing import TYPE_CHECKING
 
@@ -36,6 +35,7 @@ from station.files.session.format import (
     last_completed_position,
 )
 from station.files.session.torn import tail_rows
+from station.limits import json_loads
 
 if TYPE_CHECKING:  # the solver (scipy) is imported where results are read: `_read_calibration`
     from station.solve.calibrate import CalibrationResult
@@ -263,10 +263,7 @@ def _json_object(raw, what: str) -> dict:
     """A JSON object from untrusted text, size-limited; SessionFormatError naming `what`."""
     if len(raw) > MAX_JSON_BYTES:
         raise SessionFormatError(f"{what} is over {MAX_JSON_BYTES} bytes")
-    try:
-        value = json.loads(raw)
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SessionFormatError(f"{what} is not valid JSON ({e})") from None
+    value = json_loads(raw, what, error=SessionFormatError)
     if not isinstance(value, dict):
         raise SessionFormatError(f"{what} must be a JSON object")
     return value
@@ -361,9 +358,9 @@ def read_events(g, where="") -> list:
                               strict=True):
         try:
             kind = kb.decode("ascii")
-            info = json.loads(text[s:e])
-        except (UnicodeDecodeError, ValueError) as err:
-            raise SessionFormatError(f"{where}: an event is not valid ASCII/JSON ({err})") from None
+        except UnicodeDecodeError as err:
+            raise SessionFormatError(f"{where}: an event kind is not ASCII ({err})") from None
+        info = json_loads(text[s:e], f"{where}: an event's detail", error=SessionFormatError)
         if not isinstance(info, dict):
             raise SessionFormatError(f"{where}: event detail must be a JSON object")
         if kind not in EVENT_KINDS:
