@@ -336,7 +336,7 @@ def _checked_effects(value, where: str) -> dict:
     checks accept them (`station.model.effects.from_json`)."""
     if not (isinstance(value, dict) and all(isinstance(p, dict) for p in value.values())):
         raise InputError(f"{where} = {str(value)[:60]}: give an object {{effect: {{parameter: "
-                         "value}}}}")
+                         "value}}")
     try:
         from_json(value)
     except (TypeError, ValueError) as exc:
