@@ -72,7 +72,7 @@ from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
 from station import limits
-from station.errors import InputError, ProtocolError, SessionPaused
+from station.errors import InputError, OperatorAbort, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
@@ -478,9 +478,10 @@ class RotaryProtocol:
         elif then == "done":
             return then  # nothing left to record: the session is complete without the IMU
         for attempt in range(1, self.settings.retries + 2):
-            self.operator.wait(Instruction(
-                f"{lost} was lost during position {j + 1} ({exc.__cause__}); the table was "
-                "stopped. Reconnect the IMU's cable without moving the unit, then confirm"))
+            cause = f"{lost} was lost during position {j + 1} ({exc.__cause__})"
+            self._ask(cause, lambda c=cause: self.operator.wait(Instruction(
+                f"{c}; the table was stopped. Reconnect the IMU's cable without moving the unit, "
+                "then confirm")))
             self.recorder.event("resume", j, {"after": "imu lost", "attempt": attempt})
             try:
                 self.recorder.reconnect()
@@ -503,13 +504,24 @@ class RotaryProtocol:
                    + ("It was commanded to stop" if stopped else
                       "It could not be commanded to stop: STOP IT BY HAND") +
                    "; the session is paused and everything recorded so far is kept.")
-        if not self.operator.confirm(f"{message} Go on once the table answers again?"):
+        if not self._ask(message, lambda: self.operator.confirm(
+                f"{message} Go on once the table answers again?")):
             raise SessionPaused(f"{message} Check the table's cable and power, then run "
                                 "`station resume SESSION` to continue.") from exc
         if then == "restart":
             self._count_again(exc)
         self.recorder.event("resume", j, {"after": "table timeout"})
         return then
+
+    @staticmethod
+    def _ask(cause: str, question):
+        """The operator's answer to `question()`, asked after a device fault described by
+        `cause`; when the operator's input is closed (OperatorAbort), the abort says the device's
+        cause first, then that nobody could answer."""
+        try:
+            return question()
+        except OperatorAbort as abort:
+            raise OperatorAbort(f"{cause.rstrip('. ')}; then {abort}") from abort
 
     def _completed(self, imu: bool | None = False) -> str:
         """Record `position_done` for a position whose windows are all in the file (imu False:
