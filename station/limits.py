@@ -39,6 +39,14 @@ def number(value, field: str, low: float, high: float, error=InputError) -> floa
     return float(value)
 
 
+def positive(value, field: str, high: float, error=InputError) -> float:
+    """`value` as a float when it is a number (not a bool) in (0, high]; else `error` naming
+    `field` (a duration, a tolerance: zero would never end or never pass)."""
+    if type(value) not in (int, float) or not _within(value, 0.0, high) or value == 0:
+        raise error(f"{field} = {_shown(value)}: must be positive and at most {high:g}")
+    return float(value)
+
+
 def whole(value, field: str, low: int, high: int, error=InputError) -> int:
     """`value` when it is an int (not a bool) in [low, high]; else `error` naming `field`."""
     if type(value) is not int or not low <= value <= high:

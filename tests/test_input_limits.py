@@ -26,7 +26,9 @@ from station.errors import CalibrationFileError, InputError, SessionFormatError
 from station.files import npz
 from station.files.calfile import loads
 from station.files.session import Session
+from station.protocols.iron import IronSettings
 from station.protocols.rotary import RotarySettings, suggested_axes
+from station.protocols.still import StillSettings
 from station.twin.rotary_bench import VirtualBench, checked_bench, record_rotary
 
 DEEP = "[" * 100_000 + "]" * 100_000
@@ -169,18 +171,31 @@ def test_each_virtual_bench_field_is_checked_before_a_bench_is_built(key, value,
 
 
 @pytest.mark.parametrize("key, value, message", [
-    ("static", math.inf, r"rotary setting static = inf: give a finite number in \[0, 3600\]"),
-    ("timeout", 1e300, r"rotary setting timeout = 1e\+300"),
-    ("poll", "x", r"rotary setting poll = 'x'"),
+    ("static", math.inf, r"rotary setting static = inf: must be positive and at most 3600"),
+    ("timeout", 1e300, r"rotary setting timeout = 1e\+300: must be positive and at most 3600"),
+    ("poll", "x", r"rotary setting poll = 'x': must be positive and at most 60"),
     ("revolutions", True, r"rotary setting revolutions = True: give a whole number in \[1, 1000\]"),
     ("rate", math.nan, "rotary setting rate = nan"),
     ("rate", 0.0, "rate must be a non-zero number"),
-    ("rest", -1.0, r"\['rest'\] must be positive"),
+    ("rest", -1.0, r"rotary setting rest = -1.0: must be positive"),
 ])
 def test_rotary_settings_are_bounded(key, value, message):
     with pytest.raises(InputError, match=message):
         RotarySettings(**{key: value})
     RotarySettings(rate=-1.0)  # the other direction is a valid rate
+
+
+@pytest.mark.parametrize("settings, message", [
+    (lambda: StillSettings(hold="5"), r"setting hold = '5': must be positive and at most 3600"),
+    (lambda: StillSettings(gravity=math.inf), r"setting gravity = inf: must be positive"),
+    (lambda: StillSettings(enter=math.nan), r"setting enter = nan: give a finite number"),
+    (lambda: IronSettings(mountings=True), r"mountings = True: give a whole number in \[1, 100\]"),
+    (lambda: IronSettings(tolerance_deg=None), r"tolerance_deg = None: must be positive"),
+])
+def test_still_and_iron_settings_are_bounded(settings, message):
+    """The settings an iron or free-static session records and `station resume` reads back."""
+    with pytest.raises(InputError, match=message):
+        settings()
 
 
 @pytest.mark.parametrize("field, value, said", [

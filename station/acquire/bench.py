@@ -492,6 +492,10 @@ def resume(bench: BenchProfile, path, operator, clock=None) -> int:
     kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
     _check_same_units(bench, path, units, specs)
+    if kind.table:  # the recorded protocol checked before any device is opened
+        from station.protocols.rotary import RotaryProtocol
+
+        RotaryProtocol.from_metadata(metadata, None, None, None)
     if clock is None or clock.realtime:
         clock = bench_clock(bench, start=end + 1.0)
     else:

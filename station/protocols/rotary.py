@@ -122,12 +122,8 @@ class RotarySettings:
                              "of rad/s")
         limits.whole(self.revolutions, "rotary setting revolutions", 1, MAX_REVOLUTIONS)
         limits.whole(self.retries, "rotary setting retries", 0, MAX_RETRIES)
-        bad = [n for n in SETTING_LIMITS
-               if type(getattr(self, n)) in (int, float) and not getattr(self, n) > 0]
-        if bad:
-            raise InputError(f"rotary settings {bad} must be positive")
         for name, high in SETTING_LIMITS.items():
-            limits.number(getattr(self, name), f"rotary setting {name}", 0.0, high)
+            limits.positive(getattr(self, name), f"rotary setting {name}", high)
 
 
 MAX_RATE, MAX_REVOLUTIONS, MAX_RETRIES, MAX_POSITIONS = 50.0, 1000, 100, 10000
