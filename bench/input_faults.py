@@ -42,7 +42,7 @@ def nested(depth: int) -> str:
 
 
 def deep_json(text: str, depth: int) -> str:
-    """A JSON object's text with a key holding arrays nested `depth` deep."""
+    """A JSON object's text with a key of its own holding arrays nested `depth` deep."""
     return text.rstrip()[:-1] + ', "deep": ' + nested(depth) + "}"
 
 
@@ -143,8 +143,11 @@ def calfile_number(i, src, rng) -> dict:
 
 
 def calfile_deep(i, src, rng) -> dict:
+    """A calibration file whose `fit` (a key it must have) holds arrays nested deep."""
     cal = src.scratch / f"calfile_deep-{i}.cal.json"
-    cal.write_text(deep_json(src.cal.read_text(), rng.choice((65, 1000, 100_000))))
+    doc = json.loads(src.cal.read_text())
+    doc["fit"] = "@@deep@@"
+    cal.write_text(json.dumps(doc).replace('"@@deep@@"', nested(rng.choice((65, 1000, 100_000)))))
     argv, outs = cal_commands(i, cal, src)
     return {"argv": argv, "made": [cal, *outs], "accept": "changed"}
 
@@ -155,8 +158,10 @@ def record(profile: Path, i: int, src: Sources) -> list:
 
 
 def profile_deep(i, src, rng) -> dict:
+    """A bench profile whose [protocol] static (a key it reads) holds arrays nested deep."""
     profile = src.scratch / f"profile_deep-{i}.toml"
-    profile.write_text(BENCH + f"deep = {nested(rng.choice((17, 1000, 100_000)))}\n")
+    deep = nested(rng.choice((17, 1000, 100_000)))
+    profile.write_text(BENCH.replace("static = 10.0", f"static = {deep}"))
     return {"argv": record(profile, i, src), "made": [profile, src.scratch / f"record-{i}.h5"],
             "accept": "changed"}
 
@@ -173,9 +178,23 @@ def profile_wide(i, src, rng) -> dict:
             "made": [profile, device, src.scratch / f"record-{i}.h5"], "accept": "changed"}
 
 
+def zeros(z: zipfile.ZipFile, name: str, shape: tuple, descr: str) -> None:
+    """An all-zero array member of `z`, streamed (never held whole)."""
+    import numpy as np
+
+    with z.open(f"{name}.npy", "w", force_zip64=True) as f:
+        np.lib.format.write_array_header_1_0(
+            f, {"descr": descr, "fortran_order": False, "shape": shape})
+        left = int(np.prod(shape)) * np.dtype(descr).itemsize
+        while left > 0:
+            f.write(bytes(min(left, 1 << 22)))
+            left -= 1 << 22
+
+
 def bomb(path: Path, megabytes: int) -> None:
-    """An .npz of the rotary array format whose `y` is all zeros: `megabytes` MB inflated from
-    about a thousandth of it (built once per size, then copied)."""
+    """A rotary array file (every array `station import npz` requires, shapes consistent) whose
+    `y` and `rate_cmd` are all zeros: `megabytes` MB inflated from about a thousandth of it
+    (built once per size, then copied)."""
     import numpy as np
 
     built = path.parent / f"bomb-{megabytes}.npz"
@@ -184,15 +203,13 @@ def bomb(path: Path, megabytes: int) -> None:
         k = megabytes * (1 << 20) // (n * m * 4)
         with zipfile.ZipFile(built, "w", compression=zipfile.ZIP_DEFLATED,
                              allowZip64=True) as z:
-            with z.open("y.npy", "w", force_zip64=True) as f:
-                np.lib.format.write_array_header_1_0(
-                    f, {"descr": "<i4", "fortran_order": False, "shape": (n, k, m)})
-                left = n * k * m * 4
-                while left > 0:
-                    f.write(bytes(min(left, 1 << 22)))
-                    left -= 1 << 22
-            for name, value in {"lsb": np.float64(1e3), "fs": np.float64(100.0),
-                                "t0": np.zeros(n)}.items():
+            zeros(z, "y", (n, k, m), "<i4")
+            zeros(z, "rate_cmd", (k,), "<f8")
+            small = {"lsb": np.float64(1e3), "fs": np.float64(100.0), "t0": np.arange(n) * 1e3,
+                     "c_cmd": np.float64(1.0), "a_nominal": np.eye(3, m),
+                     **{f"seg_{s}": np.array([j * k // 5, (j + 1) * k // 5]) for j, s in
+                        enumerate(("static", "spinup", "settle", "rotating", "spindown"))}}
+            for name, value in small.items():
                 with z.open(f"{name}.npy", "w") as f:
                     np.lib.format.write_array(f, np.asanyarray(value))
     shutil.copy(built, path)

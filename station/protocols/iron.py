@@ -32,8 +32,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from station.acquire.operator import Instruction
 from station import limits
+from station.acquire.operator import Instruction
 from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import mounting
 from station.protocols.still import (

@@ -68,10 +68,10 @@ import numpy as np
 
 from drivers.errors import CanBusError, SerialPortError, TableError
 from drivers.rotary_table import TableTimeout, not_stopped
+from station import limits
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
-from station import limits
 from station.errors import InputError, OperatorAbort, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units

@@ -30,16 +30,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station import limits
 from station.acquire import interrupts
 from station.acquire.recorder import Recorder
-from station import limits
 from station.errors import InputError, ProtocolError
 from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import WindowQuality, describe, window_quality
-
 
 SETTING_LIMITS = {"gravity": 100.0, "hold": 3600.0, "window": 3600.0, "min_still": 3600.0,
                   "rest_length": 3600.0, "lookback": 7200.0, "poll": 60.0, "timeout": 3600.0,

@@ -42,8 +42,8 @@ from drivers.twins.can import CanImuTwin
 from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
-from station.acquire.operator import SimulatedTechnician
 from station import limits
+from station.acquire.operator import SimulatedTechnician
 from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
