@@ -7,11 +7,17 @@ one line naming the field and the allowed range or type, raised as the caller's 
 subclass (exit code 2). Nothing here recurses: a document nested 100,000 deep is refused from its
 text, before a parser that recurses sees it.
 
-    number(value, "virtual_bench.speed", 1e-3, 1e4)      -> float, or InputError naming it
-    whole(value, "virtual_bench.seed", 0, 2**32 - 1)      -> int
-    json_loads(text, "session metadata")                  -> a document within MAX_DEPTH,
-                                                             every number finite and in float range
-    Sizes of `.npz` members from their zip and .npy headers: `station.files.npz.sizes`.
+    number(value, "virtual_bench.speed", 0.1, 1e4)   -> float, or InputError naming it
+    positive(value, "rotary setting static", 3600)     -> float in (0, 3600]
+    whole(value, "virtual_bench.seed", 0, 2**32 - 1)   -> int
+    choice(value, "virtual_bench.imu", ("serial", "can"))
+    json_loads(text, "session metadata")               -> a document within MAX_DEPTH, every
+                                                          number finite and in float range
+                                                          (`finite` names the first one that is not)
+
+Elsewhere, where the input's own format is read: the sizes of `.npz` arrays from their zip and
+.npy headers (`station.files.npz.headers`); TOML nesting, size and channel count of profiles
+(`drivers.profile`: the drivers never import the station).
 
 Sits outside the layers (as `station.errors`): every room may use it.
 """
