@@ -14,13 +14,15 @@ own process. Each run ends as:
 - hang: no end within `--limit` wall seconds (the only verdict a wall clock gives; the runs are
   in lockstep time and a refusal takes no wall time of its own).
 
-    .venv/bin/python -P bench/resume_faults.py [--limit 30] [--json]
+    .venv/bin/python -P bench/resume_faults.py [--limit 60] [--json]
 """
 
 import argparse
 import dataclasses
 import json
 import math
+import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -85,14 +87,19 @@ def put(metadata: dict, path: tuple, value) -> None:
 
 
 def run(path: Path, limit: float) -> dict:
-    """`station resume path` in its own process: (exit code, stderr, wall seconds) or a hang."""
+    """`station resume path` in its own process group (stdin closed): (exit code, stderr, wall
+    seconds), or a hang: the whole group killed after `limit` wall seconds."""
     t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "station", "resume", str(path)], cwd=ROOT,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        done = subprocess.run([sys.executable, "-m", "station", "resume", str(path)], cwd=ROOT,
-                              capture_output=True, text=True, timeout=limit)
+        _, err = proc.communicate(timeout=limit)
     except subprocess.TimeoutExpired:
-        return {"kind": "hang", "seconds": time.monotonic() - t0}
-    return {"code": done.returncode, "stderr": done.stderr.strip(),
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        return {"kind": "hang", "seconds": round(time.monotonic() - t0, 2)}
+    return {"code": proc.returncode, "stderr": err.strip(),
             "seconds": round(time.monotonic() - t0, 2)}
 
 
@@ -112,7 +119,7 @@ def outcome(result: dict, field: str) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--limit", type=float, default=30.0, help="wall seconds a resume may take")
+    p.add_argument("--limit", type=float, default=60.0, help="wall seconds a resume may take")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     counts = {k: 0 for k in ("tried", "refused", "resumed", "error", "traceback", "hang")}
@@ -122,7 +129,7 @@ def main(argv=None) -> int:
         src = source(scratch)
         for path in fields():
             for name, value in VALUES.items():
-                copy = scratch / "fuzzed.h5"
+                copy = scratch / f"fuzzed-{'.'.join(path)}-{name}.h5"  # a hang's may stay locked
                 rewrite(src, copy, lambda m, p=path, v=value: put(m, p, v))
                 result = run(copy, args.limit)
                 kind = outcome(result, path[-1])
