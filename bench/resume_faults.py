@@ -10,7 +10,8 @@ own process. Each run ends as:
 - refused: exit 2 with one line on stderr naming the field (the metadata check);
 - resumed: exit 0 (the value is valid: e.g. a negative table rate, the other direction);
 - error: another exit code with one line (e.g. a device error), counted apart;
-- traceback: a Python traceback on stderr, or a line that does not name the field;
+- unnamed: exit 2 with one line that does not name the field (a refusal, but a vague one);
+- traceback: a Python traceback on stderr (or more than one line);
 - hang: no end within `--limit` wall seconds (the only verdict a wall clock gives; the runs are
   in lockstep time and a refusal takes no wall time of its own).
 
@@ -104,7 +105,7 @@ def run(path: Path, limit: float) -> dict:
 
 
 def outcome(result: dict, field: str) -> str:
-    """refused, resumed, error, traceback or hang (module docstring)."""
+    """refused, resumed, unnamed, error, traceback or hang (module docstring)."""
     if result.get("kind") == "hang":
         return "hang"
     said = result["stderr"]
@@ -113,7 +114,7 @@ def outcome(result: dict, field: str) -> str:
     if result["code"] == 0:
         return "resumed"
     if result["code"] == 2:
-        return "refused" if field in said else "traceback"
+        return "refused" if field in said else "unnamed"
     return "error"
 
 
@@ -122,7 +123,8 @@ def main(argv=None) -> int:
     p.add_argument("--limit", type=float, default=60.0, help="wall seconds a resume may take")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
-    counts = {k: 0 for k in ("tried", "refused", "resumed", "error", "traceback", "hang")}
+    counts = {k: 0 for k in ("tried", "refused", "resumed", "unnamed", "error", "traceback",
+                             "hang")}
     failures, slowest = [], 0.0
     with tempfile.TemporaryDirectory() as tmp:
         scratch = Path(tmp)
@@ -136,7 +138,7 @@ def main(argv=None) -> int:
                 counts["tried"] += 1
                 counts[kind] += 1
                 slowest = max(slowest, result["seconds"])
-                if kind in ("traceback", "hang", "error"):
+                if kind in ("traceback", "hang", "error", "unnamed"):
                     failures.append({"field": ".".join(path), "value": name, **result})
     counts["slowest_s"] = round(slowest, 2)
     if args.json:
@@ -145,7 +147,7 @@ def main(argv=None) -> int:
         print("resume " + " ".join(f"{k} {v}" for k, v in counts.items()))
         for f in failures[:30]:
             print(f)
-    return 1 if counts["traceback"] + counts["hang"] else 0
+    return 1 if counts["traceback"] + counts["hang"] + counts["unnamed"] else 0
 
 
 if __name__ == "__main__":

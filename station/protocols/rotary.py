@@ -134,6 +134,14 @@ SETTING_LIMITS = {"static": 3600.0, "rest": 3600.0, "guard": 3600.0, "steady": 3
 wait for hours (each also must be positive)."""
 
 
+def _numbers(value, field: str) -> np.ndarray:
+    """A recorded list of numbers as a float array; InputError naming `field` otherwise."""
+    try:
+        return np.asarray(value, float)
+    except (TypeError, ValueError):
+        raise InputError(f"{field} = {str(value)[:40]}: give a list of numbers") from None
+
+
 def suggested_axes(n: int) -> np.ndarray:
     """(n, 3) well-spread unit directions (Fibonacci sphere): the table axis in the unit frame.
 
@@ -230,13 +238,13 @@ class RotaryProtocol:
                              f"{metadata.get('protocol')!r}, not 'rotary'")
         try:
             settings = RotarySettings(**metadata["settings"])
-            axes = np.asarray(metadata["axes"], float)
+            axes = _numbers(metadata["axes"], "axes")
             if axes.ndim != 2 or not 1 <= len(axes) <= MAX_POSITIONS or axes.shape[1] != 3 \
                     or not np.all(np.linalg.norm(axes, axis=1) > 0):
                 raise InputError(f"axes: give 1 to {MAX_POSITIONS} non-zero directions of 3 "
                                  f"numbers each (got shape {axes.shape})")
             phis = metadata.get("phis")
-            phis = None if phis is None else np.asarray(phis, float)
+            phis = None if phis is None else _numbers(phis, "phis")
             spins = limits.whole(metadata.get("spins", 0), "spins", 0, MAX_POSITIONS)
             poses = metadata.get("fixture_poses")
             if poses is not None:
