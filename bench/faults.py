@@ -13,12 +13,15 @@ result (a wrong reading, a forward jump in the numbering). Classes:
   register log (`station twin --table-log`), and how often the table was left turning
 - sequence: serial frames sent twice (pty twin), CAN samples sent twice (virtual bus), serial and
   CAN devices restarting their numbering
+- can_restarts: 500 CAN streams whose device resets to a small counter value (0-3) after a
+  random number of samples from a random counter, through the pure decoder
 - corrupted_streams: 10^4 serial byte streams of 100 frames, each damaged one way (bits flipped,
   a stretch dropped, garbage inserted, a frame cut, 120 bytes repeated), parsed in random chunks:
   accepted right means every sample is one sent with its number
-- files (with --files N): damaged session files through `station solve`, N per kind of damage
-  (bench/file_faults.py, run as its own process: truncated killed files, zeroed 4 KB blocks,
-  flipped bytes, killed flags on top, inflated size claims)
+- files (with --files N): damaged inputs through the commands that read them, N per kind of
+  damage (bench/file_faults.py, run as its own process: truncated killed session files, zeroed
+  4 KB blocks, flipped bytes, killed flags on top, inflated size claims; deep or non-finite
+  metadata and calibration files, NaN table rows, deep and wide profiles, deflate bombs)
 
     .venv/bin/python -P bench/faults.py [--json] [--kills 10] [--files 0]
 """
@@ -283,6 +286,39 @@ def sequence(seed: int = 3) -> dict:
     return out
 
 
+def can_restarts(n: int = 500, seed: int = 11) -> dict:
+    """`n` CAN streams of the imu12_can profile (8-bit counter) through the drivers' pure
+    decoder (`SampleAssembler`): a random number of samples from a random counter, then the
+    device resets and counts again from a small value (0-3). Accepted right: one restart, the
+    numbering not going forward there, every other step 1; changed: a forward jump instead (the
+    reset read as samples lost), which no decoder without a device time can avoid when the reset
+    lands within `max_gap` after the last counter."""
+    import can
+
+    from drivers.can_imu import FrameLayout, SampleAssembler
+
+    layout = FrameLayout(CanProfile.load("imu12_can"))
+    rng = np.random.default_rng(seed)
+    outcomes = []
+    for _ in range(n):
+        first, before, after = int(rng.integers(0, 256)), int(rng.integers(1, 600)), 50
+        counters = np.r_[first + np.arange(before), int(rng.integers(0, 4)) + np.arange(after)]
+        asm = SampleAssembler(layout)
+        for k, counter in enumerate(counters):
+            for slot in layout.slots:
+                values = {layout.counter: int(counter) % layout.counter_modulus,
+                          **{name: (k * 31 + col) % 1000 for name, col in slot.columns}}
+                asm.feed(can.Message(arbitration_id=slot.frame_id,
+                                     is_extended_id=slot.message.is_extended_frame,
+                                     data=slot.message.encode(values, scaling=False,
+                                                              padding=True)), float(k))
+        steps = np.diff(asm.take().seq)
+        right = asm.stats.restarts == 1 and steps[before - 1] <= 0 and \
+            np.all(np.delete(steps, before - 1) == 1)
+        outcomes.append("accepted_right" if right else "accepted_changed")
+    return tally(outcomes)
+
+
 def corrupted_streams(n: int, seed: int = 5, frames: int = 100) -> dict:
     """`n` serial streams of `frames` imu12_serial frames, each damaged one way (bytes flipped,
     a stretch dropped, garbage inserted, a frame cut, frames repeated), parsed in random chunks
@@ -354,7 +390,8 @@ def main() -> None:
     start = time.perf_counter()
     result = {"table_reset": table_faults("reset"), "table_short": table_faults("short"),
               "controller_killed": controller_killed(), "kill_resume": kill_resume(args.kills),
-              "sequence": sequence(), "corrupted_streams": corrupted_streams(args.streams)}
+              "sequence": sequence(), "can_restarts": can_restarts(),
+              "corrupted_streams": corrupted_streams(args.streams)}
     if args.files:
         done = subprocess.run([sys.executable, "-P", str(Path(__file__).with_name(
             "file_faults.py")), "--files", str(args.files), "--json"], capture_output=True,

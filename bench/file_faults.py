@@ -1,19 +1,39 @@
-"""Damaged session files against every reader (issue 20): no traceback, no hang, no changed result.
+"""Damaged inputs against every reader (issues 20, 30): no traceback, no hang, no changed result.
 
-Each damaged file is a copy of a good session (recorded on the virtual bench into a scratch
-folder by the current writer, so it carries its checksums) with one kind of damage: truncated as
-a killed writer leaves it, a zeroed 4 KB block, flipped bytes (the killed writer's open flags set
-on top of each), a dataset claiming 5e7 rows. Each goes through `station solve`; per class the bench
-prints files tried / clean errors (of them "could not be checked": the session check ran out of
-its CPU time, exit 1, no verdict) / tracebacks / hangs / results accepted that differ from the
-undamaged file's. A hang is a file past `--limit` (default 60 s: the check may spend 10 s + size /
-10 MB/s of CPU time, which a busy host stretches in wall time; 15 s before issue 29, when the
-check had a 5 s wall-clock limit).
+Session files: each damaged file is a copy of a good session (recorded on the virtual bench into a
+scratch folder by the current writer, so it carries its checksums) with one kind of damage:
+truncated as a killed writer leaves it, a zeroed 4 KB block, flipped bytes (the killed writer's
+open flags set on top of each), a dataset claiming 5e7 rows; each goes through `station solve`.
+
+Every other input where it enters (issue 30), each file through one of the commands that read it
+(in turn):
+- metadata_deep: session metadata nested 65 to 100,000 deep (checksum rewritten: crafted, not
+  damaged): replay, solve, diagnose, apply
+- metadata_number: a number of the session metadata set to 1e999, -1e999, NaN or 10**400:
+  replay, solve, diagnose, apply
+- table_nan: NaN or inf at a random row of the recorded table time or angle: replay, solve,
+  diagnose, report
+- calfile_number: a number of a calibration file set to 1e999, -1e999, NaN or 10**400: apply,
+  export
+- calfile_deep: a calibration file nested 65 to 100,000 deep: apply, export
+- profile_deep: a bench profile (TOML) holding arrays nested 17 to 100,000 deep: record
+- profile_wide: a device profile of 1,025 to 100,000 channels: record
+- npz_bomb: an .npz whose `y` (all zeros, deflated ~1000 times) inflates to 20-1400 MB: import,
+  diagnose
+
+Per class the bench prints files tried / clean errors (of them "could not be checked": the
+session check ran out of its CPU time, exit 1, no verdict) / tracebacks / hangs / results
+accepted that differ from the undamaged file's (any accepted calibration file, profile or .npz
+of these classes is a changed result: each is damaged). A hang is a run past `--limit` (default
+60 s: the check may spend 10 s + size / 10 MB/s of CPU time, which a busy host stretches in wall
+time; 15 s before issue 29, when the check had a 5 s wall-clock limit).
 
     .venv/bin/python -P bench/file_faults.py [--files 200] [--seed 1] [--limit 60] [--json]
+        [--classes truncated+killed,...]
 
 A worker process runs the commands one file after the other; a file that takes longer than the
-limit is counted as a hang and the worker is restarted.
+limit is counted as a hang and the worker is restarted. `bench/resume_faults.py` fuzzes the
+metadata `station resume` rebuilds a bench from.
 """
 
 import argparse
@@ -26,20 +46,23 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.append(str(Path(__file__).resolve().parent))  # last: bench/serial.py is not pyserial
+import input_faults  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("rotary.h5",)
 
 WORKER = r"""
-import contextlib, io, json, sys, traceback
+import contextlib, io, json, os, sys, traceback
 import numpy as np
 from station.cli import main
-for line in sys.stdin:
-    path, out = line.split("\t")
-    out = out.strip()
+commands, sys.stdin = sys.stdin, open(os.devnull)  # nobody answers a prompt
+for line in commands:
+    argv = json.loads(line)
     err = io.StringIO()
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-            code = main(["solve", path, "--out", out, "--force"])
+            code = main(argv)
         kind = "ok" if code == 0 else "error"
     except SystemExit as e:
         kind, code = "error", e.code
@@ -105,7 +128,9 @@ def damage(kind: str, source: Path, out: Path, rng: random.Random) -> None:
                 f["streams/imu"][column].resize(rng.randrange(10**7, 10**8), axis=0)
 
 
-KINDS = ("truncated+killed", "zeroed", "zeroed+killed", "flipped", "flipped+killed", "inflated")
+SESSION_KINDS = ("truncated+killed", "zeroed", "zeroed+killed", "flipped", "flipped+killed",
+                 "inflated")
+KINDS = SESSION_KINDS + tuple(input_faults.KINDS)
 
 
 class Worker:
@@ -114,12 +139,14 @@ class Worker:
     def __init__(self, limit: float):
         self.proc, self.limit = None, limit
 
-    def run(self, path: Path, out: Path) -> dict:
+    def run(self, argv: list) -> dict:
+        """`station ARGV` in the worker: its outcome (ok, error, traceback, hang)."""
         if self.proc is None:
             self.proc = subprocess.Popen([sys.executable, "-c", WORKER], stdin=subprocess.PIPE,
-                                         stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                         text=True, cwd=ROOT)
         t0 = time.monotonic()
-        self.proc.stdin.write(f"{path}\t{out}\n")
+        self.proc.stdin.write(json.dumps([str(a) for a in argv]) + "\n")
         self.proc.stdin.flush()
         import selectors
 
@@ -159,11 +186,47 @@ def changed(cal: dict, reference: dict) -> bool:
     return a.shape != b.shape or not np.allclose(a, b, rtol=1e-9, atol=0)
 
 
+def session_case(kind: str, i: int, scratch: Path, rng: random.Random) -> dict:
+    """Damaged session file i of `kind` through `station solve` (`input_faults.case`'s form)."""
+    path = scratch / f"{kind}-{i}.h5"
+    damage(kind, scratch / SOURCES[0], path, rng)
+    out = scratch / f"{kind}-{i}.cal.json"
+    return {"argv": ["solve", path, "--out", out, "--force"], "made": [path, out], "out": out,
+            "accept": "compare"}
+
+
+def tally(counts: dict, r: dict, case: dict, reference: dict, where: dict, worst: list,
+          messages: dict) -> None:
+    """Count one run's outcome `r` of `case` in `counts` (an acceptance as its `accept` says,
+    `input_faults`: compared with the undamaged file's calibration `reference`, unverified, or
+    changed)."""
+    counts["tried"] += 1
+    counts["slowest_s"] = max(counts["slowest_s"], round(r["seconds"], 2))
+    if r["kind"] == "ok":
+        if case["accept"] == "unverified":
+            counts["unverified_accepted"] += 1
+            return
+        same = case["accept"] == "compare" and case["out"].exists() and \
+            not changed(json.loads(case["out"].read_text()), reference)
+        counts["same_accepted" if same else "changed_accepted"] += 1
+        if not same:
+            worst.append({**where, "stderr": r.get("stderr")})
+    elif r["kind"] == "error":
+        counts["clean_errors"] += 1
+        counts["unchecked"] += r["unchecked"]
+        messages.setdefault(where["class"], []).append(r["stderr"].strip())
+    else:
+        counts["tracebacks" if r["kind"] == "traceback" else "hangs"] += 1
+        worst.append({**where, **r})
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--files", type=int, default=200, help="damaged files per class")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--limit", type=float, default=60.0, help="seconds a file may take")
+    p.add_argument("--classes", default=",".join(KINDS),
+                   help=f"comma-separated classes (default all: {','.join(KINDS)})")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     rng = random.Random(args.seed)
@@ -171,31 +234,21 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         scratch = Path(tmp)
         references = fresh_sources(scratch)
+        sources = input_faults.Sources(scratch, scratch / SOURCES[0],
+                                       scratch / (SOURCES[0] + ".cal.json"))
         worker = Worker(args.limit)
-        for kind in KINDS:
+        for kind in args.classes.split(","):
             counts = dict(tried=0, clean_errors=0, unchecked=0, tracebacks=0, hangs=0,
-                          changed_accepted=0, same_accepted=0, slowest_s=0.0)
+                          changed_accepted=0, same_accepted=0, unverified_accepted=0,
+                          slowest_s=0.0)
             for i in range(args.files):
-                name = SOURCES[i % len(SOURCES)]
-                path = scratch / f"{kind}-{i}.h5"
-                damage(kind, scratch / name, path, rng)
-                out = scratch / f"{kind}-{i}.cal.json"
-                r = worker.run(path, out)
-                counts["tried"] += 1
-                counts["slowest_s"] = max(counts["slowest_s"], round(r["seconds"], 2))
-                if r["kind"] == "ok":
-                    same = not changed(json.loads(out.read_text()), references[name])
-                    counts["same_accepted" if same else "changed_accepted"] += 1
-                    if not same:
-                        worst.append({"class": kind, "file": i, "stderr": r.get("stderr")})
-                elif r["kind"] == "error":
-                    counts["clean_errors"] += 1
-                    counts["unchecked"] += r["unchecked"]
-                    messages.setdefault(kind, []).append(r["stderr"].strip())
-                else:
-                    counts["tracebacks" if r["kind"] == "traceback" else "hangs"] += 1
-                    worst.append({"class": kind, "file": i, **r})
-                path.unlink()
+                case = session_case(kind, i, scratch, rng) if kind in SESSION_KINDS \
+                    else input_faults.case(kind, i, sources, rng)
+                r = worker.run(case["argv"])
+                tally(counts, r, case, references[SOURCES[0]],
+                      {"class": kind, "file": i, "command": case["argv"][0]}, worst, messages)
+                for made in case["made"]:
+                    made.unlink(missing_ok=True)
             rows[kind] = counts
         worker.close()
     if args.json:

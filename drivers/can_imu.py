@@ -37,6 +37,12 @@ from drivers.errors import CanBusError
 from drivers.profile import ImuSection, Profile, ProfileError, Section, load_profile
 from drivers.samples import SampleBlock, restart_seq
 
+DEFAULT_MAX_GAP = 4
+"""Largest counter step taken as samples lost (3 samples, 1.5 ms at 2 kHz): CAN retransmits
+damaged frames, so a longer loss is rare, while a device reset sets the counter back to 0 from
+anywhere; a step beyond is read as a restart (a gap of unknown length) rather than a jump of
+hundreds of samples that would shift every later sample's time."""
+
 LOST_BUS_PAUSE = 0.1
 """Wall seconds the listener rests after each error of a lost bus (it raises at once on every
 read until the driver notices the loss and stops the notifier)."""
@@ -52,6 +58,9 @@ class CanSection:
     signals : `[can.signals]`, channel name -> "MESSAGE.SIGNAL"
     id_offset : added to every DBC frame id on the wire (default 0): the unit's node offset, so
               that several units of one model share a bus, each configured to its own ids
+    max_gap : largest counter step taken as samples lost on the bus (default DEFAULT_MAX_GAP,
+              at most an eighth of the counter's range); a larger step, or one back, is the
+              device restarting its counter (`SampleAssembler`)
     """
 
     dbc: Path
@@ -59,6 +68,7 @@ class CanSection:
     counter: str
     signals: dict
     id_offset: int = 0
+    max_gap: int = 0  # 0: DEFAULT_MAX_GAP
 
     @classmethod
     def parse(cls, s: Section) -> "CanSection":
@@ -68,8 +78,11 @@ class CanSection:
         sub = s.sub("signals")
         signals = {channel: sub.get(channel, str) for channel in list(sub.table)}
         id_offset = s.get("id_offset", int, default=0)
+        max_gap = s.get("max_gap", int, default=0)
+        if max_gap < 0:
+            raise s.error("max_gap", "must be a whole number of samples >= 1")
         s.finish()
-        return cls(dbc, frames, counter, signals, id_offset)
+        return cls(dbc, frames, counter, signals, id_offset, max_gap)
 
 
 @dataclass(frozen=True)
@@ -139,6 +152,10 @@ class FrameLayout:
         if len(widths) != 1:
             raise ProfileError(f"counter {self.counter!r} must have one width in all frames")
         self.counter_modulus = 1 << widths.pop()
+        self.max_gap = can_section.max_gap or min(DEFAULT_MAX_GAP, self.counter_modulus // 8)
+        if not 1 <= self.max_gap <= self.counter_modulus // 8:
+            raise ProfileError(f"{profile.source}: [can] max_gap {self.max_gap} must be 1.."
+                               f"{self.counter_modulus // 8} (an eighth of the counter's range)")
         self.lo, self.hi = (np.array(r, dtype=np.int64) for r in zip(*ranges, strict=True))
         self.slots = tuple(_Slot(i, m, tuple(columns[m.name]),
                                  _wire_id(m, can_section.id_offset, profile.source))
@@ -204,8 +221,10 @@ class SampleAssembler:
     """Pure decoder: feed frames in bus order, take complete samples. No threads, no I/O.
 
     A sample is complete when every frame of the profile has arrived with the same counter value;
-    frames are collected until the counter changes. The counter is unwrapped into `seq` assuming
-    fewer than 2**bits consecutive samples are lost (128 ms at 2 kHz for an 8-bit counter).
+    frames are collected until the counter changes. The counter is unwrapped into `seq`: a step
+    forward of at most the layout's `max_gap` is a gap (samples lost on the bus); any other step
+    (back, to 0 after a reset, or far forward) is the device restarting its counter: a new
+    segment (`restart_seq`, counted in `restarts`), a gap of unknown length, never a jump.
     """
 
     def __init__(self, layout: FrameLayout):
@@ -251,9 +270,10 @@ class SampleAssembler:
 
     def _emit(self, host_time: float) -> None:
         """Hand out the completed sample, unless it repeats the last one (same counter, same
-        counts: a duplicate, counted). The same counter with other counts is a device that
-        restarted its numbering (`restart_seq`: a new segment); a forward step is a gap. Without
-        a device time an 8-bit counter cannot tell a restart to another value from a gap."""
+        counts: a duplicate, counted). A forward step of at most `max_gap` is a gap; the same
+        counter with other counts, or any other step, is a device that restarted its numbering
+        (`restart_seq`: a new segment). Without a device time a restart that lands within
+        `max_gap` after the last counter cannot be told from a gap."""
         counter = self._counter
         if self._last is None:
             seq = counter
@@ -265,7 +285,7 @@ class SampleAssembler:
                 self.stats.used += len(self._have)
                 self._have, self._counter = [], None
                 return
-            if step == 0:
+            if step == 0 or step > self.layout.max_gap:
                 self.stats.restarts += 1
                 seq = restart_seq(counter, last_seq, self.layout.counter_modulus)
             else:

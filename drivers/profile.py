@@ -11,6 +11,7 @@ reads it with `profile.section("name", TheSection.parse)`.
 
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,16 @@ from drivers.wire.fields import INT_TYPES, SPECIAL, TYPES, Field, FrameLayout, s
 
 BUNDLED = Path(__file__).parent / "profiles"
 _REQUIRED = object()
+MAX_BYTES = 1 << 20
+"""Largest profile file: the bundled ones are under 10 KB."""
+MAX_DEPTH = 16
+"""Deepest nesting of arrays and inline tables in a profile (a register map's is 3): tomllib
+parses them recursively, so a deeper file is refused from its text first (`_nesting`)."""
+MAX_CHANNELS = 1024
+"""Most channels of one IMU stream ([imu] channels)."""
+_TOML_TOKENS = re.compile(r'"""[\s\S]*?"""|\'\'\'[\s\S]*?\'\'\'|"(?:[^"\\\n]|\\.)*"'
+                          r"|'[^'\n]*'|#[^\n]*|[\[\]{}]")
+"""A TOML string (multi-line, basic or literal) or a comment, skipped whole, or a bracket."""
 
 
 class Section:
@@ -130,6 +141,9 @@ def load_profile(path_or_name) -> Profile:
     if not path.exists() and (BUNDLED / f"{path_or_name}.toml").exists():
         path = BUNDLED / f"{path_or_name}.toml"
     try:
+        if path.stat().st_size > MAX_BYTES:
+            raise ProfileError(f"{path}: {path.stat().st_size} bytes; a device profile is at most "
+                               f"{MAX_BYTES} bytes of TOML: is it the right file?")
         text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         bundled = sorted(p.stem for p in BUNDLED.glob("*.toml"))
@@ -137,10 +151,27 @@ def load_profile(path_or_name) -> Profile:
                            f"path or a bundled profile name {bundled}") from None
     except UnicodeDecodeError:
         raise ProfileError(f"{path}: not UTF-8 text; a device profile is a TOML file") from None
+    _nesting(text, path)
     try:
         return Profile(str(path), tomllib.loads(text))
     except tomllib.TOMLDecodeError as exc:
         raise ProfileError(f"{path}: invalid TOML ({exc}); fix the syntax") from None
+
+
+def _nesting(text: str, path) -> None:
+    """Refuse TOML text whose arrays and inline tables nest deeper than MAX_DEPTH, counted from
+    the text (strings and comments skipped) before the recursive parser sees it."""
+    depth = 0
+    for match in _TOML_TOKENS.finditer(text):
+        token = match.group()
+        if token in "[{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                line = text.count("\n", 0, match.start()) + 1
+                raise ProfileError(f"{path}: line {line}: arrays or inline tables nested more "
+                                   f"than {MAX_DEPTH} deep; a profile nests at most {MAX_DEPTH}")
+        elif token in "]}":
+            depth = max(0, depth - 1)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -172,8 +203,9 @@ class ImuSection:
         name = s.get("name", str)
         channels = s.get_list("channels", str)
         m = len(channels)
-        if m == 0 or len(set(channels)) != m or not all(channels):
-            raise s.error("channels", "must be a non-empty list of distinct, non-empty names")
+        if not 0 < m <= MAX_CHANNELS or len(set(channels)) != m or not all(channels):
+            raise s.error("channels", f"must be a list of 1 to {MAX_CHANNELS} distinct, non-empty "
+                                      f"names (got {m} names)")
         quantity = s.get("quantity", str, default=None, choices=tuple(SI_UNITS))
         units = s.get_list("units", str, length=m)
         allowed = {SI_UNITS[quantity]} if quantity else set(SI_UNITS.values())

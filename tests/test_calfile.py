@@ -81,7 +81,7 @@ def test_any_plausible_float_survives_the_file_bit_for_bit(scale, column, bias):
      "a must be finite"),
     (lambda d: d["sensitivity"].update(a=[[10 ** 400, *r[1:]] if i == 0 else r
                                           for i, r in enumerate(d["sensitivity"]["a"])]),
-     "integer too large"),
+     r"sensitivity\.a\[0\]\[0\] = an integer of 401 digits: give a finite number"),
     (lambda d: d["bias"].update(b=[1e300] * len(d["bias"]["b"])), "b must be finite"),
     (lambda d: d.update(magnitude=1e300), "magnitude"),
     (lambda d: d["sensitivity"].update(a=[[1.0, 0.0, 1.0, 0.6], [0.0, 2.0, 1.0, 0.0],
@@ -161,11 +161,11 @@ def test_malformed_content_is_refused_even_with_a_valid_checksum(change, message
 
 def test_non_json_and_foreign_files_are_refused(tmp_path):
     text = make().dumps()
-    with pytest.raises(CalibrationFileError, match="not a number"):
+    with pytest.raises(CalibrationFileError, match=r"= nan: give a finite number"):
         loads(text.replace("1e-05", "NaN", 1))
     with pytest.raises(CalibrationFileError, match="duplicate keys"):
         loads('{"format": 1, "format": 2}')
-    with pytest.raises(CalibrationFileError, match="not valid calibration JSON"):
+    with pytest.raises(CalibrationFileError, match="is not valid JSON"):
         loads(text[:-10])
     with pytest.raises(CalibrationFileError, match="not an IMU station calibration file"):
         loads('{"format": "imu-station-session"}')

@@ -182,6 +182,41 @@ def test_duplicated_samples_are_dropped_and_counted_never_a_forward_jump():
     assert (imu.stats.duplicates, imu.stats.gaps, imu.stats.dropped) == (500, 0, 0)
 
 
+@pytest.mark.parametrize("first_run", [100, 130, 200, 251, 256 + 77])
+def test_a_counter_falling_back_to_0_after_a_reset_is_a_restart_not_a_forward_jump(first_run):
+    """The unit resets after `first_run` samples (its 8-bit counter at first_run - 1 mod 256,
+    below or above half the range) and counts again from 0: a new segment, counted as a restart
+    (a gap of unknown length), never a forward step of 256 - counter samples that would shift the
+    instants of every later sample (issue 30: 495 of 500 fuzzed streams were)."""
+    name, second_run = channel(), 120
+    with CanImu(virtual(name), PROFILE) as imu:
+        for samples in (first_run, second_run):
+            with CanImuTwin(name, PROFILE, counting_source(), samples=samples) as twin:
+                assert twin.wait(timeout=30) and twin.error is None
+        blocks = read_all(imu, first_run + second_run)
+    seq = np.concatenate([b.seq for b in blocks])
+    assert len(seq) == first_run + second_run
+    np.testing.assert_array_equal(np.diff(seq[:first_run]), 1)
+    np.testing.assert_array_equal(np.diff(seq[first_run:]), 1)
+    assert seq[first_run] <= seq[first_run - 1]  # the numbering does not go forward there
+    assert (imu.stats.restarts, imu.stats.gaps, imu.stats.dropped) == (1, 0, 0)
+
+
+def test_a_short_step_forward_is_still_a_gap_of_lost_samples():
+    """Samples lost on the bus (a step of max_gap or less) stay a gap with its count, across
+    the counter's wrap too: only a step beyond max_gap is a restart."""
+    name, n = channel(), 600
+    lost = {250, 251, 252, 400}  # 3 samples across the wrap at 256, then 1
+    drop = {(k, j) for k in lost for j in range(3)}
+    with CanImu(virtual(name), PROFILE) as imu:
+        with CanImuTwin(name, PROFILE, counting_source(), samples=n, drop=drop) as twin:
+            assert twin.wait(timeout=30) and twin.error is None
+        blocks = read_all(imu, n - len(lost))
+    seq = np.concatenate([b.seq for b in blocks])
+    np.testing.assert_array_equal(seq, [k for k in range(n) if k not in lost])
+    assert (imu.stats.restarts, imu.stats.gaps, imu.stats.dropped) == (0, 2, 4)
+
+
 def test_a_device_restarting_at_the_same_counter_starts_a_new_segment():
     """The unit resets and counts again from the counter value it had: a new segment (the
     numbering goes back to the raw counter), not a jump of 256 that would shift every sample."""

@@ -15,7 +15,7 @@ from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fix
 
 from drivers.rotary_table import TableLinkError
 from drivers.twins.serial import SENT, UNPLUGGED
-from station.acquire.operator import SimulatedTechnician
+from station.acquire.operator import OperatorAbort, SimulatedTechnician
 from station.files.session import Session
 from station.protocols.rotary import ProtocolError, RotarySettings, SessionPaused
 from station.reduce.rotary import position_windows, rotary_readings
@@ -164,6 +164,29 @@ def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):
     # the IMU went on streaming through the pause: not one sample missing
     assert np.all(np.diff(stream.seq) == 1)
     check_readings(s, events, reduced)
+
+
+class ClosedInput(SimulatedTechnician):
+    """A technician whose console input is closed: every question ends the session."""
+
+    def confirm(self, question):
+        raise OperatorAbort("the operator closed the input; session aborted")
+
+
+def test_with_the_input_closed_the_device_cause_comes_first(session):  # noqa: F811 - the fixture
+    """A table that stops answering while nobody can answer: the abort names the table's fault
+    first, then the closed input (it said only "the operator closed the input" before)."""
+    s = session(speed=20.0)
+    b = s.bench
+    s.protocol.operator = ClosedInput(b.mounted, b.clock, 1.0, 0.5, 0)
+    act = once(lambda: s.bench.table_twin.inject("drop", count=3))
+    s.protocol.table = Interrupting(s.table, act, run=2)
+    with pytest.raises(OperatorAbort) as ended:
+        s.protocol.run(s.recorder)
+    assert str(ended.value).startswith("the rotary table stopped answering during position 2 (")
+    assert str(ended.value).endswith("; then the operator closed the input; session aborted")
+    assert not s.bench.table.state().running
+    s.close()
 
 
 def abort_of(path):

@@ -407,7 +407,7 @@ def tamper(path, edit):
     (lambda f: (f.__delitem__("streams/imu/counts"),
                 f.create_dataset("streams/imu/counts", (20, 11), "i4")), r"rows x \(12,\)"),
     (lambda f: f["events/detail_end"].__setitem__(1, 0), "detail_end is not increasing"),
-    (lambda f: f["events/detail"].__setitem__(0, ord("x")), "not valid ASCII/JSON"),
+    (lambda f: f["events/detail"].__setitem__(0, ord("x")), "an event.s detail is not valid JSON"),
     (lambda f: f["metadata"][...], None),
     (lambda f: (f.__delitem__("metadata"), f.create_dataset("metadata", data="[1, 2]")),
      "JSON object"),

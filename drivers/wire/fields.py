@@ -17,6 +17,7 @@ The one-block layout of earlier profiles (`layout = ["sync", "seq", "time", "cou
 the special case of a "counts" field repeated once per channel (`layout_fields`).
 """
 
+import collections
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,8 +129,9 @@ class FrameLayout:
             elif f.name in where:
                 columns.append((i, np.array([where[f.name]])))
                 seen.append(f.name)
-        missing = [c for c in self.channels if c not in seen]
-        twice = sorted({c for c in seen if seen.count(c) > 1})
+        times = collections.Counter(seen)  # linear: a profile may list many channels
+        missing = [c for c in self.channels if c not in times]
+        twice = sorted(c for c, n in times.items() if n > 1)
         if missing or twice:
             raise ProfileError(f"[serial.binary] fields: every [imu] channel needs exactly one "
                                f"field; missing {missing}, more than once {twice}")

@@ -115,10 +115,12 @@ class BenchProfile:
             raise ProfileError(f"{path}: [bench] gives both lockstep (the virtual bench's stepped "
                                "clock) and clock_speed (a real-time clock); keep the one `station "
                                "twin` wrote")
-        if not SERIAL.match(serial) or not 0 < speed < 1e4:
-            raise ProfileError(f"{path}: [bench] needs a unit_serial of 1-64 letters, digits, '.', "
-                               f"'_' or '-' (it names the session file; got {serial!r}) and a "
-                               f"clock_speed between 0 and 1e4 (got {speed!r})")
+        if not SERIAL.match(serial):
+            raise bench.error("unit_serial", f"{serial!r}: give 1-64 letters, digits, '.', '_' or "
+                                             "'-' (it names the session file)")
+        if not 0 < speed < 1e4:
+            raise bench.error("clock_speed", f"{speed!r}: give a number between 0 and 1e4 "
+                                             "(simulated s per wall s; 1 on a real bench)")
         units = _units(profile, serial, path)
         dev = units[0].imu
         kind = proto.get("kind", str, default="rotary", choices=tuple(kinds_with("acquire")))
@@ -490,6 +492,10 @@ def resume(bench: BenchProfile, path, operator, clock=None) -> int:
     kind = _check_same_bench(bench, path, metadata, specs.get("imu"),
                              StreamSpec.from_profile(bench.imu.imu))
     _check_same_units(bench, path, units, specs)
+    if kind.table:  # the recorded protocol checked before any device is opened
+        from station.protocols.rotary import RotaryProtocol
+
+        RotaryProtocol.from_metadata(metadata, None, None, None)
     if clock is None or clock.realtime:
         clock = bench_clock(bench, start=end + 1.0)
     else:

@@ -102,7 +102,7 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
-    from station.commands import existing_file, new_file, table_words
+    from station.commands import existing_file, new_file
     from station.commands.solve import unit_line, units_exit, verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
@@ -126,7 +126,7 @@ def run(args) -> int:
         elif args.solve:
             summary["calibration"] = solve(out, args.accept_suspect)
     except BaseException as err:
-        err.add_note(f"{table_words(err)}{out} keeps the completed positions")
+        err.add_note(how_to_go_on(err, out))
         raise
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -145,6 +145,18 @@ def run(args) -> int:
     if args.solve and bench.plate:
         return units_exit(summary["calibrations"])
     return verdict_exit(summary["calibration"]["verdict"]) if args.solve else 0
+
+
+def how_to_go_on(err: BaseException, out: Path) -> str:
+    """The note on an error (or Ctrl-C) that ended `station record`: whether the table was
+    stopped, then what the session file `out` holds and how to go on with it - or that none was
+    written (a device that failed before the first sample)."""
+    from station.commands import table_words
+
+    if not out.exists():
+        return f"{table_words(err)}no session file was written ({out} does not exist)"
+    return (f"{table_words(err)}{out} keeps the completed positions; go on with `station resume "
+            f"{out}`")
 
 
 def solve_plate(path, accept_suspect: bool = False) -> list:

@@ -387,14 +387,13 @@ def recorded_tolerances(metadata: dict, path):
 
 def read_tolerances(path):
     """The `[tolerances]` table of a TOML file (a bench profile, or a file of its own)."""
-    import tomllib
-
+    from drivers.profile import ProfileError, load_profile
     from station.errors import InputError
     from station.solve.verdict import Tolerances
 
-    try:
-        table = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    try:  # sizes and nesting bounded as for every profile
+        table = load_profile(Path(path)).tables
+    except ProfileError as exc:
         raise InputError(f"cannot read tolerances from {path} ({exc}); give a TOML file with a "
                          "[tolerances] table") from None
     if "tolerances" not in table:

@@ -42,6 +42,7 @@ import numpy as np
 
 from station.errors import CalibrationFileError, InputError
 from station.files.provenance import software_version, utc_now
+from station.limits import json_loads
 from station.model import measurement
 from station.model.temperature import MAX_ORDER, TemperatureModel, check_kelvin
 
@@ -631,26 +632,19 @@ def read_text(path) -> tuple[str, bytes]:
 
 def loads(text: str, where: str = "calibration") -> Calibration:
     """Parse a calibration file's text (see `load`)."""
-    try:
-        doc = json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_no_duplicates)
-    except (ValueError, RecursionError) as exc:  # JSONDecodeError, _Invalid, huge ints
-        raise CalibrationFileError(f"{where} is not valid calibration JSON ({exc})") from None
+    doc = json_loads(text, where, error=CalibrationFileError, object_pairs_hook=_no_duplicates)
     return _from_document(doc, where)
 
 
-class _Invalid(ValueError):
-    pass
-
-
-def _refuse_constant(name):
-    raise _Invalid(f"{name} is not a number; the file must hold finite numbers only")
-
-
 def _no_duplicates(pairs):
-    keys = [k for k, _ in pairs]
-    if len(set(keys)) != len(keys):
-        raise _Invalid(f"duplicate keys {sorted({k for k in keys if keys.count(k) > 1})}")
-    return dict(pairs)
+    """An object's pairs as a dict; ValueError naming repeated keys (linear time)."""
+    doc = dict(pairs)
+    if len(doc) != len(pairs):
+        seen, repeated = set(), set()
+        for k, _ in pairs:
+            (repeated if k in seen else seen).add(k)
+        raise ValueError(f"duplicate keys {sorted(repeated)[:10]}")
+    return doc
 
 
 def _from_document(doc, where: str) -> Calibration:

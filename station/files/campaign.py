@@ -24,6 +24,7 @@ from pathlib import Path
 from station.errors import InputError
 from station.files.jsonable import jsonable
 from station.files.provenance import utc_now
+from station.limits import json_loads
 
 FORMAT = "station-thermal-campaign"
 VERSION = 1
@@ -86,11 +87,11 @@ class Campaign:
         problem)."""
         path = manifest_path(path)
         try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
+            doc = json_loads(path.read_text(encoding="utf-8"), "it", error=CampaignError)
         except FileNotFoundError:
             raise CampaignError(f"{path}: no campaign manifest; give the directory `station "
                                 "record` wrote a thermal campaign into") from None
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        except (OSError, UnicodeDecodeError, CampaignError) as exc:
             raise CampaignError(f"{path}: cannot read the campaign manifest ({exc}); it is "
                                 "written atomically, so it was changed by hand or the disk "
                                 "failed: restore it from the session files' metadata") from None

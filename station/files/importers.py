@@ -37,7 +37,6 @@ import hashlib
 import logging
 import math
 import re
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,7 +46,8 @@ from drivers.profile import SerialImuProfile, load_profile
 from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from drivers.wire.binary import BinaryFrameParser
-from station.errors import CalibrationInputError
+from station.errors import CalibrationInputError, InputError
+from station.files import npz
 from station.files.import_kalibr import recognise
 from station.files.jsonable import jsonable
 from station.files.session import SessionWriter, StreamSpec
@@ -498,35 +498,15 @@ def _check_names(streams: dict, units: dict) -> None:
 
 
 def _npz_headers(path: Path, max_bytes: int) -> dict:
-    """{name: (shape, dtype)} from the .npy headers inside a zip, refusing object arrays and
-    arrays larger than max_bytes, before anything is decompressed."""
-    out = {}
+    """{name: (shape, dtype)} of an .npz from its headers, before anything is inflated
+    (`station.files.npz.headers`)."""
     try:
-        with zipfile.ZipFile(path) as zf:
-            for info in zf.infolist():
-                if not info.filename.endswith(".npy"):
-                    raise CalibrationInputError(f"{path} holds {info.filename!r}, not an array.",
-                                                "Give an .npz written by numpy.savez.")
-                with zf.open(info) as f:
-                    major, _ = np.lib.format.read_magic(f)
-                    read = (np.lib.format.read_array_header_1_0 if major == 1
-                            else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = read(f)
-                if dtype.hasobject or dtype.kind not in "iufbUS":
-                    raise CalibrationInputError(
-                        f"{path}: {info.filename} is of type {dtype} (Python objects are never "
-                        "unpickled).", "Save numbers or fixed-width strings (e.g. "
-                        "np.array('v2'), dtype <U2), not object arrays.")
-                if math.prod(shape) * dtype.itemsize > max_bytes:
-                    raise CalibrationInputError(f"{path}: {info.filename} {shape} exceeds "
-                                                f"{max_bytes} bytes.", "Split the recording.")
-                out[info.filename[:-4]] = (shape, dtype)
-    except (zipfile.BadZipFile, ValueError, OSError) as exc:
-        if isinstance(exc, CalibrationInputError):
-            raise
-        raise CalibrationInputError(f"{path} is not a readable .npz file ({exc}).",
-                                    "Give an array file written by numpy.savez.") from None
-    return out
+        return npz.headers(path, max_bytes)
+    except CalibrationInputError:
+        raise
+    except InputError as exc:
+        raise CalibrationInputError(f"{exc}.", "Give an array file written by numpy.savez.") \
+            from None
 
 
 def _table_states(t, arrays, angle) -> list:

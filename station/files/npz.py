@@ -3,6 +3,7 @@ beside it as `.truth.json` (non-finite values as null, station.files.jsonable), 
 in the data file reveals the answer."""
 
 import json
+import math
 import zipfile
 from pathlib import Path
 
@@ -50,8 +51,69 @@ def _write_array(member, value) -> None:
         member.write(np.ascontiguousarray(block, value.dtype).tobytes())
 
 
-def read(path) -> dict:
-    """The arrays of a data file (never unpickles); InputError for anything else."""
+MAX_RATIO = 100
+"""Largest inflated / compressed size of an array over RATIO_FLOOR bytes: recorded counts carry
+noise and deflate 1.5-10x; an array that deflates further is a bomb (zeros), not a recording."""
+RATIO_FLOOR = 16 << 20
+"""Arrays inflating to less than this are not held to MAX_RATIO (constant settings compress
+well, and cost nothing)."""
+
+
+def headers(path, max_bytes: int | None = None) -> dict:
+    """{name: (shape, dtype)} of the arrays of an .npz, from the zip's and the .npy headers
+    alone, before anything is inflated: every member an .npy of numbers or fixed-width strings
+    (never objects), at most `max_bytes` of data, its inflated size (`ZipInfo.file_size`) what
+    its header's shape needs, and deflated at most MAX_RATIO times (a deflate bomb is refused
+    from the sizes, not after inflating it); max_bytes: default `station.files.tables.MAX_BYTES`.
+    InputError names the array and the limit."""
+    if max_bytes is None:
+        from station.files.tables import MAX_BYTES as max_bytes
+    out = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                out[info.filename[:-4]] = _header(zf, info, path, max_bytes)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{path} is not a readable .npz file ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:160]})") from None
+    return out
+
+
+def _header(zf, info, path, max_bytes: int) -> tuple:
+    """(shape, dtype) of one member of an .npz, checked (`headers`)."""
+    name = info.filename
+    if not name.endswith(".npy"):
+        raise InputError(f"{path} holds {name!r}, not an array; give an .npz written by "
+                         "numpy.savez")
+    with zf.open(info) as f:
+        major, _ = np.lib.format.read_magic(f)
+        read = (np.lib.format.read_array_header_1_0 if major == 1
+                else np.lib.format.read_array_header_2_0)
+        shape, _, dtype = read(f)
+        header = f.tell()
+    if dtype.hasobject or dtype.kind not in "iufbUS":
+        raise InputError(f"{path}: {name} is of type {dtype} (Python objects are never "
+                         "unpickled); save numbers or fixed-width strings (e.g. np.array('v2'), "
+                         "dtype <U2), not object arrays")
+    size = math.prod(shape) * dtype.itemsize
+    if size > max_bytes:
+        raise InputError(f"{path}: {name} {shape} exceeds {max_bytes} bytes; split the recording")
+    if info.file_size != header + size:
+        raise InputError(f"{path}: {name} inflates to {info.file_size} bytes, its header's "
+                         f"shape {shape} needs {header + size}: the file is damaged")
+    if size > RATIO_FLOOR and size > MAX_RATIO * info.compress_size:
+        raise InputError(f"{path}: {name} inflates {size // max(info.compress_size, 1)} times "
+                         f"({size} bytes from {info.compress_size}); a recording deflates at "
+                         f"most {MAX_RATIO} times: refused before inflating (a deflate bomb)")
+    return shape, dtype
+
+
+def read(path, max_bytes: int | None = None) -> dict:
+    """The arrays of a data file (never unpickles), their sizes checked first (`headers`);
+    InputError for anything else."""
+    headers(path, max_bytes)
     try:
         with np.load(path, allow_pickle=False) as f:
             return {k: f[k] for k in f.files}

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from station import limits
 from station.acquire.operator import Instruction
 from station.errors import CalibrationInputError, InputError
 from station.protocols.rotary import mounting
@@ -72,10 +73,8 @@ class IronSettings(StillSettings):
         unknown = [f for f in self.faces if f not in FACES]
         if unknown or not self.faces:
             raise InputError(f"faces must be a non-empty list of {FACES}, got {self.faces!r}")
-        if not (isinstance(self.mountings, int) and self.mountings >= 1):
-            raise InputError(f"mountings must be a whole number >= 1, got {self.mountings!r}")
-        if not self.tolerance_deg > 0:
-            raise InputError("tolerance_deg must be positive")
+        limits.whole(self.mountings, "mountings", 1, 100)
+        limits.positive(self.tolerance_deg, "tolerance_deg", 90.0)
 
     @property
     def poses(self) -> int:

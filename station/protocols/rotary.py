@@ -67,17 +67,17 @@ The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 
 import contextlib
 import logging
-import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from drivers.errors import CanBusError, SerialPortError, TableError
 from drivers.rotary_table import TableTimeout, not_stopped
+from station import limits
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
-from station.errors import FlaggedWindow, InputError, ProtocolError, SessionPaused
+from station.errors import FlaggedWindow, InputError, OperatorAbort, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
@@ -127,17 +127,32 @@ class RotarySettings:
     redo_limit: int = REDO_LIMIT
 
     def __post_init__(self):
-        if not (math.isfinite(self.rate) and self.rate != 0):
-            raise InputError(f"table rate must be a non-zero number of rad/s, got {self.rate!r}")
-        if not (isinstance(self.revolutions, int) and self.revolutions >= 1):
-            raise InputError(f"revolutions must be a whole number >= 1, got {self.revolutions!r}")
-        if not (isinstance(self.retries, int) and self.retries >= 0):
-            raise InputError(f"retries must be a whole number >= 0, got {self.retries!r}")
+        """Refuse settings no bench runs (`SETTING_LIMITS`), naming the setting and its range."""
+        rate = limits.number(self.rate, "rotary setting rate", -MAX_RATE, MAX_RATE)
+        if rate == 0:
+            raise InputError("rotary setting rate = 0: the table rate must be a non-zero number "
+                             "of rad/s")
+        limits.whole(self.revolutions, "rotary setting revolutions", 1, MAX_REVOLUTIONS)
+        limits.whole(self.retries, "rotary setting retries", 0, MAX_RETRIES)
         check_redo_limit(self.redo_limit)
-        durations = ("static", "rest", "guard", "steady", "tolerance", "poll", "timeout", "stale")
-        bad = [n for n in durations if not getattr(self, n) > 0]
-        if bad:
-            raise InputError(f"rotary settings {bad} must be positive")
+        for name, high in SETTING_LIMITS.items():
+            limits.positive(getattr(self, name), f"rotary setting {name}", high)
+
+
+MAX_RATE, MAX_REVOLUTIONS, MAX_RETRIES, MAX_POSITIONS = 50.0, 1000, 100, 10000
+"""Largest |table rate| (rad/s), revolutions per window, retries and positions of a session."""
+SETTING_LIMITS = {"static": 3600.0, "rest": 3600.0, "guard": 3600.0, "steady": 3600.0,
+                  "tolerance": 10.0, "poll": 60.0, "timeout": 3600.0, "stale": 3600.0}
+"""Largest value of each duration (s) and of the rate tolerance (rad/s): beyond, a session would
+wait for hours (each also must be positive)."""
+
+
+def _numbers(value, field: str) -> np.ndarray:
+    """A recorded list of numbers as a float array; InputError naming `field` otherwise."""
+    try:
+        return np.asarray(value, float)
+    except (TypeError, ValueError):
+        raise InputError(f"{field} = {str(value)[:40]}: give a list of numbers") from None
 
 
 def suggested_axes(n: int) -> np.ndarray:
@@ -236,10 +251,14 @@ class RotaryProtocol:
                              f"{metadata.get('protocol')!r}, not 'rotary'")
         try:
             settings = RotarySettings(**metadata["settings"])
-            axes = np.asarray(metadata["axes"], float)
+            axes = _numbers(metadata["axes"], "axes")
+            if axes.ndim != 2 or not 1 <= len(axes) <= MAX_POSITIONS or axes.shape[1] != 3 \
+                    or not np.all(np.linalg.norm(axes, axis=1) > 0):
+                raise InputError(f"axes: give 1 to {MAX_POSITIONS} non-zero directions of 3 "
+                                 f"numbers each (got shape {axes.shape})")
             phis = metadata.get("phis")
-            phis = None if phis is None else np.asarray(phis, float)
-            spins = metadata.get("spins", 0)
+            phis = None if phis is None else _numbers(phis, "phis")
+            spins = limits.whole(metadata.get("spins", 0), "spins", 0, MAX_POSITIONS)
             poses = metadata.get("fixture_poses")
             if poses is not None:
                 poses = [{"words": str(p["words"]), "picture": str(p["picture"]),
@@ -514,9 +533,10 @@ class RotaryProtocol:
         elif then == "done":
             return then  # nothing left to record: the session is complete without the IMU
         for attempt in range(1, self.settings.retries + 2):
-            self.operator.wait(Instruction(
-                f"{lost} was lost during position {j + 1} ({exc.__cause__}); the table was "
-                "stopped. Reconnect the IMU's cable without moving the unit, then confirm"))
+            cause = f"{lost} was lost during position {j + 1} ({exc.__cause__})"
+            self._ask(cause, lambda c=cause: self.operator.wait(Instruction(
+                f"{c}; the table was stopped. Reconnect the IMU's cable without moving the unit, "
+                "then confirm")))
             self.recorder.event("resume", j, {"after": "imu lost", "attempt": attempt})
             try:
                 self.recorder.reconnect()
@@ -539,13 +559,24 @@ class RotaryProtocol:
                    + ("It was commanded to stop" if stopped else
                       "It could not be commanded to stop: STOP IT BY HAND") +
                    "; the session is paused and everything recorded so far is kept.")
-        if not self.operator.confirm(f"{message} Go on once the table answers again?"):
+        if not self._ask(message, lambda: self.operator.confirm(
+                f"{message} Go on once the table answers again?")):
             raise SessionPaused(f"{message} Check the table's cable and power, then run "
                                 "`station resume SESSION` to continue.") from exc
         if then == "restart":
             self._count_again(exc)
         self.recorder.event("resume", j, {"after": "table timeout"})
         return then
+
+    @staticmethod
+    def _ask(cause: str, question):
+        """The operator's answer to `question()`, asked after a device fault described by
+        `cause`; when the operator's input is closed (OperatorAbort), the abort says the device's
+        cause first, then that nobody could answer."""
+        try:
+            return question()
+        except OperatorAbort as abort:
+            raise OperatorAbort(f"{cause.rstrip('. ')}; then {abort}") from abort
 
     def _completed(self, imu: bool | None = False) -> str:
         """Record `position_done` for a position whose windows are all in the file (imu False:

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station import limits
 from station.acquire import interrupts
 from station.acquire.recorder import Recorder
 from station.errors import InputError, ProtocolError
@@ -44,6 +45,11 @@ from station.protocols.redo import REDO_LIMIT, Redo, check_redo_limit, window_fl
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import WindowQuality, describe, window_quality
+
+SETTING_LIMITS = {"gravity": 100.0, "hold": 3600.0, "window": 3600.0, "min_still": 3600.0,
+                  "rest_length": 3600.0, "lookback": 7200.0, "poll": 60.0, "timeout": 3600.0,
+                  "stale": 3600.0}
+"""Largest value of each still-pose setting (gravity in m/s^2, durations in s; each positive)."""
 
 
 @dataclass(frozen=True)
@@ -73,12 +79,12 @@ class StillSettings:
     redo_limit: int = REDO_LIMIT
 
     def __post_init__(self):
+        """Refuse settings no bench runs (`SETTING_LIMITS`), naming the setting and its range."""
         check_redo_limit(self.redo_limit)
-        positive = ("gravity", "hold", "window", "min_still", "rest_length", "lookback", "poll",
-                    "timeout", "stale")
-        bad = [n for n in positive if not getattr(self, n) > 0]
-        if bad:
-            raise InputError(f"settings {bad} must be positive")
+        for name, high in SETTING_LIMITS.items():
+            limits.positive(getattr(self, name), f"setting {name}", high)
+        for name in ("enter", "leave"):
+            limits.number(getattr(self, name), f"setting {name}", 0.0, 1e6)
         if self.lookback < self.rest_length + self.hold + 2 * self.window:
             raise InputError("lookback must hold a rest stretch, a window and a still pose")
 

@@ -16,13 +16,13 @@ See docs/realdata.md; `bench/peers.py` runs imucal on the same data.
 """
 
 import csv
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import CalibrationInputError
+from station.limits import json_loads
 from station.model import measurement
 from station.model.frames import align_to
 from station.reduce.stillness import StillIntervals, detect_still
@@ -113,7 +113,7 @@ def read_section_list(path) -> dict:
     """The hand-made section list of imucal's GUI: {label: {"start": i, "end": j}} as JSON."""
     path = Path(path)
     try:
-        raw = json.loads(path.read_text())
+        raw = json_loads(path.read_text(), str(path))
         sections = {k: (int(raw[k]["start"]), int(raw[k]["end"])) for k in SECTIONS}
     except (ValueError, KeyError, TypeError) as exc:
         raise CalibrationInputError(

@@ -42,6 +42,7 @@ from drivers.twins.can import CanImuTwin
 from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
+from station import limits
 from station.acquire.operator import SimulatedTechnician
 from station.errors import InputError
 from station.files.session import Session, SessionWriter, StreamSpec
@@ -227,11 +228,8 @@ class VirtualBench:
     @classmethod
     def from_metadata(cls, bench: dict, **overrides) -> "VirtualBench":
         """The bench described by a session's `bench` metadata (`metadata()`), with `overrides`
-        (e.g. clock_start, speed)."""
-        if not isinstance(bench, dict) or not set(bench) <= BENCH_KEYS:
-            raise InputError(f"the session's bench description {bench!r} is not one of this "
-                             f"station's virtual benches (keys {sorted(BENCH_KEYS)})")
-        return cls(**{**bench, **overrides})
+        (e.g. clock_start, speed); every field checked first (`checked_bench`)."""
+        return cls(**{**checked_bench(bench), **overrides})
 
     def streamed(self):
         """What the IMU twin streams: `source`, spiked by the `spikes` knob when it is set
@@ -300,6 +298,65 @@ class VirtualBench:
                           np.array(self.technician.orientations).reshape(-1, 3, 3), A_MODEL)
 
 
+BENCH_LIMITS = {"seed": (0, 2**32 - 1), "speed": (0.1, 1e4), "rate_hz": (1.0, 1e4),
+                "remount_time": (0.0, 600.0), "placement_deg": (0.0, 45.0),
+                "rate_error": (-0.5, 0.5)}
+"""Ranges of the recorded virtual bench's numbers (`checked_bench`): a seed numpy takes, a clock
+between 0.1x and 10^4x, sample rates and re-mounting times a session can afford, placement errors
+and table rate errors (relative: scale and spread) a technician and a table may have."""
+
+
+def checked_bench(bench, where: str = "virtual_bench") -> dict:
+    """A session's virtual bench description (`VirtualBench.metadata`) with every field checked
+    against `BENCH_LIMITS`, before anything is built from it; InputError naming the first field
+    out of range or of the wrong type (`station.limits`)."""
+    if not isinstance(bench, dict) or not set(bench) <= BENCH_KEYS:
+        raise InputError(f"the session's bench description {str(bench)[:80]} is not one of this "
+                         f"station's virtual benches (an object with keys {sorted(BENCH_KEYS)})")
+    out = dict(bench)
+    if "imu" in bench:
+        limits.choice(bench["imu"], f"{where}.imu", tuple(IMU_KINDS))
+    if "seed" in bench:
+        limits.whole(bench["seed"], f"{where}.seed", *BENCH_LIMITS["seed"])
+    for key in ("rate_hz", "remount_time", "placement_deg"):
+        if key in bench:
+            out[key] = limits.number(bench[key], f"{where}.{key}", *BENCH_LIMITS[key])
+    if bench.get("speed") is not None:
+        out["speed"] = limits.number(bench["speed"], f"{where}.speed", *BENCH_LIMITS["speed"])
+    if "two_axis" in bench:
+        limits.choice(bench["two_axis"], f"{where}.two_axis", (True, False))
+    if bench.get("rate_error") is not None:
+        out["rate_error"] = _checked_rate_error(bench["rate_error"], f"{where}.rate_error")
+    if bench.get("effects") is not None:
+        out["effects"] = _checked_effects(bench["effects"], f"{where}.effects")
+    return out
+
+
+def _checked_rate_error(value, where: str) -> dict:
+    """The table's hidden rate error of a bench description: {"scale", "spread"[, "encoder"]}."""
+    if not isinstance(value, dict) or not set(value) <= {"scale", "spread", "encoder"}:
+        raise InputError(f"{where} = {str(value)[:60]}: give an object with scale and spread "
+                         "(relative errors) and optionally encoder (true or false)")
+    out = {k: limits.number(value[k], f"{where}.{k}", *BENCH_LIMITS["rate_error"])
+           for k in ("scale", "spread") if k in value}
+    if "encoder" in value:
+        out["encoder"] = limits.choice(value["encoder"], f"{where}.encoder", (True, False))
+    return out
+
+
+def _checked_effects(value, where: str) -> dict:
+    """Named effects of a bench description, {name: {parameter: value}}, as the effects' own
+    checks accept them (`station.model.effects.from_json`)."""
+    if not (isinstance(value, dict) and all(isinstance(p, dict) for p in value.values())):
+        raise InputError(f"{where} = {str(value)[:60]}: give an object {{effect: {{parameter: "
+                         "value}}")
+    try:
+        from_json(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {' '.join(str(exc).split())[:160]}") from None
+    return value
+
+
 def record_rotary(bench: VirtualBench, path, settings=None, axes=None, unit_serial: str = "",
                   watch=None, view=None, phis=None, spins: int = 0) -> None:
     """Record a new rotary session file at `path` on the started `bench`.
@@ -339,6 +396,9 @@ def resume_rotary(path, watch=None, **overrides) -> int:
     if not (isinstance(described, dict) and set(described) <= BENCH_KEYS):
         raise InputError(f"{path} was not recorded on the virtual bench; resume it with its "
                          "real devices")
+    if overrides.get("speed") is not None:
+        limits.number(overrides["speed"], "--speed", *BENCH_LIMITS["speed"])
+    RotaryProtocol.from_metadata(metadata, None, None, None)  # checked before the bench starts
     with VirtualBench.from_metadata(described, clock_start=end + 1.0, **overrides) as bench, \
             bench.drivers() as (imu, table), \
             SessionWriter.resume(path, clock=bench.clock) as writer:

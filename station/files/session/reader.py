@@ -7,7 +7,6 @@ imports no driver (the reduction reads sessions and never touches devices).
 
 import dataclasses
 import hashlib
-import json
 import os
 from typing import TYPE_CHECKING
 
@@ -36,6 +35,7 @@ from station.files.session.format import (
     last_completed_position,
 )
 from station.files.session.torn import tail_rows
+from station.limits import json_loads
 
 if TYPE_CHECKING:  # the solver (scipy) is imported where results are read: `_read_calibration`
     from station.solve.calibrate import CalibrationResult
@@ -111,21 +111,28 @@ class Session:
         for column, dtype in dtypes.items():
             if column in values:
                 values[column] = values[column].astype(dtype, copy=False)
+        if "host_time" in values:
+            _finite(values["host_time"], f"/streams/{name}/host_time", self.path, start, rows)
         return StreamData(*(values.get(c) for c in STREAM_COLUMNS), spec, rows)
 
     def table(self, start: int = 0, stop: int | None = None) -> TableData:
         """The rotary-table states among the file rows [start, stop) (stop None: all flushed so
         far); rows of damaged chunks are left out."""
-        cols, _ = _columns(self._table(), self.path, drop_damaged=True, start=start, stop=stop)
-        return TableData(*(c.astype(np.float64, copy=False) for c in cols[:-1]),
-                         cols[-1].astype(np.uint8, copy=False))
+        cols, rows = _columns(self._table(), self.path, drop_damaged=True, start=start,
+                              stop=stop)
+        floats = [c.astype(np.float64, copy=False) for c in cols[:-1]]
+        for name, values in zip(TABLE_COLUMNS, floats, strict=False):
+            _finite(values, f"/streams/table/{name}", self.path, start, rows)
+        return TableData(*floats, cols[-1].astype(np.uint8, copy=False))
 
     def table_times(self) -> tuple:
         """(time, rows): the times of the table states (their dimension scale) and the file row
         of each (None: row i is time[i]), rows of damaged chunks left out; `table(start, stop)`
         reads the states."""
         (time,), rows = _columns(self._table(), self.path, drop_damaged=True, read=("time",))
-        return time.astype(np.float64, copy=False), rows
+        time = time.astype(np.float64, copy=False)
+        _finite(time, "/streams/table/time", self.path, 0, rows)
+        return time, rows
 
     def _table(self) -> dict:
         """The table's checked datasets (`_checked`), looked up once."""
@@ -263,10 +270,7 @@ def _json_object(raw, what: str) -> dict:
     """A JSON object from untrusted text, size-limited; SessionFormatError naming `what`."""
     if len(raw) > MAX_JSON_BYTES:
         raise SessionFormatError(f"{what} is over {MAX_JSON_BYTES} bytes")
-    try:
-        value = json.loads(raw)
-    except (ValueError, UnicodeDecodeError) as e:
-        raise SessionFormatError(f"{what} is not valid JSON ({e})") from None
+    value = json_loads(raw, what, error=SessionFormatError)
     if not isinstance(value, dict):
         raise SessionFormatError(f"{what} must be a JSON object")
     return value
@@ -320,6 +324,19 @@ def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None)
     return [c[keep] for c in columns], start + np.flatnonzero(keep)
 
 
+def _finite(values: np.ndarray, name: str, where, start: int, rows) -> None:
+    """Refuse a recorded column (times, table rates and angles) holding NaN or inf: the writer
+    never records one, so the dataset is damaged (a window cut at a NaN instant would silently
+    change the result)."""
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        row = start + int(bad[0]) if rows is None else int(rows[bad[0]])
+        more = f" and {bad.size - 1} more row(s)" if bad.size > 1 else ""
+        raise SessionFormatError(f"{where}: {name} holds {values[bad[0]]} at row {row}{more} (a "
+                                 "recorded value is finite): the dataset is damaged; use an "
+                                 "undamaged copy")
+
+
 def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
     """(the rows [start, stop) of `ds`, a mask of the rows that read back intact)."""
     try:
@@ -357,13 +374,14 @@ def read_events(g, where="") -> list:
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
     text = _rows(detail, 0, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
     events = []
+    _finite(times[:k].astype(np.float64), "/events/time", where, 0, None)
     for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
                               strict=True):
         try:
             kind = kb.decode("ascii")
-            info = json.loads(text[s:e])
-        except (UnicodeDecodeError, ValueError) as err:
-            raise SessionFormatError(f"{where}: an event is not valid ASCII/JSON ({err})") from None
+        except UnicodeDecodeError as err:
+            raise SessionFormatError(f"{where}: an event kind is not ASCII ({err})") from None
+        info = json_loads(text[s:e], f"{where}: an event's detail", error=SessionFormatError)
         if not isinstance(info, dict):
             raise SessionFormatError(f"{where}: event detail must be a JSON object")
         if kind not in EVENT_KINDS:
