@@ -92,8 +92,10 @@ class Watchdog:
 
     def words(self) -> str:
         """The watchdog in words, for the live view and messages."""
-        action = {"stop": "stops the table", "off": "stops the chamber",
-                  "safe": f"sends the chamber to {self.safe_setpoint:.2f} K"}[self.action]
+        if self.action == "safe":
+            action = f"sends the chamber to {self.safe_setpoint:.2f} K"
+        else:
+            action = "stops the table" if self.action == "stop" else "stops the chamber"
         return f"period {self.period:g} s, {action}"
 
 

@@ -12,7 +12,10 @@ is wall seconds (`drivers.heartbeat.device_wait`); on a stepped (lockstep) clock
 watchdog is a member of the clock that sleeps until its deadline, so when the station's process
 dies (the clock server drops its member as its socket closes, `drivers.clock_link`) time still
 moves to the deadline and the watchdog acts; once it has acted it leaves the clock (a twin alone
-does not run ahead).
+does not run ahead). There it joins the clock at the second change of the heartbeat, not the
+first: a station in another process takes part in the served clock from its first wait on it,
+and its heartbeat writes the second beat after such a wait, so the watchdog never runs time
+ahead of a station that has not joined yet.
 """
 
 import logging
@@ -32,6 +35,7 @@ class TwinWatchdog:
         self.tripped = False
         self.trips = []  # clock instants at which it acted
         self._deadline = None  # armed: the instant (device time, `device_now`) it acts at
+        self._changes = 0  # changes of the heartbeat since it last acted
         self._lock = threading.Lock()
         self._armed = threading.Event()
         self._stop = threading.Event()
@@ -52,7 +56,7 @@ class TwinWatchdog:
     @property
     def armed(self) -> bool:
         """Does it count down (a heartbeat seen since it last acted)?"""
-        return self._deadline is not None
+        return self._armed.is_set()
 
     def fed(self, value: int) -> None:
         """The host wrote `value` to the heartbeat register: a change (re)arms the countdown."""
@@ -61,7 +65,9 @@ class TwinWatchdog:
                 return
             self.value = value
             self._deadline = device_now(self.clock) + self.spec.period
-        self._armed.set()
+            self._changes += 1
+            if self.clock.realtime or self._changes >= 2:  # lockstep: see the module docstring
+                self._armed.set()
 
     def rearm(self) -> None:
         """A run command: the tripped bit clears."""
@@ -92,7 +98,7 @@ class TwinWatchdog:
         with self._lock:
             if self._deadline is None or self._deadline > device_now(self.clock):
                 return False
-            self._deadline = None
+            self._deadline, self._changes = None, 0
             self._armed.clear()
         self.tripped = True
         self.trips.append(self.clock.now())
