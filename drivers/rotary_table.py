@@ -127,6 +127,7 @@ class TableRegisterMap:
     position_hold: int = 0
     watchdog: Watchdog | None = None
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
+    # but the watchdog's heartbeat (written only)
 
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
@@ -149,7 +150,6 @@ class TableRegisterMap:
         used = sorted(a for n in self.quantities for a in self.addresses(n))
         if self.watchdog is not None:
             self._check_watchdog(used)
-            used = sorted(used + [self.watchdog.register])
         if len(set(used)) != len(used) or used[0] < 0 or used[-1] > 0xFFFF:
             raise ProfileError(f"table registers overlap or leave 0..65535: {self.registers}")
         if used[-1] - used[0] + 1 > 125:

@@ -94,6 +94,7 @@ class ChamberRegisterMap:
     stopbits: int = 1
     watchdog: Watchdog | None = None
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
+    # but the watchdog's heartbeat (written only)
 
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + VALUE_REGISTERS if n not in self.registers]
@@ -111,9 +112,6 @@ class ChamberRegisterMap:
                                        f"address {address}; give each its own "
                                        f"{self.width(name)} register(s)")
                 owner[address] = name
-        if self.watchdog is not None:
-            self._check_watchdog(owner)
-            owner[self.watchdog.register] = "watchdog"
         used = sorted(owner)
         if used[0] < 0 or used[-1] > 0xFFFF or used[-1] - used[0] + 1 > 125:
             raise ProfileError("chamber registers must lie in 0..65535 and fit in one read of 125 "
@@ -140,6 +138,8 @@ class ChamberRegisterMap:
         except ValueError as exc:
             raise ProfileError(f"chamber limits do not fit the registers: {exc}; lower the limits "
                                "or the scale") from None
+        if self.watchdog is not None:
+            self._check_watchdog(owner)
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
 
     def _check_watchdog(self, owner: dict) -> None:

@@ -40,12 +40,12 @@ from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import SimDevice
 
 from drivers.thermal_chamber import ZERO_CELSIUS, ChamberRegisterMap
 from drivers.twins.modbus_server import ServerThread
 from drivers.twins.nullmodem import NullModem
-from drivers.twins.watchdog import TwinWatchdog
+from drivers.twins.watchdog import TwinWatchdog, register_blocks
 
 KINDS = ("short", "exception", "garbled")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -134,10 +134,9 @@ class ChamberTwin:
 
     async def _open(self):
         """Create and start the pymodbus server for the link."""
-        first, count = self.map.span
         action = self._thread.guarded(self._action)  # an error there fails the twin
-        device = SimDevice(id=self.map.device_id, action=action, simdata=[
-            SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
+        device = SimDevice(id=self.map.device_id, action=action, simdata=register_blocks(
+            self.map.span, self.map.watchdog))
         if self.link == "tcp":
             server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_pdu=self._trace,
                                      trace_packet=self._garble)

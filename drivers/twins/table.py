@@ -55,7 +55,7 @@ from typing import Self
 
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import SimDevice
 
 from drivers.rotary_table import (
     FIXTURE_BIT,
@@ -65,7 +65,7 @@ from drivers.rotary_table import (
     TableRegisterMap,
 )
 from drivers.twins.modbus_server import ServerThread
-from drivers.twins.watchdog import TwinWatchdog
+from drivers.twins.watchdog import TwinWatchdog, register_blocks
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -145,10 +145,9 @@ class TableTwin:
 
     async def _open(self):
         """The server, listening on an ephemeral port of 127.0.0.1 (`port`)."""
-        first, count = self.map.span
         action = self._thread.guarded(self._action)  # an error there fails the twin
-        device = SimDevice(id=self.map.device_id, action=action, simdata=[
-            SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
+        device = SimDevice(id=self.map.device_id, action=action, simdata=register_blocks(
+            self.map.span, self.map.watchdog))
         server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace)
         self._server = server
         await server.serve_forever(background=True)
@@ -254,7 +253,8 @@ class TableTwin:
         for name in fixed:
             image.update(zip(m.addresses(name), fixed[name], strict=True))
         for address, value in image.items():
-            registers[address - start] = value
+            if 0 <= address - start < len(registers):  # the block asked (span or heartbeat)
+                registers[address - start] = value
 
     def _write(self, address: int, values: list) -> ExcCodes | None:
         """Apply a write of `values` at `address` to the physics, as the controller would."""

@@ -21,9 +21,22 @@ ahead of a station that has not joined yet.
 import logging
 import threading
 
+from pymodbus.simulator import DataType, SimData
+
 from drivers.heartbeat import Watchdog, device_now, device_wait
 
 log = logging.getLogger(__name__)
+
+
+def register_blocks(span: tuple, watchdog: Watchdog | None) -> list:
+    """The SimData blocks a twin serves: the register map's read `span` (first, count) and the
+    watchdog's heartbeat register when it lies outside it (written only, so not in the span)."""
+    first, count = span
+    blocks = [SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)]
+    if watchdog is not None and not first <= watchdog.register < first + count:
+        beat = SimData(address=watchdog.register, count=1, values=0, datatype=DataType.REGISTERS)
+        blocks = sorted([*blocks, beat], key=lambda block: block.address)
+    return blocks
 
 
 class TwinWatchdog:
