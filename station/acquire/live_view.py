@@ -275,8 +275,8 @@ class LiveView:
         if not w:
             return "[yellow]none[/] in the table's register map: a killed station leaves it turning"
         if getattr(table, "watchdog_tripped", False):
-            return (f"[red]tripped[/]: no heartbeat for {w.period:g} s, the table stopped "
-                    "itself (a run command re-arms it)")
+            return (f"[red]tripped[/]: no heartbeat for {w.period:g} s (between sessions, or "
+                    "a stalled host), the table stopped itself; the next run clears it")
         return f"armed, {w.words()}; heartbeat every {w.beat:.2f} s"
 
     def _stillness_words(self) -> str:
