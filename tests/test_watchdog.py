@@ -376,3 +376,34 @@ def test_a_sigkilled_record_leaves_the_table_to_its_watchdog(tmp_path):
             if process is not None and process.poll() is None:
                 process.send_signal(signal.SIGKILL)
                 process.wait(10)
+
+
+# -- the live view ---------------------------------------------------------------------------
+
+def test_the_live_view_shows_the_watchdog_armed_tripped_or_missing():
+    import io
+    from types import SimpleNamespace
+
+    import numpy as np
+    from rich.console import Console
+
+    from station.acquire.live_view import LiveView
+    from station.protocols.rotary import RotarySettings
+
+    def shown(watchdog, tripped=None) -> str:
+        view = LiveView(ScaledClock(1.0), rate_hz=200.0, watchdog=watchdog)
+        view.protocol = SimpleNamespace(axes=np.zeros((3, 3)), position=0, state="rotate",
+                                        settings=RotarySettings(),
+                                        instruction=lambda j: SimpleNamespace(text="mount"))
+        view.on_table(SimpleNamespace(rate=1.0, rate_setpoint=1.0, moving=True, running=True,
+                                      at_rate=True, fault=False, watchdog_tripped=tripped))
+        console = Console(file=io.StringIO(), width=150, record=True)
+        console.print(view.render())
+        return " ".join(console.export_text().split())
+
+    w = TABLE.watchdog
+    assert f"armed, period {w.period:g} s, stops the table; heartbeat every 0.33 s" in \
+        shown(w, False)
+    assert "tripped: no heartbeat for 1 s" in shown(w, True)
+    assert "none in the table's register map" in shown(False)
+    assert "watchdog" not in shown(None)
