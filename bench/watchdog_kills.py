@@ -96,10 +96,12 @@ class Twin:
 
     def __init__(self, kind: str, directory: Path):
         self.kind, self.profile = kind, directory / f"{kind}.toml"
-        self.process = subprocess.Popen(
-            [*STATION, "twin", "--speed", "1", "--json", "--lifetime", "7200", "--profile-out",
-             str(self.profile), *KINDS[kind]], stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL, text=True)
+        self.log = directory / f"{kind}-twin.log"  # its warnings: the watchdog's actions
+        with self.log.open("w") as log:
+            self.process = subprocess.Popen(
+                [*STATION, "twin", "--speed", "1", "--json", "--lifetime", "7200",
+                 "--profile-out", str(self.profile), *KINDS[kind]], stdout=subprocess.PIPE,
+                stderr=log, text=True)
         info = json.loads(self.process.stdout.readline())
         self.table_map = TableRegisterMap.load(info["table"]["profile"])
         self.table = ModbusTcpClient("127.0.0.1", port=info["table"]["port"])
@@ -185,8 +187,12 @@ def trial(twin: Twin, mode: str, out: Path, rng: random.Random) -> dict:
             if safe is not None and chamber is None and abs(twin.setpoint() - safe) < 0.05:
                 chamber = now
             time.sleep(0.01)
-        return {"kind": twin.kind, "mode": mode, "rate_at_strike": rate[0], "table_s": table,
-                "chamber_s": chamber}
+        row = {"kind": twin.kind, "mode": mode, "rate_at_strike": rate[0], "table_s": table,
+               "chamber_s": chamber}
+        if table is None or (safe is not None and chamber is None):  # what went on, for a look
+            row["record_log"] = out.with_suffix(".log").read_text()[-600:]
+            row["twin_log"] = twin.log.read_text()[-600:]
+        return row
     finally:
         if record.poll() is None:
             record.send_signal(signal.SIGCONT)

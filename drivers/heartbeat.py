@@ -15,8 +15,8 @@ counter while a session or campaign holds the device (`RotaryTable.heartbeat`,
 Time: on a real-time clock (a real bench, or a twin at `--speed X`) the watchdog's period is wall
 seconds, as a controller's timer is (a scaled clock runs the physics faster, not the timer, so a
 busy host does not trip it); on a stepped (lockstep) clock it is clock seconds and the heartbeat
-is a member of the clock, so time cannot move past a beat the station has not written
-(`device_now`, `device_wait`).
+is a member of the clock (a producer), so time cannot move past a beat the station has not
+written (`device_now`, `device_wait`).
 """
 
 import logging
@@ -117,7 +117,9 @@ class Heartbeat:
     """Write a changing counter with `write(count)` every `watchdog.beat` seconds while entered
     (the first at once). A write that fails (a `DeviceError` after the driver's retries) is told
     to `on_error(error)`, once per run of failures, and the beats go on (a link that comes back
-    is fed again). On a stepped clock the thread takes part in it (enlisted before it starts)."""
+    is fed again). On a stepped clock the thread takes part in it (enlisted before it starts) as
+    a producer: time does not move past its next beat while it works, but it alone does not move
+    time either (a station whose protocol has not started yet holds the clock still, as before)."""
 
     def __init__(self, write, watchdog: Watchdog, clock, on_error, name: str):
         self.write, self.watchdog, self.clock = write, watchdog, clock
@@ -127,7 +129,7 @@ class Heartbeat:
         self._thread = threading.Thread(target=self._run, name=f"{name} heartbeat", daemon=True)
 
     def __enter__(self) -> "Heartbeat":
-        self.clock.enlist(self._thread)
+        self.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
 
