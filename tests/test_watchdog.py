@@ -233,6 +233,31 @@ def test_a_heartbeat_that_cannot_be_written_is_told_once_and_goes_on():
         bench.close()
 
 
+def test_a_failed_beat_is_delivered_to_the_session_and_withdrawn_with_the_device():
+    """`station.acquire.watchdog.fed`: the heartbeat's TableTimeout is what the protocol's next
+    poll raises (`interrupts.raise_dropped`), as any lost device; released, it is withdrawn."""
+    from drivers.errors import TableTimeout
+    from station.acquire import interrupts
+    from station.acquire.watchdog import fed
+
+    bench = Bench("table", ScaledClock(1.0), 0.5)
+    bench.driver.timeout, bench.driver.retries = 0.1, 0
+    try:
+        with fed(bench.driver):
+            interrupts.raise_dropped()  # nothing yet
+            bench.twin.silent = True
+            deadline = time.monotonic() + 5.0
+            with pytest.raises(TableTimeout, match="rotary table at 127.0.0.1"):
+                while time.monotonic() < deadline:
+                    interrupts.raise_dropped()
+                    time.sleep(0.01)
+            bench.twin.silent = False
+        interrupts.raise_dropped()  # withdrawn with the device
+    finally:
+        interrupts.handled()
+        bench.close()
+
+
 LOCKSTEP_STATION = textwrap.dedent("""
     import sys
     from drivers.clock_link import connect
