@@ -47,8 +47,8 @@ client is shared by that thread and the caller's: every transaction holds the dr
 (pymodbus' synchronous clients are not thread-safe).
 """
 
-import logging
 import contextlib
+import logging
 import math
 import threading
 import time

@@ -22,7 +22,6 @@ from pymodbus.client import ModbusTcpClient
 
 from drivers.clock import ScaledClock, SteppedClock
 from drivers.errors import ProfileError, TableError
-from drivers.heartbeat import Watchdog
 from drivers.profile import BUNDLED
 from drivers.rotary_table import RotaryTable, TableRegisterMap
 from drivers.thermal_chamber import ChamberRegisterMap, ThermalChamber

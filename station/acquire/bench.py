@@ -7,7 +7,8 @@ and a stream each, docs/protocols.md "Several units on one table");
 `record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
 into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
 The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed,
-and its watchdog is fed while a session holds it (`table_driver`); `stop_table` stops it before anything else is loaded (`station resume`).
+and its watchdog is fed while a session holds it (`table_driver`); `stop_table` stops it before
+anything else is loaded (`station resume`).
 """
 
 import contextlib

@@ -173,8 +173,8 @@ def solve(path, accept_suspect: bool = False) -> dict:
 def _campaign(args, bench) -> int:
     """A thermal campaign (the profile has a [chamber] section) into the directory --out."""
     from station.acquire.operator import ConsoleOperator
-    from station.files.campaign import Campaign
     from station.acquire.watchdog import require_watchdogs
+    from station.files.campaign import Campaign
     from station.protocols.thermal import run_campaign
 
     require_watchdogs(bench, args.no_watchdog)
