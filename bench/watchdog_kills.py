@@ -148,10 +148,11 @@ class Twin:
             self.process.kill()
 
 
-def under_way(twin: Twin) -> bool:
-    """Is the session where the trial strikes: the table turning (thermal: the soak started)?"""
+def under_way(twin: Twin, log: Path) -> bool:
+    """Is the session where the trial strikes: the table turning (thermal: the soak started, as
+    the station said and the chamber's setpoint shows)?"""
     if twin.chamber is not None:
-        return abs(twin.setpoint() - 263.15) < 0.05
+        return "soak 1 of" in log.read_text() and abs(twin.setpoint() - 263.15) < 0.05
     return abs(twin.rates()[0]) > 0.5
 
 
@@ -163,7 +164,7 @@ def trial(twin: Twin, mode: str, out: Path, rng: random.Random) -> dict:
                                str(out)], stdin=subprocess.DEVNULL, stdout=log, stderr=log)
     try:
         deadline = time.monotonic() + START_S
-        while not under_way(twin):
+        while not under_way(twin, out.with_suffix(".log")):
             if time.monotonic() > deadline or record.poll() is not None:
                 return {"kind": twin.kind, "mode": mode, "error": "never under way"}
             time.sleep(0.05)

@@ -114,12 +114,14 @@ def device_wait(clock, seconds: float, stop: threading.Event) -> None:
 
 
 class Heartbeat:
-    """Write a changing counter with `write(count)` every `watchdog.beat` seconds while entered
-    (the first at once). A write that fails (a `DeviceError` after the driver's retries) is told
-    to `on_error(error)`, once per run of failures, and the beats go on (a link that comes back
-    is fed again). On a stepped clock the thread takes part in it (enlisted before it starts) as
-    a producer: time does not move past its next beat while it works, but it alone does not move
-    time either (a station whose protocol has not started yet holds the clock still, as before)."""
+    """Write a changing counter with `write(count)` every `watchdog.beat` seconds while entered,
+    the first before `__enter__` returns (the controller is armed before the device is used; a
+    failure then is raised). A later write that fails (a `DeviceError` after the driver's
+    retries) is told to `on_error(error)`, once per run of failures, and the beats go on (a link
+    that comes back is fed again). On a stepped clock the thread takes part in it (enlisted
+    before it starts) as a producer: time does not move past its next beat while it works, but
+    it alone does not move time either (a station whose protocol has not started yet holds the
+    clock still, as before)."""
 
     def __init__(self, write, watchdog: Watchdog, clock, on_error, name: str):
         self.write, self.watchdog, self.clock = write, watchdog, clock
@@ -129,6 +131,11 @@ class Heartbeat:
         self._thread = threading.Thread(target=self._run, name=f"{name} heartbeat", daemon=True)
 
     def __enter__(self) -> "Heartbeat":
+        try:
+            self._beat()
+        except DeviceError as error:
+            self._said(error)
+            raise
         self.clock.enlist(self._thread, producer=True)
         self._thread.start()
         return self
@@ -138,23 +145,33 @@ class Heartbeat:
         self.clock.nudge()
         self._thread.join()
 
+    def _beat(self) -> None:
+        """Write the next counter."""
+        self.write((self.beats + 1) % COUNTER)
+        self.beats += 1
+
+    def _said(self, error: DeviceError) -> DeviceError:
+        """`error` with a note on what a missing heartbeat means."""
+        error.add_note(f"the {self.name}'s watchdog heartbeat could not be written: without it "
+                       f"the controller acts within {self.watchdog.period:g} s "
+                       f"({self.watchdog.words()})")
+        return error
+
     def _run(self) -> None:
         failing = False
         try:
-            while not self._stop.is_set():
+            while True:
+                device_wait(self.clock, self.watchdog.beat, self._stop)
+                if self._stop.is_set():
+                    return
                 try:
-                    self.write((self.beats + 1) % COUNTER)
-                    self.beats += 1
+                    self._beat()
                     failing = False
                 except DeviceError as error:
                     if not failing:
-                        error.add_note(f"the {self.name}'s watchdog heartbeat could not be "
-                                       "written: without it the controller acts within "
-                                       f"{self.watchdog.period:g} s ({self.watchdog.words()})")
-                        log.warning("%s", error)
+                        log.warning("%s", self._said(error))
                         self.on_error(error)
                     failing = True
-                device_wait(self.clock, self.watchdog.beat, self._stop)
         except DeviceError as lost:  # the lockstep clock is gone (ClockLinkError): no more beats
             if not self._stop.is_set():
                 self.on_error(lost)
