@@ -116,22 +116,26 @@ def device_wait(clock, seconds: float, stop: threading.Event) -> None:
 class Heartbeat:
     """Write a changing counter with `write(count)` every `watchdog.beat` seconds while entered,
     the first before `__enter__` returns (the controller is armed before the device is used; a
-    failure then is raised). A later write that fails (a `DeviceError` after the driver's
-    retries) is told to `on_error(error)`, once per run of failures, and the beats go on (a link
-    that comes back is fed again). On a stepped clock the thread takes part in it (enlisted
-    before it starts) as a producer: time does not move past its next beat while it works, but
-    it alone does not move time either (a station whose protocol has not started yet holds the
-    clock still, as before)."""
+    failure then is raised). The count goes on from the register's value (`read()`), so the
+    first beat changes it too: a station restarted after a kill does not write the value the
+    killed one left, which the controller would not count as a beat. A later write that fails
+    (a `DeviceError` after the driver's retries) is told to `on_error(error)`, once per run of
+    failures, and the beats go on (a link that comes back is fed again). On a stepped clock the
+    thread takes part in it (enlisted before it starts) as a producer: time does not move past
+    its next beat while it works, but it alone does not move time either (a station whose
+    protocol has not started yet holds the clock still, as before)."""
 
-    def __init__(self, write, watchdog: Watchdog, clock, on_error, name: str):
-        self.write, self.watchdog, self.clock = write, watchdog, clock
+    def __init__(self, read, write, watchdog: Watchdog, clock, on_error, name: str):
+        self.read, self.write, self.watchdog, self.clock = read, write, watchdog, clock
         self.on_error, self.name = on_error, name
         self.beats = 0  # counters written
+        self._count = 0  # the last counter written (or read)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"{name} heartbeat", daemon=True)
 
     def __enter__(self) -> "Heartbeat":
         try:
+            self._count = self.read()
             self._beat()
         except DeviceError as error:
             self._said(error)
@@ -147,8 +151,9 @@ class Heartbeat:
 
     def _beat(self) -> None:
         """Write the next counter."""
-        self.write((self.beats + 1) % COUNTER)
-        self.beats += 1
+        count = (self._count + 1) % COUNTER
+        self.write(count)
+        self._count, self.beats = count, self.beats + 1
 
     def _said(self, error: DeviceError) -> DeviceError:
         """`error` with a note on what a missing heartbeat means."""

@@ -343,8 +343,11 @@ class RotaryTable:
         w = self.map.watchdog
         if w is None:
             return contextlib.nullcontext()
-        return Heartbeat(lambda count: self._request("write the watchdog heartbeat", lambda: (
-            self._client.write_register(w.register, count, device_id=self.map.device_id))),
+        return Heartbeat(
+            lambda: self._request("read the watchdog heartbeat",
+                                  lambda: self._read(w.register, 1)).registers[0],
+            lambda count: self._request("write the watchdog heartbeat", lambda: (
+                self._client.write_register(w.register, count, device_id=self.map.device_id))),
             w, self.clock, on_error, "rotary table")
 
     def set_rate(self, rate_rad_s: float) -> None:

@@ -336,8 +336,12 @@ class ThermalChamber:
         w = self.map.watchdog
         if w is None:
             return contextlib.nullcontext()
-        return Heartbeat(lambda count: self._request("write the watchdog heartbeat", lambda: (
-            self._client.write_register(w.register, count, device_id=self.map.device_id))),
+        return Heartbeat(
+            lambda: self._request("read the watchdog heartbeat", lambda: read_registers(
+                self._client, w.register, 1, self.map.device_id, self.where, ChamberReplyError)
+            ).registers[0],
+            lambda count: self._request("write the watchdog heartbeat", lambda: (
+                self._client.write_register(w.register, count, device_id=self.map.device_id))),
             w, self.clock, on_error, "thermal chamber")
 
     def set_setpoint(self, kelvin: float, ramp: float | None = None) -> None:

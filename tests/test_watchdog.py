@@ -232,6 +232,26 @@ def test_a_heartbeat_that_cannot_be_written_is_told_once_and_goes_on():
         bench.close()
 
 
+def test_a_station_restarted_after_one_beat_arms_the_watchdog_at_its_first():
+    """A station killed right after its first beat leaves the register at that count; the next
+    station's first beat must change it (the count goes on from the register), or the device
+    would run unwatched until its second beat."""
+    period = 0.5
+    bench = Bench("chamber", ScaledClock(1.0), period)
+    try:
+        for station in range(2):
+            with bench.driver.heartbeat(bench.errors.append) as beat:
+                bench.run()  # at once: before the second beat
+            assert beat.beats == 1 and bench.twin.watchdog.value == station + 1
+            deadline = time.monotonic() + 2 * period
+            while len(bench.twin.watchdog.trips) <= station and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert len(bench.twin.watchdog.trips) == station + 1 and bench.acted()
+        assert bench.errors == []
+    finally:
+        bench.close()
+
+
 def test_a_failed_beat_is_delivered_to_the_session_and_withdrawn_with_the_device():
     """`station.acquire.watchdog.fed`: the heartbeat's TableTimeout is what the protocol's next
     poll raises (`interrupts.raise_dropped`), as any lost device; released, it is withdrawn."""
