@@ -252,6 +252,32 @@ def test_a_station_restarted_after_one_beat_arms_the_watchdog_at_its_first():
         bench.close()
 
 
+def test_a_heartbeat_does_not_ask_the_physics():
+    """The table's physics draws its reported rate's noise at every look: a beat (its read-back
+    included) must not look, or a beat at the instant of a poll would change what the poll reads
+    and a lockstep session would depend on the host's thread order."""
+    looks = []
+
+    class Counted(TablePhysics):
+        def state(self):
+            looks.append(1)
+            return super().state()
+
+    clock = ScaledClock(1.0)
+    twin = TableTwin(Counted(clock), TABLE, lifetime=30.0).start()
+    table = RotaryTable("127.0.0.1", twin.port, TABLE, clock=clock)
+    try:
+        table.connect()
+        with table.heartbeat(print) as beat:
+            time.sleep(2 * beat.watchdog.beat)
+        assert beat.beats >= 2 and twin.watchdog.value == beat.beats and looks == []
+        table.state()
+        assert looks == [1]
+    finally:
+        table.close()
+        twin.close()
+
+
 def test_a_failed_beat_is_delivered_to_the_session_and_withdrawn_with_the_device():
     """`station.acquire.watchdog.fed`: the heartbeat's TableTimeout is what the protocol's next
     poll raises (`interrupts.raise_dropped`), as any lost device; released, it is withdrawn."""

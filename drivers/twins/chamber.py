@@ -153,14 +153,14 @@ class ChamberTwin:
         if self.silent:
             raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write
-            self._refresh(start, registers)
+            self._refresh(start, registers, address, count)
             return None
         self.requests += 1
         if self._faults and self._faults[0][0] == "exception":
             return ExcCodes(self._faults.popleft()[1])
         if values:
             return self._write(address, values)
-        self._refresh(start, registers)
+        self._refresh(start, registers, address, count)
         return None
 
     def _trace(self, sending: bool, pdu):
@@ -181,8 +181,12 @@ class ChamberTwin:
             return packet[:MBAP + 1] + b"\xff" + packet[MBAP + 2:]
         return packet
 
-    def _refresh(self, start: int, registers: list) -> None:
-        """Write the chamber's present state into the register image (in place)."""
+    def _refresh(self, start: int, registers: list, address: int, count: int) -> None:
+        """Write the chamber's present state into the register image (in place) for an access
+        to `count` registers at `address`; the heartbeat register alone from the watchdog
+        (`TwinWatchdog.fill`)."""
+        if self.watchdog is not None and self.watchdog.fill(address, count, start, registers):
+            return
         s, m = self.physics.state(), self.map
         bits = {"running": s.running, "alarm": s.alarm, "door_open": s.door_open,
                 "at_setpoint": s.at_setpoint}

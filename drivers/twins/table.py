@@ -159,7 +159,8 @@ class TableTwin:
         if self.silent:
             raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write:
-            self._refresh(start, registers)  # part of the same request, no second fault
+            # part of the same request, no second fault
+            self._refresh(start, registers, address, count)
             return None
         self.requests += 1
         if self._faults:
@@ -175,11 +176,12 @@ class TableTwin:
                 raise asyncio.CancelledError
             if kind == "short":
                 self._cut = True
-                return self._serve_request(func_code, start, address, registers, values)
+                return self._serve_request(func_code, start, address, count, registers, values)
             time.sleep(delay)  # noqa: ASYNC251 - "slow": the whole controller stalls
-        return self._serve_request(func_code, start, address, registers, values)
+        return self._serve_request(func_code, start, address, count, registers, values)
 
-    def _serve_request(self, func_code, start, address, registers, values) -> ExcCodes | None:
+    def _serve_request(self, func_code, start, address, count, registers,
+                       values) -> ExcCodes | None:
         """Apply a write to the physics (and nudge the clock: a fixture waiting for a command on
         a lockstep clock looks at once), or refresh the register image for a read."""
         if values:
@@ -187,7 +189,7 @@ class TableTwin:
                 return self._write(address, values)
             finally:
                 self.table.clock.nudge()
-        self._refresh(start, registers)
+        self._refresh(start, registers, address, count)
         return None
 
     def _reset_connections(self) -> None:
@@ -221,8 +223,12 @@ class TableTwin:
             with open(self.write_log, "a", encoding="ascii") as log:
                 log.write(f"{now:.6f} {address} {' '.join(map(str, values))}\n")
 
-    def _refresh(self, start: int, registers: list) -> None:
-        """Write the table's present state into the register image (in place)."""
+    def _refresh(self, start: int, registers: list, address: int, count: int) -> None:
+        """Write the table's present state into the register image (in place) for an access to
+        `count` registers at `address`; the heartbeat register alone from the watchdog
+        (`TwinWatchdog.fill`)."""
+        if self.watchdog is not None and self.watchdog.fill(address, count, start, registers):
+            return
         s, m = self.table.state(), self.map
         bits = {"ready": not s.fault, "moving": s.moving, "at_rate": s.at_rate, "fault": s.fault}
         image = {m.registers["status"]: sum(1 << m.status_bits[n] for n, on in bits.items() if on),

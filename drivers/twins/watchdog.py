@@ -82,6 +82,17 @@ class TwinWatchdog:
             if self.clock.realtime or self._changes >= 2:  # lockstep: see the module docstring
                 self._armed.set()
 
+    def fill(self, address: int, count: int, start: int, registers: list) -> bool:
+        """Serve an access to `count` registers at `address` that is the heartbeat register
+        alone: its value put in `registers` (the register image from address `start`), True;
+        False for any other access. The physics is not asked: a table's draws its reported
+        rate's noise at every look, so a beat at the instant of a poll must not change what the
+        poll reads (lockstep: the same session on any host)."""
+        if address != self.spec.register or count != 1:
+            return False
+        registers[address - start] = self.value or 0
+        return True
+
     def rearm(self) -> None:
         """A run command: the tripped bit clears."""
         self.tripped = False
