@@ -79,6 +79,8 @@ from station.errors import InputError
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import no_watchdog_argument
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
@@ -95,12 +97,9 @@ def register(p) -> None:
                    help="with --solve: write a fit that fails the quality gate, marked suspect")
     p.add_argument("--live", action="store_true",
                    help="show the live view (phase, windows, table, link) while recording")
-    from station.commands import no_watchdog_argument
-
     no_watchdog_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
-
 
 
 def run(args) -> int:
