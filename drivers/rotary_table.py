@@ -38,10 +38,19 @@ start (it may have been executed). `stop` stops every axis: the rate axis and, w
 mode, the position axis (back to position mode, held where it comes to rest). After any failure
 the driver tries to stop the table and notes on the error whether it could
 (`error.table_stopped`); as a context manager it stops the table on exit, whatever happened.
+
+A table may have a communication watchdog (optional `[table.watchdog]`, `drivers.heartbeat`): the
+controller stops the table by itself when the host's heartbeat counter has not changed for the
+watchdog's period, and sets the status bit `tripped_bit` (`TableReading.watchdog_tripped`).
+`heartbeat(on_error)` writes that counter from a thread while a session holds the table. The
+client is shared by that thread and the caller's: every transaction holds the driver's lock
+(pymodbus' synchronous clients are not thread-safe).
 """
 
+import contextlib
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Self
@@ -57,6 +66,7 @@ from drivers.errors import (
     TableReplyError,
     TableTimeout,
 )
+from drivers.heartbeat import Heartbeat, Watchdog
 from drivers.modbus_request import Failures, link_words, read_registers, request
 from drivers.profile import ProfileError, Section, load_profile
 
@@ -102,6 +112,7 @@ class TableRegisterMap:
                   point at rate_scale) and status bits `position_at_rate`, `position_moving`;
                   position_spin, position_hold: the values written to `position_mode`
     fixture (optional, both or none): register `mount` (uint16) and status bit `mounted`
+    watchdog    : the controller's communication watchdog (`drivers.heartbeat.Watchdog`), or None
     """
 
     registers: dict
@@ -114,7 +125,9 @@ class TableRegisterMap:
     word_order: str = "big"
     position_spin: int = 1
     position_hold: int = 0
+    watchdog: Watchdog | None = None
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
+    # but the watchdog's heartbeat (written only)
 
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + FIXED_REGISTERS if n not in self.registers]
@@ -135,6 +148,8 @@ class TableRegisterMap:
         if missing:
             raise ProfileError(f"table register map lacks {missing}; see docs/devices.md")
         used = sorted(a for n in self.quantities for a in self.addresses(n))
+        if self.watchdog is not None:
+            self._check_watchdog(used)
         if len(set(used)) != len(used) or used[0] < 0 or used[-1] > 0xFFFF:
             raise ProfileError(f"table registers overlap or leave 0..65535: {self.registers}")
         if used[-1] - used[0] + 1 > 125:
@@ -148,6 +163,18 @@ class TableRegisterMap:
         if not all(0 <= b < 16 for b in self.status_bits.values()):
             raise ProfileError(f"status bits must be numbers 0..15, got {self.status_bits}")
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
+
+    def _check_watchdog(self, used: list) -> None:
+        """Refuse a watchdog whose register or tripped bit another quantity already has."""
+        w = self.watchdog
+        if w.register in used:
+            owner = next(n for n in self.quantities if w.register in self.addresses(n))
+            raise ProfileError(f"watchdog register {w.register} is also the {owner} "
+                               "register; give the heartbeat its own address")
+        if w.tripped_bit in self.status_bits.values():
+            owner = next(n for n, b in self.status_bits.items() if b == w.tripped_bit)
+            raise ProfileError(f"watchdog tripped_bit {w.tripped_bit} is also status bit "
+                               f"{owner}; give it its own bit")
 
     @property
     def two_axis(self) -> bool:
@@ -193,9 +220,13 @@ class TableRegisterMap:
                 stop=commands.get("stop", int, default=0) if commands else 0,
                 position_spin=commands.get("position_spin", int, default=1) if commands else 1,
                 position_hold=commands.get("position_hold", int, default=0) if commands else 0,
-                word_order=s.get("word_order", str, default="big", choices=("big", "little")))
-        except ProfileError:
-            raise
+                word_order=s.get("word_order", str, default="big", choices=("big", "little")),
+                watchdog=(Watchdog.parse(s.sub("watchdog"), "table") if s.has("watchdog")
+                          else None))
+        except ProfileError as exc:
+            if str(exc).startswith(s.source):
+                raise
+            raise ProfileError(f"{s.source}: [table] {exc}") from None
         except ValueError as exc:
             raise ProfileError(f"{s.source}: [table] {exc}") from None
         for section in (s, registers, bits, scale) + ((commands,) if commands else ()):
@@ -251,6 +282,7 @@ class TableReading:
     position_moving: bool | None = None
     mount: int | None = None  # the fixture's position asked for, 1-based (None: no fixture)
     mounted: bool | None = None
+    watchdog_tripped: bool | None = None  # the watchdog stopped the table (None: no watchdog)
     round_trip: float = 0.0  # clock s from the request to its reply
 
     @property
@@ -276,6 +308,7 @@ class RotaryTable:
         self.timeout, self.retries, self.busy_backoff = timeout, int(retries), busy_backoff
         self.stop_patience = stop_patience
         self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
+        self._lock = threading.Lock()  # one transaction at a time (the heartbeat's thread too)
 
     def __enter__(self) -> Self:
         self.connect()
@@ -302,6 +335,20 @@ class RotaryTable:
 
     def close(self) -> None:
         self._client.close()
+
+    def heartbeat(self, on_error):
+        """A context manager writing the watchdog's heartbeat while entered
+        (`drivers.heartbeat.Heartbeat`; its failures told to `on_error`); nothing for a table
+        without a watchdog."""
+        w = self.map.watchdog
+        if w is None:
+            return contextlib.nullcontext()
+        return Heartbeat(
+            lambda: self._request("read the watchdog heartbeat",
+                                  lambda: self._read(w.register, 1)).registers[0],
+            lambda count: self._request("write the watchdog heartbeat", lambda: (
+                self._client.write_register(w.register, count, device_id=self.map.device_id))),
+            w, self.clock, on_error, "rotary table")
 
     def set_rate(self, rate_rad_s: float) -> None:
         """Write the rate setpoint (rad/s, signed)."""
@@ -437,6 +484,8 @@ class RotaryTable:
         if self.map.fixture:
             axis |= {"mount": regs[self.map.registers[FIXTURE_REGISTER] - first],
                      "mounted": bits[FIXTURE_BIT]}
+        if self.map.watchdog is not None:
+            axis["watchdog_tripped"] = bool(status >> self.map.watchdog.tripped_bit & 1)
         return TableReading(
             time=(asked + answered) / 2, round_trip=answered - asked,
             rate=self.map.decode(words("rate"), self.map.rate_scale),
@@ -491,7 +540,9 @@ class RotaryTable:
     def _request(self, what: str, call, repeat: bool = True):
         """One transaction (`drivers.modbus_request.request`): busy answers are retried `retries`
         times; timeouts, lost connections and bad replies too if `repeat` (the request is safe
-        to send again), reconnecting first."""
-        return request(call, what, self.where, FAILURES, client=self._client,
-                       device_id=self.map.device_id, retries=self.retries, timeout=self.timeout,
-                       link_words=link_words, repeat=repeat, busy_backoff=self.busy_backoff)
+        to send again), reconnecting first; under the driver's lock."""
+        with self._lock:
+            return request(call, what, self.where, FAILURES, client=self._client,
+                           device_id=self.map.device_id, retries=self.retries,
+                           timeout=self.timeout, link_words=link_words, repeat=repeat,
+                           busy_backoff=self.busy_backoff)

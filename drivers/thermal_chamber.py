@@ -19,9 +19,18 @@ limits: refused before anything is sent), `ChamberError` for a Modbus exception.
 is an absolute register write or a read, so every one is retried after a timeout, a lost link or
 a bad reply (`drivers.modbus_request`): writing the same setpoint or command twice does nothing
 more than writing it once.
+
+A chamber may have a communication watchdog (optional `[chamber.watchdog]`, `drivers.heartbeat`):
+its controller goes to the watchdog's safe setpoint (action "safe") or stops (action "off") by
+itself when the host's heartbeat counter has not changed for the watchdog's period, and sets the
+status bit `tripped_bit` (`ChamberReading.watchdog_tripped`). `heartbeat(on_error)` writes that
+counter from a thread while a campaign holds the chamber; every transaction holds the driver's
+lock (the heartbeat's thread, the campaign's chamber watch and the main thread share the client).
 """
 
+import contextlib
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Self
 
@@ -38,6 +47,7 @@ from drivers.errors import (
     ChamberReplyError,
     ChamberTimeout,
 )
+from drivers.heartbeat import Heartbeat, Watchdog
 from drivers.modbus_request import Failures, link_words, read_registers, request
 from drivers.profile import ProfileError, Section, load_profile
 
@@ -66,6 +76,7 @@ class ChamberRegisterMap:
     ramp_max     : largest ramp rate it may be given, K/min
     run, stop    : values written to the command register
     baudrate, parity, stopbits : Modbus RTU line settings (8 data bits)
+    watchdog     : the controller's communication watchdog (`drivers.heartbeat.Watchdog`), or None
     """
 
     registers: dict
@@ -81,7 +92,9 @@ class ChamberRegisterMap:
     baudrate: int = 19200
     parity: str = "N"
     stopbits: int = 1
+    watchdog: Watchdog | None = None
     span: tuple = field(init=False)  # (first address, count) of one read covering every register
+    # but the watchdog's heartbeat (written only)
 
     def __post_init__(self):
         missing = [n for n in WORD_REGISTERS + VALUE_REGISTERS if n not in self.registers]
@@ -125,7 +138,26 @@ class ChamberRegisterMap:
         except ValueError as exc:
             raise ProfileError(f"chamber limits do not fit the registers: {exc}; lower the limits "
                                "or the scale") from None
+        if self.watchdog is not None:
+            self._check_watchdog(owner)
         object.__setattr__(self, "span", (used[0], used[-1] - used[0] + 1))
+
+    def _check_watchdog(self, owner: dict) -> None:
+        """Refuse a watchdog whose register or tripped bit another quantity has, or whose safe
+        setpoint is outside the setpoint limits."""
+        w = self.watchdog
+        if w.register in owner:
+            raise ProfileError(f"watchdog register {w.register} is also the "
+                               f"{owner[w.register]} register; give the heartbeat its own "
+                               "address")
+        if w.tripped_bit in self.status_bits.values():
+            name = next(n for n, b in self.status_bits.items() if b == w.tripped_bit)
+            raise ProfileError(f"watchdog tripped_bit {w.tripped_bit} is also status "
+                               f"bit {name}; give it its own bit")
+        low, high = self.setpoint_range
+        if w.safe_setpoint is not None and not low <= w.safe_setpoint <= high:
+            raise ProfileError(f"watchdog safe_setpoint {w.safe_setpoint!r} K is "
+                               f"outside the setpoint limits {low:.2f}..{high:.2f} K")
 
     @classmethod
     def parse(cls, s: Section) -> "ChamberRegisterMap":
@@ -152,6 +184,7 @@ class ChamberRegisterMap:
             if serial["baudrate"] <= 0:
                 raise sub.error("baudrate", "must be positive")
             sections.append(sub)
+        watchdog = Watchdog.parse(s.sub("watchdog"), "chamber") if s.has("watchdog") else None
         fields = dict(
             registers={n: registers.get(n, int) for n in WORD_REGISTERS + VALUE_REGISTERS},
             status_bits={n: bits.get(n, int) for n in STATUS_BITS},
@@ -159,7 +192,8 @@ class ChamberRegisterMap:
             setpoint_range=(limits.get("setpoint_min", float), limits.get("setpoint_max", float)),
             ramp_max=limits.get("ramp_max", float), scale=scale,
             word_order=s.get("word_order", str, default="big", choices=("big", "little")),
-            device_id=s.get("device_id", int, default=1), **commands, **serial)
+            device_id=s.get("device_id", int, default=1), watchdog=watchdog, **commands,
+            **serial)
         try:
             chamber = cls(**fields)
         except ProfileError as exc:
@@ -219,6 +253,7 @@ class ChamberReading:
     alarm: bool
     door_open: bool
     at_setpoint: bool
+    watchdog_tripped: bool | None = None  # the watchdog acted (None: the chamber has none)
 
 
 def serial_link_words(exc: OSError) -> str:
@@ -266,6 +301,7 @@ class ThermalChamber:
             self._client = ModbusSerialClient(serial_port, framer=FramerType.RTU,
                                               baudrate=m.baudrate, bytesize=8, parity=m.parity,
                                               stopbits=m.stopbits, timeout=timeout, retries=0)
+        self._lock = threading.Lock()  # one transaction at a time (heartbeat, watch, caller)
 
     def __enter__(self) -> Self:
         self.connect()
@@ -292,6 +328,21 @@ class ThermalChamber:
 
     def close(self) -> None:
         self._client.close()
+
+    def heartbeat(self, on_error):
+        """A context manager writing the watchdog's heartbeat while entered
+        (`drivers.heartbeat.Heartbeat`; its failures told to `on_error`); nothing for a chamber
+        without a watchdog."""
+        w = self.map.watchdog
+        if w is None:
+            return contextlib.nullcontext()
+        return Heartbeat(
+            lambda: self._request("read the watchdog heartbeat", lambda: read_registers(
+                self._client, w.register, 1, self.map.device_id, self.where, ChamberReplyError)
+            ).registers[0],
+            lambda count: self._request("write the watchdog heartbeat", lambda: (
+                self._client.write_register(w.register, count, device_id=self.map.device_id))),
+            w, self.clock, on_error, "thermal chamber")
 
     def set_setpoint(self, kelvin: float, ramp: float | None = None) -> None:
         """Write the ramp rate (K/min, 0 = as fast as possible; None leaves it) and then the
@@ -344,6 +395,8 @@ class ThermalChamber:
 
         status = regs[self.map.registers["status"] - first]
         bits = {n: bool(status >> b & 1) for n, b in self.map.status_bits.items()}
+        if self.map.watchdog is not None:
+            bits["watchdog_tripped"] = bool(status >> self.map.watchdog.tripped_bit & 1)
         return ChamberReading(time=now, temperature=value("temperature") + ZERO_CELSIUS,
                               setpoint=value("setpoint") + ZERO_CELSIUS, ramp=value("ramp"),
                               **bits)
@@ -376,6 +429,8 @@ class ThermalChamber:
             self.map.registers["command"], value, device_id=self.map.device_id))
 
     def _request(self, what: str, call):
-        return request(call, what, self.where, FAILURES, client=self._client,
-                       device_id=self.map.device_id, retries=self.retries, timeout=self.timeout,
-                       link_words=self._words)
+        """One transaction (`drivers.modbus_request.request`) under the driver's lock."""
+        with self._lock:
+            return request(call, what, self.where, FAILURES, client=self._client,
+                           device_id=self.map.device_id, retries=self.retries,
+                           timeout=self.timeout, link_words=self._words)

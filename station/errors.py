@@ -10,6 +10,7 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |    +-- CalibrationInputError       2  the data cannot determine the calibration
      |    +-- SessionFormatError          2  not a session file this software can read
      |    +-- CalibrationFileError        2  a calibration file this software must not use
+     |    +-- UnwatchedCampaignError      2  an unattended campaign on devices without a watchdog
      +-- MissingFileError (FileNotFoundError)  2  a file named on the command line is not there
      +-- SessionLockedError (RuntimeError)     1  another live process is writing the session file
      +-- SessionUncheckedError (RuntimeError)  1  a session file's check did not finish: no verdict
@@ -67,6 +68,12 @@ class SessionFormatError(InputError):
 
 class CalibrationFileError(InputError):
     """A calibration file this software cannot or must not use; the message says what to do."""
+
+
+class UnwatchedCampaignError(InputError):
+    """An unattended campaign (a thermal campaign) whose table or chamber register map has no
+    communication watchdog: a killed or hung station would leave them running
+    (station.acquire.watchdog); `--no-watchdog` records anyway."""
 
 
 class MissingFileError(StationError, FileNotFoundError):

@@ -22,6 +22,13 @@ Fault knobs:
   inject("garbled", count)         -> TCP only: the next `count` read replies claim more data than
                                       they hold (byte count 255), a frame pymodbus cannot decode
                                       (over RTU such a frame fails its CRC and is dropped: `silent`)
+
+With a register map that has a watchdog (`[chamber.watchdog]`), the controller serves it
+(`watchdog`, a `drivers.twins.watchdog.TwinWatchdog` on the physics' clock): once the host has
+written the heartbeat register, the chamber goes to the watchdog's safe setpoint and runs there
+(action "safe") or stops (action "off") by itself when that register stays unchanged for the
+watchdog's period (a killed, hung or cut-off station; a `silent` link hears no heartbeat
+either); the status register's `tripped_bit` says so until the next run command.
 """
 
 import asyncio
@@ -33,11 +40,12 @@ from pymodbus import FramerType
 from pymodbus.constants import ExcCodes
 from pymodbus.pdu.register_message import ReadHoldingRegistersResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import SimDevice
 
 from drivers.thermal_chamber import ZERO_CELSIUS, ChamberRegisterMap
 from drivers.twins.modbus_server import ServerThread
 from drivers.twins.nullmodem import NullModem
+from drivers.twins.watchdog import TwinWatchdog, register_blocks
 
 KINDS = ("short", "exception", "garbled")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -61,9 +69,11 @@ class ChamberTwin:
         self._modem = None
         self.error = self.on_error = None  # drivers.twins.failure
         self._thread = ServerThread("ChamberTwin", lifetime, self)
+        self.watchdog = None if register_map.watchdog is None else TwinWatchdog(
+            register_map.watchdog, physics.clock, self._watchdog_act, "thermal chamber twin")
 
     def start(self) -> "ChamberTwin":
-        """Start serving; returns once the server listens."""
+        """Start serving (and watching the heartbeat); returns once the server listens."""
         if self.link == "rtu":
             self._modem = NullModem(("ttyChamberDriver", "ttyChamberTwin"))
             self.serial_port = self._modem.a
@@ -74,11 +84,15 @@ class ChamberTwin:
             raise
         if self.link == "tcp":
             self.port = self.bound[1]
+        if self.watchdog is not None:
+            self.watchdog.start()
         return self
 
     def close(self) -> None:
         """Stop the server and remove the serial ports (idempotent)."""
         self._thread.close()
+        if self.watchdog is not None:
+            self.watchdog.close()
         if self._modem is not None:
             self._modem.close()
 
@@ -94,6 +108,14 @@ class ChamberTwin:
         if self.link != "tcp":
             return None
         return self._thread.server.transport.sockets[0].getsockname()[:2]
+
+    def _watchdog_act(self) -> None:
+        """The watchdog's action: the safe setpoint, held ("safe"), or conditioning stopped."""
+        if self.map.watchdog.action == "safe":
+            self.physics.set_setpoint(self.map.watchdog.safe_setpoint)
+            self.physics.run()
+        else:
+            self.physics.stop()
 
     def unit_temperature(self, t: float | None = None) -> float:
         """The unit's temperature at clock time `t` (default now), K."""
@@ -112,10 +134,9 @@ class ChamberTwin:
 
     async def _open(self):
         """Create and start the pymodbus server for the link."""
-        first, count = self.map.span
         action = self._thread.guarded(self._action)  # an error there fails the twin
-        device = SimDevice(id=self.map.device_id, action=action, simdata=[
-            SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
+        device = SimDevice(id=self.map.device_id, action=action, simdata=register_blocks(
+            self.map.span, self.map.watchdog))
         if self.link == "tcp":
             server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_pdu=self._trace,
                                      trace_packet=self._garble)
@@ -132,14 +153,14 @@ class ChamberTwin:
         if self.silent:
             raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write
-            self._refresh(start, registers)
+            self._refresh(start, registers, address, count)
             return None
         self.requests += 1
         if self._faults and self._faults[0][0] == "exception":
             return ExcCodes(self._faults.popleft()[1])
         if values:
             return self._write(address, values)
-        self._refresh(start, registers)
+        self._refresh(start, registers, address, count)
         return None
 
     def _trace(self, sending: bool, pdu):
@@ -160,13 +181,20 @@ class ChamberTwin:
             return packet[:MBAP + 1] + b"\xff" + packet[MBAP + 2:]
         return packet
 
-    def _refresh(self, start: int, registers: list) -> None:
-        """Write the chamber's present state into the register image (in place)."""
+    def _refresh(self, start: int, registers: list, address: int, count: int) -> None:
+        """Write the chamber's present state into the register image (in place) for an access
+        to `count` registers at `address`; the heartbeat register alone from the watchdog
+        (`TwinWatchdog.fill`)."""
+        if self.watchdog is not None and self.watchdog.fill(address, count, start, registers):
+            return
         s, m = self.physics.state(), self.map
         bits = {"running": s.running, "alarm": s.alarm, "door_open": s.door_open,
                 "at_setpoint": s.at_setpoint}
         image = {m.registers["status"]: sum(1 << m.status_bits[n] for n, on in bits.items() if on),
                  m.registers["command"]: m.run if s.running else m.stop}
+        if self.watchdog is not None:
+            image[m.registers["status"]] |= self.watchdog.tripped << m.watchdog.tripped_bit
+            image[m.watchdog.register] = self.watchdog.value or 0
         for name, value in (("setpoint", s.setpoint - ZERO_CELSIUS),
                             ("temperature", s.air - ZERO_CELSIUS), ("ramp", s.ramp)):
             image.update(zip(m.addresses(name), m.encode(name, value), strict=True))
@@ -179,8 +207,11 @@ class ChamberTwin:
         m, p = self.map, self.physics
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         settable = {a for n in ("setpoint", "ramp") for a in m.addresses(n)}
-        if not set(written) <= settable | {m.registers["command"]}:
+        beat = {m.watchdog.register} if self.watchdog is not None else set()
+        if not set(written) <= settable | beat | {m.registers["command"]}:
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        for address in beat & set(written):
+            self.watchdog.fed(written[address])
         new = {}
         for name in ("ramp", "setpoint"):
             addresses = list(m.addresses(name))
@@ -202,6 +233,8 @@ class ChamberTwin:
         if "setpoint" in new:
             p.set_setpoint(new["setpoint"] + ZERO_CELSIUS)
         if command == m.run:
+            if self.watchdog is not None:
+                self.watchdog.rearm()
             p.run()
         elif command == m.stop:
             p.stop()

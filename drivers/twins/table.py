@@ -36,6 +36,13 @@ the `mounted` bit and turns writes of `mount` into `fixture.request`.
 
 `silent` (an attribute): while True no request is answered, however many come (a link that is
 down: the cable pulled, the controller's network port dead); the physics go on.
+
+With a register map that has a watchdog (`[table.watchdog]`), the controller serves it
+(`watchdog`, a `drivers.twins.watchdog.TwinWatchdog` on the table's clock): once the host has
+written the heartbeat register, the table stops by itself (every axis, as a stop command) when
+that register stays unchanged for the watchdog's period (a killed, hung or cut-off station); the
+status register's `tripped_bit` says so until the next run command. Heartbeat writes are not
+commands: they are not kept in `writes` nor in the write log.
 """
 
 import asyncio
@@ -48,7 +55,7 @@ from typing import Self
 
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator import SimDevice
 
 from drivers.rotary_table import (
     FIXTURE_BIT,
@@ -58,6 +65,7 @@ from drivers.rotary_table import (
     TableRegisterMap,
 )
 from drivers.twins.modbus_server import ServerThread
+from drivers.twins.watchdog import TwinWatchdog, register_blocks
 
 KINDS = ("busy", "exception", "slow", "drop", "reset", "short")
 WRITE_SINGLE = 6  # Modbus function code "write single register"
@@ -89,20 +97,34 @@ class TableTwin:
         self._faults = collections.deque()
         self.error = self.on_error = None  # drivers.twins.failure
         self._thread = ServerThread("table twin", lifetime, self)
+        self.watchdog = None if register_map.watchdog is None else TwinWatchdog(
+            register_map.watchdog, table.clock, self._watchdog_stop, "rotary table twin")
 
     def start(self) -> "TableTwin":
-        """Start serving; returns once the port is known."""
+        """Start serving (and watching the heartbeat); returns once the port is known."""
         self._thread.start(self._open)
+        if self.watchdog is not None:
+            self.watchdog.start()
         return self
 
     def close(self) -> None:
         """Stop the server and its thread (idempotent)."""
         self._thread.close()
+        if self.watchdog is not None:
+            self.watchdog.close()
 
     def die(self) -> None:
         """The controller process dies: reset every connection, close the port (see the module
         doc); the physics goes on."""
         self._thread.close(first=self._reset_connections)
+        if self.watchdog is not None:
+            self.watchdog.close()
+
+    def _watchdog_stop(self) -> None:
+        """The watchdog's action: stop every axis, as a stop command does."""
+        self.table.stop()
+        if self.map.rate_mode:
+            self.position.hold()
 
     def __enter__(self) -> Self:
         return self.start()
@@ -123,10 +145,9 @@ class TableTwin:
 
     async def _open(self):
         """The server, listening on an ephemeral port of 127.0.0.1 (`port`)."""
-        first, count = self.map.span
         action = self._thread.guarded(self._action)  # an error there fails the twin
-        device = SimDevice(id=self.map.device_id, action=action, simdata=[
-            SimData(address=first, count=count, values=0, datatype=DataType.REGISTERS)])
+        device = SimDevice(id=self.map.device_id, action=action, simdata=register_blocks(
+            self.map.span, self.map.watchdog))
         server = ModbusTcpServer(device, address=("127.0.0.1", 0), trace_packet=self._trace)
         self._server = server
         await server.serve_forever(background=True)
@@ -138,7 +159,8 @@ class TableTwin:
         if self.silent:
             raise asyncio.CancelledError  # the link is down: no reply
         if func_code == WRITE_SINGLE and not values:  # pymodbus reads back after a single write:
-            self._refresh(start, registers)  # part of the same request, no second fault
+            # part of the same request, no second fault
+            self._refresh(start, registers, address, count)
             return None
         self.requests += 1
         if self._faults:
@@ -154,11 +176,12 @@ class TableTwin:
                 raise asyncio.CancelledError
             if kind == "short":
                 self._cut = True
-                return self._serve_request(func_code, start, address, registers, values)
+                return self._serve_request(func_code, start, address, count, registers, values)
             time.sleep(delay)  # noqa: ASYNC251 - "slow": the whole controller stalls
-        return self._serve_request(func_code, start, address, registers, values)
+        return self._serve_request(func_code, start, address, count, registers, values)
 
-    def _serve_request(self, func_code, start, address, registers, values) -> ExcCodes | None:
+    def _serve_request(self, func_code, start, address, count, registers,
+                       values) -> ExcCodes | None:
         """Apply a write to the physics (and nudge the clock: a fixture waiting for a command on
         a lockstep clock looks at once), or refresh the register image for a read."""
         if values:
@@ -166,7 +189,7 @@ class TableTwin:
                 return self._write(address, values)
             finally:
                 self.table.clock.nudge()
-        self._refresh(start, registers)
+        self._refresh(start, registers, address, count)
         return None
 
     def _reset_connections(self) -> None:
@@ -200,8 +223,12 @@ class TableTwin:
             with open(self.write_log, "a", encoding="ascii") as log:
                 log.write(f"{now:.6f} {address} {' '.join(map(str, values))}\n")
 
-    def _refresh(self, start: int, registers: list) -> None:
-        """Write the table's present state into the register image (in place)."""
+    def _refresh(self, start: int, registers: list, address: int, count: int) -> None:
+        """Write the table's present state into the register image (in place) for an access to
+        `count` registers at `address`; the heartbeat register alone from the watchdog
+        (`TwinWatchdog.fill`)."""
+        if self.watchdog is not None and self.watchdog.fill(address, count, start, registers):
+            return
         s, m = self.table.state(), self.map
         bits = {"ready": not s.fault, "moving": s.moving, "at_rate": s.at_rate, "fault": s.fault}
         image = {m.registers["status"]: sum(1 << m.status_bits[n] for n, on in bits.items() if on),
@@ -226,10 +253,14 @@ class TableTwin:
             asked, held = self.fixture.state()
             image[m.registers["status"]] |= held << m.status_bits[FIXTURE_BIT]
             image[m.registers[FIXTURE_REGISTER]] = asked
+        if self.watchdog is not None:
+            image[m.registers["status"]] |= self.watchdog.tripped << m.watchdog.tripped_bit
+            image[m.watchdog.register] = self.watchdog.value or 0
         for name in fixed:
             image.update(zip(m.addresses(name), fixed[name], strict=True))
         for address, value in image.items():
-            registers[address - start] = value
+            if 0 <= address - start < len(registers):  # the block asked (span or heartbeat)
+                registers[address - start] = value
 
     def _write(self, address: int, values: list) -> ExcCodes | None:
         """Apply a write of `values` at `address` to the physics, as the controller would."""
@@ -240,9 +271,14 @@ class TableTwin:
         mount = {m.registers[FIXTURE_REGISTER]} if self.fixture is not None else set()
         spin = list(m.addresses("position_rate_setpoint")) if m.rate_mode else []
         mode = {m.registers["position_mode"]} if m.rate_mode else set()
-        if not set(written) <= (set(setpoint) | set(target) | mount | set(spin) | mode
+        beat = {m.watchdog.register} if self.watchdog is not None else set()
+        if not set(written) <= (set(setpoint) | set(target) | mount | set(spin) | mode | beat
                                 | {m.registers["command"]}):
             return ExcCodes.ILLEGAL_ADDRESS  # read-only or unmapped register
+        for address in beat & set(written):
+            self.watchdog.fed(written[address])
+        if set(written) <= beat:
+            return None  # a heartbeat alone: no command
         if any(0 < sum(a in written for a in pair) < 2 for pair in (target, setpoint, spin)):
             return ExcCodes.ILLEGAL_ADDRESS  # half of a 32-bit value
         position_mode = next((written[a] for a in mode & set(written)), None)
@@ -268,6 +304,8 @@ class TableTwin:
         elif position_mode == m.position_hold:
             self.position.hold()
         if command == m.run:
+            if self.watchdog is not None:
+                self.watchdog.rearm()
             if not self.table.start():
                 return ExcCodes.DEVICE_FAILURE
         elif command == m.stop:

@@ -6,8 +6,9 @@ docs/protocols.md), its devices opened from it, and a session recorded or resume
 and a stream each, docs/protocols.md "Several units on one table");
 `record` runs the profile's protocol kind (`station.protocols.KINDS`) with the bench's devices
 into a new session file; `resume` continues a killed, paused or aborted session on the same bench.
-The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed
-(`table_driver`); `stop_table` stops it before anything else is loaded (`station resume`).
+The rotary table is commanded to stop as soon as its driver is connected and whenever it is closed,
+and its watchdog is fed while a session holds it (`table_driver`); `stop_table` stops it before
+anything else is loaded (`station resume`).
 """
 
 import contextlib
@@ -452,7 +453,8 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
     with bench_devices(bench, clock, kind.table) as (imu, table), \
             plate_drivers(bench, clock) as others:
         kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
-                              LiveView(clock) if live else None, **others)
+                              LiveView(clock, watchdog=_watchdog(bench)) if live else None,
+                              **others)
     with Session.open(out) as session:
         done = session.last_completed_position()
         samples = {u.stream: len(session.stream(u.stream, columns=("seq",)).seq)
@@ -465,6 +467,12 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
             "positions_done": 0 if done is None else done + 1, "positions_planned": planned,
             "samples": sum(samples.values()), **plate,
             "wall_seconds": time.perf_counter() - start}
+
+
+def _watchdog(bench: BenchProfile):
+    """What the live view shows of the table's watchdog: its spec, False for none, None without
+    a table."""
+    return None if bench.table_map is None else (bench.table_map.watchdog or False)
 
 
 def resume(bench: BenchProfile, path, operator, clock=None) -> int:
@@ -591,9 +599,12 @@ def bench_devices(bench: BenchProfile, clock, table: bool):
 @contextlib.contextmanager
 def table_driver(bench: BenchProfile, clock):
     """The bench's rotary table driver, connected and commanded to stop (a killed station may
-    have left it turning); stopped and closed on exit."""
+    have left it turning), its watchdog fed while held (`station.acquire.watchdog.fed`);
+    stopped and closed on exit."""
     from drivers.rotary_table import RotaryTable
+    from station.acquire.watchdog import fed
 
     with RotaryTable(bench.table_host, bench.table_port, bench.table_map, clock=clock) as table:
         table.stop()
-        yield table
+        with fed(table):
+            yield table

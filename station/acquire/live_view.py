@@ -62,11 +62,14 @@ class LiveView:
     rate_hz  : the IMU's sample rate (default: the observed recorder's)
     window   : seconds of samples in the stillness statistic
     enter, leave : hysteresis of the stillness statistic, multiples of the reference variance
+    watchdog : the table's watchdog as the session feeds it (`drivers.heartbeat.Watchdog`; False:
+               its register map has none; None: not shown)
     """
 
     def __init__(self, clock, rate_hz: float | None = None, window: float = 0.5,
-                 enter: float = 4.0, leave: float = 8.0):
+                 enter: float = 4.0, leave: float = 8.0, watchdog=None):
         self.protocol = None
+        self.watchdog = watchdog
         self.clock = clock
         self.rate_hz = rate_hz
         self.window = window
@@ -216,6 +219,8 @@ class LiveView:
         for name, (fraction, words) in self._window_progress(windows, table).items():
             grid.add_row(f"{name} window", Group(words, ProgressBar(1.0, fraction, 40)))
         grid.add_row("table", self._table_words(table))
+        if self.watchdog is not None:
+            grid.add_row("watchdog", self._watchdog_words(table))
         for name, fps, samples, gaps, imu in feeds:
             named = f" {escape(name)}" if len(feeds) > 1 else ""
             grid.add_row(f"IMU{named}", f"{fps:.0f} samples/s, {samples} received, "
@@ -263,6 +268,16 @@ class LiveView:
                      f"{table.position:.3f} rad")
         return (f"{table.rate:+.4f} rad/s (setpoint {table.rate_setpoint:+.4f}), {still}{inner}; "
                 f"flags: {', '.join(flags) or 'none'}")
+
+    def _watchdog_words(self, table) -> str:
+        """The table's watchdog: none, armed (its period, the heartbeat's) or tripped."""
+        w = self.watchdog
+        if not w:
+            return "[yellow]none[/] in the table's register map: a killed station leaves it turning"
+        if getattr(table, "watchdog_tripped", False):
+            return (f"[red]tripped[/]: no heartbeat for {w.period:g} s (between sessions, or "
+                    "a stalled host), the table stopped itself; the next run clears it")
+        return f"armed, {w.words()}; heartbeat every {w.beat:.2f} s"
 
     def _stillness_words(self) -> str:
         if self.still is None:

@@ -41,6 +41,15 @@ def no_check_argument(p) -> None:
                         "command (docs/cli.md)")
 
 
+def no_watchdog_argument(p) -> None:
+    """`--no-watchdog` on parser `p` (record and resume of a thermal campaign:
+    station.acquire.watchdog)."""
+    p.add_argument("--no-watchdog", action="store_true",
+                   help="a thermal campaign: record even though the table's or the chamber's "
+                        "register map has no watchdog ([table.watchdog], [chamber.watchdog]): a "
+                        "killed or hung station then leaves them running")
+
+
 def new_file(path, option: str = "--out", force: bool | None = None) -> Path:
     """`path` as a Path if writing it loses nothing: absent, or `force` given. force None: the
     command has no --force, so the refusal does not offer it."""

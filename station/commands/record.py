@@ -43,6 +43,8 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     host = "192.168.0.60"         # "Thermal sessions"): the chamber's Modbus TCP address (or
     setpoints = [263.15, 313.15]  # serial_port), setpoints in K, ramp, stability, window,
     safe = 296.15                 # soak_timeout, safe, poll; --out is then a directory
+                                  # (the table's and chamber's register maps need a watchdog,
+                                  # docs/devices.md "Watchdog", or --no-watchdog)
 
     [tolerances]                  # optional: the unit type's tolerances, for a PASS/FAIL verdict
     scale_factor = 0.03           # |k_i - 1| (station.solve.verdict)
@@ -79,6 +81,8 @@ from station.errors import InputError
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import no_watchdog_argument
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station record --profile bench.toml --out sessions/SN42.h5\n"
@@ -95,6 +99,7 @@ def register(p) -> None:
                    help="with --solve: write a fit that fails the quality gate, marked suspect")
     p.add_argument("--live", action="store_true",
                    help="show the live view (phase, windows, table, link) while recording")
+    no_watchdog_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -181,9 +186,11 @@ def solve(path, accept_suspect: bool = False) -> dict:
 def _campaign(args, bench) -> int:
     """A thermal campaign (the profile has a [chamber] section) into the directory --out."""
     from station.acquire.operator import ConsoleOperator
+    from station.acquire.watchdog import require_watchdogs
     from station.files.campaign import Campaign
     from station.protocols.thermal import run_campaign
 
+    require_watchdogs(bench, args.no_watchdog)
     if args.live:
         raise InputError("--live shows one rotary session; record a thermal campaign without it")
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}"

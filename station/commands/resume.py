@@ -24,7 +24,7 @@ from pathlib import Path
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import no_check_argument
+    from station.commands import no_check_argument, no_watchdog_argument
 
     p.description = __doc__
     p.epilog = (
@@ -40,6 +40,7 @@ def register(p) -> None:
     p.add_argument("--speed", type=float,
                    help="virtual bench: clock speed, simulated s per wall s (default: as recorded)")
     no_check_argument(p)
+    no_watchdog_argument(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
@@ -130,6 +131,7 @@ def _resume_campaign(args) -> int:
     the bench profile it was recorded with (or --profile); the table is stopped first."""
     from station.acquire.bench import BenchProfile, stop_table
     from station.acquire.operator import ConsoleOperator
+    from station.acquire.watchdog import require_watchdogs
     from station.commands import existing_file
     from station.commands.record import report_campaign
     from station.errors import InputError
@@ -145,5 +147,6 @@ def _resume_campaign(args) -> int:
         raise InputError(f"{profile} is not the thermal bench of unit {campaign.unit_serial!r} "
                          "(a [chamber] section and that unit_serial); give the campaign's bench "
                          "profile with --profile")
+    require_watchdogs(bench, args.no_watchdog)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
     return report_campaign(run_campaign(bench, campaign, operator), args.json)

@@ -548,7 +548,10 @@ class RotaryProtocol:
                             "session") from exc
 
     def _pause(self, exc: TableTimeout) -> str:
-        """The table does not answer: stop it, pause, and go on only if the operator says so."""
+        """The table does not answer: stop it, pause, and go on only if the operator says so.
+        A timeout of the table's watchdog heartbeat, delivered from its thread
+        (`station.acquire.watchdog.fed`), is handled here once: it is not raised again."""
+        interrupts.withdraw(exc)
         j = self.position
         stopped = self._stop_table(exc)
         self.recorder.event("pause", j, {"state": self.state, "table_stopped": stopped,

@@ -17,6 +17,13 @@ session stops it itself; `stop_table` once more, as `station resume` does); the 
 which soaks are done, and `station resume DIR` continues at the first that is not (a session left
 partial is soaked again, then resumed from its last completed position). At the end the chamber
 is sent to its safe setpoint too.
+
+The chamber's watchdog (`[chamber.watchdog]`) is fed for the whole campaign, the table's for each
+session (`station.acquire.watchdog.fed`): a killed or hung station leaves them to their
+controllers, which stop the table and send the chamber to the watchdog's safe setpoint by
+themselves. A campaign whose devices have no watchdog is refused unless the technician says
+`--no-watchdog` (`station.acquire.watchdog.require_watchdogs`, called by `station record` and
+`station resume`).
 """
 
 import dataclasses
@@ -205,12 +212,13 @@ def run_campaign(bench, campaign, operator) -> dict:
     the devices of the bench profile `bench` (with its `chamber`); returns a summary. Faults and
     Ctrl-C leave the chamber at its safe setpoint and the table stopped (module docstring)."""
     from station.acquire.bench import bench_clock
+    from station.acquire.watchdog import fed
 
     settings = bench.chamber
     clock = bench_clock(bench)
     recorded = []
     try:
-        with settings.chamber(clock) as chamber:
+        with settings.chamber(clock) as chamber, fed(chamber):
             while (k := campaign.next_soak()) is not None:
                 recorded.append(_soak_and_record(k, campaign, bench, chamber, clock, operator))
             chamber.safe(settings.safe)
