@@ -222,19 +222,23 @@ class SampleAssembler:
 
     A sample is complete when every frame of the profile has arrived with the same counter value;
     frames are collected until the counter changes. The counter is unwrapped into `seq`: a step
-    forward of at most the layout's `max_gap` is a gap (samples lost on the bus); any other step
-    (back, to 0 after a reset, or far forward) is the device restarting its counter: a new
-    segment (`restart_seq`, counted in `restarts`), a gap of unknown length, never a jump.
+    forward of at most the layout's `max_gap` is a gap (samples lost on the bus), and so is a
+    longer step forward that the host time since the last sample explains at `rate_hz` (within
+    a quarter of it: an outage of the adapter, the device counting on); any other step (back, to
+    0 after a reset, or far forward) is the device restarting its counter: a new segment
+    (`restart_seq`, counted in `restarts`), a gap of unknown length, never a jump.
     """
 
-    def __init__(self, layout: FrameLayout):
+    def __init__(self, layout: FrameLayout, rate_hz: float | None = None):
         self.layout = layout
+        self.rate_hz = rate_hz
         self.stats = CanStats()
         m = len(layout.channels)
         self._row = np.zeros(m, dtype=np.int64)
         self._have = []  # slots filled for the pending counter
         self._counter = None
         self._last = None  # (counter, seq, counts) of the last emitted sample
+        self._last_host = None  # its host time
         self._counts, self._seq, self._host = [], [], []
 
     def feed(self, msg: can.Message, host_time: float) -> None:
@@ -285,7 +289,7 @@ class SampleAssembler:
                 self.stats.used += len(self._have)
                 self._have, self._counter = [], None
                 return
-            if step == 0 or step > self.layout.max_gap:
+            if step == 0 or not (step <= self.layout.max_gap or self._explained(step, host_time)):
                 self.stats.restarts += 1
                 seq = restart_seq(counter, last_seq, self.layout.counter_modulus)
             else:
@@ -293,12 +297,21 @@ class SampleAssembler:
                 self.stats.gaps += step > 1
                 self.stats.dropped += step - 1
         self._last = (counter, seq, self._row.copy())
+        self._last_host = host_time
         self._counts.append(self._row.copy())
         self._seq.append(seq)
         self._host.append(host_time)
         self.stats.samples += 1
         self.stats.used += len(self._have)
         self._have, self._counter = [], None
+
+    def _explained(self, step: int, host_time: float) -> bool:
+        """Does the host time since the last sample explain a counter `step` forward (within a
+        quarter of the samples due at `rate_hz`, and less than half the counter's range)?"""
+        if self.rate_hz is None or self._last_host is None:
+            return False
+        due = (host_time - self._last_host) * self.rate_hz
+        return step < self.layout.counter_modulus // 2 and abs(step - due) <= 0.25 * due
 
     def ready(self) -> bool:
         """True when completed samples wait to be taken."""
@@ -394,7 +407,7 @@ class CanImu:
         self.log_path = Path(log_path) if log_path is not None else None
         self.connections = 0
         self.bus = None
-        self._assembler = SampleAssembler(FrameLayout(self.profile))
+        self._assembler = SampleAssembler(FrameLayout(self.profile), self.profile.imu.rate_hz)
         self._clock = clock or WallClock()
         self._receiver = None  # from open() to close(): it holds the raw log
         self._notifier = None
@@ -490,7 +503,7 @@ def replay(log_path, profile: CanProfile) -> tuple:
 
     `host_time` of a replayed sample is the logged timestamp of its last frame.
     """
-    assembler = SampleAssembler(FrameLayout(profile))
+    assembler = SampleAssembler(FrameLayout(profile), profile.imu.rate_hz)
     with can.LogReader(log_path) as reader:
         for msg in reader:
             assembler.feed(msg, msg.timestamp)

@@ -68,8 +68,8 @@ def test_a_two_axis_session_on_the_twin_needs_no_input_and_solves(tmp_path):
     the cone and one spin of the position axis, set by the station over Modbus; `station solve`
     then finds the twin's unit within the statistical bounds."""
     profile, session, cal = tmp_path / "two_axis.toml", tmp_path / "s.h5", tmp_path / "cal.json"
-    with TwinProcess("--two-axis", "--speed", "40", "--positions", str(CONE), "--seed", "3",
-                     "--profile-out", str(profile), "--lifetime", "200") as twin:
+    with TwinProcess("--two-axis", "--positions", str(CONE), "--seed", "3",
+                     "--profile-out", str(profile), "--lifetime", "1500") as twin:  # lockstep
         assert twin.started["table"]["profile"] == "table_two_axis"
         rec = station_run("record", "--profile", str(profile), "--out", str(session), "--json")
         assert rec.returncode == 0, rec.stderr
