@@ -199,7 +199,7 @@ def test_can_units_sharing_a_bus_at_the_same_ids_are_refused(tmp_path):
 
 
 def test_a_unit_lost_for_good_stops_the_table_and_is_named(tmp_path):
-    with BenchTwin(seed=7, speed=40, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
+    with BenchTwin(seed=7, positions=POSITIONS, rate_hz=100, units=UNITS) as twin:
         (tmp_path / "b.toml").write_text(twin.profile_text())
         bench = BenchProfile.load(tmp_path / "b.toml")
         assert bench.plate and [u.stream for u in bench.units] == ["imu", "imu2", "imu3"]

@@ -372,7 +372,7 @@ def read_events(g, where="") -> list:
         raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
     k = complete_events(ends, detail.shape[0], where)
     starts = np.concatenate([[0], ends[:-1]]).astype(np.int64)
-    text = _rows(detail, 0, int(ends[k - 1]), where, False)[0].tobytes() if k else b""
+    text, k = _event_text(detail, ends, k, where)
     events = []
     _finite(times[:k].astype(np.float64), "/events/time", where, 0, None)
     for t, p, kb, s, e in zip(times[:k], positions[:k], kind_bytes[:k], starts[:k], ends[:k],
@@ -390,6 +390,24 @@ def read_events(g, where="") -> list:
                                      "newer software")
         events.append(Event(float(t), None if p < 0 else int(p), kind, info))
     return events
+
+
+def _event_text(detail, ends, k: int, where) -> tuple:
+    """(the detail bytes of the first `k` events, how many of them read back intact): a kill
+    that cut the rewrite of the stream's last chunk loses the events whose bytes were in it
+    (`_rows`: the rows its old checksum vouches for are kept); damage before the last chunk is
+    SessionFormatError."""
+    if not k:
+        return b"", 0
+    stop = int(ends[k - 1])
+    values, intact = _rows(detail, 0, stop, where, True)
+    if not intact.all():
+        bad = int(np.argmin(intact))  # the first byte that did not read back
+        if bad < detail.shape[0] - detail.chunks[0]:
+            raise SessionFormatError(f"{where}: {detail.name} does not read back intact before "
+                                     "its last chunk; the file is damaged")
+        k = int(np.searchsorted(ends[:k], bad, "right"))
+    return values.tobytes(), k
 
 
 def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
