@@ -218,6 +218,16 @@ def test_a_bad_redo_limit_is_refused_naming_the_key(value, tmp_path):
         RotarySettings(redo_limit=value)
     with pytest.raises(InputError, match="redo_limit must be a whole number from 0"):
         RotarySettings(redo_limit=True)
+    with pytest.raises(ValueError, match="redo_limit"):  # ProfileError
+        BenchProfile.load(_bench_profile(tmp_path, repr(value).replace("'", '"')))
+
+
+def test_the_redo_limit_comes_from_the_profile(tmp_path):
+    assert BenchProfile.load(_bench_profile(tmp_path, "5")).settings.redo_limit == 5
+
+
+def _bench_profile(tmp_path, redo_limit: str):
+    """A rotary bench profile whose [protocol] redo_limit is the TOML text `redo_limit`."""
     profile = tmp_path / "bench.toml"
     profile.write_text(textwrap.dedent(f"""
         [bench]
@@ -231,29 +241,9 @@ def test_a_bad_redo_limit_is_refused_naming_the_key(value, tmp_path):
         port = 5020
         [protocol]
         positions = 6
-        redo_limit = {value!r}
-        """).replace("'", '"'))
-    with pytest.raises(ValueError, match="redo_limit"):  # ProfileError
-        BenchProfile.load(profile)
-
-
-def test_the_redo_limit_comes_from_the_profile(tmp_path):
-    profile = tmp_path / "bench.toml"
-    profile.write_text(textwrap.dedent("""
-        [bench]
-        unit_serial = "SN1"
-        [imu]
-        link = "serial"
-        profile = "imu12_serial"
-        port = "/dev/null"
-        [table]
-        host = "127.0.0.1"
-        port = 5020
-        [protocol]
-        positions = 6
-        redo_limit = 5
+        redo_limit = {redo_limit}
         """))
-    assert BenchProfile.load(profile).settings.redo_limit == 5
+    return profile
 
 
 THERMAL_SPOILED = [2, 9, 16]
