@@ -25,12 +25,12 @@ positions = 6
 [chamber]
 host = "127.0.0.1"
 setpoints = {setpoints}
-"""
+{extra}"""
 
 
-def _profile(tmp_path, imu="imu12_serial_temp", setpoints="[263.15, 313.15]"):
+def _profile(tmp_path, imu="imu12_serial_temp", setpoints="[263.15, 313.15]", extra=""):
     path = tmp_path / "bench.toml"
-    path.write_text(PROFILE.format(imu=imu, setpoints=setpoints))
+    path.write_text(PROFILE.format(imu=imu, setpoints=setpoints, extra=extra))
     return path
 
 
@@ -72,6 +72,24 @@ def test_the_chamber_section_is_read_with_its_defaults(tmp_path):
     bench = BenchProfile.load(_profile(tmp_path))
     assert bench.chamber.setpoints == (263.15, 313.15) and bench.chamber.safe == 296.15
     assert bench.chamber.port == 502
+
+
+def test_the_chamber_driver_waits_and_retries_as_the_profile_says(tmp_path):
+    """Unset: the clock's reply timeout (0.5 s real time, 30 s in lockstep) and 2 retries."""
+    from drivers.clock import REPLY, WallClock
+
+    default = BenchProfile.load(_profile(tmp_path)).chamber.chamber(WallClock())
+    assert (default.timeout, default.retries) == (REPLY, 2)
+    bench = BenchProfile.load(_profile(tmp_path, extra="reply_timeout = 4.0\nretries = 0\n"))
+    chamber = bench.chamber.chamber(WallClock())
+    assert (chamber.timeout, chamber.retries) == (4.0, 0)
+
+
+@pytest.mark.parametrize("extra, words", [("reply_timeout = 0.0", "reply_timeout"),
+                                          ("retries = -1", "retries")])
+def test_a_reply_timeout_or_retries_out_of_range_is_refused(tmp_path, extra, words):
+    with pytest.raises(ProfileError, match=words):
+        BenchProfile.load(_profile(tmp_path, extra=extra + "\n"))
 
 
 @pytest.mark.parametrize("imu, setpoints, words", [

@@ -121,6 +121,8 @@ def test_a_fault_during_a_soak_stops_the_table_and_leaves_the_chamber_safe(fault
     and the manifest still at the first soak."""
     make, error = FAULTS[fault]
     soak = {"soak_timeout": 60.0, "stability": 1e-4} if fault == "soak timeout" else None
+    if fault == "chamber silent":  # each lost reply waits this (not lockstep's 30 s) per try
+        soak = {"reply_timeout": 5.0, "retries": 1}
     with ThermalTwin(seed=3, speed=SPEED, positions=3, setpoints=(283.15, 313.15),
                      soak=soak) as twin:
         profile = _write_profile(twin, tmp_path)

@@ -54,6 +54,9 @@ class ChamberSettings:
     soak_timeout : s after which a soak that has not settled is an error
     safe         : K the chamber is left at on a fault, on Ctrl-C and at the end
     poll         : s between two readings of the chamber
+    reply_timeout: wall s the driver waits for each reply (default `drivers.clock.reply_timeout`:
+                   0.5 s on a real-time clock, 30 s in lockstep); a slow RS-485 line wants more
+    retries      : extra tries after a timeout or a bad reply (default 2)
     """
 
     register_map: object
@@ -67,6 +70,8 @@ class ChamberSettings:
     soak_timeout: float = 7200.0
     safe: float = ROOM
     poll: float = 2.0
+    reply_timeout: float | None = None
+    retries: int = 2
 
     @classmethod
     def from_section(cls, s, device) -> "ChamberSettings":
@@ -85,9 +90,11 @@ class ChamberSettings:
             fields.update(host=s.get("host", str), port=s.get("port", int, default=502))
         else:
             fields["serial_port"] = s.get("serial_port", str)
-        for f in ("ramp", "stability", "window", "soak_timeout", "safe", "poll"):
+        for f in ("ramp", "stability", "window", "soak_timeout", "safe", "poll", "reply_timeout"):
             if s.has(f):
                 fields[f] = s.get(f, float)
+        if s.has("retries"):
+            fields["retries"] = s.get("retries", int)
         settings = cls(**fields)
         low, high = register_map.setpoint_range
         temps = settings.setpoints + (settings.safe,)
@@ -103,6 +110,10 @@ class ChamberSettings:
         if not all(math.isfinite(getattr(settings, f)) and getattr(settings, f) > 0
                    for f in positive):
             raise s.error("stability", f"{', '.join(positive)} must be positive numbers")
+        if settings.reply_timeout is not None and not 0 < settings.reply_timeout <= 600:
+            raise s.error("reply_timeout", "must be 0 < seconds <= 600 (the wait for each reply)")
+        if not 0 <= settings.retries <= 10:
+            raise s.error("retries", "must be 0..10 (extra tries after a lost reply)")
         s.finish()
         return settings
 
@@ -112,7 +123,8 @@ class ChamberSettings:
 
         where = ({"host": self.host, "port": self.port} if self.host is not None
                  else {"serial_port": self.serial_port})
-        return ThermalChamber(self.register_map, **where, safe_kelvin=self.safe, clock=clock)
+        return ThermalChamber(self.register_map, **where, safe_kelvin=self.safe, clock=clock,
+                              timeout=self.reply_timeout, retries=self.retries)
 
 
 @dataclass(frozen=True)
