@@ -24,7 +24,7 @@ import numpy as np
 
 from station.diagnose.static import CANDIDATES, base, diagnose_static, from_arrays, untestable
 from station.diagnose.static_report import load
-from station.files.importers import import_csv, import_text
+from station.imports.recordings import import_csv, import_text
 from station.model.effects import parse_all
 from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad

@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from posesim import CLASSES, G, coverage  # noqa: E402
 
-from station.files.importers import import_binary  # noqa: E402
 from station.files.session import Session  # noqa: E402
+from station.imports.recordings import import_binary  # noqa: E402
 from station.reduce.free_static import calibrate_free_static  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"

@@ -44,8 +44,8 @@ from pathlib import Path
 
 import numpy as np
 
-from station.files.importers import import_binary
 from station.files.session import Session
+from station.imports.recordings import import_binary
 from station.reduce.stillness import detect_still
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"

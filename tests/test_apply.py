@@ -13,8 +13,8 @@ from test_calfile import SENSORS, make
 
 from drivers.samples import SampleBlock
 from station import cli
+from station.exports.c import c_header
 from station.files.calfile import load
-from station.files.export_c import c_header
 from station.files.session import SessionWriter, StreamSpec
 
 RATE = 100.0

@@ -24,9 +24,9 @@ from station.diagnose import diagnose
 from station.diagnose.effects.rate_error import encoder_reads
 from station.diagnose.gap import HARMONICS
 from station.errors import CalibrationInputError
-from station.files.importers import import_npz
 from station.files.npz import write
 from station.files.session import Session, SessionWriter, StreamSpec
+from station.imports.recordings import import_npz
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse
 from station.protocols.rotary import RotarySettings, suggested_axes

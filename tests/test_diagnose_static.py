@@ -12,7 +12,7 @@ from scipy.stats import chi2
 from station.cli import main
 from station.diagnose.static import diagnose_static, from_arrays
 from station.errors import CalibrationInputError
-from station.files.importers import import_csv, import_text
+from station.imports.recordings import import_csv, import_text
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse_all
 from station.model.effects.earth_rate import EarthRate

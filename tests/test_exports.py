@@ -15,11 +15,11 @@ from test_calfile import make
 
 from station import cli
 from station.errors import InputError
+from station.exports.imu import Imu
+from station.exports.imucal import imucal
+from station.exports.kalibr import kalibr
+from station.exports.ros import ros
 from station.files.calfile import NoiseFigures, load
-from station.files.export_imu import Imu
-from station.files.export_imucal import imucal
-from station.files.export_kalibr import kalibr
-from station.files.export_ros import ros
 from station.reduce.ferraris import read_recording
 
 G = 9.80665

@@ -378,8 +378,8 @@ def test_a_dump_of_typed_frames_imports_with_device_time_and_kelvin(tmp_path):
     """`station import binary` reads a typed-field profile through the same parser: SI values
     of the float fields, the temperature in kelvin, times from SampleTimeFine (not from the
     packet counter: the stamps below run 14 % faster than the nominal 400 Hz)."""
-    from station.files.importers import import_binary
     from station.files.session import Session
+    from station.imports.recordings import import_binary
 
     n = 500
     stf = np.arange(n) * 22  # 10 kHz ticks, 454.5 Hz

@@ -10,8 +10,15 @@ import station
 from station.cli import main
 from station.errors import CalibrationInputError
 from station.files import npz
-from station.files.importers import FIXED_POINT, Unit, import_csv, import_npz, import_text, read_npz
 from station.files.session import Session
+from station.imports.recordings import (
+    FIXED_POINT,
+    Unit,
+    import_csv,
+    import_npz,
+    import_text,
+    read_npz,
+)
 from station.reduce.eq18 import reduce_arrays
 from station.reduce.free_static import calibrate_free_static
 from station.reduce.iron import iron_readings

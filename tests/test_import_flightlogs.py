@@ -283,8 +283,8 @@ def test_damaged_logs_import_or_are_refused_by_name(hand, tmp_path, fmt):
     """Flipped bytes, cuts and overwritten runs (90 damaged copies, a fixed seed): each log is
     imported or refused with a CalibrationInputError naming it; nothing else escapes."""
     from station.errors import CalibrationInputError
-    from station.files.import_dataflash import import_dataflash
-    from station.files.import_ulog import import_ulog
+    from station.imports.dataflash import import_dataflash
+    from station.imports.ulog import import_ulog
 
     t, x, _ = hand
     logs = {"ulog": ulog(raw_topics(t[:300], x[:300])),

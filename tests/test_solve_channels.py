@@ -14,8 +14,8 @@ from hand import A_TRUE, B_TRUE, FS, hand_session
 
 from station.cli import main
 from station.files.calfile import load
-from station.files.importers import import_binary
 from station.files.session import Session
+from station.imports.recordings import import_binary
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 if not REAL.exists():

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from station.files import npz
-from station.files.importers import import_npz
 from station.files.session import Session
+from station.imports.recordings import import_npz
 from station.reduce import timeline
 from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.rotary import position_windows, rotary_readings

@@ -1,15 +1,15 @@
 """`station export`: calibration files -> the formats other tools read.
 
---to c-header   a C header for firmware (station.files.export_c): the fusion matrix, biases and
+--to c-header   a C header for firmware (station.exports.c): the fusion matrix, biases and
                 counts per SI unit, so that v = FUSION (counts / COUNTS_PER_UNIT - BIAS); any m;
                 a temperature model's reference, range and coefficients when the file has one
 --to kalibr     Kalibr's imu.yaml: noise densities, random walks, update rate, and the
-                scale-misalignment intrinsics (station.files.export_kalibr); accelerometer + gyro
+                scale-misalignment intrinsics (station.exports.kalibr); accelerometer + gyro
 --to ardupilot  ArduPilot INS_ACCOFFS/INS_ACCSCAL/INS_GYROFFS, a Mission Planner / MAVProxy
-                parameter file (station.files.export_autopilot)
+                parameter file (station.exports.autopilot)
 --to px4        PX4 CAL_ACCn_*/CAL_GYROn_*, a QGroundControl parameter file (same module)
---to ros        sensor_msgs/Imu covariances, a ROS 2 parameters YAML (station.files.export_ros)
---to imucal     imucal's FerrarisCalibrationInfo JSON (station.files.export_imucal);
+--to ros        sensor_msgs/Imu covariances, a ROS 2 parameters YAML (station.exports.ros)
+--to imucal     imucal's FerrarisCalibrationInfo JSON (station.exports.imucal);
                 accelerometer + gyro
 
 The first file is an accelerometer (m/s^2) or a gyro (rad/s) calibration; `--gyro` adds the
@@ -117,10 +117,10 @@ def _default_name(calibration: Path, fmt: str) -> Path:
 def _write(fmt: str, cals: list, args):
     """The chosen format's text and notes (station.files.export_*)."""
     from station.errors import InputError
-    from station.files.export_imu import Imu, Written
+    from station.exports.imu import Imu, Written
 
     if fmt == "c-header":
-        from station.files.export_c import c_header
+        from station.exports.c import c_header
 
         if len(cals) > 1:
             raise InputError("a C header holds one calibration file; export the gyro one "
@@ -136,22 +136,22 @@ def _write(fmt: str, cals: list, args):
         return Written(c_header(cal, prefix, ctype), notes)
     imu = Imu.of(*cals)
     if fmt == "kalibr":
-        from station.files.export_kalibr import kalibr
+        from station.exports.kalibr import kalibr
 
         return kalibr(imu, args.rostopic or "/imu0", args.rate)
     if fmt == "ardupilot":
-        from station.files.export_autopilot import ardupilot
+        from station.exports.autopilot import ardupilot
 
         return ardupilot(imu, 1 if args.instance is None else args.instance, args.force)
     if fmt == "px4":
-        from station.files.export_autopilot import px4
+        from station.exports.autopilot import px4
 
         return px4(imu, 0 if args.instance is None else args.instance, args.acc_id,
                    args.gyro_id, args.force)
     if fmt == "ros":
-        from station.files.export_ros import ros
+        from station.exports.ros import ros
 
         return ros(imu, args.rate)
-    from station.files.export_imucal import imucal
+    from station.exports.imucal import imucal
 
     return imucal(imu)

@@ -1,4 +1,4 @@
-"""`station import`: a foreign recording into a new session file (station/files/importers.py)."""
+"""`station import`: a foreign recording into a new session file (station/imports/recordings.py)."""
 
 import json
 from pathlib import Path
@@ -105,7 +105,7 @@ def _import(args, existing_file, advance) -> Path:
     """The importer of `args.format` called with the options given; `advance(done, total)` hears
     of the bytes read where the importer counts them (csv)."""
     from station.errors import InputError
-    from station.files import importers
+    from station.imports import recordings
 
     if args.instance is not None and args.format not in ("ulog", "dataflash"):
         raise InputError(f"--instance is for flight-controller logs (ulog, dataflash), not "
@@ -126,7 +126,7 @@ def _import(args, existing_file, advance) -> Path:
             existing_file(path, "a text recording (--stream NAME=FILE)")
         columns = {name: _numbers(cols, f"--columns {name}={cols}")
                    for name, cols in _pairs(args.columns, "--columns").items()}
-        return importers.import_text(args.out, streams, units, unit_serial=args.unit_serial,
+        return recordings.import_text(args.out, streams, units, unit_serial=args.unit_serial,
                                      fs=args.fs, time_unit=args.time_unit, delimiter=delimiter,
                                      skip_rows=args.skip_rows or 0, columns=columns,
                                      untimed=args.no_time)
@@ -135,7 +135,7 @@ def _import(args, existing_file, advance) -> Path:
     if args.format == "csv":
         source = existing_file(args.source, "a CSV recording")
         columns = {name: [c.strip() for c in what.split(",")] for name, what in streams.items()}
-        return importers.import_csv(args.out, source, columns, units, time_column=args.time,
+        return recordings.import_csv(args.out, source, columns, units, time_column=args.time,
                                     index_column=args.index, fs=args.fs,
                                     unit_serial=args.unit_serial, time_unit=args.time_unit,
                                     delimiter=delimiter, skip_rows=args.skip_rows,
@@ -143,18 +143,18 @@ def _import(args, existing_file, advance) -> Path:
     if args.format in ("ulog", "dataflash"):
         return _flight_log(args, existing_file)
     if args.format == "npz":
-        return importers.import_npz(args.out, existing_file(args.source, "an .npz recording"),
+        return recordings.import_npz(args.out, existing_file(args.source, "an .npz recording"),
                                     unit_serial=args.unit_serial)
     if args.profile is None:
         raise InputError("`import binary` needs the device profile of the frames; give "
                          "--profile NAME_OR_PATH (e.g. --profile mimu4444)")
-    return importers.import_binary(args.out, existing_file(args.source, "a binary dump"),
+    return recordings.import_binary(args.out, existing_file(args.source, "a binary dump"),
                                    args.profile, unit_serial=args.unit_serial)
 
 
 def _flight_log(args, existing_file) -> Path:
-    """A PX4 ULog or ArduPilot DataFlash log's IMU (station/files/import_ulog.py,
-    import_dataflash.py)."""
+    """A PX4 ULog or ArduPilot DataFlash log's IMU (station/imports/ulog.py,
+    dataflash.py)."""
     from station.errors import InputError
 
     given = [option for option, value in (
@@ -169,11 +169,11 @@ def _flight_log(args, existing_file) -> Path:
         raise InputError(f"--instance {args.instance} is negative; give the instance number "
                          "(0 is the first)")
     if args.format == "ulog":
-        from station.files.import_ulog import import_ulog
+        from station.imports.ulog import import_ulog
 
         return import_ulog(args.out, existing_file(args.source, "a ULog file (.ulg)"),
                            instance=args.instance, unit_serial=args.unit_serial)
-    from station.files.import_dataflash import import_dataflash
+    from station.imports.dataflash import import_dataflash
 
     return import_dataflash(args.out, existing_file(args.source, "a DataFlash log (.bin)"),
                             instance=args.instance, batch=args.batch,

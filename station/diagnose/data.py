@@ -126,7 +126,7 @@ class RotaryData:
 def load(path, bin_seconds: float = 0.1) -> RotaryData:
     """A RotaryData from a rotary `.npz` data file, checked as `station import npz` checks it
     (headers before loading, never unpickles; types, shapes and values)."""
-    from station.files.importers import read_npz
+    from station.imports.recordings import read_npz
 
     return from_arrays(read_npz(path), bin_seconds)
 

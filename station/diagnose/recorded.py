@@ -33,7 +33,7 @@ samples with 0.1 < f < 0.9 gives the ramp's start and slope (likewise down from 
 spin-down). A latency common to all sensors is absorbed there (it is not identifiable against
 the table's timing); latencies differing between sensors remain. A session whose table states
 are stamped at the IMU's sample instants (metadata `table_timing` "sample": an imported array
-file, `station.files.importers.import_npz`) is timed by the table instead: the same line through
+file, `station.imports.recordings.import_npz`) is timed by the table instead: the same line through
 the table's reported rate over c, and the rate and angle are the table's own at each sample, so
 a common latency stays in the data, as in the array file. The rate profile is the
 commanded rate c (the table's recorded set point) times that trapezoid; the table angle is the

@@ -21,7 +21,7 @@ on the reading). The orientation has no estimate (-1). A sensor type not given a
 import numpy as np
 
 from station.errors import InputError
-from station.files.export_imu import (
+from station.exports.imu import (
     Imu,
     Written,
     axis_noise,

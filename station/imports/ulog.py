@@ -16,7 +16,7 @@ preference (PX4's uORB message definitions, msg/*.msg):
 
 The instance is the topic's `multi_id` (`--instance N`; default the first that every topic of the
 family has); a wrong one is refused listing the topics and instances the log holds. The samples
-go through station.files.flightlog (checks, exact scaling, the session).
+go through station.imports.flightlog (checks, exact scaling, the session).
 """
 
 import contextlib
@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.flightlog import Series, summary, write_session
 from station.files.tables import MAX_BYTES
+from station.imports.flightlog import Series, summary, write_session
 
 FAMILIES = (("sensor_accel", "sensor_gyro"), ("sensor_combined",), ("vehicle_imu",))
 """IMU topics, the preferred first: a family is used when each of its topics has samples."""

@@ -11,7 +11,7 @@ kalibr_common/ConfigReader.py `ImuParameters` with PyYAML) takes, in SI units:
     rostopic                     the IMU topic
 
 each one number (> 0) for all three axes. Ours are per sensor (`NoiseFigures`: white N and random
-walk K, in the same units); carried through the fusion to the axes (export_imu.axis_noise:
+walk K, in the same units); carried through the fusion to the axes (station.exports.imu.axis_noise:
 sqrt(diag(F diag(N^2) F^T))) they differ per axis, and the file takes the largest axis (the
 conservative choice: Kalibr's estimator then trusts no axis more than it should).
 
@@ -37,7 +37,7 @@ import re
 import numpy as np
 
 from station.errors import InputError
-from station.files.export_imu import Imu, Written, axis_noise, number, safe_comment, triad
+from station.exports.imu import Imu, Written, axis_noise, number, safe_comment, triad
 
 MODEL = "scale-misalignment"
 _TOPIC = re.compile(r"/?[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*\Z")

@@ -20,7 +20,7 @@ Both autopilots correct each axis on its own, in the sensor's frame, before the 
   MAVLink MAV_PARAM_TYPE (6 INT32, 9 REAL32); vehicle 1 (PX4's default MAV_SYS_ID), component 1
   (the autopilot).
 
-Conversion (station/files/export_imu.py `per_axis`): from z = a^T v + b, the offsets are b (in
+Conversion (station/exports/imu.py `per_axis`): from z = a^T v + b, the offsets are b (in
 the readings' SI units) and the accelerometer's scales 1 / a_kk; the autopilot then computes
 v'_k = (z_k - b_k) / a_kk = v_k + (cross-axis terms), exact for a diagonal a. The gyro has no
 scale parameter in either autopilot: its scale errors are dropped too. The worst case of the
@@ -38,7 +38,7 @@ back that float32.
 import numpy as np
 
 from station.errors import InputError
-from station.files.export_imu import (
+from station.exports.imu import (
     Imu,
     Written,
     check_dropped,

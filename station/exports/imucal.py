@@ -26,7 +26,7 @@ import json
 
 import numpy as np
 
-from station.files.export_imu import Imu, Written, triad
+from station.exports.imu import Imu, Written, triad
 
 FORMAT_VERSION = "2.0.0"
 CAL_TYPE = "Ferraris"

@@ -12,7 +12,7 @@ board that logged none, another vehicle's log), is refused listing the messages 
 The accelerometer's and gyro's device ids come from the parameters INS_ACC_ID, INS_ACC2_ID, ...,
 INS_GYR_ID, ... when the log holds them. With `batch`, the batch sampler's raw-rate samples
 (ISBH/ISBD, `batch_series`) instead of the IMU messages. The samples go through
-station.files.flightlog.
+station.imports.flightlog.
 """
 
 import contextlib
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.flightlog import Series, summary, write_session
 from station.files.tables import MAX_BYTES
+from station.imports.flightlog import Series, summary, write_session
 
 IMU_MESSAGES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 """IMU message names and the instance each stands for when it has no `I` field."""

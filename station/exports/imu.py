@@ -7,8 +7,7 @@ own model (docs/conventions.md):
     z = a^T v + b        (a: d x m, column i = sensor i's sensitive vector; b after the projection)
     v = F (z - b),  F = (a a^T)^-1 a     (least-squares fusion; F = a^-T for a triad)
 
-This module holds what the format modules (export_autopilot, export_kalibr, export_ros,
-export_imucal) share, written once:
+This module holds what the format modules (autopilot, kalibr, ros, imucal) share, written once:
 
 - `Imu`: the accelerometer and/or gyro calibration given, each recognised by its units (m/s^2,
   rad/s), checked to be of one unit, and `Imu.common_frame` for the formats that put both triads

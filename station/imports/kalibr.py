@@ -29,7 +29,7 @@ HEADER_CHARS = 4096
 @dataclass(frozen=True)
 class Layout:
     """A recognised IMU CSV: the time column (ns), the stream columns and units, as
-    station.files.importers.import_csv takes them, and a note saying so."""
+    station.imports.recordings.import_csv takes them, and a note saying so."""
 
     time_column: str
     streams: dict

@@ -1,5 +1,5 @@
-"""The IMU samples of a flight-controller log (PX4 ULog: station/files/import_ulog.py, ArduPilot
-DataFlash: station/files/import_dataflash.py) into a session file: one stream per sensor (`acc`
+"""The IMU samples of a flight-controller log (PX4 ULog: station/imports/ulog.py, ArduPilot
+DataFlash: station/imports/dataflash.py) into a session file: one stream per sensor (`acc`
 in m/s^2, `gyro` in rad/s), each sample at its own logged time stamp.
 
 The logs hold float32 (or float64) numbers; the session holds integer counts. Each channel's
@@ -26,8 +26,8 @@ import numpy as np
 
 from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
-from station.files.importers import _Fixed, _log_notes, _sha256
 from station.files.session import SessionWriter, StreamSpec
+from station.imports.recordings import _Fixed, _log_notes, _sha256
 
 log = logging.getLogger(__name__)
 

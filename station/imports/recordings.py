@@ -1,6 +1,6 @@
 """Foreign recordings into session files (docs/session-format.md), as `station import` does.
 
-Four formats (the flight-controller logs: station/files/import_ulog.py, import_dataflash.py),
+Four formats (the flight-controller logs: station/imports/ulog.py, import_dataflash.py),
 every file treated as untrusted input (sizes, types and values checked before use, nothing
 unpickled or evaluated; errors are `CalibrationInputError`s naming the problem and the fix):
 
@@ -10,7 +10,7 @@ unpickled or evaluated; errors are `CalibrationInputError`s naming the problem a
 - `import_csv`: a delimited text file with a header of column names (imucal's sessions), the
   delimiter sniffed and a preamble skipped (station.files.tables.read_csv), one stream per group
   of named columns, time from a column or from sample numbers at a given rate; a Kalibr/EuRoC
-  IMU CSV is recognised by its header without any (station.files.import_kalibr);
+  IMU CSV is recognised by its header without any (station.imports.kalibr);
 - `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
   `rate_cmd`, `c_cmd`, `seg_*`, `a_nominal`, optional `angle`), loaded with `allow_pickle=False`
   after its array headers were checked. The session holds the counts, the table's angle and rate as
@@ -48,10 +48,10 @@ from drivers.samples import SampleBlock
 from drivers.wire.binary import BinaryFrameParser
 from station.errors import CalibrationInputError, InputError
 from station.files import npz
-from station.files.import_kalibr import recognise
 from station.files.jsonable import jsonable
 from station.files.session import SessionWriter, StreamSpec
 from station.files.tables import MAX_BYTES, read_csv, read_matrix
+from station.imports.kalibr import recognise
 from station.model.constants import STANDARD_GRAVITY
 
 log = logging.getLogger(__name__)
@@ -183,7 +183,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     Time: `time_column` (in `time_unit`), or `index_column` (sample numbers) with `fs`, or rows
     at `fs`. delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
     station.files.tables.read_csv (and its `progress`). No streams, time column or rate: a
-    Kalibr/EuRoC IMU CSV, recognised by its header (station.files.import_kalibr), streams gyro
+    Kalibr/EuRoC IMU CSV, recognised by its header (station.imports.kalibr), streams gyro
     and acc at its nanosecond time stamps.
     """
     path = Path(path)
