@@ -1,10 +1,12 @@
 """Serial IMU link figures: parser speed, false locks, and live streams through the pty twin.
 
-    .venv/bin/python bench/serial.py [--frames 1000000] [--speed 25] [--json]
+    .venv/bin/python bench/serial.py [--frames 1000000] [--speed 25] [--parts parser ...] [--json]
 
-1. parser  : frames/s of BinaryFrameParser alone on every binary profile of PROFILES (imu12_serial,
-             the current layout, beside the real formats), fed in 64 KiB chunks, clean and with
-             1 % of frames corrupted.
+1. parser  : frames/s (CPU time) of BinaryFrameParser alone on every binary profile of PROFILES
+             (imu12_serial, the current layout, beside the real formats), fed in 64 KiB chunks,
+             clean and with 1 % of frames corrupted; beside the baseline of the same clean bytes
+             viewed at once with numpy frombuffer, decoded and checked (its ratio: the parser's
+             search, sequence check and bookkeeping).
 2. offline : per binary profile, `--offline` frames, every one damaged by the twin's
              `corrupt_frame` (bytes flipped, deleted or inserted). Counts the corrupted candidates
              that the profile's check alone accepts (false locks of the check) and those the
@@ -50,6 +52,7 @@ PROFILE = SerialImuProfile.load("imu12_serial")
 FMT, CHANNELS = PROFILE.serial.frame, PROFILE.imu.channels
 PROFILES = ("imu12_serial", "mimu4444", "xsens_mtdata2", "vectornav_binary")
 REAL_RATE = ("mimu4444", "xsens_mtdata2", "vectornav_binary", "vectornav_ascii")
+PARTS = ("parser", "offline", "checks", "ascii", "live", "real_rate")
 SPANS = {"m/s^2": 1_500_000, "rad/s": 3_000_000, "T": 50_000, "K": 200}
 """Count ranges of the real formats' sources per unit: float32 carries every such count exactly."""
 
@@ -108,22 +111,44 @@ def parser_of(profile) -> BinaryFrameParser:
 
 
 def parse_all(profile, data: bytes):
+    """The blocks, CPU seconds and stats of the parser fed `data` in 64 KiB chunks."""
     parser = parser_of(profile)
-    t = time.perf_counter()
+    t = time.process_time()
     blocks = [parser.decode(data[i : i + 65536], 0.0).block for i in range(0, len(data), 65536)]
     blocks.append(parser.decode(b"", 0.0, final=True).block)
-    return blocks, time.perf_counter() - t, parser.stats
+    return blocks, time.process_time() - t, parser.stats
+
+
+def frombuffer_seconds(profile, data: bytes, n: int) -> float:
+    """CPU seconds of the baseline: the clean bytes viewed as n frames at once (numpy
+    frombuffer), every field decoded and every check computed, nothing searched or kept."""
+    parser = parser_of(profile)
+    layout, start = parser.layout, parser.size - parser.crc.size
+    t = time.process_time()
+    rows = np.frombuffer(data, np.uint8).reshape(n, parser.size)
+    records = rows.view(parser.dtype).reshape(-1)
+    layout.seq(records), layout.ticks(records), layout.samples(records)
+    first = 0 if profile.serial.frame.crc_covers_sync else len(profile.serial.frame.sync)
+    assert np.all(parser.crc.rows(rows[:, first:start]) == records["crc"])
+    return time.process_time() - t
 
 
 def bench_parser(profile, n: int, rng) -> dict:
+    """Frames/s of CPU time, clean and 1 % corrupted, beside the frombuffer baseline (the
+    median of 3 interleaved pairs: a busy host slows both alike)."""
     data, _ = encoded(profile, n)
     size = len(data) // n
-    blocks, clean_s, _ = parse_all(profile, data)
-    assert sum(map(len, blocks)) == n
+    pairs = []
+    for _ in range(3):
+        blocks, clean_s, _ = parse_all(profile, data)
+        assert sum(map(len, blocks)) == n
+        pairs.append((clean_s, frombuffer_seconds(profile, data, n)))
+    clean_s, base_s = sorted(pairs, key=lambda p: p[0] / p[1])[1]
     _, noisy_s, _ = parse_all(profile, corrupted(data, size, 0.01, rng)[0])
     return {"frame_bytes": size, "check": profile.serial.frame.crc, "frames": n,
             "frames_per_s": n / clean_s, "frames_per_s_1pct_corrupted": n / noisy_s,
-            "mbytes_per_s": n * size / clean_s / 1e6}
+            "mbytes_per_s": n * size / clean_s / 1e6,
+            "frombuffer_frames_per_s": n / base_s, "parser_over_frombuffer": clean_s / base_s}
 
 
 def check_alone_false_accepts(profile, clean: bytes, data: bytes, starts, n: int) -> tuple:
@@ -298,20 +323,25 @@ def main(argv=None) -> int:
                         help="wall seconds of each real format's twin at its own rate")
     parser.add_argument("--skip-checks", action="store_true",
                         help="skip the per-check offline runs (15 x --offline frames)")
+    parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS),
+                        help="the parts to run (default all)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(args.seed)
     profiles = {name: SerialImuProfile.load(name) for name in PROFILES}
-    result = {
-        "parser": {name: bench_parser(p, args.parser_frames, rng) for name, p in profiles.items()},
-        "offline": {name: bench_offline(p, args.offline, rng) for name, p in profiles.items()},
-        "checks": {} if args.skip_checks else {
+    parts = {
+        "parser": lambda: {name: bench_parser(p, args.parser_frames, rng)
+                           for name, p in profiles.items()},
+        "offline": lambda: {name: bench_offline(p, args.offline, rng)
+                            for name, p in profiles.items()},
+        "checks": lambda: {} if args.skip_checks else {
             name: bench_offline(with_check(name), args.offline, rng) for name in CHECKSUMS},
-        "ascii": bench_ascii(args.offline, rng),
-        "live": bench_live(args.frames, args.speed, args.corrupt, args.seed),
-        "real_rate": {name: bench_real_rate(name, args.live_seconds, args.corrupt, args.seed)
-                      for name in REAL_RATE},
+        "ascii": lambda: bench_ascii(args.offline, rng),
+        "live": lambda: bench_live(args.frames, args.speed, args.corrupt, args.seed),
+        "real_rate": lambda: {name: bench_real_rate(name, args.live_seconds, args.corrupt,
+                                                    args.seed) for name in REAL_RATE},
     }
+    result = {name: parts[name]() for name in PARTS if name in args.parts}
     if args.json:
         print(json.dumps(result, indent=1))
     else:
