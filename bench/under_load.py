@@ -7,8 +7,8 @@ with --no-suite), all at nice 19 with --nice; prints each demo's exit code, verd
 and real-time factor, each campaign's exit code, the suite's pass, fail and error counts and the
 load average after each part; the hogs are stopped whatever happens. One JSON object with --json.
 
-    .venv/bin/python -P bench/under_load.py [--hogs 6] [--nice] [--demos 5] [--thermal 3]
-        [--no-suite] [--tests tests/test_demo.py ...] [--json]
+    .venv/bin/python -P bench/under_load.py [--hogs 6] [--nice] [--demos 5] [--positions 20]
+        [--thermal 3] [--no-suite] [--tests tests/test_demo.py ...] [--timeout 14400] [--json]
 """
 
 import argparse
@@ -73,24 +73,35 @@ with ThermalTwin(seed=seed, positions=6) as twin:
 """A thermal campaign on the in-process thermal twin (lockstep time), recorded and solved."""
 
 
+def _text(output) -> str:
+    """What a killed command had written (bytes, str or None) as text."""
+    return output.decode(errors="replace") if isinstance(output, bytes) else (output or "")
+
+
 def run(cmd: list, nice: bool, timeout: float) -> tuple:
-    """(CompletedProcess, wall seconds) of `cmd` in the repository, at nice 19 if asked."""
+    """(CompletedProcess, wall seconds) of `cmd` in the repository, at nice 19 if asked; past
+    `timeout` wall seconds the command is killed and its exit is None (its output so far kept)."""
     start = time.perf_counter()
-    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                          preexec_fn=(lambda: os.nice(19)) if nice else None, check=False)
+    try:
+        done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                              preexec_fn=(lambda: os.nice(19)) if nice else None, check=False)
+    except subprocess.TimeoutExpired as late:
+        done = subprocess.CompletedProcess(cmd, None, _text(late.stdout), _text(late.stderr))
     return done, time.perf_counter() - start
 
 
-def demos(k: int, nice: bool) -> list:
+def demos(k: int, nice: bool, positions: int) -> list:
     """`station demo --json` k times: exit, verdict, eps ratio, wall seconds, real-time factor."""
     out = []
     for _ in range(k):
-        done, seconds = run([sys.executable, "-m", "station", "demo", "--json"], nice, 3600)
+        done, seconds = run([sys.executable, "-m", "station", "demo", "--json", "--positions",
+                             str(positions)], nice, 3600)
         summary = json.loads(done.stdout) if done.stdout.strip().startswith("{") else {}
         out.append({"exit": done.returncode, "seconds": seconds,
                     "verdict": (summary.get("verdict") or {}).get("overall"),
                     "eps_over_sqrt_crlb": summary.get("eps_over_sqrt_crlb"),
                     "real_time_factor": summary.get("real_time_factor"),
+                    "eps": summary.get("eps"), "scale_factors": summary.get("scale_factors"),
                     "stderr_tail": done.stderr.strip()[-300:]})
         print(f"demo {len(out)}/{k}: exit {done.returncode} in {seconds:.0f} s",
               file=sys.stderr, flush=True)
@@ -111,12 +122,15 @@ def thermals(k: int, nice: bool) -> list:
     return out
 
 
-def suite(tests: list, nice: bool) -> dict:
+def suite(tests: list, nice: bool, timeout: float) -> dict:
     """The test suite (or `tests`): counts, failures, wall seconds, the slowest tests (pytest's
-    --durations lines)."""
+    --durations lines); killed after `timeout` s (exit None, `progress`: the tests ended by then,
+    counted from pytest's progress characters)."""
     done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *tests],
-                        nice, 7200)
+                        nice, timeout)
+    marks = "".join(re.findall(r"^[.FEsx]+(?=\s|$)", done.stdout, re.M))
     return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
+            "progress": {c: marks.count(c) for c in ".FEsx"},
             "failures": re.findall(r"^(?:FAILED|ERROR) .*", done.stdout, re.M),
             "error_lines": re.findall(r"^E .*", done.stdout, re.M)[:60],
             "slowest": re.findall(r"^\d+\.\d+s (?:call|setup|teardown) .*", done.stdout, re.M),
@@ -132,16 +146,20 @@ def main() -> None:
                         help="thermal campaigns recorded and solved (default 0)")
     parser.add_argument("--no-suite", action="store_true", help="skip the test suite")
     parser.add_argument("--tests", nargs="*", default=[], help="test files (default: all)")
+    parser.add_argument("--positions", type=int, default=20, help="each demo's positions")
+    parser.add_argument("--timeout", type=float, default=4 * 3600,
+                        help="wall seconds the suite may take before it is stopped")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     with hogging(args.hogs):
         load = []
-        out = {"hogs": args.hogs, "nice": args.nice, "demo": demos(args.demos, args.nice)}
+        out = {"hogs": args.hogs, "nice": args.nice, "demo": demos(args.demos, args.nice,
+                                                                   args.positions)}
         load.append(os.getloadavg()[0])
         out["thermal"] = thermals(args.thermal, args.nice)
         load.append(os.getloadavg()[0])
         if not args.no_suite:
-            out["suite"] = suite(args.tests, args.nice)
+            out["suite"] = suite(args.tests, args.nice, args.timeout)
             load.append(os.getloadavg()[0])
         out["load_average_1min"] = load
     if args.json:
@@ -157,7 +175,9 @@ def main() -> None:
     if "suite" in out:
         s = out["suite"]
         print(f"suite: {s['passed']} passed, {s['failed']} failed, {s['errors']} errors, "
-              f"{s['skipped']} skipped in {s['seconds']:.0f} s")
+              f"{s['skipped']} skipped in {s['seconds']:.0f} s"
+              + (f" (stopped after the timeout; ended by then: {s['progress']})"
+                 if s["exit"] is None else ""))
         for failure in s["failures"]:
             print(f"  {failure}")
 
