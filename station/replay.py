@@ -166,6 +166,37 @@ def recorded_noise(session, stream: str, channels) -> tuple[NoiseFigures | None,
     return NoiseFigures.from_fit(found.fit, found.curve.rate, found.curve.seconds), None
 
 
+def noise_stream(session, cal=None) -> str:
+    """The stream `station noise` analyses when none is named: the one its calibration `cal` was
+    solved from when this session has a stream of that name, else the one `station solve`
+    calibrates (`calibrated_stream`: an import's one stream in m/s^2, a recording's "imu"), which
+    names the streams to choose from when there are several."""
+    stream = (cal.session or {}).get("stream") if cal is not None else None
+    if stream in session.specs:
+        return stream
+    return calibrated_stream(session, ReplaySettings())
+
+
+def calibration_channels(session, stream: str, cal) -> np.ndarray:
+    """Indices into `stream`'s channels of the calibration `cal`'s sensors, in their order: by
+    name, or, when the names differ (a gyro carried through the turns names its sensors gyro1..),
+    the stream's channels in the calibration's unit when there are exactly m of them;
+    CalibrationInputError naming both otherwise."""
+    spec = session.specs[stream]
+    if all(name in spec.channels for name in cal.sensors):
+        rows = [spec.channels.index(name) for name in cal.sensors]
+    else:
+        rows = [i for i, unit in enumerate(spec.units) if unit == cal.units[0]]
+    if len(rows) != cal.m or any(spec.units[i] != cal.units[k] for k, i in enumerate(rows)):
+        raise CalibrationInputError(
+            f"{session.path}: stream {stream!r} (channels {', '.join(spec.channels)}; units "
+            f"{', '.join(sorted(set(spec.units)))}) does not hold the calibration's "
+            f"{cal.m} sensors {', '.join(cal.sensors)} in {cal.units[0]}.",
+            f"Give the stream of the unit's {cal.units[0]} sensors with --stream (the session's "
+            f"streams: {', '.join(session.specs)}).")
+    return np.asarray(rows, np.int64)
+
+
 def carried(session, stream: str) -> bool:
     """True when `stream` is a gyro triad (rad/s, no m/s^2) of a session whose kind calibrates
     gyros by carrying gravity through the turns (`Kind.carry`: an import)."""

@@ -17,11 +17,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from station.sim.layouts import GYRO_TOLERANCES
 from station.solve.verdict import Tolerances
 
-DEMO_TOLERANCES = Tolerances(scale_factor=0.05, bias=0.03, axis_angle_deg=3.0)
-"""The simulated MEMS gyro type's limits (station.sim.layouts.gyro_array: scale factors and axes
-within 1 % sd of nominal, biases of 0.005 rad/s sd), as a datasheet would state them."""
+DEMO_TOLERANCES = Tolerances(**GYRO_TOLERANCES)
+"""The simulated MEMS gyro type's limits (station.sim.layouts.GYRO_TOLERANCES)."""
 TRIAD_PAIRS = [(t + i, t + k) for t in range(0, 12, 3) for i, k in ((0, 1), (0, 2), (1, 2))]
 """Sensor pairs within each of the four triads of Rupniewski's layout (nominally 90 deg apart)."""
 

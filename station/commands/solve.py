@@ -251,7 +251,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         stimulus,
     )
     from station.solve.quality import check_fit
-    from station.solve.verdict import verdict
+    from station.solve.verdict import recorded_tolerances, verdict
 
     with Session.open(path) as session:
         settings = ReplaySettings(stream=stream, magnitude=magnitude, faces=faces,
@@ -374,17 +374,6 @@ def _store(path, readings, result, settings, channels) -> None:
                   channels=[int(i) for i in channels])
 
 
-def recorded_tolerances(metadata: dict, path):
-    """The `[tolerances]` of the bench profile a session was recorded with, or None."""
-    from station.solve.verdict import Tolerances
-
-    bench = metadata.get("bench")
-    tables = bench.get("tables") if isinstance(bench, dict) else None
-    if not isinstance(tables, dict) or "tolerances" not in tables:
-        return None
-    return Tolerances.from_table(tables["tolerances"], f"{path}: the bench profile's [tolerances]")
-
-
 def read_tolerances(path):
     """The `[tolerances]` table of a TOML file (a bench profile, or a file of its own)."""
     from drivers.profile import ProfileError, load_profile
@@ -447,15 +436,17 @@ def summarise(cal, out) -> dict:
 
 
 def _text(s: dict) -> str:
-    m = len(s["sensors"])
-    white_k = s["scale_factors_sigma_white"] or [float("nan")] * m
-    white_b = s["bias_sigma_white"] or [float("nan")] * m
-    rows = [f"{'sensor':>8} {'scale factor':>14} {'1 sigma':>10} {'(white)':>9} {'bias':>12} "
-            f"{'1 sigma':>10} {'(white)':>9}"]
-    rows += [f"{name:>8} {k:14.6f} {sk:10.2g} {wk:9.2g} {b:12.6g} {sb:10.2g} {wb:9.2g}"
-             for name, k, sk, wk, b, sb, wb in
-             zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"], white_k, s["bias"],
-                 s["bias_sigma"], white_b, strict=True)]
+    white = s["scale_factors_sigma_white"] is not None and s["bias_sigma_white"] is not None
+    head = ("sensor", "scale factor", "1 sigma", "(white)", "bias", "1 sigma", "(white)")
+    width = (8, 14, 10, 9, 12, 10, 9)
+    kind = ("", ".6f", ".2g", ".2g", ".6g", ".2g", ".2g")
+    keep = [i for i in range(len(head)) if white or head[i] != "(white)"]  # none: no columns
+    blank = [None] * len(s["sensors"])
+    table = zip(s["sensors"], s["scale_factors"], s["scale_factors_sigma"],
+                s["scale_factors_sigma_white"] or blank, s["bias"], s["bias_sigma"],
+                s["bias_sigma_white"] or blank, strict=True)
+    rows = [" ".join(f"{head[i]:>{width[i]}}" for i in keep)]
+    rows += [" ".join(f"{row[i]:>{width[i]}{kind[i]}}" for i in keep) for row in table]
     start = "" if s["start"] in (None, "closed form") else f" from the {s['start']} start"
     title = (f"unit {s['unit_serial']}: {s['positions']} positions, {s['method']}{start}, "
              f"{s['frame']} frame, chi2/dof {s['chi2_per_dof']:.2f} (bias in {s['units']})")

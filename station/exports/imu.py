@@ -33,8 +33,9 @@ from station.files.calfile import Calibration
 KINDS = {"m/s^2": "accelerometer", "rad/s": "gyroscope"}
 REFERENCE = {"accelerometer": (9.80665, "1 g"), "gyroscope": (1.0, "1 rad/s")}
 """The reading at which a dropped part is stated: standard gravity, 1 rad/s."""
-NOISE_ADVICE = ("run `station noise SESSION` on a long static recording of the unit (an hour or "
-                "more for the random walks) to store its noise figures in the calibration file")
+NOISE_ADVICE = ("record the unit at rest (an hour or more for the random walks), then `station "
+                "noise REST.h5 --store CAL.cal.json` stores its noise figures in the calibration "
+                "file")
 
 
 @dataclass(frozen=True)

@@ -75,7 +75,7 @@ def kalibr(imu: Imu, rostopic: str = "/imu0", update_rate: float | None = None) 
         f"[{', '.join(number(x) for x in gyro.bias)}] rad/s",
         *(f"{key}: {number(value)}" for key, value in noise.items()),
         f"rostopic: {rostopic}",
-        f"update_rate: {number(rate)}",
+        f"update_rate: {number(float(f'{rate:.9g}'))}",  # 100, not 100.00000000009095
         f"model: {MODEL}",
         f"T_i_b: {_matrix(t_i_b)}",
         "accelerometers:",

@@ -4,7 +4,9 @@ IEEE 952 terms, and the section of the session report (`station.reduce.noise`).
 The plot is log-log: each channel's overlapping Allan deviation with its 68.3 % confidence band
 (`allantools.confidence_interval` on the estimates' equivalent degrees of freedom), the fitted
 model, and the fitted terms' own lines: slope -1/2 (N / sqrt(tau)), 0 (the floor
-B sqrt(2 ln 2 / pi)) and +1/2 (K sqrt(tau / 3)), drawn for the median channel of each unit.
+B sqrt(2 ln 2 / pi)) and +1/2 (K sqrt(tau / 3)), drawn for the median channel of each unit among
+those whose table calls the term resolved (a term the table calls "not resolved" everywhere has no
+line), named with their values in the legend.
 """
 
 import math
@@ -76,9 +78,10 @@ def allan_png(noise: SessionNoise) -> bytes:
             line, = ax.loglog(tau, dev, "o", ms=3, label=noise.channels[c] if len(cols) <= 6
                               else (f"{len(cols)} channels" if c == cols[0] else None))
             ax.fill_between(tau, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
-            ax.loglog(dense, np.sqrt(fit.model_avar(factors, rate)[:, c]), "-", lw=0.7,
+            model = fit.model_avar(factors, rate)[:, c]  # below zero where a term fitted < 0
+            ax.loglog(dense, np.sqrt(np.where(model > 0, model, np.nan)), "-", lw=0.7,
                       color=line.get_color())
-        _slopes(ax, dense, fit.theta[cols], unit)
+        _slopes(ax, dense, fit.theta[cols], fit.resolved[:, cols], unit)
         ax.set_xlabel("averaging time tau (s)")
         ax.set_ylabel(f"Allan deviation ({unit})")
         ax.grid(True, which="both", lw=0.3)
@@ -86,19 +89,18 @@ def allan_png(noise: SessionNoise) -> bytes:
     return html.png(fig)
 
 
-def _slopes(ax, tau, theta, unit: str) -> None:
-    """The lines of the median channel's fitted terms: slopes -1/2, 0, +1/2 (a term fitted
-    below zero, not resolved, has none)."""
-    med = np.median(theta, axis=0)
+def _slopes(ax, tau, theta, resolved, unit: str) -> None:
+    """The lines of the fitted terms of the median channel among those whose table calls the term
+    resolved (`resolved`: (3, c)): slopes -1/2, 0, +1/2, each named with its value in the legend;
+    a term no channel resolves has no line."""
     units = noise_units(unit).values()
     shapes = (1.0 / tau, np.full_like(tau, FLOOR), tau / 3.0)
-    for term, shape, slope, name, u in zip(med, shapes, ("-1/2", "0", "+1/2"), "NBK", units,
-                                           strict=True):
-        if term > 0:
-            dev = np.sqrt(term * shape)
-            ax.loglog(tau, dev, "k--", lw=0.8)
-            ax.annotate(f"slope {slope}: {name} = {math.sqrt(term):.3g} {u}",
-                        (tau[len(tau) // 2], dev[len(tau) // 2]), fontsize=7)
+    for k, (shape, slope, name, u) in enumerate(zip(shapes, ("-1/2", "0", "+1/2"), "NBK", units,
+                                                    strict=True)):
+        if resolved[k].any():
+            term = float(np.median(theta[resolved[k], k]))
+            ax.loglog(tau, np.sqrt(term * shape), "--", lw=0.8, color=("k", "0.35", "0.6")[k],
+                      label=f"slope {slope}: {name} = {math.sqrt(term):.3g} {u}")
 
 
 def add_to_report(report, session, streams) -> None:
@@ -120,6 +122,6 @@ def add_to_report(report, session, streams) -> None:
         report.plots.append(html.Plot(
             f"allan-{name}", f"Allan deviation: {name}",
             "Overlapping Allan deviation of each channel (points) with its 68 % confidence band, "
-            "the fitted model (solid) and the median channel's fitted terms (dashed: slope -1/2 "
-            "white noise N, 0 bias instability B, +1/2 random walk K; IEEE Std 952-1997 "
-            "Annex C).", allan_png(noise)))
+            "the fitted model (solid) and the median channel's fitted terms that the table calls "
+            "resolved (dashed: slope -1/2 white noise N, 0 bias instability B, +1/2 random walk "
+            "K; IEEE Std 952-1997 Annex C).", allan_png(noise)))

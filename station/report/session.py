@@ -42,8 +42,9 @@ from station.protocols import KINDS
 from station.reduce.rotary import position_spins, position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
-from station.report import html, noise
+from station.report import html, noise, verdict
 from station.solve.quality import CHI2_P, check_fit, outlier_words
+from station.solve.verdict import recorded_tolerances
 
 WEAK_EXCITATION = 0.25
 """Smallest accepted ratio of the weakest to the strongest eigenvalue of sum_j v_j v_j^T."""
@@ -98,7 +99,7 @@ class Report:
             "noise_median": "median noise of a reading", "excitation_ratio":
             "weakest / strongest excitation", "largest_empty_cap_deg":
             "largest direction without a position (deg)", "still_poses": "still poses found",
-            "rejected_candidates": "still candidates rejected"}
+            "rejected_candidates": "still candidates rejected", "verdict": "verdict"}
         return [(label, _fmt(self.summary[key])) for key, label in labels.items()
                 if key in self.summary]
 
@@ -128,6 +129,8 @@ def build(path, result: str | None = None, stream: str | None = None) -> Report:
                            events)
         _table_stability(report, session.table(), events, session.metadata)
         noise.add_to_report(report, session, streams)
+        verdict.add_to_report(report, session, stream, report.summary.get("unit_serial"),
+                              recorded_tolerances(session.metadata, path) is not None)
     if calibration is not None:
         cal, channels, units = calibration
         _fit(report, cal, channels, hand)

@@ -25,6 +25,15 @@ def perturbed(a_nominal: np.ndarray, sd: float, rng: np.random.Generator) -> np.
     return a + sd * rng.standard_normal(a.shape)
 
 
+GYRO_TOLERANCES = {"scale_factor": 0.05, "bias": 0.03, "axis_angle_deg": 3.0}
+"""The limits of the simulated MEMS gyro type (`gyro_array`: scale factors and axes within 1 % sd
+of nominal, biases of 0.005 rad/s sd), as a datasheet would state them: a bench profile's
+`[tolerances]` table (station.solve.verdict), which the demo and the twins' profiles judge by."""
+ACCELEROMETER_TOLERANCES = {"scale_factor": 0.05, "bias": 0.3, "axis_angle_deg": 3.0}
+"""The limits of the simulated MEMS accelerometer type (`accelerometer_triad`: scale factors and
+axes within 1 % sd of nominal, biases of 0.05 m/s^2 sd), as `GYRO_TOLERANCES`."""
+
+
 def gyro_array(rng: np.random.Generator, a_nominal=A_MODEL, fs: float = 200.0, **kwargs):
     """A MEMS-grade gyro unit on `a_nominal` (rad/s): 0.01 deg/s/sqrt(Hz) noise, biases of
     0.005 rad/s, 16.4 counts per deg/s, +-2000 deg/s range; keyword arguments override."""

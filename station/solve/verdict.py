@@ -62,6 +62,15 @@ class Tolerances:
         return all(getattr(self, f.name) is None for f in fields(self))
 
 
+def recorded_tolerances(metadata: dict, path):
+    """The `[tolerances]` of the bench profile a session was recorded with, or None."""
+    bench = metadata.get("bench")
+    tables = bench.get("tables") if isinstance(bench, dict) else None
+    if not isinstance(tables, dict) or "tolerances" not in tables:
+        return None
+    return Tolerances.from_table(tables["tolerances"], f"{path}: the bench profile's [tolerances]")
+
+
 def judge(deviation: float, sigma: float, limit: float) -> str:
     """"pass", "fail" or "marginal" for |x - x0| = deviation with 1-sigma `sigma`."""
     if deviation + MARGIN * sigma <= limit:

@@ -52,6 +52,7 @@ from station.protocols.planned import (
     two_axis_plan,
 )
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
+from station.sim.layouts import ACCELEROMETER_TOLERANCES, GYRO_TOLERANCES
 
 UNREAD_AFTER = 2.0
 """Wall seconds after which the served IMU counts its port as unread (the station ended or was
@@ -287,7 +288,8 @@ class BenchTwin:
                 f"[protocol]\npositions = {self.positions}\n"
                 + "".join(f"{k} = {getattr(margins, k)!r}\n" for k in MARGINS)
                 + _planning_section("fixture", self.cube)
-                + _planning_section("plan", self.plan))
+                + _planning_section("plan", self.plan)
+                + _tolerances_section(GYRO_TOLERANCES))
 
     def truth(self) -> dict:
         """The simulated unit and the mountings made (JSON-ready)."""
@@ -405,6 +407,12 @@ def _planning_section(name: str, spec, layout: bool = True) -> str:
     lines = [f"{k} = {json.dumps(v) if isinstance(v, bool | list) else _toml(v)}"
              for k, v in spec.table().items() if layout or k != "layout"]
     return f"\n[{name}]\n" + "\n".join(lines) + "\n"
+
+
+def _tolerances_section(table: dict) -> str:
+    """The [tolerances] section of a bench profile: the simulated unit type's limits, so that
+    `station record --solve` on a twin gives a PASS/FAIL verdict (station.solve.verdict)."""
+    return "\n[tolerances]\n" + "".join(f"{k} = {_toml(v)}\n" for k, v in table.items())
 
 
 class HandTwin:
@@ -528,7 +536,8 @@ class HandTwin:
                 f"\n{_clock_line(_clock_address(b.clock, self.clock_server))}\n\n[imu]\n"
                 + "\n".join(f"{k} = {_toml(v)}" for k, v in imu.items())
                 + "\n\n[protocol]\n" + "\n".join(lines) + "\n"
-                + _planning_section("fixture", self.cube, layout=False))
+                + _planning_section("fixture", self.cube, layout=False)
+                + _tolerances_section(ACCELEROMETER_TOLERANCES))
 
     def toggle(self, device: str) -> bool:
         """Unplug the IMU (`device` "imu", the only one) if it is there, else plug it back; True
