@@ -18,6 +18,7 @@ debug logging. Anything else is a bug and keeps its traceback.
 """
 
 import argparse
+import io
 import logging
 import os
 import sys
@@ -100,7 +101,60 @@ def build_parser(argv=()) -> Parser:
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         if command == name:
             importlib.import_module(f"station.commands.{module}").register(p)
+            parser.chosen = p
     return parser
+
+
+def parse(argv) -> argparse.Namespace:
+    """The arguments; words no parser knows are refused by the subcommand's parser, so the
+    message names it (`station apply: unrecognized arguments: ...`), not only `station`."""
+    parser = build_parser(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        getattr(parser, "chosen", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
+    return args
+
+
+class _WholeWrites(io.RawIOBase):
+    """Standard output whose writes are whole or raise. On a pipe whose reader has gone (`station
+    apply x.cal.json s.h5 | head`) `os.write` may first return a short count; Python's buffered
+    writer passes it on and the text layer drops the rest silently, so the command would end 0
+    with its output cut. Here the next write raises BrokenPipeError: exit code 141."""
+
+    def __init__(self, fd: int):
+        super().__init__()
+        self.fd = fd
+
+    def writable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def isatty(self) -> bool:
+        return os.isatty(self.fd)
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        done = 0
+        while done < len(view):
+            done += os.write(self.fd, view[done:])
+        return done
+
+
+def whole_stdout() -> None:
+    """Replace the process's standard output (when it is fd 1, not a test's capture) with one
+    whose writes are whole (`_WholeWrites`), same encoding and line buffering."""
+    out = sys.stdout
+    if out is not sys.__stdout__ or out is None:
+        return
+    try:
+        fd = out.fileno()
+    except (OSError, ValueError):
+        return
+    out.flush()
+    sys.stdout = io.TextIOWrapper(io.BufferedWriter(_WholeWrites(fd)), encoding=out.encoding,
+                                  errors=out.errors, line_buffering=out.line_buffering)
 
 
 def configure_logging(verbose: bool) -> None:
@@ -126,7 +180,8 @@ def main(argv=None) -> int:
     """Run one command; errors the station raises on purpose become one line and an exit code."""
     one_blas_thread()
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(argv).parse_args(argv)
+    whole_stdout()
+    args = parse(argv)
     configure_logging(args.verbose)
     previous = interrupts.install()  # kill = ^C, and never lost
     try:
@@ -136,6 +191,8 @@ def main(argv=None) -> int:
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit's flush
         return EXIT_BROKEN_PIPE
+    except FileExistsError as err:  # a file to create appeared meanwhile (another command)
+        return _fail(args, err, 2, f"{err.filename} {err.strerror}" if err.filename else "")
     except Exception as err:
         from drivers.errors import DeviceError
         from station.errors import StationError

@@ -18,6 +18,20 @@ def existing_file(path, what: str, suffixes=()) -> Path:
     return path
 
 
+def bench_profile(path) -> Path:
+    """The bench profile `path` names: a file, or a bundled example by name (`bench_serial`:
+    drivers/profiles/bench_serial.toml); MissingFileError listing the bundled ones otherwise."""
+    from drivers.profile import BUNDLED
+
+    path = Path(path)
+    bundled = BUNDLED / f"{path.name.removesuffix('.toml')}.toml"
+    if not path.is_file() and path.parent == Path(".") and path.name.startswith("bench_") \
+            and bundled.is_file():
+        return bundled
+    names = ", ".join(sorted(p.stem for p in BUNDLED.glob("bench_*.toml")))
+    return existing_file(path, f"a bench profile (.toml), or a bundled one: {names}")
+
+
 def existing_session(path, positions=None, check: bool = True) -> Path:
     """`path` as a Path if it names a session file that reads back intact: every object and
     checksummed chunk, once, in a child process whose CPU time is bounded

@@ -39,10 +39,10 @@ def register(p) -> None:
 
 def run(args) -> int:
     from station.acquire.bench import BenchProfile
-    from station.commands import existing_file
+    from station.commands import bench_profile
     from station.protocols.planned import rotary_plan, static_plan
 
-    bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
+    bench = BenchProfile.load(bench_profile(args.profile))
     if bench.plan is not None:
         return _two_axis(args, bench)
     if bench.fixture is None:
@@ -51,7 +51,8 @@ def run(args) -> int:
                              "section: add one (layout, noise_density; docs/protocols.md, "
                              "\"Two-axis sessions\") to plan its positions")
         raise InputError(f"{args.profile} describes no fixture: add a [fixture] section "
-                         "(docs/protocols.md, \"Fixture and plan\") to plan a session")
+                         "(docs/protocols.md, \"Fixture and plan\") to plan a session; the "
+                         "bundled bench_cube has one (`station plan --profile bench_cube`)")
     plan = (static_plan(bench.fixture, bench.settings) if bench.protocol == "static" else
             rotary_plan(bench.fixture, bench.settings, bench.positions))
     steps = plan.instructions()
@@ -60,6 +61,7 @@ def run(args) -> int:
             "profile": str(args.profile), "unit_serial": bench.unit_serial,
             "positions": len(steps), "expected_eps": plan.eps, "reading_sigma": plan.sigma,
             "expected_eps_by_count": _by_count(plan.expected),
+            "distinct_poses": len({s["words"] for s in steps}), "repeats": plan.repeats(),
             "poses": [{"words": s["words"], "up": [row[2] for row in s["orientation"]],
                        "orientation": s["orientation"]} for s in steps]}, indent=2))
         return 0
@@ -69,6 +71,8 @@ def run(args) -> int:
         print(f"{j + 1:3d}. {s['words']}")
         if args.pictures:
             print(s["picture"])
+    if plan.repeats():
+        print(plan.repeats())
     _print_by_count(plan.expected)
     return 0
 

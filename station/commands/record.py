@@ -107,12 +107,12 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
-    from station.commands import existing_file, new_file
+    from station.commands import bench_profile, new_file
     from station.commands.solve import unit_line, units_exit, verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
 
-    bench = BenchProfile.load(existing_file(args.profile, "a bench profile (.toml)"))
+    bench = BenchProfile.load(bench_profile(args.profile))
     if bench.chamber is not None:
         return _campaign(args, bench)
     kind = KINDS[bench.protocol]

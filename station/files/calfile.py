@@ -33,6 +33,7 @@ and what to do.
 """
 
 import dataclasses
+import errno
 import hashlib
 import json
 import os
@@ -427,14 +428,26 @@ class Calibration(measurement.Sensitivity):
         return _pretty(self.to_document()) + "\n"
 
     def save(self, path, overwrite: bool = False) -> None:
-        """Write the file (atomically: a temporary file renamed into place)."""
+        """Write the file atomically: a temporary file renamed into place, or without `overwrite`
+        linked into place, which fails when the name exists - also when another command wrote
+        it meanwhile (two commands with one --out): FileExistsError naming the file."""
         path = os.fspath(path)
+        exists = FileExistsError(errno.EEXIST, "exists; choose another name or allow "
+                                               "overwriting (--force)", path)
         if os.path.exists(path) and not overwrite:
-            raise FileExistsError(f"{path} exists; choose another name or allow overwriting")
+            raise exists
         tmp = f"{path}.tmp{os.getpid()}"
         with open(tmp, "w", encoding="utf-8") as f:
             f.write(self.dumps())
-        os.replace(tmp, path)
+        if overwrite:
+            os.replace(tmp, path)
+            return
+        try:
+            os.link(tmp, path)  # atomic and never replaces: the check above cannot be raced
+        except FileExistsError:
+            raise exists from None
+        finally:
+            os.unlink(tmp)
 
 
 def _joint_covariance(result, own_bias: bool, bias_sigma: np.ndarray) -> np.ndarray | None:

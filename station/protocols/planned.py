@@ -28,6 +28,7 @@ cone positions' angles and the count of spins. A spin's reading is that of a rat
 the same settings (the same rate, whole turns and static window), so it has the same noise.
 """
 
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,6 +127,18 @@ class FixturePlan:
         """What the technician is told before the session."""
         return (f"plan: {len(self.poses)} positions on the fixture, expected eps {self.eps:.3g} "
                 "(Eq. 19, sqrt of the Cramer-Rao bound)")
+
+    def repeats(self) -> str:
+        """Why poses repeat, in words ("" when none does)."""
+        counts = Counter(p.words for p in self.poses)
+        again = sorted(counts.values(), reverse=True)
+        if again[0] == 1:
+            return ""
+        times = ", ".join(f"{n} of them {k} times" for k, n in sorted(
+            Counter(c for c in again if c > 1).items(), reverse=True))
+        return (f"{len(self.poses)} positions in {len(counts)} distinct poses ({times}): of the "
+                "poses the fixture can set, repeating these lowers the expected eps more than "
+                "adding any other (a repeat averages its noise down; station/solve/plan.py)")
 
     def instructions(self) -> list:
         """{"words", "picture", "orientation"} per position, as the session metadata keeps them

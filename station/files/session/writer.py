@@ -10,6 +10,7 @@ reopens such a file and continues it. Results are written after the acquisition,
 """
 
 import dataclasses
+import errno
 import fcntl
 import hashlib
 import json
@@ -95,10 +96,15 @@ class SessionWriter:
                 raise TypeError(f"stream {name!r} needs a StreamSpec, got {type(spec).__name__}")
         if not streams:
             raise InputError("a session needs at least one sample stream")
+        exists = FileExistsError(errno.EEXIST, "exists; choose another name, or "
+                                               "SessionWriter.resume it to continue that session",
+                                 os.fspath(path))
         if os.path.exists(path) and not overwrite:
-            raise FileExistsError(f"{path} exists; choose another name, or SessionWriter.resume "
-                                  "it to continue that session")
-        f = h5py.File(path, "w", libver=LIBVER)
+            raise exists
+        try:  # "w-" creates exclusively: another command's file made meanwhile is kept
+            f = h5py.File(path, "w" if overwrite else "w-", libver=LIBVER)
+        except FileExistsError:
+            raise exists from None
         try:
             _write_layout(f, metadata, metadata_json, streams)
             f.swmr_mode = True
