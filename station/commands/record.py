@@ -122,6 +122,9 @@ def run(args) -> int:
                          "session without --live")
     out = args.out or Path("sessions") / f"{bench.unit_serial}-{time.strftime('%Y%m%d-%H%M%S')}.h5"
     new_file(out)
+    if args.solve and not bench.plate:  # refused now, not after the session was recorded
+        new_file(out.with_suffix(".cal.json"),
+                 "--out (--solve writes the session's calibration file beside it)")
     out.parent.mkdir(parents=True, exist_ok=True)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
     try:

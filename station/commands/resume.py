@@ -74,7 +74,9 @@ def run(args) -> int:
         else:
             first = _resume_with_devices(args.session, profile, args.json)
     except (KeyboardInterrupt, OperatorAbort, AcquisitionError, DeviceError) as err:
-        err.add_note(f"{table_words(err)}resume again to go on")
+        again = "" if args.profile is None else f" --profile {args.profile}"
+        err.add_note(f"{table_words(err)}{args.session} keeps the completed positions; go on "
+                     f"with `station resume {args.session}{again}`")
         raise
     with Session.open(args.session) as session:
         last = session.last_completed_position()

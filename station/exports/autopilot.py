@@ -126,6 +126,11 @@ def _model(cal, kind, format_name, with_scale, force, notes):
     model = per_axis(cal, format_name, with_scale)
     check_dropped(model, kind, format_name, force)
     notes.append(dropped_words(model, kind))
+    if cal.temperature is not None:  # ArduPilot's INS_TCAL / PX4's TC_* polynomials not written
+        notes.append(f"{format_name}: the {kind}'s temperature model is not written (the "
+                     "autopilot's own temperature calibration parameters are not exported); the "
+                     f"values are those at T_REF = {cal.temperature.t_ref:.2f} K: `station "
+                     "export --c-header` holds the whole model")
     return model
 
 

@@ -123,9 +123,26 @@ def words(v: dict) -> str:
     tested = len(v["parameters"])
     head = f"VERDICT: {v['overall']} ({tested} parameters tested"
     head += f"; not tested: {', '.join(v['untested'])})" if v["untested"] else ")"
-    lines = [head]
+    lines = [head, tested_words(v)]
     for p in v["parameters"]:
         if p["verdict"] != "pass":
             lines.append(f"  {p['verdict'].upper()}: {p['name']} {p['value']:.6g} +- "
                          f"{p['sigma']:.2g}, tolerance {p['nominal']:.6g} +- {p['limit']:.3g}")
     return "\n".join(lines)
+
+
+def tested_words(v: dict) -> str:
+    """What the verdict `v` tested against what, in one line: each kind of parameter with its
+    count and limit, and the rule."""
+    kinds = (("scale factor", lambda n: n.endswith(" scale factor"), "|k - 1| <= {:g}"),
+             ("bias", lambda n: n.endswith(" bias"), "|b| <= {:g}"),
+             ("axis angle", lambda n: n.startswith("angle "), "within {:g} deg of nominal"))
+    parts = []
+    for what, match, limit in kinds:
+        found = [p for p in v["parameters"] if match(p["name"])]
+        if found:
+            parts.append(f"{len(found)} {what}{'s' if len(found) > 1 else ''} "
+                         + limit.format(max(p["limit"] for p in found)))
+    return (f"  tested against the unit type's tolerances: {', '.join(parts) or 'none'}; each "
+            f"passes when its estimate +- {v['margin_sigma']:g} sigma is inside the limit, fails "
+            "when outside, else is marginal")
