@@ -77,6 +77,8 @@ class ReplaySettings:
     channels  : names of the stream's calibrated channels to calibrate, in this order (None: all
                 of them), e.g. one IMU's triad of an array recorded as one stream: the others'
                 readings are left out of the solve (`channel_rows`)
+    accelerometer : the stream whose still poses carry a gyro stream through its turns
+                (`solve_carried`; None: the session's one stream in m/s^2)
     """
 
     stream: str | None = None
@@ -91,6 +93,7 @@ class ReplaySettings:
     min_still: float | None = None
     faces: bool = False
     channels: tuple | None = None
+    accelerometer: str | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -215,13 +218,21 @@ def solve_carried(session, settings: ReplaySettings, nominal=None,
     from station.solve.gyro_carry import calibrate_carry
 
     found = [n for n, spec in session.specs.items() if ACCELEROMETER in spec.units]
+    if settings.accelerometer is not None and settings.accelerometer not in found:
+        raise CalibrationInputError(
+            f"{session.path}: --accelerometer {settings.accelerometer!r} is not a stream in "
+            f"{ACCELEROMETER}; the session's are {', '.join(found) or 'none'}.",
+            "Name one of them.")
+    if settings.accelerometer is not None:
+        found = [settings.accelerometer]
     if len(found) != 1:
         raise CalibrationInputError(
             f"{session.path}: the gyro stream {settings.stream!r} is calibrated by carrying "
             f"gravity, measured by one accelerometer, through its turns; the streams in "
-            f"{ACCELEROMETER} are {found or 'none'}.",
+            f"{ACCELEROMETER} are {', '.join(found) or 'none'}.",
+            "Name the one on the gyro's unit with --accelerometer NAME." if found else
             "Import the accelerometer (one stream with --unit NAME=m/s^2) with the gyro.")
-    acc_settings = dataclasses.replace(settings, stream=found[0])
+    acc_settings = dataclasses.replace(settings, stream=found[0], accelerometer=None)
     readings, acc = solve_recorded(session, acc_settings, nominal, command)
     gyro, z, intervals = KINDS[session.protocol].entry("carry")(session, settings.stream,
                                                                 found[0], readings)

@@ -87,6 +87,10 @@ def register(p) -> None:
     p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
                                     "stream in m/s^2; an import's gyro stream: from the turns "
                                     "between the still poses)")
+    p.add_argument("--accelerometer", metavar="NAME",
+                   help="with --stream GYRO: the accelerometer stream whose still poses carry "
+                        "the gyro (default: the session's one stream in m/s^2; several: the "
+                        "error names them)")
     p.add_argument("--nominal", type=Path,
                    help="CSV of the nominal layout (d rows x m columns): report a aligned to it "
                         "(physical frame) instead of the canonical frame of Eq. (19)")
@@ -133,7 +137,8 @@ def run(args) -> int:
     options = {"nominal": nominal, "magnitude": args.magnitude,
                "accept_suspect": args.accept_suspect, "tolerances": tolerances,
                "still": still_values(args), "store": args.store, "faces": bool(args.faces),
-               "repeatability": repeatability, "channels": args.channels}
+               "repeatability": repeatability, "channels": args.channels,
+               "accelerometer": args.accelerometer}
     if units:
         summaries = solve_units(args.session, units, outs, args.force, **options)
         print(json.dumps({"units": summaries}, indent=2) if args.json
@@ -219,7 +224,7 @@ def verdict_exit(verdict: dict | None) -> int:
 def solve_session(path, stream: str | None = None, nominal=None, magnitude: float | None = None,
                   accept_suspect: bool = False, tolerances=None, still: dict | None = None,
                   store: bool = False, faces: bool = False, repeatability=None,
-                  channels: tuple | None = None):
+                  channels: tuple | None = None, accelerometer: str | None = None):
     """The `station.files.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
@@ -235,7 +240,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     the model: pooled) whose between-session taus are added to every 1-sigma
     (`station.files.combined.with_repeatability`,
     before the verdict, which then judges the unit with them); channels: names of the
-    calibrated channels to calibrate (`station.replay.channel_rows`; None: all)."""
+    calibrated channels to calibrate (`station.replay.channel_rows`; None: all); accelerometer:
+    the stream whose poses carry a gyro stream (`station.replay.solve_carried`)."""
     from station.files.calfile import Calibration
     from station.files.session import Session
     from station.files.session.units import unit_serial
@@ -255,7 +261,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
 
     with Session.open(path) as session:
         settings = ReplaySettings(stream=stream, magnitude=magnitude, faces=faces,
-                                  channels=channels,
+                                  channels=channels, accelerometer=accelerometer,
                                   **(still or {}))
         stream = calibrated_stream(session, settings)
         settings = dataclasses.replace(settings, stream=stream)
@@ -274,6 +280,12 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else recorded_layout(session, settings, False)
         solved = None
+        if accelerometer is not None and not carried(session, stream):
+            from station.errors import InputError
+
+            raise InputError(f"--accelerometer names the stream that carries a gyro stream "
+                             f"through its turns; {stream!r} is not such a gyro stream (give "
+                             "--stream GYRO, or leave out --accelerometer)")
         if carried(session, stream):
             cal = carried_calibration(session, settings, nominal, names, info, file, store,
                                       accept_suspect)
