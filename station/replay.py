@@ -170,13 +170,17 @@ def recorded_noise(session, stream: str, channels) -> tuple[NoiseFigures | None,
 
 
 def noise_stream(session, cal=None) -> str:
-    """The stream `station noise` analyses when none is named: the one its calibration `cal` was
-    solved from when this session has a stream of that name, else the one `station solve`
-    calibrates (`calibrated_stream`: an import's one stream in m/s^2, a recording's "imu"), which
-    names the streams to choose from when there are several."""
-    stream = (cal.session or {}).get("stream") if cal is not None else None
-    if stream in session.specs:
-        return stream
+    """The stream `station noise` analyses when none is named: with a calibration `cal` (--store)
+    the one stream holding its sensors (by name, else enough channels in its unit); otherwise, or
+    when no single stream does, the one `station solve` calibrates (`calibrated_stream`: an
+    import's one stream in m/s^2, a recording's "imu"), which names the streams to choose from
+    when there are several."""
+    if cal is not None:
+        for holds in (lambda spec: set(cal.sensors) <= set(spec.channels),
+                      lambda spec: list(spec.units).count(cal.units[0]) == cal.m):
+            found = [name for name, spec in session.specs.items() if holds(spec)]
+            if len(found) == 1:
+                return found[0]
     return calibrated_stream(session, ReplaySettings())
 
 

@@ -174,20 +174,20 @@ def _print(s: dict) -> None:
         f"{s['record_seconds']:.1f} s ({s['real_time_factor']:.0f}x real time, "
         f"{'lockstep' if s['speed'] is None else 'a real-time clock'}), total "
         f"{s['wall_seconds']:.1f} s wall")
-    console.print(words(s["verdict"]), markup=False)
-    console.print(LEGEND, markup=False)
+    console.print(words(s["verdict"]), markup=False, soft_wrap=True)
+    console.print(LEGEND, markup=False, soft_wrap=True)
 
 
 LEGEND = """what the figures mean:
-  1 sigma          the estimate's standard uncertainty (from the Fisher information of the fit)
-  true             the simulated unit's value, known here because the bench is a simulation
-  eps              the calibration's error against that truth: the distance between the estimated
-                   and the true sensitivity matrices after the best rotation (Rupniewski Eq. 19)
-  sqrt(trace CRLB) the eps an ideal (efficient) solver would get on average at this noise: the
-                   Cramer-Rao bound; ratio = eps / that bound, near 1 for an efficient solver
-  p                the chance that an efficient solver's eps is at least this large; a small p
-                   (below 0.001) would say the solver or the data fall short of the bound
-  chi2/dof         the fit's residuals against the readings' noise: near 1 when the model
-                   explains the data (docs/quality.md)
-  VERDICT          the unit against its type's tolerances (docs/quality.md, "The verdict")"""
+  1 sigma     the estimate's standard uncertainty (Fisher information of the fit)
+  true        the simulated unit's value: known, because the bench is simulated
+  eps         the error against that truth: the distance between the estimated and
+              the true sensitivity matrices after the best rotation (Eq. 19)
+  sqrt(trace CRLB)  the eps an ideal (efficient) solver gets on average at this
+              noise, the Cramer-Rao bound; ratio: eps / bound, near 1 when efficient
+  p           the chance that an efficient solver's eps is at least this large;
+              a p below 0.001 would say the solver or the data fall short
+  chi2/dof    the residuals against the readings' noise: near 1 when the model
+              explains the data (docs/quality.md)
+  VERDICT     the unit against its type's tolerances (docs/quality.md)"""
 """The demo's legend: every figure it prints, in plain words, once."""

@@ -112,7 +112,8 @@ def _same_unit(cal, session, stream: str, args) -> None:
     if serial and cal.unit_serial and serial != cal.unit_serial:
         raise InputError(f"{args.session} records unit {serial!r} and {args.store} is the "
                          f"calibration of unit {cal.unit_serial!r}; give a rest recording of "
-                         "the same unit")
+                         "the same unit (an import names its unit with `station import ... "
+                         "--unit-serial SERIAL`)")
 
 
 def _store(cal, found, path, session_path) -> dict:

@@ -62,6 +62,11 @@ HEAD = ("channel", *(WORDS[t] for t in TERMS))
 
 
 def allan_png(noise: SessionNoise) -> bytes:
+    """The Allan deviation figure as PNG bytes."""
+    return html.png(allan_figure(noise))
+
+
+def allan_figure(noise: SessionNoise) -> Figure:
     """The Allan deviation figure (module docstring): one panel per unit of the stream."""
     units = sorted(set(noise.units))
     fig = Figure(figsize=(6 * len(units), 4.5))
@@ -86,7 +91,7 @@ def allan_png(noise: SessionNoise) -> bytes:
         ax.set_ylabel(f"Allan deviation ({unit})")
         ax.grid(True, which="both", lw=0.3)
         ax.legend(fontsize=7)
-    return html.png(fig)
+    return fig
 
 
 def _slopes(ax, tau, theta, resolved, unit: str) -> None:

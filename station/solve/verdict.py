@@ -134,14 +134,16 @@ def words(v: dict) -> str:
 def tested_words(v: dict) -> str:
     """What the verdict `v` tested against what, in one line: each kind of parameter with its
     count and limit, and the rule."""
-    kinds = (("scale factor", lambda n: n.endswith(" scale factor"), "|k - 1| <= {:g}"),
-             ("bias", lambda n: n.endswith(" bias"), "|b| <= {:g}"),
-             ("axis angle", lambda n: n.startswith("angle "), "within {:g} deg of nominal"))
+    kinds = (("scale factor", "scale factors", lambda n: n.endswith(" scale factor"),
+              "|k - 1| <= {:g}"),
+             ("bias", "biases", lambda n: n.endswith(" bias"), "|b| <= {:g}"),
+             ("axis angle", "axis angles", lambda n: n.startswith("angle "),
+              "within {:g} deg of nominal"))
     parts = []
-    for what, match, limit in kinds:
+    for one, many, match, limit in kinds:
         found = [p for p in v["parameters"] if match(p["name"])]
         if found:
-            parts.append(f"{len(found)} {what}{'s' if len(found) > 1 else ''} "
+            parts.append(f"{len(found)} {one if len(found) == 1 else many} "
                          + limit.format(max(p["limit"] for p in found)))
     return (f"  tested against the unit type's tolerances: {', '.join(parts) or 'none'}; each "
             f"passes when its estimate +- {v['margin_sigma']:g} sigma is inside the limit, fails "
