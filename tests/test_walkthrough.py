@@ -1,7 +1,7 @@
 """The walk-through of issue 36 (bench/walkthrough.py): from a scratch directory, by the command
-line alone, demo, record on the twin with a verdict, the report's verdict rendered by headless Chromium,
-noise figures stored, an export to every format and imucal's loader on the imucal file - every
-command's output free of tracebacks, warnings and nan."""
+line alone, demo, record on the twin with a verdict, the report's verdict rendered by headless
+Chromium, noise figures stored, an export to every format and imucal's loader on the imucal file -
+every command's output free of tracebacks, warnings and nan."""
 
 import importlib.util
 from pathlib import Path
