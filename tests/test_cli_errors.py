@@ -141,8 +141,7 @@ def test_notes_added_on_the_way_out_are_printed_on_the_same_line(capsys, monkeyp
     parser = cli.build_parser(["devices"])
     args = parser.parse_args(["devices"])
     monkeypatch.setattr(args, "run", interrupted)
-    monkeypatch.setattr(cli, "build_parser", lambda argv: type(
-        "P", (), {"parse_args": staticmethod(lambda argv: args)}))
+    monkeypatch.setattr(cli, "parse", lambda argv: args)
     assert cli.main(["devices"]) == 130
     assert capsys.readouterr().err == "station devices: interrupted; the table was stopped\n"
 

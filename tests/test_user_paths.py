@@ -193,7 +193,9 @@ def test_the_allan_plot_draws_only_the_terms_its_table_resolves(demo):
     assert not found.fit.resolved[1:].any()  # 8 static windows of 10 s: N only
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        labels = legend_labels(noise_report.allan_figure(found))
+        figure = noise_report.allan_figure(found)
+        labels = legend_labels(figure)
+        assert not any(ax.texts for ax in figure.axes)  # named in the legend: nothing overprinted
         # a term fitted below zero: its model is not drawn where negative, and without a warning
         theta = found.fit.theta.copy()
         theta[:, 1] = -abs(theta[:, 0]) * 1e3
