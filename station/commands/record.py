@@ -147,7 +147,8 @@ def run(args) -> int:
             print("\n".join(unit_line(s) for s in summary["calibrations"]))
         elif args.solve:
             print(f"calibration: {summary['calibration']['calibration']} (chi2/dof "
-                  f"{summary['calibration']['chi2_per_dof']:.2f})")
+                  f"{summary['calibration']['chi2_per_dof']:.2f}: the residuals against the "
+                  "readings' noise, near 1 when the model explains the data)")
             if summary["calibration"]["verdict"]:
                 print(words(summary["calibration"]["verdict"]))
     if args.solve and bench.plate:

@@ -470,7 +470,18 @@ def _text(s: dict) -> str:
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
     return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *repeatability_lines(s),
-                      *noise_lines(s), *suspect, f"written to {s['calibration']}", *judged])
+                      *noise_lines(s), *suspect, f"written to {s['calibration']}", *judged,
+                      legend(white)])
+
+
+def legend(white: bool) -> str:
+    """The figures of `station solve`'s table in plain words, once (`white`: the table has the
+    (white) columns)."""
+    return ("legend: scale factor |a_i| and bias b_i of each sensor (z = a^T v + b, "
+            "docs/conventions.md); 1 sigma: its standard uncertainty"
+            + ("; (white): the same from the readings' white noise alone" if white else "")
+            + "; chi2/dof: the residuals against the readings' noise, near 1 when the model "
+            "explains the data (docs/quality.md)")
 
 
 def repeatability_lines(s: dict) -> list:
