@@ -155,6 +155,7 @@ def test_noise_store_refuses_another_units_rest(rest, tmp_path):
 def test_noise_picks_the_stream_solve_calibrates(rest):
     done = station("noise", rest, "--json")
     assert json.loads(done.stdout)["stream"] == "acc"  # the import's one stream in m/s^2
+    assert "legend: N, the white noise's density" in station("noise", rest).stdout
 
 
 def test_a_gyro_carried_through_turns_names_its_accelerometer_among_several(tmp_path):
@@ -237,7 +238,9 @@ def test_plan_takes_a_bundled_profile_by_name_and_says_why_poses_repeat(capsys):
 def test_apply_into_a_closed_pipe_exits_141(demo, tmp_path):
     path, _ = demo
     cal = tmp_path / "demo.cal.json"
-    station("solve", path, "--out", cal)
+    solved = station("solve", path, "--out", cal)  # its figures explained once, at the end
+    assert solved.stdout.splitlines()[-1].startswith("legend: scale factor |a_i| and bias b_i")
+    assert "; chi2/dof: the residuals against the readings' noise" in solved.stdout
     apply = subprocess.Popen([*STATION, "apply", str(cal), str(path)], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
     assert apply.stdout.readline().startswith("time [s],")

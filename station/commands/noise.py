@@ -90,6 +90,9 @@ def run(args) -> int:
     if not found.fit.resolved.all():
         print("  not resolved: the static data are too short (or the term too small) to tell it "
               "from zero at 2 sigma; record a longer rest")
+    print("  legend: N, the white noise's density (angle / velocity random walk); B, the bias "
+          "instability (the Allan deviation's floor); K, the rate / acceleration random walk; "
+          "+- its 1 sigma (docs/noise.md)")
     if args.plot is not None:
         print(f"plot written to {args.plot}")
     if stored is not None:
