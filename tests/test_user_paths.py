@@ -9,8 +9,10 @@ after it, and the README's test command naming failing tests."""
 
 import dataclasses
 import json
+import signal
 import subprocess
 import sys
+import time
 import tomllib
 import warnings
 from pathlib import Path
@@ -275,3 +277,36 @@ def test_the_docs_say_what_the_autopilot_files_do_with_a_temperature_model():
     cli_md = (ROOT / "docs" / "cli.md").read_text()
     assert "waits for the temperature issue" not in cli_md
     assert "ArduPilot's INS_TCAL" in cli_md
+
+
+def events(path: Path) -> list:
+    """The kinds of the events a running recording has flushed so far ([] before it can be
+    read)."""
+    try:
+        with Session.open(path) as session:
+            return [e.kind for e in session.events()]
+    except Exception:  # noqa: BLE001 - the writer may not have created the file yet
+        return []
+
+
+def interrupt_when(process, path: Path, ready) -> subprocess.CompletedProcess:
+    """Ctrl-C (SIGINT) to `process` once the events of `path` satisfy `ready`; what it printed."""
+    while process.poll() is None and not ready(events(path)):
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=300)
+    return subprocess.CompletedProcess(process.args, process.returncode, out, err)
+
+
+def test_an_interrupted_resume_names_the_command_that_goes_on(tmp_path):
+    path = tmp_path / "s.h5"
+    demo = subprocess.Popen([*STATION, "demo", "--out", str(path)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    stopped = interrupt_when(demo, path, lambda kinds: kinds.count("position_done") >= 2)
+    assert stopped.returncode == 130, stopped.stderr
+    resume = subprocess.Popen([*STATION, "resume", str(path)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    stopped = interrupt_when(resume, path, lambda kinds: "session_resumed" in kinds)
+    assert stopped.returncode == 130, stopped.stderr
+    assert stopped.stderr.strip().endswith(f"{path} keeps the completed positions; go on with "
+                                           f"`station resume {path}`"), stopped.stderr
