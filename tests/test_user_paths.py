@@ -310,3 +310,16 @@ def test_an_interrupted_resume_names_the_command_that_goes_on(tmp_path):
     assert stopped.returncode == 130, stopped.stderr
     assert stopped.stderr.strip().endswith(f"{path} keeps the completed positions; go on with "
                                            f"`station resume {path}`"), stopped.stderr
+
+
+def test_two_commands_given_one_out_keep_the_first_file_and_refuse_in_one_line(demo, tmp_path):
+    path, _ = demo
+    out = tmp_path / "same.cal.json"
+    both = [subprocess.Popen([*STATION, "solve", str(path), "--out", str(out)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            for _ in range(2)]
+    done = sorted((p.wait(timeout=600), p.stderr.read()) for p in both)
+    assert [code for code, _ in done] == [0, 2], done
+    assert "Traceback" not in done[1][1]
+    assert done[1][1].startswith(f"station solve: {out} exists"), done[1][1]
+    load(out)  # the first file, whole
