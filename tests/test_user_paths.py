@@ -321,3 +321,17 @@ def test_two_commands_given_one_out_keep_the_first_file_and_refuse_in_one_line(d
     assert "Traceback" not in done[1][1]
     assert done[1][1].startswith(f"station solve: {out} exists"), done[1][1]
     load(out)  # the first file, whole
+
+
+def test_imucals_gyro_solved_from_the_turns_prints_no_nan(tmp_path):
+    data = ROOT.parent / "shared" / "data" / "real" / "imucal-ferraris"
+    if not data.is_dir():
+        pytest.skip("../shared/data/real is absent")
+    h5 = tmp_path / "fer.h5"
+    station("import", "csv", h5, data / "example_ferraris_session.csv", "--no-time", "--fs",
+            "102.4", "--stream", "acc=acc_x,acc_y,acc_z", "--unit", "acc=m/s^2", "--stream",
+            "gyro=gyr_x,gyr_y,gyr_z", "--unit", "gyro=deg/s")
+    done = station("solve", h5, "--stream", "gyro", "--magnitude", "9.81", "--faces", "--out",
+                   tmp_path / "gyro.cal.json")
+    assert "nan" not in done.stdout and "(white)" not in done.stdout
+    assert "gyro1" in done.stdout
