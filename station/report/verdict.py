@@ -21,8 +21,10 @@ def calibration_files(session_path, serial: str | None) -> list:
     """Where `station solve` writes the calibration of `session_path`: SESSION.cal.json, or for a
     unit of several on one table SESSION.<serial>.cal.json."""
     path = Path(session_path)
-    return [path.with_suffix(".cal.json"), *([path.with_suffix(f".{serial}.cal.json")]
-                                              if serial else [])]
+    name = path.name.removesuffix(path.suffix)
+    unit = f"{name}.{serial}.cal.json"  # the serial is the file's text: a name, or nothing
+    return [path.with_suffix(".cal.json"),
+            *([path.with_name(unit)] if serial and Path(unit).name == unit else [])]
 
 
 def add_to_report(report, session, stream: str | None, serial: str | None,
@@ -60,7 +62,10 @@ def add_to_report(report, session, stream: str | None, serial: str | None,
 def _solved_from(path: Path, session_path, stream: str | None):
     """The calibration file `path` if it exists, loads and was solved from `session_path`
     (and `stream`, unless None); else None. InputError: the file is there and unreadable."""
-    if not path.is_file():
+    try:
+        if not path.is_file():
+            return None
+    except (OSError, ValueError):  # a name the file system cannot hold (the serial is data)
         return None
     cal = load(path)
     source = cal.session or {}
