@@ -96,13 +96,18 @@ def run(args) -> int:
     if args.plot is not None:
         print(f"plot written to {args.plot}")
     if stored is not None:
-        missing = [term for term in ("bias_instability", "random_walk") if not stored[term]]
-        print(f"noise figures stored in {args.store} (white noise"
-              + "".join(f", {t.replace('_', ' ')}" for t in ("bias_instability", "random_walk")
-                        if stored[t])
-              + (f"; {' and '.join(t.replace('_', ' ') for t in missing)} not resolved for "
-                 "every sensor, so left out: record a longer rest" if missing else "") + ")")
+        print(_stored_words(stored))
     return 0
+
+
+def _stored_words(stored: dict) -> str:
+    """What `_store` wrote, in one line: the terms stored and those left out."""
+    terms = {"bias_instability": "bias instability", "random_walk": "random walk"}
+    held = ["white noise", *(words for term, words in terms.items() if stored[term])]
+    missing = [words for term, words in terms.items() if not stored[term]]
+    left = (f"; {' and '.join(missing)} not resolved for every sensor, so left out: record a "
+            "longer rest") if missing else ""
+    return f"noise figures stored in {stored['file']} ({', '.join(held)}{left})"
 
 
 def _same_unit(cal, session, stream: str, args) -> None:
