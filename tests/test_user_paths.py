@@ -335,3 +335,17 @@ def test_imucals_gyro_solved_from_the_turns_prints_no_nan(tmp_path):
                    tmp_path / "gyro.cal.json")
     assert "nan" not in done.stdout and "(white)" not in done.stdout
     assert "gyro1" in done.stdout
+
+
+def test_an_autopilot_export_says_it_leaves_the_temperature_model_out(tmp_path):
+    from test_temperature_file import model
+
+    acc = tmp_path / "acc.cal.json"
+    gyro = tmp_path / "gyro.cal.json"
+    acc_cal().save(acc)
+    covariance = np.diag(np.r_[np.full(9, 1e-4), np.full(3, 1e-5)] ** 2)
+    gyro_cal(covariance=covariance).with_temperature(model()).save(gyro)
+    done = station("export", acc, "--gyro", gyro, "--to", "ardupilot", "--json")
+    notes = " ".join(json.loads(done.stdout)["notes"])
+    assert "ArduPilot: the gyroscope's temperature model is not written" in notes
+    assert "T_REF = 300.00 K" in notes and "--c-header` holds the whole model" in notes
