@@ -1,7 +1,7 @@
 """The interruption harness (tests/test_interruptions.py, bench/interruptions.py): `station twin` in
-one process, `station record` in another, a signal sent to the recorder the moment the session
-file holds a chosen protocol event, then `station resume` with the same bench profile, as a
-technician would after a Ctrl-C, a `kill` or a crash.
+one process, `station record` in another (sharing the twin's lockstep clock), a signal sent to
+the recorder the moment the session file holds a chosen protocol event, then `station resume`
+with the same bench profile, as a technician would after a Ctrl-C, a `kill` or a crash.
 
 A device can be lost instead (`DEVICES`): the twin is told to unplug the IMU (its pty is closed)
 or to silence the table (its Modbus server stops answering) at the event. The technician at
@@ -30,7 +30,9 @@ from station.reduce.timeline import sample_times, segment_breaks
 STATION = [sys.executable, "-m", "station"]
 POSITIONS = 6
 SEED = 3
-SPEED = 40.0
+WAIT = 1800.0
+"""Wall seconds a step may take before the harness calls it hung: a hang guard only (the twin runs
+in lockstep time, so a busy host makes the session slower, never different)."""
 STATES = ("position_start", "static_start", "static_end", "rotate_start", "rotate_end",
           "position_done")
 """Protocol events after which the recorder is interrupted: mounting, static window, spin-up,
@@ -48,8 +50,8 @@ def _twin(workdir: Path):
     """A running `station twin` process and its bench profile."""
     profile = workdir / "twin.toml"
     twin = subprocess.Popen(
-        [*STATION, "twin", "--speed", str(SPEED), "--positions", str(POSITIONS), "--seed",
-         str(SEED), "--profile-out", str(profile), "--lifetime", "600", "--json"],
+        [*STATION, "twin", "--positions", str(POSITIONS), "--seed",
+         str(SEED), "--profile-out", str(profile), "--lifetime", str(WAIT), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     json.loads(twin.stdout.readline())  # the twin is serving
     return twin, profile
@@ -111,7 +113,7 @@ def record(workdir: Path, interrupt=None) -> dict:
         out = {"interrupt": list(interrupt) if interrupt else None}
         if interrupt is not None:
             name, kind, position = interrupt
-            deadline = time.monotonic() + 120
+            deadline = time.monotonic() + WAIT
             while (kind, position) not in _events(session):
                 if rec.poll() is not None or time.monotonic() > deadline:
                     raise RuntimeError(f"record ended before {kind} of position {position + 1}: "
@@ -119,7 +121,7 @@ def record(workdir: Path, interrupt=None) -> dict:
                 time.sleep(0.01)
             target = twin if name in DEVICES else rec
             target.send_signal(getattr(signal, DEVICES.get(name, name)))
-        _, err = rec.communicate(timeout=120)
+        _, err = rec.communicate(timeout=WAIT)
         out["record_exit"], out["record_stderr"] = rec.returncode, err.strip()[-300:]
         out["record"] = _kinds(session)
         if interrupt is not None and interrupt[0] in DEVICES:
@@ -128,7 +130,7 @@ def record(workdir: Path, interrupt=None) -> dict:
         if interrupt is not None:
             res = subprocess.run([*STATION, "resume", str(session), "--json"],
                                  input="\n" * POSITIONS, capture_output=True, text=True,
-                                 timeout=300)
+                                 timeout=WAIT)
             out["resume_exit"], out["resume_stderr"] = res.returncode, res.stderr.strip()[-300:]
     finally:
         _stop(twin)
