@@ -23,8 +23,10 @@ from station.files.session import Session, SessionWriter, StreamSpec
 
 SERIAL = SerialImuProfile.load("imu12_serial")
 CAN = CanProfile.load("imu12_can")
-CAN_200HZ = dataclasses.replace(CAN, imu=dataclasses.replace(CAN.imu, rate_hz=200.0))
-"""200 Hz: an outage of up to 1.2 s stays within the 8-bit counter's unwrapping."""
+CAN_20HZ = dataclasses.replace(CAN, imu=dataclasses.replace(CAN.imu, rate_hz=20.0))
+"""20 Hz: the 8-bit counter tells an outage's length for outages up to 128 samples (6.4 s), the
+margin of this real-time reconnect test on a busy host (at 200 Hz it was 0.64 s, which a loaded
+host's reconnection outlived: the step was then taken for a restart, as it must be)."""
 
 
 def serial_counts(times):
@@ -110,21 +112,21 @@ def test_recorder_reconnects_a_lost_can_adapter(tmp_path):
         return can_pattern(k)
 
     clock, log = WallClock(), tmp_path / "raw.log"
-    twin = CanImuTwin(name, CAN_200HZ, source, clock=clock)
-    with open_imu("can", {"interface": "virtual", "channel": name}, CAN_200HZ, clock,
+    twin = CanImuTwin(name, CAN_20HZ, source, clock=clock)
+    with open_imu("can", {"interface": "virtual", "channel": name}, CAN_20HZ, clock,
                   log_path=log) as imu, twin:
         lost_bus = imu.bus
-        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, CAN_200HZ, clock,
-                                                    lost_bus.shutdown, lambda: None, enough=100)
+        error, data, resume = record_through_a_loss(tmp_path / "s.h5", imu, CAN_20HZ, clock,
+                                                    lost_bus.shutdown, lambda: None, enough=40)
         assert imu.bus is not lost_bus and imu.connections == 2
     assert isinstance(error, CanBusError) and name in error.channel
     assert imu.stats.errors == 1 and "closed bus" in imu.stats.last_error
     assert np.all(np.diff(data.seq) > 0) and np.array_equal(data.counts, can_pattern(data.seq))
     before, after = data.seq[data.host_time < resume], data.seq[data.host_time > resume]
-    assert len(before) >= 100 and len(after) >= 100
+    assert len(before) >= 40 and len(after) >= 40
     assert np.all(np.diff(before) == 1) and np.all(np.diff(after) == 1)  # lost only in the outage
     assert imu.stats.dropped == after[0] - before[-1] - 1
-    replayed, _ = replay(log, CAN_200HZ)  # one raw log across the reconnection
+    replayed, _ = replay(log, CAN_20HZ)  # one raw log across the reconnection
     assert np.array_equal(replayed.seq[:len(data.seq)], data.seq)
 
 
