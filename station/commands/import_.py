@@ -18,6 +18,7 @@ EXAMPLES = (
     "  station import npz rotary.h5 recording.npz\n"
     "  station import binary exp_1.h5 exp_1.bin --profile mimu4444\n"
     "  station import ulog px4.h5 log_12_2026-11-25.ulg --instance 1\n"
+    "  station import ulog px4.h5 log_12_2026-11-25.ulg --topic sensor_combined\n"
     "  station import dataflash ardupilot.h5 00000042.BIN\n"
     "  station import dataflash raw.h5 00000042.BIN --batch   # the batch sampler's samples\n"
     "  station import csv euroc.h5 mav0/imu0/data.csv       # a Kalibr/EuRoC IMU CSV, recognised"
@@ -70,6 +71,9 @@ def register(p) -> None:
     p.add_argument("--instance", type=int, metavar="N",
                    help="ulog/dataflash: the IMU instance (ULog multi_id, DataFlash IMU I or "
                         "IMU2/IMU3; default the first)")
+    p.add_argument("--topic", metavar="NAME",
+                   help="ulog: the IMU topic family (sensor_accel or sensor_gyro, "
+                        "sensor_combined, vehicle_imu; default the fastest logged)")
     p.add_argument("--batch", action="store_true",
                    help="dataflash: the batch sampler's raw-rate samples (ISBH/ISBD) instead of "
                         "the IMU messages")
@@ -110,6 +114,9 @@ def _import(args, existing_file, advance) -> Path:
     if args.instance is not None and args.format not in ("ulog", "dataflash"):
         raise InputError(f"--instance is for flight-controller logs (ulog, dataflash), not "
                          f"`import {args.format}`; leave it out")
+    if args.topic is not None and args.format != "ulog":
+        raise InputError(f"--topic is for PX4 ULog files, not `import {args.format}`; leave it "
+                         "out")
     if args.batch and args.format != "dataflash":
         raise InputError(f"--batch is for DataFlash logs, not `import {args.format}`; leave it "
                          "out")
@@ -164,7 +171,7 @@ def _flight_log(args, existing_file) -> Path:
     if given:
         raise InputError(f"`import {args.format}` takes the IMU's streams, units and time stamps "
                          f"from the log; leave out {', '.join(given)} (--instance N chooses the "
-                         "IMU)")
+                         "IMU, --topic the ULog topic)")
     if args.instance is not None and args.instance < 0:
         raise InputError(f"--instance {args.instance} is negative; give the instance number "
                          "(0 is the first)")
@@ -172,7 +179,8 @@ def _flight_log(args, existing_file) -> Path:
         from station.imports.ulog import import_ulog
 
         return import_ulog(args.out, existing_file(args.source, "a ULog file (.ulg)"),
-                           instance=args.instance, unit_serial=args.unit_serial)
+                           instance=args.instance, topic=args.topic,
+                           unit_serial=args.unit_serial)
     from station.imports.dataflash import import_dataflash
 
     return import_dataflash(args.out, existing_file(args.source, "a DataFlash log (.bin)"),
