@@ -144,3 +144,23 @@ def test_exports_refuse_counts_naming_the_scale(tables, tmp_path, capsys):
     code, _, err = station(capsys, "export", tmp_path / "gyro.cal.json", "--to", "ros")
     assert code == 2 and "counts:rad/s@SCALE" in err
     assert not list(tmp_path.glob("*.yaml")) + list(tmp_path.glob("*.h"))
+
+
+def test_a_counts_calibration_file_round_trips_and_its_stimulus_is_checked():
+    from test_calfile import edited, make
+
+    from station.errors import CalibrationFileError
+    from station.files.calfile import loads
+
+    cal = make(units=("counts",) * 4, stimulus="rad/s")
+    doc = cal.to_document()
+    assert doc["units"]["stimulus"] == "rad/s" and doc["units"]["sensitivity"] == \
+        "counts per rad/s"
+    back = loads(cal.dumps())
+    assert back.units == ("counts",) * 4 and back.quantity == "rad/s"
+    assert loads(make().dumps()).stimulus is None  # SI readings: the stimulus is theirs
+    for stimulus in ("counts", None, "furlong"):
+        with pytest.raises(CalibrationFileError, match="units.stimulus"):
+            loads(edited(cal, lambda d, s=stimulus: d["units"].update(stimulus=s), True))
+    with pytest.raises(CalibrationFileError, match="must be one SI unit"):
+        loads(edited(cal, lambda d: d["units"].update(readings=["counts", "rad/s"] * 2), True))

@@ -700,8 +700,8 @@ def _from_document(doc, where: str) -> Calibration:
     readings_units = _strings(units, "readings", fail)
     bad = sorted(set(readings_units) - {*SI_UNITS, COUNTS})
     if bad or len(readings_units) != m or len(set(readings_units)) != 1:
-        raise fail(f"units.readings {readings_units} must be one unit ({', '.join(SI_UNITS)} or "
-                   f"{COUNTS}) for all {m} sensors")
+        raise fail(f"units.readings {readings_units} must be one SI unit ({', '.join(SI_UNITS)}) "
+                   f"or {COUNTS} for all {m} sensors")
     stimulus = units.get("stimulus")
     if readings_units[0] == COUNTS and stimulus not in SI_UNITS:
         raise fail(f"units.stimulus {stimulus!r} of readings in {COUNTS} must be one of "
