@@ -182,6 +182,8 @@ def test_the_fastest_imu_topics_are_chosen_and_the_candidates_said(hand, tmp_pat
     assert code == 0
     assert json.loads(out)["streams"]["gyro"]["samples"] == len(slow)
     assert samples(tmp_path / "s.h5")[1]["origin"]["gyro"]["topic"] == "sensor_gyro"
+    code, _, err = station(capsys, "solve", tmp_path / "s.h5")  # 1 Hz: no still detection
+    assert code == 2 and "samples at 1 Hz" in err and "--topic sensor_combined" in err
 
     code, _, err = station(capsys, "import", "ulog", tmp_path / "v.h5", log, "--topic",
                            "vehicle_imu")
