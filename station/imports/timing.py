@@ -63,10 +63,13 @@ def timeline(stamps, counter=None, fs: float | None = None, what: str = "") -> T
     rows = np.arange(len(t))
     if fs is not None:
         start = float(np.mean(t - rows / fs))
-        span = float(t[-1] - t[0])
+        span, rows_span = float(t[-1] - t[0]), (len(t) - 1) / fs
+        lost = int(round((span - rows_span) * fs))
         return Timeline(start + rows / fs, None, float(fs), [
             f"{said}; the rows placed at the stated {fs:g} Hz instead (the host clock spans "
-            f"{span:.3f} s, the rows {(len(t) - 1) / fs:.3f} s)"])
+            f"{span:.3f} s, the rows {rows_span:.3f} s"
+            + (f": about {lost} samples lost, or a wrong --fs; the device's counter (--index) "
+               "would place them" if abs(lost) >= 1 else "") + ")"])
     if backward:
         raise CalibrationInputError(
             f"{said}.", "Give the device's sample counter (--index COLUMN) or its rate "
