@@ -89,6 +89,19 @@ def test_host_stamps_with_a_counter_are_placed_on_the_device_clock(recording, tm
     # float64 seconds since 1970 step by 2.4e-7 s: two of those per difference
     np.testing.assert_allclose(np.diff(t), np.diff(seq) / rate, rtol=0, atol=4.8e-7)
 
+    write_csv(csv, host, acc, seq % 256)  # a uint8 counter: wraps 23 times
+    code, report, err = imported(capsys, tmp_path / "w.h5", csv, "--index", "seq")
+    assert code == 0, err
+    assert any("the counter wraps at 256 (23 times): unwrapped" in n for n in report["notes"])
+    np.testing.assert_array_equal(stream(tmp_path / "w.h5")[1], seq)
+
+    restart = seq.copy()
+    restart[3000:] -= restart[3000]  # the device restarted: not a wrap
+    write_csv(csv, host, acc, restart)
+    code, _, err = imported(capsys, tmp_path / "x.h5", csv, "--index", "seq")
+    assert code == 2 and "the counter does not increase after sample 3000" in err
+
+    write_csv(csv, host, acc, seq)
     code, report, _ = imported(capsys, tmp_path / "f.h5", csv, "--index", "seq", "--fs", 100)
     assert code == 0 and report["streams"]["acc"]["rate_hz"] == RATE
     assert "at 100 Hz (stated)" in report["notes"][-1]

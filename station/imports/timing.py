@@ -9,7 +9,8 @@ is not the device's rate (bunched lines: many short steps, a few long ones): eve
 per-sqrt(Hz) noise figure would follow the wrong rate.
 
 `timeline` tells them apart by the spread of the steps (JITTER, or any step that is not
-forward) and then prefers, in order: the device's sample counter (`--index`; the rate stated,
+forward) and then prefers, in order: the device's sample counter (`--index`, unwrapped when it
+wraps at 2^8, 2^16 or 2^32; the rate stated,
 `--fs`, or fitted to the host clock by least squares over the whole recording, which averages the
 delays away), the stated rate alone (rows at `--fs`), else the stamps with the rate of their mean
 step (not the median). What was done is said in the notes; regular stamps are kept as they are.
@@ -24,6 +25,9 @@ from station.errors import CalibrationInputError
 JITTER = 0.2
 """Interquartile range of the time steps over their median above which the stamps are taken
 for a host's clock (a device's own stamps: below 0.01; a host's stamping lines: about 1)."""
+
+WRAPS = (1 << 8, 1 << 16, 1 << 32)
+"""Where a device's sample counter (uint8, uint16, uint32) wraps to 0."""
 
 RATE_MISMATCH = 0.01
 """Relative difference between a stated rate and the one the stamps imply that is noted."""
@@ -47,19 +51,20 @@ def timeline(stamps, counter=None, fs: float | None = None, what: str = "") -> T
     if len(t) < 2 or not np.all(np.isfinite(t)):
         raise CalibrationInputError(f"{what}: fewer than 2 finite time stamps.",
                                     "Give a recording of at least 2 samples with time stamps.")
-    seq = None if counter is None else _counter(counter, what)
+    notes = []
+    seq = None if counter is None else _counter(counter, what, notes)
     steps = np.diff(t)
     q1, median, q3 = np.percentile(steps, [25, 50, 75])
     backward = int(np.sum(steps <= 0))
     if not backward and q3 - q1 <= JITTER * median:
         rate = 1.0 / float(median) if fs is None else float(fs)
-        return Timeline(t, seq, rate, _stated(t, seq, fs, what))
+        return Timeline(t, seq, rate, notes + _stated(t, seq, fs, what))
     said = (f"{what}: the time stamps look like a host's clock, not the device's: steps "
             f"{steps.min() * 1e3:.3g} .. {steps.max() * 1e3:.3g} ms (median "
             f"{median * 1e3:.3g} ms, interquartile range {(q3 - q1) * 1e3:.3g} ms, sd "
             f"{steps.std() * 1e3:.3g} ms{f', {backward} not forward' if backward else ''})")
     if seq is not None:
-        return _on_counter(t, seq, fs, said)
+        return _on_counter(t, seq, fs, said, notes)
     rows = np.arange(len(t))
     if fs is not None:
         start = float(np.mean(t - rows / fs))
@@ -81,9 +86,9 @@ def timeline(stamps, counter=None, fs: float | None = None, what: str = "") -> T
         "rate (--fs HZ) to place the samples on its clock"])
 
 
-def _on_counter(t: np.ndarray, seq: np.ndarray, fs, said: str) -> Timeline:
+def _on_counter(t: np.ndarray, seq: np.ndarray, fs, said: str, notes: list) -> Timeline:
     """The samples at their counter values on the device's clock: the stated rate, else the
-    rate fitted to the host clock (least squares of t on seq)."""
+    rate fitted to the host clock (least squares of t on seq); `notes` so far kept."""
     slope, start = np.polyfit(seq - seq[0], t, 1)
     rate = float(fs) if fs is not None else 1.0 / float(slope)
     if fs is not None:
@@ -91,8 +96,8 @@ def _on_counter(t: np.ndarray, seq: np.ndarray, fs, said: str) -> Timeline:
     how = "stated" if fs is not None else (f"fitted to the host clock over "
                                            f"{t[-1] - t[0]:.3f} s")
     return Timeline(start + (seq - seq[0]) / rate, seq, rate, [
-        f"{said}; the samples placed by the counter column at {rate:.6g} Hz ({how}) instead"
-        f"{_gaps(seq)}"])
+        *notes, f"{said}; the samples placed by the counter column at {rate:.6g} Hz ({how}) "
+        f"instead{_gaps(seq)}"])
 
 
 def _stated(t: np.ndarray, seq, fs, what: str) -> list:
@@ -108,16 +113,29 @@ def _stated(t: np.ndarray, seq, fs, what: str) -> list:
             "the nominal one"]
 
 
-def _counter(counter, what: str) -> np.ndarray:
-    """The counter as int64, refused unless it increases at every sample."""
+def _counter(counter, what: str, notes: list) -> np.ndarray:
+    """The counter as int64, unwrapped when it wraps at a power of two (WRAPS: a uint8, uint16
+    or uint32 counter whose every backward step is, plus the modulus, no longer than its longest
+    forward step; said in `notes`), refused unless it then increases at every sample (a
+    restart)."""
     seq = np.asarray(counter, np.int64)
+    steps = np.diff(seq)
+    back = steps <= 0
+    if back.any() and seq.min() >= 0:
+        modulus = next((w for w in WRAPS if seq.max() < w), None)
+        longest = max(int(steps[~back].max()) if (~back).any() else 1, 1)
+        wrapped = steps[back] + (modulus or 0)
+        if modulus is not None and np.all((wrapped > 0) & (wrapped <= longest)):
+            seq = seq + modulus * np.concatenate([[0], np.cumsum(back)])
+            notes.append(f"{what}: the counter wraps at {modulus} ({int(back.sum())} times): "
+                         "unwrapped")
     bad = np.flatnonzero(np.diff(seq) <= 0)
     if len(bad):
         raise CalibrationInputError(
             f"{what}: the counter does not increase after sample {int(bad[0]) + 1} "
-            f"({int(seq[bad[0]])} -> {int(seq[bad[0] + 1])}; {len(bad)} such steps): it wrapped "
-            "or the device restarted.", "Split the recording at the restart, or unwrap the "
-            "counter before importing.")
+            f"({int(seq[bad[0]])} -> {int(seq[bad[0] + 1])}; {len(bad)} such steps): the "
+            "device restarted, or the column is no sample counter.", "Split the recording at "
+            "the restart, or give the device's sample counter as --index.")
     return seq
 
 
