@@ -38,7 +38,10 @@ def register(p) -> None:
         "a serial IMU's frames, decoded by the drivers' parser with a device profile. "
         "ulog (PX4, pyulog) and dataflash (ArduPilot .bin, pymavlink): the IMU's accelerometer "
         "and gyro as streams acc and gyro in m/s^2 and rad/s, at their logged time stamps, the "
-        "numbers exact. csv without --stream: a Kalibr/EuRoC IMU CSV is recognised by its header."
+        "numbers exact; ulog: the fastest IMU topic logged (the notes list the candidates' rates; "
+        "--topic chooses). text/csv time stamps that are a host's clock (bunched lines) are "
+        "replaced by the device's counter (--index) or rate (--fs) when given, said in the "
+        "notes. csv without --stream: a Kalibr/EuRoC IMU CSV is recognised by its header."
     )
     p.epilog = EXAMPLES
     p.add_argument("format", choices=("text", "csv", "npz", "binary", "ulog", "dataflash"),
@@ -59,7 +62,9 @@ def register(p) -> None:
                         "acc=1-3 or acc=2,3,4; default: every column after the time)")
     p.add_argument("--no-time", action="store_true",
                    help="text: the files have no time column; the rows are samples at --fs")
-    p.add_argument("--index", metavar="COLUMN", help="csv: column of sample numbers (with --fs)")
+    p.add_argument("--index", metavar="COLUMN",
+                   help="csv: column of the device's sample numbers (with --fs; with --time: "
+                        "they place samples whose time stamps are a host's clock)")
     p.add_argument("--fs", type=float, help="sample rate, Hz")
     p.add_argument("--delimiter", metavar="CHAR",
                    help="text/csv: column delimiter (',', ';', tab, space; csv default: sniffed)")
