@@ -95,6 +95,9 @@ IMU_FORMAT = ("QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T
 IMU_FORMAT_OLD = ("QffffffIIfBBHH", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
 """ArduPilot before 4.1: IMU, IMU2, IMU3 without an instance field."""
 
+IMU_FORMAT_MS = ("IffffffII", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,ErrG,ErrA")
+"""ArduPilot before 3.3 (3.2's LogStructure.h): IMU and IMU2 at TimeMS, milliseconds."""
+
 
 def df_struct(chars: str) -> struct.Struct:
     return struct.Struct("<" + "".join(DF_STRUCT[c] for c in chars))

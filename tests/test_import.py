@@ -135,8 +135,8 @@ def test_csv_with_named_columns_and_units(tmp_path):
     refused("missing or named twice", streams={"acc": ["acc_q"]})
     refused("no unit given", units={})
     refused("unknown unit", units={"acc": "furlongs"})
-    refused("either a time column or a sample rate", fs=None)
-    refused("not strictly increasing", time_column="acc_y", fs=None)
+    refused("give a time column or a sample rate", fs=None)
+    refused("not forward", time_column="acc_y", fs=None)
     text = tmp_path / "text.csv"
     text.write_text("part,acc_x\nx_a,1.0\n")
     refused("not all numbers", path=text, streams={"acc": ["part"]})

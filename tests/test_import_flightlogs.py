@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 from flightlogs import (
+    IMU_FORMAT_MS,
     SENSOR_ACCEL,
     SENSOR_COMBINED,
     VEHICLE_IMU,
@@ -106,8 +107,8 @@ def test_ulog_samples_equal_the_logged_ones_per_instance(hand, tmp_path, capsys)
 
     code, _, err = station(capsys, "import", "ulog", tmp_path / "c.h5", log, "--instance", "2")
     assert code == 2 and not (tmp_path / "c.h5").exists()
-    assert "no instance 2 of sensor_accel and sensor_gyro" in err
-    assert f"sensor_accel instance 1: {len(t)} samples" in err and "--instance N" in err
+    assert "no IMU candidate with instance 2" in err
+    assert f"sensor_accel instance 1: {len(t)} samples" in err and "--instance" in err
 
 
 def test_a_ulog_written_by_pyulog_imports_the_same(hand, tmp_path, capsys):
@@ -145,6 +146,63 @@ def test_sensor_combined_when_the_raw_topics_are_absent(hand, tmp_path, capsys):
     np.testing.assert_array_equal(got["acc"][0], (t[:k].astype(np.int64) - 1800)[keep] * 1e-6)
     assert meta["origin"]["acc"]["topic"] == "sensor_combined"
     assert any("1 samples without an accelerometer part" in n for n in json.loads(out)["notes"])
+
+
+def combined_rows(t, x):
+    """sensor_combined rows at time stamps `t` of readings x (acc then gyro), the accelerometer
+    sampled with the gyro."""
+    return records(SENSOR_COMBINED, timestamp=t, gyro_rad=x[:, 3:],
+                   accelerometer_timestamp_relative=np.zeros(len(t), np.int32),
+                   accelerometer_m_s2=x[:, :3])
+
+
+def test_the_fastest_imu_topics_are_chosen_and_the_candidates_said(hand, tmp_path, capsys):
+    """PX4's default profile: sensor_accel/sensor_gyro at 1 Hz beside sensor_combined at 250 Hz
+    in the same log. The 250 Hz family is imported; --topic takes the other; the notes list both
+    with their rates."""
+    _, x, _ = hand
+    k = 7800  # 31.2 s at 250 Hz
+    fast = T0_US + 4000 * np.arange(k, dtype=np.uint64)
+    slow = np.arange(0, k, 250)  # PX4 logs the raw topics at 1 Hz by default: 32 samples
+    log = tmp_path / "default.ulg"
+    log.write_bytes(ulog(raw_topics(fast[slow], x[slow])
+                         + [("sensor_combined", SENSOR_COMBINED, 0, combined_rows(fast, x[:k]))]))
+    code, out, _ = station(capsys, "import", "ulog", tmp_path / "d.h5", log, "--json")
+    assert code == 0
+    report = json.loads(out)
+    assert report["streams"]["acc"]["samples"] == k and report["streams"]["acc"]["rate_hz"] == 250
+    said = next(n for n in report["notes"] if "IMU candidates" in n)
+    assert "sensor_accel+sensor_gyro instance 0: 32 samples at 1 Hz" in said
+    assert "sensor_combined instance 0: 7800 samples at 250 Hz" in said
+    assert "chosen sensor_combined instance 0 (the highest rate" in said
+    np.testing.assert_array_equal(samples(tmp_path / "d.h5")[0]["gyro"][1], x[:k, 3:])
+
+    code, out, _ = station(capsys, "import", "ulog", tmp_path / "s.h5", log, "--topic",
+                           "sensor_gyro", "--json")
+    assert code == 0
+    assert json.loads(out)["streams"]["gyro"]["samples"] == len(slow)
+    assert samples(tmp_path / "s.h5")[1]["origin"]["gyro"]["topic"] == "sensor_gyro"
+    code, _, err = station(capsys, "solve", tmp_path / "s.h5")  # 1 Hz: no still detection
+    assert code == 2 and "samples at 1 Hz" in err and "--topic sensor_combined" in err
+
+    code, _, err = station(capsys, "import", "ulog", tmp_path / "v.h5", log, "--topic",
+                           "vehicle_imu")
+    assert code == 2 and "no IMU candidate with topic vehicle_imu (candidates: " in err
+    code, _, err = station(capsys, "import", "ulog", tmp_path / "w.h5", log, "--topic", "gps")
+    assert code == 2 and "Give one of sensor_accel, sensor_gyro" in err
+    code, _, err = station(capsys, "import", "dataflash", tmp_path / "x.h5", log, "--topic",
+                           "sensor_gyro")
+    assert code == 2 and "--topic is for PX4 ULog files" in err
+
+
+def test_equal_rates_prefer_the_raw_sensors(hand, tmp_path, capsys):
+    t, x, _ = hand
+    k = 1000
+    log = tmp_path / "both.ulg"
+    log.write_bytes(ulog(raw_topics(t[:k], x[:k])
+                         + [("sensor_combined", SENSOR_COMBINED, 0, combined_rows(t[:k], x[:k]))]))
+    assert station(capsys, "import", "ulog", tmp_path / "b.h5", log)[0] == 0
+    assert samples(tmp_path / "b.h5")[1]["origin"]["acc"]["topic"] == "sensor_accel"
 
 
 def test_vehicle_imu_rates_from_the_integrated_deltas(hand, tmp_path, capsys):
@@ -352,6 +410,32 @@ def test_dataflash_samples_equal_the_logged_ones_per_instance(hand, tmp_path, ca
                            "--instance", "3")
     assert code == 2
     assert f"no IMU instance 3 (instance 0: {k} messages, instance 1: {k} messages)" in err
+
+
+def test_a_dataflash_log_before_3_3_with_milliseconds(hand, tmp_path, capsys):
+    """ArduPilot before 3.3 logged IMU and IMU2 at TimeMS (uint32 milliseconds), 50 Hz."""
+    _, x, other = hand
+    k = 2000
+    ms = 61_234 + 20 * np.arange(k)
+    chars, columns = IMU_FORMAT_MS
+    body = [dataflash(None), df_fmt(120, "IMU", chars, columns),
+            df_fmt(121, "IMU2", chars, columns)]
+    for i in range(k):
+        for type_id, y in ((120, x), (121, other)):
+            body.append(df_message(type_id, chars, (ms[i], *y[i, 3:], *y[i, :3], 0, 0)))
+    log = tmp_path / "ac32.bin"
+    log.write_bytes(b"".join(body))
+    for instance, y in ((0, x), (1, other)):
+        h5 = tmp_path / f"ac32-{instance}.h5"
+        code, out, err = station(capsys, "import", "dataflash", h5, log, "--instance", instance,
+                                 "--json")
+        assert code == 0, err
+        report = json.loads(out)
+        assert report["streams"]["acc"]["rate_hz"] == 50
+        assert any("time TimeMS: milliseconds" in n for n in report["notes"])
+        assert_equal_to_log(h5, ms * 1000, y[:k])
+        assert samples(h5)[1]["origin"]["gyro"] == {"message": ["IMU", "IMU2"][instance],
+                                                    "instance": instance, "time": "TimeMS"}
 
 
 def test_a_dataflash_log_cut_in_a_message_keeps_the_samples_before(hand, tmp_path, capsys):

@@ -119,16 +119,16 @@ def run(args) -> int:
         sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T, temp), axis1=1, axis2=2)) \
             if len(z) else np.zeros_like(v)
     if args.out is None:
-        sys.stdout.write(csv_text(time, v, cal.units[0], sigma))
+        sys.stdout.write(csv_text(time, v, cal.quantity, sigma))
     elif args.out.suffix.lower() in HDF5_SUFFIXES:
         write_hdf5(args.out, time, v, cal, args.data, sigma,
                    temp if cal.temperature is not None else None)
     else:
-        args.out.write_text(csv_text(time, v, cal.units[0], sigma))
+        args.out.write_text(csv_text(time, v, cal.quantity, sigma))
     if args.json:
         norm = np.linalg.norm(v, axis=1)
         print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],
-                          "units": cal.units[0], "frame": cal.frame,
+                          "units": cal.quantity, "frame": cal.frame,
                           "unit_serial": cal.unit_serial,
                           "norm_mean": float(norm.mean()) if len(v) else None,
                           "temperature_model": cal.temperature is not None,
@@ -198,8 +198,9 @@ def read_session(path, stream: str, cal, temperature_column: str | None = None) 
                                        f"sensors {missing}; give the session (and --stream) it "
                                        "was solved from")
         cols = [spec.channels.index(s) for s in cal.sensors]  # e.g. the accelerometers of a
-        cal.check_unit(session.unit_serial, cal.sensors,  # stream that holds gyros too
-                       [spec.units[i] for i in cols], where=str(path))
+        units = session.reading_units(stream)  # stream that holds gyros too
+        cal.check_unit(session.unit_serial, cal.sensors,
+                       [units[i] for i in cols], where=str(path))
         temp_col = _temperature_channel(spec, cal, temperature_column, path, stream)
         data = session.stream(stream)
     time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
@@ -317,7 +318,7 @@ def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None
                        unit_serial=cal.unit_serial, frame=cal.frame, source=str(source),
                        calibration_checksum=cal.to_document()["checksum"])
         ds = f.create_dataset("v", data=v)
-        ds.attrs.update(units=cal.units[0], columns=list(AXES[:v.shape[1]]))
+        ds.attrs.update(units=cal.quantity, columns=list(AXES[:v.shape[1]]))
         if time is not None:
             f.create_dataset("time", data=time).attrs["units"] = "s"
         if temperature is not None:
@@ -325,6 +326,6 @@ def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None
                 units="K", meaning="the unit's temperature the temperature model was applied at")
         if sigma is not None:
             f.create_dataset("v_sigma", data=sigma).attrs.update(
-                units=cal.units[0], columns=list(AXES[:v.shape[1]]),
+                units=cal.quantity, columns=list(AXES[:v.shape[1]]),
                 meaning="1-sigma from the calibration's uncertainty, readings' noise excluded")
     os.replace(tmp, path)

@@ -18,6 +18,7 @@ EXAMPLES = (
     "  station import npz rotary.h5 recording.npz\n"
     "  station import binary exp_1.h5 exp_1.bin --profile mimu4444\n"
     "  station import ulog px4.h5 log_12_2026-11-25.ulg --instance 1\n"
+    "  station import ulog px4.h5 log_12_2026-11-25.ulg --topic sensor_combined\n"
     "  station import dataflash ardupilot.h5 00000042.BIN\n"
     "  station import dataflash raw.h5 00000042.BIN --batch   # the batch sampler's samples\n"
     "  station import csv euroc.h5 mav0/imu0/data.csv       # a Kalibr/EuRoC IMU CSV, recognised"
@@ -37,7 +38,10 @@ def register(p) -> None:
         "a serial IMU's frames, decoded by the drivers' parser with a device profile. "
         "ulog (PX4, pyulog) and dataflash (ArduPilot .bin, pymavlink): the IMU's accelerometer "
         "and gyro as streams acc and gyro in m/s^2 and rad/s, at their logged time stamps, the "
-        "numbers exact. csv without --stream: a Kalibr/EuRoC IMU CSV is recognised by its header."
+        "numbers exact; ulog: the fastest IMU topic logged (the notes list the candidates' rates; "
+        "--topic chooses). text/csv time stamps that are a host's clock (bunched lines) are "
+        "replaced by the device's counter (--index) or rate (--fs) when given, said in the "
+        "notes. csv without --stream: a Kalibr/EuRoC IMU CSV is recognised by its header."
     )
     p.epilog = EXAMPLES
     p.add_argument("format", choices=("text", "csv", "npz", "binary", "ulog", "dataflash"),
@@ -58,7 +62,9 @@ def register(p) -> None:
                         "acc=1-3 or acc=2,3,4; default: every column after the time)")
     p.add_argument("--no-time", action="store_true",
                    help="text: the files have no time column; the rows are samples at --fs")
-    p.add_argument("--index", metavar="COLUMN", help="csv: column of sample numbers (with --fs)")
+    p.add_argument("--index", metavar="COLUMN",
+                   help="csv: column of the device's sample numbers (with --fs; with --time: "
+                        "they place samples whose time stamps are a host's clock)")
     p.add_argument("--fs", type=float, help="sample rate, Hz")
     p.add_argument("--delimiter", metavar="CHAR",
                    help="text/csv: column delimiter (',', ';', tab, space; csv default: sniffed)")
@@ -70,6 +76,9 @@ def register(p) -> None:
     p.add_argument("--instance", type=int, metavar="N",
                    help="ulog/dataflash: the IMU instance (ULog multi_id, DataFlash IMU I or "
                         "IMU2/IMU3; default the first)")
+    p.add_argument("--topic", metavar="NAME",
+                   help="ulog: the IMU topic family (sensor_accel or sensor_gyro, "
+                        "sensor_combined, vehicle_imu; default the fastest logged)")
     p.add_argument("--batch", action="store_true",
                    help="dataflash: the batch sampler's raw-rate samples (ISBH/ISBD) instead of "
                         "the IMU messages")
@@ -110,6 +119,9 @@ def _import(args, existing_file, advance) -> Path:
     if args.instance is not None and args.format not in ("ulog", "dataflash"):
         raise InputError(f"--instance is for flight-controller logs (ulog, dataflash), not "
                          f"`import {args.format}`; leave it out")
+    if args.topic is not None and args.format != "ulog":
+        raise InputError(f"--topic is for PX4 ULog files, not `import {args.format}`; leave it "
+                         "out")
     if args.batch and args.format != "dataflash":
         raise InputError(f"--batch is for DataFlash logs, not `import {args.format}`; leave it "
                          "out")
@@ -164,7 +176,7 @@ def _flight_log(args, existing_file) -> Path:
     if given:
         raise InputError(f"`import {args.format}` takes the IMU's streams, units and time stamps "
                          f"from the log; leave out {', '.join(given)} (--instance N chooses the "
-                         "IMU)")
+                         "IMU, --topic the ULog topic)")
     if args.instance is not None and args.instance < 0:
         raise InputError(f"--instance {args.instance} is negative; give the instance number "
                          "(0 is the first)")
@@ -172,7 +184,8 @@ def _flight_log(args, existing_file) -> Path:
         from station.imports.ulog import import_ulog
 
         return import_ulog(args.out, existing_file(args.source, "a ULog file (.ulg)"),
-                           instance=args.instance, unit_serial=args.unit_serial)
+                           instance=args.instance, topic=args.topic,
+                           unit_serial=args.unit_serial)
     from station.imports.dataflash import import_dataflash
 
     return import_dataflash(args.out, existing_file(args.source, "a DataFlash log (.bin)"),

@@ -270,13 +270,16 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         spec = session.specs[stream]
         channels = solved_channels(session, settings)
         names = [spec.channels[i] for i in channels]
+        units = [session.reading_units(stream)[i] for i in channels]
         info = {"path": str(Path(path).resolve()), "stream": stream,
                 "protocol": session.protocol, "created": session.created,
                 "software_version": session.software_version,
                 "stimulus": stimulus(session, settings)[1]}
         file = {"unit_serial": unit_serial(session.metadata, session.specs, stream, path)
                                or session.unit_serial,
-                "counts_per_unit": np.asarray(spec.counts_per_unit)[channels]}
+                "counts_per_unit": np.asarray(spec.counts_per_unit)[channels], "units": units,
+                "stimulus": None if units == [spec.units[i] for i in channels] else
+                spec.units[channels[0]]}
         tolerances = tolerances or recorded_tolerances(session.metadata, path)
         layout = nominal if nominal is not None else recorded_layout(session, settings, False)
         solved = None
@@ -296,7 +299,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                                "still poses)"}
             check = gate(check_fit(result, names, pose_term=kind.still), path, accept_suspect)
             cal = Calibration.from_result(
-                result, file["unit_serial"], names, [spec.units[i] for i in channels],
+                result, file["unit_serial"], names, units, stimulus=file["stimulus"],
                 counts_per_unit=file["counts_per_unit"], session={**info, **poses(readings)},
                 status=check.status, status_reasons=check.problems, **bias)
             solved = readings, result
@@ -334,8 +337,8 @@ def carried_calibration(session, settings, nominal, names, info: dict, file: dic
     """The calibration file content of an import's gyro triad (`station.replay.solve_carried`):
     the accelerometer calibrated first on its still poses (its fit through the quality gate), then
     the gyro by carrying gravity through the turns between them, in the accelerometer's frame
-    (said in `session.frame`). info, file: the session record and the unit's serial and counts
-    per unit."""
+    (said in `session.frame`). info, file: the session record and the unit's serial, counts
+    per unit and readings' units."""
     from station.errors import InputError
     from station.files.calfile import Calibration
     from station.protocols import KINDS
@@ -360,7 +363,7 @@ def carried_calibration(session, settings, nominal, names, info: dict, file: dic
     return Calibration.from_carry(
         carry, file["unit_serial"], names, frame=acc.frame, magnitude=acc.magnitude,
         counts_per_unit=file["counts_per_unit"], session=record, status=check.status,
-        status_reasons=[f"accelerometer: {p}" for p in check.problems])
+        status_reasons=[f"accelerometer: {p}" for p in check.problems], units=file["units"][0])
 
 
 def poses(readings) -> dict:

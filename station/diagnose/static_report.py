@@ -17,6 +17,7 @@ import numpy as np
 from station.diagnose.goodness import log_sf
 from station.diagnose.static import SCALES_S, StaticData, from_arrays, specific_force
 from station.errors import CalibrationInputError
+from station.files.session import COUNTS
 from station.model.constants import STANDARD_GRAVITY
 
 
@@ -175,16 +176,16 @@ def load(path, still=None, **detector) -> StaticData:
             (gyro_name, gyro_cols), = gyro.items()
             gyr = s.stream(gyro_name).to_si()[:, gyro_cols]
         gravity = s.metadata.get("gravity")
-        imported = s.metadata.get("import", {}).get("streams", {})
+        reading = [(n, s.reading_units(n)[cols[0]]) for n, cols in [*accel.items(), *gyro.items()]]
     notes = [] if gravity else [(f"gravity not in the session: {STANDARD_GRAVITY} m/s^2 assumed "
                                 "(only the common scale depends on it)")]
-    raw = [n for n in [acc_name, *gyro] if imported.get(n, {}).get("raw_counts")]
+    raw = [n for n, unit in reading if unit == COUNTS]
     if raw:
         notes.append(f"streams {raw} hold raw counts: values and parameters are in counts")
     if gyr is not None and gyr.shape[1] != 3:
         raise CalibrationInputError(f"gyro stream {gyro_name!r} has {gyr.shape[1]} gyro channels.",
                                     "Give a 3-axis gyro stream, or none.")
-    units = [f"{acc_name}: m/s^2"] + ([f"{gyro_name}: rad/s"] if gyro else [])
+    units = [f"{name}: {unit}" for name, unit in reading]
     return from_arrays(acc.to_si()[:, acc_cols], acc.spec.rate_hz, gyro=gyr,
                        gravity=float(gravity or STANDARD_GRAVITY), units=units, notes=notes,
                        still=still, **detector)

@@ -26,6 +26,7 @@ import re
 import numpy as np
 
 from station.errors import InputError
+from station.exports.imu import si_readings
 from station.files.calfile import Calibration
 
 CTYPES = ("float", "double")
@@ -39,6 +40,7 @@ def c_header(cal: Calibration, prefix: str = "IMU_CAL", ctype: str = "float") ->
                          "starting with a digit, at most 32 characters)")
     if ctype not in CTYPES:
         raise InputError(f"C type {ctype!r}: choose one of {CTYPES}")
+    si_readings(cal, "the calibration")
     d, m = cal.d, cal.m
     unit = cal.units[0]
     guard = f"{prefix.upper()}_H"

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import InputError
-from station.files.calfile import Calibration
+from station.files.calfile import COUNTS, Calibration
 
 KINDS = {"m/s^2": "accelerometer", "rad/s": "gyroscope"}
 REFERENCE = {"accelerometer": (9.80665, "1 g"), "gyroscope": (1.0, "1 rad/s")}
@@ -113,8 +113,22 @@ def _carried_by(gyro: Calibration, acc: Calibration) -> None:
             "settings, or solve the gyro again against this one")
 
 
+def si_readings(cal: Calibration, where: str) -> None:
+    """Refuse a calibration of raw counts whose scale was not known (`units.readings` "counts"):
+    the formats take readings in SI units, with biases and noise in them."""
+    if cal.units[0] == COUNTS:
+        raise InputError(
+            f"{where} calibrates raw counts whose scale was not known (biases and noise in "
+            f"counts, not {cal.quantity}); the export formats need readings in SI units: import "
+            f"the recording again with the scale, `--unit NAME=counts:{cal.quantity}@SCALE` "
+            f"(SCALE: counts per {cal.quantity}, from the sensor's data sheet), and solve it "
+            "again")
+
+
 def kind_of(cal: Calibration, where: str) -> str:
-    """"accelerometer" or "gyroscope" from the calibration's units; magnetometers refused."""
+    """"accelerometer" or "gyroscope" from the calibration's units; magnetometers and raw counts
+    (`si_readings`) refused."""
+    si_readings(cal, where)
     kind = KINDS.get(cal.units[0])
     if kind is None:
         raise InputError(f"{where} is a calibration in {cal.units[0]} (a magnetometer); the "

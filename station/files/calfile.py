@@ -22,6 +22,10 @@ white-noise density, bias instability and random walk from the static data by th
 temperature model (biases and scale factors as polynomials in T - t_ref, the calibrated range,
 the coefficients with their sigmas and covariance; station.model.temperature), null when there
 is none; `a` and `b` are then the calibration at t_ref. Files of versions 1-5 still load.
+Readings in raw counts whose scale was not known (`station import --unit NAME=counts:m/s^2`)
+are said so: `units.readings` is "counts" and `units.stimulus` the SI unit of what they sense;
+`a` is then in counts per stimulus unit, `b`, the noise and the temperature's bias terms in
+counts (software before this refuses such a file by its readings' unit).
 Floats are written as JSON numbers in Python's shortest round-trip form, so a load gives back
 bit-identical arrays. A SHA-256 checksum over the canonical JSON of the content detects edits and
 damage (it is not a signature).
@@ -59,6 +63,8 @@ magnitude, the condition number of a (sensitive axes nearly in one plane beyond 
 LIMIT_WORDS = {"a": "scale factor (a column norm)", "b": "bias", "magnitude": "magnitude",
                "condition": "condition number of a"}
 SI_UNITS = ("rad/s", "m/s^2", "T")
+COUNTS = "counts"
+"""The readings' unit of raw counts whose scale was not known (the stimulus then in SI_UNITS)."""
 FRAMES = ("canonical", "nominal")
 CONVENTIONS_V1 = {
     "document": "docs/conventions.md",
@@ -170,7 +176,8 @@ class Calibration(measurement.Sensitivity):
     a, a_sigma          : (d, m) sensitivity matrix in `frame` and its 1-sigma
     bias, bias_sigma    : (m,) biases in the readings' units and their 1-sigma
     scale_factors(_sigma), axis_angles(_sigma) : (m,), (m, m) rad; frame-free invariants
-    units               : SI unit of each sensor's readings (also the unit of v and of b)
+    units               : unit of each sensor's readings (also the unit of b): SI, or COUNTS
+                          for raw counts whose scale was not known
     counts_per_unit     : (m,) raw counts per SI unit at the driver edge, or None if unknown
     frame               : "canonical" (Eq. 19) or "nominal" (aligned to a nominal layout)
     magnitude           : |v_j| of the calibration positions; scale_known False: Remark 2
@@ -191,6 +198,8 @@ class Calibration(measurement.Sensitivity):
                           version 5)
     temperature         : the `TemperatureModel` (station.model.temperature), a and bias being
                           the calibration at its t_ref, or None (none; files before version 6)
+    stimulus            : SI unit of v when the readings are COUNTS; None: that of the readings
+                          (`quantity`)
     """
 
     unit_serial: str
@@ -216,20 +225,28 @@ class Calibration(measurement.Sensitivity):
     white: dict | None = None
     noise: NoiseFigures | None = None
     temperature: TemperatureModel | None = None
+    stimulus: str | None = None
     created: str = field(default_factory=lambda: utc_now())
     software_version: str = field(default_factory=lambda: software_version())
+
+    @property
+    def quantity(self) -> str:
+        """The SI unit of what the sensors sense (of v and the magnitude): the readings' unit,
+        or the stimulus' for readings in COUNTS."""
+        return self.stimulus or self.units[0]
 
     @classmethod
     def from_result(cls, result, unit_serial: str, sensors, units, *, bias=None, bias_sigma=None,
                     bias_source: str = "estimated with the calibration", counts_per_unit=None,
                     session: dict | None = None, status: str = "good",
-                    status_reasons=()) -> "Calibration":
+                    status_reasons=(), stimulus: str | None = None) -> "Calibration":
         """A calibration file's content from a `station.solve.calibrate.CalibrationResult`.
 
         bias, bias_sigma : (m,) biases and 1-sigma measured apart from the fit (e.g. the static
                            windows of a rotary session, whose Eq. (18) readings are bias-free);
                            default: the result's own (it must then have estimated them).
-        units            : one SI unit for all sensors, or one per sensor.
+        units            : one unit for all sensors, or one per sensor: SI, or COUNTS with the
+                           `stimulus` unit (SI) of what they sense.
         status           : "good", or "suspect" (a fit that failed the quality gate,
                            station.solve.quality) with `status_reasons` in words.
         """
@@ -257,25 +274,27 @@ class Calibration(measurement.Sensitivity):
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
             session=session, covariance=_joint_covariance(result, own_bias, bias_sigma),
-            pose_sigma=result.pose_sigma, white=_white(result, None if own_bias else bias_sigma))
+            pose_sigma=result.pose_sigma, white=_white(result, None if own_bias else bias_sigma),
+            stimulus=stimulus)
         _from_document(cal.to_document(), "the calibration")  # the same checks as a load
         return cal
 
     @classmethod
     def from_carry(cls, carry, unit_serial: str, sensors, *, frame: str, magnitude: float,
                    counts_per_unit=None, session: dict | None = None, status: str = "good",
-                   status_reasons=()) -> "Calibration":
+                   status_reasons=(), units: str = "rad/s") -> "Calibration":
         """A gyro triad's calibration file content from `station.solve.gyro_carry`'s
         `CarryCalibration` (gravity carried through the turns between still poses, Tedaldi et
         al.): a and b with their joint covariance, the invariants with their 1-sigma, in the
         frame of the accelerometer calibration it was carried by (`frame`, its name);
         `magnitude`: that accelerometer's gravity (the carry needs no rate magnitude); status:
         "good", or "suspect" with `status_reasons` (the accelerometer's fit, which the carry
-        trusts)."""
+        trusts); `units`: of the gyro's readings, rad/s or COUNTS (raw, the scale not known)."""
         cal = cls(
             unit_serial=str(unit_serial), sensors=tuple(str(s) for s in sensors),
-            units=("rad/s",) * 3, a=carry.a, a_sigma=carry.a_sigma, bias=carry.bias,
-            bias_sigma=carry.bias_sigma, scale_factors=carry.scale_factors,
+            units=(units,) * 3, stimulus="rad/s" if units == COUNTS else None, a=carry.a,
+            a_sigma=carry.a_sigma, bias=carry.bias, bias_sigma=carry.bias_sigma,
+            scale_factors=carry.scale_factors,
             scale_factors_sigma=carry.scale_factors_sigma, axis_angles=carry.axis_angles,
             axis_angles_sigma=carry.axis_angles_sigma, frame=frame, magnitude=float(magnitude),
             scale_known=True,
@@ -400,8 +419,9 @@ class Calibration(measurement.Sensitivity):
             "software_version": self.software_version, "created": self.created,
             "conventions": dict(CONVENTIONS_V6),
             "unit": {"serial": self.unit_serial, "sensors": list(self.sensors)},
-            "units": {"readings": list(self.units), "stimulus": self.units[0],
-                      "sensitivity": "1 (reading unit per stimulus unit)",
+            "units": {"readings": list(self.units), "stimulus": self.quantity,
+                      "sensitivity": "1 (reading unit per stimulus unit)" if self.stimulus is None
+                      else f"{self.units[0]} per {self.stimulus}",
                       "bias": "readings' unit", "axis_angles": "rad",
                       "counts_per_unit": _list(self.counts_per_unit)},
             "frame": self.frame, "magnitude": self.magnitude, "scale_known": self.scale_known,
@@ -691,12 +711,16 @@ def _from_document(doc, where: str) -> Calibration:
     if m == 0 or len(set(sensors)) != m:
         raise fail(f"unit.sensors {sensors} must be distinct sensor ids")
     readings_units = _strings(units, "readings", fail)
-    bad = sorted(set(readings_units) - set(SI_UNITS))
+    bad = sorted(set(readings_units) - {*SI_UNITS, COUNTS})
     if bad or len(readings_units) != m or len(set(readings_units)) != 1:
         raise fail(f"units.readings {readings_units} must be one SI unit ({', '.join(SI_UNITS)}) "
-                   f"for all {m} sensors")
-    if units.get("stimulus") != readings_units[0]:
-        raise fail(f"units.stimulus {units.get('stimulus')!r} differs from the readings' unit")
+                   f"or {COUNTS} for all {m} sensors")
+    stimulus = units.get("stimulus")
+    if readings_units[0] == COUNTS and stimulus not in SI_UNITS:
+        raise fail(f"units.stimulus {stimulus!r} of readings in {COUNTS} must be one of "
+                   f"{', '.join(SI_UNITS)}")
+    if readings_units[0] != COUNTS and stimulus != readings_units[0]:
+        raise fail(f"units.stimulus {stimulus!r} differs from the readings' unit")
     sens, bias, inv = (_dict(doc, k, fail) for k in ("sensitivity", "bias", "invariants"))
     a = _array(sens, "a", fail, ndim=2, cols=m, bound=LIMITS["a"][1])
     d = a.shape[0]
@@ -741,7 +765,8 @@ def _from_document(doc, where: str) -> Calibration:
         counts_per_unit=cpu, session=session, covariance=covariance, verdict=verdict,
         pose_sigma=pose_sigma, white=white,
         noise=_noise(doc, m, readings_units[0], fail),
-        temperature=_temperature(doc, m, readings_units[0], fail), created=doc["created"],
+        temperature=_temperature(doc, m, readings_units[0], fail),
+        stimulus=stimulus if readings_units[0] == COUNTS else None, created=doc["created"],
         software_version=doc["software_version"])
 
 

@@ -131,7 +131,7 @@ def combine(cals, names) -> Calibration:
         scale_factors_sigma=pooled["scale_factors"].sigma, axis_angles=axis_angles(a),
         axis_angles_sigma=pooled["axis_angles"].sigma, frame=first.frame,
         magnitude=first.magnitude, scale_known=first.scale_known, fit=fit,
-        counts_per_unit=first.counts_per_unit,
+        counts_per_unit=first.counts_per_unit, stimulus=first.stimulus,
         session={"combined": [{"file": n, "created": c.created, "session": c.session}
                               for c, n in zip(cals, names, strict=True)]},
         covariance=_covariance(_correlation([c.covariance for c in cals]), pooled["a"],

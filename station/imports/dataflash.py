@@ -4,9 +4,10 @@ with pymavlink's DFReader_binary.
 Format: ArduPilot's "Log file format" documentation (ardupilot.org, dev docs, and
 libraries/AP_Logger/LogStructure.h): every message starts with 0xA3 0x95 and its type; FMT
 messages (type 0x80) define the others (name, struct characters, column names). The IMU
-messages (libraries/AP_InertialSensor/LogStructure.h) carry `TimeUS` (microseconds since boot),
-`GyrX/Y/Z` (rad/s), `AccX/Y/Z` (m/s^2) and `T` (deg C): one message `IMU` with an instance field
-`I` (ArduPilot 4.1 on), or `IMU`, `IMU2`, `IMU3` for instances 0, 1, 2 (earlier logs). The
+messages (libraries/AP_InertialSensor/LogStructure.h) carry `TimeUS` (microseconds since boot;
+`TimeMS`, milliseconds, before ArduPilot 3.3), `GyrX/Y/Z` (rad/s), `AccX/Y/Z` (m/s^2) and `T`
+(deg C, when logged): one message `IMU` with an instance field `I` (ArduPilot 4.1 on), or `IMU`,
+`IMU2`, `IMU3` for instances 0, 1, 2 (earlier logs). The
 instance is `--instance N` (default the first); a wrong one, or a log without IMU messages (a
 board that logged none, another vehicle's log), is refused listing the messages it holds.
 The accelerometer's and gyro's device ids come from the parameters INS_ACC_ID, INS_ACC2_ID, ...,
@@ -29,6 +30,9 @@ from station.imports.flightlog import Series, summary, write_session
 IMU_MESSAGES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 """IMU message names and the instance each stands for when it has no `I` field."""
 
+TIME_FIELDS = {"TimeUS": 1, "TimeMS": 1000}
+"""Time fields of the IMU messages -> microseconds per count (TimeMS: before ArduPilot 3.3)."""
+
 FIELDS = {"acc": (("AccX", "AccY", "AccZ"), "m/s^2", "ACC"),
           "gyro": (("GyrX", "GyrY", "GyrZ"), "rad/s", "GYR")}
 """Stream -> (IMU message fields, SI unit, INS_<x>_ID parameter stem)."""
@@ -43,8 +47,8 @@ FIX = ("Give the .bin log of a flight controller that logged its IMU (LOG_BITMAS
 def import_dataflash(out, path, *, instance: int | None = None, batch: bool = False,
                      unit_serial: str = "IMPORTED") -> Path:
     """Import the accelerometer and gyro of one IMU instance of a DataFlash log into a new
-    session `out` (streams acc, gyro on the IMU messages' TimeUS; `batch`: the batch sampler's
-    raw-rate samples instead, `batch_series`)."""
+    session `out` (streams acc, gyro on the IMU messages' TimeUS or TimeMS; `batch`: the batch
+    sampler's raw-rate samples instead, `batch_series`)."""
     path = Path(path)
     reader, notes = _open(path)
     if batch:
@@ -53,17 +57,19 @@ def import_dataflash(out, path, *, instance: int | None = None, batch: bool = Fa
     rows = _imu_rows(reader, path, notes)
     chosen = _instance(path, reader, rows, instance)
     name, table = rows[chosen]
-    notes.append(f"{path.name}: IMU instance {chosen}: {len(table['TimeUS'])} messages {name}")
+    notes.append(f"{path.name}: IMU instance {chosen}: {len(table['time_us'])} messages {name}"
+                 + ("" if table["time"] == "TimeUS" else
+                    f" (time {table['time']}: milliseconds, as ArduPilot logged before 3.3)"))
     params = _params(reader, path, notes)
     series = {}
     for stream, (fields, unit, stem) in FIELDS.items():
-        origin = {"message": name, "instance": chosen, "time": "TimeUS"}
+        origin = {"message": name, "instance": chosen, "time": table["time"]}
         device = params.get(f"INS_{stem}{chosen + 1 if chosen else ''}_ID")
         if device is not None:
             origin["device_id"] = int(device)
         if "T" in table and np.isfinite(table["T"]).any():
             origin["temperature"] = summary(table["T"])
-        series[stream] = Series(table["TimeUS"],
+        series[stream] = Series(table["time_us"],
                                 np.column_stack([table[f] for f in fields]), unit,
                                 f"message {name} instance {chosen}", origin)
     return write_session(out, path, "dataflash", series, f"pymavlink {version('pymavlink')}",
@@ -161,22 +167,26 @@ def _open(path: Path) -> tuple:
 
 
 def _imu_rows(reader, path: Path, notes: list) -> dict:
-    """{instance: (message name, {field: (K,) float64})} of the log's IMU messages, in log order:
+    """{instance: (message name, {field: (K,) float64, "time_us": (K,) time stamps in us, "time":
+    the time field's name})} of the log's IMU messages, in log order:
     the reader's index of each message type (its offsets) read as numpy records of the struct
     its FMT defines (`_record`; DFReader decodes message by message, 100x slower); a message cut
     by the end of the file left out and noted."""
     out, end = {}, _end_of_messages(reader)
     for name in (n for n in IMU_MESSAGES if n in reader.name_to_id):
         fmt = reader.formats[reader.name_to_id[name]]
-        wanted = ["TimeUS", *FIELDS["acc"][0], *FIELDS["gyro"][0],
+        time = next((f for f in TIME_FIELDS if f in fmt.colhash), "TimeUS")
+        wanted = [time, *FIELDS["acc"][0], *FIELDS["gyro"][0],
                   *[f for f in ("I", "T") if f in fmt.colhash]]
         rows, _ = _messages(reader, path, name, wanted)
         with np.errstate(invalid="ignore"):  # a signalling NaN of a damaged log: refused later
             table = {f: rows[f].astype(float) for f in wanted}
+        table["time_us"] = table.pop(time) * TIME_FIELDS[time]
         instances = _instances(path, name, table["I"]) if "I" in table else \
             np.full(len(rows), IMU_MESSAGES[name])
         for i in np.unique(instances):
-            out[int(i)] = (name, {f: v[instances == i] for f, v in table.items()})
+            out[int(i)] = (name, {"time": time,
+                                  **{f: v[instances == i] for f, v in table.items()}})
     if end < reader.data_len:
         notes.append(f"{path.name}: the log ends inside a message ({reader.data_len - end} "
                      "bytes after the last whole one left out; a log cut by a power loss)")
@@ -262,7 +272,7 @@ def _instance(path: Path, reader, rows: dict, instance) -> int:
     """The instance to import: `instance`, or the first; refused listing what the log holds."""
     if rows and (instance is None or instance in rows):
         return min(rows) if instance is None else instance
-    held = ", ".join(f"instance {i}: {len(table['TimeUS'])} messages"
+    held = ", ".join(f"instance {i}: {len(table['time_us'])} messages"
                      for i, (_, table) in sorted(rows.items()))
     if held:
         raise CalibrationInputError(f"{path}: no IMU instance {instance} ({held}).",

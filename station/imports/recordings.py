@@ -23,8 +23,10 @@ unpickled or evaluated; errors are `CalibrationInputError`s naming the problem a
 
 Time columns are in seconds unless a `time_unit` (s, ms, us, ns) is given; without one, time
 stamps whose median step means a rate outside 2 Hz..100 kHz are refused (probably another unit).
-How each file was read (delimiter, lines skipped, orientation, MATLAB version, bad frames) is kept
-in the metadata's `import.notes` and logged.
+A time column that is a host's clock (lines stamped as they arrived) is told from a device's
+stamps and the samples placed on the device's clock (station.imports.timing). How each file was
+read (delimiter, lines skipped, orientation, MATLAB version, bad frames, the clock) is kept in the
+metadata's `import.notes` and logged.
 
 Units: each stream's numbers are in a `unit` given by the user: an SI unit (`m/s^2`, `rad/s`, `T`),
 a known other one (`g`, `deg/s`, `uT`, `gauss`), or raw counts of a quantity, `counts:m/s^2`, with
@@ -52,6 +54,7 @@ from station.files.jsonable import jsonable
 from station.files.session import SessionWriter, StreamSpec
 from station.files.tables import MAX_BYTES, read_csv, read_matrix
 from station.imports.kalibr import recognise
+from station.imports.timing import timeline
 from station.model.constants import STANDARD_GRAVITY
 
 log = logging.getLogger(__name__)
@@ -157,6 +160,9 @@ def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED
     values = {name: _values(t, (columns or {}).get(name), int(not untimed), streams[name])
               for name, t in tables.items()}
     sources = {name: str(path) for name, path in streams.items()}
+    if not untimed:
+        clock = timeline(first, None, fs, ", ".join(str(p) for p in streams.values()))
+        first, fs, notes = clock.t, clock.rate_hz, notes + clock.notes
     return _write(out, "text", sources, values, units, first, None, fs, unit_serial, notes)
 
 
@@ -180,8 +186,10 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
 
     streams : stream name -> list of column names (e.g. {"acc": ["acc_x", "acc_y", "acc_z"]})
     units   : stream name -> unit spec
-    Time: `time_column` (in `time_unit`), or `index_column` (sample numbers) with `fs`, or rows
-    at `fs`. delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
+    Time: `time_column` (in `time_unit`; a host's stamps are told from a device's and the
+    samples placed by `index_column`, the device's counter, or at `fs` when given:
+    station.imports.timing), or `index_column` (sample numbers) with `fs`, or rows at `fs`.
+    delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
     station.files.tables.read_csv (and its `progress`). No streams, time column or rate: a
     Kalibr/EuRoC IMU CSV, recognised by its header (station.imports.kalibr), streams gyro
     and acc at its nanosecond time stamps.
@@ -197,28 +205,29 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     for extra in (time_column, index_column):
         if extra is not None:
             wanted.append(extra)
-    if (time_column is None) == (fs is None) and index_column is None:
-        raise CalibrationInputError("give either a time column or a sample rate fs.",
+    if time_column is None and fs is None:
+        raise CalibrationInputError("give a time column or a sample rate fs.",
                                     "Use --time COLUMN (seconds) or --fs HZ (with --index COLUMN).")
-    if index_column is not None and fs is None:
-        raise CalibrationInputError("an index column needs the sample rate fs.", "Give --fs HZ.")
     if time_unit is not None and time_column is None:
         raise CalibrationInputError("a time unit without a time column.",
                                     "Give --time COLUMN with --time-unit, or drop --time-unit.")
     read = read_csv(path, wanted, delimiter=delimiter, skip_rows=skip_rows, progress=progress)
     table = read.values
     by_name = {c: table[:, i] for i, c in enumerate(wanted)}
-    seq = None
+    seq = None if index_column is None else \
+        _integers(by_name[index_column], f"{path}: column {index_column!r}")
+    clock = []
     if time_column is not None:
-        t = _seconds(by_name[time_column], time_unit, f"{path}: column {time_column!r}")
-    elif index_column is not None:
-        seq = _integers(by_name[index_column], f"{path}: column {index_column!r}")
+        where = f"{path.name}: column {time_column!r}"
+        found = timeline(_seconds(by_name[time_column], time_unit, where), seq, fs, where)
+        t, seq, fs, clock = found.t, found.seq, found.rate_hz, found.notes
+    elif seq is not None:
         t = seq / fs
     else:
         t = np.arange(len(table)) / fs
     values = {name: np.column_stack([by_name[c] for c in cols]) for name, cols in streams.items()}
     return _write(out, "csv", {name: str(path) for name in streams}, values, units, t, seq, fs,
-                  unit_serial, recognised + list(read.notes))
+                  unit_serial, recognised + list(read.notes) + clock)
 
 
 def import_npz(out, path, *, unit_serial: str = "IMPORTED", max_bytes: int = MAX_BYTES) -> Path:

@@ -1,8 +1,8 @@
 """A PX4 ULog file's IMU samples into a session (`station import ulog`), read with pyulog.
 
 Format: docs.px4.io, "ULog File Format" (header, definitions: format, info, parameter and
-add-logged messages; data messages of a topic instance, `multi_id`). Topics, in order of
-preference (PX4's uORB message definitions, msg/*.msg):
+add-logged messages; data messages of a topic instance, `multi_id`). Topic families (PX4's uORB
+message definitions, msg/*.msg):
 
 - `sensor_accel` and `sensor_gyro`: the raw sensors, one instance per chip; `x, y, z` in m/s^2
   and rad/s, time `timestamp_sample` (else `timestamp`), microseconds; `device_id` and
@@ -14,14 +14,22 @@ preference (PX4's uORB message definitions, msg/*.msg):
   `delta_velocity_dt` (microseconds), divided into rates (not exact: rounded, said in the notes);
   samples with a zero interval left out.
 
-The instance is the topic's `multi_id` (`--instance N`; default the first that every topic of the
-family has); a wrong one is refused listing the topics and instances the log holds. The samples
-go through station.imports.flightlog (checks, exact scaling, the session).
+A family instance is a candidate when each of its topics holds at least 2 samples at that
+`multi_id`. The importer takes the candidate of the highest sample rate (its topics' slowest
+median step): PX4's default profile logs `sensor_accel`/`sensor_gyro` at about 1 Hz beside
+`sensor_combined` at 200-250 Hz, and a 1 Hz recording calibrates nothing. Rates within
+RATE_TIE of each other count as equal, and the family listed first above wins (the raw sensors:
+exact values, device ids; vehicle_imu last: divided rates), then the lowest instance.
+`--topic NAME` (any topic of a family) and `--instance N` narrow the choice; the candidates with
+their samples and rates are said in the notes. A choice nothing matches is refused listing the
+topics and instances the log holds. The samples go through station.imports.flightlog (checks,
+exact scaling, the session).
 """
 
 import contextlib
 import io
 import mmap
+from dataclasses import dataclass
 from importlib.metadata import version
 from pathlib import Path
 
@@ -32,7 +40,12 @@ from station.files.tables import MAX_BYTES
 from station.imports.flightlog import Series, summary, write_session
 
 FAMILIES = (("sensor_accel", "sensor_gyro"), ("sensor_combined",), ("vehicle_imu",))
-"""IMU topics, the preferred first: a family is used when each of its topics has samples."""
+"""IMU topic families, the preferred first at equal rates."""
+
+TOPICS = tuple(t for family in FAMILIES for t in family)
+
+RATE_TIE = 0.1
+"""Candidates whose rates differ by less than this fraction count as equally fast."""
 
 INVALID_RELATIVE = 2**31 - 1
 """sensor_combined.accelerometer_timestamp_relative of a sample without an accelerometer part."""
@@ -42,15 +55,18 @@ FIX = ("Log the IMU topics (PX4 logs sensor_combined by default; sensor_accel an
        "controller.")
 
 
-def import_ulog(out, path, *, instance: int | None = None,
+def import_ulog(out, path, *, instance: int | None = None, topic: str | None = None,
                 unit_serial: str = "IMPORTED") -> Path:
     """Import the accelerometer and gyro of a ULog file into a new session `out` (streams acc,
-    gyro; see the module docstring for the topics and `instance`)."""
+    gyro; the family and instance: the fastest candidate, or `topic` and `instance`; see the
+    module docstring)."""
     path = Path(path)
+    if topic is not None and topic not in TOPICS:
+        raise CalibrationInputError(f"--topic {topic!r} is not an IMU topic the importer reads.",
+                                    f"Give one of {', '.join(TOPICS)}.")
     ulog, notes = read(path)
     datasets = {(d.name, d.multi_id): d for d in ulog.data_list}
-    family, chosen = _family(path, ulog, datasets, instance, notes)
-    notes.append(f"{path.name}: topics {', '.join(family)} instance {chosen}")
+    family, chosen = _choose(path, ulog, datasets, instance, topic, notes)
     pick = {name: datasets[(name, chosen)] for name in family}
     series = (_raw(pick) if family == FAMILIES[0] else
               _combined(pick["sensor_combined"], notes, path) if family == FAMILIES[1] else
@@ -69,10 +85,9 @@ def read(path: Path) -> tuple:
         raise CalibrationInputError(f"{path} holds {size} bytes, more than {MAX_BYTES}.",
                                     "Split the log (pyulog's ulog2csv) and import a part.")
     said = io.StringIO()
-    topics = [t for family in FAMILIES for t in family]
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            ulog = ULog(str(path), message_name_filter_list=topics)
+            ulog = ULog(str(path), message_name_filter_list=list(TOPICS))
     except Exception as exc:  # pyulog raises what its parsing meets (struct, KeyError, ...)
         raise CalibrationInputError(
             f"{path} is not a ULog file pyulog can read ({type(exc).__name__}: {exc}).",
@@ -103,38 +118,70 @@ def _cut_bytes(path: Path) -> int:
         return len(data) - at
 
 
-def _family(path, ulog, datasets: dict, instance, notes: list) -> tuple:
-    """(topics, instance) to import: the first family whose topics all hold samples, at
-    `instance` or the first instance they share; refused listing what the log holds. A family
-    with some of its topics empty is passed over, said in `notes`."""
+@dataclass(frozen=True)
+class Candidate:
+    """A topic family at one instance with samples in every topic: the fewest samples and the
+    lowest rate (Hz, from the median time stamp step) over its topics."""
+
+    family: tuple
+    instance: int
+    samples: int
+    rate_hz: float
+
+    def __str__(self) -> str:
+        return (f"{'+'.join(self.family)} instance {self.instance}: {self.samples} samples at "
+                f"{self.rate_hz:.4g} Hz")
+
+
+def candidates(datasets: dict) -> list:
+    """Every `Candidate` of the log's data (`{(topic, multi_id): pyulog data}`), in FAMILIES
+    order, then by instance."""
+    out = []
     for family in FAMILIES:
-        present = [sorted(i for (n, i) in datasets if n == name) for name in family]
-        if not all(present):
-            if any(present):
-                empty = [n for n, p in zip(family, present, strict=True) if not p]
-                notes.append(f"{path.name}: {', '.join(family)} passed over: "
-                             f"{', '.join(empty)} holds no samples")
-            continue
-        shared = sorted(set.intersection(*map(set, present)))
-        if instance is None and shared:
-            return family, shared[0]
-        if instance in shared:
-            return family, instance
-        which = "no instance shared by" if instance is None else f"no instance {instance} of"
+        shared = set.intersection(*({i for (n, i) in datasets if n == name} for name in family))
+        for i in sorted(shared):
+            times = [_field(datasets[(name, i)], "timestamp").astype(float) for name in family]
+            if min(len(t) for t in times) < 2:
+                continue
+            steps = [float(np.median(np.diff(t))) for t in times]
+            rate = min(1e6 / step if step > 0 else 0.0 for step in steps)
+            out.append(Candidate(family, i, min(len(t) for t in times), rate))
+    return out
+
+
+def _choose(path, ulog, datasets: dict, instance, topic, notes: list) -> tuple:
+    """(topics, instance) to import: the fastest `candidates` (ties: the earlier family, the
+    lower instance) among those of `topic`'s family and `instance` when given; the candidates
+    and the choice said in `notes`; refused listing what the log holds when none fits."""
+    found = candidates(datasets)
+    fits = [c for c in found if (topic is None or topic in c.family)
+            and (instance is None or c.instance == instance)]
+    if not fits:
+        asked = " and ".join(filter(None, (topic and f"topic {topic}",
+                                            instance is not None and f"instance {instance}")))
+        if not found:
+            raise CalibrationInputError(
+                f"{path} holds no IMU samples ({_holdings(ulog, datasets)}).", FIX)
         raise CalibrationInputError(
-            f"{path}: {which} {' and '.join(family)} ({_holdings(ulog, datasets)}).",
-            "Give --instance N with one of the instances listed.")
-    raise CalibrationInputError(f"{path} holds no IMU samples ({_holdings(ulog, datasets)}).", FIX)
+            f"{path}: no IMU candidate with {asked} (candidates: "
+            f"{'; '.join(map(str, found))}; the log holds {_holdings(ulog, datasets)}).",
+            "Give --topic and --instance of one of the candidates listed.")
+    fastest = max(c.rate_hz for c in fits)
+    best = next(c for c in fits if c.rate_hz >= (1 - RATE_TIE) * fastest)
+    why = "the only one left" if len(fits) == 1 else "the highest rate"
+    notes.append(f"{path.name}: IMU candidates: {'; '.join(map(str, found))}; chosen "
+                 f"{'+'.join(best.family)} instance {best.instance} ({why}; --topic and "
+                 "--instance choose another)")
+    return best.family, best.instance
 
 
 def _holdings(ulog, datasets: dict) -> str:
     """What the log holds of the IMU topics: samples per topic instance, topics defined empty."""
     held = [f"{n} instance {i}: {len(next(iter(d.data.values()), ()))} samples"
             for (n, i), d in sorted(datasets.items())]
-    empty = sorted({t for f in FAMILIES for t in f} & set(ulog.message_formats)
-                   - {n for n, _ in datasets})
+    empty = sorted(set(TOPICS) & set(ulog.message_formats) - {n for n, _ in datasets})
     held += [f"{n}: no samples" for n in empty]
-    return "; ".join(held) or "none of " + ", ".join(t for f in FAMILIES for t in f)
+    return "; ".join(held) or "none of " + ", ".join(TOPICS)
 
 
 def _raw(pick: dict) -> dict:

@@ -76,7 +76,8 @@ def session_noise(session, stream: str = "imu", channels=None) -> SessionNoise:
             f"needs {MIN_SAMPLES} ({MIN_SAMPLES / spec.rate_hz:.3g} s at {spec.rate_hz:g} Hz).",
             "Record the unit at rest: the static windows of a protocol, or a long rest.")
     curve = pooled(curves)
-    names, units = tuple(spec.channels[i] for i in pick), tuple(spec.units[i] for i in pick)
+    units = session.reading_units(stream)  # raw counts without their scale stay "counts"
+    names, units = tuple(spec.channels[i] for i in pick), tuple(units[i] for i in pick)
     return SessionNoise(stream, names, units, np.array(kept, float).reshape(-1, 2), source, curve,
                         fit_noise(curve, names))
 

@@ -304,8 +304,12 @@ def _window_samples(window: float, fs: float, k: int) -> int:
     w = 2 * round(window * fs / 2) + 1
     if w < 3 or w > k:
         raise CalibrationInputError(
-            f"window {window} s is {w} samples for a recording of {k} samples.",
-            "Use a window of at least 3 samples and shorter than the recording.",
+            f"the still detector's window of {window} s is {w} samples at {fs:g} Hz, for a "
+            f"recording of {k} samples; it needs 3 samples or more, within the recording.",
+            "Record (or import) the sensor at a higher rate: a flight log's fastest IMU data "
+            "(`station import ulog --topic sensor_combined`; the import's notes list the "
+            "topics' rates), or a longer recording." if w < 3 else
+            "Record a longer recording (several still poses of a few seconds each).",
         )
     return w
 

@@ -223,8 +223,8 @@ def _calibration(session, name, report, stream: str | None):
         if kind is not None and kind.still:
             _stored_poses(report, session, stored)
         rows = stored.channels or range(len(spec.channels))
-        return (stored.calibration, [spec.channels[i] for i in rows],
-                [spec.units[i] for i in rows])
+        units = session.reading_units(stored.stream)
+        return stored.calibration, [spec.channels[i] for i in rows], [units[i] for i in rows]
     if kind is None or not kind.has("reduce"):
         report.warnings.append("The session holds no calibration result; solve it and store "
                                "the result to see the fit in this report.")
@@ -241,7 +241,8 @@ def _calibration(session, name, report, stream: str | None):
     spec = session.specs[stream]
     rows = kind.entry("channels")(session, stream) if kind.has("channels") else \
         range(len(spec.channels))
-    return cal, [spec.channels[i] for i in rows], [spec.units[i] for i in rows]
+    units = session.reading_units(stream)
+    return cal, [spec.channels[i] for i in rows], [units[i] for i in rows]
 
 
 def _stored_poses(report, session, stored) -> None:

@@ -12,6 +12,7 @@ This namespace is the public interface; the modules' other names are the package
 
 from station.errors import SessionFormatError, SessionLockedError
 from station.files.session.format import (
+    COUNTS,
     EVENT_KINDS,
     FORMAT_VERSION,
     TABLE_STATUS_BITS,
@@ -39,7 +40,7 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
-    "EVENT_KINDS", "FORMAT_VERSION", "TABLE_STATUS_BITS", "Event", "Session", "SessionFormatError",
-    "SessionLockedError", "SessionResults", "SessionWriter", "StreamData", "StreamSpec",
-    "TableData", "last_completed_position", "nominal_layout", "write_results",
+    "COUNTS", "EVENT_KINDS", "FORMAT_VERSION", "TABLE_STATUS_BITS", "Event", "Session",
+    "SessionFormatError", "SessionLockedError", "SessionResults", "SessionWriter", "StreamData",
+    "StreamSpec", "TableData", "last_completed_position", "nominal_layout", "write_results",
 ]

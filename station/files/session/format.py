@@ -33,6 +33,8 @@ RESULT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}\Z")
 MAX_JSON_BYTES = 16 << 20
 CHUNK_BYTES = 64 << 10
 ALLOWED_FILTERS = {h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_FLETCHER32}
+COUNTS = "counts"
+"""The unit of readings that are raw counts whose scale is not known (`Session.reading_units`)."""
 STREAM_UNITS = {"counts": "count", "seq": "1", "device_time": "s", "host_time": "s"}
 """`units` attribute of each stream dataset (SI units of the counts: the group's `units`)."""
 EVENT_UNITS = {"time": "s", "position": "1", "kind": "1", "detail_end": "byte", "detail": "byte"}

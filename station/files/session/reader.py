@@ -17,6 +17,7 @@ from station.errors import InputError, SessionFormatError
 from station.files.session._repair import open_flags
 from station.files.session.format import (
     ALLOWED_FILTERS,
+    COUNTS,
     EVENT_COLUMNS,
     EVENT_KINDS,
     FORMAT,
@@ -88,6 +89,18 @@ class Session:
     def closed_cleanly(self) -> bool:
         """False while a writer is live or after it was killed (superblock flags still set)."""
         return open_flags(self.path) == 0
+
+    def reading_units(self, name: str) -> tuple:
+        """The unit each channel of stream `name` reads in once divided by its counts per unit
+        (`StreamData.to_si`): its SI unit (`spec.units`, which also says what it senses), or
+        COUNTS for a stream imported as raw counts without their scale (`station import --unit
+        NAME=counts:m/s^2`: counts per unit 1, the values stay counts; metadata
+        `import.streams.NAME.unit`)."""
+        entry = (self.metadata.get("import") or {}).get("streams", {}).get(name)
+        unit = entry.get("unit") if isinstance(entry, dict) else None
+        if isinstance(unit, str) and unit.startswith("counts:") and "@" not in unit:
+            return (COUNTS,) * len(self.specs[name].units)
+        return self.specs[name].units
 
     def stream(self, name: str, start: int = 0, stop: int | None = None,
                columns: tuple = STREAM_COLUMNS) -> StreamData:
