@@ -443,6 +443,7 @@ def summarise(cal, out) -> dict:
         "noise": None if cal.noise is None else cal.noise.to_document(cal.units[0]),
         NO_NOISE: None if cal.noise is not None else (cal.session or {}).get(NO_NOISE),
         "repeatability": cal.fit.get(INCLUDED),
+        "weakly_determined": cal.fit.get("weakly_determined", []),
     }
 
 
@@ -466,8 +467,12 @@ def _text(s: dict) -> str:
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *repeatability_lines(s),
-                      *noise_lines(s), *suspect, f"written to {s['calibration']}", *judged])
+    weak = [f"weakly determined by these poses (1 sigma beyond 10 % of a scale factor, 6 deg or "
+            f"0.1 of the stimulus; the figures above say how loose): "
+            f"{', '.join(s['weakly_determined'])}"] if s["weakly_determined"] else []
+    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *weak,
+                      *repeatability_lines(s), *noise_lines(s), *suspect,
+                      f"written to {s['calibration']}", *judged])
 
 
 def repeatability_lines(s: dict) -> list:
