@@ -16,7 +16,9 @@ calibrate the accelerometer channels only.
 Imported recordings (`station import`, protocol "import"): every still pose found in the data is a
 pose of the free-static path (`station.reduce.imported`); the stream calibrated is the one in m/s^2
 (or --stream), the magnitude --magnitude or standard gravity (said in the output), the frame the
-canonical one of Eq. (19). The still-pose detector's settings (--rest, --threshold,
+canonical one of Eq. (19). An imported magnetometer stream (in T, or counts:T) is solved from blocks
+of its continuous rotation (docs/hand-turns.md), with --magnitude the local field in T, or without
+it to the local field's unit sphere. The still-pose detector's settings (--rest, --threshold,
 --still-channels, --min-still; docs/stillness.md) apply to every still-pose session; the output
 lists the poses found and every candidate rejected, with the reason. --faces: the poses of an import
 are the faces of a right-angle block (one mounting), solved with the right-angle constraints of
@@ -92,7 +94,8 @@ def register(p) -> None:
                         "(physical frame) instead of the canonical frame of Eq. (19)")
     p.add_argument("--magnitude", type=float,
                    help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
-                        "its local gravity in m/s^2; an import: standard gravity 9.80665)")
+                        "its local gravity in m/s^2; an import: standard gravity 9.80665; an "
+                        "imported magnetometer: unknown, the local field's unit sphere)")
     still_arguments(p)
     faces_argument(p)
     channels_argument(p)

@@ -183,7 +183,8 @@ def distinct_directions(a: np.ndarray, v: np.ndarray, sigma: np.ndarray) -> np.n
     groups = []
     while free.any():
         lead = int(np.argmax(free))
-        near = free & (u[:, lead] @ u > np.cos(SAME_POSE * np.hypot(angle_sd[lead], angle_sd)))
+        near = free & (u[:, lead] @ u >= np.cos(SAME_POSE * np.hypot(angle_sd[lead], angle_sd)))
+        near[lead] = True  # its own direction, whatever the rounding of u . u
         groups.append(u[:, near].sum(axis=1))
         free &= ~near
     if len(groups) == u.shape[1]:
