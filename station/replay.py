@@ -325,16 +325,21 @@ def channel_rows(session, settings: ReplaySettings) -> np.ndarray | None:
     return np.array([names.index(c) for c in settings.channels])
 
 
-def stimulus(session, settings: ReplaySettings) -> tuple[float, str]:
+UNIT_FIELD = ("unknown (no --magnitude): calibrated to the local field's unit sphere, scale "
+              "factors per local field and the calibrated field in units of it (|B| = 1); "
+              "--magnitude with the local field in T gives them in T")
+"""The stimulus in words of a magnetometer calibrated without the field's magnitude."""
+
+
+def stimulus(session, settings: ReplaySettings) -> tuple[float | None, str]:
     """(stimulus magnitude, where it comes from in words): --magnitude, else the recorded one,
-    else the kind's default (`Kind.stimulus_default`, e.g. standard gravity for an import)."""
+    else the kind's default (`Kind.stimulus_default`, e.g. standard gravity for an import); a
+    magnetometer (a stream in T) without --magnitude: None, the local field's unit sphere
+    (`station.calibrate` with the magnitude unknown: Remark 2, `scale_known` false)."""
     if settings.magnitude is not None:
         return settings.magnitude, "given (--magnitude)"
     if "T" in session.specs[calibrated_stream(session, settings)].units:
-        raise CalibrationInputError(
-            f"{session.path}: the magnetometer's field magnitude is not recorded.",
-            "Give --magnitude: the local field strength in T (from a geomagnetic model, e.g. "
-            "4.8e-5 at mid latitudes).")
+        return None, UNIT_FIELD
     kind = lookup(session.protocol, "reduce", f"{session.path} records a {session.protocol!r} "
                   "session")
     words, keys = kind.stimulus

@@ -90,3 +90,42 @@ def test_constraints_without_magnitudes_are_refused_with_advice():
     orthogonal_only = Constraints(np.arange(9), np.arange(1, 10), np.zeros(9))
     raises_with_advice("no magnitude constraint", "magnitude constraints", readings, 1.0,
                        constraints=orthogonal_only)
+
+
+def test_minimal_pose_sets_of_section4_are_accepted_with_an_honest_mse():
+    """Rupniewski's Section IV setting at n = 8 (12 gyros, sigma = 0.01): every design of random
+    directions has full rank, so none is refused (a rank test: 8.5 % were refused as "not
+    separable" by a 1-sigma threshold); some are weakly determined and say so. Their mean
+    eps^2 / trace(CRLB) is 1 for an efficient estimator, with a per-trial variance
+    2 sum(lam^2) / (sum lam)^2 (eps^2 a sum of lam_k chi2_1, lam the bound's eigenvalues)."""
+    from layouts import section4_gyros
+
+    rng = np.random.default_rng(31)
+    ratio, var, weak = [], [], 0
+    for _ in range(80):
+        a, v, readings = section4_gyros(rng, 8, 0.01)
+        bound = np.linalg.eigvalsh(station.crlb(a, v, 0.01))
+        fit = station.calibrate(readings, 1.0, sigma=0.01)  # refused: CalibrationInputError
+        ratio.append(station.eps(a, fit.a) ** 2 / bound.sum())
+        var.append(2 * np.sum(bound ** 2) / bound.sum() ** 2)
+        weak += bool(fit.weakly_determined)
+    se = np.sqrt(np.mean(var) / len(ratio))
+    assert weak > 0
+    assert abs(np.mean(ratio) - 1) < 4 * se, (np.mean(ratio), se)
+
+
+def test_a_weak_design_names_its_loose_parameters_and_a_degenerate_one_is_refused():
+    """The same 12 gyros at n = 8 with every direction near one plane (tilted by 0.05 rad at
+    most): identified, the out-of-plane parameters loosely (named); exactly in the plane the
+    gyros' out-of-plane components are not identified at all (refused)."""
+    rng = np.random.default_rng(32)
+    phi = np.linspace(0, np.pi, 8, endpoint=False)
+    for tilt, refused in ((0.3, False), (0.0, True)):
+        z = tilt * np.cos(3 * phi + 0.4)
+        v = np.stack([np.cos(phi), np.sin(phi), z]) / np.sqrt(1 + z ** 2)
+        readings = A_MODEL.T @ v + 0.01 * rng.standard_normal((12, 8))
+        if refused:
+            raises_with_advice("not separable", "add a pose", readings, 1.0, sigma=0.01)
+            continue
+        fit = station.calibrate(readings, 1.0, sigma=0.01)
+        assert fit.weakly_determined and all(" of s" in p for p in fit.weakly_determined)

@@ -10,7 +10,9 @@ file. DATA is either
   divides by the calibration's counts per unit.
 
 The output (CSV, or HDF5 when OUT ends in .h5) has columns time [s] and v_x, v_y (, v_z) in the
-readings' unit, in the calibration's frame. `--sigma` adds the 1-sigma of each component that the
+readings' unit (a calibration whose stimulus magnitude was unknown, e.g. a magnetometer solved
+without --magnitude: in units of the local magnitude, `[local magnitude]`), in the calibration's
+frame. `--sigma` adds the 1-sigma of each component that the
 calibration's own uncertainty leaves (its covariance, calibration file version 2; the readings'
 noise is not included): columns sigma_v_x, ... (HDF5: dataset `v_sigma`).
 
@@ -119,16 +121,16 @@ def run(args) -> int:
         sigma = np.sqrt(np.diagonal(cal.vector_covariance(z.T, temp), axis1=1, axis2=2)) \
             if len(z) else np.zeros_like(v)
     if args.out is None:
-        sys.stdout.write(csv_text(time, v, cal.quantity, sigma))
+        sys.stdout.write(csv_text(time, v, cal.vector_unit, sigma))
     elif args.out.suffix.lower() in HDF5_SUFFIXES:
         write_hdf5(args.out, time, v, cal, args.data, sigma,
                    temp if cal.temperature is not None else None)
     else:
-        args.out.write_text(csv_text(time, v, cal.quantity, sigma))
+        args.out.write_text(csv_text(time, v, cal.vector_unit, sigma))
     if args.json:
         norm = np.linalg.norm(v, axis=1)
         print(json.dumps({"out": str(args.out), "rows": len(v), "d": v.shape[1],
-                          "units": cal.quantity, "frame": cal.frame,
+                          "units": cal.vector_unit, "frame": cal.frame,
                           "unit_serial": cal.unit_serial,
                           "norm_mean": float(norm.mean()) if len(v) else None,
                           "temperature_model": cal.temperature is not None,
@@ -198,9 +200,8 @@ def read_session(path, stream: str, cal, temperature_column: str | None = None) 
                                        f"sensors {missing}; give the session (and --stream) it "
                                        "was solved from")
         cols = [spec.channels.index(s) for s in cal.sensors]  # e.g. the accelerometers of a
-        units = session.reading_units(stream)  # stream that holds gyros too
-        cal.check_unit(session.unit_serial, cal.sensors,
-                       [units[i] for i in cols], where=str(path))
+        cal.check_unit(session.unit_serial, cal.sensors,  # stream that holds gyros too
+                       [spec.units[i] for i in cols], where=str(path))
         temp_col = _temperature_channel(spec, cal, temperature_column, path, stream)
         data = session.stream(stream)
     time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
@@ -318,7 +319,7 @@ def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None
                        unit_serial=cal.unit_serial, frame=cal.frame, source=str(source),
                        calibration_checksum=cal.to_document()["checksum"])
         ds = f.create_dataset("v", data=v)
-        ds.attrs.update(units=cal.quantity, columns=list(AXES[:v.shape[1]]))
+        ds.attrs.update(units=cal.vector_unit, columns=list(AXES[:v.shape[1]]))
         if time is not None:
             f.create_dataset("time", data=time).attrs["units"] = "s"
         if temperature is not None:
@@ -326,6 +327,6 @@ def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None
                 units="K", meaning="the unit's temperature the temperature model was applied at")
         if sigma is not None:
             f.create_dataset("v_sigma", data=sigma).attrs.update(
-                units=cal.quantity, columns=list(AXES[:v.shape[1]]),
+                units=cal.units[0], columns=list(AXES[:v.shape[1]]),
                 meaning="1-sigma from the calibration's uncertainty, readings' noise excluded")
     os.replace(tmp, path)

@@ -5,10 +5,12 @@ One session's 1-sigma covers that session only. Re-seat the unit, switch it on a
 biases (and, less, its scale factors and axes) move by more than that (turn-on repeatability,
 mounting, temperature). Given K >= 2 files of the same unit, solved with the same sensors, units,
 frame and magnitude, each class of parameters (the entries of a, the biases, the scale factors,
-the axis angles) gets a between-session standard deviation tau (random effects, Paule-Mandel);
-the combined file holds the weighted means and, as every 1-sigma, the figure for the next session:
-sqrt(sigma_mean^2 + tau^2), widened for the few degrees of freedom tau was estimated from
-(docs/solvers.md "Repeatability").
+the axis angles) gets a between-session standard deviation tau (random effects: the posterior
+mean of tau^2 under the restricted likelihood and a weak half-Cauchy prior, so that a few sessions
+that happen to agree do not give a tau of 0; the Paule-Mandel point estimate and a 95 % upper
+bound beside it; the output says how many sessions each rests on); the combined file holds the
+weighted means and, as every 1-sigma, the figure for the next session: sqrt(sigma_mean^2 + tau^2),
+widened for the few degrees of freedom tau was estimated from (docs/solvers.md "Repeatability").
 """
 
 import json
@@ -63,14 +65,17 @@ def _text(cal, cals, out) -> str:
     """The summary in words: each class's tau against the sessions' own 1-sigma, and the table."""
     rep = cal.fit["repeatability"]
     lines = [f"unit {cal.unit_serial}: {len(cals)} sessions combined; every 1-sigma is the figure "
-             "for the next session (pooled mean + the spread between sessions)"]
+             "for the next session (pooled mean + the spread between sessions); each tau rests on "
+             f"{len(cals)} sessions: the posterior mean of tau^2 (REML, a weak prior), never 0 "
+             "(the sessions cannot exclude a spread below their own noise)"]
     own = {"a": [c.a_sigma for c in cals], "bias": [c.bias_sigma for c in cals],
            "scale_factors": [c.scale_factors_sigma for c in cals],
            "axis_angles": [c.axis_angles_sigma for c in cals]}
     for name, r in rep.items():
         sigma = np.median(np.array(own[name])[np.array(own[name]) > 0])
-        lines.append(f"  {name:13s} between sessions tau {r['tau']:.3g} (Q {r['q']:.1f} on "
-                     f"{r['dof']} dof); one session's median 1-sigma {sigma:.3g}")
+        lines.append(f"  {name:13s} between sessions tau {r['tau']:.3g} (95 % upper bound "
+                     f"{r['tau_upper']:.3g}, point estimate {r['tau_point']:.3g}; Q {r['q']:.1f} "
+                     f"on {r['dof']} dof); one session's median 1-sigma {sigma:.3g}")
     lines.append(f"  {'sensor':>10} {'scale factor':>13} {'1 sigma':>9} {'bias':>12} "
                  f"{'1 sigma':>9} {'(session)':>9}")
     within = np.median([c.bias_sigma for c in cals], axis=0)

@@ -16,7 +16,9 @@ calibrate the accelerometer channels only.
 Imported recordings (`station import`, protocol "import"): every still pose found in the data is a
 pose of the free-static path (`station.reduce.imported`); the stream calibrated is the one in m/s^2
 (or --stream), the magnitude --magnitude or standard gravity (said in the output), the frame the
-canonical one of Eq. (19). The still-pose detector's settings (--rest, --threshold,
+canonical one of Eq. (19). An imported magnetometer stream (in T, or counts:T) is solved from blocks
+of its continuous rotation (docs/hand-turns.md), with --magnitude the local field in T, or without
+it to the local field's unit sphere. The still-pose detector's settings (--rest, --threshold,
 --still-channels, --min-still; docs/stillness.md) apply to every still-pose session; the output
 lists the poses found and every candidate rejected, with the reason. --faces: the poses of an import
 are the faces of a right-angle block (one mounting), solved with the right-angle constraints of
@@ -96,7 +98,8 @@ def register(p) -> None:
                         "(physical frame) instead of the canonical frame of Eq. (19)")
     p.add_argument("--magnitude", type=float,
                    help="stimulus magnitude |v| (default: the session's table rate in rad/s, or "
-                        "its local gravity in m/s^2; an import: standard gravity 9.80665)")
+                        "its local gravity in m/s^2; an import: standard gravity 9.80665; an "
+                        "imported magnetometer: unknown, the local field's unit sphere)")
     still_arguments(p)
     faces_argument(p)
     channels_argument(p)
@@ -447,6 +450,7 @@ def summarise(cal, out) -> dict:
         "noise": None if cal.noise is None else cal.noise.to_document(cal.units[0]),
         NO_NOISE: None if cal.noise is not None else (cal.session or {}).get(NO_NOISE),
         "repeatability": cal.fit.get(INCLUDED),
+        "weakly_determined": cal.fit.get("weakly_determined", []),
     }
 
 
@@ -472,9 +476,12 @@ def _text(s: dict) -> str:
 
     suspect = [f"SUSPECT: {'; '.join(s['status_reasons'])}"] if s["status"] == "suspect" else []
     judged = [words(s["verdict"])] if s["verdict"] else []
-    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *repeatability_lines(s),
-                      *noise_lines(s), *suspect, f"written to {s['calibration']}", *judged,
-                      legend(white)])
+    weak = [f"weakly determined by these poses (1 sigma beyond 10 % of a scale factor, 6 deg or "
+            f"0.1 of the stimulus; the figures above say how loose): "
+            f"{', '.join(s['weakly_determined'])}"] if s["weakly_determined"] else []
+    return "\n".join([title, *pose_lines(s), *carry_lines(s), *rows, *weak,
+                      *repeatability_lines(s), *noise_lines(s), *suspect,
+                      f"written to {s['calibration']}", *judged, legend(white)])
 
 
 def legend(white: bool) -> str:

@@ -249,6 +249,8 @@ class Calibration(measurement.Sensitivity):
                            `stimulus` unit (SI) of what they sense.
         status           : "good", or "suspect" (a fit that failed the quality gate,
                            station.solve.quality) with `status_reasons` in words.
+        The parameters the poses determine only loosely (`result.weakly_determined`) are named
+        in `fit.weakly_determined` (absent when there are none).
         """
         m = result.m
         own_bias = bias is None
@@ -270,7 +272,9 @@ class Calibration(measurement.Sensitivity):
             fit={"method": result.method, "start": result.start, "chi2": float(result.chi2),
                  "dof": int(result.dof), "positions": int(result.v.shape[1]),
                  "bias_source": bias_source, "status": status,
-                 "status_reasons": list(status_reasons)},
+                 "status_reasons": list(status_reasons),
+                 **({"weakly_determined": list(result.weakly_determined)}
+                    if result.weakly_determined else {})},
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
             session=session, covariance=_joint_covariance(result, own_bias, bias_sigma),
@@ -356,6 +360,14 @@ class Calibration(measurement.Sensitivity):
                                        "without a temperature")
         return self.temperature.fuse(self.a, self.bias, self._readings(z).reshape(self.m, -1),
                                      temperature)
+
+    @property
+    def vector_unit(self) -> str:
+        """The unit of the calibrated vectors: the SI unit of what the sensors sense (`quantity`),
+        or "local magnitude" when the stimulus magnitude was unknown (`scale_known` false, Remark
+        2: a magnetometer calibrated to the local field's unit sphere gives the field in units of
+        the local one)."""
+        return self.quantity if self.scale_known else "local magnitude"
 
     def fusion_matrix(self) -> np.ndarray:
         """(d, m) least-squares fusion matrix F = (a a^T)^-1 a: v = F (z - b)."""

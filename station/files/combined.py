@@ -109,10 +109,9 @@ def combine(cals, names) -> Calibration:
     for name, (x, s) in stack.items():
         x, s = np.array(x), np.array(s)
         flat = repeatability.pool(x.reshape(len(cals), -1), s.reshape(len(cals), -1))
-        pooled[name] = repeatability.Pooled(
-            mean=flat.mean.reshape(x.shape[1:]), mean_sigma=flat.mean_sigma.reshape(x.shape[1:]),
-            sigma=flat.sigma.reshape(x.shape[1:]), tau=flat.tau, dof=flat.dof, q=flat.q,
-            widening=flat.widening)
+        pooled[name] = dataclasses.replace(
+            flat, mean=flat.mean.reshape(x.shape[1:]),
+            mean_sigma=flat.mean_sigma.reshape(x.shape[1:]), sigma=flat.sigma.reshape(x.shape[1:]))
     a = pooled["a"].mean
     fits = [c.fit for c in cals]
     suspect = [f"{n}: {'; '.join(c.fit.get('status_reasons', [])) or 'suspect'}"
@@ -122,7 +121,9 @@ def combine(cals, names) -> Calibration:
            "positions": int(sum(f["positions"] for f in fits)),
            "bias_source": "pooled over the sessions (station combine)",
            "status": "suspect" if suspect else "good", "status_reasons": suspect,
-           "repeatability": {k: {"tau": p.tau, "dof": p.dof, "q": p.q}
+           "repeatability": {k: {"tau": p.tau, "dof": p.dof, "q": p.q,
+                                 "tau_point": p.tau_point, "tau_upper": p.tau_upper,
+                                 "sessions": p.sessions, "mean_sigma": p.mean_sigma.tolist()}
                              for k, p in pooled.items()}}
     cal = Calibration(
         unit_serial=first.unit_serial, sensors=first.sensors, units=first.units, a=a,

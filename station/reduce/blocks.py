@@ -4,10 +4,12 @@ hand: hard- and soft-iron calibration on the ellipsoid, Eq. 8 with the biases es
 The recording is cut into blocks of `seconds`. Within a block the field turns, so each channel's
 samples are fitted with a parabola in time (orthogonal polynomials 1, t, t^2 - <t^2>): the block's
 reading is the parabola at the block's centre, its standard error from the scatter about the
-parabola. A plain mean would be shortened by theta^2 / 24 for a turn of theta radians within the
-block (0.1 % at 9 deg: a scale-factor bias); the parabola's centre is exact to third order (the
-error left is about theta^4 / 1920, 4e-5 at 30 deg). Blocks whose readings turned by more than
-`max_turn_deg` are still left out.
+parabolas pooled over the blocks (one per channel: a block of 5 samples at 50 Hz leaves 2 degrees
+of freedom, whose own scatter is 0 now and then for readings in whole counts, and weighting by it
+would trust some blocks without bound). A plain mean would be shortened by theta^2 / 24 for a turn
+of theta radians within the block (0.1 % at 9 deg: a scale-factor bias); the parabola's centre is
+exact to third order (the error left is about theta^4 / 1920, 4e-5 at 30 deg). Blocks whose
+readings turned by more than `max_turn_deg` are still left out.
 """
 
 from dataclasses import dataclass
@@ -26,7 +28,7 @@ MAX_TURN_DEG = 30.0
 @dataclass(frozen=True)
 class BlockReadings:
     """Readings of the blocks kept: M, sigma (m, n) (the parabola at each block's centre and its
-    standard error), windows (n, 2) sample indices [start, stop),
+    standard error, pooled per channel), windows (n, 2) sample indices [start, stop),
     turned_deg (n,) the field's turn within each block, dropped: blocks left out (turned too far,
     or too few samples)."""
 
@@ -68,7 +70,13 @@ def block_readings(samples, fs: float, seconds: float = SECONDS,
     at_centre = basis[:, size // 2] if size % 2 else np.array([1.0, 0.0, -np.mean(t ** 2)])
     centre = np.einsum("p,npm->nm", at_centre, coef)
     gain = np.sqrt(np.sum(at_centre ** 2 / (basis ** 2).sum(axis=1)))  # sd of centre / noise
-    sigma = np.sqrt((residual ** 2).sum(axis=1) / (size - 3)) * gain
+    ss = (residual ** 2).sum(axis=1)  # (n, m): each block's scatter about its parabola
+    sigma = np.broadcast_to(np.sqrt(ss.mean(axis=0) / (size - 3)) * gain, ss.shape)
+    if not np.all(sigma > 0):
+        flat = np.flatnonzero(~(sigma[0] > 0)).tolist()
+        raise CalibrationInputError(
+            f"channel(s) {flat} never vary about their parabolas (constant or stuck readings).",
+            "Check the recording: a magnetometer turned by hand reads a changing field.")
     ends = np.einsum("npm,pt->ntm", coef, basis[:, [0, -1]])
     turned = _turned_deg(ends[:, 0], ends[:, 1])
     keep = turned <= max_turn_deg

@@ -7,10 +7,11 @@ Methods (station/<module>):
 - `factorization` Hwangbo & Kanade, with a constraint list and/or biases estimated jointly (m > d).
 
 When the closed form fails, the next start of station/solve/starts.py is refined instead; the fit
-is refused only when its Fisher information leaves a parameter undetermined (named, with the pose
-that would fix it; station/solve/identifiability.py) or no start explains the readings. With the
-readings' noise given, the 1-sigma figures include a per-pose error term estimated from the
-residuals (the total figure), beside the white-noise figure (docs/solvers.md).
+is refused only when its Fisher information leaves a parameter unidentified (a rank test: named,
+with the pose that would fix it; station/solve/identifiability.py) or no start explains the
+readings; a parameter identified but loosely is named in `weakly_determined`, with its 1-sigma.
+With the readings' noise given, the 1-sigma figures include a per-pose error term estimated from
+the residuals (the total figure), beside the white-noise figure (docs/solvers.md).
 """
 
 from dataclasses import dataclass
@@ -79,6 +80,10 @@ class CalibrationResult(measurement.Sensitivity):
     scale_factors_sigma_white: np.ndarray | None = None
     axis_angles_sigma_white: np.ndarray | None = None
     bias_sigma_white: np.ndarray | None = None
+    # parameters the poses identify but only loosely (a 1-sigma beyond 10 % of a scale factor, 6
+    # degrees of axis or 0.1 of the stimulus as a bias; station.solve.identifiability.LOOSE), in
+    # words ("the scale of g3"); their sigmas above say how loose
+    weakly_determined: tuple = ()
 
     @property
     def normalised_residuals(self) -> np.ndarray:
@@ -165,22 +170,36 @@ def calibrate(
     )
     if refusal is not None:
         _check_consistent(fit, c, refusal)
-    identifiability.check_information(
+    weak = identifiability.check_information(
         uncertainty.reduced_fisher(fit.normal), fit.a, readings, estimate_bias, c, names,
         noise_known=sigma is not None or fit.dof > 0,
         free=m * n + (n if magnitude_spread else 0) - fit.dof,
+        distinct=None if constraints is not None or magnitude_spread else lambda: _distinct(fit),
         context=refusal,
     )
     if sigma is None:
         return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
-                       nominal, uncertainty.t_widening(fit.dof))
+                       nominal, uncertainty.t_widening(fit.dof), weak)
     total, pose_var = _with_pose_term(
         fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
     white = total if pose_var == 0 else refined(total.a, total.v, total.bias, sigma, max_iter=0,
                                                 fitted=True)
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
     return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
-                   scale_known, estimate_bias, nominal, widen)
+                   scale_known, estimate_bias, nominal, widen, weak)
+
+
+def _distinct(fit: ml.MLFit) -> np.ndarray | None:
+    """The information of the fit's distinct poses (repeats merged:
+    `identifiability.distinct_directions`, the poses' standard errors those of the scatter the
+    residuals show, chi2/dof >= 1: hand-placed repeats of a face differ by their seating), None
+    when every pose is distinct."""
+    scatter = np.sqrt(max(1.0, fit.chi2 / fit.dof)) if fit.dof > 0 else 1.0
+    v = identifiability.distinct_directions(fit.a, fit.v, scatter * fit.sigma)
+    if v is None:
+        return None
+    sigma = np.sqrt(np.mean(fit.sigma**2, axis=1))
+    return uncertainty.design_information(fit.a, v, fit.bias, sigma)
 
 
 def _with_pose_term(fit: ml.MLFit, refit) -> tuple[ml.MLFit, float]:
@@ -288,7 +307,7 @@ def _check_magnitudes(constraints, n: int) -> None:
 
 
 def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined, c,
-            scale_known, estimate_bias, nominal, widen: float = 1.0):
+            scale_known, estimate_bias, nominal, widen: float = 1.0, weak: tuple = ()):
     """Rotate into the reporting frame and propagate both covariances to the invariants: `total`
     (the estimate, weighted by the total noise; its covariance times `widen`) and `white` (the
     same estimate, weighted by the readings' stated noise: its residuals, sigma and chi2 are the
@@ -333,6 +352,7 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
         scale_factors_sigma_white=plain["scale"],
         axis_angles_sigma_white=plain["angles"],
         bias_sigma_white=plain["bias"],
+        weakly_determined=tuple(weak),
     )
 
 

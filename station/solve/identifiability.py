@@ -89,13 +89,25 @@ def check_gram(eigenvalues: np.ndarray) -> None:
         )
 
 
-# Fisher information at a solution (station.solve.calibrate): in natural units (scale factors and
-# axis turns relative, biases relative to the stimulus), a direction whose eigenvalue is below
-# INFO_TOL of the largest carries no information (double precision, with margin), and one whose
-# standard deviation exceeds LOOSE (10 % of a scale factor, 6 degrees, 0.1 of the stimulus) is not
-# determined either when the noise level is known or estimated from spare readings.
+# Fisher information at a solution (station.solve.calibrate), in natural units (scale factors and
+# axis turns relative, biases relative to the stimulus). A rank test: a direction is not identified
+# when its information is below INFO_TOL of the largest (double precision, with margin) or, with
+# the noise level known or estimated from spare readings, below 1 / UNBOUNDED^2: its 1-sigma then
+# exceeds the quantity itself (the whole scale factor, a radian of axis, the whole stimulus as a
+# bias), so not even its sign is determined. A rank-deficient design keeps 1e-8 .. 1e-4 at a noisy
+# estimate (the pose unknowns absorb the noise: a sensor seen at one angle, poses in a plane); a
+# full-rank but weak one far more (20 .. 100 on Rupniewski's 12 gyros at n = 8, sigma = 0.01).
+# Directions with a 1-sigma beyond LOOSE (10 % of a scale factor, 6 degrees, 0.1 of the stimulus)
+# are accepted as weakly determined: the fit exists, its 1-sigma says how loose it is, and the
+# result names them (`CalibrationResult.weakly_determined`).
+# Repeated poses (a block's six faces, each visited twice) differ only by their noise: their fitted
+# directions then carry information that the noise made, not the design. The rank is taken on the
+# distinct directions (`distinct_directions`): poses within SAME_POSE standard errors of a leader's
+# direction are one pose (a 2-D normal error lands beyond 5 sigma with probability 4e-6).
 INFO_TOL = 1e-12
+UNBOUNDED = 1.0
 LOOSE = 0.1
+SAME_POSE = 5.0
 # a sensor whose readings vary over the poses by less than this fraction of the widest-varying
 # sensor's sees the stimulus at one angle only: its scale and bias are not separable
 FLAT = 0.1
@@ -135,10 +147,11 @@ def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:
 
 
 def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estimated: bool,
-                 noise_known: bool) -> np.ndarray:
-    """(k, m p) orthonormal directions of theta, in natural units, that the information does not
-    determine besides the rotation gauge; k = 0 when every invariant is determined (found by one
-    Cholesky factorisation; the eigen-decomposition only when some direction is undetermined)."""
+                 noise_known: bool, sigma_max: float = UNBOUNDED) -> np.ndarray:
+    """(k, m p) orthonormal directions of theta, in natural units, whose 1-sigma exceeds
+    `sigma_max` (noise known) or whose information is below INFO_TOL of the largest, besides the
+    rotation gauge; k = 0 when there are none (found by one Cholesky factorisation; the
+    eigen-decomposition only when some direction is that loose)."""
     d, m = a.shape
     p = fisher.shape[0] // m
     scale = natural_scale(a, magnitude, bias_estimated)
@@ -147,7 +160,7 @@ def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estim
     top = _largest_eigenvalue(scaled)
     floor = INFO_TOL * top
     if noise_known:
-        floor = max(floor, 1.0 / LOOSE**2)
+        floor = max(floor, 1.0 / sigma_max**2)
     if _positive_definite(scaled + (top + floor) * (q @ q.T) - floor * np.eye(len(scaled))):
         return np.zeros((0, m * p))  # every eigenvalue beside the gauge's exceeds the floor
     lam, vec = np.linalg.eigh(scaled)
@@ -155,6 +168,29 @@ def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estim
     rest = null - q @ (q.T @ null)
     u, s, _ = np.linalg.svd(rest, full_matrices=False)
     return u[:, s > 0.5].T
+
+
+def distinct_directions(a: np.ndarray, v: np.ndarray, sigma: np.ndarray) -> np.ndarray | None:
+    """(d, k) the distinct directions among the fitted poses v (d, n) of sensors a (d, m) with
+    noise sigma (m, n): each the mean of the poses within SAME_POSE standard errors (angle) of a
+    leader's direction, the leaders taken in order (no chaining along a slow turn); None when
+    every pose is distinct."""
+    u = v / np.linalg.norm(v, axis=0)
+    info = np.einsum("di,in,ei->nde", a, 1.0 / sigma**2, a)  # per pose, of v (readings' units)
+    c = np.linalg.norm(v, axis=0)
+    angle_sd = 1.0 / (c * np.sqrt(np.maximum(np.linalg.eigvalsh(info)[:, 0], 1e-300)))
+    free = np.ones(u.shape[1], bool)
+    groups = []
+    while free.any():
+        lead = int(np.argmax(free))
+        near = free & (u[:, lead] @ u >= np.cos(SAME_POSE * np.hypot(angle_sd[lead], angle_sd)))
+        near[lead] = True  # its own direction, whatever the rounding of u . u
+        groups.append(u[:, near].sum(axis=1))
+        free &= ~near
+    if len(groups) == u.shape[1]:
+        return None
+    g = np.array(groups).T
+    return c.mean() * g / np.linalg.norm(g, axis=0)
 
 
 def _largest_eigenvalue(sym: np.ndarray) -> float:
@@ -192,17 +228,26 @@ def named_parts(direction: np.ndarray, a: np.ndarray, bias_estimated: bool, name
 
 
 def check_information(fisher, a, readings, bias_estimated: bool, magnitude: float, names, *,
-                      noise_known: bool, free: int,
-                      context: CalibrationInputError | None = None) -> None:
+                      noise_known: bool, free: int, distinct=None,
+                      context: CalibrationInputError | None = None) -> tuple:
     """Refuse a solution whose Fisher information (m p x m p, theta = (a_1, b_1, ...), the poses
-    eliminated) leaves parameters undetermined, naming them and the poses that would fix them.
+    eliminated) leaves parameters unidentified (a rank test, module notes), naming them and the
+    poses that would fix them; return the parameters identified but weakly determined (a 1-sigma
+    beyond LOOSE in natural units, with the noise level known), named the same way.
 
     readings (m, n) locate the sensors that see the stimulus at one angle only; free: the number
-    of unknowns (a, b and the poses, the gauge removed); context: the closed form's own refusal,
+    of unknowns (a, b and the poses, the gauge removed); distinct: called when some parameter is
+    weakly determined, the information of the distinct poses only (`distinct_directions`) or None
+    when they are all distinct: the rank is taken on it; context: the closed form's own refusal,
     quoted."""
-    null = undetermined(fisher, a, magnitude, bias_estimated, noise_known)
+    weak = undetermined(fisher, a, magnitude, bias_estimated, noise_known, LOOSE) \
+        if noise_known else np.zeros((0, fisher.shape[0]))
+    design = fisher if not len(weak) or distinct is None else distinct()
+    design = fisher if design is None else design
+    null = undetermined(design, a, magnitude, bias_estimated, noise_known)
     if not len(null):
-        return
+        return tuple(dict.fromkeys(p for w in weak for p in named_parts(w, a, bias_estimated,
+                                                                        names)))
     m, n = readings.shape
     d = a.shape[0]
     parts = list(dict.fromkeys(p for w in null for p in named_parts(w, a, bias_estimated, names)))

@@ -253,6 +253,17 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
     return frame_covariance(global_covariance(neq, a), a)[np.ix_(order, order)]
 
 
+def design_information(a, v, bias, sigma) -> np.ndarray:
+    """The reduced Fisher information (m p x m p, the poses eliminated) of sensors a (d, m) at
+    free directions v (d, k) of magnitude |v_j|, biases `bias` (m,) estimated or None, noise
+    sigma (m,) per sensor: what poses in those directions alone would determine."""
+    poses = Directions.start(v, float(np.linalg.norm(v[:, 0])))
+    weight = np.broadcast_to(1.0 / np.asarray(sigma, float)[:, None] ** 2, (a.shape[1],
+                                                                         v.shape[1]))
+    neq, _ = normal_equations(a, poses, bias, measurement.forward(a, v, bias), weight)
+    return reduced_fisher(neq)
+
+
 def eps_tail_probability(eps: float, bound: np.ndarray, samples: int = 200_000) -> float:
     """Probability that an efficient estimator's error exceeds `eps` (Eq. 19), given `bound` =
     crlb(...).

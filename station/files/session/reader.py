@@ -436,6 +436,8 @@ def _matrix(g, name, where, rows=None, shape=None) -> np.ndarray:
 LATER_FIELDS = ("parameter_covariance", "start", "pose_sigma", "a_sigma_white",
                 "scale_factors_sigma_white", "axis_angles_sigma_white", "bias_sigma_white")
 """CalibrationResult fields added after format version 1 was first written: None when absent."""
+WORDS_FIELDS = ("weakly_determined",)
+"""CalibrationResult fields of words, stored as one string ("; " between them): () when absent."""
 
 
 def _read_calibration(g, where, readings_shape) -> "CalibrationResult":
@@ -464,8 +466,12 @@ def _read_calibration(g, where, readings_shape) -> "CalibrationResult":
             values[key] = value if isinstance(value, str) else value.item()
         elif key in LATER_FIELDS:
             values[key] = None  # written before the field existed
+        elif key in WORDS_FIELDS:
+            values[key] = ""
         else:
             raise SessionFormatError(f"{where}: field {key!r} is missing")
+    for key in WORDS_FIELDS:
+        values[key] = tuple(p for p in str(values[key]).split("; ") if p)
     a = values["a"]
     if a.ndim != 2 or a.shape[1] != m:
         raise SessionFormatError(f"{where}/a has shape {a.shape}, expected (d, {m})")

@@ -495,7 +495,8 @@ def _truncate_to_common_length(f) -> dict:
 
 
 def _write_calibration(group, result: CalibrationResult) -> None:
-    """Arrays of the result become datasets, scalars attributes; None fields are listed."""
+    """Arrays of the result become datasets, scalars and tuples of words attributes; None fields
+    are listed."""
     none = []
     for field in dataclasses.fields(result):
         value = getattr(result, field.name)
@@ -503,6 +504,8 @@ def _write_calibration(group, result: CalibrationResult) -> None:
             none.append(field.name)
         elif isinstance(value, np.ndarray):
             group.create_dataset(field.name, data=np.asarray(value, dtype=np.float64))
+        elif isinstance(value, tuple):  # words (weakly_determined): one string, "; " between
+            group.attrs[field.name] = "; ".join(value)
         else:
             group.attrs[field.name] = value
     group.attrs["none_fields"] = np.array(none, dtype=h5py.string_dtype())
