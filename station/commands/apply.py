@@ -200,8 +200,9 @@ def read_session(path, stream: str, cal, temperature_column: str | None = None) 
                                        f"sensors {missing}; give the session (and --stream) it "
                                        "was solved from")
         cols = [spec.channels.index(s) for s in cal.sensors]  # e.g. the accelerometers of a
-        cal.check_unit(session.unit_serial, cal.sensors,  # stream that holds gyros too
-                       [spec.units[i] for i in cols], where=str(path))
+        units = session.reading_units(stream)  # stream that holds gyros too
+        cal.check_unit(session.unit_serial, cal.sensors,
+                       [units[i] for i in cols], where=str(path))
         temp_col = _temperature_channel(spec, cal, temperature_column, path, stream)
         data = session.stream(stream)
     time = sample_times(data.seq, data.host_time, spec.rate_hz) if len(data.seq) else np.zeros(0)
@@ -327,6 +328,6 @@ def write_hdf5(path, time, v, cal, source, sigma=None, temperature=None) -> None
                 units="K", meaning="the unit's temperature the temperature model was applied at")
         if sigma is not None:
             f.create_dataset("v_sigma", data=sigma).attrs.update(
-                units=cal.units[0], columns=list(AXES[:v.shape[1]]),
+                units=cal.vector_unit, columns=list(AXES[:v.shape[1]]),
                 meaning="1-sigma from the calibration's uncertainty, readings' noise excluded")
     os.replace(tmp, path)
