@@ -114,7 +114,8 @@ def test_station_solve_calibrates_a_gyro_stream_from_the_turns(tmp_path, capsys)
     summary = json.loads(out)
     assert summary["poses"] == 24 and 5 <= summary["positions"] <= 23  # turns of > 30 deg
     cal = load(summary["calibration"])
-    assert cal.sensors == ("gyro1", "gyro2", "gyro3") and cal.units == ("rad/s",) * 3
+    assert cal.sensors == ("gyro1", "gyro2", "gyro3")  # readings in counts of a rate (rad/s)
+    assert cal.units == ("counts",) * 3 and cal.quantity == "rad/s"
     assert "accelerometer's" in cal.session["frame"] and cal.session["accelerometer"]["stream"] \
         == "acc"
     # raw counts, no nominal scale given: the scale factors (counts per rad/s) within 4.5 sigma
