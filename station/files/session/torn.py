@@ -31,8 +31,8 @@ def verified_rows(ds, start: int) -> np.ndarray | None:
     offset = (start,) + (0,) * (ds.ndim - 1)
     try:
         mask, raw = ds.id.read_direct_chunk(offset)
-    except (OSError, KeyError, ValueError):
-        return None
+    except (OSError, KeyError, ValueError, RuntimeError):  # RuntimeError: HDF5's "addr overflow",
+        return None  # a chunk whose new place a kill left beyond the file's end
     row_bytes = ds.dtype.itemsize * int(np.prod(ds.chunks[1:], dtype=np.int64))
     data = np.frombuffer(raw, np.uint8)[:-4]
     if mask != 0 or len(raw) < 4 or data.size != row_bytes * ds.chunks[0]:
@@ -85,7 +85,7 @@ def _reads(ds, start: int, n: int) -> bool:
     """Whether the rows of the chunk at `start` read back (their checksum holds)."""
     try:
         ds[start:min(start + ds.chunks[0], n)]
-    except OSError:
+    except (OSError, RuntimeError):
         return False
     return True
 
