@@ -218,7 +218,7 @@ def test_the_gyro_table_of_a_carried_solve_has_no_nan():
                "start": None, "unit_serial": "SN", "positions": 13, "method": "gravity carry",
                "frame": "canonical", "chi2_per_dof": 1.0, "units": "rad/s", "pose_sigma": None,
                "status": "ok", "status_reasons": [], "verdict": None, "noise": None,
-               "no_noise_figures": None, "calibration": "x.cal.json"}
+               "no_noise_figures": None, "calibration": "x.cal.json", "weakly_determined": []}
     text = _text(summary)
     assert "nan" not in text and "(white)" not in text
 
