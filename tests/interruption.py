@@ -30,6 +30,8 @@ from station.reduce.timeline import sample_times, segment_breaks
 STATION = [sys.executable, "-m", "station"]
 POSITIONS = 6
 SEED = 3
+SPEED = 40.0
+"""The real-time twin's speed for the lost-device points."""
 WAIT = 1800.0
 """Wall seconds a step may take before the harness calls it hung: a hang guard only (the twin runs
 in lockstep time, so a busy host makes the session slower, never different)."""
@@ -46,12 +48,15 @@ RETRIES = 3
 """`RotarySettings.retries` of the twin's profile: reconnections tried before `record` gives up."""
 
 
-def _twin(workdir: Path):
-    """A running `station twin` process and its bench profile."""
+def _twin(workdir: Path, speed: float | None = None):
+    """A running `station twin` process and its bench profile: in lockstep time, or on a real-time
+    clock `speed` times faster (a silent device is found by wall-clock reply timeouts, which in
+    lockstep are 30 s a try: the device points run at SPEED)."""
     profile = workdir / "twin.toml"
     twin = subprocess.Popen(
-        [*STATION, "twin", "--positions", str(POSITIONS), "--seed",
-         str(SEED), "--profile-out", str(profile), "--lifetime", str(WAIT), "--json"],
+        [*STATION, "twin", *(["--speed", str(speed)] if speed else []), "--positions",
+         str(POSITIONS), "--seed", str(SEED), "--profile-out", str(profile), "--lifetime",
+         str(WAIT), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     json.loads(twin.stdout.readline())  # the twin is serving
     return twin, profile
@@ -102,7 +107,7 @@ def record(workdir: Path, interrupt=None) -> dict:
     after a lost device also whether the table still turned when `record` had ended."""
     workdir.mkdir(parents=True, exist_ok=True)
     session = workdir / "session.h5"
-    twin, profile = _twin(workdir)
+    twin, profile = _twin(workdir, SPEED if interrupt and interrupt[0] in DEVICES else None)
     try:
         enters = workdir / "enter.txt"  # the technician's answers
         enters.write_text(_answers(interrupt))
