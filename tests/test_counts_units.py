@@ -14,21 +14,13 @@ import matplotlib.text
 import numpy as np
 import pytest
 from test_gyro_carry import G, hand_recording, true_sensitivity
+from test_import_solve import station_with_errors as station
 
-from station.cli import main
 from station.files.calfile import load
 from station.report import html
 
 ACC_SCALE, GYRO_SCALE = 415.0, 3000.0
 SI = ("m/s^2", "rad/s")
-
-
-def station(capsys, *argv) -> tuple:
-    """(exit code, stdout, stderr) of one `station` command, run in this process."""
-    capsys.readouterr()
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 @pytest.fixture(scope="module")

@@ -24,21 +24,13 @@ from flightlogs import (
     ulog,
 )
 from hand import A_TRUE, B_TRUE, hand_session
+from test_import_solve import station_with_errors as station
 
-from station.cli import main
 from station.files.calfile import load
 from station.files.session import Session
 
 DEVICE_ID = 2490378  # an ICM-20602 on SPI bus 1, as PX4 encodes it
 T0_US = 3_000_000
-
-
-def station(capsys, *argv) -> tuple:
-    """(exit code, stdout, stderr) of one `station` command, run in this process."""
-    capsys.readouterr()
-    code = main([str(a) for a in argv])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
 
 
 @pytest.fixture(scope="module")
