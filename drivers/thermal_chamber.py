@@ -316,9 +316,20 @@ class ThermalChamber:
                 except ChamberError as safe_error:
                     exc.chamber_safe = False
                     exc.add_note(f"the chamber could not be brought to its safe setpoint "
-                                 f"{self.safe_kelvin:.2f} K ({safe_error}); set it by hand")
+                                 f"{self.safe_kelvin:.2f} K ({safe_error}); "
+                                 f"{self._unattended()}")
         finally:
             self.close()
+
+    def _unattended(self) -> str:
+        """What becomes of a chamber the station can no longer reach, and what to do."""
+        w = self.map.watchdog
+        if w is None:
+            return "set it by hand"
+        does = (f"goes to {w.safe_setpoint:.2f} K" if w.action == "safe"
+                else "stops conditioning")
+        return (f"its watchdog {does} by itself {w.period:g} s after the last heartbeat: check "
+                f"on its panel that it did, or set it by hand")
 
     def connect(self) -> None:
         """Open the link, or raise ChamberLinkError naming the address."""
