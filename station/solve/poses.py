@@ -18,8 +18,6 @@ Both expose the same small interface: `vectors()`, `jacobian()` (dv_j / d local,
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from station.errors import CalibrationInputError
 
@@ -175,6 +173,9 @@ def rigid_groups(constraints, v0: np.ndarray, magnitude: float) -> RigidGroups |
     Positions linked by constraints form a group; every pair in it must be constrained, with unit
     magnitudes, and the Gram matrix must be positive semidefinite of rank <= 3.
     """
+    from scipy.sparse import csr_matrix  # here: scipy.sparse costs a solve without constraints
+    from scipy.sparse.csgraph import connected_components  # (a rotary one) 0.2 s of imports
+
     d, n = v0.shape
     if d != 3:
         return None

@@ -81,7 +81,6 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     within its chi2(dof) distribution (P(chi2 >= observed) >= EXCESS_P), or no reading is spare.
     """
     from scipy import special  # here: `import station` stays light; not scipy.stats (0.5 s)
-    from scipy.optimize import brentq
 
     r2, s2 = np.asarray(residuals, float) ** 2, np.asarray(sigma, float) ** 2
     extra = float(np.sum(np.square(prior)))
@@ -91,6 +90,8 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
 
     if dof <= extra or special.chdtrc(dof, excess(0.0) + dof) >= EXCESS_P:  # chi2 sf
         return 0.0
+    from scipy.optimize import brentq  # only now: scipy.optimize is 0.1-0.2 s of imports
+
     high = max(float(np.mean(r2)), float(s2.max()))
     while excess(high) > 0:
         high *= 4
