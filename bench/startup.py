@@ -64,7 +64,8 @@ def main() -> None:
     figures = {name: statistics.median(r) for name, r in runs.items()}
     help_cpu = figures.get("station --help", figures["python -m station --help"])
     ratio = figures["python -m station solve EXAMPLE"] / figures["python -c 'import numpy, h5py'"]
-    out = {"cpu_s": figures, "help_target_s": HELP_TARGET_S, "help_meets": help_cpu <= HELP_TARGET_S,
+    out = {"cpu_s": figures, "help_target_s": HELP_TARGET_S,
+           "help_meets": help_cpu <= HELP_TARGET_S,
            "over_bare_python_s": help_cpu - figures["python -c pass"],
            "solve_over_imports": ratio, "solve_target": SOLVE_TARGET,
            "solve_meets": ratio <= SOLVE_TARGET}
