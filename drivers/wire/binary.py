@@ -125,7 +125,8 @@ class BinaryFrameParser:
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
         self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
-        self._recent = np.zeros((0, 2 + len(self.channels)), np.int64)  # keys of recent frames
+        # keys of the last REPEATS frames; at first rows no frame equals (device time -1)
+        self._recent = np.full((REPEATS, 2 + len(self.channels)), -1, np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -361,12 +362,11 @@ class BinaryFrameParser:
     def _fresh(self, keys: np.ndarray) -> np.ndarray:
         """Which frames (rows of (raw seq, raw ticks, counts...)) repeat none of the `REPEATS`
         frames before them (earlier blocks' kept in `_recent`)."""
-        rows = np.vstack([self._recent, keys])
-        at = np.arange(len(self._recent), len(rows))
-        before = at[:, None] - np.arange(1, REPEATS + 1)  # (frame, lag): the frames compared with
-        same = (before >= 0) & (rows[np.maximum(before, 0), 0] == rows[at, 0][:, None])
-        frame, lag = np.nonzero(same)  # the same number: the whole rows compared only there
-        same[frame, lag] = np.all(rows[at[frame]] == rows[before[frame, lag]], axis=1)
+        rows = np.vstack([self._recent, keys])  # `_recent`: always REPEATS rows
+        numbers = sliding_window_view(rows[:, 0], REPEATS + 1)  # each frame's and those before
+        same = numbers[:, :-1] == numbers[:, -1:]  # (frame, earlier frame) of the same number
+        frame, earlier = np.nonzero(same)  # the whole rows compared only there
+        same[frame, earlier] = np.all(rows[frame + REPEATS] == rows[frame + earlier], axis=1)
         self._recent = rows[-REPEATS:]
         return ~same.any(axis=1)
 

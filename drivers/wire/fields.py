@@ -117,6 +117,36 @@ class FrameLayout:
         self.time_modulus = self.fields[self.by_name["time"]].modulus if "time" in self.by_name \
             else 0
         self.seq_modulus = seq_modulus(fmt)
+        self._constants = self._constant_bytes()
+        self._converted = self._conversion()
+
+    def _conversion(self):
+        """(fields, their channel columns, raw -> SI scale and offset per column, each field's
+        first column among them, its width) of the converted channel fields, or None."""
+        converted = [(i, cols) for i, cols in self.columns if self.fields[i].converted]
+        if not converted:
+            return None
+        fields = [i for i, _ in converted]
+        widths = np.array([len(cols) for _, cols in converted])
+        cols = np.concatenate([cols for _, cols in converted])
+        scale, offset = (np.repeat([getattr(self.fields[i], key) for i in fields], widths)
+                         for key in ("scale", "offset"))
+        return fields, cols, scale, offset, np.cumsum(widths) - widths, widths
+
+    def _constant_bytes(self):
+        """(byte offsets in a frame, the bytes there) of every constant field, or None when a
+        constant does not fit its field's type (then no frame holds it)."""
+        frame, offsets = np.zeros(1, self.dtype), []
+        for i, f in enumerate(self.fields):
+            if f.value is not None:
+                try:
+                    self._put(frame, i, np.full((1, f.count), f.value))
+                except ValueError:
+                    return None
+                start = self.dtype.fields[f"f{i}"][1]
+                offsets += range(start, start + f.size)
+        offsets = np.array(offsets, np.intp)
+        return offsets, frame.view(np.uint8)[offsets]
 
     def _columns(self) -> list:
         """(field index, channel columns) of every field that carries channels."""
@@ -170,12 +200,13 @@ class FrameLayout:
                            f"{self.fmt.length_field!r}")
 
     def constants_hold(self, records: np.ndarray) -> np.ndarray:
-        """Whether each record holds every constant field's value."""
-        ok = np.ones(len(records), bool)
-        for i, f in enumerate(self.fields):
-            if f.value is not None:
-                ok &= np.all(self._raw(records, i) == f.value, axis=1)
-        return ok
+        """Whether each record holds every constant field's value (its bytes, all at once)."""
+        if self._constants is None:
+            return np.zeros(len(records), bool)
+        offsets, expected = self._constants
+        size = self.dtype.itemsize
+        raw = np.ascontiguousarray(records).view(np.uint8).reshape(len(records), size)
+        return np.all(raw[:, offsets] == expected, axis=1)
 
     def seq(self, records: np.ndarray) -> np.ndarray:
         """Raw sequence numbers (int64) of the records."""
@@ -199,14 +230,16 @@ class FrameLayout:
             if f.valid_mask is not None:
                 valid &= (self._raw(records, i)[:, 0] & f.valid_mask) == f.valid_value
         for i, cols in self.columns:
-            f, raw = self.fields[i], self._raw(records, i)
-            if f.converted:
-                si = raw * f.scale + f.offset
-                value = np.rint(si * self.counts_per_si[cols])
-                fits = np.all(np.isfinite(value) & (np.abs(value) < 2.0**62), axis=1)
-                valid &= fits
-                raw = np.where(fits[:, None], value, 0).astype(np.int64)
-            counts[:, cols] = raw
+            if not self.fields[i].converted:
+                counts[:, cols] = self._raw(records, i)
+        if self._converted:
+            fields, cols, scale, offset, starts, widths = self._converted
+            raw = np.concatenate([self._raw(records, i) for i in fields], axis=1)
+            value = np.rint((raw * scale + offset) * self.counts_per_si[cols])
+            fits = np.logical_and.reduceat(np.isfinite(value) & (np.abs(value) < 2.0**62),
+                                           starts, axis=1)  # per field: all its columns
+            valid &= np.all(fits, axis=1)
+            counts[:, cols] = np.where(np.repeat(fits, widths, axis=1), value, 0)
         return counts, valid
 
     def records(self, seq, ticks, counts) -> np.ndarray:
