@@ -27,6 +27,8 @@ still matches cannot be told from an intact frame by any check on this format; a
 carry more of the load: `bench/serial.py` measures both.
 """
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
@@ -72,6 +74,26 @@ def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
     """Steps from counter value a forward to b, modulo the counter width (0 becomes `modulus`)."""
     d = (b.astype(np.int64) - a.astype(np.int64)) % modulus
     return np.where(d == 0, modulus, d)
+
+
+def _where(array: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The items of `array` where `keep` holds: `array` itself when it holds everywhere (the
+    usual case of a clean stream, without a copy)."""
+    return array if keep.all() else array[keep]
+
+
+class _Frames(NamedTuple):
+    """Decoded frames: raw sequence numbers and device-time ticks (int64, ticks 0 without a time
+    field), counts (k, m) int64 and the device's validity."""
+
+    seq: np.ndarray
+    ticks: np.ndarray
+    counts: np.ndarray
+    valid: np.ndarray
+
+    def where(self, keep: np.ndarray) -> "_Frames":
+        """The frames where `keep` holds."""
+        return self if keep.all() else _Frames(*(a[keep] for a in self))
 
 
 class _HostTimes:
@@ -153,12 +175,12 @@ class BinaryFrameParser:
         crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
                   == records["crc"])
         crc_ok &= self.layout.constants_hold(records)
-        valid, valid_records = complete[crc_ok], self._decoded(records[crc_ok])
+        valid, frames = _where(complete, crc_ok), self._decoded(_where(records, crc_ok))
 
         ctx_pos, ctx_seq, ctx_acc = self._context
         n_ctx = len(ctx_pos)
         pos = np.concatenate([ctx_pos - self._base, valid])
-        seq = np.concatenate([ctx_seq, valid_records["seq"].astype(np.int64)])
+        seq = np.concatenate([ctx_seq, frames.seq])
         links, near = self._links(pos, seq)
         accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
         cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
@@ -168,19 +190,16 @@ class BinaryFrameParser:
         accept &= decided
 
         taken = accept[n_ctx:]
-        block = self._emit(valid[taken], valid_records[taken])
+        block = self._emit(_where(valid, taken), frames.where(taken))
         failed = complete[~crc_ok]
         self._count_crc_failures(failed[failed < cut], pos[accept])
         self._keep(pos, seq, accept, decided, cut, buf)
         return Decoded(int(cut), block)
 
-    def _decoded(self, records: np.ndarray) -> np.ndarray:
-        """Raw sequence numbers, ticks, counts and validity of check-passing records."""
-        out = np.zeros(len(records), [("seq", "i8"), ("time", "i8"),
-                                      ("counts", "i8", (len(self.channels),)), ("valid", "?")])
-        out["seq"], out["time"] = self.layout.seq(records), self.layout.ticks(records)
-        out["counts"], out["valid"] = self.layout.samples(records)
-        return out
+    def _decoded(self, records: np.ndarray) -> _Frames:
+        """The frames of check-passing records."""
+        return _Frames(self.layout.seq(records), self.layout.ticks(records),
+                       *self.layout.samples(records))
 
     def _other_messages(self, buf: np.ndarray, starts: np.ndarray, cut: int, final: bool) -> int:
         """Remember the messages of other ids before `cut` whose check holds over the length their
@@ -300,7 +319,7 @@ class BinaryFrameParser:
                 kept.append(i)
         return accept
 
-    def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
+    def _emit(self, rel_pos: np.ndarray, frames: _Frames) -> SampleBlock:
         """SampleBlock of newly accepted frames; updates unwrapping state and counters.
 
         Before unwrapping, each frame is compared with the last `REPEATS` frames accepted before
@@ -309,60 +328,63 @@ class BinaryFrameParser:
         goes back, or a device time that goes back, is a restart of the device (a new segment,
         `restart_seq`; the frames before keep their numbers); only a forward jump is a gap.
         """
-        stats = self.stats
         ends = self._base + rel_pos + self.size
-        seq_raw = records["seq"].astype(np.int64)
-        ticks_raw = (records["time"].astype(np.int64) if self.time_modulus
-                     else np.zeros(len(records), np.int64))
-        counts = records["counts"].astype(np.int64).reshape(len(records), len(self.channels))
-        valid = records["valid"]
-        if len(records) and self._last is None:  # the very first frame: 1 step after a virtual one
-            self._last = (self._connection_start, (seq_raw[0] - 1) % self.seq_modulus,
-                          seq_raw[0] - 1, ticks_raw[0], ticks_raw[0])
-        if len(records):
+        if len(ends) and self._last is None:  # the very first frame: 1 step after a virtual one
+            seq_raw, ticks_raw = frames.seq[0], frames.ticks[0]
+            self._last = (self._connection_start, (seq_raw - 1) % self.seq_modulus,
+                          seq_raw - 1, ticks_raw, ticks_raw)
+        if len(ends):
             self._count_skips(ends)
-            fresh = self._fresh(np.column_stack([seq_raw, ticks_raw, counts]))
-            stats.duplicates += int(np.count_nonzero(~fresh))
-            ends, seq_raw, ticks_raw, counts, valid = (ends[fresh], seq_raw[fresh],
-                                                       ticks_raw[fresh], counts[fresh],
-                                                       valid[fresh])
-        k = len(seq_raw)
-        if k == 0:
-            seq, device_time = np.zeros(0, np.int64), np.zeros(0)
-        else:
-            _, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
-            steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
-            restart = (steps == 0) | (steps > self.seq_modulus // 2)
-            if self.time_modulus:
-                dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) \
-                    % self.time_modulus
-                restart |= dt > self.time_modulus // 2  # the device clock went back
-            seq = _unwrap(seq_raw, steps, restart, last_seq, self.seq_modulus)
-            stats.restarts += int(np.count_nonzero(restart))
-            stats.gaps += int(np.count_nonzero((steps > 1) & ~restart))
-            stats.dropped += int(np.sum(np.where(restart, 0, steps - 1)))
-            if self.time_modulus:
-                ticks = _unwrap(ticks_raw, dt, restart, last_ticks, self.time_modulus)
-                device_time = ticks * self.fmt.time_tick
-            else:
-                ticks = np.zeros(k, np.int64)
-                device_time = np.full(k, np.nan)
-            self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
-                          int(ticks_raw[-1]), int(ticks[-1]))
-        stats.invalid += int(k - np.count_nonzero(valid))
-        stats.samples += int(np.count_nonzero(valid))
+            fresh = self._fresh(frames)
+            self.stats.duplicates += int(np.count_nonzero(~fresh))
+            ends, frames = _where(ends, fresh), frames.where(fresh)
+        seq, device_time = self._unwrapped(frames)
+        valid = frames.valid
+        samples = int(np.count_nonzero(valid))
+        self.stats.invalid += len(valid) - samples
+        self.stats.samples += samples
         return SampleBlock(
-            counts=counts[valid],
-            seq=seq[valid],
-            device_time=device_time[valid],
-            host_time=self._host.at(ends)[valid],
+            counts=_where(frames.counts, valid),
+            seq=_where(seq, valid),
+            device_time=_where(device_time, valid),
+            host_time=self._host.at(_where(ends, valid)),
             channels=self.channels,
         )
 
-    def _fresh(self, keys: np.ndarray) -> np.ndarray:
-        """Which frames (rows of (raw seq, raw ticks, counts...)) repeat none of the `REPEATS`
-        frames before them (earlier blocks' kept in `_recent`)."""
-        rows = np.vstack([self._recent, keys])  # `_recent`: always REPEATS rows
+    def _unwrapped(self, frames: _Frames) -> tuple:
+        """(sequence numbers, device times in seconds) of fresh frames, unwrapped after the last
+        accepted frame; counts restarts, gaps and dropped frames."""
+        k, stats = len(frames.seq), self.stats
+        if k == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        seq_raw, ticks_raw = frames.seq, frames.ticks
+        _, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
+        steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
+        restart = (steps == 0) | (steps > self.seq_modulus // 2)
+        if self.time_modulus:
+            dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) \
+                % self.time_modulus
+            restart |= dt > self.time_modulus // 2  # the device clock went back
+        seq = _unwrap(seq_raw, steps, restart, last_seq, self.seq_modulus)
+        stats.restarts += int(np.count_nonzero(restart))
+        stats.gaps += int(np.count_nonzero((steps > 1) & ~restart))
+        stats.dropped += int(np.sum(np.where(restart, 0, steps - 1)))
+        if self.time_modulus:
+            ticks = _unwrap(ticks_raw, dt, restart, last_ticks, self.time_modulus)
+            device_time = ticks * self.fmt.time_tick
+        else:
+            ticks = np.zeros(k, np.int64)
+            device_time = np.full(k, np.nan)
+        self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
+                      int(ticks_raw[-1]), int(ticks[-1]))
+        return seq, device_time
+
+    def _fresh(self, frames: _Frames) -> np.ndarray:
+        """Which frames repeat none of the `REPEATS` frames before them (earlier blocks' kept in
+        `_recent`) in raw sequence number, raw ticks and counts."""
+        rows = np.empty((REPEATS + len(frames.seq), 2 + len(self.channels)), np.int64)
+        rows[:REPEATS], rows[REPEATS:, 0], rows[REPEATS:, 1] = self._recent, *frames[:2]
+        rows[REPEATS:, 2:] = frames.counts
         numbers = sliding_window_view(rows[:, 0], REPEATS + 1)  # each frame's and those before
         same = numbers[:, :-1] == numbers[:, -1:]  # (frame, earlier frame) of the same number
         frame, earlier = np.nonzero(same)  # the whole rows compared only there
