@@ -381,16 +381,27 @@ class BinaryFrameParser:
 
     def _fresh(self, frames: _Frames) -> np.ndarray:
         """Which frames repeat none of the `REPEATS` frames before them (earlier blocks' kept in
-        `_recent`) in raw sequence number, raw ticks and counts."""
-        rows = np.empty((REPEATS + len(frames.seq), 2 + len(self.channels)), np.int64)
-        rows[:REPEATS], rows[REPEATS:, 0], rows[REPEATS:, 1] = self._recent, *frames[:2]
-        rows[REPEATS:, 2:] = frames.counts
+        `_recent`) in raw sequence number, raw ticks and counts.
+
+        Where every step between consecutive numbers is 1..modulus / REPEATS (modulo the
+        counter), no number can equal one of the REPEATS before it: nothing to compare."""
+        numbers = np.concatenate([self._recent[:, 0], frames.seq])
+        steps = np.diff(numbers) % self.seq_modulus
+        if steps.min() >= 1 and steps.max() * REPEATS < self.seq_modulus:
+            self._recent = np.concatenate([self._recent, self._keys(frames, -REPEATS)])[-REPEATS:]
+            return np.ones(len(frames.seq), bool)
+        rows = np.concatenate([self._recent, self._keys(frames, 0)])
         numbers = sliding_window_view(rows[:, 0], REPEATS + 1)  # each frame's and those before
         same = numbers[:, :-1] == numbers[:, -1:]  # (frame, earlier frame) of the same number
         frame, earlier = np.nonzero(same)  # the whole rows compared only there
         same[frame, earlier] = np.all(rows[frame + REPEATS] == rows[frame + earlier], axis=1)
         self._recent = rows[-REPEATS:]
         return ~same.any(axis=1)
+
+    @staticmethod
+    def _keys(frames: _Frames, first: int) -> np.ndarray:
+        """Rows (raw seq, raw ticks, counts...) of the frames from index `first` on."""
+        return np.column_stack([frames.seq[first:], frames.ticks[first:], frames.counts[first:]])
 
     def _count_skips(self, ends: np.ndarray) -> None:
         """Count the bytes between accepted frames (ending at `ends`) and the resyncs; the last
