@@ -9,7 +9,7 @@ uint32 and `of(data)` for one byte string.
 """
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -50,62 +50,42 @@ class Crc:
                 table[byte] = c & mask
         return table
 
-    @cached_property
-    def pair_table(self) -> np.ndarray:
-        """The 65536-entry table of two bytes a step: the register after the two bytes of word w
-        (first byte the high one, or the low one when reflected) from a zero register; built once,
-        when first needed (uint16 for CRCs up to 16 bits, else uint32)."""
-        w = np.arange(1 << 16, dtype=np.uint32)
-        first, second = (w & 0xFF, w >> 8) if self.reflected else (w >> 8, w & 0xFF)
-        register = self._feed(np.zeros(1 << 16, np.uint32), np.stack([first, second]))
-        return register.astype(self._register)
-
-    @property
-    def _register(self) -> type:
-        """numpy type of the register while stepping two bytes at a time."""
-        return np.uint16 if self.width <= 16 else np.uint32
-
-    def _feed(self, crc: np.ndarray, columns) -> np.ndarray:
-        """Registers `crc` after the byte columns (each (N,) uint), one byte a step."""
+    def bytewise(self, data: np.ndarray) -> np.ndarray:
+        """CRC of every row of `data` (N, n) uint8 by the byte-at-a-time algorithm -> (N,)
+        uint32."""
         table, mask, shift = self.table, np.uint32((1 << self.width) - 1), self.width - 8
-        crc = crc.astype(np.uint32)
-        for column in columns:
+        crc = np.full(data.shape[0], self.init, dtype=np.uint32)
+        for column in np.ascontiguousarray(data.T):
             if self.reflected:
                 crc = (crc >> 8) ^ table[(crc ^ column) & 0xFF]
             else:
                 crc = ((crc << 8) & mask) ^ table[((crc >> shift) ^ column) & 0xFF]
-        return crc
+        return crc ^ np.uint32(self.xorout)
 
-    def bytewise(self, data: np.ndarray) -> np.ndarray:
-        """CRC of every row of `data` (N, n) uint8 by the byte-at-a-time algorithm -> (N,)
-        uint32."""
-        crc = np.full(data.shape[0], self.init, dtype=np.uint32)
-        return self._feed(crc, np.ascontiguousarray(data.T)) ^ np.uint32(self.xorout)
+    # Cached per (instance, n): the instances are the module constants of CRCS, alive for the whole
+    # program anyway, so the cache holding them leaks nothing.
+    @lru_cache(maxsize=8)  # noqa: B019
+    def positional(self, n: int) -> tuple:
+        """(crc of n zero bytes, table (n * 256,) of what byte value b at position j adds at
+        j * 256 + b, the offsets j * 256 (n,)); table and offsets of the narrowest type that
+        holds them (a gather from a small table of small indexes is the fast part of `rows`).
 
-    def _pair_step(self, crc: np.ndarray, word: np.ndarray) -> np.ndarray:
-        """Registers after two more bytes of every row (`word`: the two bytes as `pair_table`
-        indexes them)."""
-        table = self.pair_table
-        if self.width == 32:
-            if self.reflected:
-                return (crc >> 16) ^ table[(crc ^ word) & 0xFFFF]
-            return (crc << 16) ^ table[(crc >> 16) ^ word]
-        if self.width == 8 and not self.reflected:
-            return table[(crc << 8) ^ word]
-        return table[crc ^ word]
+        A CRC is affine over GF(2): crc(d) = crc(0) ^ XOR_j T[j, d_j] for messages of length n.
+        """
+        unit = np.zeros((n, 256, n), dtype=np.uint8)
+        unit[np.arange(n), :, np.arange(n)] = np.arange(256, dtype=np.uint8)
+        zero = self.bytewise(np.zeros((1, n), np.uint8))[0]
+        table = (self.bytewise(unit.reshape(n * 256, n)) ^ zero).astype(
+            np.uint16 if self.width <= 16 else np.uint32)
+        offsets = np.arange(n) * 256
+        return zero, table, offsets.astype(np.uint16 if n <= 256 else np.intp)
 
     def rows(self, data: np.ndarray) -> np.ndarray:
-        """CRC of every row of `data` (N, n) uint8, all rows at once, two bytes a step -> (N,)
-        uint32."""
-        data = np.ascontiguousarray(data, dtype=np.uint8)
-        crc = np.full(data.shape[0], self.init, dtype=np.uint32)
-        if data.shape[1] % 2:
-            crc, data = self._feed(crc, data[:, :1].T), np.ascontiguousarray(data[:, 1:])
-        words = data.view("<u2" if self.reflected else ">u2").T
-        crc = crc.astype(self._register)
-        for word in np.ascontiguousarray(words, dtype=np.uint16):
-            crc = self._pair_step(crc, word)
-        return crc.astype(np.uint32) ^ np.uint32(self.xorout)
+        """CRC of every row of `data` (N, n) uint8, all rows at once -> (N,) uint32."""
+        zero, table, offsets = self.positional(data.shape[1])
+        if data.shape[0] == 0 or data.shape[1] == 0:
+            return np.full(data.shape[0], zero, np.uint32)
+        return (np.bitwise_xor.reduce(table[data + offsets], axis=1) ^ zero).astype(np.uint32)
 
     def of(self, data: bytes) -> int:
         """CRC of one byte string."""
