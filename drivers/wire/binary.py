@@ -27,10 +27,11 @@ still matches cannot be told from an intact frame by any check on this format; a
 carry more of the load: `bench/serial.py` measures both.
 """
 
+import bisect
 from typing import NamedTuple
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numpy.lib.stride_tricks import as_strided
 
 from drivers.samples import SampleBlock, restart_seq
 from drivers.wire import Decoded, SerialStats
@@ -76,6 +77,14 @@ def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
     return np.where(d == 0, modulus, d)
 
 
+def _windows(a: np.ndarray, width: int) -> np.ndarray:
+    """Every run of `width` consecutive items of the 1-d array `a`, as rows of a read-only view
+    (numpy's sliding_window_view without its checks, which cost more than a small read's
+    parsing)."""
+    stride = a.strides[0]
+    return as_strided(a, (max(len(a) - width + 1, 0), width), (stride, stride), writeable=False)
+
+
 def _where(array: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """The items of `array` where `keep` holds: `array` itself when it holds everywhere (the
     usual case of a clean stream, without a copy)."""
@@ -100,20 +109,21 @@ class _HostTimes:
     """Host time of each received chunk, to stamp a frame with the read that completed it."""
 
     def __init__(self):
-        self._ends = np.zeros(0, dtype=np.int64)  # absolute end offset of each chunk
-        self._times = np.zeros(0)
+        self._ends = []  # absolute end offset of each chunk, increasing
+        self._times = []
 
     def add(self, end: int, host_time: float) -> None:
-        self._ends = np.append(self._ends, end)
-        self._times = np.append(self._times, host_time)
+        self._ends.append(end)
+        self._times.append(host_time)
 
     def at(self, ends: np.ndarray) -> np.ndarray:
         """Host time of the chunk holding byte `end - 1` for each absolute end offset."""
-        return self._times[np.searchsorted(self._ends, ends, side="left")]
+        return np.array(self._times, float)[np.searchsorted(self._ends, ends, side="left")]
 
     def drop_before(self, offset: int) -> None:
-        keep = self._ends > offset
-        self._ends, self._times = self._ends[keep], self._times[keep]
+        """Forget the chunks that end at or before `offset`."""
+        done = bisect.bisect_right(self._ends, offset)
+        del self._ends[:done], self._times[:done]
 
 
 REPEATS = 16
@@ -169,8 +179,7 @@ class BinaryFrameParser:
 
         starts = self._sync_positions(buf)
         complete = starts[starts + size <= n]
-        rows = (sliding_window_view(buf, size)[complete] if n >= size
-                else np.zeros((0, size), np.uint8))
+        rows = _windows(buf, size)[complete]
         records = rows.view(self.dtype).reshape(-1)
         crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
                   == records["crc"])
@@ -211,7 +220,7 @@ class BinaryFrameParser:
         known = starts[starts + offset + width <= n]
         total = np.zeros(len(known), np.int64)
         if len(known):
-            fields = sliding_window_view(buf, width)[known + offset]
+            fields = _windows(buf, width)[known + offset]
             total = fields.copy().view(code).reshape(-1).astype(np.int64) + adds
         complete = known + total <= n
         if not final:
@@ -220,7 +229,7 @@ class BinaryFrameParser:
         order = "<" if (self.fmt.crc_byte_order or self.fmt.byte_order) == "little" else ">"
         for length in np.unique(total[complete & (known < cut) & (total > first + check.size)]):
             at = known[complete & (known < cut) & (total == length)]
-            rows = sliding_window_view(buf, int(length))[at]
+            rows = _windows(buf, int(length))[at]
             sent = rows[:, length - check.size :].copy().view(f"{order}u{check.size}").reshape(-1)
             ok = check.rows(rows[:, first : length - check.size]) == sent
             self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
@@ -391,7 +400,7 @@ class BinaryFrameParser:
             self._recent = np.concatenate([self._recent, self._keys(frames, -REPEATS)])[-REPEATS:]
             return np.ones(len(frames.seq), bool)
         rows = np.concatenate([self._recent, self._keys(frames, 0)])
-        numbers = sliding_window_view(rows[:, 0], REPEATS + 1)  # each frame's and those before
+        numbers = _windows(rows[:, 0], REPEATS + 1)  # each frame's and those before
         same = numbers[:, :-1] == numbers[:, -1:]  # (frame, earlier frame) of the same number
         frame, earlier = np.nonzero(same)  # the whole rows compared only there
         same[frame, earlier] = np.all(rows[frame + REPEATS] == rows[frame + earlier], axis=1)
