@@ -233,14 +233,24 @@ class FrameLayout:
             if not self.fields[i].converted:
                 counts[:, cols] = self._raw(records, i)
         if self._converted:
-            fields, cols, scale, offset, starts, widths = self._converted
-            raw = np.concatenate([self._raw(records, i) for i in fields], axis=1)
-            value = np.rint((raw * scale + offset) * self.counts_per_si[cols])
-            fits = np.logical_and.reduceat(np.isfinite(value) & (np.abs(value) < 2.0**62),
-                                           starts, axis=1)  # per field: all its columns
-            valid &= np.all(fits, axis=1)
-            counts[:, cols] = np.where(np.repeat(fits, widths, axis=1), value, 0)
+            cols, value, fits = self._converted_counts(records)
+            valid &= fits
+            counts[:, cols] = value
         return counts, valid
+
+    def _converted_counts(self, records: np.ndarray) -> tuple:
+        """(channel columns, counts, whether every value fits) of the converted fields: counts
+        that are not finite or do not fit 64 bits make their whole field 0 (and the sample
+        invalid)."""
+        fields, cols, scale, offset, starts, widths = self._converted
+        raw = np.concatenate([self._raw(records, i) for i in fields], axis=1)
+        value = np.rint((raw * scale + offset) * self.counts_per_si[cols])
+        ok = np.isfinite(value) & (np.abs(value) < 2.0**62)
+        fits = np.all(ok, axis=1)
+        bad = np.flatnonzero(~fits)  # rare: the fields of these samples one by one
+        field_ok = np.logical_and.reduceat(ok[bad], starts, axis=1)
+        value[bad] = np.where(np.repeat(field_ok, widths, axis=1), value[bad], 0)
+        return cols, value, fits
 
     def records(self, seq, ticks, counts) -> np.ndarray:
         """Records (check left zero) of frames with raw sequence numbers `seq`, raw device-time
