@@ -71,10 +71,10 @@ def _unwrap(raw: np.ndarray, steps: np.ndarray, restart: np.ndarray, last: int,
     return out
 
 
-def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
-    """Steps from counter value a forward to b, modulo the counter width (0 becomes `modulus`)."""
-    d = (b.astype(np.int64) - a.astype(np.int64)) % modulus
-    return np.where(d == 0, modulus, d)
+def _within(a: np.ndarray, b: np.ndarray, gap: int, modulus: int) -> np.ndarray:
+    """Whether counter value b (int64) is 1..gap steps forward from a, modulo the counter width
+    (equal values are `modulus` steps apart)."""
+    return (b - a - 1) % modulus < gap
 
 
 def _windows(a: np.ndarray, width: int) -> np.ndarray:
@@ -285,9 +285,9 @@ class BinaryFrameParser:
         size, gap, last = self.size, self.fmt.max_gap, len(pos) - 1
         prev = np.searchsorted(pos, pos - size, side="right") - 1
         nxt = np.searchsorted(pos, pos + size, side="left")
-        back = (prev >= 0) & (_forward(seq[prev], seq, self.seq_modulus) <= gap)
+        back = (prev >= 0) & _within(seq[prev], seq, gap, self.seq_modulus)
         near = (nxt <= last) & (pos[np.minimum(nxt, last)] < pos + self.horizon)
-        fwd = near & (_forward(seq, seq[np.minimum(nxt, last)], self.seq_modulus) <= gap)
+        fwd = near & _within(seq, seq[np.minimum(nxt, last)], gap, self.seq_modulus)
         return back | fwd, near
 
     def _cut(self, pos, links, near, n_ctx, n, starts) -> int:
@@ -317,8 +317,7 @@ class BinaryFrameParser:
         for i in accepted:
             while kept and pos[i] < pos[kept[-1]] + self.size:
                 j = kept[-1]
-                if (j >= n_ctx and _forward(seq[j : j + 1], seq[i : i + 1], self.seq_modulus)[0]
-                        <= self.fmt.max_gap):
+                if j >= n_ctx and _within(seq[j], seq[i], self.fmt.max_gap, self.seq_modulus):
                     accept[j] = False
                     kept.pop()
                 else:
