@@ -157,7 +157,8 @@ class BinaryFrameParser:
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
         self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
-        # keys of the last REPEATS frames; at first rows no frame equals (device time -1)
+        # keys (raw seq, raw ticks, counts) of the last REPEATS frames; at first rows of -1,
+        # which no frame equals (raw ticks are >= 0)
         self._recent = np.full((REPEATS, 2 + len(self.channels)), -1, np.int64)
         self.reset()
 
