@@ -246,6 +246,8 @@ class FrameLayout:
         raw = np.concatenate([self._raw(records, i) for i in fields], axis=1)
         value = np.rint((raw * scale + offset) * self.counts_per_si[cols])
         ok = np.isfinite(value) & (np.abs(value) < 2.0**62)
+        if ok.all():  # the usual case, checked at once
+            return cols, value, np.ones(len(value), bool)
         fits = np.all(ok, axis=1)
         bad = np.flatnonzero(~fits)  # rare: the fields of these samples one by one
         field_ok = np.logical_and.reduceat(ok[bad], starts, axis=1)
