@@ -215,6 +215,8 @@ class BinaryFrameParser:
         """Remember the messages of other ids before `cut` whose check holds over the length their
         length field gives (absolute position -> bytes); the cut, moved back to the first one not
         complete yet (so that its bytes stay buffered until it is)."""
+        if not len(starts) or starts[0] >= cut:  # the usual case: none before the cut
+            return cut
         offset, code, adds = self.length_rule
         n, first, check = len(buf), _crc_start(self.fmt), self.crc
         width = np.dtype(code).itemsize
