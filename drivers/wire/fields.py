@@ -133,16 +133,13 @@ class FrameLayout:
                          for key in ("scale", "offset"))
         return fields, cols, scale, offset, np.cumsum(widths) - widths, widths
 
-    def _constant_bytes(self):
-        """(byte offsets in a frame, the bytes there) of every constant field, or None when a
-        constant does not fit its field's type (then no frame holds it)."""
+    def _constant_bytes(self) -> tuple:
+        """(byte offsets in a frame, the bytes there) of every constant field (the profile
+        refuses a constant its field cannot hold)."""
         frame, offsets = np.zeros(1, self.dtype), []
         for i, f in enumerate(self.fields):
             if f.value is not None:
-                try:
-                    self._put(frame, i, np.full((1, f.count), f.value))
-                except ValueError:
-                    return None
+                self._put(frame, i, np.full((1, f.count), f.value))
                 start = self.dtype.fields[f"f{i}"][1]
                 offsets += range(start, start + f.size)
         offsets = np.array(offsets, np.intp)
@@ -201,8 +198,6 @@ class FrameLayout:
 
     def constants_hold(self, records: np.ndarray) -> np.ndarray:
         """Whether each record holds every constant field's value (its bytes, all at once)."""
-        if self._constants is None:
-            return np.zeros(len(records), bool)
         offsets, expected = self._constants
         size = self.dtype.itemsize
         raw = np.ascontiguousarray(records).view(np.uint8).reshape(len(records), size)
