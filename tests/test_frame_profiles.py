@@ -94,6 +94,26 @@ def test_xsens_message_by_hand_decodes_to_si_counts():
     assert stats.crc_failures == 0
 
 
+def test_xsens_values_not_finite_or_beyond_64_bit_counts_make_the_sample_invalid():
+    """A float that is NaN, infinite or too large for int64 counts (1e30 m/s^2 is 1e35 counts)
+    makes its sample invalid (not returned, counted), in any read size; the others decode."""
+    frames = [xsens_message(i, 25 * i, (0.1 * i, 0, 9.8), (0, 0.01 * i, 0), 30.0, 1)
+              for i in range(12)]
+    frames[3] = xsens_message(3, 75, (0.3, 0, 9.8), (float("nan"), 0.03, 0), 30.0, 1)
+    frames[7] = xsens_message(7, 175, (1e30, 0, 9.8), (0, 0.07, 0), 30.0, 1)
+    frames[10] = xsens_message(10, 250, (1.0, 0, 9.8), (0, 0.1, 0), float("inf"), 1)
+    stream = b"".join(frames)
+    block, stats = decode_all(XSENS, stream)
+    assert list(block.seq) == [i for i in range(12) if i not in (3, 7, 10)]
+    assert (stats.invalid, stats.samples, stats.dropped) == (3, 9, 0)
+    assert block.counts[:, 4].tolist() == [round(float(np.float32(0.01 * i)) * 1e6)
+                                          for i in range(12) if i not in (3, 7, 10)]
+    parser = parser_of(XSENS)
+    chunks = [parser.decode(stream[i : i + 5], 0.0).block for i in range(0, len(stream), 5)]
+    chunked = SampleBlock.concat([*chunks, parser.decode(b"", 0.0, final=True).block])
+    assert np.array_equal(chunked.counts, block.counts) and parser.stats == stats
+
+
 def test_xsens_status_rule_and_other_messages_skipped():
     """A sample the device marks clipped is not returned (and counted); a message with another
     MID or another output configuration is refused by its constants, not decoded."""

@@ -27,8 +27,11 @@ still matches cannot be told from an intact frame by any check on this format; a
 carry more of the load: `bench/serial.py` measures both.
 """
 
+import bisect
+from typing import NamedTuple
+
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numpy.lib.stride_tricks import as_strided
 
 from drivers.samples import SampleBlock, restart_seq
 from drivers.wire import Decoded, SerialStats
@@ -68,30 +71,59 @@ def _unwrap(raw: np.ndarray, steps: np.ndarray, restart: np.ndarray, last: int,
     return out
 
 
-def _forward(a: np.ndarray, b: np.ndarray, modulus: int) -> np.ndarray:
-    """Steps from counter value a forward to b, modulo the counter width (0 becomes `modulus`)."""
-    d = (b.astype(np.int64) - a.astype(np.int64)) % modulus
-    return np.where(d == 0, modulus, d)
+def _within(a: np.ndarray, b: np.ndarray, gap: int, modulus: int) -> np.ndarray:
+    """Whether counter value b (int64) is 1..gap steps forward from a, modulo the counter width
+    (equal values are `modulus` steps apart)."""
+    return (b - a - 1) % modulus < gap
+
+
+def _windows(a: np.ndarray, width: int) -> np.ndarray:
+    """Every run of `width` consecutive items of the 1-d array `a`, as rows of a read-only view
+    (numpy's sliding_window_view without its checks, which cost more than a small read's
+    parsing)."""
+    stride = a.strides[0]
+    return as_strided(a, (max(len(a) - width + 1, 0), width), (stride, stride), writeable=False)
+
+
+def _where(array: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The items of `array` where `keep` holds: `array` itself when it holds everywhere (the
+    usual case of a clean stream, without a copy)."""
+    return array if keep.all() else array[keep]
+
+
+class _Frames(NamedTuple):
+    """Decoded frames: raw sequence numbers and device-time ticks (int64, ticks 0 without a time
+    field), counts (k, m) int64 and the device's validity."""
+
+    seq: np.ndarray
+    ticks: np.ndarray
+    counts: np.ndarray
+    valid: np.ndarray
+
+    def where(self, keep: np.ndarray) -> "_Frames":
+        """The frames where `keep` holds."""
+        return self if keep.all() else _Frames(*(a[keep] for a in self))
 
 
 class _HostTimes:
     """Host time of each received chunk, to stamp a frame with the read that completed it."""
 
     def __init__(self):
-        self._ends = np.zeros(0, dtype=np.int64)  # absolute end offset of each chunk
-        self._times = np.zeros(0)
+        self._ends = []  # absolute end offset of each chunk, increasing
+        self._times = []
 
     def add(self, end: int, host_time: float) -> None:
-        self._ends = np.append(self._ends, end)
-        self._times = np.append(self._times, host_time)
+        self._ends.append(end)
+        self._times.append(host_time)
 
     def at(self, ends: np.ndarray) -> np.ndarray:
         """Host time of the chunk holding byte `end - 1` for each absolute end offset."""
-        return self._times[np.searchsorted(self._ends, ends, side="left")]
+        return np.array(self._times, float)[np.searchsorted(self._ends, ends, side="left")]
 
     def drop_before(self, offset: int) -> None:
-        keep = self._ends > offset
-        self._ends, self._times = self._ends[keep], self._times[keep]
+        """Forget the chunks that end at or before `offset`."""
+        done = bisect.bisect_right(self._ends, offset)
+        del self._ends[:done], self._times[:done]
 
 
 REPEATS = 16
@@ -125,7 +157,9 @@ class BinaryFrameParser:
         self._base = 0  # absolute stream offset of the first buffered byte
         self._buf = b""
         self._last = None  # last accepted frame: (absolute end, raw seq, seq, raw ticks, ticks)
-        self._recent = np.zeros((0, 2 + len(self.channels)), np.int64)  # keys of recent frames
+        # keys (raw seq, raw ticks, counts) of the last REPEATS frames; at first rows of -1,
+        # which no frame equals (raw ticks are >= 0)
+        self._recent = np.full((REPEATS, 2 + len(self.channels)), -1, np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -146,18 +180,17 @@ class BinaryFrameParser:
 
         starts = self._sync_positions(buf)
         complete = starts[starts + size <= n]
-        rows = (sliding_window_view(buf, size)[complete] if n >= size
-                else np.zeros((0, size), np.uint8))
+        rows = _windows(buf, size)[complete]
         records = rows.view(self.dtype).reshape(-1)
         crc_ok = (self.crc.rows(rows[:, _crc_start(self.fmt) : size - self.crc.size])
                   == records["crc"])
         crc_ok &= self.layout.constants_hold(records)
-        valid, valid_records = complete[crc_ok], self._decoded(records[crc_ok])
+        valid, frames = _where(complete, crc_ok), self._decoded(_where(records, crc_ok))
 
         ctx_pos, ctx_seq, ctx_acc = self._context
         n_ctx = len(ctx_pos)
         pos = np.concatenate([ctx_pos - self._base, valid])
-        seq = np.concatenate([ctx_seq, valid_records["seq"].astype(np.int64)])
+        seq = np.concatenate([ctx_seq, frames.seq])
         links, near = self._links(pos, seq)
         accept = self._without_overlaps(pos, seq, np.concatenate([ctx_acc, links[n_ctx:]]), n_ctx)
         cut = n if final else self._cut(pos, links, near, n_ctx, n, starts)
@@ -167,31 +200,30 @@ class BinaryFrameParser:
         accept &= decided
 
         taken = accept[n_ctx:]
-        block = self._emit(valid[taken], valid_records[taken])
+        block = self._emit(_where(valid, taken), frames.where(taken))
         failed = complete[~crc_ok]
         self._count_crc_failures(failed[failed < cut], pos[accept])
         self._keep(pos, seq, accept, decided, cut, buf)
         return Decoded(int(cut), block)
 
-    def _decoded(self, records: np.ndarray) -> np.ndarray:
-        """Raw sequence numbers, ticks, counts and validity of check-passing records."""
-        out = np.zeros(len(records), [("seq", "i8"), ("time", "i8"),
-                                      ("counts", "i8", (len(self.channels),)), ("valid", "?")])
-        out["seq"], out["time"] = self.layout.seq(records), self.layout.ticks(records)
-        out["counts"], out["valid"] = self.layout.samples(records)
-        return out
+    def _decoded(self, records: np.ndarray) -> _Frames:
+        """The frames of check-passing records."""
+        return _Frames(self.layout.seq(records), self.layout.ticks(records),
+                       *self.layout.samples(records))
 
     def _other_messages(self, buf: np.ndarray, starts: np.ndarray, cut: int, final: bool) -> int:
         """Remember the messages of other ids before `cut` whose check holds over the length their
         length field gives (absolute position -> bytes); the cut, moved back to the first one not
         complete yet (so that its bytes stay buffered until it is)."""
+        if not len(starts) or starts[0] >= cut:  # the usual case: none before the cut
+            return cut
         offset, code, adds = self.length_rule
         n, first, check = len(buf), _crc_start(self.fmt), self.crc
         width = np.dtype(code).itemsize
         known = starts[starts + offset + width <= n]
         total = np.zeros(len(known), np.int64)
         if len(known):
-            fields = sliding_window_view(buf, width)[known + offset]
+            fields = _windows(buf, width)[known + offset]
             total = fields.copy().view(code).reshape(-1).astype(np.int64) + adds
         complete = known + total <= n
         if not final:
@@ -200,7 +232,7 @@ class BinaryFrameParser:
         order = "<" if (self.fmt.crc_byte_order or self.fmt.byte_order) == "little" else ">"
         for length in np.unique(total[complete & (known < cut) & (total > first + check.size)]):
             at = known[complete & (known < cut) & (total == length)]
-            rows = sliding_window_view(buf, int(length))[at]
+            rows = _windows(buf, int(length))[at]
             sent = rows[:, length - check.size :].copy().view(f"{order}u{check.size}").reshape(-1)
             ok = check.rows(rows[:, first : length - check.size]) == sent
             self._others.update(zip((at[ok] + self._base).tolist(), [int(length)] * int(ok.sum()),
@@ -256,9 +288,9 @@ class BinaryFrameParser:
         size, gap, last = self.size, self.fmt.max_gap, len(pos) - 1
         prev = np.searchsorted(pos, pos - size, side="right") - 1
         nxt = np.searchsorted(pos, pos + size, side="left")
-        back = (prev >= 0) & (_forward(seq[prev], seq, self.seq_modulus) <= gap)
+        back = (prev >= 0) & _within(seq[prev], seq, gap, self.seq_modulus)
         near = (nxt <= last) & (pos[np.minimum(nxt, last)] < pos + self.horizon)
-        fwd = near & (_forward(seq, seq[np.minimum(nxt, last)], self.seq_modulus) <= gap)
+        fwd = near & _within(seq, seq[np.minimum(nxt, last)], gap, self.seq_modulus)
         return back | fwd, near
 
     def _cut(self, pos, links, near, n_ctx, n, starts) -> int:
@@ -288,8 +320,7 @@ class BinaryFrameParser:
         for i in accepted:
             while kept and pos[i] < pos[kept[-1]] + self.size:
                 j = kept[-1]
-                if (j >= n_ctx and _forward(seq[j : j + 1], seq[i : i + 1], self.seq_modulus)[0]
-                        <= self.fmt.max_gap):
+                if j >= n_ctx and _within(seq[j], seq[i], self.fmt.max_gap, self.seq_modulus):
                     accept[j] = False
                     kept.pop()
                 else:
@@ -299,7 +330,7 @@ class BinaryFrameParser:
                 kept.append(i)
         return accept
 
-    def _emit(self, rel_pos: np.ndarray, records: np.ndarray) -> SampleBlock:
+    def _emit(self, rel_pos: np.ndarray, frames: _Frames) -> SampleBlock:
         """SampleBlock of newly accepted frames; updates unwrapping state and counters.
 
         Before unwrapping, each frame is compared with the last `REPEATS` frames accepted before
@@ -308,67 +339,80 @@ class BinaryFrameParser:
         goes back, or a device time that goes back, is a restart of the device (a new segment,
         `restart_seq`; the frames before keep their numbers); only a forward jump is a gap.
         """
-        stats = self.stats
         ends = self._base + rel_pos + self.size
-        seq_raw = records["seq"].astype(np.int64)
-        ticks_raw = (records["time"].astype(np.int64) if self.time_modulus
-                     else np.zeros(len(records), np.int64))
-        counts = records["counts"].astype(np.int64).reshape(len(records), len(self.channels))
-        valid = records["valid"]
-        if len(records) and self._last is None:  # the very first frame: 1 step after a virtual one
-            self._last = (self._connection_start, (seq_raw[0] - 1) % self.seq_modulus,
-                          seq_raw[0] - 1, ticks_raw[0], ticks_raw[0])
-        if len(records):
+        if len(ends) and self._last is None:  # the very first frame: 1 step after a virtual one
+            seq_raw, ticks_raw = frames.seq[0], frames.ticks[0]
+            self._last = (self._connection_start, (seq_raw - 1) % self.seq_modulus,
+                          seq_raw - 1, ticks_raw, ticks_raw)
+        if len(ends):
             self._count_skips(ends)
-            fresh = self._fresh(np.column_stack([seq_raw, ticks_raw, counts]))
-            stats.duplicates += int(np.count_nonzero(~fresh))
-            ends, seq_raw, ticks_raw, counts, valid = (ends[fresh], seq_raw[fresh],
-                                                       ticks_raw[fresh], counts[fresh],
-                                                       valid[fresh])
-        k = len(seq_raw)
-        if k == 0:
-            seq, device_time = np.zeros(0, np.int64), np.zeros(0)
-        else:
-            _, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
-            steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
-            restart = (steps == 0) | (steps > self.seq_modulus // 2)
-            if self.time_modulus:
-                dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) \
-                    % self.time_modulus
-                restart |= dt > self.time_modulus // 2  # the device clock went back
-            seq = _unwrap(seq_raw, steps, restart, last_seq, self.seq_modulus)
-            stats.restarts += int(np.count_nonzero(restart))
-            stats.gaps += int(np.count_nonzero((steps > 1) & ~restart))
-            stats.dropped += int(np.sum(np.where(restart, 0, steps - 1)))
-            if self.time_modulus:
-                ticks = _unwrap(ticks_raw, dt, restart, last_ticks, self.time_modulus)
-                device_time = ticks * self.fmt.time_tick
-            else:
-                ticks = np.zeros(k, np.int64)
-                device_time = np.full(k, np.nan)
-            self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
-                          int(ticks_raw[-1]), int(ticks[-1]))
-        stats.invalid += int(k - np.count_nonzero(valid))
-        stats.samples += int(np.count_nonzero(valid))
+            fresh = self._fresh(frames)
+            self.stats.duplicates += int(np.count_nonzero(~fresh))
+            ends, frames = _where(ends, fresh), frames.where(fresh)
+        seq, device_time = self._unwrapped(frames)
+        valid = frames.valid
+        samples = int(np.count_nonzero(valid))
+        self.stats.invalid += len(valid) - samples
+        self.stats.samples += samples
         return SampleBlock(
-            counts=counts[valid],
-            seq=seq[valid],
-            device_time=device_time[valid],
-            host_time=self._host.at(ends)[valid],
+            counts=_where(frames.counts, valid),
+            seq=_where(seq, valid),
+            device_time=_where(device_time, valid),
+            host_time=self._host.at(_where(ends, valid)),
             channels=self.channels,
         )
 
-    def _fresh(self, keys: np.ndarray) -> np.ndarray:
-        """Which frames (rows of (raw seq, raw ticks, counts...)) repeat none of the `REPEATS`
-        frames before them (earlier blocks' kept in `_recent`)."""
-        rows = np.vstack([self._recent, keys])
-        at = np.arange(len(self._recent), len(rows))
-        before = at[:, None] - np.arange(1, REPEATS + 1)  # (frame, lag): the frames compared with
-        same = (before >= 0) & (rows[np.maximum(before, 0), 0] == rows[at, 0][:, None])
-        frame, lag = np.nonzero(same)  # the same number: the whole rows compared only there
-        same[frame, lag] = np.all(rows[at[frame]] == rows[before[frame, lag]], axis=1)
+    def _unwrapped(self, frames: _Frames) -> tuple:
+        """(sequence numbers, device times in seconds) of fresh frames, unwrapped after the last
+        accepted frame; counts restarts, gaps and dropped frames."""
+        k, stats = len(frames.seq), self.stats
+        if k == 0:
+            return np.zeros(0, np.int64), np.zeros(0)
+        seq_raw, ticks_raw = frames.seq, frames.ticks
+        _, last_seq_raw, last_seq, last_ticks_raw, last_ticks = self._last
+        steps = (seq_raw - np.concatenate([[last_seq_raw], seq_raw[:-1]])) % self.seq_modulus
+        restart = (steps == 0) | (steps > self.seq_modulus // 2)
+        if self.time_modulus:
+            dt = (ticks_raw - np.concatenate([[last_ticks_raw], ticks_raw[:-1]])) \
+                % self.time_modulus
+            restart |= dt > self.time_modulus // 2  # the device clock went back
+        seq = _unwrap(seq_raw, steps, restart, last_seq, self.seq_modulus)
+        stats.restarts += int(np.count_nonzero(restart))
+        stats.gaps += int(np.count_nonzero((steps > 1) & ~restart))
+        stats.dropped += int(np.sum(np.where(restart, 0, steps - 1)))
+        if self.time_modulus:
+            ticks = _unwrap(ticks_raw, dt, restart, last_ticks, self.time_modulus)
+            device_time = ticks * self.fmt.time_tick
+        else:
+            ticks = np.zeros(k, np.int64)
+            device_time = np.full(k, np.nan)
+        self._last = (self._last[0], int(seq_raw[-1]), int(seq[-1]),
+                      int(ticks_raw[-1]), int(ticks[-1]))
+        return seq, device_time
+
+    def _fresh(self, frames: _Frames) -> np.ndarray:
+        """Which frames repeat none of the `REPEATS` frames before them (earlier blocks' kept in
+        `_recent`) in raw sequence number, raw ticks and counts.
+
+        Where every step between consecutive numbers is 1..modulus / REPEATS (modulo the
+        counter), no number can equal one of the REPEATS before it: nothing to compare."""
+        numbers = np.concatenate([self._recent[:, 0], frames.seq])
+        steps = np.diff(numbers) % self.seq_modulus
+        if steps.min() >= 1 and steps.max() * REPEATS < self.seq_modulus:
+            self._recent = np.concatenate([self._recent, self._keys(frames, -REPEATS)])[-REPEATS:]
+            return np.ones(len(frames.seq), bool)
+        rows = np.concatenate([self._recent, self._keys(frames, 0)])
+        numbers = _windows(rows[:, 0], REPEATS + 1)  # each frame's and those before
+        same = numbers[:, :-1] == numbers[:, -1:]  # (frame, earlier frame) of the same number
+        frame, earlier = np.nonzero(same)  # the whole rows compared only there
+        same[frame, earlier] = np.all(rows[frame + REPEATS] == rows[frame + earlier], axis=1)
         self._recent = rows[-REPEATS:]
         return ~same.any(axis=1)
+
+    @staticmethod
+    def _keys(frames: _Frames, first: int) -> np.ndarray:
+        """Rows (raw seq, raw ticks, counts...) of the frames from index `first` on."""
+        return np.column_stack([frames.seq[first:], frames.ticks[first:], frames.counts[first:]])
 
     def _count_skips(self, ends: np.ndarray) -> None:
         """Count the bytes between accepted frames (ending at `ends`) and the resyncs; the last

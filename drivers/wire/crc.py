@@ -66,21 +66,27 @@ class Crc:
     # program anyway, so the cache holding them leaks nothing.
     @lru_cache(maxsize=8)  # noqa: B019
     def positional(self, n: int) -> tuple:
-        """(crc of n zero bytes, table (n, 256) of what byte value b at position j adds).
+        """(crc of n zero bytes, table (n * 256,) of what byte value b at position j adds at
+        j * 256 + b, the offsets j * 256 (n,)); table and offsets of the narrowest type that
+        holds them (a gather from a small table of small indexes is the fast part of `rows`).
 
         A CRC is affine over GF(2): crc(d) = crc(0) ^ XOR_j T[j, d_j] for messages of length n.
         """
         unit = np.zeros((n, 256, n), dtype=np.uint8)
         unit[np.arange(n), :, np.arange(n)] = np.arange(256, dtype=np.uint8)
         zero = self.bytewise(np.zeros((1, n), np.uint8))[0]
-        return zero, (self.bytewise(unit.reshape(n * 256, n)) ^ zero).reshape(n, 256)
+        table = (self.bytewise(unit.reshape(n * 256, n)) ^ zero).astype(
+            np.uint16 if self.width <= 16 else np.uint32)
+        offsets = np.arange(n) * 256
+        return zero, table, offsets.astype(np.uint16 if n <= 256 else np.intp)
 
     def rows(self, data: np.ndarray) -> np.ndarray:
         """CRC of every row of `data` (N, n) uint8, all rows at once -> (N,) uint32."""
-        zero, table = self.positional(data.shape[1])
-        if data.shape[0] == 0:
-            return np.zeros(0, np.uint32)
-        return np.bitwise_xor.reduce(table[np.arange(data.shape[1]), data], axis=1) ^ zero
+        zero, table, offsets = self.positional(data.shape[1])
+        if data.shape[0] == 0 or data.shape[1] == 0:
+            return np.full(data.shape[0], zero, np.uint32)
+        added = np.take(table, data + offsets)  # take: twice as fast as indexing here
+        return (np.bitwise_xor.reduce(added, axis=1) ^ zero).astype(np.uint32)
 
     def of(self, data: bytes) -> int:
         """CRC of one byte string."""

@@ -117,6 +117,33 @@ class FrameLayout:
         self.time_modulus = self.fields[self.by_name["time"]].modulus if "time" in self.by_name \
             else 0
         self.seq_modulus = seq_modulus(fmt)
+        self._constants = self._constant_bytes()
+        self._converted = self._conversion()
+
+    def _conversion(self):
+        """(fields, their channel columns, raw -> SI scale and offset per column, each field's
+        first column among them, its width) of the converted channel fields, or None."""
+        converted = [(i, cols) for i, cols in self.columns if self.fields[i].converted]
+        if not converted:
+            return None
+        fields = [i for i, _ in converted]
+        widths = np.array([len(cols) for _, cols in converted])
+        cols = np.concatenate([cols for _, cols in converted])
+        scale, offset = (np.repeat([getattr(self.fields[i], key) for i in fields], widths)
+                         for key in ("scale", "offset"))
+        return fields, cols, scale, offset, np.cumsum(widths) - widths, widths
+
+    def _constant_bytes(self) -> tuple:
+        """(byte offsets in a frame, the bytes there) of every constant field (the profile
+        refuses a constant its field cannot hold)."""
+        frame, offsets = np.zeros(1, self.dtype), []
+        for i, f in enumerate(self.fields):
+            if f.value is not None:
+                self._put(frame, i, np.full((1, f.count), f.value))
+                start = self.dtype.fields[f"f{i}"][1]
+                offsets += range(start, start + f.size)
+        offsets = np.array(offsets, np.intp)
+        return offsets, frame.view(np.uint8)[offsets]
 
     def _columns(self) -> list:
         """(field index, channel columns) of every field that carries channels."""
@@ -170,12 +197,11 @@ class FrameLayout:
                            f"{self.fmt.length_field!r}")
 
     def constants_hold(self, records: np.ndarray) -> np.ndarray:
-        """Whether each record holds every constant field's value."""
-        ok = np.ones(len(records), bool)
-        for i, f in enumerate(self.fields):
-            if f.value is not None:
-                ok &= np.all(self._raw(records, i) == f.value, axis=1)
-        return ok
+        """Whether each record holds every constant field's value (its bytes, all at once)."""
+        offsets, expected = self._constants
+        size = self.dtype.itemsize
+        raw = np.ascontiguousarray(records).view(np.uint8).reshape(len(records), size)
+        return np.all(raw[:, offsets] == expected, axis=1)
 
     def seq(self, records: np.ndarray) -> np.ndarray:
         """Raw sequence numbers (int64) of the records."""
@@ -199,15 +225,29 @@ class FrameLayout:
             if f.valid_mask is not None:
                 valid &= (self._raw(records, i)[:, 0] & f.valid_mask) == f.valid_value
         for i, cols in self.columns:
-            f, raw = self.fields[i], self._raw(records, i)
-            if f.converted:
-                si = raw * f.scale + f.offset
-                value = np.rint(si * self.counts_per_si[cols])
-                fits = np.all(np.isfinite(value) & (np.abs(value) < 2.0**62), axis=1)
-                valid &= fits
-                raw = np.where(fits[:, None], value, 0).astype(np.int64)
-            counts[:, cols] = raw
+            if not self.fields[i].converted:
+                counts[:, cols] = self._raw(records, i)
+        if self._converted:
+            cols, value, fits = self._converted_counts(records)
+            valid &= fits
+            counts[:, cols] = value
         return counts, valid
+
+    def _converted_counts(self, records: np.ndarray) -> tuple:
+        """(channel columns, counts, whether every value fits) of the converted fields: counts
+        that are not finite or do not fit 64 bits make their whole field 0 (and the sample
+        invalid)."""
+        fields, cols, scale, offset, starts, widths = self._converted
+        raw = np.concatenate([self._raw(records, i) for i in fields], axis=1)
+        value = np.rint((raw * scale + offset) * self.counts_per_si[cols])
+        ok = np.isfinite(value) & (np.abs(value) < 2.0**62)
+        if ok.all():  # the usual case, checked at once
+            return cols, value, np.ones(len(value), bool)
+        fits = np.all(ok, axis=1)
+        bad = np.flatnonzero(~fits)  # rare: the fields of these samples one by one
+        field_ok = np.logical_and.reduceat(ok[bad], starts, axis=1)
+        value[bad] = np.where(np.repeat(field_ok, widths, axis=1), value[bad], 0)
+        return cols, value, fits
 
     def records(self, seq, ticks, counts) -> np.ndarray:
         """Records (check left zero) of frames with raw sequence numbers `seq`, raw device-time
