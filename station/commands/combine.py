@@ -21,30 +21,42 @@ import numpy as np
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import db_arguments
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station combine exp_1.cal.json exp_2.cal.json exp_3.cal.json "
         "--out array.cal.json\n"
-        "  station combine SN42-mon.cal.json SN42-tue.cal.json --out SN42.cal.json --json\n\n"
+        "  station combine SN42-mon.cal.json SN42-tue.cal.json --out SN42.cal.json --json\n"
+        "  station combine --from-db \"serial=SN42 since=2026-11-01\" --out SN42.cal.json\n\n"
         "exit code 0: written; 1: a source file is marked suspect (written marked suspect); "
         "2: bad input"
     )
-    p.add_argument("calibrations", type=Path, nargs="+", metavar="CAL",
+    p.add_argument("calibrations", type=Path, nargs="*", metavar="CAL",
                    help="calibration files (.cal.json) of the sessions, from `station solve`")
+    p.add_argument("--from-db", metavar="QUERY",
+                   help="instead of CAL files: the session calibrations of the record store "
+                        "(--db) that the query picks, e.g. \"serial=SN42 since=2026-11-01\" "
+                        "(docs/records.md); each file is checked against its recorded sha256")
     p.add_argument("--out", type=Path, required=True, help="combined calibration file to write")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, keep_records, new_file
+    from station.errors import InputError
     from station.files.calfile import load
     from station.files.combined import combine
 
     out = new_file(args.out, force=args.force)
-    names = [str(p) for p in args.calibrations]
-    cals = [load(existing_file(p, "a calibration file (.cal.json)")) for p in args.calibrations]
+    if bool(args.calibrations) == bool(args.from_db):
+        raise InputError("give the calibration files to combine, or --from-db QUERY (not both)")
+    paths = args.calibrations or queried_files(args.db, args.from_db)
+    names = [str(p) for p in paths]
+    cals = [load(existing_file(p, "a calibration file (.cal.json)")) for p in paths]
     cal = combine(cals, names)
     cal.save(out, overwrite=args.force)
     within = np.median([c.bias_sigma for c in cals], axis=0)
@@ -58,7 +70,31 @@ def run(args) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(_text(cal, cals, out))
-    return 0 if cal.fit["status"] == "good" else 1
+    return max(0 if cal.fit["status"] == "good" else 1, keep_records(args, [out], "combined"))
+
+
+def queried_files(db: str | None, query: str) -> list:
+    """The calibration files of the one-session records that `query` picks in the store (--db,
+    STATION_DB or ./station.db), oldest first; each must still be there with its recorded
+    sha256 (a file edited or replaced since is refused)."""
+    from station.errors import InputError
+    from station.records.query import Selection
+    from station.records.sources import file_sha256
+    from station.records.store import open_store, store_url
+
+    selection = Selection.parse(query)
+    with open_store(store_url(db)[0], create=False) as store:
+        records = [r for r in store.records(selection) if r.kind == "session"]
+    if not records:
+        raise InputError(f"no session calibration in the record store matches {query!r}")
+    for r in records:
+        if r.calibration_path is None or not Path(r.calibration_path).is_file():
+            raise InputError(f"record {r.id} ({r.unit_serial}, {r.created}): its calibration "
+                             f"file {r.calibration_path} is gone; narrow the query or restore it")
+        if file_sha256(r.calibration_path) != r.calibration_sha256:
+            raise InputError(f"{r.calibration_path} changed since it was recorded (record "
+                             f"{r.id}): its sha256 differs; restore it or narrow the query")
+    return [Path(r.calibration_path) for r in records]
 
 
 def _text(cal, cals, out) -> str:

@@ -59,6 +59,7 @@ def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
     from station.commands import (
         channels_argument,
+        db_arguments,
         faces_argument,
         no_check_argument,
         still_arguments,
@@ -118,12 +119,19 @@ def register(p) -> None:
                         "combine`): its between-session spread tau is added to every 1-sigma; "
                         "several (one per unit of the same model): their taus pooled")
     no_check_argument(p)
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from station.commands import existing_file, existing_session, new_file, still_values
+    from station.commands import (
+        existing_file,
+        existing_session,
+        keep_records,
+        new_file,
+        still_values,
+    )
     from station.files.campaign import is_campaign
 
     if is_campaign(args.session):
@@ -146,13 +154,14 @@ def run(args) -> int:
         summaries = solve_units(args.session, units, outs, args.force, **options)
         print(json.dumps({"units": summaries}, indent=2) if args.json
               else "\n".join(unit_line(s) for s in summaries))
-        return units_exit(summaries)
+        return max(units_exit(summaries),
+                   keep_records(args, [s["calibration"] for s in summaries]))
     out = outs[0]
     cal = solve_session(args.session, args.stream, **options)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
-    return verdict_exit(cal.verdict)
+    return max(verdict_exit(cal.verdict), keep_records(args, [out]))
 
 
 def session_units(path) -> list:
@@ -550,7 +559,7 @@ calibrates)."""
 
 def _run_campaign(args) -> int:
     """`station solve CAMPAIGN`: the temperature model of a thermal campaign."""
-    from station.commands import new_file
+    from station.commands import keep_records, new_file
     from station.errors import InputError
     from station.files.campaign import manifest_path
 
@@ -566,7 +575,7 @@ def _run_campaign(args) -> int:
     cal.save(out, overwrite=args.force)
     summary = summarise_campaign(cal, fit, out)
     print(json.dumps(summary, indent=2) if args.json else campaign_text(summary))
-    return 0
+    return keep_records(args, [out], "campaign")
 
 
 def solve_campaign(path, accept_suspect: bool = False) -> tuple:
