@@ -10,7 +10,8 @@ each named for what it catches:
     6_trending       6 points in a row, each above (or below) the last  (a drift)
 
 A rule fires at the point that completes its pattern. Under a stable normal process the false
-alarm rate per point is about 0.27 % (rule 1), 0.3 % (rule 2), 0.8 % (rule 3) and 0.3 % (rule 4).
+alarm rate per point is about 0.27 % (rule 1), 0.2 % (rule 2), 0.78 % (rule 3) and 0.28 % (rule
+4).
 """
 
 from dataclasses import dataclass
