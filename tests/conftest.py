@@ -32,3 +32,13 @@ def pg_cluster():
 def pg_url(pg_cluster):
     """The URL of a fresh empty database on the throwaway cluster."""
     return pg_cluster.new_database()
+
+
+@pytest.fixture(autouse=True)
+def record_store(tmp_path_factory, monkeypatch):
+    """Every test's calibrations are recorded in a store of its own (STATION_DB), never in a
+    station.db of the working tree (`station demo` without --out records into the working
+    directory's); its URL."""
+    url = f"sqlite:///{tmp_path_factory.mktemp('store') / 'station.db'}"
+    monkeypatch.setenv("STATION_DB", url)
+    return url

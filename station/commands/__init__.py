@@ -197,7 +197,8 @@ def db_arguments(p) -> None:
     p.add_argument("--db", metavar="URL",
                    help="record the calibration in this store: sqlite:///PATH or "
                         "postgresql://user@host/dbname (default: $STATION_DB, else station.db "
-                        "beside the calibration file); a failed write then exits 1")
+                        "beside the calibration file); a failed write then exits 1 (the "
+                        "calibration file is written whatever happens)")
     p.add_argument("--no-db", action="store_true",
                    help="do not record the calibration in the record store")
 
@@ -209,8 +210,9 @@ def keep_records(args, files, kind: str = "session", near=None) -> int:
 
     A record never undoes a calibration: the files stay written whatever happens here. Done, it
     says where on stderr; failed, one line on stderr says what and how to fix it, and the exit
-    code is 1 when the user named the store (--db or STATION_DB: a line that must keep records),
-    else 0 (the default store is a convenience). Returns that exit code."""
+    code is 1 when the command line named the store (--db: this record was asked for), else 0
+    (STATION_DB or the default store: the line goes on calibrating while its store is down, and
+    `station db import` records the files later). Returns that exit code."""
     import sys
 
     from station.errors import StationError

@@ -173,11 +173,12 @@ class Store:
 def store_url(db: str | None = None, near=None) -> tuple:
     """(url, explicit): `db` (--db) if given, else the environment's STATION_DB, else the default
     store `station.db` in the directory `near` (the calibration file's; default: the working
-    directory). explicit: the user named the store (then a failed write is an error)."""
+    directory). explicit: the command line named the store (--db: then a failed write makes the
+    command fail; a line's STATION_DB keeps solving while its server is down)."""
     if db:
         return db, True
     if os.environ.get(ENV):
-        return os.environ[ENV], True
+        return os.environ[ENV], False
     return f"sqlite:///{Path(near or '.') / DEFAULT_NAME}", False
 
 
