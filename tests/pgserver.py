@@ -36,9 +36,10 @@ def unavailable(reason: str):
 
 
 class Cluster:
-    """A running throwaway cluster; `url(dbname)` connects to one of its databases."""
+    """A running throwaway cluster; `url(dbname)` connects to one of its databases. durable:
+    fsync on as in production (bench/records.py); off for the tests (nothing to survive)."""
 
-    def __init__(self, bindir: Path):
+    def __init__(self, bindir: Path, durable: bool = False):
         self.bindir = bindir
         self.root = Path(tempfile.mkdtemp(prefix="station-pg-"))
         self.data = self.root / "data"
@@ -49,7 +50,8 @@ class Cluster:
                   "--no-sync", "-E", "UTF8")
         self._run("pg_ctl", "-D", str(self.data), "-l", str(self.root / "log"), "-w", "-t",
                   str(START_SECONDS), "-o",
-                  f"-k {self.root} -c listen_addresses='' -c fsync=off", "start")
+                  f"-k {self.root} -c listen_addresses='' -c fsync={'on' if durable else 'off'}",
+                  "start")
         self._made = 0
 
     def _run(self, tool: str, *args: str) -> None:
@@ -81,7 +83,7 @@ class Cluster:
             shutil.rmtree(self.root, ignore_errors=True)
 
 
-def start_cluster() -> Cluster:
+def start_cluster(durable: bool = False) -> Cluster:
     """A started cluster, or a skip (or a failure under STATION_REQUIRE_PG=1) saying why not."""
     bindir = binaries()
     if bindir is None:
@@ -89,6 +91,6 @@ def start_cluster() -> Cluster:
     if os.geteuid() == 0 and shutil.which("runuser") is None:
         unavailable("running as root without runuser (initdb refuses root)")
     try:
-        return Cluster(bindir)
+        return Cluster(bindir, durable)
     except (RuntimeError, OSError, LookupError) as exc:
         unavailable(f"the throwaway PostgreSQL cluster did not start ({exc})")

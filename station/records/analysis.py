@@ -6,9 +6,6 @@ sigmas of the difference (each 1-sigma is the calibration's own; |drift| > 3 is 
 noise). Control charts and run rules: `station.records.spc`.
 """
 
-from itertools import groupby
-from operator import itemgetter
-
 import numpy as np
 
 from station.records import spc
@@ -76,18 +73,39 @@ def chart_document(x, ids, created, baseline: int) -> dict:
             "first_flag": flags[0] if flags else None}
 
 
-def parameter_charts(series: list, baseline: int) -> dict:
-    """{model: [{"parameter", "sensor", "n", "mean", "sd", "min", "max", ...chart_document}]} of
-    the store's `series` rows (model, name, sensor, id, created, value) in their order."""
-    models = {}
-    for (model, name, sensor), rows in groupby(series, key=itemgetter(0, 1, 2)):
-        _, _, _, ids, created, values = zip(*rows, strict=True)
-        x = np.asarray(values, dtype=float)
-        models.setdefault(model or "unknown", []).append({
-            "parameter": name, "sensor": sensor, "n": len(x), "mean": float(x.mean()),
-            "sd": float(x.std(ddof=1)) if len(x) > 1 else None, "min": float(x.min()),
-            "max": float(x.max()), **chart_document(x, ids, created, baseline)})
-    return models
+def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
+    """{model: [{"parameter", "sensor", "n", "mean", "sd", "min", "max", ...chart_document}]}: one
+    chart per model, parameter and sensor, its points in the records' time order. series: the
+    store's (record id, name, sensor, value) rows; summaries: the records' rows (`fleet`), in
+    time order."""
+    models = sorted({row[2] or "unknown" for row in summaries})
+    code = {m: k for k, m in enumerate(models)}
+    rank = {row[0]: (k, code[row[2] or "unknown"]) for k, row in enumerate(summaries)}
+    series = [row for row in series if row[0] in rank]  # a record stored meanwhile waits
+    if not series:
+        return {}
+    ids, names, sensors, values = zip(*series, strict=True)
+    keys = {}
+    key_code = np.fromiter((keys.setdefault(k, len(keys)) for k in zip(names, sensors,
+                                                                        strict=True)),
+                           dtype=np.int64, count=len(series))
+    order, model_code = np.array([rank[i] for i in ids], dtype=np.int64).T
+    sort = np.lexsort((order, key_code, model_code))
+    x, ks, ms, ts = (np.asarray(values, dtype=float)[sort], key_code[sort], model_code[sort],
+                     order[sort])
+    bounds = np.flatnonzero(np.diff(ks) | np.diff(ms)) + 1
+    by_rank = [(row[0], row[5]) for row in summaries]
+    names_of = {code: key for key, code in keys.items()}
+    charts = {}
+    for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(x)], strict=True):
+        v, points = x[lo:hi], [by_rank[t] for t in ts[lo:hi]]
+        name, sensor = names_of[int(ks[lo])]
+        charts.setdefault(models[int(ms[lo])], []).append({
+            "parameter": name, "sensor": sensor, "n": len(v), "mean": float(v.mean()),
+            "sd": float(v.std(ddof=1)) if len(v) > 1 else None, "min": float(v.min()),
+            "max": float(v.max()),
+            **chart_document(v, [p[0] for p in points], [p[1] for p in points], baseline)})
+    return charts
 
 
 def bench_health(summaries: list, baseline: int) -> dict:
@@ -131,7 +149,7 @@ def fleet(store, selection, baseline: int = spc.BASELINE) -> dict:
     per-model parameter distributions with their control charts, the benches' health charts,
     and the outliers."""
     summaries = store.summaries(selection)
-    models = parameter_charts(store.series(selection), baseline)
+    models = parameter_charts(store.series(selection), summaries, baseline)
     by_model = {}
     for row in summaries:
         by_model.setdefault(row[2] or "unknown", []).append(row)

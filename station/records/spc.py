@@ -57,8 +57,9 @@ def run_rules(z) -> tuple:
     """Every (index, rule) where a run rule fires on the standardised series `z`, by index
     (several rules at one point: in the order of RULES)."""
     z = np.asarray(z, dtype=float)
-    hits = {rule: _fires(z, rule) for rule in RULES}
-    return tuple((int(i), rule) for i in range(len(z)) for rule in RULES if hits[rule][i])
+    hits = sorted((int(i), k) for k, rule in enumerate(RULES)
+                  for i in np.flatnonzero(_fires(z, rule)))
+    return tuple((i, RULES[k]) for i, k in hits)
 
 
 def _fires(z: np.ndarray, rule: str) -> np.ndarray:

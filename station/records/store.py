@@ -128,15 +128,14 @@ class Store:
                        parameters=tuple(params.get(row[0], ()))) for row in rows]
 
     def series(self, selection) -> list:
-        """(model, parameter name, sensor, record id, created, value) of every parameter of the
-        records `selection` picks, ordered by model, name, sensor, then time: the control
-        charts' input, without building records."""
-        where, values = selection.where("c.")
+        """(record id, parameter name, sensor, value) of every parameter of the records
+        `selection` picks, in the table's own order (no join, no sort: the fleet report orders
+        them by the records' time itself, `station.records.analysis.parameter_charts`)."""
+        where, values = selection.where()
+        picked = f" WHERE calibration_id IN (SELECT id FROM calibrations {where})" if where else ""
         with self.transaction() as cur:
-            cur.execute(self.sql("SELECT c.model, p.name, p.sensor, c.id, c.created, p.value "
-                                 "FROM parameters p JOIN calibrations c ON c.id = "
-                                 f"p.calibration_id {where} ORDER BY c.model, p.name, p.sensor, "
-                                 "c.created, c.id"), values)
+            cur.execute(self.sql(f"SELECT calibration_id, name, sensor, value FROM parameters"
+                                 f"{picked}"), values)
             return cur.fetchall()
 
     def summaries(self, selection) -> list:
