@@ -1,7 +1,7 @@
 """The record store through the command line: every solve recorded (default store beside the
 calibration file, --db, STATION_DB, --no-db), a store that cannot be written never costs the
 calibration file, `station history`, `station fleet` (--json, --csv, --html), `station db`,
-`station combine --from-db`, `station demo`."""
+`station combine --from-db`, `station solve --repeatability-from-db`, `station demo`."""
 
 import json
 import shutil
@@ -108,6 +108,11 @@ def test_history_fleet_import_and_combine_from_the_store(session, tmp_path, caps
     assert again["added"] == 0 and again["present"] == 3
     assert cli.main(["db", "check", "--db", fresh, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["problems"] == []
+
+    assert cli.main(["solve", str(session), "--out", str(tmp_path / "d.cal.json"), "--json",
+                     "--repeatability-from-db", f"serial={serial}"]) == 0
+    (source,) = json.loads(capsys.readouterr().out)["repeatability"]["files"]
+    assert source["sha256"] == file_sha256(tmp_path / "c.cal.json")
 
 
 def test_combine_from_the_store_refuses_a_file_changed_since(session, tmp_path, capsys):

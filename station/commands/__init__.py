@@ -245,3 +245,15 @@ def record_files(url: str, files, kind: str) -> tuple:
 
     with open_store(url) as store:
         return [store.add(Record.from_calibration(load(f), f, kind)) for f in files], store.where
+
+
+def queried_files(db: str | None, query: str, kind: str) -> list:
+    """The calibration files of the records of `kind` that `query` picks in the record store
+    (--db, STATION_DB or ./station.db), oldest first (`station.records.query.recorded_files`:
+    each must still be there with its recorded sha256)."""
+    from station.records.query import Selection, recorded_files
+    from station.records.store import open_store, store_url
+
+    selection = Selection.parse(query)
+    with open_store(store_url(db)[0], create=False) as store:
+        return recorded_files(store, selection, kind, query)

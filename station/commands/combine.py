@@ -46,7 +46,7 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import existing_file, keep_records, new_file
+    from station.commands import existing_file, keep_records, new_file, queried_files
     from station.errors import InputError
     from station.files.calfile import load
     from station.files.combined import combine
@@ -54,7 +54,7 @@ def run(args) -> int:
     out = new_file(args.out, force=args.force)
     if bool(args.calibrations) == bool(args.from_db):
         raise InputError("give the calibration files to combine, or --from-db QUERY (not both)")
-    paths = args.calibrations or queried_files(args.db, args.from_db)
+    paths = args.calibrations or queried_files(args.db, args.from_db, "session")
     names = [str(p) for p in paths]
     cals = [load(existing_file(p, "a calibration file (.cal.json)")) for p in paths]
     cal = combine(cals, names)
@@ -71,30 +71,6 @@ def run(args) -> int:
     else:
         print(_text(cal, cals, out))
     return max(0 if cal.fit["status"] == "good" else 1, keep_records(args, [out], "combined"))
-
-
-def queried_files(db: str | None, query: str) -> list:
-    """The calibration files of the one-session records that `query` picks in the store (--db,
-    STATION_DB or ./station.db), oldest first; each must still be there with its recorded
-    sha256 (a file edited or replaced since is refused)."""
-    from station.errors import InputError
-    from station.records.query import Selection
-    from station.records.sources import file_sha256
-    from station.records.store import open_store, store_url
-
-    selection = Selection.parse(query)
-    with open_store(store_url(db)[0], create=False) as store:
-        records = [r for r in store.records(selection) if r.kind == "session"]
-    if not records:
-        raise InputError(f"no session calibration in the record store matches {query!r}")
-    for r in records:
-        if r.calibration_path is None or not Path(r.calibration_path).is_file():
-            raise InputError(f"record {r.id} ({r.unit_serial}, {r.created}): its calibration "
-                             f"file {r.calibration_path} is gone; narrow the query or restore it")
-        if file_sha256(r.calibration_path) != r.calibration_sha256:
-            raise InputError(f"{r.calibration_path} changed since it was recorded (record "
-                             f"{r.id}): its sha256 differs; restore it or narrow the query")
-    return [Path(r.calibration_path) for r in records]
 
 
 def _text(cal, cals, out) -> str:

@@ -118,6 +118,10 @@ def register(p) -> None:
                    help="a combined calibration file of earlier sessions of the unit (`station "
                         "combine`): its between-session spread tau is added to every 1-sigma; "
                         "several (one per unit of the same model): their taus pooled")
+    p.add_argument("--repeatability-from-db", metavar="QUERY",
+                   help="instead of --repeatability files: the combined calibrations of the "
+                        "record store (--db) that the query picks, e.g. \"model=imu12-serial "
+                        "since=2026-11-01\" (docs/records.md)")
     no_check_argument(p)
     db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -130,8 +134,10 @@ def run(args) -> int:
         existing_session,
         keep_records,
         new_file,
+        queried_files,
         still_values,
     )
+    from station.errors import InputError
     from station.files.campaign import is_campaign
 
     if is_campaign(args.session):
@@ -143,6 +149,10 @@ def run(args) -> int:
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
+    if args.repeatability and args.repeatability_from_db:
+        raise InputError("give --repeatability files or --repeatability-from-db QUERY, not both")
+    if args.repeatability_from_db:
+        args.repeatability = queried_files(args.db, args.repeatability_from_db, "combined")
     repeatability = None if args.repeatability is None else [existing_file(
         path, "a combined calibration file (`station combine`)") for path in args.repeatability]
     options = {"nominal": nominal, "magnitude": args.magnitude,
@@ -552,7 +562,8 @@ def pose_lines(s: dict) -> list:
 
 
 CAMPAIGN_UNUSED = ("stream", "nominal", "magnitude", "store", "tolerances", "rest", "threshold",
-                   "still_channels", "min_still", "faces", "repeatability")
+                   "still_channels", "min_still", "faces", "repeatability",
+                   "repeatability_from_db")
 """`station solve` options that a thermal campaign refuses (they choose what one session
 calibrates)."""
 

@@ -12,6 +12,7 @@ never become SQL.
 """
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from station.errors import InputError
 
@@ -58,3 +59,23 @@ class Selection:
         clauses = [prefix + CONDITIONS[key] for key in self.terms]
         values = tuple(f"%{v}%" if key in PARTIAL else v for key, v in self.terms.items())
         return "WHERE " + " AND ".join(clauses), values
+
+
+def recorded_files(store, selection: Selection, kind: str, words: str) -> list:
+    """The calibration files of the records of `kind` (session, campaign, combined) that
+    `selection` (written as `words`) picks, oldest first. Refused (InputError): none picked, a
+    file gone, or a file whose sha256 is no longer the recorded one (edited or replaced since)."""
+    from station.records.sources import file_sha256
+
+    records = [r for r in store.records(selection) if r.kind == kind]
+    if not records:
+        raise InputError(f"no {kind} calibration in the record store {store.where} matches "
+                         f"{words!r}")
+    for r in records:
+        if r.calibration_path is None or not Path(r.calibration_path).is_file():
+            raise InputError(f"record {r.id} ({r.unit_serial}, {r.created}): its calibration "
+                             f"file {r.calibration_path} is gone; narrow the query or restore it")
+        if file_sha256(r.calibration_path) != r.calibration_sha256:
+            raise InputError(f"{r.calibration_path} changed since it was recorded (record "
+                             f"{r.id}): its sha256 differs; restore it or narrow the query")
+    return [Path(r.calibration_path) for r in records]
