@@ -27,3 +27,49 @@ def test_the_table_rate_error_is_read_from_the_sessions_table_stream(tmp_path):
     with VirtualBench("serial", seed=4) as bench:  # a table on its command
         record_rotary(bench, tmp_path / "true.h5", settings, suggested_axes(6))
     assert abs(session_facts(tmp_path / "true.h5")["table_rate_error"]) <= bound
+
+
+def test_a_campaigns_facts_are_its_manifest_soaks_and_settling(tmp_path):
+    """A thermal campaign's record: the manifest's sha256, the longest soak's settling time, the
+    median table rate error of its soak sessions (here copies of the example rotary session)."""
+    import shutil
+    from pathlib import Path
+
+    from station.files.campaign import Campaign
+
+    example = Path(__file__).parents[1] / "sessions" / "rotary-12gyro.h5"
+    campaign = Campaign.create(tmp_path / "c", "SN1", str(example), [263.15, 313.15])
+    for k, seconds in enumerate((400.0, 512.0)):
+        shutil.copy(example, campaign.directory / campaign.soaks[k]["file"])
+        campaign.update(k, state="done", soak_seconds=seconds, unit_temperature=263.4 + 50 * k)
+    facts = session_facts(campaign.directory)
+    one = session_facts(example)
+    assert facts["session_sha256"] == file_sha256(campaign.directory / "campaign.json")
+    assert facts["chamber_settling_s"] == 512.0
+    assert facts["table_rate_error"] == one["table_rate_error"]
+    assert facts["model"] == one["model"]
+
+
+def test_the_bench_and_its_devices_from_the_recorded_profiles():
+    """bench_facts of metadata as `station record` writes it (station.acquire.bench.record): the
+    bench profile's tables and the device profiles, here the bundled example bench's."""
+    from pathlib import Path
+
+    from drivers.profile import load_profile
+    from station.records.sources import bench_facts
+
+    profiles = Path(__file__).parents[1] / "drivers" / "profiles"
+    bench = load_profile(profiles / "bench_serial.toml").tables
+    metadata = {"bench": {"profile": str(profiles / "bench_serial.toml"), "tables": bench},
+                "profiles": {"imu": load_profile(profiles / "imu12_serial.toml").tables,
+                             "table": load_profile(profiles / "table_modbus.toml").tables}}
+    facts = bench_facts(metadata)
+    assert facts["model"] == "imu12-serial"
+    assert facts["bench"] == "bench_serial"
+    assert facts["table_id"] == "rotary-table-modbus at 192.168.0.50:502"
+    assert facts["imu_link"] == "serial /dev/ttyUSB0"
+    assert facts["chamber_id"] is None and len(facts["profile_sha256"]) == 64
+    renamed = {**metadata, "bench": {**metadata["bench"], "tables": {
+        **bench, "bench": {**bench["bench"], "name": "bench2"}}}}
+    assert bench_facts(renamed)["bench"] == "bench2"
+    assert bench_facts(renamed)["profile_sha256"] != facts["profile_sha256"]

@@ -44,12 +44,15 @@ def run(args) -> int:
 
 
 def _import(store, args) -> dict:
+    """`station db import DIR`: every calibration file under DIR recorded."""
     from station.records.importing import import_folder
 
     return import_folder(store, args.directory)
 
 
 def _check(store, args) -> dict:
+    """`station db check`: the backend's integrity check and every record whole; `problems`
+    lists what is wrong (exit 1)."""
     incomplete = store.incomplete()
     integrity = store.integrity()
     problems = ([] if integrity in ("ok", None) else [integrity]) + (
@@ -58,6 +61,8 @@ def _check(store, args) -> dict:
 
 
 def _info(store, args) -> dict:
+    """`station db info`: the schema version (migrated to this station's on opening) and the
+    number of records."""
     from station.records.schema import LATEST
 
     return {"schema_version": LATEST, "records": store.count()}

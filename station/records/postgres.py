@@ -16,10 +16,12 @@ CONNECT_SECONDS = 10
 
 
 def _lock_schema(cur) -> None:
+    """Hold the schema's advisory lock until the migrating transaction ends."""
     cur.execute("SELECT pg_advisory_xact_lock(%s)", (SCHEMA_LOCK,))
 
 
 def _dialect() -> Dialect:
+    """PostgreSQL's Dialect (psycopg imported only when a PostgreSQL store is opened)."""
     import psycopg
 
     return Dialect(

@@ -135,4 +135,5 @@ def operator() -> str | None:
 
 
 def _number(x) -> float | None:
+    """x as a float, None kept."""
     return None if x is None else float(x)

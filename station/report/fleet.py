@@ -36,6 +36,7 @@ CHART_HEAD = ["parameter", "sensor", "n", "mean", "sd", "centre", "sigma", "viol
 
 
 def _chart_row(c: dict) -> list:
+    """One chart's row of a model's table (CHART_HEAD)."""
     chart, first = c.get("chart"), c.get("first_flag")
     return [c["parameter"], c["sensor"], c["n"], f"{c['mean']:.6g}",
             "-" if c["sd"] is None else f"{c['sd']:.3g}",
@@ -46,6 +47,7 @@ def _chart_row(c: dict) -> list:
 
 
 def _pct(fraction) -> str:
+    """A fraction in percent, "-" when unknown."""
     return "-" if fraction is None else f"{100 * fraction:.1f} %"
 
 
