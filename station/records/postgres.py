@@ -31,7 +31,9 @@ def _dialect() -> Dialect:
         errors=(psycopg.Error,),
         advice="check the database server is up and the URL (--db or STATION_DB) names a "
                "database this user may write",
-        lock_schema=_lock_schema)
+        lock_schema=_lock_schema,
+        has_versions="SELECT COUNT(*) FROM pg_tables WHERE schemaname = current_schema() AND "
+                     "tablename = 'schema_version'")
 
 
 class PostgresStore(Store):

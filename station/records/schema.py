@@ -52,23 +52,41 @@ VERSION_TABLE = ("CREATE TABLE IF NOT EXISTS schema_version (version INTEGER PRI
                  "applied TEXT NOT NULL, description TEXT NOT NULL)")
 
 
+def version(cur, store) -> int:
+    """The store's schema version (0: none yet), read in the transaction of cursor `cur`."""
+    cur.execute(store.dialect.has_versions)
+    if not cur.fetchone()[0]:
+        return 0
+    cur.execute("SELECT MAX(version) FROM schema_version")
+    return cur.fetchone()[0] or 0
+
+
 def migrate(store) -> int:
     """Bring `store` (a `station.records.store.Store`) to the LATEST schema in one locked
-    transaction; its version. NewerStoreError when the store is newer than this station."""
+    transaction; its version. A store already at LATEST is only read (a reader without write
+    access can query it). NewerStoreError when the store is newer than this station."""
+    with store.transaction() as cur:
+        current = _known(version(cur, store), store)
+    if current == LATEST:
+        return current
     with store.transaction(exclusive=True) as cur:
         cur.execute(VERSION_TABLE)
         store.dialect.lock_schema(cur)
-        cur.execute("SELECT MAX(version) FROM schema_version")
-        current = cur.fetchone()[0] or 0
-        if current > LATEST:
-            raise NewerStoreError(
-                f"the record store {store.where} has schema version {current}, made by a newer "
-                f"station (this one knows versions up to {LATEST}): upgrade this station, or "
-                "give another store (--db)")
+        current = _known(version(cur, store), store)  # another station may have migrated it
         for number in range(current + 1, LATEST + 1):
             description, statements = MIGRATIONS[number - 1]
             for statement in statements:
                 cur.execute(statement.format(**store.dialect.types))
             cur.execute(store.sql("INSERT INTO schema_version (version, applied, description) "
                                   "VALUES (?, ?, ?)"), (number, utc_now(), description))
-    return max(current, LATEST)
+    return LATEST
+
+
+def _known(current: int, store) -> int:
+    """`current`, unless it is newer than this station knows (NewerStoreError)."""
+    if current > LATEST:
+        raise NewerStoreError(
+            f"the record store {store.where} has schema version {current}, made by a newer "
+            f"station (this one knows versions up to {LATEST}): upgrade this station, or give "
+            "another store (--db)")
+    return current

@@ -20,7 +20,9 @@ DIALECT = Dialect(
     errors=(sqlite3.Error,),
     advice="check the file is a record store on a writable, not full disk (`station db check`), "
            "or give another store with --db or STATION_DB",
-    lock_schema=lambda cur: None)  # BEGIN IMMEDIATE already holds the write lock
+    lock_schema=lambda cur: None,  # BEGIN IMMEDIATE already holds the write lock
+    has_versions="SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND "
+                 "name = 'schema_version'")
 
 
 class SqliteStore(Store):

@@ -33,8 +33,8 @@ URL_FORMS = ("sqlite:///PATH (sqlite:////absolute/path), a plain file path, or "
 @dataclass(frozen=True)
 class Dialect:
     """What differs between the backends: name, placeholder, the type spellings of the schema
-    (`station.records.schema`), the driver's error classes, advice on failure, and the lock taken
-    while migrating."""
+    (`station.records.schema`), the driver's error classes, advice on failure, the lock taken
+    while migrating, and the query that says whether the version table exists (1 or 0)."""
 
     name: str
     placeholder: str
@@ -42,6 +42,7 @@ class Dialect:
     errors: tuple
     advice: str
     lock_schema: object
+    has_versions: str
 
 
 class Store:
