@@ -16,12 +16,14 @@ import dataclasses
 import numpy as np
 from recordmaker import when
 
+from station import cli
 from station.files.calfile import Calibration
 from station.model.effects.rate_error import RateError
 from station.records.analysis import fleet
 from station.records.query import Selection
 from station.records.record import Record
 from station.records.store import open_store
+from station.report.fleet import fleet_page
 from station.sim.layouts import A_MODEL
 from station.solve.calibrate import calibrate
 from station.solve.verdict import Tolerances, verdict
@@ -70,3 +72,13 @@ def test_a_drifting_rate_table_is_flagged_before_its_units_fail(tmp_path):
     assert flag is not None
     assert STABLE <= flag["index"] < first_fail, (flag, verdicts)
     assert all(v == "PASS" for v in verdicts[:flag["index"] + 1])
+    assert health["flagged"][0] == flag["index"]
+    assert 'id="bench-bench2-table_rate_error"' in fleet_page(report, url)
+
+
+def test_station_fleet_exits_1_on_a_flagged_bench(tmp_path, capsys):
+    """The command line says so too: the bench named FLAGGED in the text, exit code 1."""
+    test_a_drifting_rate_table_is_flagged_before_its_units_fail(tmp_path)
+    url = f"sqlite:///{tmp_path / 'station.db'}"
+    assert cli.main(["fleet", "--db", url, "--baseline", str(STABLE)]) == 1
+    assert "bench bench2: table rate error over 30 sessions: FLAGGED" in capsys.readouterr().out

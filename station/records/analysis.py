@@ -59,18 +59,20 @@ def yields(verdicts) -> dict:
     return {"judged": judged, **counts, "fraction": counts["PASS"] / judged if judged else None}
 
 
-def chart_document(x, ids, created, baseline: int) -> dict:
+def chart_document(x, ids, created, baseline: int, every_index: bool = False) -> dict:
     """A control chart's summary: points, centre, sigma and the rule violations (the first
-    MAX_LISTED, with each point's record id, time and z), or only the points without a chart."""
+    MAX_LISTED, with each point's record id, time and z), or only the points without a chart.
+    every_index: also `flagged`, the index of every point a rule flags (a short series')."""
     c = spc.chart(x, baseline)
     if c is None:
-        return {"points": len(x), "chart": None}
+        return {"points": len(x), "chart": None, **({"flagged": []} if every_index else {})}
     flags = [{"index": i, "rule": rule, "id": int(ids[i]), "created": created[i],
               "value": float(x[i]), "z": float(c.z[i])} for i, rule in c.violations]
     return {"points": len(x), "chart": {"centre": c.centre, "sigma": c.sigma,
                                         "baseline": baseline},
             "violations": len(flags), "flags": flags[:MAX_LISTED],
-            "first_flag": flags[0] if flags else None}
+            "first_flag": flags[0] if flags else None,
+            **({"flagged": sorted({i for i, _ in c.violations})} if every_index else {})}
 
 
 def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
@@ -132,7 +134,7 @@ def _figure_chart(points: list, k: int, baseline: int) -> dict | None:
     if not have:
         return None
     values, created = [float(p[k]) for p in have], [p[1] for p in have]
-    return {**chart_document(np.array(values), [p[0] for p in have], created, baseline),
+    return {**chart_document(np.array(values), [p[0] for p in have], created, baseline, True),
             "values": values, "created": created}
 
 

@@ -64,12 +64,13 @@ def _bench_plot(bench: str, name: str, doc: dict) -> Plot:
     if chart is not None:
         for k, style in ((0, "-"), (3, "--"), (-3, "--")):
             ax.axhline(chart["centre"] + k * chart["sigma"], color="gray", ls=style, lw=0.8)
-        flagged = sorted({f["index"] for f in doc["flags"]})
-        ax.plot(flagged, [doc["values"][i] for i in flagged], "rx", ms=8)
+        ax.plot(doc["flagged"], [doc["values"][i] for i in doc["flagged"]], "rx", ms=8)
     ax.set_xlabel("session")
-    ax.set_ylabel(f"{words} ({unit})")
+    ax.set_ylabel(unit)
     first = doc.get("first_flag")
-    caption = (f"{doc['points']} sessions; " + ("no baseline chart (too few sessions)"
+    caption = (f"{words} ({unit}) per session, centre and 3-sigma limits of the first "
+               f"{chart['baseline'] if chart else '-'} sessions, run-rule flags as crosses; "
+               f"{doc['points']} sessions; " + ("no baseline chart (too few sessions)"
                                                 if chart is None else
                f"first flag: {first['rule']} at session {first['index'] + 1} ({first['created']})"
                if first else "no run rule fired"))
