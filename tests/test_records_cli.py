@@ -108,6 +108,11 @@ def test_history_fleet_import_and_combine_from_the_store(session, tmp_path, caps
     assert again["added"] == 0 and again["present"] == 3
     assert cli.main(["db", "check", "--db", fresh, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["problems"] == []
+    assert cli.main(["db", "list", f"serial={serial}", "kind=session", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)["calibrations"]
+    assert [r["calibration_path"] for r in listed] == [str(tmp_path / f"{n}.cal.json")
+                                                       for n in "ab"]
+    assert {r["session_sha256"] for r in listed} == {file_sha256(session)}
 
     assert cli.main(["solve", str(session), "--out", str(tmp_path / "d.cal.json"), "--json",
                      "--repeatability-from-db", f"serial={serial}"]) == 0
