@@ -88,6 +88,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         url = f"sqlite:///{Path(tmp) / 'station.db'}"
         out["sqlite"] = measure(url, args.records, lambda s: sqlite_size(url, s))
+    if not args.json:
+        say("sqlite", out["sqlite"])  # at once: the PostgreSQL run takes as long again
     from pgserver import binaries, start_cluster
 
     if binaries() is None:
@@ -100,15 +102,19 @@ def main() -> None:
             cluster.stop()
     if args.json:
         print(json.dumps(out, indent=2))
+    else:
+        say("postgresql", out["postgresql"])
+
+
+def say(backend: str, f) -> None:
+    """One backend's figures in words."""
+    if isinstance(f, str):
+        print(f"{backend}: {f}", flush=True)
         return
-    for backend, f in out.items():
-        if isinstance(f, str):
-            print(f"{backend}: {f}")
-            continue
-        print(f"{backend}: {f['records']} records, {f['insert_per_s']:.0f} records/s inserted "
-              f"(one transaction each); history of a unit ({f['history_records']} records) "
-              f"{f['history_s']:.3f} s; fleet report over {f['fleet_records']} records "
-              f"{f['fleet_s']:.2f} s; {f['bytes_per_record']:.0f} bytes per record")
+    print(f"{backend}: {f['records']} records, {f['insert_per_s']:.0f} records/s inserted "
+          f"(one transaction each); history of a unit ({f['history_records']} records) "
+          f"{f['history_s']:.3f} s; fleet report over {f['fleet_records']} records "
+          f"{f['fleet_s']:.2f} s; {f['bytes_per_record']:.0f} bytes per record", flush=True)
 
 
 if __name__ == "__main__":
