@@ -94,7 +94,8 @@ def test_history_fleet_import_and_combine_from_the_store(session, tmp_path, caps
     html = tmp_path / "fleet.html"
     assert cli.main(["fleet", f"serial={serial}", "--json", "--html", str(html)]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["records"] == 3 and report["yield"]["judged"] == 1
+    assert report["records"] == 2 and report["yield"]["judged"] == 1  # kind=session by default
+    assert report["selection"] == {"serial": serial, "kind": "session"}
     assert html.read_text().startswith("<!DOCTYPE html>")
     assert cli.main(["fleet", "--csv"]) == 0
     rows = capsys.readouterr().out.splitlines()

@@ -7,7 +7,8 @@ Western Electric / Nelson run rules (1 beyond 3 sigma, 2 of 3 beyond 2 sigma, 8 
 side, 6 in a row trending). The benches' health: the table rate error (and a thermal chamber's
 settling) of each session, charted and judged the same way, so a drifting rate table is flagged
 while its units still pass. The words select records as `--from-db` does (serial, model, lot,
-bench, verdict, since, until, ...).
+bench, verdict, since, until, ...); by default the one-session calibrations (kind=session: a
+combined file's sessions are counted once, as sessions; kind=campaign for thermal campaigns).
 """
 
 import json
@@ -50,6 +51,8 @@ def run(args) -> int:
         raise InputError(f"--baseline {args.baseline}: give 2 points or more (20-25 is usual)")
     html = None if args.html is None else new_file(args.html, "--html")
     selection = Selection.parse(" ".join(args.query))
+    if "kind" not in selection.terms:  # a combined file re-counts its sessions
+        selection = Selection({**selection.terms, "kind": "session"})
     with open_store(store_url(args.db)[0], create=False) as store:
         report = fleet(store, selection, args.baseline)
         where = store.where
