@@ -60,54 +60,67 @@ def yields(verdicts) -> dict:
 
 
 def chart_document(x, ids, created, baseline: int, every_index: bool = False) -> dict:
-    """A control chart's summary: points, centre, sigma and the rule violations (the first
-    MAX_LISTED, with each point's record id, time and z), or only the points without a chart.
-    every_index: also `flagged`, the index of every point a rule flags (a short series')."""
+    """A control chart's summary: points, centre, sigma, the rule violations (how many, the first
+    MAX_LISTED with each point's record id, time and z) and the points beyond 3 sigma (the
+    MAX_LISTED largest |z|), or only the points without a chart. ids, created: each point's
+    record id and time (arrays). every_index: also `flagged`, the index of every point a rule
+    flags (a short series')."""
     c = spc.chart(x, baseline)
     if c is None:
         return {"points": len(x), "chart": None, **({"flagged": []} if every_index else {})}
-    flags = [{"index": i, "rule": rule, "id": int(ids[i]), "created": created[i],
-              "value": float(x[i]), "z": float(c.z[i])} for i, rule in c.violations]
+
+    def point(i: int, rule: str) -> dict:
+        return {"index": i, "rule": rule, "id": int(ids[i]), "created": str(created[i]),
+                "value": float(x[i]), "z": float(c.z[i])}
+
+    beyond = np.flatnonzero(np.abs(c.z) > 3)
+    largest = beyond[np.argsort(-np.abs(c.z[beyond]), kind="stable")][:MAX_LISTED]
+    flags = [point(i, rule) for i, rule in c.violations[:MAX_LISTED]]
     return {"points": len(x), "chart": {"centre": c.centre, "sigma": c.sigma,
                                         "baseline": baseline},
-            "violations": len(flags), "flags": flags[:MAX_LISTED],
+            "violations": len(c.violations), "flags": flags,
             "first_flag": flags[0] if flags else None,
+            "beyond_3_sigma": [point(int(i), "beyond_3_sigma") for i in largest],
             **({"flagged": sorted({i for i, _ in c.violations})} if every_index else {})}
 
 
 def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
     """{model: [{"parameter", "sensor", "n", "mean", "sd", "min", "max", ...chart_document}]}: one
     chart per model, parameter and sensor, its points in the records' time order. series: the
-    store's (record id, name, sensor, value) rows; summaries: the records' rows (`fleet`), in
-    time order."""
-    models = sorted({row[2] or "unknown" for row in summaries})
-    code = {m: k for k, m in enumerate(models)}
-    rank = {row[0]: (k, code[row[2] or "unknown"]) for k, row in enumerate(summaries)}
-    series = [row for row in series if row[0] in rank]  # a record stored meanwhile waits
-    if not series:
+    store's [(name, sensor, record ids, values)] (`Store.series`); summaries: the records' rows
+    (`fleet`), in time order. Parameters of records not among the summaries (stored meanwhile)
+    wait for the next report."""
+    if not summaries:
         return {}
-    ids, names, sensors, values = zip(*series, strict=True)
-    keys = {}
-    key_code = np.fromiter((keys.setdefault(k, len(keys)) for k in zip(names, sensors,
-                                                                        strict=True)),
-                           dtype=np.int64, count=len(series))
-    order, model_code = np.array([rank[i] for i in ids], dtype=np.int64).T
-    sort = np.lexsort((order, key_code, model_code))
-    x, ks, ms, ts = (np.asarray(values, dtype=float)[sort], key_code[sort], model_code[sort],
-                     order[sort])
-    bounds = np.flatnonzero(np.diff(ks) | np.diff(ms)) + 1
-    by_rank = [(row[0], row[5]) for row in summaries]
-    names_of = {code: key for key, code in keys.items()}
+    ids = np.array([row[0] for row in summaries], dtype=np.int64)
+    created = np.array([row[5] for row in summaries], dtype=object)
+    labels = [row[2] or "unknown" for row in summaries]
+    models = sorted(set(labels))
+    code = {m: k for k, m in enumerate(models)}
+    model_of = np.array([code[m] for m in labels], dtype=np.int64)
+    by_id = np.argsort(ids)
     charts = {}
-    for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, len(x)], strict=True):
-        v, points = x[lo:hi], [by_rank[t] for t in ts[lo:hi]]
-        name, sensor = names_of[int(ks[lo])]
-        charts.setdefault(models[int(ms[lo])], []).append({
-            "parameter": name, "sensor": sensor, "n": len(v), "mean": float(v.mean()),
-            "sd": float(v.std(ddof=1)) if len(v) > 1 else None, "min": float(v.min()),
-            "max": float(v.max()),
-            **chart_document(v, [p[0] for p in points], [p[1] for p in points], baseline)})
+    for name, sensor, record_ids, values in series:
+        rank = _ranks(record_ids, ids, by_id)
+        keep = rank >= 0
+        order = np.argsort(rank[keep], kind="stable")
+        rank, x = rank[keep][order], values[keep][order]
+        for m in np.unique(model_of[rank]):
+            mine = model_of[rank] == m
+            v, r = x[mine], rank[mine]
+            charts.setdefault(models[m], []).append({
+                "parameter": name, "sensor": sensor, "n": len(v), "mean": float(v.mean()),
+                "sd": float(v.std(ddof=1)) if len(v) > 1 else None, "min": float(v.min()),
+                "max": float(v.max()), **chart_document(v, ids[r], created[r], baseline)})
     return charts
+
+
+def _ranks(record_ids: np.ndarray, ids: np.ndarray, by_id: np.ndarray) -> np.ndarray:
+    """The time rank (index in `ids`, the records in time order) of each of `record_ids`, -1
+    for an id not among them; by_id: argsort of ids."""
+    sorted_ids = ids[by_id]
+    pos = np.searchsorted(sorted_ids, record_ids).clip(max=len(ids) - 1)
+    return np.where(sorted_ids[pos] == record_ids, by_id[pos], -1)
 
 
 def bench_health(summaries: list, baseline: int) -> dict:
@@ -142,7 +155,7 @@ def outliers(models: dict) -> list:
     """Points beyond 3 sigma of their parameter's chart, the largest |z| first (MAX_LISTED)."""
     found = [{"model": model, "parameter": c["parameter"], "sensor": c["sensor"], **f}
              for model, charts in models.items() for c in charts
-             for f in c.get("flags", ()) if f["rule"] == "beyond_3_sigma"]
+             for f in c.get("beyond_3_sigma", ())]
     return sorted(found, key=lambda f: -abs(f["z"]))[:MAX_LISTED]
 
 

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 
 RULES = ("beyond_3_sigma", "2_of_3_beyond_2", "8_on_one_side", "6_trending")
-BASELINE = 10
-"""Points of the baseline period by default (fewer than this: no chart)."""
+BASELINE = 20
+"""Points of the baseline period by default (fewer than this: no chart): 20-25 is the usual
+Shewhart baseline; its sigma is then known to about 16 %."""
 
 
 @dataclass(frozen=True)
@@ -57,9 +58,8 @@ def run_rules(z) -> tuple:
     """Every (index, rule) where a run rule fires on the standardised series `z`, by index
     (several rules at one point: in the order of RULES)."""
     z = np.asarray(z, dtype=float)
-    hits = sorted((int(i), k) for k, rule in enumerate(RULES)
-                  for i in np.flatnonzero(_fires(z, rule)))
-    return tuple((i, RULES[k]) for i, k in hits)
+    points, rules = np.nonzero(np.stack([_fires(z, rule) for rule in RULES], axis=1))
+    return tuple(zip(points.tolist(), [RULES[k] for k in rules.tolist()], strict=True))
 
 
 def _fires(z: np.ndarray, rule: str) -> np.ndarray:

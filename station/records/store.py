@@ -129,15 +129,23 @@ class Store:
                        parameters=tuple(params.get(row[0], ()))) for row in rows]
 
     def series(self, selection) -> list:
-        """(record id, parameter name, sensor, value) of every parameter of the records
-        `selection` picks, in the table's own order (no join, no sort: the fleet report orders
-        them by the records' time itself, `station.records.analysis.parameter_charts`)."""
+        """[(name, sensor, record ids, values)] of every parameter and sensor over the records
+        `selection` picks (ids int64 and values float arrays, in no particular order): the
+        control charts' input, read one parameter at a time through the index
+        parameters_series, two numbers a row."""
+        import numpy as np
+
         where, values = selection.where()
-        picked = f" WHERE calibration_id IN (SELECT id FROM calibrations {where})" if where else ""
+        picked = f" AND calibration_id IN (SELECT id FROM calibrations {where})" if where else ""
+        out = []
         with self.transaction() as cur:
-            cur.execute(self.sql(f"SELECT calibration_id, name, sensor, value FROM parameters"
-                                 f"{picked}"), values)
-            return cur.fetchall()
+            cur.execute("SELECT DISTINCT name, sensor FROM parameters ORDER BY name, sensor")
+            for name, sensor in cur.fetchall():
+                cur.execute(self.sql("SELECT calibration_id, value FROM parameters WHERE "
+                                     f"name = ? AND sensor = ?{picked}"), (name, sensor, *values))
+                rows = np.array(cur.fetchall(), dtype=float).reshape(-1, 2)
+                out.append((name, sensor, rows[:, 0].astype(np.int64), rows[:, 1]))
+        return out
 
     def summaries(self, selection) -> list:
         """(id, unit_serial, model, bench, session_sha256, created, verdict, table_rate_error,
