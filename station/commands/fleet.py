@@ -76,8 +76,12 @@ def flagged_benches(report: dict) -> list:
             if isinstance(doc, dict) and doc.get("first_flag")]
 
 
-CSV_HEAD = ("model", "parameter", "sensor", "n", "mean", "sd", "min", "max", "centre", "sigma",
-            "violations", "first_rule", "first_record", "first_created")
+CSV_HEAD = ("model", "parameter", "sensor", "unit", "n", "mean", "sd", "min", "max", "centre",
+            "sigma", "violations", "first_rule", "first_record", "first_created")
+
+
+BENCH_UNITS = {"table_rate_error": "1", "chamber_settling_s": "s"}
+"""The unit of each bench health figure."""
 
 
 def write_csv(report: dict, out) -> None:
@@ -87,15 +91,17 @@ def write_csv(report: dict, out) -> None:
     w = csv.writer(out)
     w.writerow(CSV_HEAD)
     rows = [(model, c) for model, m in report["models"].items() for c in m["parameters"]]
-    rows += [(f"bench {bench}", {"parameter": name, "sensor": "", "n": doc["points"],
+    rows += [(f"bench {bench}", {"parameter": name, "sensor": "", "unit": BENCH_UNITS[name],
+                                 "n": doc["points"],
                                  "mean": None, "sd": None, "min": None, "max": None, **doc})
              for bench, health in report["benches"].items()
              for name, doc in health.items() if isinstance(doc, dict)]
     for model, c in rows:
         chart, first = c.get("chart") or {}, c.get("first_flag") or {}
-        w.writerow([model, c["parameter"], c["sensor"], c["n"], c["mean"], c["sd"], c["min"],
-                    c["max"], chart.get("centre"), chart.get("sigma"), c.get("violations"),
-                    first.get("rule"), first.get("id"), first.get("created")])
+        w.writerow([model, c["parameter"], c["sensor"], c["unit"], c["n"], c["mean"], c["sd"],
+                    c["min"], c["max"], chart.get("centre"), chart.get("sigma"),
+                    c.get("violations"), first.get("rule"), first.get("id"),
+                    first.get("created")])
 
 
 def text(r: dict) -> str:
@@ -112,7 +118,8 @@ def text(r: dict) -> str:
         lines.append(f"model {model}: {m['records']} calibrations, {m['units']} units, yield "
                      + ("-" if my["fraction"] is None else f"{100 * my['fraction']:.1f} %")
                      + f"; {len(flagged)} of {len(charts)} control charts flagged")
-        lines += [f"  {c['parameter']} {c['sensor']}: {c['first_flag']['rule']} at record "
+        lines += [f"  {c['parameter']} {c['sensor']} ({c['unit']}): {c['first_flag']['rule']} at "
+                  f"record "
                   f"{c['first_flag']['id']} ({c['first_flag']['created']}), {c['violations']} "
                   f"violations; mean {c['mean']:.6g}, sd {c['sd']:.3g}" for c in flagged]
     for bench, health in r["benches"].items():

@@ -85,9 +85,10 @@ def chart_document(x, ids, created, baseline: int, every_index: bool = False) ->
 
 
 def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
-    """{model: [{"parameter", "sensor", "n", "mean", "sd", "min", "max", ...chart_document}]}: one
-    chart per model, parameter and sensor, its points in the records' time order. series: the
-    store's [(name, sensor, record ids, values)] (`Store.series`); summaries: the records' rows
+    """{model: [{"parameter", "sensor", "unit", "n", "mean", "sd", "min", "max",
+    ...chart_document}]}: one chart per model, parameter, sensor and unit (raw counts are never
+    charted with SI values), its points in the records' time order. series: the store's
+    [(name, sensor, unit, record ids, values)] (`Store.series`); summaries: the records' rows
     (`fleet`), in time order. Parameters of records not among the summaries (stored meanwhile)
     wait for the next report."""
     if not summaries:
@@ -100,7 +101,7 @@ def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
     model_of = np.array([code[m] for m in labels], dtype=np.int64)
     by_id = np.argsort(ids)
     charts = {}
-    for name, sensor, record_ids, values in series:
+    for name, sensor, unit, record_ids, values in series:
         rank = _ranks(record_ids, ids, by_id)
         keep = rank >= 0
         order = np.argsort(rank[keep], kind="stable")
@@ -109,7 +110,8 @@ def parameter_charts(series: list, summaries: list, baseline: int) -> dict:
             mine = model_of[rank] == m
             v, r = x[mine], rank[mine]
             charts.setdefault(models[m], []).append({
-                "parameter": name, "sensor": sensor, "n": len(v), "mean": float(v.mean()),
+                "parameter": name, "sensor": sensor, "unit": unit, "n": len(v),
+                "mean": float(v.mean()),
                 "sd": float(v.std(ddof=1)) if len(v) > 1 else None, "min": float(v.min()),
                 "max": float(v.max()), **chart_document(v, ids[r], created[r], baseline)})
     return charts

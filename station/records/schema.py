@@ -43,7 +43,8 @@ MIGRATIONS = (
         "CREATE INDEX calibrations_bench ON calibrations (bench, created)",
         "CREATE INDEX calibrations_created ON calibrations (created)",
         # the control charts read one parameter of one sensor over every record
-        "CREATE INDEX parameters_series ON parameters (name, sensor, calibration_id, value)",
+        "CREATE INDEX parameters_series ON parameters (name, sensor, unit, calibration_id, "
+        "value)",
     )),
 )
 """(description, statements) of migration 1, 2, ... in order."""

@@ -129,22 +129,24 @@ class Store:
                        parameters=tuple(params.get(row[0], ()))) for row in rows]
 
     def series(self, selection) -> list:
-        """[(name, sensor, record ids, values)] of every parameter and sensor over the records
-        `selection` picks (ids int64 and values float arrays, in no particular order): the
-        control charts' input, read one parameter at a time through the index
-        parameters_series, two numbers a row."""
+        """[(name, sensor, unit, record ids, values)] of every parameter, sensor and unit over the
+        records `selection` picks (ids int64 and values float arrays, in no particular order):
+        the control charts' input, read one at a time through the index parameters_series, two
+        numbers a row."""
         import numpy as np
 
         where, values = selection.where()
         picked = f" AND calibration_id IN (SELECT id FROM calibrations {where})" if where else ""
         out = []
         with self.transaction() as cur:
-            cur.execute("SELECT DISTINCT name, sensor FROM parameters ORDER BY name, sensor")
-            for name, sensor in cur.fetchall():
+            cur.execute("SELECT DISTINCT name, sensor, unit FROM parameters "
+                        "ORDER BY name, sensor, unit")
+            for key in cur.fetchall():
                 cur.execute(self.sql("SELECT calibration_id, value FROM parameters WHERE "
-                                     f"name = ? AND sensor = ?{picked}"), (name, sensor, *values))
+                                     f"name = ? AND sensor = ? AND unit = ?{picked}"),
+                            (*key, *values))
                 rows = np.array(cur.fetchall(), dtype=float).reshape(-1, 2)
-                out.append((name, sensor, rows[:, 0].astype(np.int64), rows[:, 1]))
+                out.append((*key, rows[:, 0].astype(np.int64), rows[:, 1]))
         return out
 
     def summaries(self, selection) -> list:

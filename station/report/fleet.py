@@ -31,14 +31,14 @@ def fleet_page(report: dict, source: str) -> str:
     return page("Fleet report", source, head + models + benches + outliers)
 
 
-CHART_HEAD = ["parameter", "sensor", "n", "mean", "sd", "centre", "sigma", "violations",
+CHART_HEAD = ["parameter", "sensor", "unit", "n", "mean", "sd", "centre", "sigma", "violations",
               "first flag"]
 
 
 def _chart_row(c: dict) -> list:
     """One chart's row of a model's table (CHART_HEAD)."""
     chart, first = c.get("chart"), c.get("first_flag")
-    return [c["parameter"], c["sensor"], c["n"], f"{c['mean']:.6g}",
+    return [c["parameter"], c["sensor"], c["unit"], c["n"], f"{c['mean']:.6g}",
             "-" if c["sd"] is None else f"{c['sd']:.3g}",
             "-" if chart is None else f"{chart['centre']:.6g}",
             "-" if chart is None else f"{chart['sigma']:.3g}", c.get("violations", "-"),
