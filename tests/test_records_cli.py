@@ -82,6 +82,11 @@ def test_history_fleet_import_and_combine_from_the_store(session, tmp_path, caps
     h = json.loads(capsys.readouterr().out)
     assert len(h["calibrations"]) == 2
     assert h["largest_drift"]["sigmas"] == 0  # the same session solved twice: no drift
+    assert cli.main(["history", serial, "--last", "1", "--parameter", "bias"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    biases = [x for x in lines if " +- " in x]
+    assert len(biases) == len(load(tmp_path / "a.cal.json").sensors)
+    assert all(x.endswith("drift +0.00 sigma") for x in biases)  # one session solved twice
     assert cli.main(["history", "NO-SUCH-UNIT"]) == 2
     assert "no calibration of unit 'NO-SUCH-UNIT'" in capsys.readouterr().err
 

@@ -42,7 +42,7 @@ def history(records: list, serial: str) -> dict:
                         "station_version": r.station_version,
                         "parameters": {f"{p.name} {p.sensor}": [p.value, p.sigma, p.unit]
                                        for p in r.parameters},
-                        "drift": steps[:MAX_LISTED], "drift_count": len(steps)})
+                        "drift": steps})
         if steps and (largest is None or abs(steps[0]["sigmas"]) > abs(largest["sigmas"])):
             largest = {**steps[0], "from": records[k - 1].id, "to": r.id}
     return {"unit_serial": serial, "calibrations": entries, "largest_drift": largest}
