@@ -5,7 +5,7 @@ shaft (station.model.effects.rate_error), and the bench's devices from the recor
 import pytest
 
 from station.protocols.rotary import RotarySettings, suggested_axes
-from station.records.sources import file_sha256, session_facts
+from station.records.sources import bench_facts, file_sha256, session_facts
 from station.twin.rotary_bench import VirtualBench, record_rotary
 
 SCALE = 2e-3  # the table turns 0.2 % fast
@@ -73,3 +73,24 @@ def test_the_bench_and_its_devices_from_the_recorded_profiles():
         **bench, "bench": {**bench["bench"], "name": "bench2"}}}}
     assert bench_facts(renamed)["bench"] == "bench2"
     assert bench_facts(renamed)["profile_sha256"] != facts["profile_sha256"]
+
+
+def test_a_bench_profile_names_its_bench_and_lot(tmp_path):
+    """[bench] name and lot: accepted by the bench profile (strings), recorded verbatim in the
+    session's metadata and read by the records."""
+    from pathlib import Path
+
+    from drivers.errors import ProfileError
+    from station.acquire.bench import BenchProfile
+
+    text = (Path(__file__).parents[1] / "drivers" / "profiles" / "bench_serial.toml").read_text()
+    named = tmp_path / "bench.toml"
+    named.write_text(text.replace('unit_serial = "SN0001"',
+                                  'unit_serial = "SN0001"\nname = "bench2"\nlot = "L7"'))
+    tables = BenchProfile.load(named).tables
+    assert (tables["bench"]["name"], tables["bench"]["lot"]) == ("bench2", "L7")
+    facts = bench_facts({"bench": {"profile": str(named), "tables": tables}})
+    assert (facts["bench"], facts["lot"]) == ("bench2", "L7")
+    named.write_text(text.replace('unit_serial = "SN0001"', 'unit_serial = "SN0001"\nlot = 7'))
+    with pytest.raises(ProfileError, match="lot: must be str"):
+        BenchProfile.load(named)
