@@ -184,6 +184,18 @@ def test_two_writers_at_once_lose_no_record(url):
         assert store.incomplete() == []
 
 
+def test_stations_opening_a_new_store_at_once_make_its_schema_once(url):
+    """Six processes open one new store together: each migrates or waits for the one that does
+    (PostgreSQL: the advisory lock before the version table; seen racing without it)."""
+    code = ("import sys; from station.records.store import open_store; "
+            "open_store(sys.argv[1]).close()")
+    children = [subprocess.Popen([sys.executable, "-c", code, url]) for _ in range(6)]
+    assert [c.wait() for c in children] == [0] * 6
+    with open_store(url) as store, store.transaction() as cur:
+        cur.execute("SELECT version FROM schema_version")
+        assert [v for v, in cur.fetchall()] == [1]
+
+
 def test_fleet_yield_and_distributions(url):
     rng = np.random.default_rng(7)
     verdicts = ["PASS"] * 17 + ["FAIL"] * 2 + ["MARGINAL"]

@@ -73,8 +73,8 @@ def migrate(store) -> int:
     if current == LATEST:
         return current
     with store.transaction(exclusive=True) as cur:
+        store.dialect.lock_schema(cur)  # first: PostgreSQL's CREATE TABLE IF NOT EXISTS races
         cur.execute(VERSION_TABLE)
-        store.dialect.lock_schema(cur)
         current = _known(version(cur, store), store)  # another station may have migrated it
         for number in range(current + 1, LATEST + 1):
             description, statements = MIGRATIONS[number - 1]
