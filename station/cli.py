@@ -49,6 +49,10 @@ COMMANDS = {
     "simulate": ("simulate", "simulate a session of the digital twin"),
     "import": ("import_", "convert a foreign recording (text, CSV, .npz) into a session file"),
     "devices": ("devices", "list serial ports and CAN interfaces"),
+    "history": ("history", "every calibration of a unit in the record store, with its drift"),
+    "fleet": ("fleet", "yield, parameter distributions, control charts and bench health from the "
+                       "record store"),
+    "db": ("db", "the calibration record store: import folders, check, info"),
 }
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")

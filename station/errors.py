@@ -24,6 +24,8 @@ callers already catch (ValueError for bad input, RuntimeError for a bench that m
      |              +-- SoakTimeout       3  the unit still warmed or cooled at the soak's timeout
      +-- SuspectFitError                1  a fit inconsistent with its noise: not written as good
      +-- OperatorAbort                  1  the operator ended the session
+     +-- RecordStoreError (RuntimeError)  1  the calibration record store cannot be read or written
+          +-- NewerStoreError             1  a record store made by a newer station: upgrade
 
 Device errors have their own root, `drivers.errors.DeviceError` (exit code 3), because the drivers
 never import the station (the layering contracts in pyproject.toml): ProfileError (ValueError, exit
@@ -133,6 +135,16 @@ class SuspectFitError(StationError):
 class OperatorAbort(StationError):
     """The operator ended the session (end of input, or 'no' to a question that must be 'yes')."""
 
+
+class RecordStoreError(StationError, RuntimeError):
+    """The calibration record store (station.records) cannot be opened, read or written: an
+    unreachable server, a locked or damaged file, a full disk; the message names the store and
+    what to do."""
+
+
+class NewerStoreError(RecordStoreError):
+    """The record store's schema version is newer than this station knows: made by a newer
+    station; upgrade this one (it never writes to a schema it does not know)."""
 
 
 class SoakError(ProtocolError):

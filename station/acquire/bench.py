@@ -45,6 +45,11 @@ class BenchUnit:
         return SessionUnit(self.stream, self.unit_serial, self.mounting)
 
 
+RECORDED = ("name", "lot")
+"""Optional [bench] keys that only the calibration records read (station.records.sources,
+docs/records.md): the bench's name (default: the profile's file name) and the units' lot."""
+
+
 @dataclass(frozen=True)
 class BenchProfile:
     """A parsed bench profile; `imu` is a SerialImuProfile, CanProfile or MavlinkProfile with the
@@ -112,6 +117,8 @@ class BenchProfile:
         serial = bench.get("unit_serial", str)
         speed = bench.get("clock_speed", float, default=1.0)
         lockstep = bench.get("lockstep", str, default=None)
+        for key in RECORDED:  # read by the calibration records from the session's metadata
+            bench.get(key, str, default=None)
         if lockstep is not None and "clock_speed" in bench.table:
             raise ProfileError(f"{path}: [bench] gives both lockstep (the virtual bench's stepped "
                                "clock) and clock_speed (a real-time clock); keep the one `station "

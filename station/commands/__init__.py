@@ -189,3 +189,71 @@ def table_words(err: BaseException) -> str:
     """"the table was stopped; " when a stop command got through after `err`, "" otherwise (no
     table, or the driver's note already tells the operator to stop it by hand)."""
     return "the table was stopped; " if getattr(err, "table_stopped", None) else ""
+
+
+def db_arguments(p) -> None:
+    """`--db URL` and `--no-db` on parser `p` (the commands that write calibration files: each is
+    recorded in the calibration record store, docs/records.md)."""
+    p.add_argument("--db", metavar="URL",
+                   help="record the calibration in this store: sqlite:///PATH or "
+                        "postgresql://user@host/dbname (default: $STATION_DB, else station.db "
+                        "beside the calibration file); a failed write then exits 1 (the "
+                        "calibration file is written whatever happens)")
+    p.add_argument("--no-db", action="store_true",
+                   help="do not record the calibration in the record store")
+
+
+def keep_records(args, files, kind: str = "session", near=None) -> int:
+    """Record the calibration files `files` (just written) in the store of --db, STATION_DB or
+    the default (`station.records.store.store_url`: station.db in the directory `near`, default
+    the first file's), unless --no-db.
+
+    A record never undoes a calibration: the files stay written whatever happens here. Done, it
+    says where on stderr; failed, one line on stderr says what and how to fix it, and the exit
+    code is 1 when the command line named the store (--db: this record was asked for), else 0
+    (STATION_DB or the default store: the line goes on calibrating while its store is down, and
+    `station db import` records the files later). Returns that exit code."""
+    import sys
+
+    from station.errors import StationError
+    from station.records.store import store_url
+
+    files = [Path(f) for f in files]
+    if getattr(args, "no_db", False) or not files:
+        return 0
+    url, explicit = store_url(getattr(args, "db", None), near or files[0].resolve().parent)
+    try:
+        ids, where = record_files(url, files, kind)
+    except (StationError, OSError) as exc:
+        words = " ".join(str(exc).split())
+        print(f"station {args.command}: {', '.join(map(str, files))} written but not recorded "
+              f"in the record store: {words} (--no-db skips recording; `station db import DIR` "
+              "records the files later)", file=sys.stderr)
+        return 1 if explicit else 0
+    known = [str(i) for i in ids if i is not None]
+    print(f"station {args.command}: recorded in {where}"
+          + (f" (record {', '.join(known)})" if known else " (already there)"), file=sys.stderr)
+    return 0
+
+
+def record_files(url: str, files, kind: str) -> tuple:
+    """([record id or None (already there), ...], the store's name): each calibration file of
+    `files` recorded in the store at `url`."""
+    from station.files.calfile import load
+    from station.records.record import Record
+    from station.records.store import open_store
+
+    with open_store(url) as store:
+        return [store.add(Record.from_calibration(load(f), f, kind)) for f in files], store.where
+
+
+def queried_files(db: str | None, query: str, kind: str) -> list:
+    """The calibration files of the records of `kind` that `query` picks in the record store
+    (--db, STATION_DB or ./station.db), oldest first (`station.records.query.recorded_files`:
+    each must still be there with its recorded sha256)."""
+    from station.records.query import Selection, recorded_files
+    from station.records.store import open_store, store_url
+
+    selection = Selection.parse(query)
+    with open_store(store_url(db)[0], create=False) as store:
+        return recorded_files(store, selection, kind, query)

@@ -21,30 +21,42 @@ import numpy as np
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import db_arguments
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station combine exp_1.cal.json exp_2.cal.json exp_3.cal.json "
         "--out array.cal.json\n"
-        "  station combine SN42-mon.cal.json SN42-tue.cal.json --out SN42.cal.json --json\n\n"
+        "  station combine SN42-mon.cal.json SN42-tue.cal.json --out SN42.cal.json --json\n"
+        "  station combine --from-db \"serial=SN42 since=2026-11-01\" --out SN42.cal.json\n\n"
         "exit code 0: written; 1: a source file is marked suspect (written marked suspect); "
         "2: bad input"
     )
-    p.add_argument("calibrations", type=Path, nargs="+", metavar="CAL",
+    p.add_argument("calibrations", type=Path, nargs="*", metavar="CAL",
                    help="calibration files (.cal.json) of the sessions, from `station solve`")
+    p.add_argument("--from-db", metavar="QUERY",
+                   help="instead of CAL files: the session calibrations of the record store "
+                        "(--db) that the query picks, e.g. \"serial=SN42 since=2026-11-01\" "
+                        "(docs/records.md); each file is checked against its recorded sha256")
     p.add_argument("--out", type=Path, required=True, help="combined calibration file to write")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from station.commands import existing_file, new_file
+    from station.commands import existing_file, keep_records, new_file, queried_files
+    from station.errors import InputError
     from station.files.calfile import load
     from station.files.combined import combine
 
     out = new_file(args.out, force=args.force)
-    names = [str(p) for p in args.calibrations]
-    cals = [load(existing_file(p, "a calibration file (.cal.json)")) for p in args.calibrations]
+    if bool(args.calibrations) == bool(args.from_db):
+        raise InputError("give the calibration files to combine, or --from-db QUERY (not both)")
+    paths = args.calibrations or queried_files(args.db, args.from_db, "session")
+    names = [str(p) for p in paths]
+    cals = [load(existing_file(p, "a calibration file (.cal.json)")) for p in paths]
     cal = combine(cals, names)
     cal.save(out, overwrite=args.force)
     within = np.median([c.bias_sigma for c in cals], axis=0)
@@ -58,7 +70,7 @@ def run(args) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(_text(cal, cals, out))
-    return 0 if cal.fit["status"] == "good" else 1
+    return max(0 if cal.fit["status"] == "good" else 1, keep_records(args, [out], "combined"))
 
 
 def _text(cal, cals, out) -> str:

@@ -28,6 +28,8 @@ TRIAD_PAIRS = [(t + i, t + k) for t in range(0, 12, 3) for i, k in ((0, 1), (0, 
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import db_arguments
+
     p.description = __doc__
     p.epilog = (
         "examples:\n  station demo\n  station demo --imu can --json\n"
@@ -45,6 +47,7 @@ def register(p) -> None:
                    help="keep the session file here (.h5; default: a temporary file, deleted)")
     p.add_argument("--live", action="store_true",
                    help="show the live view of the recording (phase, windows, table, link)")
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(run=run)
 
@@ -59,20 +62,39 @@ def run(args) -> int:
         raise InputError("--speed must be positive and finite (simulated s per wall s)")
     if args.out is not None:
         new_file(args.out)
+        if not args.no_db:  # the calibration file recorded is written beside it
+            new_file(args.out.with_suffix(".cal.json"), "--out (its .cal.json exists)")
     check_positions((12, args.positions), 3)  # before recording, not after
     if args.out is None:
         with tempfile.TemporaryDirectory(prefix="station-demo-") as tmp:
             summary = run_demo(Path(tmp) / "demo.h5", args.imu, args.seed, args.positions,
                                args.speed, live=args.live)
+            recorded = record_demo(args, Path(tmp) / "demo.h5", Path.cwd())
         summary["session"] = None  # deleted with the temporary directory
     else:
         summary = run_demo(args.out, args.imu, args.seed, args.positions, args.speed,
                            live=args.live)
+        recorded = record_demo(args, args.out, None)
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
         _print(summary)
-    return verdict_exit(summary["verdict"])
+    return max(verdict_exit(summary["verdict"]), recorded)
+
+
+def record_demo(args, session: Path, near) -> int:
+    """Solve the demo's session into its calibration file (SESSION.cal.json) as `station solve`
+    does, against the demo's tolerances, and record it in the record store (`keep_records`;
+    default: station.db in the directory `near`, the working directory for a temporary session,
+    else beside the session). Its exit code."""
+    from station.commands import keep_records
+    from station.commands.solve import solve_session
+
+    if args.no_db:
+        return 0
+    out = session.with_suffix(".cal.json")
+    solve_session(session, tolerances=DEMO_TOLERANCES).save(out)
+    return keep_records(args, [out], near=near)
 
 
 def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20,

@@ -81,7 +81,7 @@ from station.errors import InputError
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
-    from station.commands import no_watchdog_argument
+    from station.commands import db_arguments, no_watchdog_argument
 
     p.description = __doc__
     p.epilog = (
@@ -100,6 +100,7 @@ def register(p) -> None:
     p.add_argument("--live", action="store_true",
                    help="show the live view (phase, windows, table, link) while recording")
     no_watchdog_argument(p)
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
@@ -107,7 +108,7 @@ def register(p) -> None:
 def run(args) -> int:
     from station.acquire.bench import BenchProfile, record
     from station.acquire.operator import ConsoleOperator
-    from station.commands import bench_profile, new_file
+    from station.commands import bench_profile, keep_records, new_file
     from station.commands.solve import unit_line, units_exit, verdict_exit
     from station.protocols import KINDS
     from station.solve.verdict import words
@@ -152,8 +153,12 @@ def run(args) -> int:
             if summary["calibration"]["verdict"]:
                 print(words(summary["calibration"]["verdict"]))
     if args.solve and bench.plate:
-        return units_exit(summary["calibrations"])
-    return verdict_exit(summary["calibration"]["verdict"]) if args.solve else 0
+        return max(units_exit(summary["calibrations"]),
+                   keep_records(args, [s["calibration"] for s in summary["calibrations"]]))
+    if args.solve:
+        return max(verdict_exit(summary["calibration"]["verdict"]),
+                   keep_records(args, [summary["calibration"]["calibration"]]))
+    return 0
 
 
 def how_to_go_on(err: BaseException, out: Path) -> str:
@@ -191,6 +196,7 @@ def _campaign(args, bench) -> int:
     """A thermal campaign (the profile has a [chamber] section) into the directory --out."""
     from station.acquire.operator import ConsoleOperator
     from station.acquire.watchdog import require_watchdogs
+    from station.commands import keep_records
     from station.files.campaign import Campaign
     from station.protocols.thermal import run_campaign
 
@@ -203,8 +209,10 @@ def _campaign(args, bench) -> int:
                          "(--out DIR)")
     campaign = Campaign.create(out, bench.unit_serial, bench.source, bench.chamber.setpoints)
     operator = ConsoleOperator(stdout=sys.stderr if args.json else sys.stdout)
-    return report_campaign(run_campaign(bench, campaign, operator), args.json, args.solve,
+    code = report_campaign(run_campaign(bench, campaign, operator), args.json, args.solve,
                            args.accept_suspect)
+    return max(code, keep_records(args, [out / "campaign.cal.json"], "campaign")
+               if args.solve else 0)
 
 
 def report_campaign(summary: dict, as_json: bool, solve: bool = False,

@@ -59,6 +59,7 @@ def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
     from station.commands import (
         channels_argument,
+        db_arguments,
         faces_argument,
         no_check_argument,
         still_arguments,
@@ -117,13 +118,26 @@ def register(p) -> None:
                    help="a combined calibration file of earlier sessions of the unit (`station "
                         "combine`): its between-session spread tau is added to every 1-sigma; "
                         "several (one per unit of the same model): their taus pooled")
+    p.add_argument("--repeatability-from-db", metavar="QUERY",
+                   help="instead of --repeatability files: the combined calibrations of the "
+                        "record store (--db) that the query picks, e.g. \"model=imu12-serial "
+                        "since=2026-11-01\" (docs/records.md)")
     no_check_argument(p)
+    db_arguments(p)
     p.add_argument("--json", action="store_true", help="machine-readable summary")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    from station.commands import existing_file, existing_session, new_file, still_values
+    from station.commands import (
+        existing_file,
+        existing_session,
+        keep_records,
+        new_file,
+        queried_files,
+        still_values,
+    )
+    from station.errors import InputError
     from station.files.campaign import is_campaign
 
     if is_campaign(args.session):
@@ -135,6 +149,10 @@ def run(args) -> int:
     nominal = None if args.nominal is None else read_nominal(args.nominal)
     tolerances = None if args.tolerances is None else read_tolerances(
         existing_file(args.tolerances, "a TOML file with a [tolerances] table"))
+    if args.repeatability and args.repeatability_from_db:
+        raise InputError("give --repeatability files or --repeatability-from-db QUERY, not both")
+    if args.repeatability_from_db:
+        args.repeatability = queried_files(args.db, args.repeatability_from_db, "combined")
     repeatability = None if args.repeatability is None else [existing_file(
         path, "a combined calibration file (`station combine`)") for path in args.repeatability]
     options = {"nominal": nominal, "magnitude": args.magnitude,
@@ -146,13 +164,14 @@ def run(args) -> int:
         summaries = solve_units(args.session, units, outs, args.force, **options)
         print(json.dumps({"units": summaries}, indent=2) if args.json
               else "\n".join(unit_line(s) for s in summaries))
-        return units_exit(summaries)
+        return max(units_exit(summaries),
+                   keep_records(args, [s["calibration"] for s in summaries]))
     out = outs[0]
     cal = solve_session(args.session, args.stream, **options)
     cal.save(out, overwrite=args.force)
     summary = summarise(cal, out)
     print(json.dumps(summary, indent=2) if args.json else _text(summary))
-    return verdict_exit(cal.verdict)
+    return max(verdict_exit(cal.verdict), keep_records(args, [out]))
 
 
 def session_units(path) -> list:
@@ -543,14 +562,15 @@ def pose_lines(s: dict) -> list:
 
 
 CAMPAIGN_UNUSED = ("stream", "nominal", "magnitude", "store", "tolerances", "rest", "threshold",
-                   "still_channels", "min_still", "faces", "repeatability")
+                   "still_channels", "min_still", "faces", "repeatability",
+                   "repeatability_from_db")
 """`station solve` options that a thermal campaign refuses (they choose what one session
 calibrates)."""
 
 
 def _run_campaign(args) -> int:
     """`station solve CAMPAIGN`: the temperature model of a thermal campaign."""
-    from station.commands import new_file
+    from station.commands import keep_records, new_file
     from station.errors import InputError
     from station.files.campaign import manifest_path
 
@@ -566,7 +586,7 @@ def _run_campaign(args) -> int:
     cal.save(out, overwrite=args.force)
     summary = summarise_campaign(cal, fit, out)
     print(json.dumps(summary, indent=2) if args.json else campaign_text(summary))
-    return 0
+    return keep_records(args, [out], "campaign")
 
 
 def solve_campaign(path, accept_suspect: bool = False) -> tuple:
