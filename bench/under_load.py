@@ -122,15 +122,29 @@ def thermals(k: int, nice: bool) -> list:
     return out
 
 
+OUTCOME = re.compile(r"^(?:\[gw\d+\] \[\s*\d+%\] )?(PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS) "
+                     r"(\S+)|^(\S+::\S+) (PASSED|FAILED|ERROR|SKIPPED|XFAIL|XPASS)", re.M)
+"""A test's outcome line of `pytest --verbosity=1` (with pytest-xdist: "[gw0] [ 12%] PASSED
+tests/...")."""
+
+
+def outcomes(stdout: str) -> dict:
+    """test id -> its outcome, from the `--verbosity=1` lines printed as each test ends (so a
+    suite killed at its timeout still names the tests that failed by then)."""
+    return {m[2] or m[3]: m[1] or m[4] for m in OUTCOME.finditer(stdout)}
+
+
 def suite(tests: list, nice: bool, timeout: float) -> dict:
-    """The test suite (or `tests`): counts, failures, wall seconds, the slowest tests (pytest's
-    --durations lines); killed after `timeout` s (exit None, `progress`: the tests ended by then,
-    counted from pytest's progress characters)."""
-    done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *tests],
-                        nice, timeout)
-    marks = "".join(re.findall(r"^[.FEsx]+(?=\s|$)", done.stdout, re.M))
+    """The test suite (or `tests`), each test's outcome printed as it ends (`--verbosity=1`):
+    counts, failures, wall seconds, the slowest tests (pytest's --durations lines); killed after
+    `timeout` s (exit None; `progress` and `failed_so_far`: the tests ended by then)."""
+    done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
+                         "--verbosity=1", *tests], nice, timeout)
+    ended = outcomes(done.stdout)
+    counts = list(ended.values())
     return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
-            "progress": {c: marks.count(c) for c in ".FEsx"},
+            "progress": {k: counts.count(k) for k in sorted(set(counts))},
+            "failed_so_far": sorted(t for t, k in ended.items() if k in ("FAILED", "ERROR")),
             "failures": re.findall(r"^(?:FAILED|ERROR) .*", done.stdout, re.M),
             "error_lines": re.findall(r"^E .*", done.stdout, re.M)[:60],
             "slowest": re.findall(r"^\d+\.\d+s (?:call|setup|teardown) .*", done.stdout, re.M),
@@ -178,7 +192,7 @@ def main() -> None:
               f"{s['skipped']} skipped in {s['seconds']:.0f} s"
               + (f" (stopped after the timeout; ended by then: {s['progress']})"
                  if s["exit"] is None else ""))
-        for failure in s["failures"]:
+        for failure in s["failures"] or s["failed_so_far"]:
             print(f"  {failure}")
 
 
