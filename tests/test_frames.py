@@ -79,9 +79,9 @@ def crc_bit_by_bit(crc, data: bytes) -> int:
 
 
 @pytest.mark.parametrize("name", sorted(CRCS))
-def test_crc_two_bytes_a_step_equals_the_bit_by_bit_definition(name):
-    """`rows` (the 65536-entry table, two bytes a step, odd lengths too) and the byte table
-    against the definition, for every CRC of CHECKSUMS."""
+def test_crc_tables_equal_the_bit_by_bit_definition(name):
+    """`rows` (the positional table: what each byte value adds at each position, odd lengths
+    too) and `bytewise` (the byte table) against the definition, for every CRC of CHECKSUMS."""
     crc, rng = CRCS[name], np.random.default_rng(len(name))
     for n in (0, 1, 2, 3, 8, 33, 56, 59):
         rows = rng.integers(0, 256, (5, n), dtype=np.uint8)
