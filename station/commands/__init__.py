@@ -247,13 +247,26 @@ def record_files(url: str, files, kind: str) -> tuple:
         return [store.add(Record.from_calibration(load(f), f, kind)) for f in files], store.where
 
 
+def store_argument(p) -> None:
+    """`--db URL` on parser `p` of a command that reads the record store (history, fleet)."""
+    p.add_argument("--db", metavar="URL",
+                   help="the record store (default: $STATION_DB, else ./station.db)")
+
+
+def existing_store(db: str | None):
+    """The record store that --db `db`, STATION_DB or ./station.db names, opened for reading
+    (`station.records.store.open_store` with create=False: a missing store is refused)."""
+    from station.records.store import open_store, store_url
+
+    return open_store(store_url(db)[0], create=False)
+
+
 def queried_files(db: str | None, query: str, kind: str) -> list:
     """The calibration files of the records of `kind` that `query` picks in the record store
     (--db, STATION_DB or ./station.db), oldest first (`station.records.query.recorded_files`:
     each must still be there with its recorded sha256)."""
     from station.records.query import Selection, recorded_files
-    from station.records.store import open_store, store_url
 
     selection = Selection.parse(query)
-    with open_store(store_url(db)[0], create=False) as store:
+    with existing_store(db) as store:
         return recorded_files(store, selection, kind, query)

@@ -17,6 +17,7 @@ import sys
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import store_argument
     from station.records.spc import BASELINE
 
     p.description = __doc__
@@ -27,8 +28,7 @@ def register(p) -> None:
     p.add_argument("query", nargs="*", metavar="KEY=VALUE",
                    help="which records (default all): serial, model, lot, bench, verdict, kind, "
                         "operator, host, session, table, chamber, imu, since, until")
-    p.add_argument("--db", metavar="URL",
-                   help="the record store (default: $STATION_DB, else ./station.db)")
+    store_argument(p)
     p.add_argument("--baseline", type=int, default=BASELINE, metavar="N",
                    help=f"points of each chart's baseline period (default {BASELINE})")
     out = p.add_mutually_exclusive_group()
@@ -41,11 +41,10 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.commands import new_file
+    from station.commands import existing_store, new_file
     from station.errors import InputError
     from station.records.analysis import fleet
     from station.records.query import Selection
-    from station.records.store import open_store, store_url
 
     if args.baseline < 2:
         raise InputError(f"--baseline {args.baseline}: give 2 points or more (20-25 is usual)")
@@ -53,7 +52,7 @@ def run(args) -> int:
     selection = Selection.parse(" ".join(args.query))
     if "kind" not in selection.terms:  # a combined file re-counts its sessions
         selection = Selection({**selection.terms, "kind": "session"})
-    with open_store(store_url(args.db)[0], create=False) as store:
+    with existing_store(args.db) as store:
         report = fleet(store, selection, args.baseline)
         where = store.where
     if html is not None:

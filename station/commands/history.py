@@ -11,13 +11,14 @@ import json
 
 def register(p) -> None:
     """The options, description and examples of this subcommand, on its parser `p`."""
+    from station.commands import store_argument
+
     p.description = __doc__
     p.epilog = ("examples:\n  station history SN1234\n"
                 "  station history SN1234 --last 3 --parameter bias   # its last three biases\n"
                 "  station history SN1234 --db postgresql://station@db.line/calibrations --json")
     p.add_argument("serial", help="the unit's serial number")
-    p.add_argument("--db", metavar="URL",
-                   help="the record store (default: $STATION_DB, else ./station.db)")
+    store_argument(p)
     p.add_argument("--last", type=int, metavar="N",
                    help="only the last N calibrations (the drift of the first from the one "
                         "before it is kept)")
@@ -29,11 +30,11 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    from station.commands import existing_store
     from station.errors import InputError
     from station.records.analysis import history
-    from station.records.store import open_store, store_url
 
-    with open_store(store_url(args.db)[0], create=False) as store:
+    with existing_store(args.db) as store:
         records = store.history(args.serial)
         where = store.where
     if not records:
