@@ -6,6 +6,7 @@ import io
 import json
 import os
 import subprocess
+import tomllib
 
 import numpy as np
 import pytest
@@ -21,7 +22,6 @@ from station.files.calfile import load
 from station.files.session import Session
 from station.reduce.rotary import rotary_readings
 from station.solve.uncertainty import eps_tail_probability
-from station.twin.rotary_bench import HOST_LATENCY
 from station.twin.served import BenchTwin
 
 POSITIONS = 8
@@ -48,10 +48,11 @@ def check_against_truth(session_path, cal_path, truth: dict, rate: float = 1.0) 
 
 def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
     profile, session = tmp_path / "twin.toml", tmp_path / "session.h5"
-    with TwinProcess("--speed", "40", "--positions", str(POSITIONS), "--seed", "3",
+    with TwinProcess("--positions", str(POSITIONS), "--seed", "3",
                      "--profile-out", str(profile), "--lifetime", "300") as twin:
-        started = twin.started
-        assert started["profile"] == str(profile) and started["clock_speed"] == 40.0
+        started = twin.started  # lockstep time, the twin's default: the same session on any host
+        assert started["profile"] == str(profile) and "lockstep" in started
+        protocol = tomllib.loads(profile.read_text())["protocol"]
         assert os.path.exists(started["imu"]["port"])
         # the technician: one Enter per mounting prompt
         rec = subprocess.run([*STATION, "record", "--profile", str(profile), "--out", str(session),
@@ -68,12 +69,10 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
     with Session.open(session) as s:
         kinds = [e.kind for e in s.events()]
         assert kinds.count("position_done") == POSITIONS and "abort" not in kinds
-        # the twin's profile: the positions, and the waits that cover the host's latency on
-        # its 40x clock (HOST_LATENCY wall s each), recorded with the session
-        margin = HOST_LATENCY * 40.0
-        assert s.unit_serial == "SIM-3" and s.metadata["bench"]["tables"]["protocol"] == {
-            "positions": POSITIONS, "rest": margin, "guard": margin, "steady": margin}
-        assert s.metadata["settings"]["steady"] == margin
+        # the twin's profile, its positions and waits, recorded with the session and used
+        assert protocol["positions"] == POSITIONS
+        assert s.unit_serial == "SIM-3" and s.metadata["bench"]["tables"]["protocol"] == protocol
+        assert s.metadata["settings"]["steady"] == protocol["steady"]
     check_against_truth(session, summary["calibration"]["calibration"], truth)
 
 
