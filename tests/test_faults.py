@@ -3,9 +3,10 @@
 stopped, session paused, going on or ending as the operator says). Nothing already recorded is lost
 and the twin's table is stopped after every fault.
 
-The bench runs at 20x here: the serial twin computes a frame's data when it sends it, with the
-table's state of that moment, so a twin lagging behind on a loaded host (0.1 s of wall time is 4 s
-of a 40x clock) puts rotation into samples taken before the table started."""
+The bench runs in lockstep time (its default; it ran at 20x before): the serial twin computes a
+frame's data when it sends it, with the table's state of that moment, and in lockstep that moment is
+the sample's own instant on any host; at a real-time 20x a twin lagging behind on a loaded host put
+rotation into samples taken before the table started."""
 
 import logging
 
@@ -62,7 +63,7 @@ def check_readings(s, events, reduced):
 
 @pytest.mark.parametrize("window", ["static", "rotating"])
 def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, window):  # noqa: F811 - the fixture
-    s = session(speed=20.0)
+    s = session()
     twin = s.bench.imu_twin
     act = once(twin.unplug)
     if window == "rotating":
@@ -111,7 +112,7 @@ def test_imu_unplugged_mid_window_is_recorded_again_after_reconnection(session, 
 
 
 def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(session):  # noqa: F811 - the fixture
-    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}), speed=20.0)
+    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 1}))
     s.bench.technician.fixes_cables = False
     s.protocol.table = Interrupting(s.table, once(s.bench.imu_twin.unplug), run=1)
     with pytest.raises(ProtocolError, match="the IMU did not come back after 2 reconnections"):
@@ -135,7 +136,7 @@ class Declining(SimulatedTechnician):
 
 @pytest.mark.parametrize("answer", ["go on", "stop"])
 def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):  # noqa: F811 - the fixture
-    s = session(speed=20.0)
+    s = session()
     if answer == "stop":
         b = s.bench
         s.protocol.operator = Declining(b.mounted, b.clock, 1.0, 0.5, 0)
@@ -176,7 +177,7 @@ class ClosedInput(SimulatedTechnician):
 def test_with_the_input_closed_the_device_cause_comes_first(session):  # noqa: F811 - the fixture
     """A table that stops answering while nobody can answer: the abort names the table's fault
     first, then the closed input (it said only "the operator closed the input" before)."""
-    s = session(speed=20.0)
+    s = session()
     b = s.bench
     s.protocol.operator = ClosedInput(b.mounted, b.clock, 1.0, 0.5, 0)
     act = once(lambda: s.bench.table_twin.inject("drop", count=3))
@@ -197,7 +198,7 @@ def abort_of(path):
 def test_a_table_connection_reset_mid_rotation_aborts_naming_the_table_and_the_stop(session):  # noqa: F811 - the fixture
     """Resets on every try of a table read (the driver's 3): a TableLinkError, not a raw
     ConnectionResetError; the emergency stop gets through and the abort event says so."""
-    s = session(speed=20.0)
+    s = session()
     act = once(lambda: s.bench.table_twin.inject("reset", count=3))
     s.protocol.table = Interrupting(s.table, act, run=1)
     with pytest.raises(TableLinkError, match="connection reset by the controller") as caught:
@@ -213,7 +214,7 @@ def test_a_table_connection_reset_mid_rotation_aborts_naming_the_table_and_the_s
 def test_the_whole_bench_lost_mid_rotation_names_both_devices_and_the_unstopped_table(session):  # noqa: F811 - the fixture
     """IMU unplugged and table controller dead at once: the error names both devices and says the
     table could not be stopped (it keeps turning: the twin's physics runs on)."""
-    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 0}), speed=20.0)
+    s = session(settings=RotarySettings(**{**vars(FAST), "retries": 0}))
     s.bench.technician.fixes_cables = False
     s.table.stop_patience = 0.2
 
