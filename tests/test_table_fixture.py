@@ -28,6 +28,8 @@ FIXTURE = TableRegisterMap.load("table_fixture")
 PROFILES = Path(__file__).resolve().parent.parent / "drivers" / "profiles"
 MOUNT_TIME = 2.0  # clock s the served fixture below takes to mount
 
+REPLY = 2.0  # wall s for a Modbus reply: no test here is about a silent table; a busy host is slow
+
 pytestmark = pytest.mark.usefixtures("quiet_pymodbus")
 
 
@@ -54,7 +56,7 @@ def served():
 
 
 def driver(twin, clock, register_map=FIXTURE) -> RotaryTable:
-    return RotaryTable("127.0.0.1", twin.port, register_map, timeout=0.2, retries=1, clock=clock)
+    return RotaryTable("127.0.0.1", twin.port, register_map, timeout=REPLY, retries=1, clock=clock)
 
 
 def test_mount_waits_until_the_fixture_holds_the_position_asked_for(served):
