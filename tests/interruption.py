@@ -65,7 +65,7 @@ def _twin(workdir: Path, speed: float | None = None):
 def _stop(twin) -> None:
     twin.send_signal(signal.SIGINT)
     try:
-        twin.communicate(timeout=30)
+        twin.communicate(timeout=600)
     except subprocess.TimeoutExpired:
         twin.kill()
         twin.communicate()

@@ -97,7 +97,7 @@ def test_every_command_fails_in_one_line_with_the_documented_code(files, tmp_pat
 def test_python_m_station_fails_in_one_line(argv, files):
     argv = [str(files[a[1:]]) if a.startswith("@") else a for a in argv]
     done = subprocess.run([sys.executable, "-m", "station", *argv], capture_output=True,
-                          text=True, timeout=120)
+                          text=True, timeout=600)
     assert done.returncode == BAD_INPUT and len(done.stderr.strip().splitlines()) == 1
     assert "Traceback" not in done.stderr and done.stdout == ""
 
@@ -110,10 +110,10 @@ def test_verbose_adds_the_traceback(files, capsys):
 
 def test_python_m_station_help_and_version():
     done = subprocess.run([sys.executable, "-m", "station", "--help"], capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=600)
     assert done.returncode == 0 and "diagnose" in done.stdout and "exit codes" in done.stdout
     version = subprocess.run([sys.executable, "-m", "station", "--version"], capture_output=True,
-                             text=True, timeout=60)
+                             text=True, timeout=600)
     assert version.returncode == 0 and version.stdout.startswith("station ")
 
 

@@ -88,7 +88,7 @@ def test_cli_json_and_report(tmp_path):
     html = tmp_path / "r.html"
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path), "--json",
                           "--report", str(html), "--latitude", "52.2"],
-                         check=False, capture_output=True, text=True, timeout=120)
+                         check=False, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert doc["effects"] == ["earth_rate"]
@@ -108,7 +108,7 @@ def test_cli_refuses_a_latitude_beyond_the_poles(tmp_path):
     np.savez(path, y=np.zeros((2, 10, 3), np.int32))
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path),
                           "--latitude", "95"], check=False, capture_output=True, text=True,
-                         timeout=60)
+                         timeout=600)
     assert out.returncode == 2 and "--latitude 95" in out.stderr
 
 
@@ -116,7 +116,7 @@ def test_cli_refuses_what_it_cannot_read(tmp_path):
     bad = tmp_path / "x.npz"
     np.savez(bad, y=np.zeros((2, 10, 3), np.int32))
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(bad)],
-                         check=False, capture_output=True, text=True, timeout=60)
+                         check=False, capture_output=True, text=True, timeout=600)
     assert out.returncode == 2 and "lacks" in out.stderr
 
 

@@ -127,7 +127,7 @@ def test_rate_error_read_by_the_tables_encoder_is_corrected(rate_error_encoder):
 
 def test_cli_diagnoses_an_h5_session(clean):
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(clean), "--json"],
-                         check=False, capture_output=True, text=True, timeout=120)
+                         check=False, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stdout + out.stderr
     doc = json.loads(out.stdout)
     assert doc["effects"] == [] and doc["positions"] == POSITIONS
@@ -202,5 +202,5 @@ def test_cli_sends_a_session_that_is_not_rotary_to_the_free_static_path(tmp_path
     with SessionWriter.create(path, {"protocol": "static", "unit_serial": "X"}, {"imu": spec}):
         pass
     out = subprocess.run([sys.executable, "-m", "station", "diagnose", str(path)],
-                         check=False, capture_output=True, text=True, timeout=60)
+                         check=False, capture_output=True, text=True, timeout=600)
     assert out.returncode == 2 and "one accelerometer stream (m/s^2)" in out.stderr

@@ -108,7 +108,7 @@ def test_peers_bench_prints_both_tools():
         capture_output=True,
         text=True,
         check=True,
-        timeout=120,
+        timeout=600,
     )
     report = json.loads(out.stdout)
     for tool in ("ours", "imucal"):

@@ -68,7 +68,7 @@ def test_bench_script_prints_json():
         capture_output=True,
         text=True,
         check=True,
-        timeout=120,
+        timeout=600,
     )
     figures = json.loads(out.stdout)
     assert figures["xsens"]["heldout_rms_ms2"] < figures["xsens"]["manufacturer_rms_ms2"]

@@ -57,7 +57,7 @@ def test_record_with_a_profile_pointing_at_the_twin_process(tmp_path):
         # the technician: one Enter per mounting prompt
         rec = subprocess.run([*STATION, "record", "--profile", str(profile), "--out", str(session),
                               "--solve", "--json"], check=False, input="\n" * POSITIONS, text=True,
-                             capture_output=True, timeout=240)
+                             capture_output=True, timeout=600)
         assert rec.returncode == 0, rec.stderr
         summary = json.loads(rec.stdout)
         assert summary["positions_done"] == POSITIONS and summary["unit_serial"] == "SIM-3"
@@ -153,7 +153,7 @@ def test_station_resume_stops_a_turning_table_before_anything_else(tmp_path):
         twin.bench.table_twin.write_log = log
         launched = time.monotonic()
         done = subprocess.run([*STATION, "resume", str(path)], stdin=subprocess.DEVNULL,
-                              capture_output=True, text=True, timeout=120)
+                              capture_output=True, text=True, timeout=600)
         assert done.returncode == 3 and "cannot open serial port" in done.stderr
         assert not table.state().running
     first = log.read_text().splitlines()[0].split()

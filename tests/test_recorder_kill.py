@@ -22,7 +22,7 @@ from station.solve.uncertainty import eps_tail_probability
 from station.twin.rotary_bench import VirtualBench
 
 POSITIONS, SEED, RATE_HZ = 10, 5, 100.0
-POSITION_ROWS = int(15.0 * RATE_HZ)  # a position: 16.75 s of clock (remount, rests, windows, a turn)
+POSITION_ROWS = int(15.0 * RATE_HZ)  # a position: 16.75 s of clock (remount, windows, a turn)
 # The bench runs in lockstep time (its default): the session is the same on any host, so the kills
 # are placed by the session's progress (IMU rows flushed), not by wall seconds.
 # The recording process: creates the session (or resumes it with the same code as `station

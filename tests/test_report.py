@@ -112,9 +112,9 @@ def render(chromium, page: Path, workdir: Path) -> tuple[dict, Path]:
     shot = workdir / f"{page.stem}-screenshot.png"
     base = [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={workdir / 'chromium-profile'}"]
     dom = subprocess.run([*base, "--dump-dom", probed.as_uri()], capture_output=True, text=True,
-                         timeout=120, check=True).stdout
+                         timeout=600, check=True).stdout
     subprocess.run([*base, "--window-size=1200,7000", f"--screenshot={shot}", page.as_uri()],
-                   capture_output=True, timeout=120, check=True)
+                   capture_output=True, timeout=600, check=True)
     found = re.search(r'<html[^>]*data-probe="([^"]*)"', dom)
     assert found, "the probe did not run: the page never fired its load event"
     if os.environ.get("REPORT_SCREENSHOT_DIR"):

@@ -227,7 +227,7 @@ def test_the_twin_refuses_a_plan_without_a_two_axis_table(tmp_path):
         BenchTwin(positions=6, plan=True)
     for protocol in ("rotary", "static"):
         refused = station_run("twin", "--plan", "--protocol", protocol, "--profile-out",
-                              tmp_path / "p.toml", timeout=30)
+                              tmp_path / "p.toml", timeout=600)
         assert refused.returncode == 2, refused.stderr
         assert "--plan plans the positions of a two-axis table: give --two-axis" in \
             refused.stderr

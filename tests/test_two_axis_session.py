@@ -130,7 +130,7 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
             if f"position {cone + 1}: rotating window" in line:
                 rec.send_signal(signal.SIGINT)
                 break
-        rec.communicate(timeout=60)
+        rec.communicate(timeout=600)
         assert rec.returncode == 130
         with Session.open(session) as s:
             aborts = [e for e in s.events() if e.kind == "abort"]
@@ -153,7 +153,7 @@ def test_station_record_interrupted_in_the_spin_is_resumed_by_station_resume(tmp
     (["--two-axis", "--protocol", "static"], "--two-axis: a static bench has no rotary table"),
 ])
 def test_station_twin_refuses_a_two_axis_bench_it_cannot_serve(tmp_path, args, words):
-    refused = station_run("twin", *args, "--profile-out", str(tmp_path / "p.toml"), timeout=30)
+    refused = station_run("twin", *args, "--profile-out", str(tmp_path / "p.toml"), timeout=600)
     assert refused.returncode == 2 and words in refused.stderr, refused.stderr
     assert not (tmp_path / "p.toml").exists()
 

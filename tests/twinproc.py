@@ -48,10 +48,10 @@ class TwinProcess:
             self.truth = json.loads(out.splitlines()[-1])["truth"]
 
     def _stop(self) -> tuple:
-        """SIGINT, then the rest of its output; killed if it does not stop within 30 s."""
+        """SIGINT, then the rest of its output; killed if it has not stopped after 600 s."""
         self.process.send_signal(signal.SIGINT)
         try:
-            return self.process.communicate(timeout=30)
+            return self.process.communicate(timeout=600)
         except subprocess.TimeoutExpired:
             self.process.kill()
             return self.process.communicate()
