@@ -174,6 +174,7 @@ def test_ctrl_c_during_a_soak_then_resume_and_solve(tmp_path):
             assert record.poll() is None, record.stderr.read()
             time.sleep(0.02)
         twin.bench.clock.sleep(5.0)  # soaking at 313.15 K (lockstep time, not the host's)
+        twin.bench.clock.leave()  # a thread that waited takes part in lockstep time until it leaves
         twin.bench.table.set_rate(1.0)
         twin.bench.table.start()
         record.send_signal(signal.SIGINT)
