@@ -28,9 +28,9 @@ from station.reduce.rotary import position_windows, rotary_readings
 from station.reduce.timeline import sample_times, segment_breaks
 
 STATION = [sys.executable, "-m", "station"]
-POSITIONS = 6
+POSITIONS = 3
 SEED = 3
-SPEED = 40.0
+SPEED = 10.0
 """The real-time twin's speed for the lost-device points."""
 WAIT = 1800.0
 """Wall seconds a step may take before the harness calls it hung: a hang guard only (the twin runs

@@ -2,7 +2,7 @@
 
 36 interruption points: Ctrl-C (SIGINT), `kill` (SIGTERM) and a crash (SIGKILL) of `station record`
 right after each protocol event (mounting, static window start and end, rotating window start and
-end, position done) of the first two positions of a 6-position session on `station twin`, each
+end, position done) of the first two positions of a 3-position session on `station twin`, each
 followed by `station resume`. Every window of every position must hold exactly the samples due
 (found / due within one sample of 1), and the Eq. (18) readings must equal those of an
 uninterrupted session of the same twin within their noise: |M - M_ref| / sqrt(sigma^2 +
