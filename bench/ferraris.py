@@ -25,15 +25,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.peers import DATA, G, unavailable
 from station.reduce.ferraris import (
     calibrate_ferraris,
     labelled_sections,
     read_recording,
     read_section_list,
 )
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "imucal-ferraris"
-G = 9.81  # imucal's default gravity
 
 
 def cases(root: Path) -> dict:
@@ -117,13 +115,9 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     parser.add_argument("--data", type=Path, default=DATA, help="the imucal-ferraris folder")
     args = parser.parse_args(argv)
-    if not args.data.is_dir():
-        print(f"no imucal data under {args.data}", file=sys.stderr)
-        return 1
-    try:
-        import imucal  # noqa: F401
-    except ImportError:
-        print("imucal is not installed: pip install -e '.[test]'", file=sys.stderr)
+    missing = unavailable(args.data)
+    if missing:
+        print(missing, file=sys.stderr)
         return 1
     report = {name: {**timings(case, args.rounds), "max_difference": differences(case)}
               for name, case in cases(args.data).items()}
