@@ -70,8 +70,10 @@ def calibrate_faces(readings, faces, magnitude: float | None, *, bias=None, sigm
                     general: bool = False) -> CalibrationResult:
     """`station.calibrate(readings, magnitude, d=3, bias=bias, constraints=from_faces(faces),
     sigma=sigma)` for positions of one mounting (faces[j]: the face, "+x" .. "-z", that position
-    j's stimulus points along): the same result, every field to rounding, but `iterations` (0)
-    and in closed form (module notes).
+    j's stimulus points along), in closed form (module notes): the same result, every field to
+    rounding, but `iterations` (0) and `covariance`, which each path gives at its own estimate
+    of a (the iron's frame here, the iterate's frame there): the same up to a rotation of the
+    gauge (equal eigenvalues; every figure in the reporting frame equal).
 
     bias None (unbiased readings) or "estimate" (then every axis on both its faces); any other
     design, a parameter that may be loose (module notes), or general=True: `station.calibrate`.

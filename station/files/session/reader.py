@@ -67,6 +67,7 @@ class Session:
         self.specs = {n: read_spec(_child(streams, n, h5py.Group, self.path), self.path)
                       for n in streams if n != "table"}
         self._checked = {}  # stream name (or "/table") -> its checked datasets (`_checked`)
+        self._events = None  # the events read, for a file read in plain mode (`events`)
 
     @classmethod
     def open(cls, path) -> "Session":
@@ -155,8 +156,12 @@ class Session:
         return self._checked["/table"]
 
     def events(self) -> list:
-        """Protocol events flushed so far, in order."""
-        return read_events(_child(self._file, "events", h5py.Group, self.path), self.path)
+        """Protocol events flushed so far, in order (a new list each call). A file read in plain
+        mode (no writer: its events cannot change) is read once; a SWMR file on every call."""
+        if self._events is None or self._file.swmr_mode:
+            self._events = read_events(_child(self._file, "events", h5py.Group, self.path),
+                                       self.path)
+        return list(self._events)
 
     def last_completed_position(self) -> int | None:
         """Position of the last `position_done` event (None: no position completed)."""
