@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.peers import DATA, G, unavailable
+from bench.peers import G, parsed
 from station.reduce.ferraris import (
     calibrate_ferraris,
     labelled_sections,
@@ -112,12 +112,8 @@ def differences(case) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=200, help="rounds of the three calls")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
-    parser.add_argument("--data", type=Path, default=DATA, help="the imucal-ferraris folder")
-    args = parser.parse_args(argv)
-    missing = unavailable(args.data)
-    if missing:
-        print(missing, file=sys.stderr)
+    args = parsed(parser, argv)
+    if args is None:
         return 1
     report = {name: {**timings(case, args.rounds), "max_difference": differences(case)}
               for name, case in cases(args.data).items()}
