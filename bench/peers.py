@@ -241,18 +241,27 @@ def show(report: dict) -> None:
     print(f"  time ms: {c['time_ms']}")
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parsed(parser: argparse.ArgumentParser, argv) -> argparse.Namespace | None:
+    """The arguments of a bench that compares with imucal: --json and --data DIR added to
+    `parser`; None, after saying why on stderr, when imucal cannot run (no such folder, or imucal
+    not installed)."""
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     parser.add_argument("--data", type=Path, default=DATA, help="the imucal-ferraris folder")
     args = parser.parse_args(argv)
-    if not args.data.is_dir():
-        print(f"no imucal data under {args.data}", file=sys.stderr)
-        return 1
     try:
         import imucal  # noqa: F401
     except ImportError:
         print("imucal is not installed: pip install -e '.[bench]'", file=sys.stderr)
+        return None
+    if not args.data.is_dir():
+        print(f"no imucal data under {args.data}", file=sys.stderr)
+        return None
+    return args
+
+
+def main(argv=None) -> int:
+    args = parsed(argparse.ArgumentParser(description=__doc__.splitlines()[0]), argv)
+    if args is None:
         return 1
     report = {"annotated": annotated(args.data), "continuous": continuous(args.data)}
     if args.json:

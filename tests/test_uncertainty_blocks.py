@@ -12,7 +12,8 @@ from test_uncertainty import TRIAD, binomial_band
 import station
 from station.model.frames import align_to, to_canonical
 from station.solve import ml, uncertainty
-from station.solve.calibrate import _sigmas
+from station.solve.calibrate import _sigmas, ml_covariance
+from station.solve.uncertainty import frame_rotation
 
 FD_RTOL = 1e-7
 """Central differences of step h = 1e-7 |a| err by about eps / h + h^2 ~ 1e-9 of the derivative;
@@ -72,7 +73,8 @@ def fits():
 def test_block_uncertainties_equal_the_dense_propagation(name, fit, nominal, estimate_bias):
     frame = to_canonical if nominal is None else (lambda x: align_to(x, nominal) @ x)
     ref = dense_reference(fit, frame, estimate_bias)
-    new = _sigmas(fit, nominal, estimate_bias)
+    new = _sigmas(fit.a, frame_rotation(fit.a, nominal), ml_covariance(fit), nominal,
+                  estimate_bias)
     big = np.abs(ref["theta"]).max()
     np.testing.assert_allclose(new["theta"], ref["theta"], rtol=0, atol=EXACT_RTOL * big)
     np.testing.assert_allclose(new["scale"], ref["scale"], rtol=EXACT_RTOL)

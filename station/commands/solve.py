@@ -45,6 +45,7 @@ says so (`fit.repeatability_included`: each combined file's name and sha256, eac
 the output.
 """
 
+import argparse
 import dataclasses
 import json
 from pathlib import Path
@@ -78,15 +79,24 @@ def register(p) -> None:
         "  station solve exp_3.h5 --repeatability exp_12.cal.json   # + the spread between "
         "sessions\n"
         "  station solve u1.h5 --repeatability lot/*.cal.json   # the tau of the model's units\n"
-        "  station solve array.h5 --channels imu3_ax,imu3_ay,imu3_az   # one IMU of an array\n\n"
+        "  station solve array.h5 --channels imu3_ax,imu3_ay,imu3_az   # one IMU of an array\n"
+        "  station solve lot/*.h5   # a batch: one line per session, failures per session\n"
+        "  station solve --from-list today.txt --json   # a batch from a list, JSON lines\n\n"
         "exit code 0: written (and PASS when judged); 1: the unit FAILED its tolerances or is\n"
         "MARGINAL (within 2 sigma of a limit), or the fit is suspect, or the session file could\n"
-        "not be checked (--no-check skips the check); 2: bad input (a damaged file included)"
+        "not be checked (--no-check skips the check); 2: bad input (a damaged file included).\n"
+        "A batch: the largest of its sessions' codes (0 only when every session is written)"
     )
-    p.add_argument("session", type=Path,
-                   help="session file (.h5) recorded by `station record` or `station import`")
+    p.add_argument("session", type=Path, nargs="*",
+                   help="session file (.h5) recorded by `station record` or `station import`; "
+                        "several: a batch, solved in one process, one line each")
+    p.add_argument("--from-list", type=Path, metavar="FILE",
+                   help="a batch of the session files listed in FILE, one path a line (relative "
+                        "to FILE's folder; blank lines and lines starting with # skipped), after "
+                        "any given as arguments")
     p.add_argument("--out", type=Path,
-                   help="calibration file to write (default: SESSION with suffix .cal.json)")
+                   help="calibration file to write (default: SESSION with suffix .cal.json); not "
+                        "in a batch, whose files are written beside their sessions")
     p.add_argument("--stream", help="sample stream to calibrate (default imu; an import: its one "
                                     "stream in m/s^2; an import's gyro stream: from the turns "
                                     "between the still poses)")
@@ -129,10 +139,107 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    paths = session_paths(args.session, args.from_list)
+    if len(paths) == 1 and args.from_list is None:
+        args.session = paths[0]
+        return _run_one(args)
+    return run_batch(args, paths)
+
+
+def session_paths(given: list, listed) -> list:
+    """The sessions of the command line, then those of the --from-list file (`read_list`); at
+    least one."""
+    from station.errors import InputError
+
+    paths = list(given) + ([] if listed is None else read_list(listed))
+    if not paths:
+        raise InputError("no session given: name one or more session files, or --from-list FILE "
+                         "(one path a line)")
+    return paths
+
+
+def read_list(path) -> list:
+    """The session paths listed in `path`: one a line, relative to its folder; blank lines and
+    lines starting with # skipped."""
+    from station.commands import existing_file
+
+    path = existing_file(path, "a list of session files, one path a line")
+    lines = (line.strip() for line in path.read_text(errors="replace").splitlines())
+    return [path.parent / line for line in lines if line and not line.startswith("#")]
+
+
+def run_batch(args, paths: list) -> int:
+    """`station solve` of many sessions in one process: the options of the command line for each,
+    every calibration file beside its session, one line per session as it is done (--json: one
+    JSON object a line) with what failed for a session that failed; the structure checks of all
+    the files in one child process (`station.files.session.check.survey_all`). The records of the
+    files written are kept per folder at the end. Exit code: the largest of the sessions'."""
+    from itertools import groupby
+
+    from station.commands import keep_records
+    from station.errors import InputError, StationError
+    from station.files.session.check import survey_all
+
+    if args.out is not None:
+        raise InputError("--out names one calibration file; a batch writes each beside its "
+                         "session (SESSION.cal.json): leave out --out")
+    if not args.no_check:
+        survey_all(paths)
+    codes, written = [], []
+    for path in paths:
+        one = argparse.Namespace(**{**vars(args), "session": path})
+        try:
+            summaries, code = _solved(one)
+        except (StationError, FileExistsError) as err:
+            code = getattr(err, "exit_code", 2)
+            words = " ".join(str(err).split())
+            print(json.dumps({"session": str(path), "exit": code, "error": words}) if args.json
+                  else f"{path}: failed (exit {code}): {words}", flush=True)
+        else:
+            written += [Path(s["calibration"]) for s in summaries]
+            print(json.dumps({"session": str(path), "exit": code, "calibrations": summaries})
+                  if args.json else f"{path}: " + "; ".join(map(batch_words, summaries)),
+                  flush=True)
+        codes.append(code)
+    for _, files in groupby(sorted(written, key=lambda f: f.resolve().parent),
+                            key=lambda f: f.resolve().parent):
+        codes.append(keep_records(args, list(files)))
+    return max(codes)
+
+
+def batch_words(s: dict) -> str:
+    """A calibration of a batch in a few words: file, sensors, positions, fit, gate, verdict."""
+    verdict = s["verdict"]
+    unit = f"unit {s['unit_serial']} (stream {s['stream']}): " if "stream" in s else ""
+    return (f"{unit}written to {s['calibration']}: {len(s['sensors'])} sensors, "
+            f"{s['positions']} positions, chi2/dof {s['chi2_per_dof']:.2f}"
+            + (", SUSPECT" if s["status"] == "suspect" else "")
+            + (f", verdict {verdict['overall']}" if verdict else ""))
+
+
+def _run_one(args) -> int:
+    """`station solve SESSION`: one session file or thermal campaign, its full summary."""
+    from station.commands import keep_records
+    from station.files.campaign import is_campaign
+
+    if is_campaign(args.session):
+        return _run_campaign(args)
+    summaries, code = _solved(args)
+    if "stream" in summaries[0]:
+        print(json.dumps({"units": summaries}, indent=2) if args.json
+              else "\n".join(unit_line(s) for s in summaries))
+    else:
+        print(json.dumps(summaries[0], indent=2) if args.json else _text(summaries[0]))
+    return max(code, keep_records(args, [s["calibration"] for s in summaries]))
+
+
+def _solved(args) -> tuple:
+    """(summaries, exit code) of solving the session file `args.session` with the command line's
+    options and writing its calibration file(s): one summary, or one per unit of a session with
+    several (each with its `stream`); nothing printed, nothing recorded."""
     from station.commands import (
         existing_file,
         existing_session,
-        keep_records,
         new_file,
         queried_files,
         still_values,
@@ -141,7 +248,8 @@ def run(args) -> int:
     from station.files.campaign import is_campaign
 
     if is_campaign(args.session):
-        return _run_campaign(args)
+        raise InputError(f"{args.session} is a thermal campaign: solve it on its own "
+                         "(`station solve CAMPAIGN`), not in a batch")
     existing_session(args.session, check=not args.no_check)
     units = [] if args.stream is not None else session_units(args.session)
     outs = unit_files(args.out or args.session, units, args.force) if units else \
@@ -162,16 +270,10 @@ def run(args) -> int:
                "accelerometer": args.accelerometer}
     if units:
         summaries = solve_units(args.session, units, outs, args.force, **options)
-        print(json.dumps({"units": summaries}, indent=2) if args.json
-              else "\n".join(unit_line(s) for s in summaries))
-        return max(units_exit(summaries),
-                   keep_records(args, [s["calibration"] for s in summaries]))
-    out = outs[0]
+        return summaries, units_exit(summaries)
     cal = solve_session(args.session, args.stream, **options)
-    cal.save(out, overwrite=args.force)
-    summary = summarise(cal, out)
-    print(json.dumps(summary, indent=2) if args.json else _text(summary))
-    return max(verdict_exit(cal.verdict), keep_records(args, [out]))
+    cal.save(outs[0], overwrite=args.force)
+    return [summarise(cal, outs[0])], verdict_exit(cal.verdict)
 
 
 def session_units(path) -> list:

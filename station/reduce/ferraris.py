@@ -10,7 +10,9 @@ turning a full turn about x, y and z (`x_rot`, `y_rot`, `z_rot`, each on the fac
   constraints (`station.calibrate(M, g, bias="estimate", constraints=from_faces(...))`, Hwangbo &
   Kanade Eq. 15), the gyro from the three turns of known angle (Eq. 31, `station.solve.gyro_turns`),
   both expressed in the iron frame (face "+x" = +x), and a refusal if the two triads differ in
-  handedness.
+  handedness. Both are one rigid group of poses, whose maximum likelihood is linear: solved in
+  closed form with the analytic covariance (`station.solve.iron_faces`), the sections' sums in
+  one pass over the samples (`section_sums`); `general=True` takes the iterative path instead.
 
 See docs/realdata.md; `bench/peers.py` runs imucal on the same data.
 """
@@ -26,8 +28,8 @@ from station.limits import json_loads
 from station.model import measurement
 from station.model.frames import align_to
 from station.reduce.stillness import StillIntervals, detect_still
-from station.solve.calibrate import CalibrationResult, calibrate
-from station.solve.constraints import from_faces
+from station.solve.calibrate import CalibrationResult
+from station.solve.constraints import face_directions
 from station.solve.gyro_turns import (
     TurnCalibration,
     calibrate_turns,
@@ -35,10 +37,13 @@ from station.solve.gyro_turns import (
     mirrored,
     turn_senses,
 )
+from station.solve.iron_faces import calibrate_faces
 
 FACE_SECTIONS = {"x_p": "+x", "x_a": "-x", "y_p": "+y", "y_a": "-y", "z_p": "+z", "z_a": "-z"}
 TURN_SECTIONS = {"x_rot": "x_p", "y_rot": "y_p", "z_rot": "z_p"}  # turn -> face it is done on
 SECTIONS = tuple(FACE_SECTIONS) + tuple(TURN_SECTIONS)
+TURN_FACES = [list(FACE_SECTIONS).index(face) for face in TURN_SECTIONS.values()]
+"""Index among FACE_SECTIONS of the face each turn of TURN_SECTIONS is done on."""
 COLUMNS = ("acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z")
 
 
@@ -207,42 +212,58 @@ def section_overlap(found: dict, reference: dict) -> dict:
     return out
 
 
-def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: float = 2 * np.pi):
+def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: float = 2 * np.pi,
+                       *, general: bool = False):
     """Accelerometer (six faces, iron constraints) and gyro (three turns, Eq. 31) calibration.
 
     acc, gyro  (K, 3) samples in any units (e.g. counts); sections label -> [start, stop).
     g          local gravity, m/s^2; angle  the turn angle, rad.
+    general    solve both by `station.calibrate`'s iterative ML instead of the closed form of
+               `station.solve.iron_faces` (the same result).
     The gyro bias is the gyro mean over the six faces; each turn's integral subtracts the mean of
     the face it is turned on (Eq. 18: rotating minus static). Raises CalibrationInputError if the
     gyro triad comes out mirrored relative to the accelerometer's.
     """
     acc, gyro = np.asarray(acc, float), np.asarray(gyro, float)
     _check_sections(sections, len(acc))
-    face_rows = {name: slice(*sections[name]) for name in FACE_SECTIONS}
-    readings = np.array([acc[face_rows[name]].mean(axis=0) for name in FACE_SECTIONS]).T
-    fit = calibrate(
-        readings, g, d=3, bias="estimate", constraints=from_faces(list(FACE_SECTIONS.values()))
-    )
-    directions = np.array([[1, -1, 0, 0, 0, 0], [0, 0, 1, -1, 0, 0], [0, 0, 0, 0, 1, -1]]) * g
-    a_acc = align_to(fit.v, directions) @ fit.a
+    bounds = np.array([sections[name] for name in SECTIONS])
+    counts = bounds[:, 1] - bounds[:, 0]
+    if counts[6:].min() < 2:
+        raise CalibrationInputError(
+            f"a turn section holds {counts[6:].min()} sample(s).", "Give each turn's samples.")
+    shift = gyro[bounds[0, 0]]  # any still sample: the squares' sums lose no digits
+    sums = section_sums(bounds, acc, gyro, (gyro - shift) ** 2)
+    means = sums[:, :6] / counts[:, None]
+    readings, face_gyro = means[:6, :3].T, means[:6, 3:]
+    faces = list(FACE_SECTIONS.values())
+    fit = calibrate_faces(readings, faces, g, bias="estimate", general=general)
+    a_acc = align_to(fit.v, face_directions(faces) * g) @ fit.a
 
-    still = np.vstack([gyro[rows] for rows in face_rows.values()])
-    noise = np.vstack([gyro[rows] - gyro[rows].mean(axis=0) for rows in face_rows.values()]).std(
-        axis=0
-    )
-    turns = [slice(*sections[name]) for name in TURN_SECTIONS]
-    w = np.array(
-        [
-            integrate(gyro[t], fs, gyro[face_rows[f]].mean(axis=0))
-            for t, f in zip(turns, TURN_SECTIONS.values(), strict=True)
-        ]
-    ).T
-    sigma = noise[:, None] * np.sqrt([t.stop - t.start for t in turns])[None, :] / fs
+    still = counts[:6].sum()
+    bias = sums[:6, 3:6].sum(axis=0) / still
+    # over each face: sum (gyro - its mean)^2 = sum (gyro - shift)^2 - n_f (mean - shift)^2
+    noise = np.sqrt((sums[:6, 6:].sum(axis=0) - counts[:6] @ (face_gyro - shift) ** 2) / still)
+    w = ((sums[6:, 3:6] - counts[6:, None] * face_gyro[TURN_FACES]) / fs).T  # Eq. 18, summed
+    sigma = noise[:, None] * np.sqrt(counts[6:])[None, :] / fs
     senses = turn_senses(w, ["+x", "+y", "+z"])
-    turn_cal = calibrate_turns(w, senses, angle, bias=still.mean(axis=0), sigma=sigma)
+    turn_cal = calibrate_turns(w, senses, angle, bias=bias, sigma=sigma, general=general)
     if mirrored(a_acc, turn_cal.a):
         raise CalibrationInputError(
             "the gyro triad comes out mirrored relative to the accelerometer triad.",
             "Check the gyro axes' signs and the turn senses.",
         )
     return FerrarisCalibration(fit, a_acc, readings, turn_cal)
+
+
+def section_sums(bounds: np.ndarray, *columns: np.ndarray) -> np.ndarray:
+    """(sections, columns) sums over the rows [start, stop) of arrays (K, c) side by side, one
+    (start, stop) row of bounds per section, in one pass: np.add.reduceat over the boundaries,
+    whose even entries are the sections, on the columns laid out as rows (contiguous) with a zero
+    appended so that a section may end at K."""
+    k = len(columns[0])
+    rows = np.zeros((sum(c.shape[1] for c in columns), k + 1))
+    top = 0
+    for c in columns:
+        rows[top: top + c.shape[1], :k] = c.T
+        top += c.shape[1]
+    return np.add.reduceat(rows, bounds.ravel(), axis=1)[:, ::2].T

@@ -137,7 +137,7 @@ def calibrate(
     of the result is the total figure (white noise plus the per-pose term `pose_sigma`), the
     `*_sigma_white` fields the white-noise figure.
     """
-    readings = _as_readings(readings)
+    readings = as_readings(readings)
     m, n = readings.shape
     scale_known = magnitude is not None
     c = float(magnitude) if scale_known else 1.0
@@ -178,15 +178,15 @@ def calibrate(
         context=refusal,
     )
     if sigma is None:
-        return _result(fit, fit, None, method, start, refine, c, scale_known, estimate_bias,
-                       nominal, uncertainty.t_widening(fit.dof), weak)
-    total, pose_var = _with_pose_term(
+        return calibration_result(fit, fit, None, method, start, refine, c, scale_known,
+                                  estimate_bias, nominal, uncertainty.t_widening(fit.dof), weak)
+    total, pose_var = with_pose_term(
         fit, lambda f, noise: refined(f.a, f.v, f.bias, noise, fitted=True))
     white = total if pose_var == 0 else refined(total.a, total.v, total.bias, sigma, max_iter=0,
                                                 fitted=True)
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
-    return _result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
-                   scale_known, estimate_bias, nominal, widen, weak)
+    return calibration_result(total, white, float(np.sqrt(pose_var)), method, start, refine, c,
+                              scale_known, estimate_bias, nominal, widen, weak)
 
 
 def _distinct(fit: ml.MLFit) -> np.ndarray | None:
@@ -202,7 +202,7 @@ def _distinct(fit: ml.MLFit) -> np.ndarray | None:
     return uncertainty.design_information(fit.a, v, fit.bias, sigma)
 
 
-def _with_pose_term(fit: ml.MLFit, refit) -> tuple[ml.MLFit, float]:
+def with_pose_term(fit: ml.MLFit, refit) -> tuple[ml.MLFit, float]:
     """(the fit weighted by sigma^2 + sigma_pose^2, sigma_pose^2): the per-pose term estimated
     from the residuals (`uncertainty.pose_variance`) and the fit redone (`refit(fit, sigma)`)
     until it settles; (fit, 0) when the white noise explains the residuals."""
@@ -254,7 +254,7 @@ def _check_consistent(fit: ml.MLFit, c: float, refusal: CalibrationInputError) -
             refusal.advice)
 
 
-def _as_readings(readings) -> np.ndarray:
+def as_readings(readings) -> np.ndarray:
     m_ = np.asarray(readings, dtype=float)
     if m_.ndim != 2:
         raise CalibrationInputError(
@@ -306,12 +306,15 @@ def _check_magnitudes(constraints, n: int) -> None:
         )
 
 
-def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined, c,
-            scale_known, estimate_bias, nominal, widen: float = 1.0, weak: tuple = ()):
+def calibration_result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined, c,
+                       scale_known, estimate_bias, nominal, widen: float = 1.0, weak: tuple = (),
+                       covariance=None):
     """Rotate into the reporting frame and propagate both covariances to the invariants: `total`
     (the estimate, weighted by the total noise; its covariance times `widen`) and `white` (the
     same estimate, weighted by the readings' stated noise: its residuals, sigma and chi2 are the
-    result's)."""
+    result's). covariance(fit): the gauge-free covariance of theta at a fit, default
+    `ml_covariance` (station.solve.iron_faces gives its closed form's)."""
+    covariance = covariance or ml_covariance
     if nominal is not None:
         nominal = np.asarray(nominal, float)
         if nominal.shape != total.a.shape:
@@ -320,8 +323,9 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
                 "Give one nominal axis (column) per sensor.",
             )
     rot = uncertainty.frame_rotation(total.a, nominal)
-    honest = _sigmas(total, nominal, estimate_bias, widen)
-    plain = honest if white is total else _sigmas(white, nominal, estimate_bias)
+    honest = _sigmas(total.a, rot, widen * covariance(total), nominal, estimate_bias)
+    plain = honest if white is total else _sigmas(white.a, rot, covariance(white), nominal,
+                                                  estimate_bias)
     return CalibrationResult(
         a=rot @ total.a,
         bias=total.bias,
@@ -356,17 +360,22 @@ def _result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, start, refined
     )
 
 
-def _sigmas(fit: ml.MLFit, nominal, estimate_bias: bool, widen: float = 1.0) -> dict:
+def ml_covariance(fit: ml.MLFit) -> np.ndarray:
+    """The gauge-free covariance of theta from the Fisher information of `fit`."""
+    return uncertainty.global_covariance(fit.normal, fit.a)
+
+
+def _sigmas(a: np.ndarray, rot: np.ndarray, cov: np.ndarray, nominal, estimate_bias: bool) -> dict:
     """Covariances (theta, parameters in the frame) and 1-sigma of a, the scale factors, the axis
-    angles and the biases, from the Fisher information of `fit` (the covariance times `widen`):
-    each figure from the blocks of the covariance it depends on, O((m p)^2) memory."""
-    d, m = fit.a.shape
+    angles and the biases, from the gauge-free covariance `cov` of theta at `a` (rot: its
+    rotation into the frame): each figure from the blocks of the covariance it depends on,
+    O((m p)^2) memory."""
+    d, m = a.shape
     p = d + (1 if estimate_bias else 0)
-    cov = widen * uncertainty.global_covariance(fit.normal, fit.a)
     order = uncertainty.parameter_order(m, p, d)
-    parameter_cov = uncertainty.frame_covariance(cov, fit.a, nominal)[np.ix_(order, order)]
+    parameter_cov = uncertainty.frame_covariance(cov, a, nominal, rot)[np.ix_(order, order)]
     sd = np.sqrt(np.maximum(np.diag(parameter_cov), 0.0))
     return {"theta": cov, "parameters": parameter_cov, "a": sd[: d * m].reshape(d, m),
-            "scale": uncertainty.scale_factor_sigmas(cov, fit.a),
-            "angles": uncertainty.axis_angle_sigmas(cov, fit.a),
+            "scale": uncertainty.scale_factor_sigmas(cov, a),
+            "angles": uncertainty.axis_angle_sigmas(cov, a),
             "bias": sd[d * m:] if estimate_bias else None}

@@ -96,6 +96,21 @@ def magnitude_constraints(n: int) -> Constraints:
     return Constraints(idx, idx, np.ones(n))
 
 
+def face_directions(face_labels: Sequence[str]) -> np.ndarray:
+    """(3, n) unit vectors of face labels in the iron's frame ("+x" -> e_x, "-z" -> -e_z)."""
+    unknown = sorted({str(f) for f in face_labels if f not in FACES})
+    if unknown:
+        raise CalibrationInputError(f"Unknown face labels {unknown}.",
+                                    f"Use one of {', '.join(FACES)} for each position.")
+    index = [FACES.index(f) for f in face_labels]
+    return _FACE_VECTORS[:, index]
+
+
+_FACE_VECTORS = np.zeros((3, 6))
+_FACE_VECTORS[[0, 0, 1, 1, 2, 2], range(6)] = [1.0, -1.0, 1.0, -1.0, 1.0, -1.0]
+"""Columns: the unit vectors of FACES, in order."""
+
+
 def from_faces(face_labels: Sequence[str],
                mounting_labels: Sequence[Hashable] | None = None) -> Constraints:
     """Constraints of a right-angle iron: one per pair of positions of the same mounting (Eq. 15).

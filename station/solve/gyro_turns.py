@@ -4,9 +4,11 @@ A turn of the right-angle iron about one of its faces rotates the unit by a know
 full turn). The bias-free gyro readings integrated over the turn are `w_j = a^T theta_j` (Eq. 31),
 theta_j the turn's rotation vector: |theta_j| is the known angle (a magnitude constraint), and
 turns about perpendicular faces are orthogonal (Eq. 15). The turns are thus "positions" of an iron
-calibration whose stimulus is the rotation vector: `station.calibrate` solves them with the face
-constraints of `station.solve.constraints.from_faces`, the face label of a turn naming the direction
-of its rotation vector in the iron frame ("-x": a turn about +x in the negative sense).
+calibration whose stimulus is the rotation vector, solved as `station.calibrate` solves them with
+the face constraints of `station.solve.constraints.from_faces` (in closed form: turns about the
+three faces of one mounting are one rigid group, `station.solve.iron_faces`), the face label of a
+turn naming the direction of its rotation vector in the iron frame ("-x": a turn about +x in the
+negative sense).
 
 Checks that the gyro frame is the accelerometer's:
 - `mirrored`: the gyro triad has the opposite handedness of the accelerometer triad (a turn sense
@@ -26,8 +28,9 @@ from scipy.spatial.transform import Rotation
 from station.errors import CalibrationInputError
 from station.model import measurement
 from station.model.frames import align_to
-from station.solve.calibrate import CalibrationResult, calibrate
-from station.solve.constraints import FACES, from_faces
+from station.solve.calibrate import CalibrationResult
+from station.solve.constraints import FACES, face_directions
+from station.solve.iron_faces import calibrate_faces
 
 AXES = "xyz"
 
@@ -86,7 +89,8 @@ def turn_senses(integrals, faces: Sequence[str]) -> tuple[str, ...]:
 
 
 def calibrate_turns(
-    integrals, senses: Sequence[str], angle: float = 2 * np.pi, *, bias=None, sigma=None
+    integrals, senses: Sequence[str], angle: float = 2 * np.pi, *, bias=None, sigma=None,
+    general: bool = False,
 ) -> TurnCalibration:
     """Gyro calibration from turn integrals (3, n) of rotation vectors along `senses` (Eq. 31).
 
@@ -95,6 +99,8 @@ def calibrate_turns(
     sigma  standard deviation of each integral (scalar, (3,) or (3, n)): with three turns there are
            as many unknowns as readings, so it cannot be estimated from the residuals; e.g. the
            gyro noise times sqrt(samples) / fs.
+    general  solve by `station.calibrate`'s iterative ML instead of the closed form of
+           `station.solve.iron_faces` (the same result).
     """
     w = np.asarray(integrals, float)
     if w.ndim != 2 or w.shape[0] != 3 or w.shape[1] != len(senses):
@@ -112,18 +118,11 @@ def calibrate_turns(
             "three turns leave no residual to estimate the noise from.",
             "Give sigma (gyro noise times sqrt(samples) / fs), or record more turns.",
         )
-    fit = calibrate(w, angle, d=3, constraints=from_faces(senses), sigma=sigma)
-    directions = np.array([_unit(s) for s in senses]).T * angle
+    fit = calibrate_faces(w, senses, angle, sigma=sigma, general=general)
+    directions = face_directions(senses) * angle
     rotation = align_to(fit.v, directions)  # carries the physical handedness of the senses
     b = np.zeros(3) if bias is None else np.asarray(bias, float)
     return TurnCalibration(fit, rotation @ fit.a, b, tuple(senses), w)
-
-
-def _unit(face: str) -> np.ndarray:
-    """Unit vector of a face label ("+x" -> e_x, "-z" -> -e_z)."""
-    e = np.zeros(3)
-    e[AXES.index(face[1])] = 1.0 if face[0] == "+" else -1.0
-    return e
 
 
 def mirrored(a_acc, a_gyro) -> bool:

@@ -3,6 +3,8 @@
 Each check raises `CalibrationInputError` saying what is wrong and what the operator should do.
 """
 
+import functools
+
 import numpy as np
 
 from station.errors import CalibrationInputError
@@ -136,14 +138,22 @@ def natural_scale(a: np.ndarray, magnitude: float, bias_estimated: bool) -> np.n
 def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:
     """(m p, d(d-1)/2) the rotations of Remark 1 acting on theta = (a_1, b_1, ...): a_i -> R a_i."""
     d, m = a.shape
-    out = []
-    for r, s in zip(*np.triu_indices(d, 1), strict=True):
-        gen = np.zeros((d, d))
-        gen[r, s], gen[s, r] = -1.0, 1.0
-        theta = np.zeros((m, p))
-        theta[:, :d] = (gen @ a).T
-        out.append(theta.ravel())
-    return np.array(out).T.reshape(m * p, -1)
+    moved = rotation_generators(d) @ a  # (k, d, m): generator (r, s) times a
+    out = np.zeros((len(moved), m, p))
+    out[:, :, :d] = moved.transpose(0, 2, 1)
+    return out.reshape(len(moved), m * p).T
+
+
+@functools.cache
+def rotation_generators(d: int) -> np.ndarray:
+    """(d(d-1)/2, d, d) the generators of rotations in d dimensions, one per plane (r, s), r < s:
+    entry (r, s) -1, entry (s, r) +1 (read-only)."""
+    pairs = np.triu_indices(d, 1)
+    gen = np.zeros((len(pairs[0]), d, d))
+    k = np.arange(len(pairs[0]))
+    gen[k, pairs[0], pairs[1]], gen[k, pairs[1], pairs[0]] = -1.0, 1.0
+    gen.setflags(write=False)
+    return gen
 
 
 def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estimated: bool,

@@ -19,6 +19,8 @@ residuals (docs/solvers.md, "Honest uncertainties"); the total figure weighs the
 sigma^2 + sigma_pose^2.
 """
 
+import functools
+
 import numpy as np
 
 from station.model import measurement
@@ -133,26 +135,37 @@ def frame_conditions(a_frame: np.ndarray, p: int, nominal: np.ndarray | None = N
     of a below the diagonal of its first d columns vanish (Eq. 19); nominal, a nominal^T is
     symmetric (the optimality of the orthogonal Procrustes rotation)."""
     d, m = a_frame.shape
+    if nominal is None:
+        return _canonical_conditions(d, m, p)
     pairs = np.triu_indices(d, 1)
     rows = np.zeros((len(pairs[0]), m, p))
     for row, (r, s) in enumerate(zip(*pairs, strict=True)):
-        if nominal is None:
-            rows[row, r, s] = 1.0  # entry (s, r) of a: component s of column r < s
-        else:
-            rows[row, :, r] = nominal[s]
-            rows[row, :, s] = -nominal[r]
+        rows[row, :, r] = nominal[s]
+        rows[row, :, s] = -nominal[r]
     return rows.reshape(len(pairs[0]), m * p)
 
 
-def frame_covariance(cov: np.ndarray, a: np.ndarray, nominal: np.ndarray | None = None):
+@functools.cache
+def _canonical_conditions(d: int, m: int, p: int) -> np.ndarray:
+    """`frame_conditions` of the canonical frame: entry (s, r) of a, r < s, is 0 (read-only)."""
+    pairs = np.triu_indices(d, 1)
+    rows = np.zeros((len(pairs[0]), m, p))
+    rows[np.arange(len(pairs[0])), pairs[0], pairs[1]] = 1.0  # component s of column r < s
+    rows.setflags(write=False)
+    return rows.reshape(len(pairs[0]), m * p)
+
+
+def frame_covariance(cov: np.ndarray, a: np.ndarray, nominal: np.ndarray | None = None,
+                     rotation: np.ndarray | None = None):
     """Covariance (m p x m p) of theta with a in the reporting frame (`frame_rotation`), from the
     gauge-free covariance `cov` of theta at a: each a_i rotated, then every perturbation moved
     along the rotation gauge G onto the frame's conditions C (`frame_conditions`), the linearised
-    frame map T = I - G (C G)^-1 C (an S-transformation): T R cov R^T T^T in O((m p)^2 d)."""
+    frame map T = I - G (C G)^-1 C (an S-transformation): T R cov R^T T^T in O((m p)^2 d).
+    rotation: `frame_rotation(a, nominal)` when the caller has it."""
     d, m = a.shape
     p = cov.shape[0] // m
     rot = np.eye(p)
-    rot[:d, :d] = frame_rotation(a, nominal)
+    rot[:d, :d] = frame_rotation(a, nominal) if rotation is None else rotation
     a_frame = rot[:d, :d] @ a
     rotated = (rot @ cov.reshape(m, p, m * p)).reshape(m * p, m, p) @ rot.T
     rotated = rotated.reshape(m * p, m * p)

@@ -23,7 +23,8 @@ outside, the backstop) is a `SessionUncheckedError` (exit code 1): no verdict, n
 
 A command reads each file once: the survey of a file is kept for the process by its path, device,
 inode, size and modification time (`_SURVEYS`), so a second look at an unchanged file launches no
-child.
+child. A batch (`station solve A.h5 B.h5 ...`) surveys all its files in one child (`survey_all`),
+each within its own CPU time; a file that child could not finish is checked alone.
 
 Files written before the checksums (no fletcher32 filter) are still read; damage inside their
 raw numbers cannot be seen here, only by the quality gate of the fit (`station.solve.quality`).
@@ -89,24 +90,70 @@ def cpu_seconds(size: int) -> int:
 def _survey_once(path: str, cpu_limit: int | None) -> dict:
     """The survey of `path` (`survey`) from a child, or the one this process already has of the
     same file unchanged."""
-    st = os.stat(path)
-    key = (os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    key = _key(path)
     found = _SURVEYS.get(key)
     if found is None:
-        found = _SURVEYS[key] = _survey_in_child(path, cpu_limit or cpu_seconds(st.st_size))
+        found = _SURVEYS[key] = _survey_in_child(path, cpu_limit or cpu_seconds(key[3]))
     return found
+
+
+def _key(path: str) -> tuple:
+    """(real path, device, inode, size, mtime_ns): one version of one file."""
+    st = os.stat(path)
+    return os.path.realpath(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def survey_all(paths) -> None:
+    """Survey many files in one child process (a batch, e.g. `station solve A.h5 B.h5 ...`)
+    instead of a child each, and keep the surveys for `checked`, whose verdict on each file is
+    then the same as for one file. The child gives each file its own `cpu_seconds` of CPU time
+    (the soft limit moved on before each, `_each`) and prints each survey as it finishes. A file
+    it did not finish (the HDF5 library crashed on it, or it ran out of its CPU time or the
+    backstop) is left to `checked`, which surveys it alone and says what happened; a new child
+    goes on with the files after it. Paths that are not files are left to the command."""
+    todo = [p for p in map(os.fspath, paths) if os.path.isfile(p) and _key(p) not in _SURVEYS]
+    while todo:
+        found = _surveys_in_child(todo)
+        for path, result in zip(todo, found, strict=False):
+            _SURVEYS[_key(path)] = result
+        todo = todo[len(found) + 1:]
+
+
+def _surveys_in_child(paths: list) -> list:
+    """The surveys of the first files of `paths` that one child finished, in order."""
+    limit = sum(cpu_seconds(os.path.getsize(p)) for p in paths)
+    with _child(paths, limit) as child:
+        try:
+            out, _ = child.communicate(timeout=WALL_FACTOR * limit)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            out, _ = child.communicate()
+    found = []
+    for line in out.splitlines():
+        try:
+            found.append(json.loads(line))
+        except ValueError:
+            break
+    return found[:len(paths)]
+
+
+def _child(paths: list, cpu_limit: int) -> subprocess.Popen:
+    """The child that surveys `paths` (`python -m station.files.session.check FILE...`), given
+    `cpu_limit` s of CPU time."""
+    cmd = [sys.executable, *CHILD, *paths]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             errors="replace", env=env)
+    _limit_cpu(child.pid, cpu_limit)
+    return child
 
 
 def _survey_in_child(path: str, cpu_limit: int) -> dict:
     """`survey(path)` run by a child process limited to `cpu_limit` s of CPU time; a crash inside
     the HDF5 library is damage (SessionFormatError), a child that could not finish is no verdict
     (SessionUncheckedError)."""
-    cmd = [sys.executable, *CHILD, path]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     wall = WALL_FACTOR * cpu_limit
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                          errors="replace", env=env) as child:
-        _limit_cpu(child.pid, cpu_limit)
+    with _child([path], cpu_limit) as child:
         try:
             out, err = child.communicate(timeout=wall)
         except subprocess.TimeoutExpired:
@@ -324,5 +371,22 @@ def _readable_times(group, rows, damaged):
     return None if bad and any(r[0] <= before < r[1] for r in bad) else (lo, hi)
 
 
+def _each(paths: list) -> None:
+    """The child's work: one line of JSON, the survey, per file in order, each printed as it is
+    done; with several files, each within its own `cpu_seconds` of CPU time from its start (the
+    soft RLIMIT_CPU moved on before each, under the hard limit the parent set)."""
+    import resource
+
+    for path in paths:
+        if len(paths) > 1:
+            use = resource.getrusage(resource.RUSAGE_SELF)
+            soft = int(np.ceil(use.ru_utime + use.ru_stime)) + cpu_seconds(os.path.getsize(path))
+            hard = resource.getrlimit(resource.RLIMIT_CPU)[1]
+            if hard != resource.RLIM_INFINITY:
+                soft = min(soft, hard)
+            resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+        print(json.dumps(survey(path)), flush=True)
+
+
 if __name__ == "__main__":
-    print(json.dumps(survey(sys.argv[1])))
+    _each(sys.argv[1:])

@@ -67,6 +67,7 @@ class Session:
         self.specs = {n: read_spec(_child(streams, n, h5py.Group, self.path), self.path)
                       for n in streams if n != "table"}
         self._checked = {}  # stream name (or "/table") -> its checked datasets (`_checked`)
+        self._events = None  # the events read, for a file read in plain mode (`events`)
 
     @classmethod
     def open(cls, path) -> "Session":
@@ -155,8 +156,12 @@ class Session:
         return self._checked["/table"]
 
     def events(self) -> list:
-        """Protocol events flushed so far, in order."""
-        return read_events(_child(self._file, "events", h5py.Group, self.path), self.path)
+        """Protocol events flushed so far, in order (a new list each call). A file read in plain
+        mode (no writer: its events cannot change) is read once; a SWMR file on every call."""
+        if self._events is None or self._file.swmr_mode:
+            self._events = read_events(_child(self._file, "events", h5py.Group, self.path),
+                                       self.path)
+        return list(self._events)
 
     def last_completed_position(self) -> int | None:
         """Position of the last `position_done` event (None: no position completed)."""
@@ -317,16 +322,15 @@ def _checked(g, names, where, kinds) -> dict:
 
 
 def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None) -> tuple:
-    """(columns, rows): the datasets `read` (default: all) of `datasets` (`_checked`), refreshed,
-    read over the rows [start, stop) of their common length (stop None: to that length); `rows`
-    the file row of each value read, None when every row of [start, stop) was (no chunk damaged,
-    the common case). A chunk that does not read back (its fletcher32 checksum fails) is a
-    SessionFormatError, or with `drop_damaged` its rows are left out of every column read (but
-    those its old checksum vouches for after a rewrite cut by a kill, `torn`), as samples the
-    link lost (the sequence numbers show the gap; `station.files.session.check` names
-    the positions they belong to)."""
-    for ds in datasets.values():
-        ds.refresh()
+    """(columns, rows): the datasets `read` (default: all) of `datasets` (`_checked`), refreshed
+    (`_refresh`), read over the rows [start, stop) of their common length (stop None: to that
+    length); `rows` the file row of each value read, None when every row of [start, stop) was
+    (no chunk damaged, the common case). A chunk that does not read back (its fletcher32
+    checksum fails) is a SessionFormatError, or with `drop_damaged` its rows are left out of
+    every column read (but those its old checksum vouches for after a rewrite cut by a kill,
+    `torn`), as samples the link lost (the sequence numbers show the gap;
+    `station.files.session.check` names the positions they belong to)."""
+    _refresh(*datasets.values())
     k = min(ds.shape[0] for ds in datasets.values())
     start, stop = min(start, k), k if stop is None else min(stop, k)
     columns, intact = zip(*(_rows(datasets[n], start, max(start, stop), where, drop_damaged)
@@ -335,6 +339,16 @@ def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None)
     if keep.all():
         return list(columns), None
     return [c[keep] for c in columns], start + np.flatnonzero(keep)
+
+
+def _refresh(*datasets) -> None:
+    """Bring the datasets (of one file) up to what a live writer has flushed, when the file is
+    read in SWMR mode (`Session.open`: a writer has it open, or left it open when killed); a file
+    read in plain mode has no writer, so nothing to refresh (each refresh is a call into HDF5, and
+    a replay reads thousands of windows)."""
+    if datasets and datasets[0].file.swmr_mode:
+        for ds in datasets:
+            ds.refresh()
 
 
 def _finite(values: np.ndarray, name: str, where, start: int, rows) -> None:
@@ -380,7 +394,7 @@ def read_events(g, where="") -> list:
     (times, positions, kind_bytes, ends), _ = _columns(_checked(g, EVENT_COLUMNS, where, kinds),
                                                        where)
     detail = _child(g, "detail", h5py.Dataset, where)
-    detail.refresh()
+    _refresh(detail)
     if detail.dtype != np.uint8 or detail.ndim != 1:
         raise SessionFormatError(f"{where}: events/detail must be a 1-D uint8 byte stream")
     k = complete_events(ends, detail.shape[0], where)
