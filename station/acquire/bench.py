@@ -461,7 +461,7 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
     with bench_devices(bench, clock, kind.table) as (imu, table), \
             plate_drivers(bench, clock) as others:
         kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
-                              LiveView(clock, watchdog=_watchdog(bench)) if live else view,
+                              LiveView(clock, watchdog=watchdog_shown(bench)) if live else view,
                               **others)
     with Session.open(out) as session:
         done = session.last_completed_position()
@@ -477,7 +477,7 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
             "wall_seconds": time.perf_counter() - start}
 
 
-def _watchdog(bench: BenchProfile):
+def watchdog_shown(bench: BenchProfile):
     """What the live view shows of the table's watchdog: its spec, False for none, None without
     a table."""
     return None if bench.table_map is None else (bench.table_map.watchdog or False)

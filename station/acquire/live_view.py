@@ -242,7 +242,7 @@ class LiveView:
         grid.add_row("position", Group(f"{min(j + 1, n)} of {n}", ProgressBar(n, done, 40)))
         for name, (fraction, words) in self._window_progress(windows, table, state).items():
             grid.add_row(f"{name} window", Group(words, ProgressBar(1.0, fraction, 40)))
-        grid.add_row("table", self._table_words(table))
+        grid.add_row("table", self.table_words(table))
         if self.watchdog is not None:
             grid.add_row("watchdog", self._watchdog_words(table))
         for name, fps, samples, gaps, imu in feeds:
@@ -284,7 +284,7 @@ class LiveView:
         return shown
 
     @staticmethod
-    def _table_words(table) -> str:
+    def table_words(table) -> str:
         if table is None:
             return "no state read yet"
         flags = [name for name in ("running", "moving", "at_rate", "fault")
