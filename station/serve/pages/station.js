@@ -118,7 +118,8 @@ function showAsked(asked) {
 }
 function showResult(snap) {
   const r = live.dismissed === snap.session ? null : snap.result; $("result").hidden = !r;
-  if (!r) return;
+  if (!r || live.shown === snap.session) return;
+  live.shown = snap.session;
   const v = r.verdict;
   $("verdict").className = `verdict ${v ? v.overall : ""}`;
   $("verdict").innerHTML = "";
