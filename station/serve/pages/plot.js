@@ -16,11 +16,11 @@ const PLOT = (() => {
     for (const [, v] of points) for (const x of v) { if (x < lo) lo = x; if (x > hi) hi = x; }
     if (hi - lo < 1e-9) { hi += 1e-3; lo -= 1e-3; }
     const pad = (hi - lo) * 0.08; lo -= pad; hi += pad;
-    const X = (t) => 44 + (w - 50) * (t - start) / span;
+    const X = (t) => 62 + (w - 68) * (t - start) / span;
     const Y = (v) => 6 + (h - 24) * (hi - v) / (hi - lo);
     g.strokeStyle = "#dde3ea"; g.fillStyle = "#667"; g.lineWidth = 1;
     for (const v of [lo + pad, (lo + hi) / 2, hi - pad]) {
-      g.beginPath(); g.moveTo(44, Y(v)); g.lineTo(w, Y(v)); g.stroke();
+      g.beginPath(); g.moveTo(62, Y(v)); g.lineTo(w, Y(v)); g.stroke();
       g.fillText(v.toPrecision(3), 2, Y(v) + 4);
     }
     g.fillText(`${span} s`, w - 40, h - 4);

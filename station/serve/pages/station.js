@@ -39,7 +39,7 @@ function table(rows, head) {
 async function loadBench() {
   const bench = await get("/api/bench");
   $("profile").replaceChildren(...bench.profiles.map((p) => new Option(p, p)));
-  const open = bench.sessions.filter((s) => s.resumable);
+  const open = bench.sessions.filter((s) => s.resumable && s.name !== live.session);
   const span = $("resumable"); span.replaceChildren();
   if (open.length) {
     const pick = document.createElement("select"); pick.id = "resume-session";
@@ -93,8 +93,11 @@ function showView(view, snap) {
   $("still-bar").className = s.still ? "" : "moving";
   $("still-words").textContent = s.still == null ? "measuring…" :
     `${s.still ? "still" : "moving"} (dispersion ${s.dispersion})`;
-  $("table").textContent = view.table || "no table in this session";
-  $("watchdog").textContent = (view.watchdog || "-").replace(/\[\/?[a-z ]+\]/g, "");
+  $("table").textContent = view.table || "";
+  $("watchdog").textContent = (view.watchdog || "").replace(/\[\/?[a-z ]+\]/g, "");
+  $("table-row").hidden = !view.table; $("watchdog-row").hidden = !view.watchdog;
+  $("rate-plot").hidden = !view.rates.length && !live.rate.length;
+  $("stream-caption").textContent = `IMU stream: ${view.channels.join(", ")} (SI units, last ${SPAN} s)`;
   $("imu").textContent = view.feeds.map((f) => `${f.rate} samples/s, ${f.samples} received, ${f.gaps} gaps; ${f.link}`).join(" | ");
   const windows = Object.entries(view.windows || {});
   $("windows").replaceChildren(...windows.map(([name, w]) => {
@@ -105,8 +108,9 @@ function showView(view, snap) {
   }));
   const pose = snap.asked && snap.asked.orientation ? snap.asked : view.pose;
   const key = pose ? JSON.stringify(pose.orientation) : "";
-  if (key !== live.pose) { POSE.draw($("pose"), pose && pose.orientation); live.pose = key; }
-  $("instruction").textContent = pose ? pose.text : "";
+  if (key !== live.pose) { POSE.draw($("pose"), pose && pose.orientation, !!view.table); live.pose = key; }
+  $("instruction").textContent = pose && !snap.asked ? pose.text : "";
+  $("pose").style.visibility = pose || view.state !== "done" ? "visible" : "hidden";
 }
 function showAsked(asked) {
   $("ask").hidden = !asked;
@@ -141,7 +145,8 @@ function show(snap) {
   $("state").className = `badge ${state}`;
   const active = state !== "idle" && live.dismissed !== snap.session;
   $("session").hidden = !active;
-  $("setup").hidden = ["running", "concluding", "paused"].includes(state);
+  $("setup").hidden = ["running", "concluding", "paused"].includes(state) ||
+    (!!snap.result && live.dismissed !== snap.session);
   $("unit").textContent = snap.serial ? `unit ${snap.serial}` : "";
   $("file").textContent = snap.session || "";
   $("pause").disabled = state !== "running";
@@ -154,7 +159,7 @@ function show(snap) {
   $("messages").replaceChildren(...snap.messages.slice().reverse().map((m) => {
     const li = document.createElement("li"); li.textContent = m; return li; }));
   showResult(snap);
-  if (live.session !== snap.session) { live.session = snap.session; loadBench().catch(() => {}); }
+  if (live.state !== state) { live.session = snap.session; live.state = state; loadBench().catch(() => {}); }
 }
 
 function follow() {
@@ -173,14 +178,16 @@ async function history() {
   try {
     const h = await get(`/api/history?serial=${encodeURIComponent($("history-serial").value.trim())}`);
     $("records").replaceChildren(table(h.calibrations.map((c) =>
-      [c.created, c.verdict || "-", c.bench || "-", c.file || ""]), ["when", "verdict", "bench", "file"]));
+      [c.created, c.verdict || "-", c.bench || "-", (c.calibration_path || "").split("/").pop()]),
+      ["when", "verdict", "bench", "calibration file"]));
   } catch (e) { $("records").textContent = e.message; }
 }
 async function line() {
   $("records").textContent = "";
   try {
     const l = await get("/api/line");
-    $("records").replaceChildren(table(Object.entries(l).map(([k, v]) => [k, String(v)]), ["", ""]));
+    $("records").replaceChildren(table(Object.entries(l).map(([k, v]) =>
+      [k, typeof v === "object" ? JSON.stringify(v) : String(v)])));
   } catch (e) { $("records").textContent = e.message; }
 }
 
