@@ -189,30 +189,37 @@ class LiveView:
     def show(self, console: Console | None = None, refresh_per_second: float = 4):
         """Display the view (rich.live) while the block runs, then leave its last state on the
         screen once. The display is transient: taken off (`aside`) it leaves no copy behind."""
+        self._live = self._display(console, refresh_per_second)
+        try:
+            yield self
+        finally:
+            live, self._live = self._live, None
+            live.stop()
+            live.console.print(self.render())
+
+    def _display(self, console, refresh_per_second: float) -> Live:
+        """A transient rich display of the view, started."""
         live = Live(console=console, get_renderable=self.render,
                     refresh_per_second=refresh_per_second, transient=True)
-        with live:
-            self._live = live
-            try:
-                yield self
-            finally:
-                self._live = None
-        live.console.print(self.render())
+        live.start()
+        return live
 
     @contextlib.contextmanager
     def aside(self):
         """The display off the screen while the block runs (the technician is told or asked
-        something on the terminal), then drawn again below it: a prompt is never overdrawn, and
-        no stale copy of the panel stays above it."""
+        something on the terminal), then a new one below it: a prompt is never overdrawn, and no
+        stale copy of the panel stays above it (a restarted display would first move up over
+        the prompt by its last height)."""
         live = self._live
-        if live is None or not live.is_started:
+        if live is None:
             yield
             return
         live.stop()
         try:
             yield
         finally:
-            live.start()
+            if self._live is live:
+                self._live = self._display(live.console, live.refresh_per_second)
 
     def guarded(self, callback, *args, **kwargs) -> None:
         """Call an observer callback; a failure is kept in `display_error`, never raised: a
