@@ -97,7 +97,8 @@ def test_a_rotary_session_started_watched_and_finished_from_the_page(browsers, s
     first, second = browsers
     with BenchTwin(seed=4, positions=POSITIONS) as twin:
         (tmp_path / "rotary.toml").write_text(twin.profile_text("SIM-4"))
-        with ServedStation([tmp_path / "rotary.toml"], tmp_path / "sessions") as station:
+        with ServedStation([tmp_path / "rotary.toml"], tmp_path / "sessions",
+                           db=f"sqlite:///{tmp_path / 'station.db'}") as station:
             first.get(station.url)
             until(first, lambda b: b.find_elements(By.CSS_SELECTOR, "#profile option"), 60)
             first.find_element(By.ID, "check").click()
@@ -129,6 +130,14 @@ def test_a_rotary_session_started_watched_and_finished_from_the_page(browsers, s
                      for a in first.find_elements(By.CSS_SELECTOR, "#outputs a")}
             calibration = json.loads(served_file(station.url, links["calibration file"]))
             report = served_file(station.url, links["report"]).decode()
+            # the unit's history and the line, from the record store the session was recorded in
+            first.find_element(By.ID, "history-serial").send_keys("SN-WEB-1")
+            first.find_element(By.ID, "history").click()
+            until(first, lambda b: links["calibration file"] in text(b, "records"), 60)
+            assert "PASS" in text(first, "records")
+            first.find_element(By.ID, "line").click()
+            until(first, lambda b: "yield" in text(b, "records"), 60)
+            shots(first, "8-line")
         truth = twin.truth()
     assert shown == calibration["verdict"]["overall"] == "PASS"
     assert "PASS" in report  # the report shows the verdict too
