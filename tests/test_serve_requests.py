@@ -84,19 +84,12 @@ def test_a_foreign_host_name_is_refused(twin_station):
     assert call(station.url, "/api/state", headers={"Host": "localhost"})[0] == 200
 
 
-def test_one_session_per_bench_and_abort_stops_the_table(twin_station):
+def test_one_session_per_bench_abort_stops_the_table_resume_by_name(twin_station):
     twin, station, bench = twin_station
     assert call(station.url, "/api/start", {"profile": "rotary", "serial": "SN-API-1"})[0] == 200
     status, answer = call(station.url, "/api/start", {"profile": "rotary", "serial": "SN-API-2"})
     assert status == 409 and "one at a time" in answer["error"]
-    deadline = time.monotonic() + 300  # a guard against a hang
-    while not (station.session.view and station.session.view.done):
-        assert time.monotonic() < deadline and station.session.state == "running"
-        time.sleep(0.1)
-    assert call(station.url, "/api/abort", {})[0] == 200
-    while station.session.state == "running":
-        assert time.monotonic() < deadline
-        time.sleep(0.1)
+    first_done = abort_after(station, 0)
     _, state = call(station.url, "/api/state")
     assert state["state"] == "aborted" and state["serial"] == "SN-API-1"
     from drivers.rotary_table import RotaryTable
@@ -106,6 +99,34 @@ def test_one_session_per_bench_and_abort_stops_the_table(twin_station):
     assert not reading.running
     status, answer = call(station.url, "/api/answer", {"id": 1, "value": "done"})
     assert status == 409 and answer == {"ok": False}  # nothing is asked
+    # the interrupted session is listed, and resumed by its name
+    _, listed = call(station.url, "/api/bench")
+    (entry,) = [e for e in listed["sessions"] if e["name"] == state["session"]]
+    assert entry["resumable"] and entry["planned"] == 7 and entry["done"] == first_done
+    for name in ("../rotary.toml", "SN-API-1.h5", state["session"] + "x"):
+        status, answer = call(station.url, "/api/resume", {"session": name})
+        assert status == 400 and "choose one the page lists" in answer["error"], name
+    assert call(station.url, "/api/resume", {"session": state["session"]})[0] == 200
+    assert abort_after(station, first_done) > first_done
+
+
+def abort_after(station, done: int) -> int:
+    """Abort the running session through the API once more than `done` positions are done; the
+    positions done then, the session aborted."""
+    deadline = time.monotonic() + 300  # a guard against a hang, not a measure
+
+    def wait(condition) -> None:
+        while not condition():
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+
+    wait(lambda: station.session.state != "running" or (
+        station.session.view and len(station.session.view.done) > done))
+    assert station.session.state == "running"
+    assert call(station.url, "/api/abort", {})[0] == 200
+    wait(lambda: station.session.state != "running")
+    assert station.session.state == "aborted"
+    return len(station.session.view.done)
 
 
 def test_beyond_the_loopback_every_request_needs_the_token(tmp_path):

@@ -107,9 +107,11 @@ def _loopback(host: str) -> bool:
 
 
 def _devices(session, name: str) -> dict:
+    """The devices of the bench profile `name` (its own unit serial: none is typed yet)."""
+    from station.acquire.bench import BenchProfile
     from station.serve.devices import devices
 
-    return devices(session.bench(name, "CHECK"))
+    return devices(BenchProfile.load(session.profile_path(name)))
 
 
 def conclude(path: Path, args) -> dict:

@@ -9,7 +9,7 @@ from station.acquire.live_view import LiveView
 
 def devices(bench) -> dict:
     """{"devices": [{"device", "state"}, ...]} of the bench profile `bench` (`BenchProfile`)."""
-    rows = [{"device": f"IMU {bench.unit_serial} ({bench.link})", "state": _imu(bench)}]
+    rows = [{"device": f"IMU ({bench.link} link)", "state": _imu(bench)}]
     if bench.table_map is not None:
         rows.append({"device": f"rotary table {bench.table_host}:{bench.table_port}",
                      "state": _table(bench)})

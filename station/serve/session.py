@@ -86,10 +86,21 @@ class BenchSession:
             path, profile = self.path, self.profile
         else:
             path = self.session_file(session)
-            profile = self.profile if self.profile in self.profiles else next(iter(self.profiles))
         with Session.open(path) as recorded:
             serial = recorded.metadata.get("unit_serial", "")
+            source = (recorded.metadata.get("bench") or {}).get("profile")
+        if session is not None:
+            profile = self.profile_of(source, session)
         self._launch(profile, self.bench(profile, serial), path, fresh=False)
+
+    def profile_of(self, source, session: str) -> str:
+        """The name of the bench profile a session was recorded with (its metadata's path);
+        InputError when the server was not given it."""
+        for name, path in self.profiles.items():
+            if source and Path(path).resolve() == Path(source).resolve():
+                return name
+        raise InputError(f"session {session} was recorded with the bench profile {source}; "
+                         "start `station serve` with that --profile to resume it")
 
     def pause(self) -> None:
         """Stop the running session so that it can be resumed (the table stopped)."""
@@ -133,13 +144,11 @@ class BenchSession:
         the problem for anything a browser may send."""
         from station.acquire.bench import BenchProfile
 
-        if profile not in self.profiles:
-            raise InputError(f"no bench profile {profile!r}; choose one of "
-                             f"{', '.join(self.profiles)}")
+        path = self.profile_path(profile)
         if not isinstance(serial, str) or not SERIAL.match(serial):
             raise InputError(f"unit serial {serial!r}: give 1-64 letters, digits, '.', '_' or '-' "
                              "(scan the unit's barcode or type it)")
-        bench = BenchProfile.load(self.profiles[profile])
+        bench = BenchProfile.load(path)
         if bench.plate:
             raise InputError(f"bench profile {profile!r} has several units, each with the serial "
                              "its profile gives; record it with `station record`")
@@ -147,6 +156,13 @@ class BenchSession:
             raise InputError(f"bench profile {profile!r} runs a thermal campaign; record it with "
                              "`station record`")
         return dataclasses.replace(bench, unit_serial=serial)
+
+    def profile_path(self, name: str) -> Path:
+        """The bench profile a browser names; InputError naming the ones to choose from."""
+        if not isinstance(name, str) or name not in self.profiles:
+            raise InputError(f"no bench profile {name!r}; choose one of "
+                             f"{', '.join(self.profiles)}")
+        return self.profiles[name]
 
     def session_file(self, name: str) -> Path:
         """The session file `name` in the folder; InputError for any other name."""
