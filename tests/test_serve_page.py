@@ -85,6 +85,12 @@ def served_file(url: str, name: str) -> bytes:
         return reply.read()
 
 
+def no_script_errors(browser) -> None:
+    """The page's script ran without an error (the browser's console)."""
+    errors = [e["message"] for e in browser.get_log("browser") if e["source"] == "javascript"]
+    assert not errors, errors
+
+
 def verdict_shown(browser) -> str:
     until(browser, lambda b: b.find_element(By.ID, "verdict").is_displayed()
           and text(b, "verdict").split()[:1])
@@ -138,6 +144,8 @@ def test_a_rotary_session_started_watched_and_finished_from_the_page(browsers, s
             first.find_element(By.ID, "line").click()
             until(first, lambda b: "yield" in text(b, "records"), 60)
             shots(first, "8-line")
+            no_script_errors(first)
+            no_script_errors(second)
         truth = twin.truth()
     assert shown == calibration["verdict"]["overall"] == "PASS"
     assert "PASS" in report  # the report shows the verdict too
@@ -176,6 +184,7 @@ def test_abort_mid_rotation_stops_the_table_then_the_session_resumes(browsers, s
             first.find_element(By.ID, "resume").click()
             assert verdict_shown(first) in ("PASS", "MARGINAL", "FAIL")
             shots(first, "5-resumed-result")
+            no_script_errors(first)
         with Session.open(tmp_path / "sessions" / name) as session:
             assert session.last_completed_position() == POSITIONS - 1
 
@@ -218,6 +227,7 @@ def test_an_iron_session_with_its_poses_drawn(browsers, shots, tmp_path):
                       or not b.find_element(By.ID, "done").is_displayed())
             shown = verdict_shown(first)
             shots(first, "7-iron-result")
+            no_script_errors(first)
     assert sorted(asked) == sorted(OPPOSITE)  # every face once
     assert shown == "PASS"
 

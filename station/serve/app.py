@@ -111,8 +111,11 @@ def build(session, lookups, token: str | None = None, period: float = 0.05) -> S
             return JSONResponse({"error": f"no file {name!r} in the sessions folder"}, 404)
         return FileResponse(path, media_type=SERVED[path.suffix])
 
-    routes = [Route("/", page), Route("/assets/{name}", asset), Route("/api/state", state),
-              Route("/api/events", events), Route("/api/bench", bench),
+    async def icon(request: Request) -> Response:
+        return Response(status_code=204)
+
+    routes = [Route("/", page), Route("/favicon.ico", icon), Route("/assets/{name}", asset),
+              Route("/api/state", state), Route("/api/events", events), Route("/api/bench", bench),
               Route("/api/devices", devices), Route("/api/history", history),
               Route("/api/line", line), Route("/api/{action}", act, methods=["POST"]),
               Route("/files/{name}", files)]

@@ -21,7 +21,7 @@ const POSE = (() => {
   function add(a, b, s) { return a.map((x, i) => x + s * b[i]); }
   function dot(a, b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
-  function draw(svg, orientation, table) {
+  function draw(svg, orientation, onTable) {
     svg.replaceChildren();
     const table = project([0, 0, -95]);
     svg.appendChild(element("ellipse", {cx: table[0], cy: table[1], rx: 140, ry: 45,
@@ -31,7 +31,7 @@ const POSE = (() => {
       stroke: "#1f3a5f", "stroke-width": 3, "stroke-dasharray": "6 5"}));
     svg.appendChild(element("polygon", {points: `${top[0]},${top[1] - 12} ${top[0] - 7},${top[1] + 2} ${top[0] + 7},${top[1] + 2}`, fill: "#1f3a5f"}));
     svg.appendChild(element("text", {x: top[0] + 10, y: top[1] + 4, class: "axis-label",
-      "font-size": 13, fill: "#1f3a5f"}, table ? "table axis (up)" : "up"));
+      "font-size": 13, fill: "#1f3a5f"}, onTable ? "table axis (up)" : "up"));
     if (!orientation) return;
     const axes = orientation.map((row) => row.map(Number));   // unit axes in the table frame
     const faces = [];
@@ -55,7 +55,7 @@ const POSE = (() => {
     }
     const up = [0, 1, 2].map((i) => axes[i][2]);               // the table axis in the unit frame
     svg.appendChild(element("text", {x: 0, y: 140, "text-anchor": "middle", "font-size": 14,
-      fill: "#1c2430"}, `${table ? "up the table axis" : "up"}: unit (${up.map((x) => x.toFixed(2)).join(", ")})`));
+      fill: "#1c2430"}, `${onTable ? "up the table axis" : "up"}: unit (${up.map((x) => x.toFixed(2)).join(", ")})`));
   }
   return {draw};
 })();
