@@ -143,6 +143,7 @@ def test_a_rotary_session_started_watched_and_finished_from_the_page(browsers, s
             assert "PASS" in text(first, "records")
             first.find_element(By.ID, "line").click()
             until(first, lambda b: "yield" in text(b, "records"), 60)
+            first.execute_script("document.getElementById('records').scrollIntoView()")
             shots(first, "8-line")
             no_script_errors(first)
             no_script_errors(second)

@@ -110,7 +110,7 @@ function showView(view, snap) {
   const key = pose ? JSON.stringify(pose.orientation) : "";
   if (key !== live.pose) { POSE.draw($("pose"), pose && pose.orientation, !!view.table); live.pose = key; }
   $("instruction").textContent = pose && !snap.asked ? pose.text : "";
-  $("pose").style.visibility = pose || view.state !== "done" ? "visible" : "hidden";
+  $("pose").parentElement.hidden = !pose && view.state === "done";
 }
 function showAsked(asked) {
   $("ask").hidden = !asked;
