@@ -182,3 +182,42 @@ def test_a_port_in_use_is_named(tmp_path, capsys):
         profile.write_text("")
         assert cli.main(["serve", "--profile", str(profile), "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_a_server_stopped_by_sigterm_mid_rotation_stops_the_table(tmp_path):
+    """`station serve` in its own process, terminated while the table turns: the session is
+    aborted (the file records it, the table stopped) and the server exits 130."""
+    import signal
+    import subprocess
+
+    from twinproc import ENV, STATION
+
+    from station.files.session import Session
+
+    with BenchTwin(seed=7, positions=7) as twin:
+        (tmp_path / "rotary.toml").write_text(twin.profile_text("SIM-7"))
+        bench = BenchProfile.load(tmp_path / "rotary.toml")
+        server = subprocess.Popen([*STATION, "serve", "--profile", str(tmp_path / "rotary.toml"),
+                                   "--port", "0", "--sessions", str(tmp_path / "sessions"),
+                                   "--no-db"], env=ENV, text=True, stderr=subprocess.PIPE)
+        try:
+            url = server.stderr.readline().split(" at ")[1].split()[0].rstrip("/")
+            assert call(url, "/api/start", {"profile": "rotary", "serial": "SN-TERM"})[0] == 200
+            deadline = time.monotonic() + 300  # a guard against a hang
+            while (state := call(url, "/api/state")[1])["view"] is None or \
+                    state["view"].get("state") != "rotating":
+                assert time.monotonic() < deadline and state["state"] == "running", state
+                time.sleep(0.1)
+            server.send_signal(signal.SIGTERM)
+            assert server.wait(120) == 130
+        finally:
+            if server.poll() is None:
+                server.kill()
+                server.wait()
+        from drivers.rotary_table import RotaryTable
+
+        with RotaryTable(bench.table_host, bench.table_port, bench.table_map) as table:
+            assert not table.state().running
+    with Session.open(tmp_path / "sessions" / state["session"]) as session:
+        aborts = [e for e in session.events() if e.kind == "abort"]
+    assert aborts and aborts[-1].detail["table_stopped"] is True

@@ -12,7 +12,8 @@ file is recorded in the record store as `station record --solve` does. One sessi
 time, whatever the number of browsers watching. The page and its assets come from the station
 itself (nothing from the internet). It listens on the loopback only, unless --host names another
 address: every request then needs the token (--token, or one made at start; the address printed
-carries it). Ctrl-C stops the server, and a session running is aborted (the table stopped).
+carries it). Ctrl-C or SIGTERM stops the server (exit code 130), a session running aborted first
+(the table stopped).
 """
 
 import ipaddress

@@ -209,6 +209,7 @@ class Listening:
             self.socket.close()
             raise InputError(f"cannot listen on {host}:{port}: {exc.strerror}; give another "
                              "--port (or --host)") from None
+        self.socket.listen(128)  # the address printed answers at once (served when uvicorn runs)
         self.port = self.socket.getsockname()[1]
         config = uvicorn.Config(app, log_level="warning", timeout_graceful_shutdown=2,
                                 lifespan="off")
