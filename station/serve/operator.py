@@ -7,21 +7,16 @@ stops the table and records the abort as it does for Ctrl-D at the terminal)."""
 import itertools
 import threading
 
-MESSAGES = 50
+MESSAGES = 20
 """Messages kept for a browser that attaches (or reloads) mid-session."""
 
 
 class BrowserOperator:
-    """Prompts, instructions and questions for the browsers; answers from any of them.
+    """Prompts, instructions and questions for the browsers; answers from any of them."""
 
-    changed : called (no arguments) whenever what the browsers show changed
-    """
-
-    def __init__(self, changed=lambda: None):
-        self.changed = changed
+    def __init__(self):
         self.messages = []
         self.asked = None  # {"id", "kind": "wait" | "confirm", "text", "orientation"}
-        self.instruction = None  # the last instruction asked (its pose stays drawn)
         self._ids = itertools.count(1)
         self._answer = None
         self._stopped = None
@@ -30,10 +25,8 @@ class BrowserOperator:
     def prompt(self, text: str) -> None:
         with self._cond:
             self.messages = [*self.messages[-(MESSAGES - 1):], text]
-        self.changed()
 
     def wait(self, instruction) -> None:
-        self.instruction = instruction
         self._ask("wait", instruction.text, instruction.orientation)
 
     def confirm(self, question: str) -> bool:
@@ -49,7 +42,6 @@ class BrowserOperator:
                 return False
             self._answer, self.asked = value, None
             self._cond.notify_all()
-        self.changed()
         return True
 
     def cancel(self, error: BaseException) -> None:

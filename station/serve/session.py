@@ -132,7 +132,7 @@ class BenchSession:
             shown = {"state": self.state, "profile": self.profile, "serial": self.serial,
                      "session": None if self.path is None else self.path.name,
                      "error": self.error, "result": self.result,
-                     "asked": self.operator.asked, "messages": self.operator.messages[-8:]}
+                     "asked": self.operator.asked, "messages": list(self.operator.messages)}
             view = self.view
         shown["view"] = None if view is None else view.snapshot(since)
         return shown
