@@ -199,9 +199,10 @@ def test_a_server_stopped_by_sigterm_mid_rotation_stops_the_table(tmp_path):
         bench = BenchProfile.load(tmp_path / "rotary.toml")
         server = subprocess.Popen([*STATION, "serve", "--profile", str(tmp_path / "rotary.toml"),
                                    "--port", "0", "--sessions", str(tmp_path / "sessions"),
-                                   "--no-db"], env=ENV, text=True, stderr=subprocess.PIPE)
+                                   "--no-db", "--json"], env=ENV, text=True,
+                                  stdout=subprocess.PIPE)
         try:
-            url = server.stderr.readline().split(" at ")[1].split()[0].rstrip("/")
+            url = json.loads(server.stdout.readline())["url"].rstrip("/")
             assert call(url, "/api/start", {"profile": "rotary", "serial": "SN-TERM"})[0] == 200
             deadline = time.monotonic() + 300  # a guard against a hang
             while (state := call(url, "/api/state")[1])["view"] is None or \

@@ -17,6 +17,7 @@ carries it). Ctrl-C or SIGTERM stops the server (exit code 130), a session runni
 """
 
 import ipaddress
+import json
 import sys
 from pathlib import Path
 
@@ -33,7 +34,8 @@ def register(p) -> None:
         "examples:\n  station serve --profile bench.toml\n"
         "  station twin --profile-out twin.toml &   # then:\n"
         "  station serve --profile twin.toml --profile bench_iron.toml --port 8750\n"
-        "  station serve --profile bench.toml --host 0.0.0.0   # prints the address with its token"
+        "  station serve --profile bench.toml --host 0.0.0.0   # the address printed has a token\n"
+        "  station serve --profile bench.toml --port 0 --json  # a free port, said as JSON"
     )
     p.add_argument("--profile", type=Path, action="append", required=True,
                    help="a bench profile (TOML) the page offers; give it once per bench profile")
@@ -46,6 +48,9 @@ def register(p) -> None:
     p.add_argument("--token", help="the token a browser must give when --host is not the "
                                    "loopback (default: one made at start)")
     db_arguments(p)
+    p.add_argument("--json", action="store_true",
+                   help="say where the page is as one JSON line on stdout (url, port, profiles, "
+                        "sessions folder), for a script that starts the station")
     p.set_defaults(run=run)
 
 
@@ -93,8 +98,12 @@ def build_server(args):
     app = build(session, lookups, token)
     served = Listening(app, args.host, args.port)
     where = f"http://{args.host}:{served.port}/" + (f"?token={token}" if token else "")
-    print(f"station serve: the station's page is at {where} (Ctrl-C stops it)",
-          file=sys.stderr, flush=True)
+    if getattr(args, "json", False):
+        print(json.dumps({"url": where, "port": served.port, "profiles": list(profiles),
+                          "sessions": str(folder)}), flush=True)
+    else:
+        print(f"station serve: the station's page is at {where} (Ctrl-C stops it)",
+              file=sys.stderr, flush=True)
     return served, session
 
 
