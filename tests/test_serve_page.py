@@ -172,6 +172,8 @@ def test_abort_mid_rotation_stops_the_table_then_the_session_resumes(browsers, s
                   text(b, "windows") and "turning" in text(b, "table"))
             first.find_element(By.ID, "abort").click()
             until(first, lambda b: text(b, "state").startswith("aborted"), 120)
+            until(first, lambda b: "standing still" in text(b, "table"), 120)
+            assert "aborted from the browser" in text(first, "session-error")
             shots(first, "4-aborted")
             state = _table_state(bench)
             assert not state.running and not state.moving and state.rate == 0.0

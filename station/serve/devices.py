@@ -36,13 +36,21 @@ def _imu(bench) -> str:
 def _table(bench) -> str:
     """The table's state read now, or why it could not be read."""
     from drivers.errors import TableError
+
+    try:
+        return LiveView.table_words(table_reading(bench))
+    except TableError as exc:
+        return f"not answering: {exc}"
+
+
+def table_reading(bench):
+    """The rotary table's state read now over its own connection (`TableReading`); TableError
+    when it does not answer."""
     from drivers.rotary_table import RotaryTable
 
     table = RotaryTable(bench.table_host, bench.table_port, bench.table_map)
     try:
         table.connect()
-        return LiveView.table_words(table.state())
-    except TableError as exc:
-        return f"not answering: {exc}"
+        return table.state()
     finally:
         table.close()

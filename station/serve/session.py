@@ -221,8 +221,9 @@ class BenchSession:
             stop = self._stop
             if stop is not None:
                 interrupts.withdraw(stop.error)
-            self._ended(stop.state if stop is not None and exc is stop.error else "failed",
-                        None if stop is not None and exc is stop.error else _words(exc))
+            self._table_after(bench)
+            ours = stop is not None and exc is stop.error
+            self._ended(stop.state if ours else "failed", _words(exc))
             if not isinstance(exc, StationError | ConnectionError | RuntimeError | ValueError):
                 log.exception("the session ended on an unexpected error")
             return
@@ -236,6 +237,26 @@ class BenchSession:
         with self._lock:
             self.result = result
         self._ended("done")
+
+    def _table_after(self, bench, patience: float = 10.0) -> None:
+        """Read the table once the session ended early, for the page: the protocol commanded it
+        to stop; read again while it decelerates, at most `patience` wall seconds (the page
+        then shows what it last read)."""
+        from drivers.errors import TableError
+        from station.serve.devices import table_reading
+
+        if bench.table_map is None or self.view is None:
+            return
+        deadline = time.monotonic() + patience
+        try:
+            reading = table_reading(bench)
+            while reading.moving and time.monotonic() < deadline:
+                time.sleep(0.2)
+                reading = table_reading(bench)
+        except TableError as exc:
+            reading = None
+            log.warning("the table could not be read after the session: %s", exc)
+        self.view.table_after(reading)
 
     def _ended(self, state: str, error: str | None = None) -> None:
         with self._lock:

@@ -88,6 +88,12 @@ class BrowserView(LiveView):
         with self._lock:
             self.rates.append((self._next(), self.clock.now(), float(rate)))
 
+    def table_after(self, reading) -> None:
+        """The table as read once the session ended (stopped, paused, failed): what the page
+        shows then, not the last reading of the session."""
+        with self._lock:
+            self._table = reading
+
     def on_event(self, kind: str, position=None, detail=None, time=None) -> None:
         super().on_event(kind, position, detail, time)
         with self._lock:

@@ -84,7 +84,8 @@ function showView(view, snap) {
   if (view.total) {
     showPositions(view);
     $("step").textContent = `position ${Math.min(view.position + 1, view.total)} of ${view.total}`;
-    $("phase").textContent = view.phase || "";
+    $("phase").textContent = ["aborted", "paused", "failed"].includes(snap.state) ?
+      `${snap.state}: the session stopped` : (view.phase || "");
     $("left").textContent = view.time_left == null ? "" : `about ${Math.round(view.time_left)} s of bench time left`;
   }
   const s = view.stillness;
