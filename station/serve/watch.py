@@ -15,6 +15,7 @@ import math
 import time
 
 import numpy as np
+from rich.text import Text
 
 from station.acquire.live_view import PHASES, LiveView, counter_words
 
@@ -122,7 +123,8 @@ class BrowserView(LiveView):
         shown = {"series": series, "rates": rates, "channels": self.channels, "done": done,
                  "arrived": arrived, "cursor": self._count, "feeds": feeds,
                  "table": None if table is None else self.table_words(table),
-                 "watchdog": None if self.watchdog is None else self._watchdog_words(table),
+                 "watchdog": None if self.watchdog is None else
+                 Text.from_markup(self._watchdog_words(table)).plain,
                  "stillness": {"dispersion": None if math.isnan(self.dispersion)
                                else round(self.dispersion, 2), "still": self.still,
                                "enter": self.enter, "leave": self.leave}}

@@ -95,7 +95,7 @@ function showView(view, snap) {
   $("still-words").textContent = s.still == null ? "measuring…" :
     `${s.still ? "still" : "moving"} (dispersion ${s.dispersion})`;
   $("table").textContent = view.table || "";
-  $("watchdog").textContent = (view.watchdog || "").replace(/\[\/?[a-z ]+\]/g, "");
+  $("watchdog").textContent = view.watchdog || "";
   $("table-row").hidden = !view.table; $("watchdog-row").hidden = !view.watchdog;
   $("rate-plot").hidden = !view.rates.length && !live.rate.length;
   $("stream-caption").textContent = `IMU stream: ${view.channels.join(", ")} (SI units, last ${SPAN} s)`;
