@@ -84,12 +84,14 @@ def test_a_foreign_host_name_is_refused(twin_station):
     assert call(station.url, "/api/state", headers={"Host": "localhost"})[0] == 200
 
 
-def test_one_session_per_bench_abort_stops_the_table_resume_by_name(twin_station):
+def test_one_session_per_bench_abort_pause_and_resume(twin_station):
+    """One session at a time; Abort stops the table; the aborted session resumed by its name,
+    paused, resumed again and aborted."""
     twin, station, bench = twin_station
     assert call(station.url, "/api/start", {"profile": "rotary", "serial": "SN-API-1"})[0] == 200
     status, answer = call(station.url, "/api/start", {"profile": "rotary", "serial": "SN-API-2"})
     assert status == 409 and "one at a time" in answer["error"]
-    first_done = abort_after(station, 0)
+    first_done = stop_after(station, 0, "abort")
     _, state = call(station.url, "/api/state")
     assert state["state"] == "aborted" and state["serial"] == "SN-API-1"
     from drivers.rotary_table import RotaryTable
@@ -107,12 +109,16 @@ def test_one_session_per_bench_abort_stops_the_table_resume_by_name(twin_station
         status, answer = call(station.url, "/api/resume", {"session": name})
         assert status == 400 and "choose one the page lists" in answer["error"], name
     assert call(station.url, "/api/resume", {"session": state["session"]})[0] == 200
-    assert abort_after(station, first_done) > first_done
+    paused = stop_after(station, first_done, "pause")
+    assert paused > first_done
+    assert "Resume goes on" in call(station.url, "/api/state")[1]["error"]
+    assert call(station.url, "/api/resume", {})[0] == 200  # the paused session, going on
+    assert stop_after(station, paused, "abort") > paused
 
 
-def abort_after(station, done: int) -> int:
-    """Abort the running session through the API once more than `done` positions are done; the
-    positions done then, the session aborted."""
+def stop_after(station, done: int, action: str) -> int:
+    """Pause or abort (`action`) the running session through the API once more than `done`
+    positions are done; the positions done then, the session paused or aborted."""
     deadline = time.monotonic() + 300  # a guard against a hang, not a measure
 
     def wait(condition) -> None:
@@ -123,9 +129,9 @@ def abort_after(station, done: int) -> int:
     wait(lambda: station.session.state != "running" or (
         station.session.view and len(station.session.view.done) > done))
     assert station.session.state == "running"
-    assert call(station.url, "/api/abort", {})[0] == 200
+    assert call(station.url, f"/api/{action}", {})[0] == 200
     wait(lambda: station.session.state != "running")
-    assert station.session.state == "aborted"
+    assert station.session.state == {"pause": "paused", "abort": "aborted"}[action]
     return len(station.session.view.done)
 
 
