@@ -94,7 +94,7 @@ def build_server(args):
     lookups = {"devices": lambda name: _devices(session, name),
                "history": lambda serial: history(args.db, serial),
                "line": lambda: line(args.db),
-               "sessions": lambda: sessions(folder)}
+               "sessions": lambda: sessions(folder, session.path if session.running() else None)}
     app = build(session, lookups, token)
     served = Listening(app, args.host, args.port)
     where = f"http://{args.host}:{served.port}/" + (f"?token={token}" if token else "")
@@ -143,9 +143,10 @@ def conclude(path: Path, args) -> dict:
             "status": summary["status"], "files": files}
 
 
-def sessions(folder: Path) -> list:
+def sessions(folder: Path, busy: Path | None = None) -> list:
     """The session files of the folder, newest first: name, positions done and planned, and
-    whether it can be resumed (interrupted before its last position)."""
+    whether it can be resumed (interrupted before its last position); not `busy`, the one
+    being recorded (never opened while the session's writer holds it)."""
     import re
 
     from station.errors import StationError
@@ -154,7 +155,7 @@ def sessions(folder: Path) -> list:
 
     found = []
     for path in sorted(folder.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)[:50]:
-        if not re.fullmatch(SESSION_FILE, path.name):
+        if not re.fullmatch(SESSION_FILE, path.name) or path == busy:
             continue
         try:
             with Session.open(path) as s:
