@@ -53,6 +53,8 @@ COMMANDS = {
     "fleet": ("fleet", "yield, parameter distributions, control charts and bench health from the "
                        "record store"),
     "db": ("db", "the calibration record store: import folders, check, info"),
+    "serve": ("serve", "the technician's station in a browser: run sessions, see verdicts and "
+                       "history"),
 }
 
 BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")

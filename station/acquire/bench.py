@@ -437,11 +437,12 @@ def bench_clock(bench: BenchProfile, start: float | None = None):
 
 
 def record(bench: BenchProfile, out, operator, live: bool = False,
-           extra: dict | None = None, clock=None) -> dict:
+           extra: dict | None = None, clock=None, view=None) -> dict:
     """Run the bench's protocol (its kind's acquire, `station.protocols.KINDS`) with its devices
     and `operator` into the session `out`. live: show the live view (station.acquire.live_view)
-    while recording, for kinds that have one; extra: more metadata (a thermal soak's); clock: the
-    session's (default `bench_clock`; a thermal campaign's own)."""
+    while recording, for kinds that have one; view: another watcher of the session
+    (`station.acquire.watching`: the browser's); extra: more metadata (a thermal soak's); clock:
+    the session's (default `bench_clock`; a thermal campaign's own)."""
     from drivers.profile import load_profile
     from station.acquire.live_view import LiveView
     from station.files.session import Session, StreamSpec
@@ -460,7 +461,7 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
     with bench_devices(bench, clock, kind.table) as (imu, table), \
             plate_drivers(bench, clock) as others:
         kind.entry("acquire")(bench, imu, table, out, operator, clock, spec, metadata,
-                              LiveView(clock, watchdog=_watchdog(bench)) if live else None,
+                              LiveView(clock, watchdog=watchdog_shown(bench)) if live else view,
                               **others)
     with Session.open(out) as session:
         done = session.last_completed_position()
@@ -476,13 +477,13 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
             "wall_seconds": time.perf_counter() - start}
 
 
-def _watchdog(bench: BenchProfile):
+def watchdog_shown(bench: BenchProfile):
     """What the live view shows of the table's watchdog: its spec, False for none, None without
     a table."""
     return None if bench.table_map is None else (bench.table_map.watchdog or False)
 
 
-def resume(bench: BenchProfile, path, operator, clock=None) -> int:
+def resume(bench: BenchProfile, path, operator, clock=None, view=None) -> int:
     """Continue the session `path` (killed, paused or aborted; a kind of `station.protocols.KINDS`
     with a `resume`) with the devices of `bench` from the position after its last completed one;
     returns that position (the number of positions when none was left).
@@ -496,7 +497,7 @@ def resume(bench: BenchProfile, path, operator, clock=None) -> int:
     campaign's) is moved forward to that instant. The IMU ports (every unit's)
     are opened last, once the session file is resumed, right before the recorder reads them: a
     port open and unread meanwhile starts the segment with a backlog (docs/protocols.md
-    "Margins").
+    "Margins"). `view`: who watches the session (`station.acquire.watching`), or None.
     """
     from station.files.session import Session, SessionWriter, StreamSpec
     from station.files.session.units import recorded_units
@@ -518,7 +519,8 @@ def resume(bench: BenchProfile, path, operator, clock=None) -> int:
     with (table_driver(bench, clock) if kind.table else contextlib.nullcontext() as table,
           SessionWriter.resume(path, clock=clock) as writer,
           imu_driver(bench, clock) as imu, plate_drivers(bench, clock) as others):
-        return kind.entry("resume")(writer, metadata, imu, table, operator, clock, **others)
+        return kind.entry("resume")(writer, metadata, imu, table, operator, clock, view=view,
+                                    **others)
 
 
 def _check_same_bench(bench: BenchProfile, path, metadata: dict, recorded, spec):

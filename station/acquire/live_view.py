@@ -86,6 +86,7 @@ class LiveView:
         self.dispersion = math.nan
         self.still = None
         self.display_error = None  # the first exception of a callback (shown, never raised)
+        self._live = None  # the rich display while `show` runs
 
     # -- observer interface ----------------------------------------------------------------------
 
@@ -172,10 +173,11 @@ class LiveView:
         return self.feeds[-1]
 
     def observe_operator(self, operator):
-        """A proxy of the operator for the protocol: what the technician is told feeds the view."""
+        """A proxy of the operator for the protocol: what the technician is told feeds the view,
+        and is printed or asked with the display off the screen (`aside`)."""
         return _Observed(operator, self, {"prompt": self.on_message,
                                           "wait": lambda i: self.on_message(i.text),
-                                          "confirm": self.on_message})
+                                          "confirm": self.on_message}, around=self.aside)
 
     def observe_recorder(self, recorder):
         """A proxy of the recorder for the protocol: events and table states feed the view."""
@@ -185,10 +187,39 @@ class LiveView:
 
     @contextlib.contextmanager
     def show(self, console: Console | None = None, refresh_per_second: float = 4):
-        """Display the view (rich.live) while the block runs."""
-        with Live(console=console, get_renderable=self.render,
-                  refresh_per_second=refresh_per_second, transient=False):
+        """Display the view (rich.live) while the block runs, then leave its last state on the
+        screen once. The display is transient: taken off (`aside`) it leaves no copy behind."""
+        self._live = self._display(console, refresh_per_second)
+        try:
             yield self
+        finally:
+            live, self._live = self._live, None
+            live.stop()
+            live.console.print(self.render())
+
+    def _display(self, console, refresh_per_second: float) -> Live:
+        """A transient rich display of the view, started."""
+        live = Live(console=console, get_renderable=self.render,
+                    refresh_per_second=refresh_per_second, transient=True)
+        live.start()
+        return live
+
+    @contextlib.contextmanager
+    def aside(self):
+        """The display off the screen while the block runs (the technician is told or asked
+        something on the terminal), then a new one below it: a prompt is never overdrawn, and no
+        stale copy of the panel stays above it (a restarted display would first move up over
+        the prompt by its last height)."""
+        live = self._live
+        if live is None:
+            yield
+            return
+        live.stop()
+        try:
+            yield
+        finally:
+            if self._live is live:
+                self._live = self._display(live.console, live.refresh_per_second)
 
     def guarded(self, callback, *args, **kwargs) -> None:
         """Call an observer callback; a failure is kept in `display_error`, never raised: a
@@ -216,16 +247,16 @@ class LiveView:
         grid.add_row("phase", f"{PHASES.get(state, state)} [dim]({state})[/]")
         done = min(j, n) if state != "done" else n
         grid.add_row("position", Group(f"{min(j + 1, n)} of {n}", ProgressBar(n, done, 40)))
-        for name, (fraction, words) in self._window_progress(windows, table).items():
+        for name, (fraction, words) in self._window_progress(windows, table, state).items():
             grid.add_row(f"{name} window", Group(words, ProgressBar(1.0, fraction, 40)))
-        grid.add_row("table", self._table_words(table))
+        grid.add_row("table", self.table_words(table))
         if self.watchdog is not None:
             grid.add_row("watchdog", self._watchdog_words(table))
         for name, fps, samples, gaps, imu in feeds:
             named = f" {escape(name)}" if len(feeds) > 1 else ""
             grid.add_row(f"IMU{named}", f"{fps:.0f} samples/s, {samples} received, "
                                         f"{gaps} sequence gap(s)")
-            grid.add_row(f"link{named}", _counter_words(imu))
+            grid.add_row(f"link{named}", counter_words(imu))
         grid.add_row("stillness", self._stillness_words())
         if state == "mount" and j < n:  # the station waits for this mounting: say it, and only it
             grid.add_row("[bold yellow]do now[/]",
@@ -239,9 +270,13 @@ class LiveView:
             grid.add_row("[red]view error[/]", f"{self.display_error!r} (recording unaffected)")
         return Panel(grid, title="calibration session", border_style="blue")
 
-    def _window_progress(self, windows, table) -> dict:
-        """{"static" / "rotating": (fraction done, words)} of the current position."""
+    def _window_progress(self, windows, table, state: str) -> dict:
+        """{"static" / "rotating": (fraction done, words)} of the current position; none while
+        the next position is mounted (the windows shown are the last position's until its
+        `position_start`)."""
         s, now, shown = self.protocol.settings, self.clock.now(), {}
+        if state == "mount":
+            return shown
         if "static" in windows:
             start, end = windows["static"]
             elapsed = (end if end is not None else now) - start
@@ -256,7 +291,7 @@ class LiveView:
         return shown
 
     @staticmethod
-    def _table_words(table) -> str:
+    def table_words(table) -> str:
         if table is None:
             return "no state read yet"
         flags = [name for name in ("running", "moving", "at_rate", "fault")
@@ -301,7 +336,7 @@ class LiveView:
             self.still = True
 
 
-def _counter_words(imu) -> str:
+def counter_words(imu) -> str:
     """The link counters of an IMU driver's `stats` (COUNTERS)."""
     stats = getattr(imu, "stats", None)
     shown = [f"{name.replace('_', ' ')} {getattr(stats, name)}" for name in COUNTERS
@@ -339,10 +374,11 @@ class _Feed:
 
 
 class _Observed:
-    """Forwards every attribute to `target`; the methods in `hooks` also call hook(*args)."""
+    """Forwards every attribute to `target`; the methods in `hooks` also call hook(*args), and
+    run inside `around()` (a context manager) when one is given."""
 
-    def __init__(self, target, view, hooks: dict):
-        self._target, self._view, self._hooks = target, view, hooks
+    def __init__(self, target, view, hooks: dict, around=contextlib.nullcontext):
+        self._target, self._view, self._hooks, self._around = target, view, hooks, around
 
     def __getattr__(self, name):
         value = getattr(self._target, name)
@@ -351,9 +387,9 @@ class _Observed:
             return value
 
         def observed(*args, **kwargs):
-            result = value(*args, **kwargs)
             self._view.guarded(hook, *args, **kwargs)
-            return result
+            with self._around():
+                return value(*args, **kwargs)
         return observed
 
 

@@ -5,7 +5,7 @@ passed in: the acquisition room does not import the commands)."""
 
 import contextlib
 
-from station.protocols.rotary import Unwatched
+from station.acquire.watching import Unwatched
 
 
 class PositionProgress(Unwatched):

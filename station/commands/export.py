@@ -104,6 +104,19 @@ def run(args) -> int:
     return 0
 
 
+def export(calibration: Path, fmt: str) -> Path:
+    """Export the calibration file `calibration` to `fmt` with the format's default options,
+    beside it under its default name (replaced if there); the file written."""
+    from types import SimpleNamespace
+
+    from station.files.calfile import load
+
+    out = _default_name(calibration, fmt)
+    defaults = SimpleNamespace(**dict.fromkeys(OPTIONS), force=False)
+    out.write_text(_write(fmt, [load(calibration)], defaults).text)
+    return out
+
+
 def _default_name(calibration: Path, fmt: str) -> Path:
     """SN42.cal.json -> SN42.kalibr.yaml (beside it)."""
     name = calibration.name

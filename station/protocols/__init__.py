@@ -29,14 +29,15 @@ class Kind:
     settings  : the settings dataclass of its state machine (the bench profile's [protocol] keys)
     acquire   : (bench, imu, table, out, operator, clock, spec, metadata, view) -> None: run the
                 state machine with opened devices into the new session file `out` (`station
-                record`; table None unless `table`, view None unless `live_view`)
+                record`; table None unless `table`; view: who watches, `station.acquire.watching`,
+                or None; the terminal's LiveView only where `live_view`)
     table     : acquire needs the rotary table (the bench profile's [table]); else the bench
                 profile gives the nominal `layout` of the accelerometers and `positions` come from
                 the settings (`settings.poses`)
-    live_view : acquire can show `station.acquire.live_view.LiveView`
-    resume    : (writer, metadata, imu, table, operator, clock) -> first position: continue a
-                session after a kill, pause or abort (`station resume`; table None unless
-                `table`)
+    live_view : acquire can show `station.acquire.live_view.LiveView` (the terminal's)
+    resume    : (writer, metadata, imu, table, operator, clock, view=None) -> first position:
+                continue a session after a kill, pause or abort (`station resume`; table None
+                unless `table`; view as acquire's)
     reduce    : (session, stream, trim=seconds) -> readings with M, sigma (m, n), take(columns)
     still     : the reduction detects still poses and takes the user's detector settings
                 (`still=station.reduce.stillness.StillOptions`: --rest, --threshold, ...)

@@ -197,13 +197,16 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
                    view=None) -> None:
     """`station record`'s iron session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
-    the new session file `out`; no table, no live view."""
+    the new session file `out`; no table; `view` watches it (`station.acquire.watching`) or is
+    None."""
     protocol = IronProtocol(operator, clock, bench.layout, bench.settings)
-    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata},
+                 view)
 
 
-def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
     """`station resume`'s iron session (`station.protocols.KINDS` resume): the protocol the session
     recorded, from its first pose not completed, with the opened `imu` driver into `writer`
-    (`SessionWriter.resume`d); returns that pose. No table."""
-    return continue_poses(IronProtocol.from_metadata(metadata, operator, clock), writer, imu, clock)
+    (`SessionWriter.resume`d), watched by `view`; returns that pose. No table."""
+    return continue_poses(IronProtocol.from_metadata(metadata, operator, clock), writer, imu, clock,
+                          view)

@@ -65,7 +65,6 @@ cuts whole revolutions of the position axis; `stop` stops both axes.
 The recorded session is reduced offline by `station.reduce.rotary` (Eq. 18).
 """
 
-import contextlib
 import logging
 from dataclasses import asdict, dataclass
 
@@ -77,6 +76,7 @@ from station import limits
 from station.acquire import interrupts
 from station.acquire.operator import Instruction
 from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
+from station.acquire.watching import Unwatched
 from station.errors import FlaggedWindow, InputError, OperatorAbort, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
 from station.files.session.units import recorded_units
@@ -715,26 +715,6 @@ class RotaryProtocol:
             self._done({"interrupted": True}, imu=not lost)
         except Exception as failed:  # noqa: BLE001 - the position is then recorded again
             exc.add_note(f"position {self.position + 1} is recorded again on resume: {failed}")
-
-
-class Unwatched:
-    """No live view: the observer interface of `station.acquire.live_view.LiveView`, passing
-    through."""
-
-    def follow(self, protocol):
-        return protocol
-
-    def observe_imu(self, imu, name: str = ""):
-        return imu
-
-    def observe_operator(self, operator):
-        return operator
-
-    def observe_recorder(self, recorder):
-        return recorder
-
-    def show(self):
-        return contextlib.nullcontext(self)
 
 
 def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None,

@@ -196,8 +196,9 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
                    view=None) -> None:
     """`station record`'s free-static session (`station.protocols.KINDS` acquire): the protocol with
     the bench profile's layout and settings, run with the opened `imu` driver (stream `spec`) into
-    the new session file `out`; no table, no live view. With a fixture in the profile, the poses
-    are its planned ones (`station.protocols.planned.static_plan`), the expected eps told first."""
+    the new session file `out`; no table; `view` watches it (`station.acquire.watching`) or is
+    None. With a fixture in the profile, the poses are its planned ones
+    (`station.protocols.planned.static_plan`), the expected eps told first."""
     if bench.fixture is None:
         protocol = StaticProtocol(operator, clock, bench.layout, spec.units, bench.settings)
     else:
@@ -208,7 +209,8 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
                                   plan.guided())
         metadata = {**metadata, "fixture_poses": plan.instructions(),
                     "plan": {"expected_eps": plan.eps, "reading_sigma": plan.sigma}}
-    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata})
+    record_poses(protocol, imu, spec, clock, out, {**protocol.metadata(), **metadata},
+                 view)
 
 
 def _fixture_poses(steps) -> list | None:
@@ -221,9 +223,9 @@ def _fixture_poses(steps) -> list | None:
              f"set the cube {step['words']}") for j, step in enumerate(steps)]
 
 
-def continue_session(writer, metadata: dict, imu, table, operator, clock) -> int:
+def continue_session(writer, metadata: dict, imu, table, operator, clock, view=None) -> int:
     """`station resume`'s free-static session (`station.protocols.KINDS` resume): the protocol the
     session recorded, from its first pose not completed, with the opened `imu` driver into
-    `writer` (`SessionWriter.resume`d); returns that pose. No table."""
+    `writer` (`SessionWriter.resume`d), watched by `view`; returns that pose. No table."""
     protocol = StaticProtocol.from_metadata(metadata, operator, clock, writer.specs["imu"].units)
-    return continue_poses(protocol, writer, imu, clock)
+    return continue_poses(protocol, writer, imu, clock, view)

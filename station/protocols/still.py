@@ -38,6 +38,7 @@ import numpy as np
 from station import limits
 from station.acquire import interrupts
 from station.acquire.recorder import Recorder
+from station.acquire.watching import Unwatched
 from station.errors import InputError, ProtocolError
 from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
@@ -258,33 +259,36 @@ def run_states(protocol, recorder, first: str) -> None:
         raise
 
 
-def record_poses(protocol, imu, spec, clock, path, metadata: dict) -> None:
+def record_poses(protocol, imu, spec, clock, path, metadata: dict, view=None) -> None:
     """Run a still-pose `protocol` on the opened `imu` driver (stream `spec`) into the new session
-    file `path` with `metadata`; the file keeps every sample and event whatever happens."""
+    file `path` with `metadata`; the file keeps every sample and event whatever happens. `view`:
+    who watches (`station.acquire.watching`), or None."""
     with SessionWriter.create(path, metadata, {"imu": spec}, clock=clock) as writer:
-        _run_poses(protocol, writer, imu, clock, [])
+        _run_poses(protocol, writer, imu, clock, [], view)
 
 
-def continue_poses(protocol, writer, imu, clock) -> int:
+def continue_poses(protocol, writer, imu, clock, view=None) -> int:
     """Run a still-pose `protocol` into `writer` (`SessionWriter.resume`d) from the first pose not
     completed, on the opened `imu` driver; returns that pose (`settings.poses` when none was
-    left). The completed poses must be 0, 1, ... in order, as the protocols record them."""
+    left). The completed poses must be 0, 1, ... in order, as the protocols record them. `view`:
+    who watches (`station.acquire.watching`), or None."""
     done = [e for e in writer.events() if e.kind == "position_done"]
     if [e.position for e in done] != list(range(len(done))):
         raise InputError(f"{writer.path}: the completed poses are not 0, 1, ... in order; the "
                          "session was not recorded by this station's still-pose protocols")
     if len(done) < protocol.settings.poses:
-        _run_poses(protocol, writer, imu, clock, done)
+        _run_poses(protocol, writer, imu, clock, done, view)
     return len(done)
 
 
-def _run_poses(protocol, writer, imu, clock, done: list) -> None:
+def _run_poses(protocol, writer, imu, clock, done: list, view=None) -> None:
     """Run `protocol` after the completed poses `done` (their `position_done` events) with a
-    recorder reading `imu` into `writer`."""
+    recorder reading `imu` into `writer`, watched by `view` (None: `Unwatched`)."""
+    view = view or Unwatched()
     spec = writer.specs["imu"]
-    tap = StreamTap(imu, spec.rate_hz, spec.counts_per_unit)
+    tap = StreamTap(view.observe_imu(imu), spec.rate_hz, spec.counts_per_unit)
     with Recorder(writer, tap, clock=clock) as recorder:
-        protocol.run(recorder, tap, done)
+        view.follow(protocol).run(view.observe_recorder(recorder), tap, done)
 
 
 def recorded_ups(done: list) -> list:
