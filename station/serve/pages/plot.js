@@ -19,9 +19,12 @@ const PLOT = (() => {
     const X = (t) => 62 + (w - 68) * (t - start) / span;
     const Y = (v) => 6 + (h - 24) * (hi - v) / (hi - lo);
     g.strokeStyle = "#dde3ea"; g.fillStyle = "#667"; g.lineWidth = 1;
+    // enough digits that the three labels differ however small the span is beside the level
+    const level = Math.max(Math.abs(lo), Math.abs(hi));
+    const digits = Math.min(10, Math.max(3, 3 + Math.ceil(Math.log10(level / (hi - lo)))));
     for (const v of [lo + pad, (lo + hi) / 2, hi - pad]) {
       g.beginPath(); g.moveTo(62, Y(v)); g.lineTo(w, Y(v)); g.stroke();
-      g.fillText(v.toPrecision(3), 2, Y(v) + 4);
+      g.fillText(v.toPrecision(digits), 2, Y(v) + 4);
     }
     g.fillText(`${span} s`, w - 40, h - 4);
     const n = points[0][1].length;
