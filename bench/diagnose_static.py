@@ -22,13 +22,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from station.diagnose import quantisation
 from station.diagnose.static import CANDIDATES, base, diagnose_static, from_arrays, untestable
 from station.diagnose.static_report import load
 from station.imports.recordings import import_csv, import_text
+from station.model.constants import STANDARD_GRAVITY
 from station.model.effects import parse_all
+from station.model.frames import eps
 from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
+from station.sim.noise import simulated_noise
 from station.sim.static import simulate_static, static_gyro
+from station.solve.uncertainty import crlb
 
 ROOT = Path(__file__).resolve().parents[1]
 FS = 100.0
@@ -42,9 +47,26 @@ CASES = {
     "earth_rate_sidereal": ((), ("earth_rate",), 2e-4),
     "g_sensitivity": ((), ("g_sensitivity=matrix=" + ":".join(f"{x:g}" for x in G_TRUE.ravel()),),
                       2e-3),
+    "none_coloured": ((), (), 2e-3),
+    "outliers_20sigma": (("outliers=rate=2e-3,size=0.2",), (), 2e-3),
+    "outliers_40sigma": (("outliers=rate=2e-3,size=0.4",), (), 2e-3),
+    "quantised_6sigma": ((), (), 2e-3),
+    "quantised_12sigma": ((), (), 2e-3),
 }
 """Case -> (accelerometer effects, gyro effects, gyro sigma per sample in rad/s). The sidereal
-Earth rate (7.29e-5 rad/s) is hidden on a gyro 10 x quieter (interval means 1e-5 rad/s)."""
+Earth rate (7.29e-5 rad/s) is hidden on a gyro 10 x quieter (interval means 1e-5 rad/s). The
+outliers (spikes of 0.2 and 0.4 m/s^2 on 0.2 % of the accelerometer's samples) are 20 and 40 x
+the accelerometer's noise (0.0098 m/s^2), 2.4 and 4.8 x the detection limit (a spike beyond 8
+robust sigma of its neighbours' reference, whose scatter is about 1.05 x the noise)."""
+STEP = {"quantised_6sigma": 6.0, "quantised_12sigma": 12.0}
+"""Case -> the accelerometer's quantisation step in noise sigmas (0.0098 m/s^2): 2.1 and 4.3 x
+the step at which the error a pose's mean keeps (station.diagnose.quantisation.kept) equals the
+white noise of a mean of 400 samples (2.8 sigma)."""
+COLOURED = {"none_coloured": ((2e-4, 1e-5), (2e-5, 1e-6))}
+"""Case -> coloured noise added to the (accelerometer, gyro) samples: (bias instability B,
+random walk K) (station.sim.noise; docs/noise.md's terms), in m/s^2 and m/s^2/sqrt(s), rad/s and
+rad/s/sqrt(s): flicker floors of 0.7 and 0.07 x the interval means' white noise, random walks of
+0.2 and 0.02 x it over a pose."""
 REAL = [ROOT.parent / "shared" / "data" / "real", Path("/work/shared/data/real")]
 
 
@@ -52,18 +74,50 @@ def session(case: str, seed: int, poses: int = 20, still: float = 4.0, move: flo
     """(StaticData, truth) of one simulated free-static session hiding `case`: `poses` still
     intervals of `still` s, turns of `move` s between them."""
     acc_fx, gyro_fx, sigma = CASES[case]
-    unit = accelerometer_triad(np.random.default_rng(seed), fs=FS)
+    noise = 100e-6 * STANDARD_GRAVITY * np.sqrt(FS)  # accelerometer_triad's, per sample
+    coarse = {"counts_per_unit": 1 / (STEP[case] * noise)} if case in STEP else {}
+    unit = accelerometer_triad(np.random.default_rng(seed), fs=FS, **coarse)
     sim = simulate_static(unit, poses, still, move, effects=parse_all(list(acc_fx)))
-    acc = sim.arrays["y"][0] * sim.arrays["lsb"]
-    gyro = static_gyro(sim.truth, len(acc), np.random.default_rng(seed + 1000), sigma=sigma,
-                       effects=parse_all(list(gyro_fx)))
-    return from_arrays(acc, FS, gyro=gyro, gravity=sim.truth["gravity"]), sim.truth
+    lsb = sim.arrays["lsb"]
+    acc = sim.arrays["y"][0] * lsb
+    rng = np.random.default_rng(seed + 1000)
+    gyro = static_gyro(sim.truth, len(acc), rng, sigma=sigma, effects=parse_all(list(gyro_fx)))
+    if case in COLOURED:
+        (b_acc, k_acc), (b_gyro, k_gyro) = COLOURED[case]
+        acc = lsb * np.round(acc / lsb + coloured(acc.shape, b_acc, k_acc, rng) / lsb)
+        gyro = gyro + coloured(gyro.shape, b_gyro, k_gyro, rng)
+    n = round(still * FS)
+    kept = quantisation.kept(unit.sigma, unit.lsb)
+    truth = {**sim.truth, "sigma_mean": np.sqrt((unit.sigma**2 + unit.lsb**2 / 12 - kept) / n
+                                                + kept)}
+    return from_arrays(acc, FS, gyro=gyro, gravity=sim.truth["gravity"]), truth
+
+
+def coloured(shape: tuple, bias_instability: float, random_walk: float, rng) -> np.ndarray:
+    """(K, c) flicker and random walk, independent per channel (station.sim.noise)."""
+    return np.stack([simulated_noise(shape[0], FS, bias_instability=bias_instability,
+                                     random_walk=random_walk, rng=rng)
+                     for _ in range(shape[1])], 1)
+
+
+def calibration_errors(result, truth: dict) -> dict:
+    """eps (Eq. 19) of the accelerometer calibration before (the nominal one) and after the
+    diagnosis, the bound sqrt(trace(CRLB)) of the poses' interval means with the unit's white and
+    quantisation noise (the part a mean keeps, station.diagnose.quantisation), and 1 sd of eps
+    at the bound."""
+    a, v = np.asarray(truth["a"]), np.asarray(truth["v"])
+    cov = crlb(a, v, truth["sigma_mean"], estimate_bias=True)
+    bound = float(np.sqrt(np.trace(cov)))
+    before, after = result.steps[0].model.calibration, result.calibration
+    return {"eps_before": eps(a, before.a), "eps_after": eps(a, after.a), "bound": bound,
+            # eps^2 = |e|^2, e ~ N(0, C): var 2 tr C^2, d eps = d(eps^2) / 2 eps
+            "eps_sd_at_bound": float(np.sqrt(2 * np.trace(cov @ cov)) / (2 * bound))}
 
 
 def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
     """Diagnose one session: named effects, verdict, first-step evidence, G z-scores, Earth
     rate; leave_out: the hidden effect is removed from the candidates too."""
-    data, _ = session(case, seed)
+    data, truth = session(case, seed)
     start = time.perf_counter()
     hidden = HIDDEN[case]
     result = diagnose_static(data, candidates=tuple(
@@ -72,7 +126,10 @@ def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
     out = {"named": result.effects, "seconds": time.perf_counter() - start,
            "unexplained": [u["statistic"] for u in result.unexplained],
            "resembles": [r["effect"] for r in result.resembles],
-           "log10_p_first": {k: e["log10_p"] for k, e in result.steps[0].evidence.items()}}
+           "log10_p_first": {k: e["log10_p"] for k, e in result.steps[0].evidence.items()},
+           "intervals": len(data.intervals), "outliers": data.outlier_test(result.alpha),
+           "quantised": bool(data.quantisation()["coarse"].any()),
+           **calibration_errors(result, truth)}
     fitted = result.final.fitted
     if "g_sensitivity" in fitted:
         f = fitted["g_sensitivity"]
@@ -84,9 +141,11 @@ def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
 
 
 HIDDEN = {"none": "none", "bias_drift": "bias_drift", "scale_nonlinearity": "scale_nonlinearity",
-          "earth_rate": "earth_rate", "earth_rate_sidereal": "earth_rate",
-          "g_sensitivity": "g_sensitivity"}
-"""Case -> the effect it hides."""
+          **dict.fromkeys(STEP, "quantised"), "earth_rate": "earth_rate",
+          "earth_rate_sidereal": "earth_rate", "g_sensitivity": "g_sensitivity",
+          "none_coloured": "none", "outliers_20sigma": "outliers", "outliers_40sigma": "outliers"}
+"""Case -> the effect it hides (outliers, quantised: the samples' law, reported beside the named
+effects)."""
 
 
 def expected(case: str) -> str:
@@ -99,6 +158,11 @@ def expected(case: str) -> str:
 def _right(want: str, r: dict) -> bool:
     """Whether a run's verdict is the right one for `want` (see `expected`)."""
     first = r["named"][0] if r["named"] else "none"
+    if r["outliers"]["detected"] != (want == "outliers") or r["quantised"] != (
+            want == "quantised"):
+        return False
+    if want in ("outliers", "quantised"):
+        return not r["named"] and not r["unexplained"]
     if want == "not earth_rate":
         return "earth_rate" not in r["named"]
     if want == "none":
@@ -135,6 +199,14 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
         if rates:
             entry["earth_rate_fitted"] = rates
         entry["log10_p_first"] = [r["log10_p_first"] for r in runs]
+        entry["outliers_detected"] = sum(r["outliers"]["detected"] for r in runs)
+        entry["quantised_reported"] = sum(r["quantised"] for r in runs)
+        entry["outlier_rate"] = [float(r["outliers"]["rate"].max()) for r in runs]
+        entry["intervals"] = [r["intervals"] for r in runs]
+        entry["eps_before_over_bound"] = [r["eps_before"] / r["bound"] for r in runs]
+        entry["eps_after_over_bound"] = [r["eps_after"] / r["bound"] for r in runs]
+        entry["worse_by_more_than_1sd"] = sum(r["eps_after"] > r["eps_before"]
+                                              + r["eps_sd_at_bound"] for r in runs)
         out[case] = entry
     return out
 
@@ -230,6 +302,13 @@ def show(out: dict) -> None:
             extra += "  rate " + ", ".join(f"{v:.2e}+-{s:.1e}" for v, s in r["earth_rate_fitted"])
         print(f"{case:20s} right {r['right_rate']:.2f} (exact {r['exact_rate']:.2f}) of "
               f"{r['sessions']}  {r['seconds_median']:.1f} s{extra}  {r['verdicts']}")
+        print(f"{'':20s} quantised {r['quantised_reported']}, outliers reported "
+              f"{r['outliers_detected']} (largest rate "
+              f"{max(r['outlier_rate']):.2%}), poses {min(r['intervals'])}-"
+              f"{max(r['intervals'])}, eps/bound before "
+              f"{np.round(r['eps_before_over_bound'], 2).tolist()} after max "
+              f"{max(r['eps_after_over_bound']):.2f}, worse by > 1 sd: "
+              f"{r['worse_by_more_than_1sd']}")
     for case, r in out.get("leave_one_effect_out", {}).items():
         print(f"left out {case:20s} {r['verdicts']}")
     if "speed" in out:

@@ -2,15 +2,18 @@
 static session can show (docs/diagnose.md, "Free-static sessions").
 
 Data: the accelerometer stream (m >= 3 channels) and optionally a gyro stream (3 channels), SI
-units, cut into still intervals (station.reduce.stillness.detect_still: on all channels, or as the
-user's `StillOptions` say: the command line's default is the accelerometer with the gyro's veto)
-and each interval into bins of about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the
-samples within the bins (white-noise assumption).
+units, its outliers replaced (station.diagnose.outliers), cut into still intervals
+(station.reduce.stillness.detect_still: on all channels, or as the user's `StillOptions` say: the
+command line's default is the accelerometer with the gyro's veto) and each interval into bins of
+about `BIN_S` seconds. Noise sigma_i = the pooled scatter of the samples within the bins
+(white-noise assumption) and the part of the quantisation error a mean keeps
+(station.diagnose.quantisation: 0 unless the channel is quantised coarser than its noise).
 
 Nominal model (the free-static calibration, station.reduce.free_static): accelerometer bin means
 a^T v_j + b with |v_j| = g in interval j (ellipsoid closed form + ML, station.calibrate), gyro
 bin means = one bias per channel. The twin predicts every bin of every still interval; the
-model's deviance is the chi2 of the bin means (white noise: var = sigma_i^2 / samples) plus the
+model's deviance is the chi2 of the bin means (white noise: var = sigma_i^2 / samples; a pose
+mean keeps the quantisation error common to its bins: `StaticData.whiten`) plus the
 rail pile-up deviance (station.diagnose.rails). Every extension is fitted jointly with the
 calibration (v_j, a upper triangular, b) by weighted nonlinear least squares on the bins; its
 evidence is the deviance decrease (station.diagnose.select).
@@ -23,7 +26,7 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import goodness, heldout, plausibility, rails
+from station.diagnose import goodness, heldout, outliers, plausibility, quantisation, rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy, settle
@@ -61,6 +64,8 @@ class StaticData:
         accelerometer, the others (0 or 3) the gyro.  t : (K,) s from the first sample.
     intervals : (P, 2) still intervals [start, stop).  bins : (B, 2) [start, stop) inside them;
     bin_interval : (B,) interval of each bin.  lsb : (c,) quantisation step of each channel.
+    outliers : (K, c) the samples found to be outliers (station.diagnose.outliers): x holds their
+        neighbours' median instead.
     """
 
     x: np.ndarray
@@ -72,6 +77,7 @@ class StaticData:
     bins: np.ndarray
     bin_interval: np.ndarray
     lsb: np.ndarray
+    outliers: np.ndarray
     units: tuple = ()
     notes: tuple = ()
 
@@ -87,6 +93,10 @@ class StaticData:
     def still(self) -> np.ndarray:
         """Sample indices of the bins, in order."""
         return np.concatenate([np.arange(a, z) for a, z in self.bins])
+
+    def outlier_test(self, alpha: float) -> dict:
+        """The outliers of the still samples against Gaussian noise (station.diagnose.outliers)."""
+        return outliers.test(self.outliers[self.still], alpha)
 
     @cached_property
     def lengths(self) -> np.ndarray:
@@ -105,15 +115,61 @@ class StaticData:
         return self.binmean(self.x)
 
     @cached_property
-    def sigma(self) -> np.ndarray:
-        """(c,) noise sigma pooled from the scatter within the bins."""
+    def scatter(self) -> np.ndarray:
+        """(c,) the samples' scatter about their bin means, pooled over the bins."""
         dev = self.x[self.still] - np.repeat(self.z, self.lengths, axis=0)
         return np.sqrt(np.sum(dev**2, 0) / (self.still.size - len(self.bins)))
 
     @cached_property
-    def weights(self) -> np.ndarray:
-        """(B, c) sqrt(samples) / sigma: whitening of the bin means."""
-        return np.sqrt(self.lengths)[:, None] / self.sigma
+    def analog(self) -> np.ndarray:
+        """(c,) noise sigma before quantisation (station.diagnose.quantisation)."""
+        return quantisation.analog_sigma(self.scatter, self.lsb)
+
+    @cached_property
+    def kept(self) -> np.ndarray:
+        """(c,) variance of the quantisation error that a mean keeps (0 when the noise dithers
+        the grid; up to step^2 / 12 for a channel quieter than its step)."""
+        return quantisation.kept(self.analog, self.lsb)
+
+    @cached_property
+    def sigma(self) -> np.ndarray:
+        """(c,) noise sigma of a sample: the scatter within the bins and the quantisation error
+        that the means keep (the scatter alone when the noise dithers the grid)."""
+        return np.sqrt(self.scatter**2 + self.kept)
+
+    @cached_property
+    def coarse(self) -> np.ndarray:
+        """(c,) channels quantised coarser than their noise (station.diagnose.quantisation)."""
+        return quantisation.coarse(self.lsb, self.analog)
+
+    def mean_sigma(self, n) -> np.ndarray:
+        """(..., c) sigma of a mean of n (...,) samples: scatter^2 / n + kept."""
+        n = np.asarray(n, float)[..., None]
+        return np.sqrt(self.scatter**2 / n + self.kept)
+
+    def whiten(self, r: np.ndarray) -> np.ndarray:
+        """(B, c) bin residuals r whitened: their part about their interval's mean by the
+        samples' sigma, that mean by its own (`mean_sigma`, which keeps the quantisation error
+        common to the interval's bins); with white noise sqrt(samples) r / sigma."""
+        n = self.interval_means[1]
+        w = self.lengths[:, None]
+        mean = np.stack([np.bincount(self.bin_interval, self.lengths * r[:, i], len(n))
+                         for i in range(self.c)], 1)[self.bin_interval] / n[self.bin_interval,
+                                                                            None]
+        return (np.sqrt(w) * (r - mean) / self.sigma
+                + np.sqrt(w / n[self.bin_interval, None]) * mean
+                / self.mean_sigma(n)[self.bin_interval])
+
+    def bin_weights(self) -> np.ndarray:
+        """(B, c) each bin's weight in its interval's mean over that mean's variance: summed
+        over an interval, the information of its mean (white noise: samples / sigma^2)."""
+        n = self.interval_means[1][self.bin_interval]
+        return self.lengths[:, None] / n[:, None] / self.mean_sigma(n) ** 2
+
+    def quantisation(self, names=(), units=()) -> dict:
+        """The step, noise and coarseness of each channel (station.diagnose.quantisation)."""
+        return quantisation.report(self.lsb, self.analog, names or [""] * self.c,
+                                   units or [""] * self.c)
 
     @cached_property
     def interval_means(self) -> tuple:
@@ -148,7 +204,10 @@ def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVIT
         default = "acc" if gyro is None else "acc+gyro"
         detector = {**still.detector(fs, range(m), range(m, x.shape[1]), default=default),
                     **detector}
-    found = detect_still(x, fs, **detector)
+    lsb = quantisation.step(x)
+    cleaned = outliers.clean(x, lsb)
+    x = cleaned.x
+    found = detect_still(x, fs, floor=lsb**2 / 12, **detector)
     if len(found.intervals) < 9 + 1:
         vetoed = "gyro" in detector.get("groups", {})
         raise CalibrationInputError(
@@ -162,8 +221,8 @@ def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVIT
     still = found
     bins, owner = _bins(still.intervals, round(BIN_S * fs))
     return StaticData(x, np.arange(len(x)) / fs, float(fs), acc.shape[1], float(gravity),
-                      still.intervals, bins, owner, _lsb(x[still.intervals[0, 0]:]),
-                      tuple(units), tuple(notes))
+                      still.intervals, bins, owner, lsb, cleaned.flags, tuple(units),
+                      tuple(notes))
 
 
 def _bins(intervals: np.ndarray, n: int):
@@ -175,17 +234,6 @@ def _bins(intervals: np.ndarray, n: int):
         bins += list(itertools.pairwise(edges))
         owner += [j] * k
     return np.array(bins), np.array(owner)
-
-
-def _lsb(x: np.ndarray) -> np.ndarray:
-    """(c,) quantisation step: the smallest gap between distinct values, ignoring gaps below
-    1e-3 of the median gap (decimal printing of imported numbers)."""
-    out = []
-    for col in x.T:
-        d = np.diff(np.unique(col))
-        d = d[d > 1e-3 * np.median(d)] if d.size else np.array([1.0])
-        out.append(d.min())
-    return np.array(out)
 
 
 # ------------------------------------------------------------------------------------- model
@@ -224,7 +272,7 @@ def base(data: StaticData) -> Base:
     """Nominal calibration of the interval means (weighted by sigma_i / sqrt(samples))."""
     means, n = data.interval_means
     m = data.m
-    sigma = data.sigma[:m, None] / np.sqrt(n)[None]
+    sigma = data.mean_sigma(n)[:, :m].T
     pose = np.arange(len(means))
     rail = np.stack([data.x[data.still].min(0), data.x[data.still].max(0)])
     try:
@@ -313,7 +361,7 @@ def predict(data: StaticData, b0: Base, names, p: dict, basis=None) -> np.ndarra
         out[:, data.m:] += earth_rates(b0, u, north, headings(data, b0, u, out))[
             data.bin_interval]
     if "saturation" in names:
-        out = clipped(out, b0.rails, data.sigma)
+        out = clipped(out, b0.rails, data.analog)
     return out
 
 
@@ -349,7 +397,7 @@ def headings(data: StaticData, b0: Base, u: float, rest: np.ndarray) -> np.ndarr
     """(P,) heading of the Earth rate's horizontal part in each interval, profiled out: the
     direction of the free 2-D weighted fit of the horizontal gyro residual net of the vertical
     part u and the rest of the model `rest` (B, c) (station.diagnose.effects.tone_null's phase)."""
-    w = data.lengths[:, None] / data.sigma[data.m:] ** 2
+    w = data.bin_weights()[:, data.m:]
     r = (data.z - rest)[:, data.m:] - u * b0.up[data.bin_interval]
     g = np.stack([np.bincount(data.bin_interval, (w * r)[:, i], len(data.intervals))
                   for i in range(data.c - data.m)], 1)
@@ -411,15 +459,17 @@ class Model:
 
 def rail_deviance(data: StaticData, b0: Base, prediction: np.ndarray, clip: bool) -> float:
     """Poisson deviance of the still samples at each channel's lowest and highest value against
-    the twin's expectation (station.diagnose.rails)."""
-    x = data.x[data.still]
-    mu = np.repeat(prediction, data.lengths, axis=0)
-    obs = np.stack([(x == b0.rails[0]).sum(0), (x == b0.rails[1]).sum(0)])
+    the twin's expectation (station.diagnose.rails); not on coarse channels, whose poses read a
+    few values each: the twin's means, fitted to the quantised ones, do not place the poses
+    within a step, and a pose read at the rail is quantisation as much as a clip."""
+    keep = ~data.coarse
+    x = data.x[data.still][:, keep]
+    mu = np.repeat(prediction, data.lengths, axis=0)[:, keep]
+    low, high, lsb, sigma = b0.rails[0, keep], b0.rails[1, keep], data.lsb[keep], data.analog[keep]
+    obs = np.stack([(x == low).sum(0), (x == high).sum(0)])
     exp = np.stack([
-        rails.pile_up((mu - b0.rails[0] - data.lsb / 2) / data.sigma, data.lsb / data.sigma,
-                      clip).sum(0),
-        rails.pile_up((b0.rails[1] - data.lsb / 2 - mu) / data.sigma, data.lsb / data.sigma,
-                      clip).sum(0),
+        rails.pile_up((mu - low - lsb / 2) / sigma, lsb / sigma, clip).sum(0),
+        rails.pile_up((high - lsb / 2 - mu) / sigma, lsb / sigma, clip).sum(0),
     ])
     return rails.deviance(obs, exp)
 
@@ -463,8 +513,8 @@ def _solve(data: StaticData, b0: Base, names, start, basis):
     layout = Layout.of(data, b0, names)
 
     def residual(theta):
-        return ((data.z - predict(data, b0, names, layout.unpack(theta), basis))
-                * data.weights).ravel()
+        return data.whiten(data.z - predict(data, b0, names, layout.unpack(theta),
+                                             basis)).ravel()
 
     sol = least_squares(residual, _start(data, b0, layout, start), method="trf",
                         jac=_jacobian(residual, _touched(data, b0, layout)), x_scale="jac",
@@ -566,7 +616,7 @@ def readings(data: StaticData, b0: Base, names, p: dict, basis) -> tuple:
     """((m, P) accelerometer interval means less what the extensions `names` (parameters p)
     add to the twin, their (m, P) standard errors)."""
     means, n = data.interval_means
-    sigma = np.broadcast_to(data.sigma[:data.m, None] / np.sqrt(n)[None], (data.m, n.size))
+    sigma = data.mean_sigma(n)[:, :data.m].T
     if not names:
         return means[:, :data.m].T, sigma
     bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
@@ -646,7 +696,7 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
     the sum is moment-matched to scale * chi2(nu).
     """
     _, n = data.interval_means
-    w = n[:, None] / data.sigma[data.m:] ** 2  # (P, 3) information per axis
+    w = 1 / data.mean_sigma(n)[:, data.m:] ** 2  # (P, 3) information per axis
     h = np.einsum("pik,pi,pil->pkl", b0.horizontal, w, b0.horizontal)
     scale, nu = tone_null(h)
     vertical = p["earth"].size == 2  # else the vertical part is in G (g_sensitivity)

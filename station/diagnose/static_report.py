@@ -25,7 +25,7 @@ def statistics(data: StaticData, model) -> dict:
     """{statistic: normalised gap} of a fitted model (station.diagnose.static.Model)."""
     m, c, p, nb = data.m, data.c, len(data.intervals), len(data.bins)
     free = model.base.cal is None  # one mean per distinct pose
-    r = (data.z - model.prediction) * data.weights  # whitened bin residuals
+    r = data.whiten(data.z - model.prediction)  # whitened bin residuals
     _, n = data.interval_means
     root = np.sqrt(data.lengths)
     big = np.stack([np.bincount(data.bin_interval, root * r[:, i], p) for i in range(c)], 1)
@@ -37,7 +37,7 @@ def statistics(data: StaticData, model) -> dict:
         out["gyro"] = float(np.sum(big[:, m:] ** 2) / max(p * (c - m) - (c - m), 1))
     out["within"] = float((np.sum(r**2) - np.sum(big**2)) / max((nb - p) * c, 1))
     out["trend"] = _trend(data, r)
-    out["rails"] = model.rails / (2 * c)
+    out["rails"] = model.rails / max(2 * int(np.sum(~data.coarse)), 1)
     return out
 
 
@@ -49,7 +49,7 @@ def dofs(data: StaticData, model) -> dict:
     nominal = m * (model.base.pose.max() + 1) if free else 3 * m - 3 + m + 2 * p
     slopes = int(np.sum(np.bincount(data.bin_interval, minlength=p) >= 2)) * c
     out = {"between": p * m - nominal, "within": max((nb - p) * c, 1), "trend": slopes,
-           "rails": 2 * c}
+           "rails": 2 * int(np.sum(~data.coarse))}
     if data.gyro:
         out["gyro"] = max(p * (c - m) - (c - m), 1)
     return out
@@ -64,7 +64,7 @@ def signature(data: StaticData, model, statistic: str) -> dict:
     if statistic == "rails":
         return {"note": "pile-up at the output rails that the twin does not expect"}
     p, m = len(data.intervals), data.m
-    r = (data.z - model.prediction) * data.weights
+    r = data.whiten(data.z - model.prediction)
     _, n = data.interval_means
     big = np.stack([np.bincount(data.bin_interval, np.sqrt(data.lengths) * r[:, i], p)
                     for i in range(data.c)], 1) / np.sqrt(n)[:, None]

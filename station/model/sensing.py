@@ -2,24 +2,25 @@
 
 Order: the sensed signal s = a^T v goes through `sensed` (scale_nonlinearity, then latency); the
 unit's white noise, its biases, the `offsets` (bias_drift) and the bias random walk are added;
-`saturate` clips (saturation); the unit quantises. `sense` runs the whole chain for the batch
-simulator (station.sim: n recordings of k samples) and, through `SensorUnit.sample`, for the live
-twins (one block of samples at a time). The diagnosis' twins (station.diagnose.prediction, and
-station.diagnose.static) build their noise-free expectation from the same stage functions.
+`spiked` adds spikes (outliers); `saturate` clips (saturation); the unit quantises. `sense` runs
+the whole chain for the batch simulator (station.sim: n recordings of k samples) and, through
+`SensorUnit.sample`, for the live twins (one block of samples at a time). The diagnosis' twins
+(station.diagnose.prediction, and station.diagnose.static) build their noise-free expectation
+from the same stage functions.
 """
 
 import dataclasses
 
 import numpy as np
 
-from station.model.effects import bias_drift, latency, saturation, scale_nonlinearity
+from station.model.effects import bias_drift, latency, outliers, saturation, scale_nonlinearity
 
 SENSED = ("scale_nonlinearity", "latency")
 """Effects on the sensed signal a^T v, in the order applied."""
 OFFSETS = ("bias_drift",)
 """Effects added to the output beside the biases."""
-OUTPUT = ("saturation",)
-"""Effects on the output before quantisation."""
+OUTPUT = ("outliers", "saturation")
+"""Effects on the output before quantisation, in the order applied."""
 SENSOR_EFFECTS = {*SENSED, *OFFSETS, *OUTPUT}
 """Effects acting on the sensor's output; the others act on the motion (rotary protocol only)."""
 LIVE_EFFECTS = {"scale_nonlinearity", "bias_drift", "saturation"}
@@ -42,6 +43,13 @@ def offsets(t_session: np.ndarray, rate: np.ndarray, effects: dict):
     if "bias_drift" in effects:
         return bias_drift.apply(t_session, rate, effects["bias_drift"])
     return 0.0
+
+
+def spiked(z: np.ndarray, effects: dict, rng: np.random.Generator) -> np.ndarray:
+    """Outputs z (..., m) with the spikes of outliers (drawn from `rng`), unchanged without it."""
+    if "outliers" in effects:
+        return outliers.apply(z, effects["outliers"], rng)
+    return z
 
 
 def saturate(z: np.ndarray, effects: dict, output_range: np.ndarray) -> np.ndarray:
@@ -72,7 +80,7 @@ def sense(unit, s: np.ndarray, t: np.ndarray, t0: np.ndarray, rate: np.ndarray, 
     if np.any(unit.bias_walk):
         z += walk() if walk is not None else unit.walk(
             n, k, gaps=np.r_[0.0, np.diff(t0) - k / unit.fs])
-    return unit.quantise(saturate(z, effects, unit.output_range))
+    return unit.quantise(saturate(spiked(z, effects, unit.rng), effects, unit.output_range))
 
 
 def refuse_motion_effects(effects: dict, protocol: str) -> None:

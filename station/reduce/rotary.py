@@ -17,12 +17,11 @@ import numpy as np
 
 from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
+from station.reduce.spikes import SPIKE, beyond
 from station.reduce.windows import StreamWindows, table_angle
 
 STUCK = 100
 """Samples in a window from which a channel that never changes is stuck."""
-SPIKE = 8.0
-"""Robust standard deviations beyond which a reading in a window is a spike."""
 OVERFULL = 1.01
 """Largest accepted ratio of samples found to samples due in a window (plus one each side)."""
 
@@ -191,9 +190,7 @@ def check_samples(j: int, name: str, counts) -> None:
             "varied: a stuck sensor or a frozen field in the frames.",
             "Check the sensor and the device profile's frame layout, then record the position "
             "again.")
-    median = np.median(x, axis=0)
-    scale = 1.4826 * np.median(np.abs(x - median), axis=0)
-    spikes = np.abs(x - median) > SPIKE * np.maximum(scale, 1.0)  # 1 count: quantisation
+    spikes = beyond(x - np.median(x, axis=0), 1.0)  # 1 count: quantisation
     if spikes.any():
         channels = np.flatnonzero(spikes.any(axis=0))
         raise CalibrationInputError(

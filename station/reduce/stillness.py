@@ -75,6 +75,7 @@ def detect_still(
     min_still: float = 1.5,
     timeout: float = 60.0,
     groups: dict | None = None,
+    floor=0.0,
 ) -> StillIntervals:
     """Still intervals of `samples` (K, c) sampled at `fs` Hz (any units, e.g. raw counts).
 
@@ -88,13 +89,15 @@ def detect_still(
                groups' statistics, so each group can veto stillness (e.g. {"acc": [0, 1, 2],
                "gyro": [3, 4, 5]}); columns in no group are averaged but do not decide. None: one
                group of every column.
+    floor      scalar or (c,): the least moving variance of a channel, e.g. its quantisation
+               step^2 / 12 (a channel quieter than its step reads one value at rest).
     """
     x = _as_samples(samples)
     k = x.shape[0]
     w = _window_samples(window, fs, k)
     _check_thresholds(enter, leave, min_still, timeout)
     groups = _groups(groups, x.shape[1])
-    mv = moving_variance(x - np.median(x, axis=0), w)
+    mv = np.maximum(moving_variance(x - np.median(x, axis=0), w), floor)
     if rest is None:
         rest, noise_var = noise_level(mv, groups, round(rest_length * fs), w, enter, rest_length)
     else:

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from station.diagnose import outliers
 from station.diagnose.goodness import log_sf
 from station.diagnose.model import parameters
 from station.diagnose.static import StaticData, untestable
@@ -69,7 +70,8 @@ def verdict(diagnosis) -> dict:
 
 def text(doc: dict) -> str:
     """A short human-readable summary."""
-    lines = [f"effects: {', '.join(doc['effects']) or 'none'} (alpha {doc['alpha']})"]
+    lines = [f"effects: {', '.join(doc['effects']) or 'none'} (alpha {doc['alpha']})",
+             *doc.get("findings", [])]
     for u in doc.get("unexplained", []):
         lines.append(f"UNEXPLAINED: {u['statistic']} gap {u['gap']:.3g} on {u['dof']} dof "
                      f"(log10 p {u['log10_p']:.1f}, threshold "
@@ -211,6 +213,7 @@ def html_report(doc: dict, plots=()) -> str:
             f"step-{len(steps)}", f"Model: {' + '.join(step['model'])}",
             f"{tables}<p>chosen: <b>{e(step['chosen'])}</b></p>"))
     effects = f"<p>Named effects: <b>{e(', '.join(doc['effects']) or 'none')}</b></p>"
+    effects += "".join(f"<p><b>{e(f)}</b></p>" for f in doc.get("findings", []))
     if doc.get("unexplained"):
         effects += ("<p><b>Unexplained:</b> " + e(", ".join(u["statistic"]
                                                           for u in doc["unexplained"])) + "</p>")
@@ -239,9 +242,14 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
     steps = [step_dict(step, _evidence_with_quasi(step.evidence, step.gap["within"]))
              for step in diagnosis.steps]
     white = white_noise_verdict(data, diagnosis.steps[-1], diagnosis.alpha)
+    names = channel_names(data)
+    spikes = data.outlier_test(diagnosis.alpha)
+    said = outliers.message(spikes, names)
+    grid = data.quantisation(names, [data.units[i] if i < len(data.units) else ""
+                                     for i in range(data.c)])
     lengths = (data.intervals[:, 1] - data.intervals[:, 0]) / data.fs
     not_testable = untestable(data, diagnosis.steps[0].model.base)
-    remarks = [white["message"], *data.notes] + [
+    remarks = [white["message"], *([] if spikes["detected"] else [said]), *data.notes] + [
         f"not testable in a static session: {k} ({v})" for k, v in not_testable.items()]
     return jsonable({
         "session": source,
@@ -260,11 +268,19 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
         **verdict(diagnosis),
         "not_testable": not_testable,
         "white_noise": white,
+        "outliers": spikes,
+        "quantisation": grid,
+        "findings": [*([said] if spikes["detected"] else []), *filter(None, [grid["message"]])],
         "steps": steps,
         "calibration_before": _summary(diagnosis.steps[0].model.calibration),
         "calibration_after": _summary(diagnosis.calibration),
         "remarks": remarks,
     })
+
+
+def channel_names(data: StaticData) -> list:
+    """acc1.. for the accelerometer channels, gyro1.. for the gyro's."""
+    return [f"acc{i + 1}" for i in range(data.m)] + [f"gyro{i + 1}" for i in range(data.c - data.m)]
 
 
 def _summary(cal):

@@ -15,6 +15,7 @@ from station.model.effects.bias_drift import BiasDrift
 from station.model.effects.earth_rate import EarthRate
 from station.model.effects.g_sensitivity import GSensitivity
 from station.model.effects.latency import Latency
+from station.model.effects.outliers import Outliers
 from station.model.effects.rate_error import RateError
 from station.model.effects.saturation import Saturation
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
@@ -28,11 +29,13 @@ EFFECTS = {
     "saturation": Saturation,
     "axis_wobble": AxisWobble,
     "latency": Latency,
+    "outliers": Outliers,
 }
 """Effect name -> parameter dataclass. `none` means no effect."""
 SIZE = {"bias_drift": ("warmup", "heating"), "scale_nonlinearity": ("k2",),
         "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
-        "axis_wobble": ("angle_deg",), "latency": ("delay",)}
+        "axis_wobble": ("angle_deg",), "latency": ("delay",),
+        "outliers": ("rate", "size")}
 """The parameters that give an effect its size: all zero (their defaults), it changes nothing.
 `earth_rate` and `saturation` act with their defaults (the Earth's rate, the unit's range)."""
 

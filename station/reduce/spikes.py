@@ -1,0 +1,28 @@
+"""Spikes: readings far outside their noise's Gaussian law (a flipped bit, a corrupted frame, a
+glitching sensor), told from the noise by a robust scale that they cannot inflate.
+
+`beyond(dev, floor)`: deviations dev (K, c) from a reference the spikes do not move (a window's
+median, the median of a sample's neighbours) beyond `SPIKE` robust standard deviations (1.4826
+times the median absolute deviation, per channel, at least `floor`: the quantisation step, which
+a channel quieter than its step shows as scatter 0). Gaussian noise puts one sample in about
+8e14 there (`NULL_CHANCE`); a glitch puts many.
+"""
+
+import numpy as np
+from scipy.special import ndtr
+
+SPIKE = 8.0
+"""Robust standard deviations beyond which a reading is a spike."""
+NULL_CHANCE = 2 * ndtr(-SPIKE)
+"""Chance that a Gaussian deviation lies beyond SPIKE standard deviations (1.2e-15)."""
+
+
+def robust_sigma(dev: np.ndarray) -> np.ndarray:
+    """(c,) 1.4826 x the median absolute deviation of dev (K, c) (centred by the caller): the
+    standard deviation of Gaussian noise, whatever a few spikes add."""
+    return 1.4826 * np.median(np.abs(dev), axis=0)
+
+
+def beyond(dev: np.ndarray, floor=0.0) -> np.ndarray:
+    """(K, c) whether each deviation lies beyond SPIKE x max(robust_sigma, floor)."""
+    return np.abs(dev) > SPIKE * np.maximum(robust_sigma(dev), floor)
