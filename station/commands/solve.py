@@ -178,6 +178,7 @@ def run_batch(args, paths: list) -> int:
 
     from station.commands import keep_records
     from station.errors import InputError, StationError
+    from station.files.campaign import is_campaign
     from station.files.session.check import survey_all
 
     if args.out is not None:
@@ -189,6 +190,9 @@ def run_batch(args, paths: list) -> int:
     for path in paths:
         one = argparse.Namespace(**{**vars(args), "session": path})
         try:
+            if is_campaign(path):
+                raise InputError(f"{path} is a thermal campaign: solve it on its own "
+                                 "(`station solve CAMPAIGN`), not in a batch")
             summaries, code = _solved(one)
         except (StationError, FileExistsError) as err:
             code = getattr(err, "exit_code", 2)
@@ -245,11 +249,7 @@ def _solved(args) -> tuple:
         still_values,
     )
     from station.errors import InputError
-    from station.files.campaign import is_campaign
 
-    if is_campaign(args.session):
-        raise InputError(f"{args.session} is a thermal campaign: solve it on its own "
-                         "(`station solve CAMPAIGN`), not in a batch")
     existing_session(args.session, check=not args.no_check)
     units = [] if args.stream is not None else session_units(args.session)
     outs = unit_files(args.out or args.session, units, args.force) if units else \
