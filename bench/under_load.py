@@ -3,20 +3,24 @@
 Starts `--hogs` processes that spin a core each (default 2), then runs `station demo --json`
 `--demos` times, `--thermal` thermal campaigns on the thermal twin (recorded and solved), and the
 test suite (`pytest`, quiet by the pyproject's addopts; or the files given with --tests; skipped
-with --no-suite), all at nice 19 with --nice; prints each demo's exit code, verdict, eps ratio
-and real-time factor, each campaign's exit code, the suite's pass, fail and error counts and the
-load average after each part; the hogs are stopped whatever happens. One JSON object with --json.
+with --no-suite; `--suites 2` runs it twice at once), all at nice 19 with --nice; prints each
+demo's exit code, verdict, eps ratio and real-time factor, each campaign's exit code, each
+suite run's pass, fail and error counts and the load average after each part; the hogs are
+stopped whatever happens. One JSON object with --json.
 
     .venv/bin/python -P bench/under_load.py [--hogs 6] [--nice] [--demos 5] [--positions 20]
-        [--thermal 3] [--no-suite] [--tests tests/test_demo.py ...] [--timeout 14400] [--json]
+        [--thermal 3] [--no-suite] [--suites 2] [--log DIR] [--tests tests/test_demo.py ...]
+        [--timeout 14400] [--json]
 """
 
 import argparse
+import concurrent.futures
 import contextlib
 import json
 import multiprocessing
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -78,16 +82,35 @@ def _text(output) -> str:
     return output.decode(errors="replace") if isinstance(output, bytes) else (output or "")
 
 
-def run(cmd: list, nice: bool, timeout: float) -> tuple:
+def run(cmd: list, nice: bool, timeout: float, log: Path | None = None) -> tuple:
     """(CompletedProcess, wall seconds) of `cmd` in the repository, at nice 19 if asked; past
-    `timeout` wall seconds the command is killed and its exit is None (its output so far kept)."""
+    `timeout` wall seconds the command is killed and its exit is None (its output so far kept).
+    With `log`, its standard output goes to that file as it is written (to watch a long run)."""
     start = time.perf_counter()
+    if log is not None:
+        with open(log, "w") as out:
+            done = run_logged(cmd, nice, timeout, out)
+        return subprocess.CompletedProcess(cmd, done.returncode, log.read_text(errors="replace"),
+                                           done.stderr), time.perf_counter() - start
     try:
         done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
                               preexec_fn=(lambda: os.nice(19)) if nice else None, check=False)
     except subprocess.TimeoutExpired as late:
         done = subprocess.CompletedProcess(cmd, None, _text(late.stdout), _text(late.stderr))
     return done, time.perf_counter() - start
+
+
+def run_logged(cmd: list, nice: bool, timeout: float, out) -> subprocess.CompletedProcess:
+    """`cmd` with its standard output written to the open file `out`; exit None past `timeout`."""
+    with subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.PIPE, text=True,
+                          preexec_fn=(lambda: os.nice(19)) if nice else None) as child:
+        try:
+            _, err = child.communicate(timeout=timeout)
+            return subprocess.CompletedProcess(cmd, child.returncode, "", err)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            _, err = child.communicate()
+            return subprocess.CompletedProcess(cmd, None, "", err)
 
 
 def demos(k: int, nice: bool, positions: int) -> list:
@@ -134,12 +157,35 @@ def outcomes(stdout: str) -> dict:
     return {m[2] or m[3]: m[1] or m[4] for m in OUTCOME.finditer(stdout)}
 
 
-def suite(tests: list, nice: bool, timeout: float) -> dict:
+def slowdown(nice: bool) -> float:
+    """Wall seconds per CPU second of a small CPU-bound child (0.5 s of CPU) beside the hogs, at
+    nice 19 if asked: how much of a core the work gets (CFS gives a nice-19 task 15/1039 of a
+    core beside a nice-0 hog on it)."""
+    spend = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.5: pass"
+    _, seconds = run([sys.executable, "-c", spend], nice, 3600)
+    return seconds / 0.5
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds of the children waited for so far (with theirs)."""
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
+
+
+def suites(k: int, tests: list, nice: bool, timeout: float, logs: Path | None) -> list:
+    """k runs of the suite at once (each beside the hogs and the other runs), as `suite`."""
+    with concurrent.futures.ThreadPoolExecutor(k) as pool:
+        runs = [pool.submit(suite, tests, nice, timeout,
+                            logs / f"suite{i + 1}.log" if logs else None) for i in range(k)]
+        return [r.result() for r in runs]
+
+
+def suite(tests: list, nice: bool, timeout: float, log: Path | None = None) -> dict:
     """The test suite (or `tests`), each test's outcome printed as it ends (`--verbosity=1`):
     counts, failures, wall seconds, the slowest tests (pytest's --durations lines); killed after
     `timeout` s (exit None; `progress` and `failed_so_far`: the tests ended by then)."""
     done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
-                         "--verbosity=1", *tests], nice, timeout)
+                         "--verbosity=1", *tests], nice, timeout, log)
     ended = outcomes(done.stdout)
     counts = list(ended.values())
     return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
@@ -159,6 +205,10 @@ def main() -> None:
     parser.add_argument("--thermal", type=int, default=0,
                         help="thermal campaigns recorded and solved (default 0)")
     parser.add_argument("--no-suite", action="store_true", help="skip the test suite")
+    parser.add_argument("--suites", type=int, default=1,
+                        help="runs of the suite at once, each beside the hogs and the others")
+    parser.add_argument("--log", type=Path, help="a directory for each suite run's output "
+                        "(suiteN.log, written as the run goes)")
     parser.add_argument("--tests", nargs="*", default=[], help="test files (default: all)")
     parser.add_argument("--positions", type=int, default=20, help="each demo's positions")
     parser.add_argument("--timeout", type=float, default=4 * 3600,
@@ -167,33 +217,40 @@ def main() -> None:
     args = parser.parse_args()
     with hogging(args.hogs):
         load = []
-        out = {"hogs": args.hogs, "nice": args.nice, "demo": demos(args.demos, args.nice,
+        out = {"hogs": args.hogs, "nice": args.nice,
+               "wall_per_cpu_second": slowdown(args.nice), "demo": demos(args.demos, args.nice,
                                                                    args.positions)}
         load.append(os.getloadavg()[0])
         out["thermal"] = thermals(args.thermal, args.nice)
         load.append(os.getloadavg()[0])
         if not args.no_suite:
-            out["suite"] = suite(args.tests, args.nice, args.timeout)
+            if args.log:
+                args.log.mkdir(parents=True, exist_ok=True)
+            before = cpu_seconds()
+            out["suites"] = suites(args.suites, args.tests, args.nice, args.timeout, args.log)
+            out["suites_cpu_seconds"] = cpu_seconds() - before
             load.append(os.getloadavg()[0])
         out["load_average_1min"] = load
     if args.json:
         print(json.dumps(out, indent=1))
         return
     print(f"{args.hogs} CPU hogs beside the work{' (at nice 19)' if args.nice else ''}; load "
-          f"average after each part {', '.join(f'{x:.1f}' for x in load)}")
+          f"average after each part {', '.join(f'{x:.1f}' for x in load)}; a CPU-bound child "
+          f"took {out['wall_per_cpu_second']:.1f} wall s per CPU s")
     for d in out["demo"]:
         print(f"demo: exit {d['exit']} in {d['seconds']:.0f} s, verdict {d['verdict']}, eps / "
               f"sqrt(trace CRLB) {d['eps_over_sqrt_crlb']}, {d['real_time_factor']} x real time")
     for t in out["thermal"]:
         print(f"thermal campaign: exit {t['exit']} in {t['seconds']:.0f} s")
-    if "suite" in out:
-        s = out["suite"]
+    for s in out.get("suites", []):
         print(f"suite: {s['passed']} passed, {s['failed']} failed, {s['errors']} errors, "
               f"{s['skipped']} skipped in {s['seconds']:.0f} s"
               + (f" (stopped after the timeout; ended by then: {s['progress']})"
                  if s["exit"] is None else ""))
         for failure in s["failures"] or s["failed_so_far"]:
             print(f"  {failure}")
+    if "suites_cpu_seconds" in out:
+        print(f"the suite runs used {out['suites_cpu_seconds']:.0f} CPU s")
 
 
 if __name__ == "__main__":
