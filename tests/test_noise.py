@@ -16,6 +16,7 @@ from station.files.calfile import NoiseFigures
 from station.files.session import Session, SessionWriter, StreamSpec
 from station.reduce.noise import session_noise
 from station.sim.noise import simulated_noise
+from station.solve import noise
 from station.solve.allan_covariance import correlation, stretch_covariance, transfer
 from station.solve.noise import allan_curve, design, fit_noise, pooled
 
@@ -117,6 +118,24 @@ def test_counts_with_their_scale_give_the_si_curve():
     scale = np.array([1e3, 16.0])
     direct = allan_curve(counts / scale, RATE)
     assert np.allclose(allan_curve(counts, RATE, scale).avar, direct.avar, rtol=1e-12)
+
+
+def test_the_allan_variance_is_allantools_oadev_channel_by_channel(monkeypatch):
+    """Every channel of a stretch (raw counts with their scales, a slow drift in one) against
+    allantools.oadev of that channel alone, at every averaging factor; also when the stretch is
+    converted to floats a few channels at a time (BLOCK smaller than the stretch)."""
+    rng = np.random.default_rng(7)
+    k = 5000
+    counts = rng.integers(-2000, 2000, (k, 5)) + np.arange(k)[:, None] * [0, 0, 3, 0, 0]
+    scale = np.array([1e3, 16.0, 2.5, 1.0, 7e4])
+    whole = allan_curve(counts, RATE, scale)
+    monkeypatch.setattr(noise, "BLOCK", 2 * k)
+    np.testing.assert_allclose(allan_curve(counts, RATE, scale).avar, whole.avar, rtol=1e-12)
+    for c in range(5):
+        y = counts[:, c] / scale[c]
+        _, dev, _, _ = allantools.oadev(y - y.mean(), rate=RATE, data_type="freq",
+                                        taus=whole.m / RATE)
+        np.testing.assert_allclose(whole.avar[:, c], dev ** 2, rtol=1e-9)
 
 
 def test_pooling_weights_each_window_by_its_terms():

@@ -36,7 +36,6 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
-import allantools
 import numpy as np
 
 from station.errors import CalibrationInputError
@@ -136,10 +135,11 @@ def _longest_factor(length) -> int:
 
 def allan_curve(stretch, rate: float, counts_per_unit=None) -> AllanCurve:
     """The overlapping Allan variance of one static stretch (k, c) at `rate` Hz, channel by
-    channel (`allantools.oadev` on frequency data: the readings themselves), at `octave_factors`.
-    `counts_per_unit` (c,): the stretch holds raw counts, each channel divided by its scale when
-    it is analysed (so only one channel is ever held in floats). The channel's mean is taken out
-    first (the Allan variance does not see it; the phase's running sum then keeps its
+    channel, at `octave_factors` (`overlapping_avar`: the estimator of `allantools.oadev` on
+    frequency data, NIST SP 1065 eq. 11, for many channels at once). `counts_per_unit` (c,): the
+    stretch holds raw counts, each channel divided by its scale when it is analysed, `BLOCK`
+    values at a time (so a long stretch is never held in floats whole). Each channel's mean is
+    taken out first (the Allan variance does not see it; the running sum then keeps its
     precision)."""
     y = np.asarray(stretch)
     scale = np.ones(y.shape[-1]) if counts_per_unit is None else \
@@ -151,15 +151,33 @@ def allan_curve(stretch, rate: float, counts_per_unit=None) -> AllanCurve:
             f"Give stretches of at least {MIN_SAMPLES} samples (seconds of rest).")
     m = octave_factors(k)
     avar = np.empty((len(m), y.shape[1]))
-    for c in range(y.shape[1]):
-        column = y[:, c] / scale[c]
-        if not np.all(np.isfinite(column)):
-            raise CalibrationInputError(f"channel {c + 1} holds values that are not finite.",
-                                        "Give finite readings in SI units.")
-        _, dev, _, _ = allantools.oadev(column - column.mean(), rate=rate, data_type="freq",
-                                        taus=m / rate)
-        avar[:, c] = dev[:len(m)] ** 2
+    width = max(1, BLOCK // k)
+    for first in range(0, y.shape[1], width):
+        columns = y[:, first:first + width] / scale[first:first + width]
+        bad = np.flatnonzero(~np.all(np.isfinite(columns), axis=0))
+        if len(bad):
+            raise CalibrationInputError(
+                f"channel {first + bad[0] + 1} holds values that are not finite.",
+                "Give finite readings in SI units.")
+        avar[:, first:first + width] = overlapping_avar(columns - columns.mean(axis=0), m)
     return AllanCurve(m, m / rate, avar, (k - 2 * m + 1).astype(float), np.array([k]), rate)
+
+
+BLOCK = 1 << 22
+"""Values (samples x channels) of a stretch converted to floats at a time (32 MB)."""
+
+
+def overlapping_avar(y: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """(t, c) overlapping Allan variances of the readings y (k, c) at the averaging factors m
+    (t,): with the running sum x_j = y_0 + ... + y_(j-1) (x_0 = 0), the mean over the k - 2m + 1
+    starts i of (x_(i+2m) - 2 x_(i+m) + x_i)^2 / (2 m^2) (NIST SP 1065 eq. 11 on the phase;
+    allantools.oadev's estimator, tests/test_noise.py compares them)."""
+    x = np.concatenate([np.zeros((1, y.shape[1])), np.cumsum(y, axis=0)])
+    out = np.empty((len(m), y.shape[1]))
+    for j, f in enumerate(int(f) for f in m):
+        d = x[2 * f:] - 2.0 * x[f:len(x) - f] + x[:len(x) - 2 * f]
+        out[j] = np.einsum("ij,ij->j", d, d) / (2.0 * f * f * len(d))
+    return out
 
 
 def pooled(curves) -> AllanCurve:
@@ -197,7 +215,10 @@ def design(m, rate: float) -> np.ndarray:
 @lru_cache(maxsize=4096)
 def _greenhall(alpha: int, m: int, length: int) -> float:
     """edf of an overlapping Allan variance at factor m of `length` readings (length + 1 phase
-    points) for power-law noise alpha (`allantools.edf_greenhall`, Greenhall and Riley 2004)."""
+    points) for power-law noise alpha (`allantools.edf_greenhall`, Greenhall and Riley 2004;
+    imported here, where it is needed: allantools brings scipy.stats)."""
+    import allantools
+
     return float(allantools.edf_greenhall(alpha=alpha, d=2, m=int(m), N=int(length) + 1,
                                           overlapping=True))
 
@@ -221,18 +242,19 @@ def covariance(curve: AllanCurve, theta) -> np.ndarray:
     process, all three terms of the model), its variances scaled by Greenhall's finite-length
     factor for the noise that dominates at that tau (`_finite_length`; the correlations kept);
     the stretches are independent, so their covariances add with the squared pooling weights
-    (their numbers of terms over the sum): for the variances, Satterthwaite's pooled edf."""
+    (their numbers of terms over the sum): for the variances, Satterthwaite's pooled edf.
+    Stretches of one length have one covariance, computed once and counted as often."""
     theta = np.asarray(theta, float)
     parts = design(curve.m, curve.rate) * theta
     alpha = np.array(ALPHA)[np.argmax(parts, axis=1)]
     total = np.zeros((len(curve.m), len(curve.m)))
-    for n in curve.lengths:
+    for n, times in zip(*np.unique(curve.lengths, return_counts=True), strict=True):
         t = int(np.sum(curve.m <= _longest_factor(n)))
         m = curve.m[:t]
         scale = np.array([_finite_length(int(a), int(f), int(n))
                           for a, f in zip(alpha[:t], m, strict=True)])
         w = np.sqrt(scale) * (n - 2 * m + 1) / curve.terms[:t]
-        total[:t, :t] += stretch_covariance(m, int(n), theta, curve.rate) * np.outer(w, w)
+        total[:t, :t] += times * stretch_covariance(m, int(n), theta, curve.rate) * np.outer(w, w)
     return total
 
 
