@@ -126,6 +126,13 @@ def test_an_imu_that_stays_unplugged_ends_the_session_with_the_table_stopped(ses
     assert kinds[-4:] == ["fault", "resume", "resume", "abort"]
 
 
+SILENT_TABLE_REPLY = 10.0
+"""Wall seconds the table driver waits for each reply in the tests whose table stops answering:
+each unanswered try costs that much, three of them a timeout (the lockstep default, 30 s, made
+each such test last 90 s). A reply on the loopback takes milliseconds, a second on a very busy
+host: ten is still a wide margin for the tries that are answered."""
+
+
 class Declining(SimulatedTechnician):
     """A technician who answers 'no' to every question."""
 
@@ -136,7 +143,7 @@ class Declining(SimulatedTechnician):
 
 @pytest.mark.parametrize("answer", ["go on", "stop"])
 def test_modbus_timeout_stops_the_table_and_pauses_the_session(session, answer):  # noqa: F811 - the fixture
-    s = session()
+    s = session(reply=SILENT_TABLE_REPLY)
     if answer == "stop":
         b = s.bench
         s.protocol.operator = Declining(b.mounted, b.clock, 1.0, 0.5, 0)
@@ -177,7 +184,7 @@ class ClosedInput(SimulatedTechnician):
 def test_with_the_input_closed_the_device_cause_comes_first(session):  # noqa: F811 - the fixture
     """A table that stops answering while nobody can answer: the abort names the table's fault
     first, then the closed input (it said only "the operator closed the input" before)."""
-    s = session()
+    s = session(reply=SILENT_TABLE_REPLY)
     b = s.bench
     s.protocol.operator = ClosedInput(b.mounted, b.clock, 1.0, 0.5, 0)
     act = once(lambda: s.bench.table_twin.inject("drop", count=3))

@@ -39,10 +39,11 @@ KINDS = ["position_start", "static_start", "static_end", "rotate_start", "rotate
 class BenchSession:
     """A bench, its drivers, a session writer and a running recorder, for one test."""
 
-    def __init__(self, path, imu="serial", technician=None, settings=FAST, axes=None, speed=None):
+    def __init__(self, path, imu="serial", technician=None, settings=FAST, axes=None, speed=None,
+                 reply=None):
         self.bench = VirtualBench(imu, seed=3, speed=speed, remount_time=1.0).start()
         self.path = path
-        self._drivers = self.bench.drivers()
+        self._drivers = self.bench.drivers(reply)
         self.imu, self.table = self._drivers.__enter__()
         self.protocol = RotaryProtocol(self.table, technician or self.bench.technician,
                                        self.bench.clock, self.bench.with_margins(settings),

@@ -276,10 +276,13 @@ class VirtualBench:
         self.failures.after(exc)
 
     @contextlib.contextmanager
-    def drivers(self):
+    def drivers(self, reply: float | None = None):
         """(imu, table): the station's real drivers connected to the twins, closed on exit; the
-        table driver stops the table on exit whatever happened."""
-        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, clock=self.clock)
+        table driver stops the table on exit whatever happened. `reply`: wall seconds the table
+        driver waits for each reply (default `drivers.clock.reply_timeout` of the bench's
+        clock)."""
+        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, timeout=reply,
+                            clock=self.clock)
         with contextlib.ExitStack() as stack:
             imu = stack.enter_context(open_imu(self.kind, self.imu_address, self.profile,
                                                self.clock))
