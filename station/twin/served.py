@@ -93,7 +93,24 @@ class PortWatch:
             self._fd = None
 
 
-class BenchTwin:
+class Served:
+    """What a served twin (`BenchTwin`, `HandTwin`: `start`, `close` and a `bench`) shares: a
+    context manager that closes it and then raises its twins' failures."""
+
+    @property
+    def failures(self):
+        """The failures of the bench's twins (`drivers.twins.failure.Failures`)."""
+        return self.bench.failures
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, kind, exc, trace) -> None:
+        self.close()
+        self.failures.after(exc)
+
+
+class BenchTwin(Served):
     """A `VirtualBench` whose unit is mounted by a motorised fixture in the position the station
     asks for (the table controller's `mount` register).
 
@@ -226,18 +243,6 @@ class BenchTwin:
         self.bench.close()
         if self.clock_server is not None:
             self.clock_server.close()
-
-    @property
-    def failures(self):
-        """The failures of the bench's twins (`drivers.twins.failure.Failures`)."""
-        return self.bench.failures
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, kind, exc, trace) -> None:
-        self.close()
-        self.failures.after(exc)
 
     def addresses(self) -> dict:
         """Where the station finds the devices."""
@@ -415,7 +420,7 @@ def _tolerances_section(table: dict) -> str:
     return "\n[tolerances]\n" + "".join(f"{k} = {_toml(v)}\n" for k, v in table.items())
 
 
-class HandTwin:
+class HandTwin(Served):
     """A `station.twin.hand_bench.HandBench` whose technician follows the protocol on a metronome.
 
     protocol  : "static" (a triad turned by hand through the first `poses` guided poses, 5 deg
@@ -508,18 +513,6 @@ class HandTwin:
         self.bench.close()
         if self.clock_server is not None:
             self.clock_server.close()
-
-    @property
-    def failures(self):
-        """The failures of the bench's twins (`drivers.twins.failure.Failures`)."""
-        return self.bench.failures
-
-    def __enter__(self) -> Self:
-        return self.start()
-
-    def __exit__(self, kind, exc, trace) -> None:
-        self.close()
-        self.failures.after(exc)
 
     def profile_text(self, unit_serial: str | None = None) -> str:
         """A bench profile (`station record --profile`) for this protocol and device."""
