@@ -12,6 +12,7 @@ from station.imports.recordings import import_npz
 from station.reduce import timeline, windows
 from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.rotary import position_windows, rotary_readings
+from station.reduce.spikes import column_medians
 from station.reduce.timeline import sample_times, segment_breaks
 from station.reduce.windows import RowBlocks, StreamWindows, increasing_runs, window_ranges
 from station.sim import rotary as rotary_sim
@@ -121,6 +122,16 @@ def test_a_cut_of_a_block_is_what_a_read_of_its_rows_gives(tmp_path):
             assert (rows is None) == (want_rows is None)
             if rows is not None:
                 np.testing.assert_array_equal(rows, want_rows)
+
+
+@pytest.mark.parametrize("k", [1, 2, 7, 200, 201])
+def test_column_medians_are_numpys(k):
+    rng = np.random.default_rng(k)
+    for x in (rng.integers(-40, 40, (k, 5)).astype(np.int32), rng.normal(size=(k, 5))):
+        np.testing.assert_array_equal(column_medians(x), np.median(x, axis=0))
+    x = rng.normal(size=(k, 3))
+    x[k // 2, 1] = np.nan
+    np.testing.assert_array_equal(column_medians(x), np.median(x, axis=0))
 
 
 def test_a_window_read_by_rows_is_the_masked_whole_stream(session):

@@ -17,7 +17,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
-from station.reduce.spikes import SPIKE, beyond
+from station.reduce.spikes import SPIKE, beyond, column_medians
 from station.reduce.windows import StreamWindows, table_angle, table_blocks
 
 STUCK = 100
@@ -190,7 +190,7 @@ def check_samples(j: int, name: str, counts) -> None:
             "varied: a stuck sensor or a frozen field in the frames.",
             "Check the sensor and the device profile's frame layout, then record the position "
             "again.")
-    spikes = beyond(x - np.median(x, axis=0), 1.0)  # 1 count: quantisation
+    spikes = beyond(x - column_medians(x), 1.0)  # 1 count: quantisation
     if spikes.any():
         channels = np.flatnonzero(spikes.any(axis=0))
         raise CalibrationInputError(
