@@ -46,6 +46,7 @@ def signature_parts(data, make) -> tuple:
         x = make(slice(start, start + POSITIONS))
         bins.append(centred_bins(data, x))
         means.append(x[:, s0:s1].mean(1))
+        del x  # before the next chunk is made
     return np.concatenate(bins), np.concatenate(means)
 
 

@@ -82,8 +82,8 @@ def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
     """The Model of a calibration and fitted extensions: twin output and deviance."""
     ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
     pred = twin.predict(ctx, fitted, EXTENSIONS, sensed=False)  # z and mu are read (memory)
-    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
     exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
+    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)  # mu (z unclipped) is gone
     return Model(calibration, dict(fitted), ctx, chi2, rails.deviance(rails.observed(data), exp))
 
 
@@ -109,7 +109,7 @@ def _fit_one(ctx: twin.Context, fitted: dict, name: str):
     """The extension `name` fitted to the residuals of the twin with the other `fitted` ones
     (the twin's output lives only while this runs)."""
     pred = twin.predict(ctx, {k: f for k, f in fitted.items() if k != name}, EXTENSIONS)
-    r = np.subtract(ctx.data.y, pred.z, out=pred.z)  # z, this prediction's own, becomes r
+    r = twin.residual(ctx, pred)  # in z, this prediction's own
     pred = replace(pred, mu=None, z=None)  # the extensions read the rate and s (memory)
     return EXTENSIONS[name].fit(ctx, pred, r)
 

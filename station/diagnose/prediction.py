@@ -93,7 +93,7 @@ def predict(ctx: Context, fitted: dict, extensions: dict, sensed: bool = True) -
     for name in active:
         if stage[name] == "temperature":
             z += extensions[name].apply(ctx, fitted[name])
-    b = data.y.mean((0, 1)) - z.mean((0, 1))
+    b = data.y_mean - z.mean((0, 1))
     z += b  # in place: z is this function's own array (the sum above made it)
     mu = z
     for name in active:
@@ -103,5 +103,6 @@ def predict(ctx: Context, fitted: dict, extensions: dict, sensed: bool = True) -
 
 
 def residual(ctx: Context, prediction: Prediction) -> np.ndarray:
-    """Measured minus expected series (n, k, m)."""
-    return ctx.data.y - prediction.z
+    """Measured minus expected series (n, k, m), made in the prediction's z (a prediction is
+    made for one use: `RotaryData.residual`)."""
+    return ctx.data.residual(prediction.z)
