@@ -4,15 +4,17 @@ memory bounded)."""
 
 import numpy as np
 import pytest
+from test_session_damage import ROWS_PER_POSITION, write_session, zero_chunk
 
 from station.files import npz
 from station.files.session import Session
 from station.imports.recordings import import_npz
-from station.reduce import timeline
+from station.reduce import timeline, windows
 from station.reduce.eq18 import Reduced, reduce_rotary
 from station.reduce.rotary import position_windows, rotary_readings
+from station.reduce.spikes import column_medians
 from station.reduce.timeline import sample_times, segment_breaks
-from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
+from station.reduce.windows import RowBlocks, StreamWindows, increasing_runs, window_ranges
 from station.sim import rotary as rotary_sim
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming
@@ -86,6 +88,50 @@ def test_windowed_reads_give_the_whole_stream_readings(session):
         got, want = rotary_readings(s), whole_stream_readings(s)
     for name in Reduced.__dataclass_fields__:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+@pytest.mark.parametrize("block_bytes", [1, 200, 1 << 23])
+def test_readings_do_not_depend_on_the_block_size(session, monkeypatch, block_bytes):
+    """Windows cut from blocks of one row, of a few samples (a window spans several blocks and a
+    block several windows) and of the whole stream: the whole-stream readings, bit for bit."""
+    monkeypatch.setattr(windows, "BLOCK_BYTES", block_bytes)
+    with Session.open(session) as s:
+        got, want = rotary_readings(s), whole_stream_readings(s)
+    for name in Reduced.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def test_a_cut_of_a_block_is_what_a_read_of_its_rows_gives(tmp_path):
+    """Blocks over a damaged counts chunk: each cut leaves out the rows a read of its own range
+    leaves out, whether the block starts before, inside or after the damage."""
+    path = write_session(tmp_path / "s.h5")
+    first, end = zero_chunk(path, "streams/imu/counts", 1)
+    rng = np.random.default_rng(5)
+    with Session.open(path) as s:
+        def read(a, b):
+            part = s.stream("imu", a, b, columns=("counts",))
+            return [part.counts], part.rows
+
+        blocks = RowBlocks(read, 4000)
+        starts = np.sort(rng.integers(0, 4 * ROWS_PER_POSITION - 50, 40))
+        for a in [first - 10, first + 5, end - 3, *starts]:
+            b = min(a + int(rng.integers(1, 2500)), 4 * ROWS_PER_POSITION)  # rows of the file
+            (counts,), rows = blocks(a, b)
+            (want,), want_rows = read(a, b)
+            np.testing.assert_array_equal(counts, want)
+            assert (rows is None) == (want_rows is None)
+            if rows is not None:
+                np.testing.assert_array_equal(rows, want_rows)
+
+
+@pytest.mark.parametrize("k", [1, 2, 7, 200, 201])
+def test_column_medians_are_numpys(k):
+    rng = np.random.default_rng(k)
+    for x in (rng.integers(-40, 40, (k, 5)).astype(np.int32), rng.normal(size=(k, 5))):
+        np.testing.assert_array_equal(column_medians(x), np.median(x, axis=0))
+    x = rng.normal(size=(k, 3))
+    x[k // 2, 1] = np.nan
+    np.testing.assert_array_equal(column_medians(x), np.median(x, axis=0))
 
 
 def test_a_window_read_by_rows_is_the_masked_whole_stream(session):

@@ -27,7 +27,9 @@ REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spin
 class RotaryData:
     """One rotary session; arrays (n, k, m) unless noted, SI units.
 
-    counts : raw integer samples (for the rail pile-up); y = counts * lsb.
+    counts : raw integer samples (for the rail pile-up); y = counts * lsb, made when asked and
+        not kept (the statistics of the whole session are; residuals are made a position at a
+        time, `residual`).
     t : (k,) sample times within a position; t0 (n,) position starts (session time).
     times : (n, k) session times of the samples when the grid is not one contiguous stretch
         per position (a recorded session), else None (t0 + t).
@@ -61,9 +63,23 @@ class RotaryData:
     def shape(self) -> tuple:
         return self.counts.shape
 
-    @cached_property
+    @property
     def y(self) -> np.ndarray:
+        """(n, k, m) the samples in SI units, counts * lsb: a new array of the session's size on
+        each call, held only while a statistic of it is made (`reduced`, `y_mean`)."""
         return self.counts * self.lsb
+
+    @cached_property
+    def y_mean(self) -> np.ndarray:
+        """(m,) the mean of y over the session."""
+        return self.y.mean((0, 1))
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """y - z (n, k, m), made in z's array (the caller's own) a position at a time: no y of the
+        session's size is made."""
+        for j in range(len(z)):
+            np.subtract(self.counts[j] * self.lsb, z[j], out=z[j])
+        return z
 
     @cached_property
     def t(self) -> np.ndarray:
@@ -78,7 +94,7 @@ class RotaryData:
     def sigma(self) -> np.ndarray:
         """(m,) per-sample noise: the pooled standard deviation within the static windows."""
         s0, s1 = self.windows["static"]
-        return np.sqrt(self.y[:, s0:s1].var(1, ddof=1).mean(0))
+        return np.sqrt((self.counts[:, s0:s1] * self.lsb).var(1, ddof=1).mean(0))
 
     @cached_property
     def rate_factors(self) -> np.ndarray:

@@ -51,7 +51,7 @@ def features(data, model) -> dict:
     static (n, 1, m), trend (n, 2, m: static and rotating window), harmonics (n, 2 x
     len(HARMONICS), m), transients (n, 2, m: spin-up, spin-down)."""
     sig = data.sigma
-    r = data.y - model.prediction.z
+    r = data.residual(model.prediction.z)
     s0, s1 = data.windows["static"]
     b = r[:, s0:s1].mean(1)  # (n, m) static means net of the model
     n = b.shape[0]
@@ -85,7 +85,7 @@ def averaged_features(data, model) -> np.ndarray:
     """(n, 1, m) Eq. (18) reduction of the twin's residual series over the standard error of M:
     where the readings M miss the twin, per position and sensor (the `averaged` statistic's
     pattern; its value is the calibration's own chi2 / dof)."""
-    return (data.reduce(data.y - model.prediction.z).M / data.sigma_m).T[:, None]
+    return (data.reduce(data.residual(model.prediction.z)).M / data.sigma_m).T[:, None]
 
 
 def statistics(data, model) -> dict:

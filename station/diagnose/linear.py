@@ -17,6 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 BLOCKS = {"sensor": "m", "position": "n", "global": ""}
+POSITIONS = 16
+"""Positions of a signature made at once (`signature_parts`): 16 positions of 7000 samples of 12
+sensors are 11 MB, against the session's 336 MB at 500 positions."""
 
 
 def centred_bins(data, x: np.ndarray) -> np.ndarray:
@@ -30,6 +33,28 @@ def centred_static(data, x: np.ndarray) -> np.ndarray:
     s0, s1 = data.windows["static"]
     b = x[:, s0:s1].mean(1)
     return b - b.mean(0)
+
+
+def signature_parts(data, make) -> tuple:
+    """(centred_bins (n, K, m'), static-window means (n, m', not centred)) of a signature made
+    `POSITIONS` positions at a time by make(rows) -> (len(rows), k, m') for the positions `rows`
+    (a slice), so that no signature of the session's size is held: both parts are per position,
+    the same numbers as from the whole signature."""
+    s0, s1 = data.windows["static"]
+    bins, means = [], []
+    for start in range(0, data.shape[0], POSITIONS):
+        x = make(slice(start, start + POSITIONS))
+        bins.append(centred_bins(data, x))
+        means.append(x[:, s0:s1].mean(1))
+        del x  # before the next chunk is made
+    return np.concatenate(bins), np.concatenate(means)
+
+
+def centred_signature(data, make) -> tuple:
+    """(centred_bins, centred_static) of the signature make(rows) (`signature_parts`): what
+    `centred` gives of the whole signature."""
+    bins, means = signature_parts(data, make)
+    return bins, means - means.mean(0)
 
 
 def weights(data, sigma: np.ndarray) -> tuple:
@@ -88,22 +113,19 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
 
 
 def phase_fit(data, r: np.ndarray, tone, sigma: np.ndarray) -> tuple:
-    """A tone of one amplitude and a free phase per position. tone(phase_deg) -> (n, k, m) its
-    signature at unit amplitude and that phase (for every position); each of the two quadrature
-    signatures (0 and 90 degrees) is reduced to its centred bins and static means as it comes
-    and let go: the tone of any phases is combined from them (a per-position factor commutes
-    with the bins' centring within a position, not with the static means' across positions,
-    which are centred after). Returns (free, phase, lf, static): the per-position fit of the
-    quadrature pair (its h gives the null law), the phases (n,) in radians, the global fit of
-    the amplitude on the tone of those phases, and that tone's static-window means (n, m)."""
-    s0, s1 = data.windows["static"]
+    """A tone of one amplitude and a free phase per position. tone(phase_deg, rows) -> (len(rows),
+    k, m) its signature at unit amplitude and that phase for the positions `rows` (a slice); each
+    of the two quadrature signatures (0 and 90 degrees) is reduced to its centred bins and static
+    means a few positions at a time (`signature_parts`): the tone of any phases is combined from
+    them (a per-position factor commutes with the bins' centring within a position, not with the
+    static means' across positions, which are centred after). Returns (free, phase, lf,
+    static): the per-position fit of the quadrature pair (its h gives the null law), the phases
+    (n,) in radians, the global fit of the amplitude on the tone of those phases, and that
+    tone's static-window means (n, m)."""
     w = weights(data, sigma)
     rc = centred(data, r)
-    quadrature = []
-    for deg in (0.0, 90.0):
-        x = tone(deg)
-        quadrature.append((centred_bins(data, x), x[:, s0:s1].mean(1)))
-        del x
+    quadrature = [signature_parts(data, lambda rows, deg=deg: tone(deg, rows))
+                  for deg in (0.0, 90.0)]
     free = fit_binned(rc, [(b, m - m.mean(0)) for b, m in quadrature], w, "position")
     phase = np.arctan2(free.theta[:, 1], free.theta[:, 0])
     c, s = np.cos(phase), np.sin(phase)

@@ -39,7 +39,7 @@ class Model:
         """The twin's output, made again on each call: several models are held at once (the
         steps, the best candidate, the one being fitted) and each output is of the session's
         size, so a model keeps only what makes it."""
-        return twin.predict(self.ctx, self.fitted, EXTENSIONS)
+        return twin.predict(self.ctx, self.fitted, EXTENSIONS, sensed=False)
 
     @property
     def names(self) -> tuple:
@@ -72,8 +72,8 @@ def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
     to the twin of `ctx` (except those the calibration models itself), their standard error and
     the options of station.calibrate."""
     inside, options = _in_calibration(fitted)
-    added = twin.predict(ctx, fitted, EXTENSIONS).z
-    added -= twin.predict(ctx, inside, EXTENSIONS).z  # one twin output held at a time
+    added = twin.predict(ctx, fitted, EXTENSIONS, sensed=False).z
+    added -= twin.predict(ctx, inside, EXTENSIONS, sensed=False).z  # one output held at a time
     return (data.reduced.M - data.reduce(added).M, noise(data, "saturation" in fitted),
             options)
 
@@ -81,9 +81,9 @@ def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
     """The Model of a calibration and fitted extensions: twin output and deviance."""
     ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
-    pred = replace(twin.predict(ctx, fitted, EXTENSIONS), s=None)  # z and mu are read (memory)
-    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)
+    pred = twin.predict(ctx, fitted, EXTENSIONS, sensed=False)  # z and mu are read (memory)
     exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
+    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)  # mu (z unclipped) is gone
     return Model(calibration, dict(fitted), ctx, chi2, rails.deviance(rails.observed(data), exp))
 
 
@@ -109,7 +109,7 @@ def _fit_one(ctx: twin.Context, fitted: dict, name: str):
     """The extension `name` fitted to the residuals of the twin with the other `fitted` ones
     (the twin's output lives only while this runs)."""
     pred = twin.predict(ctx, {k: f for k, f in fitted.items() if k != name}, EXTENSIONS)
-    r = twin.residual(ctx, pred)
+    r = twin.residual(ctx, pred)  # in z, this prediction's own
     pred = replace(pred, mu=None, z=None)  # the extensions read the rate and s (memory)
     return EXTENSIONS[name].fit(ctx, pred, r)
 

@@ -37,8 +37,9 @@ class Context:
 class Prediction:
     """The twin's noise-free series: rate (n, k) true table rate, s = a^T omega (n, k, m) the
     sensed rate, mu (n, k, m) the output before clipping, z (n, k, m) the expected output, b (m,)
-    the biases. Each (n, k, m) array is of the session's size: a Prediction is made for one use
-    and dropped (station.diagnose.model.Model recomputes its own)."""
+    the biases (s None when not asked for: `predict`). Each (n, k, m) array is of the session's
+    size: a Prediction is made for one use and dropped (station.diagnose.model.Model recomputes
+    its own)."""
 
     rate: np.ndarray
     s: np.ndarray
@@ -62,11 +63,13 @@ def context(data, a, v, sigma) -> Context:
                    completion(u))
 
 
-def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
+def predict(ctx: Context, fitted: dict, extensions: dict, sensed: bool = True) -> Prediction:
     """The expected series of the model: nominal plus the `fitted` extensions ({name: Fitted}),
     each at its stage: the motion's by extensions[name].apply, the sensor's through the output
     chain's stages (station.model.sensing: sensed, offsets) with extensions[name].params, the
-    output's (an expectation over the noise) by extensions[name].apply."""
+    output's (an expectation over the noise) by extensions[name].apply. Without `sensed` the
+    sensed rate s is not kept (None): its array becomes z's, one array of the session's size
+    fewer (the extensions' fits read s; the statistics read z and mu)."""
     data = ctx.data
     active = [name for name in ORDER if name in fitted]
     stage = {name: extensions[name].STAGE for name in active}
@@ -82,11 +85,15 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
     del omega  # (n, k, d): no extension reads it once s is made
     sensor = {name: extensions[name].params(fitted[name]) for name in active
               if stage[name] in ("sensed", "offset")}
-    z = sensing.sensed(s, data.t, sensor) + sensing.offsets(data.t_session, rate, sensor)
+    z = sensing.sensed(s, data.t, sensor)
+    if z is s and sensed:
+        z = z.copy()  # s is kept
+    sensing.offsets(data.t_session, rate, sensor, out=z)  # in place: z is this function's own
+    s = s if sensed else None
     for name in active:
         if stage[name] == "temperature":
             z += extensions[name].apply(ctx, fitted[name])
-    b = data.y.mean((0, 1)) - z.mean((0, 1))
+    b = data.y_mean - z.mean((0, 1))
     z += b  # in place: z is this function's own array (the sum above made it)
     mu = z
     for name in active:
@@ -96,5 +103,6 @@ def predict(ctx: Context, fitted: dict, extensions: dict) -> Prediction:
 
 
 def residual(ctx: Context, prediction: Prediction) -> np.ndarray:
-    """Measured minus expected series (n, k, m)."""
-    return ctx.data.y - prediction.z
+    """Measured minus expected series (n, k, m), made in the prediction's z (a prediction is
+    made for one use: `RotaryData.residual`)."""
+    return ctx.data.residual(prediction.z)

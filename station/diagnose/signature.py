@@ -92,7 +92,7 @@ def spectrum(data, model) -> dict:
         return {}
     w = 1.0 / data.sigma**2
     cov = np.linalg.inv((a * w) @ a.T)
-    r = data.y - model.prediction.z
+    r = data.residual(model.prediction.z)
     r0 = data.windows["rotating"][0]
     out = {"with_table": [], "against_table": [], "axial": []}
     grid = frequencies(data)

@@ -37,12 +37,13 @@ def sensed(s: np.ndarray, t: np.ndarray, effects: dict) -> np.ndarray:
     return s
 
 
-def offsets(t_session: np.ndarray, rate: np.ndarray, effects: dict):
+def offsets(t_session: np.ndarray, rate: np.ndarray, effects: dict, out=None):
     """Bias offsets (n, k, m) of bias_drift at session times (n, k) for the table rate (n, k),
-    or 0 without it."""
+    or 0 without it; with `out` (n, k, m), `out` plus them, added in place
+    (`bias_drift.apply`)."""
     if "bias_drift" in effects:
-        return bias_drift.apply(t_session, rate, effects["bias_drift"])
-    return 0.0
+        return bias_drift.apply(t_session, rate, effects["bias_drift"], out)
+    return 0.0 if out is None else out
 
 
 def spiked(z: np.ndarray, effects: dict, rng: np.random.Generator) -> np.ndarray:

@@ -17,8 +17,8 @@ import numpy as np
 
 from station.errors import CalibrationInputError, InputError
 from station.reduce.eq18 import Reduced, reduce_rotary
-from station.reduce.spikes import SPIKE, beyond
-from station.reduce.windows import StreamWindows, table_angle
+from station.reduce.spikes import SPIKE, beyond, column_medians
+from station.reduce.windows import StreamWindows, table_angle, table_blocks
 
 STUCK = 100
 """Samples in a window from which a channel that never changes is stuck."""
@@ -92,7 +92,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
     """
     events = session.events()
     stream_windows = StreamWindows(session, stream, events)
-    table_times = session.table_times()
+    table_times, table = session.table_times(), table_blocks(session)
     if not (math.isfinite(trim) and trim >= 0):
         raise InputError(f"window trim must be >= 0 seconds, got {trim!r}")
     windows = {j: {name: (t0 + trim, t1 - trim) for name, (t0, t1) in w.items()}
@@ -120,7 +120,7 @@ def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
         y = np.concatenate([static_counts, rotating_counts])[None]
         instants = stream_windows.t[np.concatenate([static, rotating])]
         angle = (spin_angle(spins[j], instants) if j in spins
-                 else table_angle(session, table_times, instants))
+                 else table_angle(table, table_times, instants))
         try:
             parts.append(reduce_rotary(y, lsb, {"static": np.array([0, ns]),
                                                 "rotating": np.array([ns, ns + nr])}, angle=angle))
@@ -190,7 +190,7 @@ def check_samples(j: int, name: str, counts) -> None:
             "varied: a stuck sensor or a frozen field in the frames.",
             "Check the sensor and the device profile's frame layout, then record the position "
             "again.")
-    spikes = beyond(x - np.median(x, axis=0), 1.0)  # 1 count: quantisation
+    spikes = beyond(x - column_medians(x), 1.0)  # 1 count: quantisation
     if spikes.any():
         channels = np.flatnonzero(spikes.any(axis=0))
         raise CalibrationInputError(

@@ -7,14 +7,21 @@ samples that belong to no window (held back across a resume), and may start over
 start (a resumed session's clock, a device that restarted): so the stream is cut into runs of
 increasing instants, and a window is, per run, the row range `np.searchsorted` finds in it -
 the same rows, in the same order, as the mask `(t >= t0) & (t <= t1)` over the whole stream.
-`StreamWindows` reads the stream's timing columns once, keeps the instants, and reads each
-window's counts from the file by row range (`station.files.session.Session.stream`);
-`table_angle` reads the table states around a window likewise.
+`StreamWindows` reads the stream's timing columns once, keeps the instants, and cuts each
+window's counts from blocks of the file's rows (`RowBlocks`: `BLOCK_BYTES` read at once by
+`station.files.session.Session.stream`, one refresh of the datasets each, sliced in memory);
+`table_angle` cuts the table states around a window from blocks likewise (`table_blocks`). A pass
+over the windows in order thus makes a few large reads, not one per window (a 2000-position
+session made about 6000), and holds one block beside the window.
 """
 
 import numpy as np
 
 from station.reduce.timeline import sample_times, segment_breaks
+
+BLOCK_BYTES = 1 << 23
+"""Bytes of a column set read from the file at once (8 MB: a replay's peak RSS stays within issue
+17's 200 MB + 0.2 x the file's size; 32 MB took a 2000-position replay from 174 to 256 MB)."""
 
 
 def increasing_runs(t) -> np.ndarray:
@@ -62,6 +69,13 @@ class StreamWindows:
                               segment_breaks(events))
         del clock  # the timing columns go before the runs are found (unless the caller keeps them)
         self._runs = increasing_runs(self.t)
+        width = len(self.spec.channels) * np.dtype(self.spec.dtype).itemsize
+        self._counts = RowBlocks(self._read_counts, BLOCK_BYTES // max(width, 1))
+
+    def _read_counts(self, start: int, stop: int) -> tuple:
+        """([counts], rows) of the stream's file rows [start, stop) (`Session.stream`)."""
+        part = self._session.stream(self._name, start, stop, columns=("counts",))
+        return [part.counts], part.rows
 
     def ranges(self, t0: float, t1: float, closed: bool = True) -> list:
         """Row ranges of the clock rows whose instant lies in [t0, t1] ([t0, t1) unless
@@ -89,17 +103,16 @@ class StreamWindows:
     def read_rows(self, ranges) -> tuple:
         """(index, counts): the clock rows of `ranges` ([(start, stop), ...]) whose counts read
         back intact (rows of a damaged chunk are left out, as the whole-stream read leaves them),
-        and their counts (len(index), m), read from the file by row range."""
+        and their counts (len(index), m), cut from the file's rows read in blocks (`RowBlocks`)."""
         index, counts = [], []
         for a, b in ranges:
             rows = np.arange(a, b) if self.rows is None else self.rows[a:b]
-            part = self._session.stream(self._name, int(rows[0]), int(rows[-1]) + 1,
-                                        columns=("counts",))
+            (part,), got = self._counts(int(rows[0]), int(rows[-1]) + 1)
             keep = np.arange(a, b)
-            if part.rows is not None:  # rows of a damaged counts chunk: left out
-                keep = keep[np.isin(rows, part.rows)]
+            if got is not None:  # rows of a damaged counts chunk: left out
+                keep = keep[np.isin(rows, got)]
             index.append(keep)
-            counts.append(part.counts)
+            counts.append(part)
         m = len(self.spec.channels)
         return _concat(index, np.int64), _concat(counts, np.dtype(self.spec.dtype), (0, m))
 
@@ -110,10 +123,46 @@ def _concat(parts: list, dtype, empty=(0,)) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(empty, dtype)
 
 
-def table_angle(session, times, t) -> np.ndarray:
+class RowBlocks:
+    """Rows [start, stop) of a set of columns of a file, read at least `size` rows at a time and
+    cut in memory: `read(start, stop)` -> (columns, rows), the rows that read back intact as
+    `Session.stream` and `Session.table` give them (rows: the file row of each value, None: all
+    of [start, stop)). A request (rows of the file) inside the block read last is cut from it;
+    any other reads a new block from its start. Rows of damaged chunks are found per chunk, so a
+    cut gives what a read of [start, stop) itself gives."""
+
+    def __init__(self, read, size: int):
+        self._read, self._size = read, max(int(size), 1)
+        self._start, self._stop, self._columns, self._rows = 0, 0, [], None
+
+    def __call__(self, start: int, stop: int) -> tuple:
+        """(columns, rows) of the file rows [start, stop)."""
+        if start < self._start or stop > self._stop:
+            self._start, self._stop = start, max(stop, start + self._size)
+            self._columns, self._rows = self._read(self._start, self._stop)
+        if self._rows is None:
+            cut = slice(start - self._start, stop - self._start)
+            return [c[cut] for c in self._columns], None
+        lo, hi = np.searchsorted(self._rows, (start, stop))
+        whole = hi - lo == stop - start  # every row of the range read back: rows None, as a read
+        return [c[lo:hi] for c in self._columns], None if whole else self._rows[lo:hi]
+
+
+def table_blocks(session) -> RowBlocks:
+    """The table's states (time, angle) of an open session read in blocks (`RowBlocks`), for
+    `table_angle`."""
+    def read(start: int, stop: int) -> tuple:
+        part = session.table(start, stop)
+        return [part.time, part.angle], part.rows
+
+    return RowBlocks(read, BLOCK_BYTES // 40)  # 5 columns of 8 bytes a state
+
+
+def table_angle(blocks, times, t) -> np.ndarray:
     """The recorded table angle interpolated at the instants `t` as `np.interp` over all the
     table's states does, reading only the states from the last one at or before min(t) to the
-    first one at or after max(t); `times`: `session.table_times()`."""
+    first one at or after max(t); `blocks`: `table_blocks(session)`, `times`:
+    `session.table_times()`."""
     time, rows = times
     if np.size(t) == 0:
         return np.zeros(0)
@@ -122,8 +171,8 @@ def table_angle(session, times, t) -> np.ndarray:
     first, last = time[lo], time[hi - 1]
     while True:
         start, last_row = (int(i if rows is None else rows[i]) for i in (lo, hi - 1))
-        part = session.table(start, last_row + 1)
+        (state_time, angle), _ = blocks(start, last_row + 1)
         whole = lo == 0 and hi == len(time)
-        if whole or (len(part.time) and part.time[0] <= first and part.time[-1] >= last):
-            return np.interp(t, part.time, part.angle)
+        if whole or (len(state_time) and state_time[0] <= first and state_time[-1] >= last):
+            return np.interp(t, state_time, angle)
         lo, hi = max(2 * lo - hi, 0), min(2 * hi - lo, len(time))  # damaged states: widen

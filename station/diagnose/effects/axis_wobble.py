@@ -19,10 +19,11 @@ while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
 
 
-def _tone(ctx, rate, phase_deg: float) -> np.ndarray:
-    """(n, k, m) sensed signal of the coning part at sin(beta) = 1 and the given phase."""
+def _tone(ctx, rate, phase_deg: float, rows: slice) -> np.ndarray:
+    """(len(rows), k, m) sensed signal of the coning part at sin(beta) = 1 and the given phase,
+    at the positions `rows`."""
     d = ctx.data
-    omega = axis_wobble.apply(rate, d.angle, d.t, ctx.orientation,
+    omega = axis_wobble.apply(rate[rows], d.angle[rows], d.t, ctx.orientation[rows],
                               AxisWobble(90.0, None, phase_deg))
     return omega @ ctx.a
 
@@ -30,7 +31,7 @@ def _tone(ctx, rate, phase_deg: float) -> np.ndarray:
 def fit(ctx, prediction, r) -> Fitted:
     """beta (degrees) and the phases; see the module docstring."""
     free, phase, lf, _ = linear.phase_fit(
-        ctx.data, r, lambda deg: _tone(ctx, prediction.rate, deg), ctx.sigma)
+        ctx.data, r, lambda deg, rows: _tone(ctx, prediction.rate, deg, rows), ctx.sigma)
     amp, amp_sigma = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
     n = phase.size
     return Fitted(

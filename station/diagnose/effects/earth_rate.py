@@ -22,18 +22,19 @@ while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
 
 
-def _tone(ctx, heading_deg: float) -> np.ndarray:
-    """(n, k, m) sensed signal of a unit horizontal Earth rate at the given heading."""
-    d = ctx.data
-    zero = np.zeros(d.angle.shape + (3,))
-    omega = earth_rate.apply(zero, ctx.orientation, d.angle, EarthRate(0.0, heading_deg, 1.0))
+def _tone(ctx, heading_deg: float, rows: slice) -> np.ndarray:
+    """(len(rows), k, m) sensed signal of a unit horizontal Earth rate at the given heading, at
+    the positions `rows`."""
+    angle = ctx.data.angle[rows]
+    zero = np.zeros(angle.shape + (3,))
+    omega = earth_rate.apply(zero, ctx.orientation[rows], angle, EarthRate(0.0, heading_deg, 1.0))
     return omega @ ctx.a
 
 
 def fit(ctx, prediction, r) -> Fitted:
     """N (horizontal rate), the headings h_j and U; see the module docstring."""
-    free, heading, lf, static = linear.phase_fit(ctx.data, r, lambda deg: _tone(ctx, deg),
-                                                 ctx.sigma)
+    free, heading, lf, static = linear.phase_fit(
+        ctx.data, r, lambda deg, rows: _tone(ctx, deg, rows), ctx.sigma)
     horizontal = float(lf.theta[0, 0])
     s0, s1 = ctx.data.windows["static"]
     vertical, vertical_sigma = _vertical(ctx, r[:, s0:s1].mean(1), horizontal * static)

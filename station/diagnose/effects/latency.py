@@ -22,10 +22,16 @@ def fit(ctx, prediction, r) -> Fitted:
     """delay (m,) in seconds by least squares per sensor."""
     data, s = ctx.data, prediction.s
     step = 1.0 / data.fs
-    unit = latency.apply(s, data.t, Latency(step))
-    unit -= s  # in place: one signal of the session's size at a time
-    unit /= step
-    lf = linear.fit(data, r, [unit], ctx.sigma, "sensor")
+
+    def unit(rows: slice) -> np.ndarray:
+        """The signature of a delay of one sample per second, at the positions `rows`."""
+        x = latency.apply(s[rows], data.t, Latency(step))
+        x -= s[rows]  # in place: one signal of a few positions' size at a time
+        x /= step
+        return x
+
+    lf = linear.fit_binned(linear.centred(data, r), [linear.centred_signature(data, unit)],
+                           linear.weights(data, ctx.sigma), "sensor")
     return Fitted(
         "latency",
         {"delay": lf.theta[:, 0]},

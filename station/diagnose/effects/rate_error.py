@@ -177,7 +177,10 @@ def _fit_encoder(ctx, prediction, r, measured: np.ndarray, w: np.ndarray,
     absorbed = x @ np.linalg.lstsq(x * np.sqrt(info)[:, None], np.sqrt(info) * measured,
                                    rcond=None)[0]
     rest = measured - absorbed
-    lf = linear.fit(ctx.data, r, [prediction.s * rest[:, None, None]], ctx.sigma, "global")
+    signature = linear.centred_signature(  # made a few positions at a time (memory)
+        ctx.data, lambda rows: prediction.s[rows] * rest[rows, None, None])
+    lf = linear.fit_binned(linear.centred(ctx.data, r), [signature],
+                           linear.weights(ctx.data, ctx.sigma), "global")
     gain, sd = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
     return Fitted(
         "rate_error",

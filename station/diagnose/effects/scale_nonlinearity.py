@@ -21,9 +21,15 @@ STAGE = "sensed"
 def fit(ctx, prediction, r) -> Fitted:
     """k2 (m,) by least squares per sensor on the signature of unit k2."""
     s = prediction.s
-    unit = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
-    unit -= s  # in place: one signal of the session's size at a time
-    lf = linear.fit(ctx.data, r, [unit], ctx.sigma, "sensor")
+
+    def unit(rows: slice) -> np.ndarray:
+        """The signature of unit k2 at the positions `rows`."""
+        x = scale_nonlinearity.apply(s[rows], ScaleNonlinearity(1.0))
+        x -= s[rows]  # in place: one signal of a few positions' size at a time
+        return x
+
+    lf = linear.fit_binned(linear.centred(ctx.data, r), [linear.centred_signature(ctx.data, unit)],
+                           linear.weights(ctx.data, ctx.sigma), "sensor")
     return Fitted(
         "scale_nonlinearity",
         {"k2": lf.theta[:, 0], "peak_signal": np.maximum(s.max((0, 1)), -s.min((0, 1)))},

@@ -113,6 +113,7 @@ class TableData:
     angle: np.ndarray  # (k,) rad, cumulative
     rate_setpoint: np.ndarray  # (k,) rad/s
     status: np.ndarray  # (k,) uint8
+    rows: np.ndarray | None = None  # (k,) file row of each state; None: the k rows read, in order
 
     def flag(self, name: str) -> np.ndarray:
         """Boolean array of one status bit, e.g. `flag("at_rate")`."""

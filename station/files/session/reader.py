@@ -131,13 +131,14 @@ class Session:
 
     def table(self, start: int = 0, stop: int | None = None) -> TableData:
         """The rotary-table states among the file rows [start, stop) (stop None: all flushed so
-        far); rows of damaged chunks are left out."""
+        far); rows of damaged chunks are left out, `rows` says which file row each state is (None:
+        all of [start, stop))."""
         cols, rows = _columns(self._table(), self.path, drop_damaged=True, start=start,
                               stop=stop)
         floats = [c.astype(np.float64, copy=False) for c in cols[:-1]]
         for name, values in zip(TABLE_COLUMNS, floats, strict=False):
             _finite(values, f"/streams/table/{name}", self.path, start, rows)
-        return TableData(*floats, cols[-1].astype(np.uint8, copy=False))
+        return TableData(*floats, cols[-1].astype(np.uint8, copy=False), rows)
 
     def table_times(self) -> tuple:
         """(time, rows): the times of the table states (their dimension scale) and the file row

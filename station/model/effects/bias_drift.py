@@ -56,9 +56,20 @@ def heat(t_session: np.ndarray, rate: np.ndarray, tau: float) -> np.ndarray:
     return out
 
 
-def apply(t_session: np.ndarray, rate: np.ndarray, p: BiasDrift) -> np.ndarray:
-    """Bias offsets (n, k, m) at session times t_session (n, k) for the table rate (n, k)."""
-    warm = np.exp(-np.asarray(t_session, float) / p.warmup_tau)[..., None] * np.asarray(p.warmup)
-    if not np.any(p.heating):
-        return warm
-    return warm + heat(t_session, rate, p.heating_tau)[..., None] * np.asarray(p.heating)
+def apply(t_session: np.ndarray, rate: np.ndarray, p: BiasDrift, out=None) -> np.ndarray:
+    """Bias offsets (n, k, m) at session times t_session (n, k) for the table rate (n, k); with
+    `out` (n, k, m) they are added to it in place, one channel at a time (the same sums, and no
+    array of its size made: the diagnosis' twin is of the session's size), and `out` returned."""
+    decay = np.exp(-np.asarray(t_session, float) / p.warmup_tau)
+    heated = heat(t_session, rate, p.heating_tau) if np.any(p.heating) else None
+    if out is None:
+        warm = decay[..., None] * np.asarray(p.warmup)
+        return warm if heated is None else warm + heated[..., None] * np.asarray(p.heating)
+    warmup, heating = (np.broadcast_to(np.asarray(x, float), out.shape[-1:])
+                       for x in (p.warmup, p.heating))
+    for i in range(out.shape[-1]):
+        term = decay * warmup[i]
+        if heated is not None:
+            term += heated * heating[i]
+        out[..., i] += term
+    return out

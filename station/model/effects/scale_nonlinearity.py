@@ -22,5 +22,9 @@ class ScaleNonlinearity:
 
 
 def apply(s: np.ndarray, p: ScaleNonlinearity) -> np.ndarray:
-    """Sensed signals s (..., m) with the quadratic term added."""
-    return s + np.asarray(p.k2, float) * s**2
+    """Sensed signals s (..., m) with the quadratic term added: s + k2 s^2, made in one new
+    array (the diagnosis' twin is of the session's size)."""
+    out = np.square(s)
+    out *= np.asarray(p.k2, float)
+    out += s
+    return out
