@@ -178,7 +178,8 @@ def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None,
         dof = {k: s["dof"] for k, s in test["statistics"].items() if "dof" in s}
         found = withheld(result, test, alpha, own, unreadable or {})
         if found is None:
-            closes = {s.chosen: {**closed(s.gap, result.steps[-1].gap, dof, own.get(s.chosen, ())),
+            closes = {s.chosen: {**closed(s.gap, result.steps[-1].gap, dof, own.get(s.chosen, ()),
+                                          alpha),
                                  "partial": any(k in test["failed"] for k in own.get(s.chosen, ()))}
                       for s in result.steps[:-1]}
             return replace(result, closes=closes, not_named=tuple(dropped)), out
@@ -187,7 +188,7 @@ def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None,
         dropped.append({"effect": step.chosen, "reason": note, "not_named": True,
                         "log10_p": step.evidence[step.chosen]["log10_p"],
                         "closes": closed(step.gap, result.steps[i + 1].gap, dof,
-                                         own.get(step.chosen, ()))})
+                                         own.get(step.chosen, ()), alpha)})
         if rerun is not None and i < len(result.steps) - 2:
             result = rerun(tuple(p["effect"] for p in dropped))
         else:
@@ -224,12 +225,13 @@ def withheld(result: Diagnosis, test: dict, alpha: float, own: dict, unreadable:
     return None
 
 
-def closed(before: dict, after: dict, dof: dict, statistics) -> dict:
-    """The share of the gap an effect closes: over its own `statistics` that exceed the noise
-    before it (gap > 1), 1 - (the chi2 excess left after) / (the excess before), each excess
-    dof x (gap - 1) and what is left never below the noise; per statistic too. `fraction`
-    None when none of its statistics was open."""
-    open_ = [k for k in statistics if k in before and k in after and k in dof and before[k] > 1]
+def closed(before: dict, after: dict, dof: dict, statistics, alpha: float = 0.01) -> dict:
+    """The share of the gap an effect closes: over its own `statistics` that were open before it
+    (gap x dof beyond its chi2(dof) law at level `alpha`), 1 - (the chi2 excess left after) /
+    (the excess before), each excess dof x (gap - 1) and what is left never below the noise;
+    per statistic too. `fraction` None when none of its statistics was open."""
+    open_ = [k for k in statistics if k in before and k in after and k in dof
+             and goodness.log_sf(before[k] * dof[k], dof[k]) < np.log(alpha)]
     by = {k: float(np.clip(1 - max(after[k] - 1, 0) / (before[k] - 1), 0, 1)) for k in open_}
     excess = sum(dof[k] * (before[k] - 1) for k in open_)
     left = sum(dof[k] * max(after[k] - 1, 0) for k in open_)
