@@ -780,9 +780,10 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
                       lambda current, names: fit(data, b0, names, current),
                       lambda m: static_report.statistics(data, m), alpha=alpha,
                       max_effects=max_effects,
-                      check=lambda name, f, current: plausibility.check(name, f, site) or
-                      within_walk(beyond_walk(data, current, f) if name == "bias_drift" else None,
-                                  alpha / len(candidates)), progress=progress)
+                      check=lambda name, f: plausibility.check(name, f, site),
+                      noise=lambda name, f, current: within_walk(
+                          beyond_walk(data, current, f) if name == "bias_drift" else None,
+                          alpha / len(candidates)), progress=progress)
 
     result, (test, _) = settle(run(), lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
