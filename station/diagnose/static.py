@@ -26,10 +26,10 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import goodness, heldout, outliers, plausibility, quantisation, rails, walk
+from station.diagnose import goodness, heldout, outliers, plausibility, quantisation, rails
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
-from station.diagnose.select import Diagnosis, greedy, settle, within_walk
+from station.diagnose.select import Diagnosis, greedy, settle
 from station.errors import CalibrationInputError
 from station.model import measurement, sensing
 from station.model.constants import STANDARD_GRAVITY
@@ -418,24 +418,6 @@ def drift_basis(data: StaticData, tau: float):
     return data.binmean(warm), data.binmean(data.t / span)
 
 
-def beyond_walk(data: StaticData, current: "Model", fitted: Fitted) -> float:
-    """log10 p of a fitted drift (warm-up at its fitted tau and the linear drift, at the
-    intervals' mean times) in the interval means of the residuals of `current`, the model
-    without it, against a bias random walk per channel (station.diagnose.walk)."""
-    _, n = data.interval_means
-    idx, w = data.bin_interval, data.lengths
-
-    def per_interval(x):
-        return np.bincount(idx, w * x, len(n)) / n
-
-    warm, linear = drift_basis(data, fitted.values["warmup_tau"])
-    r = data.z - current.prediction
-    y = np.stack([per_interval(r[:, i]) for i in range(data.c)], 1)
-    t = (data.t[data.intervals[:, 0]] + data.t[data.intervals[:, 1] - 1]) / 2
-    return walk.log10_p(y, t, data.mean_sigma(n) ** 2, np.stack(
-        [per_interval(warm), per_interval(linear)], 1), 1)
-
-
 def clipped(z: np.ndarray, rail: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """E[clip(z + e, low, high)], e ~ N(0, sigma^2): the saturation extension's expected output
     (station.diagnose.effects.saturation about the rails' centre)."""
@@ -780,10 +762,7 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
                       lambda current, names: fit(data, b0, names, current),
                       lambda m: static_report.statistics(data, m), alpha=alpha,
                       max_effects=max_effects,
-                      check=lambda name, f: plausibility.check(name, f, site),
-                      noise=lambda name, f, current: within_walk(
-                          beyond_walk(data, current, f) if name == "bias_drift" else None,
-                          alpha / len(candidates)), progress=progress)
+                      check=lambda name, f: plausibility.check(name, f, site), progress=progress)
 
     result, (test, _) = settle(run(), lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
