@@ -10,6 +10,11 @@ smallest eps possible when the table's rate scatters unseen; with the table's en
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
 [--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants] [--pairs]`.
 
+`--coloured [CASE ...]` (issue 32, patterns 1-2) runs instead the COLOURED sessions (m = 3): a
+library effect beside a bias random walk or flicker, warm-ups between the bias_drift grid's
+points, effect-free sessions with coloured noise; per case the counts named / partial / not
+named / other name / nothing named / unexplained, the share of its gap the effect closes, eps.
+
 `--temperature` (issue 15) runs instead the sessions that record the unit's temperature
 (`WARM`, `station.sim.warm_rotary`): heat-driven drift (the right call `temperature`, not
 `bias_drift`), time-driven drift (`bias_drift`, not `temperature`) and effect-free ones (`none`),
