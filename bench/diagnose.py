@@ -10,6 +10,11 @@ smallest eps possible when the table's rate scatters unseen; with the table's en
 12-channel, 200 Hz session. Run as `.venv/bin/python -P bench/diagnose.py [--json]
 [--effects rate_error none] [--no-timing] [--leave-one-out] [--none-variants] [--pairs]`.
 
+`--coloured [CASE ...]` (issue 32, patterns 1-2) runs instead the COLOURED sessions (m = 3): a
+library effect beside a bias random walk or flicker, warm-ups between the bias_drift grid's
+points, effect-free sessions with coloured noise; per case the counts named / partial / not
+named / other name / nothing named / unexplained, the share of its gap the effect closes, eps.
+
 `--temperature` (issue 15) runs instead the sessions that record the unit's temperature
 (`WARM`, `station.sim.warm_rotary`): heat-driven drift (the right call `temperature`, not
 `bias_drift`), time-driven drift (`bias_drift`, not `temperature`) and effect-free ones (`none`),
@@ -36,6 +41,7 @@ from station.model.effects.saturation import Saturation
 from station.model.effects.temperature import Temperature
 from station.model.frames import eps
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array
+from station.sim.noise import flicker
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
 from station.sim.warm_rotary import chamber_hump, motor_heating, simulate_warm_rotary, slow_ramp
@@ -62,6 +68,27 @@ output (`rail_below_peak`)."""
 
 LAYOUTS = {3: TRIAD, 6: A_MODEL[:, :6], 12: A_MODEL}
 
+WALK, FLICKER = 3e-5, 5e-5
+"""Coloured noise of the issue 32 cases (`COLOURED`): a bias random walk of 3e-5 rad/s/sqrt(s)
+(370 deg/h/sqrt(h), a poor MEMS gyro: the static means of a short session drift by 4 x their
+white noise) and flicker of bias instability 5e-5 rad/s (10 deg/h; station.sim.noise), against
+the default gyro's 8.7e-5 rad/s white noise of a 4 s static mean."""
+COLOURED = {
+    "latency_walk": ("latency=delay=3.5e-4", WALK, 0.0),
+    "latency_flicker": ("latency=delay=3.5e-4", 0.0, FLICKER),
+    "warmup_200s": ("bias_drift=warmup=7e-4,warmup_tau=200", 0.0, 0.0),
+    "warmup_200s_walk": ("bias_drift=warmup=7e-4,warmup_tau=200", WALK, 0.0),
+    "warmup_200s_strong": ("bias_drift=warmup=0.05,warmup_tau=200", 0.0, 0.0),
+    "none_walk": ("none", WALK, 0.0),
+    "none_walk_flicker": ("none", WALK / 10, FLICKER),
+}
+"""Issue 32, patterns 1-2 (`--coloured`): case -> (hidden effect, bias random walk, flicker).
+A latency of 3.5e-4 s is about 4 x its detection limit on m = 3 (white noise: LR - dof over the
+noncentrality whose median LR reaches the first step's threshold, 3.3-3.8 x at 3e-4 s); the
+warm-up of tau 200 s (a few minutes, between the bias_drift grid's points) at 7e-4 rad/s, about 4 x
+its limit, and at 0.05 rad/s, far above (log10 p below -1e5); effect-free with the walk alone
+and with a ten times smaller walk beside flicker."""
+
 QUIET = 2e-4 / OMEGA_EARTH
 UNITS = {"earth_rate": {"noise_density": np.radians(0.01) / QUIET,
                         "counts_per_unit": QUIET * 16.4 / np.radians(1.0)}}
@@ -83,7 +110,10 @@ def hidden(case: str) -> list:
 
 
 def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
-    """(RotaryData, truth) of one simulated session hiding the effect(s) of `case`."""
+    """(RotaryData, truth) of one simulated session hiding the effect(s) of `case` (with its
+    coloured noise for a case of COLOURED)."""
+    if case in COLOURED:
+        return coloured_session(case, m, seed, timing, fs, n)
     effects = {}
     for one in case.split("+"):
         name, params = parse(CASES[one])
@@ -95,6 +125,55 @@ def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: in
     unit = gyro_array(rng, LAYOUTS[m], fs=fs, **UNITS.get(case, {}))
     sim = simulate_rotary(unit, n, timing, effects=effects, a_nominal=LAYOUTS[m])
     return session_data.from_arrays(sim.arrays), sim.truth
+
+
+def coloured_session(case: str, m: int, seed: int, timing, fs: float, n: int):
+    """(RotaryData, truth) of a COLOURED case: the unit's bias random walk (continuing between
+    positions) and flicker added to the counts as one stream over the positions' samples (the
+    pauses between them left out)."""
+    spec, walk, bias_instability = COLOURED[case]
+    name, params = parse(spec)
+    rng = np.random.default_rng(seed)
+    unit = gyro_array(rng, LAYOUTS[m], fs=fs, bias_walk=walk)
+    sim = simulate_rotary(unit, n, timing, effects={} if params is None else {name: params},
+                          a_nominal=LAYOUTS[m])
+    arrays = dict(sim.arrays)
+    if bias_instability:
+        y = np.asarray(arrays["y"])
+        lsb = np.broadcast_to(np.asarray(arrays["lsb"], float), (m,))
+        noise = np.stack([flicker(y[..., 0].size, bias_instability, rng) for _ in range(m)], 1)
+        arrays["y"] = np.round(y + noise.reshape(y.shape) / lsb).astype(y.dtype)
+    return session_data.from_arrays(arrays), sim.truth
+
+
+def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,)) -> dict:
+    """Per COLOURED case over m in `layouts` and `seeds` seeds (1000 m + 500 + s): sessions
+    with the hidden effect named (and named first), named as partial, not named though found
+    (`not_named`), another effect named, nothing named; unexplained; the share of its gap the
+    hidden effect closes; eps worse than before by more than 1 sd at the bound."""
+    out = {}
+    for case in cases:
+        effect = parse(COLOURED[case][0])[0]
+        runs = [run_case(case, m, 1000 * m + 500 + s) for m in layouts for s in range(seeds)]
+        out[case] = {
+            "sessions": len(runs),
+            "named": sum(effect in r["named"] for r in runs),
+            "named_first": sum(r["first"] == effect for r in runs),
+            "partial": sum(bool(r["closes"].get(effect, {}).get("partial")) for r in runs),
+            "not_named": sum(effect in r["not_named"] for r in runs),
+            "other_named": sum(any(e != effect for e in r["named"]) for r in runs),
+            "nothing_named": sum(not r["named"] for r in runs),
+            "unexplained": sum(bool(r["unexplained"]) for r in runs),
+            "closes": [r["closes"].get(effect, {}).get("fraction") for r in runs],
+            "worse_by_more_than_1sd": sum(r["eps_after"] > r["eps_before"] + r["eps_sd_at_bound"]
+                                          for r in runs),
+            "eps_before_over_bound_rms": rms_ratio(runs, "eps_before", "crlb"),
+            "eps_after_over_bound_rms": rms_ratio(runs, "eps_after", "crlb"),
+            "runs": [{k: r[k] for k in ("m", "seed", "named", "not_named", "unexplained",
+                                        "closes", "eps_before", "eps_after", "eps_sd_at_bound")}
+                     for r in runs],
+        }
+    return out
 
 
 TEMPCO = 1e-4
@@ -197,6 +276,8 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) ->
         "first": result.effects[0] if result.effects else "none",
         "unexplained": [u["statistic"] for u in result.unexplained],
         "resembles": [r["effect"] for r in result.resembles],
+        "not_named": [r["effect"] for r in result.not_named],
+        "closes": result.closes,
         "correction_applied": None if result.correction is None else result.correction["applied"],
         "gap": [step.gap for step in result.steps],
         "eps_before": eps(a_true, result.steps[0].model.calibration.a),
@@ -340,6 +421,9 @@ def main() -> None:
     parser.add_argument("--temperature", nargs="*", choices=list(WARM), default=None,
                         help="only the sessions recording the unit's temperature (issue 15): "
                         "these cases (default: all)")
+    parser.add_argument("--coloured", nargs="*", choices=list(COLOURED), default=None,
+                        help="only the issue 32 cases beside coloured noise (COLOURED; default: "
+                        "all), m = 3")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="--temperature: seeds s from this one (1000 m + s)")
     args = parser.parse_args()
@@ -352,6 +436,15 @@ def main() -> None:
             lo, hi = r["interval_95"]
             print(f"{case:18s} right {r['right']} / {r['sessions']} (95 % {lo:.2f}-{hi:.2f}), "
                   f"offered {r['offered']}, max |z| tempco {r['tempco_z_max']}")
+        return
+    if args.coloured is not None:
+        found = coloured(args.seeds, args.coloured or tuple(COLOURED))
+        if args.json:
+            print(json.dumps({"coloured": found}, indent=1, default=float))
+            return
+        for case, r in found.items():
+            print(f"{case:19s} " + ", ".join(f"{k} {v}" for k, v in r.items()
+                                             if k not in ("runs", "closes")))
         return
     out = {"acceptance": acceptance(args.seeds, args.effects)}
     if args.pairs:

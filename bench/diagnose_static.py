@@ -52,6 +52,10 @@ CASES = {
     "outliers_40sigma": (("outliers=rate=2e-3,size=0.4",), (), 2e-3),
     "quantised_6sigma": ((), (), 2e-3),
     "quantised_12sigma": ((), (), 2e-3),
+    "g_sensitivity_walk": ((), ("g_sensitivity=matrix=" + ":".join(f"{x:g}" for x in
+                                                            G_TRUE.ravel()),), 2e-3),
+    "none_walk": ((), (), 2e-3),
+    "warmup_180s": (("bias_drift=warmup=0.05,warmup_tau=180",), (), 2e-3),
 }
 """Case -> (accelerometer effects, gyro effects, gyro sigma per sample in rad/s). The sidereal
 Earth rate (7.29e-5 rad/s) is hidden on a gyro 10 x quieter (interval means 1e-5 rad/s). The
@@ -62,11 +66,16 @@ STEP = {"quantised_6sigma": 6.0, "quantised_12sigma": 12.0}
 """Case -> the accelerometer's quantisation step in noise sigmas (0.0098 m/s^2): 2.1 and 4.3 x
 the step at which the error a pose's mean keeps (station.diagnose.quantisation.kept) equals the
 white noise of a mean of 400 samples (2.8 sigma)."""
-COLOURED = {"none_coloured": ((2e-4, 1e-5), (2e-5, 1e-6))}
+COLOURED = {"none_coloured": ((2e-4, 1e-5), (2e-5, 1e-6)),
+            **dict.fromkeys(("g_sensitivity_walk", "none_walk"), ((0.0, 1e-4), (0.0, 3e-5)))}
 """Case -> coloured noise added to the (accelerometer, gyro) samples: (bias instability B,
 random walk K) (station.sim.noise; docs/noise.md's terms), in m/s^2 and m/s^2/sqrt(s), rad/s and
 rad/s/sqrt(s): flicker floors of 0.7 and 0.07 x the interval means' white noise, random walks of
-0.2 and 0.02 x it over a pose."""
+0.2 and 0.02 x it over a pose. Issue 32's strong walks (`*_walk`): 1e-4 m/s^2/sqrt(s) and 3e-5
+rad/s/sqrt(s), 0.5 and 0.7 x the interval means' noise from one pose to the next and 2-3 x over
+the session; its g-sensitivity is 2-3 x its detection limit (white noise: log10 p -17 to -27 on
+9 dof). `warmup_180s`: a warm-up of 0.05 m/s^2, tau 180 s beyond the 2-minute session (pattern
+2: far above its limit)."""
 REAL = [ROOT.parent / "shared" / "data" / "real", Path("/work/shared/data/real")]
 
 
@@ -124,6 +133,7 @@ def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
         c for c in CANDIDATES if c not in untestable(data, base(data))
         and not (leave_out and c == hidden)))
     out = {"named": result.effects, "seconds": time.perf_counter() - start,
+           "not_named": [p["effect"] for p in result.not_named], "closes": result.closes,
            "unexplained": [u["statistic"] for u in result.unexplained],
            "resembles": [r["effect"] for r in result.resembles],
            "log10_p_first": {k: e["log10_p"] for k, e in result.steps[0].evidence.items()},
@@ -143,7 +153,8 @@ def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
 HIDDEN = {"none": "none", "bias_drift": "bias_drift", "scale_nonlinearity": "scale_nonlinearity",
           **dict.fromkeys(STEP, "quantised"), "earth_rate": "earth_rate",
           "earth_rate_sidereal": "earth_rate", "g_sensitivity": "g_sensitivity",
-          "none_coloured": "none", "outliers_20sigma": "outliers", "outliers_40sigma": "outliers"}
+          "none_coloured": "none", "outliers_20sigma": "outliers", "outliers_40sigma": "outliers",
+          "g_sensitivity_walk": "g_sensitivity", "none_walk": "none", "warmup_180s": "bias_drift"}
 """Case -> the effect it hides (outliers, quantised: the samples' law, reported beside the named
 effects)."""
 
@@ -191,6 +202,8 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
                  "exact_rate": float(np.mean([r["named"] == ([] if want == "none" else [want])
                                               for r in runs])),
                  "named": [r["named"] for r in runs],
+                 "not_named": [r["not_named"] for r in runs],
+                 "closes": [r["closes"] for r in runs],
                  "seconds_median": float(np.median([r["seconds"] for r in runs]))}
         z = [np.abs(r["G_z"]).max() for r in runs if "G_z" in r]
         if z:

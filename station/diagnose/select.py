@@ -37,7 +37,10 @@ class Step:
 class Diagnosis:
     """The sequence of models; the final goodness-of-fit test (`fit_test`, station.diagnose.
     goodness) with the signature of each failed statistic (`unexplained`); the held-out check
-    of the final model's correction (`correction`: applied or not)."""
+    of the final model's correction (`correction`: applied or not); the share of its own gap
+    each named effect closes (`closes`: {effect: `closed`}, `partial` True while one of its own
+    statistics still fails) and the significant effects found but not named (`not_named`,
+    `settle`), each with the reason and the share of its own gap it closed."""
 
     steps: list
     alpha: float
@@ -45,20 +48,23 @@ class Diagnosis:
     unexplained: list = field(default_factory=list)
     correction: dict | None = None
     spectrum: dict | None = None
+    closes: dict = field(default_factory=dict)
+    not_named: tuple = ()
 
     @property
     def resembles(self) -> list:
         """[{"effect", "reason", "log10_p", "step"}]: candidates significant at some step but not
-        named: their fit was outside their physical range, or they explain only part of an
-        unexplained gap (`settle`); last occurrence of each."""
+        named because their fit was outside their physical range (last occurrence of each), then
+        the `not_named` ones (with what they close)."""
         out = {}
         for i, step in enumerate(self.steps):
             for name, e in step.evidence.items():
-                reason = e.get("implausible") or e.get("not_named")
-                if e["significant"] and reason:
-                    out[name] = {"effect": name, "reason": reason,
+                if e["significant"] and e.get("implausible"):
+                    out[name] = {"effect": name, "reason": e["implausible"],
                                  "log10_p": e["log10_p"], "step": i}
-        return [v for k, v in out.items() if k not in self.effects]
+        dropped = [p["effect"] for p in self.not_named]
+        return [v for k, v in out.items() if k not in self.effects and k not in dropped] + list(
+            self.not_named)
 
     @property
     def calibration(self):
@@ -105,10 +111,17 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
     site = site or plausibility.Site()
     candidates = tuple(c for c in candidates
                        if getattr(EXTENSIONS[c], "available", lambda d: True)(data))
-    result = greedy(model.nominal(data), candidates,
-                    lambda current, names: model.fit(data, list(names), current, iterations),
-                    lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
-                    check=lambda name, f: plausibility.check(name, f, site), progress=progress)
+    start = model.nominal(data)
+
+    def run(excluded=()):
+        return greedy(start, tuple(c for c in candidates if c not in excluded),
+                      lambda current, names: model.fit(data, list(names), current, iterations),
+                      lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
+                      check=lambda name, f: plausibility.check(name, f, site),
+                      noise=lambda name, f, current: within_walk(getattr(
+                          EXTENSIONS[name], "beyond_walk", lambda *_: None)(current, f),
+                          alpha / len(candidates)), progress=progress)
+
     n = data.shape[0]
 
     def test_of(step):
@@ -117,16 +130,25 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
                  "table_rate_tone": signature.tone_test(spec, n)} if spec else None
         return goodness.test(step.gap, gap.dofs(data, step.model), alpha, extra), spec
 
-    result, (test, spec) = settle(result, test_of, alpha,
+    result, (test, spec) = settle(run(), test_of, alpha,
                                   {k: e.GAPS for k, e in EXTENSIONS.items()},
                                   {k: getattr(e, "UNREADABLE_WITH", ()) for k, e in
-                                   EXTENSIONS.items()})
+                                   EXTENSIONS.items()}, run)
     if spec:
         spec["peaks"] = signature.peaks(spec, n, alpha)
     return replace(result, fit_test=test, correction=correction(data, result), spectrum=spec,
                    unexplained=[{**test["statistics"][k], "statistic": k,
                                  "signature": _signature(data, result.final, spec, k)}
                                 for k in test["failed"]])
+
+
+def within_walk(log10_p: float | None, level: float) -> str:
+    """"" or why a fitted drift is no effect: a bias random walk explains it (`log10_p` of the
+    drift against a free walk, station.diagnose.walk, not below log10 `level`; None: the
+    candidate is no drift)."""
+    if log10_p is None or log10_p < np.log10(level):
+        return ""
+    return f"a bias random walk explains it (log10 p {log10_p:.1f} of the drift beside a free walk)"
 
 
 def _signature(data, final: model.Model, spec: dict, statistic: str) -> dict:
@@ -139,40 +161,83 @@ def _signature(data, final: model.Model, spec: dict, statistic: str) -> dict:
     return signature.describe(data, final, statistic)
 
 
-def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None) -> tuple:
+def settle(result: Diagnosis, test_of, alpha: float, own: dict, unreadable=None,
+           rerun=None) -> tuple:
     """(diagnosis, test_of(its final step)), test_of(step) -> (goodness.test, anything): the
-    final goodness-of-fit test; when it fails, every
-    named effect's evidence is read again with the LR divided by the dispersion the gap leaves
-    (the largest failed mean-square gap of many features, so not `rails`, about 1 dof, nor
-    `spectrum`, a maximum over its grid; `table_rate_tone` is the mean of 2n squared features
-    at fixed points: a quasi-likelihood); the first effect no longer
-    significant then, or whose own gap statistics (`own`: {effect: statistics}) still fail,
-    and those after it, are not named (`not_named` in its evidence): they explain only part of a
-    gap the library does not. Likewise an effect while a statistic of `unreadable` ({effect:
-    statistics}, e.g. `rails` for the effects read from the readings M) fails: that gap says
-    the data its evidence rests on carry something the model does not explain."""
-    out = test_of(result.steps[-1])
-    test = out[0]
+    final goodness-of-fit test, and every named effect judged against it (`withheld`; one
+    whose own gap stays open is named as partial when it stands). An effect withheld is not
+    named and is listed in `not_named` with the share of its own gap it closed; when effects
+    were named after it, the loop is run again without it (`rerun(excluded candidates)` ->
+    Diagnosis), so that an effect it stood in front of is still named (issue 32: a drift that
+    soaked up coloured noise took the real effect with it); the last named one is cut off.
+    Repeated until every named effect stands; each then gets `closed` of its own gap (`own`:
+    {effect: statistics}) from the step it was added to the final model."""
+    dropped = []
+    while True:
+        out = test_of(result.steps[-1])
+        test = out[0]
+        dof = {k: s["dof"] for k, s in test["statistics"].items() if "dof" in s}
+        found = withheld(result, test, alpha, own, unreadable or {})
+        if found is None:
+            closes = {s.chosen: {**closed(s.gap, result.steps[-1].gap, dof, own.get(s.chosen, ()),
+                                          alpha),
+                                 "partial": any(k in test["failed"] for k in own.get(s.chosen, ()))}
+                      for s in result.steps[:-1]}
+            return replace(result, closes=closes, not_named=tuple(dropped)), out
+        i, note = found
+        step = result.steps[i]
+        dropped.append({"effect": step.chosen, "reason": note, "not_named": True,
+                        "log10_p": step.evidence[step.chosen]["log10_p"],
+                        "closes": closed(step.gap, result.steps[i + 1].gap, dof,
+                                         own.get(step.chosen, ()), alpha)})
+        if rerun is not None and i < len(result.steps) - 2:
+            result = rerun(tuple(p["effect"] for p in dropped))
+        else:
+            result = replace(result, steps=[*result.steps[:i], replace(step, chosen="none")])
+
+
+def withheld(result: Diagnosis, test: dict, alpha: float, own: dict, unreadable: dict):
+    """(step, why) of the first named effect that the final test `test` says is not to be
+    named, or None: a statistic of `unreadable` ({effect: statistics}, e.g. `rails` for the
+    effects read from the readings M) fails, which says the data its evidence rests on carry
+    something the model does not explain; or its LR over the dispersion of the gap it sits in
+    is no longer significant (a quasi-likelihood). That dispersion is the largest failed gap of
+    its own statistics (`own`: {effect: statistics}: the noise its signature really shows, e.g.
+    a bias random walk in `static`) when one of them fails (the effect is then named as partial,
+    `closed` says how much), else the largest failed mean-square gap of many features (so not
+    `rails`, about 1 dof, nor `spectrum`, a maximum over its grid; `table_rate_tone` is the mean
+    of 2n squared features at fixed points)."""
     dispersion = max([test["statistics"][k]["gap"] for k in test["failed"]
                       if k not in ("spectrum", "rails")], default=1.0)
     for i, step in enumerate(result.steps[:-1]):
         e = step.evidence[step.chosen]
-        quasi = (np.log(e["null_mass"]) + goodness.log_sf(
-            e["lr"] / (e["null_scale"] * dispersion), e["null_dof"])) / np.log(10)
         left = [k for k in own.get(step.chosen, ()) if k in test["failed"]]
-        blind = [k for k in (unreadable or {}).get(step.chosen, ()) if k in test["failed"]]
-        weak = dispersion > 1 and quasi >= np.log10(alpha / len(step.evidence))
-        if left or blind or weak:
-            note = (f"leaves its own signature's gap unexplained ({', '.join(left)})" if left
-                    else f"its evidence rests on data that an unexplained gap says are "
-                    f"corrupted ({', '.join(blind)})" if blind
-                    else f"explains only part of a gap left unexplained (log10 p {quasi:.1f} "
-                    f"with the LR over that gap's dispersion {dispersion:.2f})")
-            evidence = {**step.evidence, step.chosen: {**e, "not_named": note}}
-            last = replace(step, evidence=evidence, chosen="none")
-            result = replace(result, steps=[*result.steps[:i], last])
-            return result, test_of(last)
-    return result, out
+        blind = [k for k in unreadable.get(step.chosen, ()) if k in test["failed"]]
+        if blind:
+            return i, (f"its evidence rests on data that an unexplained gap says are corrupted "
+                       f"({', '.join(blind)})")
+        phi = max(test["statistics"][k]["gap"] for k in left) if left else dispersion
+        quasi = (np.log(e["null_mass"]) + goodness.log_sf(
+            e["lr"] / (e["null_scale"] * phi), e["null_dof"])) / np.log(10)
+        if phi > 1 and quasi >= np.log10(alpha / len(step.evidence)):
+            return i, (f"explains only part of a gap left unexplained (log10 p {quasi:.1f} with "
+                       f"the LR over {'its own' if left else 'that'} gap's dispersion "
+                       f"{phi:.2f})")
+    return None
+
+
+def closed(before: dict, after: dict, dof: dict, statistics, alpha: float = 0.01) -> dict:
+    """The share of the gap an effect closes: over its own `statistics` that were open before it
+    (gap x dof beyond its chi2(dof) law at level `alpha`), 1 - (the chi2 excess left after) /
+    (the excess before), each excess dof x (gap - 1) and what is left never below the noise;
+    per statistic too. `fraction` None when none of its statistics was open."""
+    open_ = [k for k in statistics if k in before and k in after and k in dof
+             and goodness.log_sf(before[k] * dof[k], dof[k]) < np.log(alpha)]
+    by = {k: float(np.clip(1 - max(after[k] - 1, 0) / (before[k] - 1), 0, 1)) for k in open_}
+    excess = sum(dof[k] * (before[k] - 1) for k in open_)
+    left = sum(dof[k] * max(after[k] - 1, 0) for k in open_)
+    return {"fraction": float(np.clip(1 - left / excess, 0, 1)) if open_ else None,
+            "by_statistic": by}
 
 
 def correction(data, result: Diagnosis) -> dict | None:
@@ -189,13 +254,16 @@ def correction(data, result: Diagnosis) -> dict | None:
 
 
 def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int,
-           check=lambda name, fitted: "", progress=None) -> Diagnosis:
+           check=lambda name, fitted: "", noise=lambda name, fitted, current: "",
+           progress=None) -> Diagnosis:
     """The evidence loop from the model `start`: every candidate not yet in the model is added
     (`extend(current, names)` -> the model fitted with those extensions) and its evidence
     measured; the strongest significant one whose fit is plausible (`check(name, fitted)` ->
-    "" or why not) is kept; repeated until none is significant or `max_effects` are in.
-    `statistics(model)` gives each step's gap. `progress(done, total)`, if given, hears of each
-    fit: done so far, and at most `total` (every step going on)."""
+    "" or why not) and more than the noise (`noise(name, fitted, current)` -> "" or why not,
+    `within_noise` in its evidence: a drift a bias random walk explains) is kept; repeated
+    until none is significant or `max_effects` are in. `statistics(model)` gives each step's
+    gap. `progress(done, total)`, if given, hears of each fit: done so far, and at most
+    `total` (every step going on)."""
     current, steps = start, []
     n = len(candidates)
     tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
@@ -207,7 +275,10 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
                 fit = extend(current, (*current.fitted, name))
                 ev[name] = evidence(current, fit, name, len(remaining), alpha)
                 ev[name]["implausible"] = check(name, fit.fitted[name])
-                if ev[name]["significant"] and not ev[name]["implausible"] and (
+                if ev[name]["significant"] and not ev[name]["implausible"]:
+                    ev[name]["within_noise"] = noise(name, fit.fitted[name], current)
+                if ev[name]["significant"] and not ev[name]["implausible"] and not ev[name].get(
+                        "within_noise") and (
                         best == "none" or ev[name]["log10_p"] < ev[best]["log10_p"]):
                     best, chosen = name, fit  # only the strongest fit so far is kept (memory)
                 tried += 1

@@ -755,13 +755,17 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
     if candidates is None:
         candidates = tuple(c for c in CANDIDATES if c not in untestable(data, b0))
     site = plausibility.Site(latitude_deg, not any("raw counts" in n for n in data.notes))
-    result = greedy(fit(data, b0), candidates,
-                    lambda current, names: fit(data, b0, names, current),
-                    lambda m: static_report.statistics(data, m), alpha=alpha,
-                    max_effects=max_effects,
-                    check=lambda name, f: plausibility.check(name, f, site), progress=progress)
-    result, (test, _) = settle(result, lambda step: (goodness.test(
-        step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS)
+    start = fit(data, b0)
+
+    def run(excluded=()):
+        return greedy(start, tuple(c for c in candidates if c not in excluded),
+                      lambda current, names: fit(data, b0, names, current),
+                      lambda m: static_report.statistics(data, m), alpha=alpha,
+                      max_effects=max_effects,
+                      check=lambda name, f: plausibility.check(name, f, site), progress=progress)
+
+    result, (test, _) = settle(run(), lambda step: (goodness.test(
+        step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
     return replace(result, fit_test=test, correction=correction(data, result.final),
                    unexplained=[{**test["statistics"][k], "statistic": k,
                                  "signature": static_report.signature(data, result.final, k)}
