@@ -167,7 +167,9 @@ def slowdown(nice: bool) -> float:
 
 
 def cpu_seconds() -> float:
-    """User + system CPU seconds of the children waited for so far (with theirs)."""
+    """User + system CPU seconds of the children waited for so far (with theirs). A suite run
+    killed at its timeout leaves its workers to the init process, so their CPU is not counted:
+    the figure means something for runs that ended by themselves."""
     used = resource.getrusage(resource.RUSAGE_CHILDREN)
     return used.ru_utime + used.ru_stime
 
