@@ -77,40 +77,26 @@ with ThermalTwin(seed=seed, positions=6) as twin:
 """A thermal campaign on the in-process thermal twin (lockstep time), recorded and solved."""
 
 
-def _text(output) -> str:
-    """What a killed command had written (bytes, str or None) as text."""
-    return output.decode(errors="replace") if isinstance(output, bytes) else (output or "")
-
-
 def run(cmd: list, nice: bool, timeout: float, log: Path | None = None) -> tuple:
     """(CompletedProcess, wall seconds) of `cmd` in the repository, at nice 19 if asked; past
     `timeout` wall seconds the command is killed and its exit is None (its output so far kept).
-    With `log`, its standard output goes to that file as it is written (to watch a long run)."""
+    Its standard output goes to a file as it is written: `log` (to watch a long run) or a
+    temporary one."""
     start = time.perf_counter()
-    if log is not None:
-        with open(log, "w") as out:
-            done = run_logged(cmd, nice, timeout, out)
-        return subprocess.CompletedProcess(cmd, done.returncode, log.read_text(errors="replace"),
-                                           done.stderr), time.perf_counter() - start
-    try:
-        done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                              preexec_fn=(lambda: os.nice(19)) if nice else None, check=False)
-    except subprocess.TimeoutExpired as late:
-        done = subprocess.CompletedProcess(cmd, None, _text(late.stdout), _text(late.stderr))
+    with open(log, "w+", errors="replace") if log is not None else \
+            tempfile.TemporaryFile("w+", errors="replace") as out:
+        with subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.PIPE, text=True,
+                              preexec_fn=(lambda: os.nice(19)) if nice else None) as child:
+            try:
+                _, err = child.communicate(timeout=timeout)
+                code = child.returncode
+            except subprocess.TimeoutExpired:
+                child.kill()
+                _, err = child.communicate()
+                code = None
+        out.seek(0)
+        done = subprocess.CompletedProcess(cmd, code, out.read(), err)
     return done, time.perf_counter() - start
-
-
-def run_logged(cmd: list, nice: bool, timeout: float, out) -> subprocess.CompletedProcess:
-    """`cmd` with its standard output written to the open file `out`; exit None past `timeout`."""
-    with subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.PIPE, text=True,
-                          preexec_fn=(lambda: os.nice(19)) if nice else None) as child:
-        try:
-            _, err = child.communicate(timeout=timeout)
-            return subprocess.CompletedProcess(cmd, child.returncode, "", err)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            _, err = child.communicate()
-            return subprocess.CompletedProcess(cmd, None, "", err)
 
 
 def demos(k: int, nice: bool, positions: int) -> list:
