@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_gyro_carry import FS, G, hand_recording, true_sensitivity  # noqa: E402
 
 from bench.realdata_cli import run  # noqa: E402
-from station.files.calfile import load  # noqa: E402
+from station.calfiles.calfile import load  # noqa: E402
 
 COUNTS, MID = 4000.0, 32768.0  # counts per rad/s and mid-scale of the simulated gyro
 BIAS = np.array([0.02, -0.01, 0.015])  # rad/s, hand_recording's

@@ -9,7 +9,7 @@ in a shuffled order (their processes load the host too: 10 hogs and 10 workers g
 load average of 24 on 2 cores, and 1000 checks and 60 commands took 26 minutes), with a progress
 line on stderr every 50 jobs:
 
-- `--checks` checks (`station.files.session.check.checked`, its cache keeping nothing, so each
+- `--checks` checks (`station.session.check.checked`, its cache keeping nothing, so each
   launches its child): the part of a command that said "damaged" under load;
 - `--commands` whole session-reading commands (`python -m station solve|replay|noise|apply|
   diagnose|report ...`), each a fresh process.
@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 from bench.scale_replay import session as simulated_session  # noqa: E402
 from bench.under_load import spin  # noqa: E402
 from station.errors import SessionFormatError, SessionUncheckedError  # noqa: E402
-from station.files.session import check  # noqa: E402
+from station.session import check  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 OLD_BASE, OLD_RATE = 5.0, 50e6

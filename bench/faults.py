@@ -51,7 +51,7 @@ from drivers.serial_imu import SerialImu
 from drivers.twins.can import CanImuTwin
 from drivers.twins.serial import SerialTwin
 from drivers.twins.table import TableTwin
-from station.files.session import Session
+from station.session import Session
 from station.sim.table import TablePhysics
 
 MAP = TableRegisterMap.load("table_modbus")

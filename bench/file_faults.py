@@ -99,7 +99,7 @@ def fresh_sources(scratch: Path) -> dict:
 def set_open_flags(data: bytearray) -> None:
     """The 'open for SWMR write' flags a killed writer leaves (superblock v3, byte 11), with the
     superblock checksum rewritten."""
-    from station.files.session._repair import _lookup3
+    from station.session._repair import _lookup3
 
     data[11] = 0x05
     struct.pack_into("<I", data, 44, _lookup3(bytes(data[:44])))

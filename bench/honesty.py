@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from posesim import CLASSES, G, coverage  # noqa: E402
 
-from station.files.session import Session  # noqa: E402
 from station.imports.recordings import import_binary  # noqa: E402
 from station.reduce.free_static import calibrate_free_static  # noqa: E402
+from station.session import Session  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 MIMU_RATE = 62.5  # Hz, PROVENANCE.md
@@ -89,13 +89,13 @@ def across_recordings(root: Path) -> dict:
 def next_session(root: Path) -> dict:
     """Leave one recording out, the command-line way: each of exp_1..3 imported (`station import
     binary`) and solved as one 24-channel array (`station solve`); the other two combined
-    (`station.files.combined.combine`, what `station combine` writes) predict the third. Per class
-    (biases, scale factors): RMS and median |z| / 0.6745 of z = (x - mean) / sqrt(sigma_next^2 +
-    s^2) over 24 parameters x 3 held-out recordings (about 1 when the next-session figure is
+    (`station.calfiles.combined.combine`, what `station combine` writes) predict the third. Per
+    class (biases, scale factors): RMS and median |z| / 0.6745 of z = (x - mean) / sqrt(sigma_next^2
+    + s^2) over 24 parameters x 3 held-out recordings (about 1 when the next-session figure is
     honest); beside it the same ratio with one session's own 1-sigma (sigma_next replaced by the
     other two's median sigma)."""
-    from station.files.calfile import load
-    from station.files.combined import combine
+    from station.calfiles.calfile import load
+    from station.calfiles.combined import combine
 
     cals = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -44,9 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
-from station.files.session import Session
 from station.imports.recordings import import_binary
 from station.reduce.stillness import detect_still
+from station.session import Session
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"
 if not DATA.exists():  # a worktree outside /work
@@ -136,7 +136,7 @@ def _with_repeatability(fits: dict, label: str, lot: dict | None = None) -> dict
     rests on 3 dof: t_3(0.975) / 1.96 = 1.6 when tau dominates). `lot` ({label: fits} of every
     IMU): the taus of the other two recordings pooled over all the array's IMUs, one model
     (`station solve --repeatability` of the 8 combined files; 24 dof per class)."""
-    from station.files.combined import INCLUDED, combine, with_repeatability
+    from station.calfiles.combined import INCLUDED, combine, with_repeatability
 
     cals = _cals(fits, label)
     lots = {k: _cals(f, k) for k, f in (lot or {label: fits}).items()}
@@ -166,7 +166,7 @@ def _with_repeatability(fits: dict, label: str, lot: dict | None = None) -> dict
 
 def _cals(fits: dict, label: str) -> dict:
     """{recording: the calibration file content of one IMU's fit}."""
-    from station.files.calfile import Calibration
+    from station.calfiles.calfile import Calibration
 
     return {n: Calibration.from_result(f, "MIMU4444", [f"{label}_a{c}" for c in "xyz"], "m/s^2",
                                        session={"stream": "imu"}) for n, f in fits.items()}
@@ -177,7 +177,7 @@ def array_on_the_command_line(sessions: dict, tmp: Path) -> dict:
     --repeatability` (subprocesses): per held-out recording, the median over the 24 channels of
     the spread over the three recordings / that recording's 1-sigma, without and with the
     repeatability of the other two; and the taus of the combination."""
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     def station(*argv):
         subprocess.run([sys.executable, "-m", "station", *map(str, argv)], check=True,

@@ -5,7 +5,7 @@ Each recording is imported (`station import binary`, profile mimu4444) and each 
 accelerometer triads solved on its still poses the command line's way (`station solve
 --channels imuK_ax,imuK_ay,imuK_az --magnitude 9.81 --accept-suspect`: `solve_session`). For every
 recording held out and every IMU, the other recordings' files are combined (`station combine`:
-`station.files.combined.combine`) and the held-out recording's estimates x checked against them:
+`station.calfiles.combined.combine`) and the held-out recording's estimates x checked against them:
 
 - "combined": z = (x - mean) / sqrt(sigma_next^2 + s^2), sigma_next the combined file's 1-sigma
   for the next session, s the held-out session's own 1-sigma (its estimation noise);
@@ -41,7 +41,7 @@ CLASSES = {"biases": ("bias", "bias_sigma"),
 
 
 def calibrations(root: Path, tmp: Path) -> list:
-    """[recording][imu] the calibration files' content (`station.files.calfile.Calibration`) of
+    """[recording][imu] the calibration files' content (`station.calfiles.calfile.Calibration`) of
     each IMU's accelerometer triad in each recording exp_*.bin, solved as `station solve` does."""
     from station.commands.solve import solve_session
     from station.imports.recordings import import_binary
@@ -58,7 +58,7 @@ def calibrations(root: Path, tmp: Path) -> list:
 def leave_one_out(cals: list) -> dict:
     """z of every held-out recording against the others combined (module docstring), per class
     and figure; the combined files' taus and session counts."""
-    from station.files.combined import combine, with_repeatability
+    from station.calfiles.combined import combine, with_repeatability
 
     z = {(c, f): [] for c in CLASSES for f in ("combined", "solve_repeatability")}
     taus = []

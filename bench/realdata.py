@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.files.tables import read_table
+from station.imports.tables import read_table
 from station.model.constants import STANDARD_GRAVITY
 from station.reduce.ferraris import (
     calibrate_ferraris,

@@ -24,12 +24,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from station.calfiles.calfile import load
 from station.cli import main as station
-from station.files.calfile import load
-from station.files.session import Session
 from station.reduce.ferraris import FACE_SECTIONS, calibrate_ferraris, find_sections, read_recording
 from station.reduce.imported import carry_samples
 from station.replay import ReplaySettings, solve_recorded
+from station.session import Session
 from station.solve.gyro_carry import calibrate_carry
 from station.solve.gyro_turns import gravity_carry_errors
 

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from drivers.samples import SampleBlock
-from station.files.session import Session, SessionWriter, StreamSpec
+from station.session import Session, SessionWriter, StreamSpec
 
 M = 12
 STATE = SimpleNamespace(time=0.0, rate=1.0, angle=0.0, rate_setpoint=1.0, running=True, ready=True,

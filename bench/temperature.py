@@ -37,7 +37,7 @@ from thermalsim import (  # noqa: E402
     z_scores,
 )
 
-from station.files.calfile import Calibration  # noqa: E402
+from station.calfiles.calfile import Calibration  # noqa: E402
 
 ALPHA = 0.01
 

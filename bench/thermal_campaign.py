@@ -56,10 +56,10 @@ sys.path.insert(0, str(ROOT / "tests"))
 from thermalsim import magnitude_errors, probe  # noqa: E402
 
 from bench.diagnose import interval  # noqa: E402
+from station.calfiles.calfile import Calibration  # noqa: E402
 from station.cli import EXIT_INTERRUPTED  # noqa: E402
 from station.cli import main as station  # noqa: E402
 from station.commands.solve import solve_session  # noqa: E402
-from station.files.calfile import Calibration  # noqa: E402
 from station.model.effects.temperature import Temperature  # noqa: E402
 from station.reduce.thermal import campaign_soaks  # noqa: E402
 from station.solve.temperature import fit_temperature  # noqa: E402

@@ -89,7 +89,7 @@ class SessionLockedError(StationError, RuntimeError):
 
 
 class SessionUncheckedError(StationError, RuntimeError):
-    """The structure check of a session file (station.files.session.check) could not finish: out
+    """The structure check of a session file (station.session.check) could not finish: out
     of CPU time, stopped from outside, or hung. No verdict on the file: it was not found damaged
     (that is a SessionFormatError); the message says how to go on."""
 

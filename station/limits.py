@@ -16,7 +16,7 @@ text, before a parser that recurses sees it.
                                                           (`finite` names the first one that is not)
 
 Elsewhere, where the input's own format is read: the sizes of `.npz` arrays from their zip and
-.npy headers (`station.files.npz.headers`); TOML nesting, size and channel count of profiles
+.npy headers (`station.imports.npz.headers`); TOML nesting, size and channel count of profiles
 (`drivers.profile`: the drivers never import the station).
 
 Sits outside the layers (as `station.errors`): every room may use it.

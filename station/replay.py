@@ -39,9 +39,13 @@ from types import SimpleNamespace
 import numpy as np
 
 from drivers.samples import SampleBlock
+from station.calfiles.calfile import NoiseFigures
 from station.errors import AcquisitionError, CalibrationInputError, InputError
-from station.files.calfile import NoiseFigures
-from station.files.session import (
+from station.protocols import KINDS, lookup, reference
+from station.reduce.still import ACCELEROMETER, GYRO
+from station.reduce.stillness import StillOptions
+from station.reduce.timeline import SEGMENT_EVENTS, arrival_offset
+from station.session import (
     TABLE_STATUS_BITS,
     Session,
     SessionWriter,
@@ -49,10 +53,6 @@ from station.files.session import (
     nominal_layout,
     write_results,
 )
-from station.protocols import KINDS, lookup, reference
-from station.reduce.still import ACCELEROMETER, GYRO
-from station.reduce.stillness import StillOptions
-from station.reduce.timeline import SEGMENT_EVENTS, arrival_offset
 from station.solve.calibrate import CalibrationResult
 
 METHODS = ("auto", "pca", "ellipsoid", "factorization")
@@ -137,7 +137,7 @@ def replay(path, settings: ReplaySettings | None = None) -> tuple[object, Calibr
 
 def solve_recorded(session, settings: ReplaySettings, nominal=None,
                    command: str = "replay") -> tuple[object, CalibrationResult]:
-    """(readings, calibration) of an open session (`station.files.session.Session`): the kind's
+    """(readings, calibration) of an open session (`station.session.Session`): the kind's
     reduction, the positions chosen, the kind's solver (`station.protocols.KINDS`).
 
     readings: `station.reduce.eq18.Reduced` (rotary) or `StillReadings` (iron, static); nominal:

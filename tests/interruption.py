@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from station.files.session import Session
 from station.reduce.rotary import position_windows, rotary_readings
 from station.reduce.timeline import sample_times, segment_breaks
+from station.session import Session
 
 STATION = [sys.executable, "-m", "station"]
 POSITIONS = 3

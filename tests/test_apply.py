@@ -13,9 +13,9 @@ from test_calfile import SENSORS, make
 
 from drivers.samples import SampleBlock
 from station import cli
+from station.calfiles.calfile import load
 from station.exports.c import c_header
-from station.files.calfile import load
-from station.files.session import SessionWriter, StreamSpec
+from station.session import SessionWriter, StreamSpec
 
 RATE = 100.0
 CPU = 1e6  # counts per rad/s

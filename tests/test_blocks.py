@@ -78,8 +78,8 @@ def test_import_solve_apply_on_the_command_line(tmp_path, capsys):
     --magnitude: the local field's unit sphere, `test_raw_counts_at_50_hz_...`)."""
     import json
 
+    from station.calfiles.calfile import load
     from station.cli import main
-    from station.files.calfile import load
 
     z, a, bias = turning_magnetometer(6)
     t = np.arange(len(z)) / FS
@@ -132,8 +132,8 @@ def test_raw_counts_at_50_hz_import_solve_apply_with_and_without_the_field(tmp_p
     --magnitude in counts per T and T."""
     import json
 
+    from station.calfiles.calfile import load
     from station.cli import main
-    from station.files.calfile import load
 
     a, bias = counts_csv(tmp_path / "chip.csv", 7)
     k = np.linalg.norm(a, axis=0)

@@ -1,5 +1,5 @@
-"""The calibration file (station.files.calfile): exact round trip, refusals of tampered, foreign and
-malformed files, and the least-squares fusion it applies (docs/conventions.md)."""
+"""The calibration file (station.calfiles.calfile): exact round trip, refusals of tampered, foreign
+and malformed files, and the least-squares fusion it applies (docs/conventions.md)."""
 
 import dataclasses
 import json
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import station
-from station.files.calfile import (
+from station.calfiles.calfile import (
     FORMAT_VERSION,
     Calibration,
     CalibrationFileError,
@@ -254,7 +254,7 @@ def test_a_covariance_that_contradicts_the_file_is_refused():
 
 
 def test_a_version_1_file_still_loads_without_covariance():
-    from station.files.calfile import CONVENTIONS_V1
+    from station.calfiles.calfile import CONVENTIONS_V1
 
     def to_v1(doc):
         del doc["covariance"], doc["verdict"], doc["uncertainty"], doc["noise"], doc["temperature"]
@@ -271,7 +271,7 @@ def test_a_version_1_file_still_loads_without_covariance():
 
 
 def test_a_version_2_file_loads_without_a_verdict_and_a_verdict_round_trips():
-    from station.files.calfile import CONVENTIONS
+    from station.calfiles.calfile import CONVENTIONS
 
     def to_v2(doc):
         del doc["verdict"], doc["uncertainty"], doc["noise"], doc["temperature"]
@@ -331,7 +331,7 @@ def test_calibrated_vectors_scatter_as_their_covariance_says():
 
 
 def test_a_version_3_file_loads_without_the_white_noise_figure():
-    from station.files.calfile import CONVENTIONS_V3
+    from station.calfiles.calfile import CONVENTIONS_V3
 
     def to_v3(doc):
         del doc["uncertainty"], doc["noise"], doc["temperature"]
@@ -367,7 +367,7 @@ def test_both_figures_of_a_solve_go_into_the_file_and_back():
 
 def noisy(resolved: bool = True) -> Calibration:
     """make() with hand-made noise figures; B and K None unless `resolved`."""
-    from station.files.calfile import NoiseFigures
+    from station.calfiles.calfile import NoiseFigures
 
     full = np.array([1.5e-4, 2.25e-4, 1.0e-4, 3.0e-4])
     terms = (full / 3, full / 300, full / 30, full / 900) if resolved else (None,) * 4
@@ -397,7 +397,7 @@ def test_noise_figures_round_trip_bit_for_bit(tmp_path, resolved):
 
 
 def test_a_version_4_file_loads_without_noise_figures():
-    from station.files.calfile import CONVENTIONS_V4
+    from station.calfiles.calfile import CONVENTIONS_V4
 
     def to_v4(doc):
         del doc["noise"], doc["temperature"]

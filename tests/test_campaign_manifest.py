@@ -1,4 +1,4 @@
-"""The thermal campaign's manifest (station.files.campaign) and the bench profile's [chamber]
+"""The thermal campaign's manifest (station.session.campaign) and the bench profile's [chamber]
 section: untrusted input refused with a message that names the problem."""
 
 import json
@@ -7,7 +7,7 @@ import pytest
 
 from drivers.profile import ProfileError
 from station.acquire.bench import BenchProfile
-from station.files.campaign import Campaign, CampaignError
+from station.session.campaign import Campaign, CampaignError
 
 PROFILE = """
 [bench]

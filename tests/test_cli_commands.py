@@ -12,9 +12,9 @@ import station
 from station import cli
 from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
-from station.files.calfile import load
-from station.files.session import Session, SessionWriter, StreamSpec
+from station.calfiles.calfile import load
 from station.model.frames import align_to
+from station.session import Session, SessionWriter, StreamSpec
 from station.twin.served import BenchTwin
 
 COMMANDS = ("solve", "apply", "export", "devices", "twin", "record")

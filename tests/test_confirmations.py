@@ -9,13 +9,13 @@ import pytest
 from scipy import stats
 
 from station.acquire.recorder import Recorder
-from station.files.session import Session, SessionWriter
 from station.protocols.iron import IronProtocol, IronSettings
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.protocols.still import StreamTap
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import describe, window_quality
+from station.session import Session, SessionWriter
 from station.twin.hand_bench import ACC4, HandBench
 from station.twin.rotary_bench import VirtualBench, record_rotary
 

@@ -16,10 +16,10 @@ import pytest
 
 from station.commands.solve import solve_session
 from station.errors import CalibrationInputError, StationError, SuspectFitError
-from station.files.session import Session, SessionWriter
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.reduce.rotary import position_windows
 from station.reduce.timeline import sample_times
+from station.session import Session, SessionWriter
 from station.twin.rotary_bench import VirtualBench, record_rotary
 
 POSITIONS = 8

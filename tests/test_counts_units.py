@@ -16,7 +16,7 @@ import pytest
 from test_gyro_carry import G, hand_recording, true_sensitivity
 from test_import_solve import station_with_errors as station
 
-from station.files.calfile import load
+from station.calfiles.calfile import load
 from station.report import html
 
 ACC_SCALE, GYRO_SCALE = 415.0, 3000.0
@@ -141,8 +141,8 @@ def test_exports_refuse_counts_naming_the_scale(tables, tmp_path, capsys):
 def test_a_counts_calibration_file_round_trips_and_its_stimulus_is_checked():
     from test_calfile import edited, make
 
+    from station.calfiles.calfile import loads
     from station.errors import CalibrationFileError
-    from station.files.calfile import loads
 
     cal = make(units=("counts",) * 4, stimulus="rad/s")
     doc = cal.to_document()

@@ -9,7 +9,7 @@ import pytest
 
 from station import cli
 from station.commands.demo import run_demo
-from station.files.session import Session
+from station.session import Session
 
 
 def check_summary(s: dict, positions: int) -> None:

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from station.commands.demo import run_demo
-from station.files.session import Session
 from station.protocols.rotary import RotarySettings
 from station.reduce.rotary import position_windows
+from station.session import Session
 
 FAST = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
 POSITIONS = 8

@@ -18,7 +18,7 @@ import pytest
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
 from station.errors import CalibrationInputError
-from station.files import npz
+from station.imports import npz
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "bench" / "diagnose.py")

@@ -24,12 +24,12 @@ from station.diagnose import diagnose
 from station.diagnose.effects.rate_error import encoder_reads
 from station.diagnose.gap import HARMONICS
 from station.errors import CalibrationInputError
-from station.files.npz import write
-from station.files.session import Session, SessionWriter, StreamSpec
+from station.imports.npz import write
 from station.imports.recordings import import_npz
 from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse
 from station.protocols.rotary import RotarySettings, suggested_axes
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary

@@ -211,7 +211,7 @@ def test_one_stream_with_accelerometer_and_gyro_channels(tmp_path, capsys):
     """A 6-channel unit (3 m/s^2 + 3 rad/s in one stream, as a recorded IMU): the channels are
     taken by unit; the gyro's hidden Earth rate is found, so the gyro columns were read."""
     from drivers.samples import SampleBlock
-    from station.files.session import SessionWriter, StreamSpec
+    from station.session import SessionWriter, StreamSpec
 
     acc, gyro, truth = simulated(seed=4, gyro_effects=["earth_rate=rate=3e-4"])
     counts = np.round(np.column_stack([acc, gyro]) * 1e6).astype(np.int64)

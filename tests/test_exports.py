@@ -14,12 +14,12 @@ import yaml
 from test_calfile import make
 
 from station import cli
+from station.calfiles.calfile import NoiseFigures, load
 from station.errors import InputError
 from station.exports.imu import Imu
 from station.exports.imucal import imucal
 from station.exports.kalibr import kalibr
 from station.exports.ros import ros
-from station.files.calfile import NoiseFigures, load
 from station.reduce.ferraris import read_recording
 
 G = 9.80665

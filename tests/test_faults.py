@@ -17,9 +17,9 @@ from test_rotary_protocol import FAST, Interrupting, session  # noqa: F401 - fix
 from drivers.rotary_table import TableLinkError
 from drivers.twins.serial import SENT, UNPLUGGED
 from station.acquire.operator import OperatorAbort, SimulatedTechnician
-from station.files.session import Session
 from station.protocols.rotary import ProtocolError, RotarySettings, SessionPaused
 from station.reduce.rotary import position_windows, rotary_readings
+from station.session import Session
 
 
 @pytest.fixture(autouse=True)

@@ -17,7 +17,7 @@ import numpy as np
 from recordmaker import when
 
 from station import cli
-from station.files.calfile import Calibration
+from station.calfiles.calfile import Calibration
 from station.model.effects.rate_error import RateError
 from station.records.analysis import fleet
 from station.records.query import Selection

@@ -7,7 +7,7 @@ import scipy.io
 from test_stillness import A_TRUE, COUNTS, FS, simulated
 
 from station.errors import CalibrationInputError
-from station.files.tables import read_table
+from station.imports.tables import read_table
 from station.model.earth import normal_gravity
 from station.reduce.free_static import calibrate_free_static, leave_one_out
 from station.solve.uncertainty import axis_angles

@@ -105,7 +105,7 @@ def test_station_solve_calibrates_a_gyro_stream_from_the_turns(tmp_path, capsys)
 
     from test_import_solve import station
 
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     a_true = true_sensitivity(7)
     h5 = import_turned(capsys, tmp_path, a_true)

@@ -9,8 +9,7 @@ import pytest
 import station
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.files import npz
-from station.files.session import Session
+from station.imports import npz
 from station.imports.recordings import (
     FIXED_POINT,
     Unit,
@@ -23,6 +22,7 @@ from station.reduce.eq18 import reduce_arrays
 from station.reduce.free_static import calibrate_free_static
 from station.reduce.iron import iron_readings
 from station.reduce.rotary import rotary_readings
+from station.session import Session
 from station.sim.layouts import A_MODEL, accelerometer_triad, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary

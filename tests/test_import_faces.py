@@ -58,7 +58,7 @@ def test_faces_solve_a_block_session_the_plain_path_refuses(block_h5, tmp_path, 
     assert code == 0
     summary = json.loads(out)
     assert summary["poses"] == len(FACES) and summary["method"] == "factorization"
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     cal = load(summary["calibration"])
     scale, angles, bias = truth_invariants()
@@ -87,7 +87,7 @@ def test_a_pose_off_the_faces_names_the_option_to_drop(tmp_path, capsys):
 
 
 def test_faces_are_refused_for_a_magnetometer_and_other_kinds(tmp_path, capsys):
-    from station.files import npz
+    from station.imports import npz
     from station.sim.layouts import A_MODEL, gyro_array
     from station.sim.profile import RotaryTiming
     from station.sim.rotary import simulate_rotary

@@ -26,8 +26,8 @@ from flightlogs import (
 from hand import A_TRUE, B_TRUE, hand_session
 from test_import_solve import station_with_errors as station
 
-from station.files.calfile import load
-from station.files.session import Session
+from station.calfiles.calfile import load
+from station.session import Session
 
 DEVICE_ID = 2490378  # an ICM-20602 on SPI bus 1, as PX4 encodes it
 T0_US = 3_000_000

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from station.cli import main
-from station.files.session import Session
+from station.session import Session
 
 RATE = 100.0
 K = 6000  # 60 s

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from hand import A_TRUE, B_TRUE, FS, G, hand_session
 
+from station.calfiles.calfile import load
 from station.cli import main
-from station.files.calfile import load
-from station.files.session import Session
-from station.files.tables import read_table
+from station.imports.tables import read_table
 from station.reduce.free_static import calibrate_free_static, leave_one_out
+from station.session import Session
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 if not REAL.exists():
@@ -139,7 +139,7 @@ def test_the_stream_to_calibrate_must_be_clear(tmp_path, capsys):
 
 
 def test_detector_options_are_refused_for_a_rotary_session(tmp_path, capsys):
-    from station.files import npz
+    from station.imports import npz
     from station.sim.layouts import A_MODEL, gyro_array
     from station.sim.profile import RotaryTiming
     from station.sim.rotary import simulate_rotary

@@ -17,10 +17,10 @@ from drivers.twins.serial import corrupt_frame
 from drivers.wire.binary import encode_frames
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.files import npz
-from station.files.session import Session
+from station.imports import npz
 from station.imports.recordings import import_binary, import_csv, import_npz, import_text
 from station.reduce.stillness import detect_still
+from station.session import Session
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary

@@ -19,7 +19,7 @@ from drivers.twins.can import CanImuTwin
 from drivers.twins.mavlink import MavlinkTwin
 from drivers.twins.serial import SENT, SerialTwin
 from station.acquire.recorder import Recorder, RecordingError
-from station.files.session import Session, SessionWriter, StreamSpec
+from station.session import Session, SessionWriter, StreamSpec
 
 SERIAL = SerialImuProfile.load("imu12_serial")
 CAN = CanProfile.load("imu12_can")

@@ -21,14 +21,14 @@ from twinproc import ENV, STATION
 from drivers.profile import BUNDLED, MAX_CHANNELS, ProfileError, SerialImuProfile, load_profile
 from station import limits
 from station.acquire.bench import BenchProfile
+from station.calfiles.calfile import loads
 from station.commands.record import how_to_go_on
 from station.errors import CalibrationFileError, InputError, SessionFormatError
-from station.files import npz
-from station.files.calfile import loads
-from station.files.session import Session
+from station.imports import npz
 from station.protocols.iron import IronSettings
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.protocols.still import StillSettings
+from station.session import Session
 from station.twin.rotary_bench import VirtualBench, checked_bench, record_rotary
 
 DEEP = "[" * 100_000 + "]" * 100_000

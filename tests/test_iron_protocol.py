@@ -10,12 +10,12 @@ from scipy.spatial.transform import Rotation
 from station.acquire.operator import SimulatedTechnician
 from station.acquire.recorder import Recorder
 from station.errors import CalibrationInputError
-from station.files.session import Session, SessionWriter
 from station.protocols.iron import FACE_UP, IronProtocol, IronSettings
 from station.protocols.rotary import ProtocolError
 from station.protocols.still import StreamTap
 from station.reduce.iron import recognise_faces
 from station.reduce.still import pose_windows, up_direction
+from station.session import Session, SessionWriter
 from station.solve.constraints import FACES, from_faces
 from station.twin.hand_bench import ACC4, HandBench, record_iron_session
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from drivers.samples import SampleBlock
+from station.calfiles.calfile import NoiseFigures
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.files.calfile import NoiseFigures
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.reduce.noise import session_noise
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.noise import simulated_noise
 from station.solve import noise
 from station.solve.allan_covariance import correlation, stretch_covariance, transfer
@@ -241,7 +241,7 @@ def test_station_noise_on_a_simulated_session(simulated, tmp_path, capsys):
 
 
 def test_station_solve_stores_the_noise_figures(simulated, tmp_path):
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     path, truth = simulated
     out = tmp_path / "x.cal.json"

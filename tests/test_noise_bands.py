@@ -13,8 +13,8 @@ from scipy import integrate
 from drivers.samples import SampleBlock
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.reduce.noise import session_noise
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.noise import simulated_noise
 from station.solve.allan_covariance import second_moments, transfer
 from station.solve.noise import FLOOR, allan_curve, design, fit_noise
@@ -102,7 +102,7 @@ def test_station_solve_says_why_there_are_no_noise_figures(tmp_path, capsys):
     """A rotary session sampled at 5 Hz: its 10 s static windows hold 50 samples, fewer than the
     64 the Allan variance needs. The calibration is written with noise null, and the summary
     (text and --json) and the file's session record say why, with both numbers."""
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     assert main(["simulate", "--out", str(tmp_path / "x.npz"), "--positions", "6", "--seed",
                  "4", "--fs", "5"]) == 0

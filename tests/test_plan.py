@@ -14,13 +14,13 @@ import station
 from drivers.profile import ProfileError
 from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
+from station.calfiles.calfile import load
 from station.commands.record import solve
 from station.errors import CalibrationInputError, InputError
-from station.files.calfile import load
-from station.files.session import Session
 from station.model.fixture import Fixture, picture
 from station.protocols.planned import FixtureSpec, reading_noise, rotary_plan
 from station.protocols.rotary import RotaryProtocol, RotarySettings, suggested_axes
+from station.session import Session
 from station.solve.plan import expected_eps, plan
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.served import BenchTwin

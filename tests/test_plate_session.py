@@ -19,13 +19,13 @@ import station.commands.solve
 from drivers.profile import ProfileError
 from station.acquire.bench import BenchProfile, record, resume
 from station.acquire.operator import ConsoleOperator, OperatorAbort
+from station.calfiles.calfile import load
 from station.commands.record import solve_plate
 from station.errors import InputError, ProtocolError, SessionFormatError
-from station.files.calfile import load
-from station.files.session import Session
-from station.files.session.units import recorded_units
 from station.reduce.rotary import rotary_readings
 from station.reduce.timeline import sample_times, segment_breaks
+from station.session import Session
+from station.session.units import recorded_units
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.served import BenchTwin
 

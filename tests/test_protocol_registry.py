@@ -16,10 +16,10 @@ import pytest
 from drivers.samples import SampleBlock
 from station import cli
 from station.acquire.bench import BenchProfile, record
-from station.files.calfile import load
-from station.files.session import Session, SessionWriter, StreamSpec
+from station.calfiles.calfile import load
 from station.protocols import KINDS, Kind, UnknownKind, kinds_with, lookup
 from station.reduce.still import StillReadings
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.layouts import TRIAD, accelerometer_triad
 from station.sim.static import simulate_static
 from station.solve.still import calibrate_still

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from station.calfiles.calfile import load
 from station.cli import main
-from station.files.calfile import load
 
 DUMP = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "mimu4444-array"
 pytestmark = pytest.mark.skipif(not (DUMP / "exp_2.bin").is_file(),

@@ -17,10 +17,10 @@ from twinproc import STATION, TwinProcess
 import station
 from station.acquire.bench import BenchProfile, record, resume
 from station.acquire.operator import ConsoleOperator, OperatorAbort
+from station.calfiles.calfile import load
 from station.commands.record import solve
-from station.files.calfile import load
-from station.files.session import Session
 from station.reduce.rotary import rotary_readings
+from station.session import Session
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.served import BenchTwin
 

@@ -11,8 +11,8 @@ from scipy import stats
 from drivers.profile import ProfileError
 from station import cli
 from station.acquire.bench import BenchProfile, record
-from station.files.calfile import load
-from station.files.session import Session
+from station.calfiles.calfile import load
+from station.session import Session
 from station.twin.hand_bench import ACC4, TRIAD, HandBench
 
 FAMILY_FALSE_ALARM = 1e-3

@@ -16,8 +16,8 @@ from twinproc import STATION, TwinProcess
 from station import cli
 from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
-from station.files.calfile import load
-from station.files.session import Session
+from station.calfiles.calfile import load
+from station.session import Session
 from station.twin.served import HandTwin
 
 FALSE_ALARM = 1e-3

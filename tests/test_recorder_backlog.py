@@ -20,8 +20,8 @@ from drivers.clock import ScaledClock
 from drivers.profile import SerialImuProfile
 from drivers.twins.serial import SerialTwin
 from station.acquire.recorder import Recorder
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.reduce.timeline import sample_times
+from station.session import Session, SessionWriter, StreamSpec
 
 BASE = SerialImuProfile.load("imu12_serial")
 PROFILE = dataclasses.replace(BASE, imu=dataclasses.replace(BASE.imu, rate_hz=200.0))

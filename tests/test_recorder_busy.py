@@ -6,7 +6,7 @@ import pytest
 from drivers.clock import ScaledClock, WallClock
 from station.acquire.recorder import Recorder
 from station.errors import RecordingError
-from station.files.session import SessionWriter, StreamSpec
+from station.session import SessionWriter, StreamSpec
 
 
 class Silent:

@@ -15,9 +15,9 @@ import numpy as np
 from scipy import stats
 
 import station
-from station.files.session import Session
 from station.protocols.rotary import suggested_axes
 from station.reduce.rotary import rotary_readings
+from station.session import Session
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.rotary_bench import VirtualBench
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from station import cli
-from station.files.calfile import load
+from station.calfiles.calfile import load
 from station.records.sources import file_sha256
 from station.records.store import open_store
 

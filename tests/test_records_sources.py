@@ -35,7 +35,7 @@ def test_a_campaigns_facts_are_its_manifest_soaks_and_settling(tmp_path):
     import shutil
     from pathlib import Path
 
-    from station.files.campaign import Campaign
+    from station.session.campaign import Campaign
 
     example = Path(__file__).parents[1] / "sessions" / "rotary-12gyro.h5"
     campaign = Campaign.create(tmp_path / "c", "SN1", str(example), [263.15, 313.15])

@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 
 from station.acquire.bench import BenchProfile
+from station.calfiles.calfile import load
 from station.cli import main
 from station.errors import InputError, RedoLimitError
-from station.files.calfile import load
-from station.files.session import Session
 from station.model.two_axis import position_angles
 from station.protocols.iron import IronProtocol, IronSettings
 from station.protocols.redo import Redo
@@ -30,6 +29,7 @@ from station.reduce.still import pose_windows
 from station.reduce.timeline import sample_times
 from station.replay import ReplaySettings, solve_recorded
 from station.report.session import build
+from station.session import Session
 from station.sim.spikes import DENSITY, SIZE, SpikySource
 from station.twin.hand_bench import ACC4, HandBench
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary

@@ -6,10 +6,10 @@ import pytest
 from scipy import stats
 
 import station
+from station.calfiles.calfile import Calibration, load
+from station.calfiles.combined import combine
 from station.cli import main
 from station.errors import CalibrationFileError
-from station.files.calfile import Calibration, load
-from station.files.combined import combine
 from station.solve.repeatability import between_variance, pool
 
 TRIALS = 600

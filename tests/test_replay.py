@@ -12,9 +12,9 @@ import pytest
 from results import assert_same
 
 from station.cli import main
-from station.files.session import Session
 from station.reduce.rotary import rotary_readings
 from station.replay import ReplaySettings, replay, replay_into, replay_raw, stored_settings
+from station.session import Session
 
 SESSIONS = Path(__file__).resolve().parent.parent / "sessions"
 

@@ -13,8 +13,8 @@ from scipy import stats
 
 from station.cli import main
 from station.errors import CalibrationInputError
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.replay import ReplaySettings, replay
+from station.session import Session, SessionWriter, StreamSpec
 from station.twin.hand_bench import record_iron_session, record_static_session
 
 RECORDINGS = {

@@ -23,10 +23,10 @@ from drivers.samples import SampleBlock
 from station import calibrate, cli
 from station.acquire.live_view import LiveView
 from station.acquire.recorder import Recorder
-from station.files.session import Session, SessionWriter, write_results
 from station.protocols.rotary import RotaryProtocol, suggested_axes
 from station.reduce.rotary import position_windows, rotary_readings
 from station.report import session as report
+from station.session import Session, SessionWriter, write_results
 from station.twin.rotary_bench import VirtualBench
 
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -13,9 +13,9 @@ from test_record_hand import CASES, FAMILY_FALSE_ALARM, _profile
 
 from station import cli
 from station.acquire.bench import BenchProfile, record, resume
+from station.calfiles.calfile import load
 from station.errors import RecordingError
-from station.files.calfile import load
-from station.files.session import Session
+from station.session import Session
 from station.twin.hand_bench import HandBench
 
 SEED = 8

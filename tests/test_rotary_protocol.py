@@ -16,7 +16,6 @@ from station.acquire.operator import (
 )
 from station.acquire.recorder import Recorder, RecordingError
 from station.errors import CalibrationInputError
-from station.files.session import Event, Session, SessionWriter
 from station.protocols.rotary import (
     ProtocolError,
     RotaryProtocol,
@@ -26,6 +25,7 @@ from station.protocols.rotary import (
 )
 from station.reduce.rotary import position_windows, rotary_readings
 from station.reduce.timeline import sample_times
+from station.session import Event, Session, SessionWriter
 from station.twin.rotary_bench import VirtualBench
 
 # short windows: one position is about 20 s of clock; the sessions run in lockstep time (the bench's

@@ -203,7 +203,7 @@ def test_the_recorder_follows_a_restarted_device_into_the_session(tmp_path):
     """Recording through a device restart: `drain` sees the newest samples at once (it waited for
     the restarted numbering to catch up with the old one), and the file holds one new segment."""
     from station.acquire.recorder import Recorder
-    from station.files.session import Session, SessionWriter, StreamSpec
+    from station.session import Session, SessionWriter, StreamSpec
 
     clock = SteppedClock(step=0.1)  # lockstep: the same stream however busy the host
     spec = StreamSpec.from_profile(BINARY.imu)

@@ -21,7 +21,7 @@ from selenium.webdriver.support.ui import WebDriverWait
 from servedstation import ServedStation, chromium
 
 from station.acquire.bench import BenchProfile
-from station.files.session import Session
+from station.session import Session
 from station.twin.served import BenchTwin, HandTwin
 
 POSITIONS = 7  # Eqs. (16)-(17) need n >= 6 for 12 sensors

@@ -198,7 +198,7 @@ def test_a_server_stopped_by_sigterm_mid_rotation_stops_the_table(tmp_path):
 
     from twinproc import ENV, STATION
 
-    from station.files.session import Session
+    from station.session import Session
 
     with BenchTwin(seed=7, positions=7) as twin:
         (tmp_path / "rotary.toml").write_text(twin.profile_text("SIM-7"))

@@ -15,7 +15,8 @@ from layouts import section4_gyros
 from drivers.clock import ScaledClock
 from drivers.profile import ImuSection, load_profile
 from drivers.samples import SampleBlock
-from station.files.session import (
+from station.replay import as_block
+from station.session import (
     EVENT_KINDS,
     Session,
     SessionFormatError,
@@ -24,9 +25,8 @@ from station.files.session import (
     StreamSpec,
     write_results,
 )
-from station.files.session import writer as writer_module
-from station.files.session.format import EVENT_COLUMNS, STREAM_COLUMNS, TABLE_COLUMNS
-from station.replay import as_block
+from station.session import writer as writer_module
+from station.session.format import EVENT_COLUMNS, STREAM_COLUMNS, TABLE_COLUMNS
 from station.solve.calibrate import calibrate
 
 CHANNELS = tuple(f"g{i + 1}" for i in range(12))
@@ -94,7 +94,7 @@ def test_round_trip_is_exact(tmp_path):
         assert s.last_completed_position() == 0
         assert s.metadata == META and s.protocol == "rotary" and s.unit_serial == "SN-0042"
         assert s.format_version == 1 and s.closed_cleanly
-    with h5py.File(path, "r") as f:  # the documented layout, read without station.files.session
+    with h5py.File(path, "r") as f:  # the documented layout, read without station.session
         assert f.attrs["format"] == "imu-station-session" and f.attrs["format_version"] == 1
         assert json.loads(f.attrs["units"])["imu"] == ["rad/s"] * 12
         assert f.attrs["created"].endswith("Z")

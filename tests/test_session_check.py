@@ -17,11 +17,11 @@ from test_session_damage import write_session
 from drivers.samples import SampleBlock
 from station.cli import main
 from station.errors import SessionFormatError, SessionUncheckedError
-from station.files.session import SessionWriter, StreamSpec, check
+from station.session import SessionWriter, StreamSpec, check
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "sessions" / "rotary-12gyro.h5"
-THEN = "import runpy; runpy.run_module('station.files.session.check', run_name='__main__')"
+THEN = "import runpy; runpy.run_module('station.session.check', run_name='__main__')"
 """The real check, after whatever a test puts before it in the child."""
 SPIN = "import time\nwhile time.process_time() < 30: pass\n"
 """30 s of CPU time: more than any limit a test gives."""

@@ -11,9 +11,9 @@ import pytest
 from drivers.samples import SampleBlock
 from station.cli import main
 from station.errors import SessionFormatError
-from station.files.session import Session, SessionWriter, StreamSpec
-from station.files.session._repair import _lookup3
-from station.files.session.check import checked
+from station.session import Session, SessionWriter, StreamSpec
+from station.session._repair import _lookup3
+from station.session.check import checked
 
 FS = 100.0
 ROWS_PER_POSITION = 3000  # a little over two 64 KB chunks of 3 x int32 counts (5461 rows each)

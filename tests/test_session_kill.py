@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from station.files.session import Session, SessionWriter
+from station.session import Session, SessionWriter
 
 # The writer process: creates (or resumes) the session, appends 12-channel blocks whose counts are a
 # known function of the sequence number, one table state per block and a position_done event every
@@ -20,7 +20,7 @@ WRITER = """
 import sys, time
 import numpy as np
 from drivers.samples import SampleBlock
-from station.files.session import SessionWriter, StreamSpec
+from station.session import SessionWriter, StreamSpec
 
 def counts(seq):
     return (seq[:, None] * 7919 + np.arange(12) * 104729) % (2**32 - 1) - 2**31 + 1

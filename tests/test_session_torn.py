@@ -1,4 +1,4 @@
-"""A kill inside the in-place rewrite of a column's last chunk (`station.files.session.torn`):
+"""A kill inside the in-place rewrite of a column's last chunk (`station.session.torn`):
 the chunk holds some of the interrupted flush's rows beside the OLD fletcher32 checksum, so it
 no longer reads back. Seen under load in 1 of about 40 kills (test_session_kill): the table's
 210 durable rows all read as lost, and `SessionWriter.resume` failed ("filter returned failure
@@ -14,10 +14,10 @@ import pytest
 
 from drivers.samples import SampleBlock
 from station.errors import SessionFormatError
-from station.files.session import Session, SessionWriter, StreamSpec
-from station.files.session.check import checked
-from station.files.session.torn import verified_rows
-from station.files.session.writer import CHUNK_BYTES
+from station.session import Session, SessionWriter, StreamSpec
+from station.session.check import checked
+from station.session.torn import verified_rows
+from station.session.writer import CHUNK_BYTES
 
 DURABLE = 210
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from station import cli
-from station.files import npz
+from station.imports import npz
 from station.reduce.eq18 import reduce_arrays
 
 ROTARY_KEYS = {

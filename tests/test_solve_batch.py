@@ -9,15 +9,15 @@ from pathlib import Path
 import pytest
 from test_session_damage import write_session, zero_chunk
 
+from station.calfiles.calfile import load
 from station.cli import main
-from station.files.calfile import load
-from station.files.session import check
+from station.session import check
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "sessions" / "rotary-12gyro.h5"
 CRASH_ON_BAD = (
     "import os, signal, sys\n"
-    "from station.files.session import check\n"
+    "from station.session import check\n"
     "survey = check.survey\n"
     "check.survey = lambda p: os.kill(os.getpid(), signal.SIGSEGV) if p.endswith('bad.h5') "
     "else survey(p)\n"

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from hand import A_TRUE, B_TRUE, FS, hand_session
 
+from station.calfiles.calfile import load
 from station.cli import main
-from station.files.calfile import load
-from station.files.session import Session
 from station.imports.recordings import import_binary
+from station.session import Session
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 if not REAL.exists():

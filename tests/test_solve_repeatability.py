@@ -1,5 +1,5 @@
 """One new session with the repeatability of earlier ones (`station solve --repeatability`,
-station.files.combined.with_repeatability): a unit whose biases move between sessions by a known
+station.calfiles.combined.with_repeatability): a unit whose biases move between sessions by a known
 tau; coverage of the new session's 95 % intervals with and without the combined file's tau; the
 refusals; the command line end to end; the real MIMU4444 array (skipped without ../shared)."""
 
@@ -15,9 +15,9 @@ from scipy import stats
 from test_import_solve import import_hand, station, station_with_errors, write_csv
 
 import station as api
+from station.calfiles.calfile import Calibration, load
+from station.calfiles.combined import INCLUDED, combine, with_repeatability
 from station.errors import CalibrationFileError
-from station.files.calfile import Calibration, load
-from station.files.combined import INCLUDED, combine, with_repeatability
 
 M, POSES, NOISE, TAU = 3, 20, 0.002, 0.01  # sensors, poses, reading noise and bias tau, m/s^2
 TRIALS = 250

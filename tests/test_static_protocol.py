@@ -7,10 +7,10 @@ import pytest
 from scipy import stats
 
 from station.errors import CalibrationInputError
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.protocols.static import GUIDED_POSES, StaticProtocol, StaticSettings
 from station.protocols.still import record_poses
 from station.reduce.static import accelerometer_channels, static_readings
+from station.session import Session, SessionWriter, StreamSpec
 from station.solve.still import calibrate_still
 from station.twin.hand_bench import ACC4, TRIAD, HandBench, HandTechnician, record_static_session
 

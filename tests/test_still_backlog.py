@@ -11,8 +11,8 @@ from drivers.clock import ScaledClock
 from drivers.samples import SampleBlock
 from station.acquire.operator import ConsoleOperator
 from station.acquire.recorder import Recorder
-from station.files.session import SessionWriter, StreamSpec
 from station.protocols.still import PoseWatcher, StillSettings, StreamTap
+from station.session import SessionWriter, StreamSpec
 
 RATE = 200.0
 LSB = 1e-3  # m/s^2 per count

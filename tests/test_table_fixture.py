@@ -20,7 +20,7 @@ from drivers.rotary_table import RotaryTable, TableError, TableRegisterMap, Tabl
 from drivers.twins.table import TableTwin
 from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
-from station.files.session import Session
+from station.session import Session
 from station.sim.table import MountingFixture, TablePhysics
 from station.twin.served import BenchTwin
 

@@ -14,10 +14,10 @@ from test_calfile import edited, make
 
 from drivers.samples import SampleBlock
 from station import cli
+from station.calfiles.calfile import CONVENTIONS_V5, load, loads
 from station.errors import CalibrationFileError
-from station.files.calfile import CONVENTIONS_V5, load, loads
-from station.files.session import SessionWriter, StreamSpec
 from station.model.temperature import TemperatureModel
+from station.session import SessionWriter, StreamSpec
 
 A = np.array([[1.01, 0.002, -0.003], [0.0, 0.98, 0.004], [0.0, 0.0, 1.02]])
 B = np.array([0.05, -0.03, 0.02])

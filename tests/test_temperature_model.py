@@ -22,8 +22,8 @@ from thermalsim import (
     z_scores,
 )
 
+from station.calfiles.calfile import Calibration, loads
 from station.errors import CalibrationInputError, InputError
-from station.files.calfile import Calibration, loads
 from station.model.effects.temperature import Temperature
 from station.model.temperature import Soak
 from station.reduce.still import StillReadings

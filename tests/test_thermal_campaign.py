@@ -27,12 +27,12 @@ from drivers.errors import ChamberAlarm, ChamberDoorOpen, ChamberTimeout, Device
 from drivers.thermal_chamber import ChamberRegisterMap
 from station.acquire.bench import BenchProfile
 from station.acquire.operator import ConsoleOperator
+from station.calfiles.calfile import load
 from station.cli import main
 from station.errors import RecordingError, SoakTimeout
-from station.files.calfile import load
-from station.files.campaign import Campaign
-from station.files.session import Session
 from station.protocols.thermal import ROOM, run_campaign
+from station.session import Session
+from station.session.campaign import Campaign
 from station.sim.thermal import unit_at
 from station.twin.thermal import TRUTH, ThermalTwin
 

@@ -18,11 +18,11 @@ from station.acquire.bench import BenchProfile, record
 from station.acquire.operator import ConsoleOperator
 from station.commands.solve import solve_session
 from station.errors import CalibrationInputError, InputError
-from station.files.session import Session
 from station.model.two_axis import position_angles, rate_axis, spin_axes
 from station.protocols.planned import PlanSpec, two_axis_plan
 from station.protocols.rotary import RotaryProtocol, RotarySettings
 from station.reduce.rotary import rotary_readings
+from station.session import Session
 from station.solve.identifiability import check_design, gram_design
 from station.solve.plan import expected_eps
 from station.solve.uncertainty import eps_tail_probability

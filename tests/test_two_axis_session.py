@@ -22,13 +22,13 @@ from drivers.rotary_table import RotaryTable, TableError, TableRegisterMap, Tabl
 from drivers.twins.table import TableTwin
 from station.acquire.bench import BenchProfile, record, stop_table
 from station.acquire.operator import ConsoleOperator
+from station.calfiles.calfile import load
 from station.commands.solve import solve_session
 from station.errors import CalibrationInputError
-from station.files.calfile import load
-from station.files.session import Event, Session
 from station.model.two_axis import position_angles, position_axis, spin_axes
 from station.protocols.rotary import RotaryProtocol, RotarySettings
 from station.reduce.rotary import position_spins, rotary_readings
+from station.session import Event, Session
 from station.sim.table import PositionAxis, TablePhysics
 from station.solve.uncertainty import eps_tail_probability
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary

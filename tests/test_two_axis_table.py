@@ -118,10 +118,10 @@ def test_a_two_axis_session_records_with_no_mounting_and_the_unit_follows_phi(tm
     """The rotary protocol on `VirtualBench(two_axis=True)`: the mount step sets phi over Modbus
     (recorded in `position_start`), the technician never mounts anything, and the rotating-window
     readings are Eq. (18)'s a^T (w u(phi_j)) within 6 of their sigmas (u: the cone direction)."""
-    from station.files.session import Session
     from station.model.two_axis import position_angles, rate_axis
     from station.protocols.rotary import RotarySettings
     from station.reduce.rotary import rotary_readings
+    from station.session import Session
     from station.twin.rotary_bench import VirtualBench, record_rotary
 
     fast = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
@@ -148,10 +148,10 @@ def test_resume_sets_phi_again_for_the_positions_left(tmp_path):
     import time
 
     from drivers.rotary_table import TableFault
-    from station.files.session import Session
     from station.model.two_axis import position_angles, rate_axis
     from station.protocols.rotary import RotarySettings
     from station.reduce.rotary import rotary_readings
+    from station.session import Session
     from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 
     fast = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)

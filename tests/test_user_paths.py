@@ -23,11 +23,11 @@ import yaml
 from test_exports import acc_cal, gyro_cal
 
 from station import cli
-from station.files.calfile import load
-from station.files.session import Session
+from station.calfiles.calfile import load
 from station.reduce.noise import session_noise
 from station.report import noise as noise_report
 from station.report import session as session_report
+from station.session import Session
 from station.sim.noise import simulated_noise
 
 STATION = [sys.executable, "-m", "station"]

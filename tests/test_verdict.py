@@ -140,7 +140,7 @@ def test_solve_judges_the_unit_prints_the_verdict_and_exits_by_it(session, tmp_p
                      str(tolerances)]) == code
     printed = capsys.readouterr().out
     assert f"VERDICT: {overall} (24 parameters tested)" in printed
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     stored = load(out).verdict
     assert stored["overall"] == overall and len(stored["parameters"]) == 24

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from test_session_damage import ROWS_PER_POSITION, write_session, zero_chunk
 
-from station.files import npz
-from station.files.session import Session
+from station.imports import npz
 from station.imports.recordings import import_npz
 from station.reduce import timeline, windows
 from station.reduce.eq18 import Reduced, reduce_rotary
@@ -15,6 +14,7 @@ from station.reduce.rotary import position_windows, rotary_readings
 from station.reduce.spikes import column_medians
 from station.reduce.timeline import sample_times, segment_breaks
 from station.reduce.windows import RowBlocks, StreamWindows, increasing_runs, window_ranges
+from station.session import Session
 from station.sim import rotary as rotary_sim
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.profile import RotaryTiming

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import InputError
-from station.files.session.units import SERIAL, SessionUnit, unit_stream
+from station.session.units import SERIAL, SessionUnit, unit_stream
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class BenchUnit:
     mounting: np.ndarray | None = None
 
     def session_unit(self) -> SessionUnit:
-        """What the session file records about the unit (`station.files.session.units`)."""
+        """What the session file records about the unit (`station.session.units`)."""
         return SessionUnit(self.stream, self.unit_serial, self.mounting)
 
 
@@ -445,8 +445,8 @@ def record(bench: BenchProfile, out, operator, live: bool = False,
     the session's (default `bench_clock`; a thermal campaign's own)."""
     from drivers.profile import load_profile
     from station.acquire.live_view import LiveView
-    from station.files.session import Session, StreamSpec
     from station.protocols import KINDS
+    from station.session import Session, StreamSpec
 
     start = time.perf_counter()
     clock = clock or bench_clock(bench)
@@ -499,8 +499,8 @@ def resume(bench: BenchProfile, path, operator, clock=None, view=None) -> int:
     port open and unread meanwhile starts the segment with a backlog (docs/protocols.md
     "Margins"). `view`: who watches the session (`station.acquire.watching`), or None.
     """
-    from station.files.session import Session, SessionWriter, StreamSpec
-    from station.files.session.units import recorded_units
+    from station.session import Session, SessionWriter, StreamSpec
+    from station.session.units import recorded_units
 
     with Session.open(path) as session:
         metadata, specs, end = session.metadata, session.specs, session.last_instant()
@@ -557,7 +557,7 @@ def _stream_differences(recorded, spec) -> list:
 def _check_same_units(bench: BenchProfile, path, units: list, specs: dict) -> None:
     """InputError unless the bench's units are the session's (serials and streams, in order;
     none for a one-unit session and bench) and each unit's stream the recorded one."""
-    from station.files.session import StreamSpec
+    from station.session import StreamSpec
 
     recorded = [(u.stream, u.unit_serial) for u in units]
     mounted = [(u.stream, u.unit_serial) for u in bench.units] if bench.plate else []

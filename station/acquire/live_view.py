@@ -92,7 +92,7 @@ class LiveView:
 
     def on_event(self, kind: str, position=None, detail: dict | None = None,
                  time: float | None = None) -> None:
-        """A protocol event was recorded (`station.files.session.EVENT_KINDS`) at clock `time`
+        """A protocol event was recorded (`station.session.EVENT_KINDS`) at clock `time`
         (default now)."""
         now = self.clock.now() if time is None else time
         detail = detail or {}

@@ -1,7 +1,7 @@
 """The recorder: IMU samples, table states and protocol events into one session file.
 
 A reader thread pulls `SampleBlock`s from an opened IMU driver (a `drivers.ImuDriver`: serial or
-CAN, see `drivers.open_imu`) and appends them to a `station.files.session.SessionWriter`. The
+CAN, see `drivers.open_imu`) and appends them to a `station.session.SessionWriter`. The
 protocol, in its own thread, records table states and events through the same recorder; one lock
 serialises every access to the writer, which is not thread-safe.
 
@@ -141,7 +141,7 @@ class Recorder:
 
     def event(self, kind: str, position: int | None = None, detail: dict | None = None,
               time: float | None = None) -> float:
-        """Record a protocol event (see `station.files.session.EVENT_KINDS`) at clock `time`
+        """Record a protocol event (see `station.session.EVENT_KINDS`) at clock `time`
         (default now, stamped before waiting for the writer, which a block may be holding; a
         window's bound: the instant of the table reading it was cut at); returns the time
         stored."""

@@ -35,9 +35,9 @@ def bench_profile(path) -> Path:
 def existing_session(path, positions=None, check: bool = True) -> Path:
     """`path` as a Path if it names a session file that reads back intact: every object and
     checksummed chunk, once, in a child process whose CPU time is bounded
-    (`station.files.session.check`); with `positions` (0-based), damage in other positions'
+    (`station.session.check`); with `positions` (0-based), damage in other positions'
     samples is let through; `check` False (--no-check): only that it is a file."""
-    from station.files.session.check import checked
+    from station.session.check import checked
 
     path = existing_file(path, "a session file (.h5)")
     if check:
@@ -239,7 +239,7 @@ def keep_records(args, files, kind: str = "session", near=None) -> int:
 def record_files(url: str, files, kind: str) -> tuple:
     """([record id or None (already there), ...], the store's name): each calibration file of
     `files` recorded in the store at `url`."""
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
     from station.records.record import Record
     from station.records.store import open_store
 

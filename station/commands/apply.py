@@ -83,7 +83,7 @@ def register(p) -> None:
 
 
 def run(args) -> int:
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     if args.json and args.out is None:
         raise InputError("--json prints a summary; give --out for the vectors")
@@ -110,7 +110,7 @@ def run(args) -> int:
         # rows of the files = instants = columns of the model
         v = (cal.apply(z.T) if cal.temperature is None else cal.apply_at(z.T, temp)).T
     if not np.all(np.isfinite(v)):
-        from station.files.calfile import CalibrationFileError
+        from station.calfiles.calfile import CalibrationFileError
 
         row = int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])
         raise CalibrationFileError(f"{data}: the readings of row {row + 1} overflow when "
@@ -185,9 +185,9 @@ def read_session(path, stream: str, cal, temperature_column: str | None = None) 
     """(time (k,), SI readings (k, m), temperatures (k,) K or None) of a session's stream,
     checked against the calibration. The temperatures: from the channel `temperature_column`, or
     (a calibration with a temperature model) the stream's one channel in K, else None."""
-    from station.files.calfile import CalibrationFileError
-    from station.files.session import Session
+    from station.calfiles.calfile import CalibrationFileError
     from station.reduce.timeline import sample_times
+    from station.session import Session
 
     with Session.open(path) as session:
         if stream not in session.specs:
@@ -214,7 +214,7 @@ def _temperature_channel(spec, cal, name, path, stream) -> int | None:
     """Index of the stream's temperature channel (`name`, or its one channel in K when the
     calibration has a temperature model), None when none is asked for and the model has a
     fixed --temperature or there is no model."""
-    from station.files.calfile import CalibrationFileError
+    from station.calfiles.calfile import CalibrationFileError
 
     if name is not None:
         if name not in spec.channels:
@@ -234,7 +234,7 @@ def read_csv(path, cal, counts: bool = False, temperature_column: str | None = N
     """(time (k,) or None, SI readings (k, m) in the calibration's sensor order, temperatures
     (k,) K from the column `temperature_column` or None) from a CSV file with a header row (see
     the module docstring)."""
-    from station.files.calfile import CalibrationFileError
+    from station.calfiles.calfile import CalibrationFileError
 
     def fail(problem):
         return CalibrationFileError(f"{path}: {problem}")

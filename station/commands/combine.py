@@ -1,5 +1,5 @@
 """`station combine`: the calibration files of several sessions of one unit -> one calibration for
-its next session, with the repeatability between sessions (`station.files.combined`).
+its next session, with the repeatability between sessions (`station.calfiles.combined`).
 
 One session's 1-sigma covers that session only. Re-seat the unit, switch it on again, and its
 biases (and, less, its scale factors and axes) move by more than that (turn-on repeatability,
@@ -46,10 +46,10 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    from station.calfiles.calfile import load
+    from station.calfiles.combined import combine
     from station.commands import existing_file, keep_records, new_file, queried_files
     from station.errors import InputError
-    from station.files.calfile import load
-    from station.files.combined import combine
 
     out = new_file(args.out, force=args.force)
     if bool(args.calibrations) == bool(args.from_db):

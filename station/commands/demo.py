@@ -107,10 +107,10 @@ def run_demo(path, imu: str = "serial", seed: int = 1, positions: int = 20,
     from station.acquire.live_view import LiveView
     from station.acquire.progress import PositionProgress
     from station.commands import progress
-    from station.files.session import Session, write_results
     from station.protocols.rotary import RotarySettings, suggested_axes
     from station.reduce.rotary import static_bias
     from station.replay import ReplaySettings, solve_recorded
+    from station.session import Session, write_results
     from station.solve.uncertainty import eps_tail_probability
     from station.solve.verdict import verdict
     from station.twin.rotary_bench import VirtualBench, record_rotary

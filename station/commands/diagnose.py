@@ -21,10 +21,10 @@ from station.diagnose import data, diagnose, static_report
 from station.diagnose.plausibility import Site
 from station.diagnose.static import diagnose_static
 from station.errors import InputError
-from station.files.session import Session
-from station.files.session.units import recorded_units
 from station.reduce.stillness import StillOptions
 from station.report import diagnosis as report
+from station.session import Session
+from station.session.units import recorded_units
 
 
 def register(p) -> None:
@@ -60,7 +60,7 @@ def register(p) -> None:
 
 
 def unit_stream(recorded, path, stream: str | None) -> str:
-    """The stream to diagnose: `stream`, one of the session's units (station.files.session.units)
+    """The stream to diagnose: `stream`, one of the session's units (station.session.units)
     or imu for a one-unit session; a session of several units needs it named."""
     streams = [u.stream for u in recorded_units(recorded.metadata, recorded.specs, path)]
     if stream is None and streams:

@@ -73,9 +73,9 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    from station.calfiles.calfile import load
     from station.commands import existing_file, new_file
     from station.errors import InputError
-    from station.files.calfile import load
 
     fmt = "c-header" if args.c_header is not None else args.to
     if args.c_header is not None and args.out is not None:
@@ -109,7 +109,7 @@ def export(calibration: Path, fmt: str) -> Path:
     beside it under its default name (replaced if there); the file written."""
     from types import SimpleNamespace
 
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     out = _default_name(calibration, fmt)
     defaults = SimpleNamespace(**dict.fromkeys(OPTIONS), force=False)
@@ -128,7 +128,7 @@ def _default_name(calibration: Path, fmt: str) -> Path:
 
 
 def _write(fmt: str, cals: list, args):
-    """The chosen format's text and notes (station.files.export_*)."""
+    """The chosen format's text and notes (station.exports)."""
     from station.errors import InputError
     from station.exports.imu import Imu, Written
 

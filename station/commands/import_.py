@@ -93,7 +93,7 @@ def run(args) -> int:
     new_file(args.out, option="name")
     with progress(f"importing into {args.out}", "bytes") as advance:
         out = _import(args, existing_file, advance)
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(out) as session:
         notes = session.metadata.get("import", {}).get("notes", [])

@@ -49,13 +49,13 @@ def register(p) -> None:
 
 
 def run(args) -> int:
+    from station.calfiles.calfile import load
     from station.commands import existing_file, existing_session
     from station.errors import InputError
-    from station.files.calfile import load
-    from station.files.session import Session
     from station.reduce.noise import session_noise
     from station.replay import calibration_channels, noise_stream
     from station.report import noise as words
+    from station.session import Session
 
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise InputError(f"--plot {args.plot} must name a .png file")
@@ -113,7 +113,7 @@ def _stored_words(stored: dict) -> str:
 def _same_unit(cal, session, stream: str, args) -> None:
     """Refuse a session of another unit than the calibration's (both serials known)."""
     from station.errors import InputError
-    from station.files.session.units import unit_serial
+    from station.session.units import unit_serial
 
     serial = unit_serial(session.metadata, session.specs, stream, args.session) \
         or session.unit_serial
@@ -127,7 +127,7 @@ def _same_unit(cal, session, stream: str, args) -> None:
 def _store(cal, found, path, session_path) -> dict:
     """Write `found`'s figures into the calibration file `path` (its `cal`), with where they came
     from in its session record; which terms it now holds."""
-    from station.files.calfile import NoiseFigures
+    from station.calfiles.calfile import NoiseFigures
 
     figures = NoiseFigures.from_fit(found.fit, found.curve.rate, found.curve.seconds)
     source = {"path": str(Path(session_path).resolve()), "stream": found.stream,

@@ -197,8 +197,8 @@ def _campaign(args, bench) -> int:
     from station.acquire.operator import ConsoleOperator
     from station.acquire.watchdog import require_watchdogs
     from station.commands import keep_records
-    from station.files.campaign import Campaign
     from station.protocols.thermal import run_campaign
+    from station.session.campaign import Campaign
 
     require_watchdogs(bench, args.no_watchdog)
     if args.live:

@@ -92,7 +92,7 @@ def run(args) -> int:
 
 def _replay_units(args) -> int:
     """Reduce and solve again the stream the settings name, or with several units on one table
-    (`station.files.session.units`) and no --stream each unit's, stored (--store, --name) under
+    (`station.session.units`) and no --stream each unit's, stored (--store, --name) under
     a name per unit (NAME-<stream>); print each."""
     from station.commands.solve import session_units
 
@@ -116,9 +116,9 @@ def _replay(args, settings, name: str | None, prefix: str = "replay") -> dict:
     --store: the first free `prefix`-k; without --store: not stored)."""
     from station.commands import working
     from station.commands.solve import poses
-    from station.files.session import Session
     from station.protocols import KINDS
     from station.replay import free_name, replay, replay_into, stimulus
+    from station.session import Session
     from station.solve.quality import check_fit
 
     with working(f"reducing and solving {args.session}"):

@@ -62,7 +62,7 @@ def run(args) -> int:
 
 def _streams(path) -> list:
     """The sample streams of the session file `path`."""
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(path) as session:
         return list(session.specs)

@@ -49,7 +49,7 @@ def run(args) -> int:
     """Stop the table first (nothing else is imported before: `stop_table`), then check the
     file (`existing_session`, about 0.5 s in a child process) and resume."""
     from station.commands import existing_file, existing_session, table_words
-    from station.files.campaign import is_campaign
+    from station.session.campaign import is_campaign
 
     if is_campaign(args.session):
         return _resume_campaign(args)
@@ -63,7 +63,7 @@ def run(args) -> int:
 
     from drivers.errors import DeviceError
     from station.errors import AcquisitionError, OperatorAbort
-    from station.files.session import Session
+    from station.session import Session
 
     try:
         if profile is None:
@@ -106,7 +106,7 @@ def _recorded_profile(path) -> Path | None:
     """The bench profile a `station record` session was recorded with; None for a virtual-bench
     session. Refuses (ProfileError) a recorded profile that is gone."""
     from drivers.profile import ProfileError
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(path) as session:
         bench = session.metadata.get("bench")
@@ -137,8 +137,8 @@ def _resume_campaign(args) -> int:
     from station.commands import existing_file
     from station.commands.record import report_campaign
     from station.errors import InputError
-    from station.files.campaign import Campaign
     from station.protocols.thermal import run_campaign
+    from station.session.campaign import Campaign
 
     campaign = Campaign.load(args.session)
     profile = existing_file(args.profile or Path(campaign.profile), "the campaign's bench "

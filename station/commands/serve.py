@@ -150,8 +150,8 @@ def sessions(folder: Path, busy: Path | None = None) -> list:
     import re
 
     from station.errors import StationError
-    from station.files.session import Session
     from station.serve.session import SESSION_FILE
+    from station.session import Session
 
     found = []
     for path in sorted(folder.glob("*.h5"), key=lambda p: p.stat().st_mtime, reverse=True)[:50]:
@@ -174,8 +174,8 @@ def history(db: str | None, serial: str) -> dict:
     """The unit's calibrations in the record store (`station history`)."""
     from station.commands import existing_store
     from station.errors import InputError
-    from station.files.session.units import SERIAL
     from station.records.analysis import history as unit_history
+    from station.session.units import SERIAL
 
     if not SERIAL.match(serial):
         raise InputError(f"unit serial {serial!r}: give 1-64 letters, digits, '.', '_' or '-'")

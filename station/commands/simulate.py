@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from station.files import npz
+from station.imports import npz
 from station.model.effects import EFFECTS, parse_all
 from station.protocols import KINDS, kinds_with
 

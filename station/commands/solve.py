@@ -32,12 +32,12 @@ per session (its gyro channels' Eq. 18 readings and static-window biases, at the
 recorded temperature channel), the temperature model fitted over them with its orders chosen by
 likelihood ratio (`station.solve.temperature`), written as DIR/campaign.cal.json (version 6); the
 summary gives the orders and each tempco with its 1-sigma.
-The calibration file (`station.files.calfile`) holds the result with its uncertainties.
+The calibration file (`station.calfiles.calfile`) holds the result with its uncertainties.
 
 --repeatability COMBINED.cal.json (a file of `station combine` over earlier sessions of the unit):
 each class's between-session tau (biases, scale factors, axis angles, entries of a) is added to
 this session's own 1-sigma, widened for the few degrees of freedom tau rests on
-(`station.files.combined.with_repeatability`): every 1-sigma written is then the figure for this
+(`station.calfiles.combined.with_repeatability`): every 1-sigma written is then the figure for this
 session as a unit re-seated and switched on again, not only the scatter within it. Several
 combined files, one per unit of the same model, pool their taus (weighted by dof): a model's tau
 from a lot of units rests on many more dof than one unit's, so it is widened far less. The file
@@ -172,14 +172,14 @@ def run_batch(args, paths: list) -> int:
     """`station solve` of many sessions in one process: the options of the command line for each,
     every calibration file beside its session, one line per session as it is done (--json: one
     JSON object a line) with what failed for a session that failed; the structure checks of all
-    the files in one child process (`station.files.session.check.survey_all`). The records of the
+    the files in one child process (`station.session.check.survey_all`). The records of the
     files written are kept per folder at the end. Exit code: the largest of the sessions'."""
     from itertools import groupby
 
     from station.commands import keep_records
     from station.errors import InputError, StationError
-    from station.files.campaign import is_campaign
-    from station.files.session.check import survey_all
+    from station.session.campaign import is_campaign
+    from station.session.check import survey_all
 
     if args.out is not None:
         raise InputError("--out names one calibration file; a batch writes each beside its "
@@ -224,7 +224,7 @@ def batch_words(s: dict) -> str:
 def _run_one(args) -> int:
     """`station solve SESSION`: one session file or thermal campaign, its full summary."""
     from station.commands import keep_records
-    from station.files.campaign import is_campaign
+    from station.session.campaign import is_campaign
 
     if is_campaign(args.session):
         return _run_campaign(args)
@@ -278,9 +278,9 @@ def _solved(args) -> tuple:
 
 def session_units(path) -> list:
     """The units of a session recorded with several on one table
-    (`station.files.session.units.SessionUnit`), [] for a one-unit session."""
-    from station.files.session import Session
-    from station.files.session.units import recorded_units
+    (`station.session.units.SessionUnit`), [] for a one-unit session."""
+    from station.session import Session
+    from station.session.units import recorded_units
 
     with Session.open(path) as session:
         return recorded_units(session.metadata, session.specs, path)
@@ -349,7 +349,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
                   accept_suspect: bool = False, tolerances=None, still: dict | None = None,
                   store: bool = False, faces: bool = False, repeatability=None,
                   channels: tuple | None = None, accelerometer: str | None = None):
-    """The `station.files.calfile.Calibration` of a recorded session file, through the station's
+    """The `station.calfiles.calfile.Calibration` of a recorded session file, through the station's
     one reduce-and-solve path (`station.replay.solve_recorded`); the kind's entry in
     `station.protocols.KINDS` says which channels it calibrates and where the biases come from.
 
@@ -362,13 +362,11 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     import's still poses are faces of a right-angle block (`station.replay.ReplaySettings`);
     repeatability: the paths of combined calibration files (`station combine`; one per unit of
     the model: pooled) whose between-session taus are added to every 1-sigma
-    (`station.files.combined.with_repeatability`,
+    (`station.calfiles.combined.with_repeatability`,
     before the verdict, which then judges the unit with them); channels: names of the
     calibrated channels to calibrate (`station.replay.channel_rows`; None: all); accelerometer:
     the stream whose poses carry a gyro stream (`station.replay.solve_carried`)."""
-    from station.files.calfile import Calibration
-    from station.files.session import Session
-    from station.files.session.units import unit_serial
+    from station.calfiles.calfile import Calibration
     from station.protocols import lookup
     from station.replay import (
         ReplaySettings,
@@ -380,6 +378,8 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
         solved_channels,
         stimulus,
     )
+    from station.session import Session
+    from station.session.units import unit_serial
     from station.solve.quality import check_fit
     from station.solve.verdict import recorded_tolerances, verdict
 
@@ -434,7 +434,7 @@ def solve_session(path, stream: str | None = None, nominal=None, magnitude: floa
     if store and solved is not None:  # the session closed: it is written now
         _store(path, *solved, settings, channels)
     if repeatability is not None:
-        from station.files.combined import with_repeatability_files
+        from station.calfiles.combined import with_repeatability_files
 
         cal = with_repeatability_files(cal, repeatability)
     if tolerances is None or tolerances.empty:
@@ -463,8 +463,8 @@ def carried_calibration(session, settings, nominal, names, info: dict, file: dic
     the gyro by carrying gravity through the turns between them, in the accelerometer's frame
     (said in `session.frame`). info, file: the session record and the unit's serial, counts
     per unit and readings' units."""
+    from station.calfiles.calfile import Calibration
     from station.errors import InputError
-    from station.files.calfile import Calibration
     from station.protocols import KINDS
     from station.replay import solve_carried
     from station.solve.quality import check_fit
@@ -505,8 +505,8 @@ def poses(readings) -> dict:
 def _store(path, readings, result, settings, channels) -> None:
     """The result stored in the session as results/solve-<k>, with the settings that made it and
     the stream's channels it calibrates."""
-    from station.files.session import write_results
     from station.replay import free_name
+    from station.session import write_results
 
     write_results(path, free_name(path, "solve"), settings.stream, readings.M, result,
                   readings.sigma, settings=dataclasses.asdict(settings),
@@ -547,7 +547,7 @@ def read_nominal(path) -> np.ndarray:
 
 def summarise(cal, out) -> dict:
     """What the command reports about a calibration file."""
-    from station.files.combined import INCLUDED
+    from station.calfiles.combined import INCLUDED
 
     return {
         "calibration": str(out), "unit_serial": cal.unit_serial, "sensors": list(cal.sensors),
@@ -674,7 +674,7 @@ def _run_campaign(args) -> int:
     """`station solve CAMPAIGN`: the temperature model of a thermal campaign."""
     from station.commands import keep_records, new_file
     from station.errors import InputError
-    from station.files.campaign import manifest_path
+    from station.session.campaign import manifest_path
 
     unused = [f"--{name.replace('_', '-')}" for name in CAMPAIGN_UNUSED
               if getattr(args, name) not in (None, False)]
@@ -696,8 +696,8 @@ def solve_campaign(path, accept_suspect: bool = False) -> tuple:
     (directory or manifest): one soak per session (`station.reduce.thermal`), the orders chosen
     by likelihood ratio (`station.solve.temperature.fit_temperature`). A fit whose soaks scatter
     about the model beyond their uncertainty is refused unless `accept_suspect`."""
+    from station.calfiles.calfile import Calibration
     from station.errors import SuspectFitError
-    from station.files.calfile import Calibration
     from station.reduce.thermal import campaign_soaks
     from station.solve.temperature import fit_temperature
 

@@ -15,9 +15,9 @@ import numpy as np
 
 from station.diagnose import recorded
 from station.errors import CalibrationInputError
-from station.files.session import Session
 from station.model.temperature import check_kelvin
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
+from station.session import Session
 
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
             "seg_rotating", "seg_spindown")
@@ -148,7 +148,7 @@ def load(path, bin_seconds: float = 0.1) -> RotaryData:
 
 
 def is_rotary(session) -> bool:
-    """True when a recorded session (`station.files.session.Session`) holds rotary protocol
+    """True when a recorded session (`station.session.Session`) holds rotary protocol
     events."""
     return recorded.is_rotary(session.events())
 

@@ -55,9 +55,9 @@ import math
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.session import nominal_layout
 from station.reduce.rotary import position_spins, position_windows, rotary_channels
 from station.reduce.windows import StreamWindows, increasing_runs, window_ranges
+from station.session import nominal_layout
 
 RAMP_BAND = (0.1, 0.9)
 """Fractions of the steady rate between which ramp samples are fitted by a line."""

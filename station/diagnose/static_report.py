@@ -17,8 +17,8 @@ import numpy as np
 from station.diagnose.goodness import log_sf
 from station.diagnose.static import SCALES_S, StaticData, from_arrays, specific_force
 from station.errors import CalibrationInputError
-from station.files.session import COUNTS
 from station.model.constants import STANDARD_GRAVITY
+from station.session import COUNTS
 
 
 def statistics(data: StaticData, model) -> dict:
@@ -159,7 +159,7 @@ def load(path, still=None, **detector) -> StaticData:
     are any, its 3 gyro channels (rad/s; the same or another stream on the same time base): an
     imported recording or a free-static session. Gravity: metadata `gravity`, else standard.
     `still`, `detector`: the detector's settings (`from_arrays`)."""
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(path) as s:
         accel, gyro = (_channels(s.specs, unit) for unit in ("m/s^2", "rad/s"))

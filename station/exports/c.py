@@ -25,9 +25,9 @@ import re
 
 import numpy as np
 
+from station.calfiles.calfile import Calibration
 from station.errors import InputError
 from station.exports.imu import si_readings
-from station.files.calfile import Calibration
 
 CTYPES = ("float", "double")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}\Z")

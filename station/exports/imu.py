@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.calfiles.calfile import COUNTS, Calibration
 from station.errors import InputError
-from station.files.calfile import COUNTS, Calibration
 
 KINDS = {"m/s^2": "accelerometer", "rad/s": "gyroscope"}
 REFERENCE = {"accelerometer": (9.80665, "1 g"), "gyroscope": (1.0, "1 rad/s")}

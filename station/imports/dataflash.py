@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.tables import MAX_BYTES
 from station.imports.flightlog import Series, summary, write_session
+from station.imports.tables import MAX_BYTES
 
 IMU_MESSAGES = {"IMU": 0, "IMU2": 1, "IMU3": 2}
 """IMU message names and the instance each stands for when it has no `I` field."""

@@ -26,8 +26,8 @@ import numpy as np
 
 from drivers.samples import SampleBlock
 from station.errors import CalibrationInputError
-from station.files.session import SessionWriter, StreamSpec
 from station.imports.recordings import _Fixed, _log_notes, _sha256
+from station.session import SessionWriter, StreamSpec
 
 log = logging.getLogger(__name__)
 

@@ -6,9 +6,9 @@ unpickled or evaluated; errors are `CalibrationInputError`s naming the problem a
 
 - `import_text`: tables `t x y z` without a header (imu_tk's `.mat` files are such text; MATLAB
   v5/v7 and v7.3 files with one numeric array are read too, in either orientation), one file per
-  stream (station.files.tables.read_matrix);
+  stream (station.imports.tables.read_matrix);
 - `import_csv`: a delimited text file with a header of column names (imucal's sessions), the
-  delimiter sniffed and a preamble skipped (station.files.tables.read_csv), one stream per group
+  delimiter sniffed and a preamble skipped (station.imports.tables.read_csv), one stream per group
   of named columns, time from a column or from sample numbers at a given rate; a Kalibr/EuRoC
   IMU CSV is recognised by its header without any (station.imports.kalibr);
 - `import_npz`: the array file of raw rotary recordings (docs/simulator.md: `y`, `lsb`, `fs`, `t0`,
@@ -49,13 +49,13 @@ from drivers.rotary_table import TableReading
 from drivers.samples import SampleBlock
 from drivers.wire.binary import BinaryFrameParser
 from station.errors import CalibrationInputError, InputError
-from station.files import npz
 from station.files.jsonable import jsonable
-from station.files.session import SessionWriter, StreamSpec
-from station.files.tables import MAX_BYTES, read_csv, read_matrix
+from station.imports import npz
 from station.imports.kalibr import recognise
+from station.imports.tables import MAX_BYTES, read_csv, read_matrix
 from station.imports.timing import timeline
 from station.model.constants import STANDARD_GRAVITY
+from station.session import SessionWriter, StreamSpec
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def import_text(out, streams: dict, units: dict, *, unit_serial: str = "IMPORTED
     units : stream name -> unit spec (see the module docstring). Streams must share their time
     stamps when there are several. fs: nominal rate (default: from the median time step).
     time_unit: of the first column (see the module docstring); delimiter and skip_rows: of text
-    files (station.files.tables.read_matrix). columns : stream name -> 0-based indices of its
+    files (station.imports.tables.read_matrix). columns : stream name -> 0-based indices of its
     value columns in its file (default: every column but the time), so one file can hold several
     streams. untimed: the files have no time column; the rows are samples at `fs`.
     """
@@ -190,7 +190,7 @@ def import_csv(out, path, streams: dict, units: dict, *, time_column: str | None
     samples placed by `index_column`, the device's counter, or at `fs` when given:
     station.imports.timing), or `index_column` (sample numbers) with `fs`, or rows at `fs`.
     delimiter (None: sniffed) and skip_rows (None: the header line is searched for):
-    station.files.tables.read_csv (and its `progress`). No streams, time column or rate: a
+    station.imports.tables.read_csv (and its `progress`). No streams, time column or rate: a
     Kalibr/EuRoC IMU CSV, recognised by its header (station.imports.kalibr), streams gyro
     and acc at its nanosecond time stamps.
     """
@@ -508,7 +508,7 @@ def _check_names(streams: dict, units: dict) -> None:
 
 def _npz_headers(path: Path, max_bytes: int) -> dict:
     """{name: (shape, dtype)} of an .npz from its headers, before anything is inflated
-    (`station.files.npz.headers`)."""
+    (`station.imports.npz.headers`)."""
     try:
         return npz.headers(path, max_bytes)
     except CalibrationInputError:

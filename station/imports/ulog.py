@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.tables import MAX_BYTES
 from station.imports.flightlog import Series, summary, write_session
+from station.imports.tables import MAX_BYTES
 
 FAMILIES = (("sensor_accel", "sensor_gyro"), ("sensor_combined",), ("vehicle_imu",))
 """IMU topic families, the preferred first at equal rates."""

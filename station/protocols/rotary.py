@@ -79,13 +79,13 @@ from station.acquire.recorder import PlateRecorder, Recorder, RecordingError
 from station.acquire.watching import Unwatched
 from station.errors import FlaggedWindow, InputError, OperatorAbort, ProtocolError, SessionPaused
 from station.files.jsonable import jsonable
-from station.files.session.units import recorded_units
 from station.model.two_axis import position_angles, spin_axes, spin_signs
 from station.protocols.planned import fixture_instruction, rotary_plan, two_axis_plan
 from station.protocols.redo import REDO_LIMIT, Redo, check_redo_limit, window_flags
 from station.protocols.still import StillSettings, StreamTap
 from station.reduce.rotary import gyro_columns
 from station.reduce.window_quality import describe, window_quality
+from station.session.units import recorded_units
 
 AGAINST = "the earlier static windows"
 """What a static window's noise is compared with, in the confirmations and flags."""
@@ -723,7 +723,7 @@ def continue_session(writer, metadata: dict, imu, table, operator, clock, view=N
     `.resume`d), from the position after the last completed one; returns that first position
     (len(axes) when nothing was left to record). `view`: a `station.acquire.live_view.LiveView` to
     show. `others`: {stream: opened driver} of the other units on the table's plate (metadata
-    `units`, `station.files.session.units`), recorded beside `imu` by one `PlateRecorder`.
+    `units`, `station.session.units`), recorded beside `imu` by one `PlateRecorder`.
 
     The IMU link's counters (CRC failures, gaps, ...) are recorded at the end as a `note` event
     with a `link` detail (and with several units, its `stream`), for the report."""
@@ -772,7 +772,7 @@ def record_session(bench, imu, table, out, operator, clock, spec, metadata: dict
     its device profiles); `view` a LiveView to show, or None. `others`: {stream: opened driver}
     of the bench's other units on the plate (`bench.units`), each with its own stream."""
     from drivers.profile import load_profile
-    from station.files.session import SessionWriter, StreamSpec
+    from station.session import SessionWriter, StreamSpec
 
     plan = None
     if bench.fixture is not None:

@@ -40,12 +40,12 @@ from station.acquire import interrupts
 from station.acquire.recorder import Recorder
 from station.acquire.watching import Unwatched
 from station.errors import InputError, ProtocolError
-from station.files.session import SessionWriter
 from station.model.constants import STANDARD_GRAVITY
 from station.protocols.redo import REDO_LIMIT, Redo, check_redo_limit, window_flags
 from station.reduce.stillness import detect_still
 from station.reduce.timeline import sample_times
 from station.reduce.window_quality import WindowQuality, describe, window_quality
+from station.session import SessionWriter
 
 SETTING_LIMITS = {"gravity": 100.0, "hold": 3600.0, "window": 3600.0, "min_still": 3600.0,
                   "rest_length": 3600.0, "lookback": 7200.0, "poll": 60.0, "timeout": 3600.0,

@@ -2,9 +2,9 @@
 "Thermal sessions").
 
 For each setpoint of the bench profile's `[chamber]` section not yet done (the campaign manifest,
-`station.files.campaign`): the chamber is commanded (ramp, setpoint, run), the unit SOAKS until its
-OWN temperature channel (a channel in K of the IMU stream, not the chamber's air) changes by less
-than `stability` K/min, the slope of a straight line fitted to the last `window` seconds of its
+`station.session.campaign`): the chamber is commanded (ramp, setpoint, run), the unit SOAKS until
+its OWN temperature channel (a channel in K of the IMU stream, not the chamber's air) changes by
+less than `stability` K/min, the slope of a straight line fitted to the last `window` seconds of its
 readings, the chamber reporting itself at its setpoint over that whole window; then a normal rotary
 session is recorded into its own file (`station.acquire.bench.record`), its metadata holding the
 setpoint, the soak's measured unit temperature and the chamber's readings during the soak. A soak
@@ -47,7 +47,7 @@ class ChamberSettings:
     host, port / serial_port : the chamber's controller over Modbus TCP, or Modbus RTU on a port
     register_map : its `drivers.thermal_chamber.ChamberRegisterMap` (key `profile`, a device
                    profile with a [chamber] section; default the bundled chamber_modbus)
-    setpoints    : K, in the order soaked (2 to station.files.campaign.MAX_SOAKS)
+    setpoints    : K, in the order soaked (2 to station.session.campaign.MAX_SOAKS)
     ramp         : K/min the chamber's setpoint moves at (0: as fast as it can)
     stability    : K/min: the soak is over when the unit's temperature changes more slowly
     window       : s over which that rate is measured (a straight-line fit)
@@ -77,7 +77,7 @@ class ChamberSettings:
     def from_section(cls, s, device) -> "ChamberSettings":
         """Parse the [chamber] Section `s`; device(name) resolves a device profile's name."""
         from drivers.thermal_chamber import ChamberRegisterMap
-        from station.files.campaign import MAX_SOAKS
+        from station.session.campaign import MAX_SOAKS
 
         register_map = ChamberRegisterMap.load(device(s.get("profile", str,
                                                             default="chamber_modbus")))
@@ -220,7 +220,7 @@ def _rate(times: list, temps: list, since: float) -> float:
 
 
 def run_campaign(bench, campaign, operator) -> dict:
-    """Soak and record every soak of `campaign` (a station.files.campaign.Campaign) not done, on
+    """Soak and record every soak of `campaign` (a station.session.campaign.Campaign) not done, on
     the devices of the bench profile `bench` (with its `chamber`); returns a summary. Faults and
     Ctrl-C leave the chamber at its safe setpoint and the table stopped (module docstring)."""
     from station.acquire.bench import bench_clock

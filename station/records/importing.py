@@ -25,7 +25,7 @@ def kind_of(cal) -> str:
 def import_folder(store, directory) -> dict:
     """Record every calibration file under `directory` into `store`: {"added", "present",
     "refused": [[file, why], ...]}."""
-    from station.files.calfile import load
+    from station.calfiles.calfile import load
 
     added, present, refused = 0, 0, []
     for path in sorted(Path(directory).rglob("*.cal.json")):

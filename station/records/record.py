@@ -4,7 +4,7 @@ host, time) and the bench's health figures of that session.
 
 Values are SI (rad/s, m/s^2, T, s; scale factors and rate errors are ratios, 1); each parameter
 row names its unit. `Record.from_calibration` builds a record from a calibration file
-(`station.files.calfile.Calibration`) and what its session says (`station.records.sources`).
+(`station.calfiles.calfile.Calibration`) and what its session says (`station.records.sources`).
 """
 
 import getpass

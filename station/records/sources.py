@@ -46,7 +46,7 @@ def session_facts(path) -> dict:
 
 def _file_facts(path) -> dict:
     """session_facts of one session file."""
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(path) as session:
         return {**bench_facts(session.metadata), "table_rate_error": table_rate_error(session)}
@@ -55,7 +55,7 @@ def _file_facts(path) -> dict:
 def _campaign_facts(directory: Path) -> dict:
     """session_facts of a thermal campaign: its manifest's sha256, the devices of its first soak's
     session, the median table rate error over the soaks and the longest soak's settling time."""
-    from station.files.campaign import Campaign, manifest_path
+    from station.session.campaign import Campaign, manifest_path
 
     manifest = manifest_path(directory)
     campaign = Campaign.load(directory)

@@ -67,7 +67,7 @@ class IronReadings(StillReadings):
 
 def iron_readings(session, stream: str = "imu", a_nominal=None, bias_guess=None,
                   tolerance_deg: float = 20.0, **detector) -> IronReadings:
-    """The still poses of an iron session (`station.files.session.Session`, `still_readings`) and
+    """The still poses of an iron session (`station.session.Session`, `still_readings`) and
     their faces. `a_nominal` defaults to the metadata's (or the identity for a triad); `detector`
     (the stillness detector's options and `trim`) goes to `still_readings`."""
     still = still_readings(session, stream, **detector)

@@ -45,7 +45,7 @@ class SessionNoise:
 
 
 def session_noise(session, stream: str = "imu", channels=None) -> SessionNoise:
-    """The noise of `stream` of a session (`station.files.session.Session`) from its static
+    """The noise of `stream` of a session (`station.session.Session`) from its static
     data (module docstring); channels: the indices of the stream's channels to fit (default
     all: e.g. only the calibrated ones, so that another channel stuck at one value is no
     obstacle)."""

@@ -81,7 +81,7 @@ def spin_angle(bounds, t) -> np.ndarray:
 
 def rotary_readings(session, stream: str = "imu", coverage: float = 0.9,
                    trim: float = 0.0, channels=None) -> Reduced:
-    """Eq. (18) readings of a recorded rotary session (`station.files.session.Session`), SI units.
+    """Eq. (18) readings of a recorded rotary session (`station.session.Session`), SI units.
 
     Per completed position: the samples whose sampling instant lies in the static window and in
     the rotating window, the latter cut to whole revolutions by the recorded table angle

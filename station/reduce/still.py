@@ -97,7 +97,7 @@ def _window(value) -> list:
 
 def still_readings(session, stream: str = "imu", trim: float = 0.0,
                    still: StillOptions | None = None, **detector) -> StillReadings:
-    """The completed still poses of a session (`station.files.session.Session`).
+    """The completed still poses of a session (`station.session.Session`).
 
     Sample instants are worked out per segment of the stream (`station.reduce.timeline`: a
     reconnection or a resumed session starts one). The still intervals are detected once on the

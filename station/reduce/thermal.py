@@ -1,4 +1,4 @@
-"""A thermal campaign (station.files.campaign) -> one Soak per recorded session.
+"""A thermal campaign (station.session.campaign) -> one Soak per recorded session.
 
 Each session done is a rotary session at one chamber setpoint: its gyro channels (every channel
 not in K) reduce to Eq. (18) readings (`rotary_readings`) with their biases from the static windows
@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.errors import CalibrationInputError
-from station.files.campaign import Campaign
-from station.files.session import Session
 from station.model.temperature import Soak, check_kelvin
 from station.reduce.rotary import pooled_static_bias, rotary_channels, rotary_readings
+from station.session import Session
+from station.session.campaign import Campaign
 
 
 @dataclass(frozen=True)

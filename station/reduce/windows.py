@@ -9,7 +9,7 @@ increasing instants, and a window is, per run, the row range `np.searchsorted` f
 the same rows, in the same order, as the mask `(t >= t0) & (t <= t1)` over the whole stream.
 `StreamWindows` reads the stream's timing columns once, keeps the instants, and cuts each
 window's counts from blocks of the file's rows (`RowBlocks`: `BLOCK_BYTES` read at once by
-`station.files.session.Session.stream`, one refresh of the datasets each, sliced in memory);
+`station.session.Session.stream`, one refresh of the datasets each, sliced in memory);
 `table_angle` cuts the table states around a window from blocks likewise (`table_blocks`). A pass
 over the windows in order thus makes a few large reads, not one per window (a 2000-position
 session made about 6000), and holds one block beside the window.

@@ -15,8 +15,8 @@ import allantools
 import numpy as np
 from matplotlib.figure import Figure
 
+from station.calfiles.calfile import noise_units
 from station.errors import CalibrationInputError
-from station.files.calfile import noise_units
 from station.reduce.noise import SessionNoise, session_noise
 from station.report import html
 from station.solve.noise import FLOOR, TERMS

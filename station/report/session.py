@@ -36,13 +36,13 @@ from scipy import stats
 
 from station.errors import CalibrationInputError, InputError
 from station.files.jsonable import jsonable
-from station.files.session import Session
-from station.files.session.units import unit_serial
 from station.protocols import KINDS
 from station.reduce.rotary import position_spins, position_windows
 from station.reduce.timeline import sample_times, segment_breaks
 from station.replay import ReplaySettings, calibrated_stream, reduce_recorded, solve_recorded
 from station.report import html, noise, verdict
+from station.session import Session
+from station.session.units import unit_serial
 from station.solve.quality import CHI2_P, check_fit, outlier_words
 from station.solve.verdict import recorded_tolerances
 

@@ -11,8 +11,8 @@ tolerances but has no such file yet gets a warning naming the command that judge
 
 from pathlib import Path
 
+from station.calfiles.calfile import load
 from station.errors import InputError
-from station.files.calfile import load
 from station.report import html
 from station.solve.verdict import words
 

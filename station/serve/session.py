@@ -25,9 +25,9 @@ import time
 from pathlib import Path
 
 from station.errors import InputError, OperatorAbort, SessionPaused, StationError
-from station.files.session.units import SERIAL
 from station.serve.operator import BrowserOperator
 from station.serve.watch import BrowserView
+from station.session.units import SERIAL
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +78,7 @@ class BenchSession:
     def resume(self, session: str | None = None) -> None:
         """Go on with the paused session, or with the session file named `session` in the folder
         (aborted, failed or left by a killed server), on its bench profile."""
-        from station.files.session import Session
+        from station.session import Session
 
         if session is None:
             if self.state not in ("paused", "aborted", "failed") or self.path is None:
@@ -195,7 +195,7 @@ class BenchSession:
         completed before; kept where the browsers read it."""
         from drivers.clock import WallClock
         from station.acquire.bench import watchdog_shown
-        from station.files.session import StreamSpec
+        from station.session import StreamSpec
 
         spec = StreamSpec.from_profile(bench.imu.imu)
         view = BrowserView(WallClock(), spec.counts_per_unit, spec.channels,
@@ -278,7 +278,7 @@ class BenchSession:
 
 def _completed(path) -> int:
     """How many positions the session file completed."""
-    from station.files.session import Session
+    from station.session import Session
 
     with Session.open(path) as session:
         last = session.last_completed_position()

@@ -31,7 +31,7 @@ class Simulation:
     """A simulated recording: `arrays` (the data file's keys) and `truth` (JSON-ready dict).
 
     An array may be `Blocks` (the positions computed a block at a time as they are written,
-    `station.files.npz.write`)."""
+    `station.imports.npz.write`)."""
 
     arrays: dict
     truth: dict

@@ -43,11 +43,11 @@ from drivers.twins.failure import Failures
 from drivers.twins.serial import SerialTwin
 from station.acquire.operator import SimulatedTechnician
 from station.errors import InputError
-from station.files.session import Session, StreamSpec, write_results
 from station.model import sensing
 from station.model.earth import normal_gravity
 from station.model.effects import from_json
 from station.protocols.still import record_poses
+from station.session import Session, StreamSpec, write_results
 from station.sim.layouts import accelerometer_triad, gyro_array
 from station.solve.still import calibrate_still
 

@@ -45,12 +45,12 @@ from drivers.twins.table import TableTwin
 from station import limits
 from station.acquire.operator import SimulatedTechnician
 from station.errors import InputError
-from station.files.session import Session, SessionWriter, StreamSpec
 from station.model.effects import from_json, to_json
 from station.model.effects.rate_error import RateError
 from station.model.two_axis import orientation, position_axis, spin_axes
 from station.protocols import lookup
 from station.protocols.rotary import RotaryProtocol, RotarySettings, continue_session
+from station.session import Session, SessionWriter, StreamSpec
 from station.sim.layouts import A_MODEL, gyro_array
 from station.sim.live import MountedUnit
 from station.sim.spikes import SpikySource, check_spikes

@@ -40,7 +40,6 @@ import numpy as np
 
 from drivers.twins.failure import fail
 from station.errors import InputError
-from station.files.session.units import unit_stream
 from station.model.fixture import Fixture
 from station.model.two_axis import position_axes
 from station.protocols.planned import (
@@ -52,6 +51,7 @@ from station.protocols.planned import (
     two_axis_plan,
 )
 from station.protocols.rotary import RotarySettings, instruction, suggested_axes
+from station.session.units import unit_stream
 from station.sim.layouts import ACCELEROMETER_TOLERANCES, GYRO_TOLERANCES
 
 UNREAD_AFTER = 2.0

@@ -47,7 +47,7 @@ class ThermalTwin:
         from drivers.thermal_chamber import ChamberRegisterMap
         from drivers.twins.chamber import ChamberTwin
         from drivers.twins.thermal import ChamberPhysics
-        from station.files.session import StreamSpec
+        from station.session import StreamSpec
         from station.sim.heated import HeatedUnit
         from station.twin.served import BenchTwin
 

@@ -22,7 +22,7 @@ import scipy.io
 from scipy.io.matlab import MatReadError
 
 from station.errors import CalibrationInputError
-from station.files.session.format import ALLOWED_FILTERS
+from station.files.hdf5 import stored_plainly
 
 MAT5_MAGIC = b"MATLAB 5.0 MAT-file"
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
@@ -239,9 +239,7 @@ def _mat73_dataset(path: Path, f, name: str) -> np.ndarray:
         raise CalibrationInputError(f"{path}: variable {name!r} is not a numeric matrix "
                                     f"(MATLAB class {kind or 'unknown'}).",
                                     "Save a plain numeric matrix (no cells, structs or text).")
-    plist = obj.id.get_create_plist()
-    filters = {plist.get_filter(i)[0] for i in range(plist.get_nfilters())}
-    if obj.external or obj.is_virtual or not filters <= ALLOWED_FILTERS:
+    if not stored_plainly(obj):
         raise CalibrationInputError(f"{path}: variable {name!r} uses external storage or "
                                     "unknown filters; refusing to read it.",
                                     "Save it again in MATLAB (save -v7.3).")

@@ -2,7 +2,7 @@
 
 HDF5 parses a file's metadata in C while holding Python's GIL, so no Python timeout can stop it: a
 damaged object header can make the library loop. So `checked` reads the whole file in a child
-process (`python -m station.files.session.check FILE`, which imports h5py, numpy and the session
+process (`python -m station.session.check FILE`, which imports h5py, numpy and the session
 modules, never the solver): every group, attribute and dataset, each dataset chunk by chunk (HDF5
 verifies the writer's fletcher32 checksum of every chunk as it reads it), and each dataset's
 claimed size against the storage the file really holds for it (a damaged header that claims 5e7
@@ -39,7 +39,7 @@ import sys
 import numpy as np
 
 from station.errors import SessionFormatError, SessionUncheckedError
-from station.files.session.torn import tail_rows
+from station.session.torn import tail_rows
 
 CPU_BASE = 10.0
 """Seconds of CPU time any file's check may use, plus `CPU_PER_BYTE` of its size. Measured
@@ -50,7 +50,7 @@ CPU_PER_BYTE = 1 / 10e6
 WALL_FACTOR = 30
 """The wall-clock backstop, in multiples of the CPU limit: at a load of 30 on 2 cores a child
 still gets 1/15 of a core, so only a hung child meets it."""
-CHILD = ("-m", "station.files.session.check")
+CHILD = ("-m", "station.session.check")
 """The interpreter's arguments that run the survey in the child, FILE after them."""
 CRASHES = frozenset({signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGFPE, signal.SIGILL})
 """Signals that end a child inside the HDF5 library on the data it read: evidence of damage. Any
@@ -72,7 +72,7 @@ def checked(path, positions=None, cpu_limit: int | None = None) -> None:
     (default `cpu_seconds` of its size) or the wall-clock backstop. With `positions` (0-based),
     damaged sample rows are allowed when they belong to other positions only (the reader drops
     them: `Session.stream`). Each version of a file is read once per process."""
-    from station.files.session._repair import open_flags
+    from station.session._repair import open_flags
 
     path = os.fspath(path)
     open_flags(path)  # not HDF5 at all, or a damaged superblock: said at once
@@ -138,7 +138,7 @@ def _surveys_in_child(paths: list) -> list:
 
 
 def _child(paths: list, cpu_limit: int) -> subprocess.Popen:
-    """The child that surveys `paths` (`python -m station.files.session.check FILE...`), given
+    """The child that surveys `paths` (`python -m station.session.check FILE...`), given
     `cpu_limit` s of CPU time."""
     cmd = [sys.executable, *CHILD, *paths]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
@@ -273,8 +273,8 @@ def _opened(path):
     measured on one read past the end of a truncated file), for hours."""
     import h5py
 
-    from station.files.session._repair import FlagsCleared, open_flags
-    from station.files.session.format import LIBVER
+    from station.session._repair import FlagsCleared, open_flags
+    from station.session.format import LIBVER
 
     flags = open_flags(path)
     if flags and not _held(path):
@@ -334,7 +334,7 @@ def _dataset(ds, problems: list) -> list:
 def _positions(f, damaged: list) -> tuple:
     """(0-based positions whose span of host time overlaps damaged sample rows, or None when not
     known; the number of positions recorded)."""
-    from station.files.session.reader import read_events
+    from station.session.reader import read_events
 
     try:
         events = read_events(f["events"], f.filename)

@@ -14,9 +14,10 @@ import h5py
 import numpy as np
 
 from station.errors import InputError, SessionFormatError
-from station.files.session._repair import open_flags
-from station.files.session.format import (
-    ALLOWED_FILTERS,
+from station.files.hdf5 import stored_plainly
+from station.limits import json_loads
+from station.session._repair import open_flags
+from station.session.format import (
     COUNTS,
     EVENT_COLUMNS,
     EVENT_KINDS,
@@ -35,8 +36,7 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
-from station.files.session.torn import tail_rows
-from station.limits import json_loads
+from station.session.torn import tail_rows
 
 if TYPE_CHECKING:  # the solver (scipy) is imported where results are read: `_read_calibration`
     from station.solve.calibrate import CalibrationResult
@@ -263,12 +263,9 @@ def _child(group, name, kind, where):
     obj = group[name]
     if not isinstance(obj, kind):
         raise SessionFormatError(f"{where}: {obj.name} is not a {kind.__name__}")
-    if kind is h5py.Dataset:
-        plist = obj.id.get_create_plist()
-        filters = {plist.get_filter(i)[0] for i in range(plist.get_nfilters())}
-        if obj.external or obj.is_virtual or not filters <= ALLOWED_FILTERS:
-            raise SessionFormatError(f"{where}: {obj.name} uses external storage or unknown "
-                                     "filters; refusing to read it")
+    if kind is h5py.Dataset and not stored_plainly(obj):
+        raise SessionFormatError(f"{where}: {obj.name} uses external storage or unknown "
+                                 "filters; refusing to read it")
     return obj
 
 
@@ -330,7 +327,7 @@ def _columns(datasets, where, drop_damaged=False, start=0, stop=None, read=None)
     checksum fails) is a SessionFormatError, or with `drop_damaged` its rows are left out of
     every column read (but those its old checksum vouches for after a rewrite cut by a kill,
     `torn`), as samples the link lost (the sequence numbers show the gap;
-    `station.files.session.check` names the positions they belong to)."""
+    `station.session.check` names the positions they belong to)."""
     _refresh(*datasets.values())
     k = min(ds.shape[0] for ds in datasets.values())
     start, stop = min(start, k), k if stop is None else min(stop, k)

@@ -1,17 +1,20 @@
-"""The crash-safe HDF5 session file: one unit, one protocol run (format: docs/session-format.md).
+"""The crash-safe HDF5 session file: one unit, one protocol run (format: docs/session-format.md),
+and the thermal campaign: a directory of session files, one per chamber setpoint, and its manifest.
 
     format.py   names, version, columns, units and the data classes (StreamSpec, StreamData, ...)
     writer.py   SessionWriter (create, append, events, resume) and write_results
     reader.py   Session: reads a file, also while a writer is live (SWMR read)
     check.py    checked: the whole file read back once in a child process, its CPU time bounded
     units.py    the units of a session of several units on one table (metadata `units`)
+    torn.py     the last chunk a killed writer left half-written, told from damage and cut off
     _repair.py  the HDF5 superblock's open-for-write flags a killed writer leaves, cleared on resume
+    campaign.py the thermal campaign's manifest (campaign.json)
 
 This namespace is the public interface; the modules' other names are the package's own.
 """
 
 from station.errors import SessionFormatError, SessionLockedError
-from station.files.session.format import (
+from station.session.format import (
     COUNTS,
     EVENT_KINDS,
     FORMAT_VERSION,
@@ -25,11 +28,11 @@ from station.files.session.format import (
     nominal_layout,
 )
 
-_LAZY = {"Session": "station.files.session.reader",
-         "SessionWriter": "station.files.session.writer",
-         "write_results": "station.files.session.writer"}
+_LAZY = {"Session": "station.session.reader",
+         "SessionWriter": "station.session.writer",
+         "write_results": "station.session.writer"}
 """Imported on first use (PEP 562, as `station` itself does): reading and writing results load the
-solver (scipy), which `python -m station.files.session.check` does not need."""
+solver (scipy), which `python -m station.session.check` does not need."""
 
 
 def __getattr__(name):

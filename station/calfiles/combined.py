@@ -23,8 +23,8 @@ import hashlib
 
 import numpy as np
 
+from station.calfiles.calfile import Calibration, loads, read_text
 from station.errors import CalibrationFileError
-from station.files.calfile import Calibration, loads, read_text
 from station.solve import repeatability
 from station.solve.uncertainty import axis_angles
 

@@ -64,10 +64,10 @@ def headers(path, max_bytes: int | None = None) -> dict:
     alone, before anything is inflated: every member an .npy of numbers or fixed-width strings
     (never objects), at most `max_bytes` of data, its inflated size (`ZipInfo.file_size`) what
     its header's shape needs, and deflated at most MAX_RATIO times (a deflate bomb is refused
-    from the sizes, not after inflating it); max_bytes: default `station.files.tables.MAX_BYTES`.
+    from the sizes, not after inflating it); max_bytes: default `station.imports.tables.MAX_BYTES`.
     InputError names the array and the limit."""
     if max_bytes is None:
-        from station.files.tables import MAX_BYTES as max_bytes
+        from station.imports.tables import MAX_BYTES as max_bytes
     out = {}
     try:
         with zipfile.ZipFile(path) as zf:

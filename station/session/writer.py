@@ -24,8 +24,8 @@ import numpy as np
 
 from station.errors import InputError, SessionLockedError
 from station.files.provenance import software_version, utc_now
-from station.files.session._repair import clear_open_flags
-from station.files.session.format import (
+from station.session._repair import clear_open_flags
+from station.session.format import (
     CHUNK_BYTES,
     EVENT_COLUMNS,
     EVENT_KINDS,
@@ -48,8 +48,8 @@ from station.files.session.format import (
     float_matrix,
     last_completed_position,
 )
-from station.files.session.reader import Session, read_events, read_spec
-from station.files.session.torn import repair_tail
+from station.session.reader import Session, read_events, read_spec
+from station.session.torn import repair_tail
 from station.solve.calibrate import CalibrationResult
 
 
@@ -219,7 +219,7 @@ class SessionWriter:
             self.flush()
 
     def events(self) -> list:
-        """The events recorded so far (`station.files.session.Event`), this run's included."""
+        """The events recorded so far (`station.session.Event`), this run's included."""
         with self._mutex:
             self.flush()
             return read_events(self._file["events"], self.path)

@@ -6,7 +6,6 @@ import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import h5py
 import numpy as np
 
 from station.errors import InputError, SessionFormatError
@@ -32,7 +31,6 @@ NAME = re.compile(r"[a-z][a-z0-9_]{0,31}\Z")
 RESULT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}\Z")
 MAX_JSON_BYTES = 16 << 20
 CHUNK_BYTES = 64 << 10
-ALLOWED_FILTERS = {h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_FLETCHER32}
 COUNTS = "counts"
 """The unit of readings that are raw counts whose scale is not known (`Session.reading_units`)."""
 STREAM_UNITS = {"counts": "count", "seq": "1", "device_time": "s", "host_time": "s"}
