@@ -169,11 +169,14 @@ def suites(k: int, tests: list, nice: bool, timeout: float, logs: Path | None) -
 
 
 def suite(tests: list, nice: bool, timeout: float, log: Path | None = None) -> dict:
-    """The test suite (or `tests`), each test's outcome printed as it ends (`--verbosity=1`):
+    """The test suite (or `tests`), each test's outcome printed as it ends (`--verbosity=1`;
+    with a `log`, each failure's report written beside it as it ends: bench/failures_now.py):
     counts, failures, wall seconds, the slowest tests (pytest's --durations lines); killed after
     `timeout` s (exit None; `progress` and `failed_so_far`: the tests ended by then)."""
+    report = [] if log is None else ["-p", "bench.failures_now", "--failures-log",
+                                     str(log.with_suffix(".failures"))]
     done, seconds = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider",
-                         "--verbosity=1", *tests], nice, timeout, log)
+                         "--verbosity=1", *report, *tests], nice, timeout, log)
     ended = outcomes(done.stdout)
     counts = list(ended.values())
     return {"exit": done.returncode, "seconds": seconds, **pytest_counts(done.stdout),
