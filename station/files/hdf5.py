@@ -6,7 +6,8 @@ import h5py
 
 ALLOWED_FILTERS = frozenset({h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE,
                              h5py.h5z.FILTER_FLETCHER32})
-"""The filters a dataset read by the station may use: the ones the session writer uses."""
+"""The filters a dataset read by the station may use: the session writer's chunk checksum
+(fletcher32) and the compression MATLAB v7.3 writes (deflate, shuffle)."""
 
 
 def stored_plainly(dataset: h5py.Dataset) -> bool:
