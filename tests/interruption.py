@@ -30,8 +30,10 @@ from station.session import Session
 STATION = [sys.executable, "-m", "station"]
 POSITIONS = 3
 SEED = 3
-SPEED = 10.0
-"""The real-time twin's speed for the lost-device points."""
+TABLE_REPLY = 5.0
+"""Wall seconds `station record` waits for each reply of the table (`station twin --table-reply`):
+a silent table is found after 3 tries of it (the default, 30 s in lockstep, would take minutes);
+a hang guard for the replies of a table that answers, whose replies take no clock time."""
 WAIT = 1800.0
 """Wall seconds a step may take before the harness calls it hung: a hang guard only (the twin runs
 in lockstep time, so a busy host makes the session slower, never different)."""
@@ -48,15 +50,12 @@ RETRIES = 3
 """`RotarySettings.retries` of the twin's profile: reconnections tried before `record` gives up."""
 
 
-def _twin(workdir: Path, speed: float | None = None):
-    """A running `station twin` process and its bench profile: in lockstep time, or on a real-time
-    clock `speed` times faster (a silent device is found by wall-clock reply timeouts, which in
-    lockstep are 30 s a try: the device points run at SPEED)."""
+def _twin(workdir: Path):
+    """A running `station twin` process in lockstep time and its bench profile."""
     profile = workdir / "twin.toml"
     twin = subprocess.Popen(
-        [*STATION, "twin", *(["--speed", str(speed)] if speed else []), "--positions",
-         str(POSITIONS), "--seed", str(SEED), "--profile-out", str(profile), "--lifetime",
-         str(WAIT), "--json"],
+        [*STATION, "twin", "--positions", str(POSITIONS), "--seed", str(SEED), "--profile-out",
+         str(profile), "--table-reply", str(TABLE_REPLY), "--lifetime", str(WAIT), "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     json.loads(twin.stdout.readline())  # the twin is serving
     return twin, profile
@@ -107,7 +106,7 @@ def record(workdir: Path, interrupt=None) -> dict:
     after a lost device also whether the table still turned when `record` had ended."""
     workdir.mkdir(parents=True, exist_ok=True)
     session = workdir / "session.h5"
-    twin, profile = _twin(workdir, SPEED if interrupt and interrupt[0] in DEVICES else None)
+    twin, profile = _twin(workdir)
     try:
         enters = workdir / "enter.txt"  # the technician's answers
         enters.write_text(_answers(interrupt))

@@ -131,10 +131,12 @@ def test_devices_lists_serial_ports_and_can_channels(capsys):
 
 def test_the_twins_bench_profile_points_at_its_devices(tmp_path):
     with BenchTwin(seed=2, speed=10, positions=12) as twin:
+        twin.bench.table_reply = 2.5  # station twin --table-reply 2.5
         (tmp_path / "b.toml").write_text(twin.profile_text("SN9"))
         bench = BenchProfile.load(tmp_path / "b.toml")
         assert bench.imu_address == twin.bench.imu_twin.port
         assert (bench.table_host, bench.table_port) == ("127.0.0.1", twin.bench.table_twin.port)
+        assert bench.table_reply == 2.5
         assert (bench.unit_serial, bench.positions, bench.clock_speed) == ("SN9", 12, 10.0)
         assert bench.imu.imu.rate_hz == 200.0
 

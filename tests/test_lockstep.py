@@ -146,6 +146,31 @@ def test_the_ledger_keeps_time_until_the_reader_took_what_was_sent():
     assert not clock.in_flight("port")
 
 
+def test_an_unplugged_twin_leaves_no_bytes_in_flight():
+    """Bytes a twin sent into a pty that nobody took are gone when the cable is pulled: time
+    moves on (else it would wait for ever for a reader to take them, and a station would never
+    see its IMU fall silent: a lost-device session on `station twin` hung so)."""
+    from drivers.profile import SerialImuProfile
+    from drivers.twins.serial import SerialTwin
+
+    clock = SteppedClock(step=0.1)
+    profile = SerialImuProfile.load("imu12_serial")
+    channels = len(profile.imu.channels)
+    twin = SerialTwin(profile, lambda t: np.zeros((len(t), channels), np.int64), clock=clock,
+                      rate_hz=100.0)
+    clock.watch(lambda: clock.in_flight(twin.port))  # a reader has the port open
+    reached = []
+    with twin:
+        (station,) = _threads(clock, lambda: reached.append(clock.sleep(1.0) or clock.now()))
+        deadline = time.monotonic() + 60  # a hang guard only
+        while not clock.in_flight(twin.port) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert clock.in_flight(twin.port) and clock.now() == pytest.approx(0.1)
+        twin.unplug()
+        station.join(60)
+    assert reached == [pytest.approx(1.0)]
+
+
 def test_real_time_clocks_keep_their_verbs():
     """The lockstep verbs are no-ops on real-time clocks (one code path for devices and
     recorder), and a scaled clock refuses a speed it cannot keep."""

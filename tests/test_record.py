@@ -168,6 +168,8 @@ def test_station_resume_stops_a_turning_table_before_anything_else(tmp_path):
     (lambda t: t.replace('link = "serial"', 'link = "usb"'), "link: must be one of"),
     (lambda t: t + "\n[extra]\n", "unknown sections"),
     (lambda t: t.replace("[table]", "[tabel]"), "unknown sections"),
+    (lambda t: t.replace("port = 5020", "port = 5020\nreply_timeout = 0.0"),
+     "reply_timeout: 0.0: give 0 < seconds <= 600"),
     (lambda t: t.replace('unit_serial = "SIM-1"', ""), "unit_serial: missing"),
     (lambda t: t.replace('"SIM-1"', '"../../x"'), "it names the session file"),
     (lambda t: t.replace('port = "/dev/null"', 'port = "/dev/null"\nrate_hz = 0.0'),

@@ -36,8 +36,12 @@ class Streamer:
 
     def unplug(self) -> None:
         """Pull the cable: a pty closes (its reader gets an error, as with a real unplug), UDP
-        goes silent."""
+        goes silent. The bytes it held are gone: on a stepped clock they are no longer in flight
+        (else time would wait for ever for a reader to take them, and the station would never
+        see its IMU fall silent)."""
         self.link.unplug()
+        self.clock.forget(self.port)
+        self.clock.nudge()
 
     def _launch(self, name: str):
         """Start `_run` in the background thread `name`; returns self."""
@@ -49,7 +53,7 @@ class Streamer:
 
     def _failed(self, exc: Exception) -> None:
         """The stream cannot go on: unplug and tell (see the class docstring)."""
-        fail(self, exc, self.link.unplug)
+        fail(self, exc, self.unplug)
 
     def stop(self) -> None:
         """Stop streaming, close the link (a pty and its port link are removed); re-raise a

@@ -70,6 +70,7 @@ class BenchProfile:
     table_port: int | None = None
     table_map: object = None
     table_source: str | None = None  # the register map's profile file
+    table_reply: float | None = None  # [table] reply_timeout: wall s per reply (None: the driver's)
     layout: np.ndarray | None = None  # kinds without a table: (3, m_acc) accelerometer axes
     fixture: object = None  # rotary, static: station.protocols.planned.FixtureSpec of [fixture]
     plan: object = None  # rotary on a two-axis table: station.protocols.planned.PlanSpec of [plan]
@@ -343,15 +344,20 @@ def _chamber(section, device, imu):
 
 
 def _table_fields(profile, table) -> dict:
-    """The table's address and register map from the bench profile's [table] section `table`."""
+    """The table's address, register map and reply timeout from the bench profile's [table]
+    section `table`."""
     from drivers.profile import load_profile
     from drivers.rotary_table import TableRegisterMap
 
     table_profile = load_profile(_device(profile, table.get("profile", str,
                                                             default="table_modbus")))
+    reply = table.get("reply_timeout", float, default=None)
+    if reply is not None and not 0 < reply <= 600:
+        raise table.error("reply_timeout", f"{reply!r}: give 0 < seconds <= 600 (the wall "
+                                           "seconds to wait for each reply of the table)")
     return {"table_host": table.get("host", str), "table_port": table.get("port", int),
             "table_map": table_profile.section("table", TableRegisterMap.parse),
-            "table_source": table_profile.source}
+            "table_source": table_profile.source, "table_reply": reply}
 
 
 def stop_table(path) -> bool:
@@ -366,7 +372,8 @@ def stop_table(path) -> bool:
     if not isinstance(profile.tables.get("table"), dict):
         return False
     fields = _table_fields(profile, Section(profile.source, "table", profile.tables["table"]))
-    table = RotaryTable(fields["table_host"], fields["table_port"], fields["table_map"])
+    table = RotaryTable(fields["table_host"], fields["table_port"], fields["table_map"],
+                        timeout=fields["table_reply"])
     try:
         table.connect()
         table.stop()
@@ -613,7 +620,8 @@ def table_driver(bench: BenchProfile, clock):
     from drivers.rotary_table import RotaryTable
     from station.acquire.watchdog import fed
 
-    with RotaryTable(bench.table_host, bench.table_port, bench.table_map, clock=clock) as table:
+    with RotaryTable(bench.table_host, bench.table_port, bench.table_map,
+                     timeout=bench.table_reply, clock=clock) as table:
         table.stop()
         with fed(table):
             yield table

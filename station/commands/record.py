@@ -22,6 +22,8 @@ The bench profile (TOML) says where the devices are and how to run the protocol:
     port = 502
     profile = "table_modbus"      # register map: path or bundled name ("table_two_axis": the
                                   # station sets every position itself, no operator input)
+    # reply_timeout = 0.5         # optional: wall s to wait for each reply (default 0.5; 30 on
+                                  # a lockstep clock); a silent table is lost after 3 tries
 
     [protocol]
     kind = "rotary"               # "rotary" (default), "iron" or "static"

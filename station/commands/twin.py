@@ -34,17 +34,18 @@ It prints the devices' addresses and writes a bench profile pointing at them (`-
 then runs until Ctrl-C or `--lifetime` wall seconds. A device can be lost on the real wire and
 brought back while the twin runs: SIGUSR1 unplugs the IMU (its pty is closed; the same port comes
 back at the next SIGUSR1), SIGUSR2 silences the rotary table (its Modbus server stops answering;
-again at the next SIGUSR2), e.g. `kill -USR1 <twin pid>`: to try `station record`'s reconnection,
-pause and `station resume`. Every bench runs in lockstep time by default: the twin serves
-its stepped clock on a Unix socket named in the profile ([bench] lockstep), and `station record`
-takes part in it, so the session is the same on any host and runs as fast as the host allows
-(`drivers.clock_link`). `--speed` gives a real-time clock instead, that many times faster than the
-wall (the profile tells `station record` the same speed): what the lag, silence and reconnect
-guards need. With --json, the truth
-(sensitivity matrix, biases, mountings) is printed as JSON when the twin stops. A virtual device
-that stops on an error of its own (its simulation, not a signal) ends the twin at once: its error
-line names the device and the error, e.g. `station twin: the serial IMU twin stopped: ValueError:
-...` (exit code 1; `drivers.twins.failure`).
+again at the next SIGUSR2; the profile's [table] reply_timeout, `--table-reply`, is how long the
+station waits for each reply: in lockstep 30 wall s unless given), e.g. `kill -USR1 <twin pid>`: to
+try `station record`'s reconnection, pause and `station resume`. Every bench runs in lockstep time
+by default: the twin serves its stepped clock on a Unix socket named in the profile ([bench]
+lockstep), and `station record` takes part in it, so the session is the same on any host and runs
+as fast as the host allows (`drivers.clock_link`). `--speed` gives a real-time clock instead, that
+many times faster than the wall (the profile tells `station record` the same speed): what the lag,
+silence and reconnect guards need. With --json, the truth (sensitivity matrix, biases, mountings)
+is printed as JSON when the twin stops. A virtual device that stops on an error of its own (its
+simulation, not a signal) ends the twin at once: its error line names the device and the error,
+e.g. `station twin: the serial IMU twin stopped: ValueError: ...` (exit code 1;
+`drivers.twins.failure`).
 
 `--link mavlink` (with `--protocol static`) serves the hand bench's triad as a flight controller
 speaking MAVLink (`drivers.twins.mavlink.MavlinkTwin`: HEARTBEAT at 1 Hz, SCALED_IMU with the
@@ -133,6 +134,11 @@ def register(p) -> None:
     p.add_argument("--table-log", type=Path,
                    help="rotary: append each write the table accepts to this file, one line "
                         "'<CLOCK_MONOTONIC s> <address> <values>' (to time a station's commands)")
+    p.add_argument("--table-reply", type=float, metavar="SECONDS",
+                   help="rotary: the profile's [table] reply_timeout, the wall seconds `station "
+                        "record` waits for each reply of the table (default: the driver's, 30 s "
+                        "in lockstep, 0.5 s with --speed); a few seconds find a silent table "
+                        "(SIGUSR2) quickly in lockstep")
     p.add_argument("--json", action="store_true",
                    help="machine-readable addresses, and the truth when stopping")
     p.set_defaults(run=run)
@@ -166,8 +172,12 @@ def run(args) -> int:
     if args.units > 1 and (args.protocol != "rotary" or args.chamber):
         raise InputError("--units: several units share the rotary table (--protocol rotary, "
                          "no --chamber)")
-    if (args.table_log or args.two_axis) and not KINDS[args.protocol].table:
-        raise InputError(f"--table-log, --two-axis: a {args.protocol} bench has no rotary table")
+    if (args.table_log or args.two_axis or args.table_reply is not None) \
+            and not KINDS[args.protocol].table:
+        raise InputError(f"--table-log, --two-axis, --table-reply: a {args.protocol} bench has "
+                         "no rotary table")
+    if args.table_reply is not None and not 0 < args.table_reply <= 600:
+        raise InputError("--table-reply: give 0 < seconds <= 600 (the wait for each reply)")
     if args.plan and not args.two_axis:
         raise InputError("--plan plans the positions of a two-axis table: give --two-axis "
                          "(--cube plans a fixture's poses)")
@@ -188,6 +198,7 @@ def run(args) -> int:
             twin = KINDS[args.protocol].entry("twin")(args)
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
+    twin.bench.table_reply = args.table_reply
     stop = threading.Event()
     devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
     if not KINDS[args.protocol].table:

@@ -48,7 +48,8 @@ def table_reading(bench):
     when it does not answer."""
     from drivers.rotary_table import RotaryTable
 
-    table = RotaryTable(bench.table_host, bench.table_port, bench.table_map)
+    table = RotaryTable(bench.table_host, bench.table_port, bench.table_map,
+                        timeout=bench.table_reply)
     try:
         table.connect()
         return table.state()

@@ -144,7 +144,13 @@ class VirtualBench:
                     mounts the unit
     spikes        : a fault knob: the positions (1-based, over the bench's life) whose first
                     attempt is spiky, or a chance per position (`station.sim.spikes`); None: none
+
+    `table_reply` (attribute, default None): the wall seconds the station's table driver waits
+    for each reply (`drivers`, and the [table] reply_timeout of `station twin`'s profile); None:
+    `drivers.clock.reply_timeout` of the bench's clock.
     """
+
+    table_reply: float | None = None
 
     def __init__(self, imu: str = "serial", seed: int = 1, speed: float | None = None,
                  rate_hz: float = 200.0, remount_time: float = 5.0, placement_deg: float = 0.5,
@@ -279,9 +285,9 @@ class VirtualBench:
     def drivers(self, reply: float | None = None):
         """(imu, table): the station's real drivers connected to the twins, closed on exit; the
         table driver stops the table on exit whatever happened. `reply`: wall seconds the table
-        driver waits for each reply (default `drivers.clock.reply_timeout` of the bench's
-        clock)."""
-        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map, timeout=reply,
+        driver waits for each reply (default `table_reply`)."""
+        table = TableDriver("127.0.0.1", self.table_twin.port, self.table_map,
+                            timeout=self.table_reply if reply is None else reply,
                             clock=self.clock)
         with contextlib.ExitStack() as stack:
             imu = stack.enter_context(open_imu(self.kind, self.imu_address, self.profile,

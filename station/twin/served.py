@@ -255,7 +255,8 @@ class BenchTwin(Served):
             {**imu, "id_offset": PLATE_ID_STEP * k, **served} for k in range(len(self._can_units))]}
         return {"imu": {**imu, **served},
                 "table": {"host": "127.0.0.1", "port": b.table_twin.port,
-                          "profile": "table_two_axis" if b.two_axis else "table_fixture"},
+                          "profile": "table_two_axis" if b.two_axis else "table_fixture",
+                          **({} if b.table_reply is None else {"reply_timeout": b.table_reply})},
                 **_clock_address(b.clock, self.clock_server), **units}
 
     def toggle(self, device: str) -> bool:
