@@ -154,6 +154,7 @@ class SteppedClock:
         self._ledger = {}  # link -> bytes sent minus bytes taken
         self._nudges = 0  # nudges so far
         self._seen = {}  # thread -> `_nudges` when it last stopped waiting
+        self._flight = (None, -math.inf)  # what the last wake for data in flight saw, and when
 
     def now(self) -> float:
         return self._t
@@ -285,13 +286,25 @@ class SteppedClock:
         if any(t not in self._waiting for t in self._members) or all(self._members.values()):
             return
         if any(_busy(probe) for probe in self._probes):
-            self._wake(lambda until: until is None, flight=True)  # a reader has data to take
+            self._wake_for_flight()
             return
         instants = [until for until in self._waiting.values() if until is not None]
         if not instants:
             return
         self._t = max(self._t, min(instants))
         self._wake(lambda until: until is None or until <= self._t)
+
+    def _wake_for_flight(self) -> None:
+        """With the lock held, data in flight: wake the idle members, a reader has data to take.
+        Once per change (a nudge, a move of time, bytes sent or taken), or after `backstop` wall
+        seconds: a member with nothing to do with the data (a fixture waiting for a command)
+        would otherwise spin, taking the CPU from the reader (perhaps in another process, on a
+        busy host) while it takes the bytes."""
+        seen, now = (self._nudges, self._t, tuple(self._ledger.items())), time.monotonic()
+        if seen == self._flight[0] and now - self._flight[1] < self.backstop:
+            return
+        self._flight = (seen, now)
+        self._wake(lambda until: until is None, flight=True)
 
 
 def _ended(thread) -> bool:
