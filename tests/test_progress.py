@@ -1,10 +1,12 @@
 """Long commands show a progress bar on a terminal's stderr and nothing when stderr is a pipe
 (station.commands.progress), so that JSON and piped output stay clean."""
 
+import contextlib
 import os
 import pty
 import subprocess
 import sys
+import threading
 
 import numpy as np
 
@@ -31,21 +33,25 @@ def _station(args, tmp_path, stderr):
 
 
 def test_import_on_a_terminal_shows_the_bytes_read(tmp_path):
+    """The terminal is read while the command runs, as a terminal is: unread, a slow import's
+    progress bar (more redraws on a busy host) fills the pty and the command waits for ever."""
     controller, terminal = pty.openpty()
+    seen = bytearray()
+
+    def read() -> None:
+        with contextlib.suppress(OSError):  # the terminal side is closed and drained
+            while chunk := os.read(controller, 65536):
+                seen.extend(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     try:
         done = _station(IMPORT, tmp_path, terminal)
-        os.close(terminal)
-        seen = b""
-        while True:
-            try:
-                chunk = os.read(controller, 65536)
-            except OSError:  # the terminal side is closed and drained
-                break
-            if not chunk:
-                break
-            seen += chunk
     finally:
+        os.close(terminal)
+        reader.join(60)
         os.close(controller)
+    seen = bytes(seen)
     assert done.returncode == 0, seen
     size = (tmp_path / "x.csv").stat().st_size
     assert b"importing into" in seen and f"{size}/{size}".encode() in seen, seen[-400:]

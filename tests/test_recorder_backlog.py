@@ -25,12 +25,15 @@ from station.session import Session, SessionWriter, StreamSpec
 
 BASE = SerialImuProfile.load("imu12_serial")
 PROFILE = dataclasses.replace(BASE, imu=dataclasses.replace(BASE.imu, rate_hz=200.0))
-SPEED = 10.0
-"""Clock speed: 200 Hz on it is 2000 frames (116 KB) a wall second."""
-INTERVAL = 0.05
-"""The recorder's pause (wall s): one pty buffer (70 frames) a pause carries 1400 frames a wall
+SPEED = 2.0
+"""Clock speed: 200 Hz on it is 400 frames (23 KB) a wall second: a reader starved by a busy host
+(an eighth of a core) still reads them many times over (at 10x, 2000 frames a wall second, one
+beside 6 CPU hogs and a whole test suite never caught up: every instant 4.7 s late)."""
+INTERVAL = 0.25
+"""The recorder's pause (wall s): one pty buffer (70 frames) a pause carries 280 frames a wall
 second, fewer than the device sends, so only a reader that reads on while blocks come catches up,
-however fast the host."""
+however fast the host; and a full buffer is more than half what a pause brings (50 frames), so the
+reader does read on (`Recorder._read`)."""
 BACKLOG = 3.0
 """Clock seconds the port is open before the recorder reads it."""
 
