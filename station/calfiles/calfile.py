@@ -280,8 +280,7 @@ class Calibration(measurement.Sensitivity):
             session=session, covariance=_joint_covariance(result, own_bias, bias_sigma),
             pose_sigma=result.pose_sigma, white=_white(result, None if own_bias else bias_sigma),
             stimulus=stimulus)
-        _from_document(cal.to_document(), "the calibration")  # the same checks as a load
-        return cal
+        return cal.checked()
 
     @classmethod
     def from_carry(cls, carry, unit_serial: str, sensors, *, frame: str, magnitude: float,
@@ -316,14 +315,12 @@ class Calibration(measurement.Sensitivity):
             counts_per_unit=None if counts_per_unit is None else np.asarray(counts_per_unit,
                                                                                float),
             session=session, covariance=carry.covariance)
-        _from_document(cal.to_document(), "the calibration")  # the same checks as a load
-        return cal
+        return cal.checked()
 
     def with_noise(self, noise: NoiseFigures | None) -> "Calibration":
         """This calibration with its sensors' `NoiseFigures` (checked as a load checks them)."""
         cal = dataclasses.replace(self, noise=noise)
-        _from_document(cal.to_document(), "the calibration")
-        return cal
+        return cal.checked()
 
     @classmethod
     def from_temperature_fit(cls, fit, unit_serial: str, sensors, units,
@@ -348,8 +345,7 @@ class Calibration(measurement.Sensitivity):
         """This calibration with a temperature model (checked as a load checks it); a and bias
         must be the calibration at the model's t_ref (station.solve.temperature's reference)."""
         cal = dataclasses.replace(self, temperature=model)
-        _from_document(cal.to_document(), "the calibration")
-        return cal
+        return cal.checked()
 
     def apply_at(self, z, temperature) -> np.ndarray:
         """Calibrated vectors (d, k) from SI readings z (m, k) taken at the unit's temperatures
@@ -424,9 +420,21 @@ class Calibration(measurement.Sensitivity):
                     f"{where} is in {sorted(set(units))} but the calibration expects "
                     f"{sorted(set(self.units))}; convert the readings to SI first")
 
+    def checked(self) -> "Calibration":
+        """This calibration, once it passes the checks a load makes (`loads`) but the checksum's
+        (it has none yet); CalibrationFileError naming the problem."""
+        _from_document(self._document(), "the calibration", checksummed=False)
+        return self
+
     def to_document(self) -> dict:
         """The JSON document of the file (checksum included)."""
-        doc = {
+        doc = self._document()
+        doc["checksum"] = checksum(doc)
+        return doc
+
+    def _document(self) -> dict:
+        """The JSON document of the file without its checksum."""
+        return {
             "format": FORMAT, "format_version": FORMAT_VERSION,
             "software_version": self.software_version, "created": self.created,
             "conventions": dict(CONVENTIONS_V6),
@@ -452,8 +460,6 @@ class Calibration(measurement.Sensitivity):
             "temperature": None if self.temperature is None else
             temperature_document(self.temperature, self.units[0]),
         }
-        doc["checksum"] = checksum(doc)
-        return doc
 
     def dumps(self) -> str:
         """The file's text."""
@@ -692,8 +698,9 @@ def _no_duplicates(pairs):
     return doc
 
 
-def _from_document(doc, where: str) -> Calibration:
-    """Check a parsed document, in order: format, version, checksum, content."""
+def _from_document(doc, where: str, checksummed: bool = True) -> Calibration:
+    """Check a parsed document, in order: format, version, checksum (a file's; `checksummed`
+    False: a document made here, `Calibration.checked`), content."""
     def fail(problem: str, advice: str = "the file is damaged or was edited; solve the session "
                                          "again or use an intact copy") -> CalibrationFileError:
         return CalibrationFileError(f"{where}: {problem}; {advice}")
@@ -708,10 +715,10 @@ def _from_document(doc, where: str) -> Calibration:
                    f"({', '.join(map(str, SUPPORTED_VERSIONS))})",
                    "files of a newer version need newer station software")
     unknown = sorted(set(doc) - set(_KEYS[version]))
-    missing = [k for k in _KEYS[version] if k not in doc]
+    missing = [k for k in _KEYS[version] if k not in doc and (checksummed or k != "checksum")]
     if unknown or missing:
         raise fail(f"unknown keys {unknown} / missing keys {missing} for format version {version}")
-    if doc["checksum"] != checksum(doc):
+    if checksummed and doc["checksum"] != checksum(doc):
         raise fail("the checksum does not match the content (it was changed after it was "
                    "written)")
     if doc["conventions"] != _CONVENTIONS[version]:
@@ -838,12 +845,7 @@ def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positi
     """A float64 array from nested lists of JSON numbers (bool refused), checked; every
     |value| <= bound (no overflow when squared or multiplied)."""
     value = doc.get(key)
-
-    def numbers(x):
-        return all(numbers(y) for y in x) if isinstance(x, list) \
-            else type(x) in (int, float)
-
-    if not isinstance(value, list) or not numbers(value):
+    if not isinstance(value, list) or not _numbers(value):
         raise fail(f"{key} must be a (nested) list of numbers")
     try:
         arr = np.array(value, dtype=np.float64)
@@ -860,6 +862,20 @@ def _array(doc, key, fail, ndim=None, cols=None, shape=None, sigma=False, positi
         raise fail(f"{key} must be finite (|x| <= {bound:g}){' and non-negative' if sigma else ''}"
                    f"{' and positive' if positive else ''}")
     return arr
+
+
+def _numbers(value: list) -> bool:
+    """Are the leaves of the nested list `value` all JSON numbers (int or float, not bool)? One
+    look at the types of each list's items (no recursion)."""
+    todo = [value]
+    while todo:
+        items = todo.pop()
+        kinds = set(map(type, items))
+        if not kinds <= {int, float, list}:
+            return False
+        if list in kinds:
+            todo.extend(x for x in items if type(x) is list)
+    return True
 
 
 def _pretty(value, indent: str = "") -> str:
