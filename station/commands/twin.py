@@ -172,10 +172,11 @@ def run(args) -> int:
     if args.units > 1 and (args.protocol != "rotary" or args.chamber):
         raise InputError("--units: several units share the rotary table (--protocol rotary, "
                          "no --chamber)")
-    if (args.table_log or args.two_axis or args.table_reply is not None) \
-            and not KINDS[args.protocol].table:
-        raise InputError(f"--table-log, --two-axis, --table-reply: a {args.protocol} bench has "
-                         "no rotary table")
+    tabled = [name for name, given in (("--table-log", args.table_log),
+                                       ("--two-axis", args.two_axis),
+                                       ("--table-reply", args.table_reply is not None)) if given]
+    if tabled and not KINDS[args.protocol].table:
+        raise InputError(f"{', '.join(tabled)}: a {args.protocol} bench has no rotary table")
     if args.table_reply is not None and not 0 < args.table_reply <= 600:
         raise InputError("--table-reply: give 0 < seconds <= 600 (the wait for each reply)")
     if args.plan and not args.two_axis:
