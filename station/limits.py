@@ -35,11 +35,6 @@ MAX_FLOAT = 1.7976931348623157e308
 """Largest magnitude of a JSON number: a float64's; an integer beyond it cannot become a float."""
 _TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
 """A JSON string (skipped whole: brackets in it do not nest) or a bracket."""
-_BEYOND = re.compile(r"[eE][+-]?\d{3}|\d{200}|NaN|Infinity")
-"""What in a JSON text may be a number that is not finite or beyond float range: an exponent of
-three digits or more, a run of 200 digits, NaN, Infinity. A JSON number without these has at
-most 199 digits before its point and an exponent under 100, so it is below 10**299: a text that
-holds none of them needs no walk (`finite`); one that does (a string may) is walked."""
 
 
 def number(value, field: str, low: float, high: float, error=InputError) -> float:
@@ -113,8 +108,7 @@ def json_loads(text: str | bytes, what: str, limit: int = MAX_DEPTH, error=Input
         if isinstance(exc, error):
             raise
         raise error(f"{what} is not valid JSON ({' '.join(str(exc).split())[:160]})") from None
-    if not isinstance(text, str) or _BEYOND.search(text):  # bytes: perhaps UTF-16, walk them
-        finite(doc, what, error)
+    finite(doc, what, error)
     return doc
 
 
