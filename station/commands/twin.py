@@ -164,6 +164,7 @@ def _spikes(text: str | None):
 def run(args) -> int:
     from station.commands import given_values
     from station.errors import InputError
+    from station.limits import positive
 
     if args.positions < 1 or args.mountings < 1 or not args.lifetime > 0 or args.units < 1 \
             or not (args.speed is None or 0 < args.speed < float("inf")):
@@ -177,8 +178,8 @@ def run(args) -> int:
                                        ("--table-reply", args.table_reply is not None)) if given]
     if tabled and not KINDS[args.protocol].table:
         raise InputError(f"{', '.join(tabled)}: a {args.protocol} bench has no rotary table")
-    if args.table_reply is not None and not 0 < args.table_reply <= 600:
-        raise InputError("--table-reply: give 0 < seconds <= 600 (the wait for each reply)")
+    if args.table_reply is not None:
+        positive(args.table_reply, "--table-reply (the wait for each reply, s)", 600)
     if args.plan and not args.two_axis:
         raise InputError("--plan plans the positions of a two-axis table: give --two-axis "
                          "(--cube plans a fixture's poses)")
