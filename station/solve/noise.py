@@ -40,6 +40,7 @@ import numpy as np
 
 from station.errors import CalibrationInputError
 from station.solve.allan_covariance import EXPONENT, second_moments, stretch_covariance
+from station.solve.allan_edf import allan_edf
 
 FLOOR = 2.0 * math.log(2.0) / math.pi
 """AVAR of bias instability B = 1 at long taus: the Allan deviation floor is B sqrt(FLOOR) (IEEE
@@ -213,17 +214,6 @@ def design(m, rate: float) -> np.ndarray:
 
 
 @lru_cache(maxsize=4096)
-def _greenhall(alpha: int, m: int, length: int) -> float:
-    """edf of an overlapping Allan variance at factor m of `length` readings (length + 1 phase
-    points) for power-law noise alpha (`allantools.edf_greenhall`, Greenhall and Riley 2004;
-    imported here, where it is needed: allantools brings scipy.stats)."""
-    import allantools
-
-    return float(allantools.edf_greenhall(alpha=alpha, d=2, m=int(m), N=int(length) + 1,
-                                          overlapping=True))
-
-
-@lru_cache(maxsize=4096)
 def _finite_length(alpha: int, m: int, length: int) -> float:
     """Greenhall's ratio of the variance of the estimate at factor m of `length` readings to its
     large-length form 2 / M sum_l R(l)^2 (the sum's lags near the ends are counted fewer than M
@@ -231,7 +221,7 @@ def _finite_length(alpha: int, m: int, length: int) -> float:
     power-law noise alpha. (His edf itself is not taken: for discrete white noise at m = 4 and
     16 it is 11 % and 5 % below the exact 3 M / (2 m) x 4 m^2 / (4 m^2 + 5), NIST SP 1065 Table
     12, which seeded streams confirm; the ratio agrees with the exact white-noise sums to 1e-5.)"""
-    per_term = [_greenhall(alpha, m, n) / (n - 2 * m + 1) for n in (LARGE, length)]
+    per_term = [allan_edf(alpha, m, n + 1) / (n - 2 * m + 1) for n in (LARGE, length)]
     return per_term[0] / per_term[1]
 
 
