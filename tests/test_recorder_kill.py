@@ -9,7 +9,6 @@ import random
 import signal
 import subprocess
 import sys
-import threading
 
 import numpy as np
 from scipy import stats
@@ -27,15 +26,17 @@ POSITION_ROWS = int(15.0 * RATE_HZ)  # a position: 16.75 s of clock (remount, wi
 # are placed by the session's progress (IMU rows flushed), not by wall seconds.
 # The recording process: creates the session (or resumes it with the same code as `station
 # resume`) and prints "flushed <imu rows> <table rows> <events>" whenever the durable row counts
-# change, then "done" if nobody killed it first.
+# change, then "done" if it was not killed first. It sends itself SIGKILL once it has flushed
+# ROWS more IMU rows than at its first report: a kill from the test after reading that report
+# lands later the busier the host (beside 6 CPU hogs the session once ended first).
 WORKER = f"""
-import sys, threading, time
+import os, signal, sys, threading, time
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.twin.rotary_bench import VirtualBench, record_rotary, resume_rotary
 
 def watch(writer):
     def report():
-        last = None
+        last = first = None
         while True:
             try:
                 now = writer.flushed
@@ -44,10 +45,13 @@ def watch(writer):
             if now != last:
                 last = now
                 print("flushed", now["imu"], now["table"], now["events"], flush=True)
+                first = now["imu"] if first is None else first
+                if now["imu"] - first >= ROWS:
+                    os.kill(os.getpid(), signal.SIGKILL)
             time.sleep(0.01)
     threading.Thread(target=report, daemon=True).start()
 
-path, mode = sys.argv[1], sys.argv[2]
+path, mode, ROWS = sys.argv[1], sys.argv[2], int(sys.argv[3])
 if mode == "create":
     settings = RotarySettings(rate=1.0, revolutions=1, static=3.0, rest=0.5, guard=0.5, steady=0.5)
     with VirtualBench(seed={SEED}, rate_hz={RATE_HZ}, remount_time=1.0) as bench:
@@ -59,31 +63,17 @@ print("done", flush=True)
 
 
 def run_and_kill(path, mode, rows):
-    """Run the worker; SIGKILL it once it reports `rows` more IMU rows flushed than at its first
-    report (unless it finished first). Returns (last reported flushed counts, finished). The
-    worker's temporary files (its twin's pty directory, which a killed process cannot remove) go
-    beside the session file."""
-    proc = subprocess.Popen([sys.executable, "-c", WORKER, str(path), mode],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "TMPDIR": str(path.parent)})
-    lines, reached = [], threading.Event()
-
-    def read():  # a line cut by the kill is left out
-        for line in proc.stdout:
-            words = line.split()
-            if line.endswith("\n") and words and (words[0] == "done" or len(words) == 4):
-                lines.append(words)
-                if words[0] == "done" or int(words[1]) - int(lines[0][1]) >= rows:
-                    reached.set()
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    while not reached.wait(0.1):  # however long a loaded host takes: the test's own timeout
-        assert proc.poll() is None, f"worker ended early: {proc.stderr.read()}"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    reader.join(5)
-    proc.stderr.close()
-    flushed = [tuple(map(int, w[1:])) for w in lines if w[0] == "flushed"]
+    """Run the worker, which kills itself (SIGKILL) once it has flushed `rows` more IMU rows than
+    at its first report (unless it finished first). Returns (last reported flushed counts,
+    finished). The worker's temporary files (its twin's pty directory, which a killed process
+    cannot remove) go beside the session file."""
+    proc = subprocess.run([sys.executable, "-c", WORKER, str(path), mode, str(rows)],
+                          capture_output=True, text=True,
+                          env={**os.environ, "TMPDIR": str(path.parent)})
+    assert proc.returncode in (0, -signal.SIGKILL), f"worker failed: {proc.stderr}"
+    lines = [line.split() for line in proc.stdout.splitlines(keepends=True)
+             if line.endswith("\n")]  # a line cut by the kill is left out
+    flushed = [tuple(map(int, w[1:])) for w in lines if w and w[0] == "flushed" and len(w) == 4]
     return flushed[-1], ["done"] in lines
 
 

@@ -171,7 +171,7 @@ def calibrate(
     if refusal is not None:
         _check_consistent(fit, c, refusal)
     weak = identifiability.check_information(
-        uncertainty.reduced_fisher(fit.normal), fit.a, readings, estimate_bias, c, names,
+        fit.fisher, fit.a, readings, estimate_bias, c, names,
         noise_known=sigma is not None or fit.dof > 0,
         free=m * n + (n if magnitude_spread else 0) - fit.dof,
         distinct=None if constraints is not None or magnitude_spread else lambda: _distinct(fit),
@@ -362,7 +362,7 @@ def calibration_result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, sta
 
 def ml_covariance(fit: ml.MLFit) -> np.ndarray:
     """The gauge-free covariance of theta from the Fisher information of `fit`."""
-    return uncertainty.global_covariance(fit.normal, fit.a)
+    return uncertainty.global_covariance(fit.fisher, fit.a)
 
 
 def _sigmas(a: np.ndarray, rot: np.ndarray, cov: np.ndarray, nominal, estimate_bias: bool) -> dict:

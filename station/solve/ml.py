@@ -18,6 +18,7 @@ the gradient has no component along them.
 """
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -53,6 +54,13 @@ class MLFit:
     normal: NormalEquations  # Fisher-information blocks at the optimum, for the uncertainty
     objective: float  # the minimised cost with the weights used (`cost`)
     converged: bool  # the cost stopped decreasing before max_iter iterations
+
+    @cached_property
+    def fisher(self) -> np.ndarray:
+        """Fisher information (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) at the optimum, the
+        poses eliminated (the undamped Schur complement of `normal`); computed once, for the
+        identifiability check and the covariance alike."""
+        return reduced_system(self.normal)[0]
 
 
 def _by_group(x: np.ndarray, poses, axis: int) -> np.ndarray:

@@ -64,11 +64,10 @@ def reduced_fisher(neq: NormalEquations) -> np.ndarray:
     return reduced_system(neq)[0]
 
 
-def global_covariance(neq: NormalEquations, a: np.ndarray) -> np.ndarray:
-    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from the reduced Fisher
-    matrix, free of the rotation gauge (zero along it)."""
-    p = neq.g_global.shape[1]
-    return gauge_pinv(reduced_fisher(neq), gauge_directions(a, p))
+def global_covariance(fisher: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from its reduced Fisher
+    matrix (`reduced_fisher`, `ml.MLFit.fisher`), free of the rotation gauge (zero along it)."""
+    return gauge_pinv(fisher, gauge_directions(a, len(fisher) // a.shape[1]))
 
 
 EXCESS_P = 0.05
@@ -264,7 +263,7 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
     bias = np.zeros(m) if estimate_bias else None
     neq, _ = normal_equations(a, poses, bias, measurement.forward(a, v, bias), 1.0 / sig**2)
     order = parameter_order(m, d + (1 if estimate_bias else 0), d)[: d * m]
-    return frame_covariance(global_covariance(neq, a), a)[np.ix_(order, order)]
+    return frame_covariance(global_covariance(reduced_fisher(neq), a), a)[np.ix_(order, order)]
 
 
 def design_information(a, v, bias, sigma) -> np.ndarray:
