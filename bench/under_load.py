@@ -100,11 +100,13 @@ def run(cmd: list, nice: bool, timeout: float, log: Path | None = None) -> tuple
 
 
 def demos(k: int, nice: bool, positions: int) -> list:
-    """`station demo --json` k times: exit, verdict, eps ratio, wall seconds, real-time factor."""
+    """`station demo --json` k times: exit, verdict, eps ratio, wall seconds, real-time factor.
+    Each records its calibration in a temporary store (not station.db in the repository)."""
     out = []
     for _ in range(k):
-        done, seconds = run([sys.executable, "-m", "station", "demo", "--json", "--positions",
-                             str(positions)], nice, 3600)
+        with tempfile.TemporaryDirectory(prefix="under-load-demo-") as tmp:
+            done, seconds = run([sys.executable, "-m", "station", "demo", "--json", "--positions",
+                                 str(positions), "--db", f"sqlite:///{tmp}/station.db"], nice, 3600)
         summary = json.loads(done.stdout) if done.stdout.strip().startswith("{") else {}
         out.append({"exit": done.returncode, "seconds": seconds,
                     "verdict": (summary.get("verdict") or {}).get("overall"),
