@@ -252,8 +252,8 @@ def check_information(fisher, a, readings, bias_estimated: bool, magnitude: floa
     quoted."""
     weak = undetermined(fisher, a, magnitude, bias_estimated, noise_known, LOOSE) \
         if noise_known else np.zeros((0, fisher.shape[0]))
-    if noise_known and not len(weak):
-        return ()  # all above LOOSE's floor, so above the rank test's (LOOSE <= UNBOUNDED)
+    if noise_known and not len(weak) and LOOSE <= UNBOUNDED:
+        return ()  # every direction above LOOSE's floor, so above the rank test's lower one
     design = fisher if not len(weak) or distinct is None else distinct()
     design = fisher if design is None else design
     null = undetermined(design, a, magnitude, bias_estimated, noise_known)
