@@ -66,10 +66,28 @@ def connect(url: str, create: bool = True) -> SqliteStore:
         raise RecordStoreError(f"cannot open the record store {path} ({exc}): check the "
                                "directory exists and is writable, or give --db") from None
     try:
-        for pragma in ("journal_mode=WAL", "synchronous=FULL", "foreign_keys=ON"):
+        _wal(connection)
+        for pragma in ("synchronous=FULL", "foreign_keys=ON"):
             connection.execute(f"PRAGMA {pragma}")
     except sqlite3.Error as exc:
         connection.close()
         raise RecordStoreError(f"{path} is not a record store this station can use ({exc}); "
                                "give another file with --db") from None
     return SqliteStore(connection, DIALECT, f"sqlite:///{path}")
+
+
+def _wal(connection) -> None:
+    """journal_mode=WAL, waiting up to BUSY_SECONDS while another connection holds the lock:
+    SQLite answers "database is locked" at once, without its busy handler, when two processes
+    switch a new store's journal mode together (CI saw two writers' first opens collide)."""
+    import time
+
+    deadline = time.monotonic() + BUSY_SECONDS
+    while True:
+        try:
+            connection.execute("PRAGMA journal_mode=WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
