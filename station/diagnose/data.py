@@ -19,6 +19,9 @@ from station.model.temperature import check_kelvin
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
 from station.session import Session
 
+POSITIONS = 16
+"""Positions of a chunk (`RotaryData.chunks`): 16 positions of 7000 samples of 12 sensors are
+11 MB in SI units, against the session's 672 MB at 1000 positions."""
 REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spinup",
             "seg_rotating", "seg_spindown")
 
@@ -27,9 +30,8 @@ REQUIRED = ("y", "lsb", "fs", "t0", "rate_cmd", "c_cmd", "seg_static", "seg_spin
 class RotaryData:
     """One rotary session; arrays (n, k, m) unless noted, SI units.
 
-    counts : raw integer samples (for the rail pile-up); y = counts * lsb, made when asked and
-        not kept (the statistics of the whole session are; residuals are made a position at a
-        time, `residual`).
+    counts : raw integer samples (for the rail pile-up); the samples in SI units, counts * lsb,
+        are made a chunk of positions at a time (`chunks`, `residual`), never for the session.
     t : (k,) sample times within a position; t0 (n,) position starts (session time).
     times : (n, k) session times of the samples when the grid is not one contiguous stretch
         per position (a recorded session), else None (t0 + t).
@@ -63,22 +65,21 @@ class RotaryData:
     def shape(self) -> tuple:
         return self.counts.shape
 
-    @property
-    def y(self) -> np.ndarray:
-        """(n, k, m) the samples in SI units, counts * lsb: a new array of the session's size on
-        each call, held only while a statistic of it is made (`reduced`, `y_mean`)."""
-        return self.counts * self.lsb
-
     @cached_property
     def y_mean(self) -> np.ndarray:
-        """(m,) the mean of y over the session."""
-        return self.y.mean((0, 1))
+        """(m,) the mean of the samples over the session, SI units."""
+        return self.counts.mean((0, 1)) * self.lsb
 
-    def residual(self, z: np.ndarray) -> np.ndarray:
-        """y - z (n, k, m), made in z's array (the caller's own) a position at a time: no y of the
-        session's size is made."""
-        for j in range(len(z)):
-            np.subtract(self.counts[j] * self.lsb, z[j], out=z[j])
+    def chunks(self):
+        """Slices of at most `POSITIONS` consecutive positions covering the session: what is of
+        the session's size (n, k, m) in SI units is made and used a chunk at a time."""
+        n = self.shape[0]
+        return (slice(start, min(start + POSITIONS, n)) for start in range(0, n, POSITIONS))
+
+    def residual(self, z: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """y - z at the positions `rows` (z of their shape), made in z's array (the caller's
+        own)."""
+        np.subtract(self.counts[rows] * self.lsb, z, out=z)
         return z
 
     @cached_property
@@ -87,14 +88,15 @@ class RotaryData:
 
     @cached_property
     def reduced(self):
-        """Eq. (18) reduction of the measured samples."""
-        return self.reduce(self.y)
+        """Eq. (18) reduction of the measured samples (from the counts, a window at a time)."""
+        return reduce_rotary(self.counts, self.lsb, self._segments(slice(None)))
 
     @cached_property
     def sigma(self) -> np.ndarray:
         """(m,) per-sample noise: the pooled standard deviation within the static windows."""
         s0, s1 = self.windows["static"]
-        return np.sqrt((self.counts[:, s0:s1] * self.lsb).var(1, ddof=1).mean(0))
+        var = np.concatenate([self.counts[rows, s0:s1].var(1, ddof=1) for rows in self.chunks()])
+        return np.sqrt(var.mean(0)) * self.lsb
 
     @cached_property
     def rate_factors(self) -> np.ndarray:
@@ -116,12 +118,22 @@ class RotaryData:
     @property
     def t_session(self) -> np.ndarray:
         """(n, k) session times of the samples."""
-        return self.t0[:, None] + self.t if self.times is None else self.times
+        return self.session_times(slice(None))
 
-    def reduce(self, x: np.ndarray):
-        """Eq. (18) reduction of a series x (n, k, m) in SI units over this session's windows."""
-        rot = np.stack([np.full_like(self.rot_stop, self.windows["rotating"][0]), self.rot_stop], 1)
-        return reduce_rotary(x, 1.0, {"static": self.windows["static"], "rotating": rot})
+    def session_times(self, rows: slice) -> np.ndarray:
+        """(p, k) session times of the samples at the positions `rows`."""
+        return self.t0[rows, None] + self.t if self.times is None else self.times[rows]
+
+    def reduce(self, x: np.ndarray, rows: slice = slice(None)):
+        """Eq. (18) reduction of a series x (p, k, m) in SI units at the positions `rows` over
+        this session's windows."""
+        return reduce_rotary(x, 1.0, self._segments(rows))
+
+    def _segments(self, rows: slice) -> dict:
+        """The Eq. (18) windows of the positions `rows` (the rotating one cut to whole turns)."""
+        stop = self.rot_stop[rows]
+        rot = np.stack([np.full_like(stop, self.windows["rotating"][0]), stop], 1)
+        return {"static": self.windows["static"], "rotating": rot}
 
     def bins(self, x: np.ndarray) -> np.ndarray:
         """Means of x (n, k, m) over consecutive bins of `bin` samples: (n, K, m)."""

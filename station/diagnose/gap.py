@@ -49,25 +49,40 @@ def features(data, model) -> dict:
     """{statistic: (n, q, m) normalised residual features (N(0, 1) under white noise)} of the
     statistics built from features (all but `averaged`'s calibration chi2 and `rails`):
     static (n, 1, m), trend (n, 2, m: static and rotating window), harmonics (n, 2 x
-    len(HARMONICS), m), transients (n, 2, m: spin-up, spin-down)."""
+    len(HARMONICS), m), transients (n, 2, m: spin-up, spin-down). The residuals are made a
+    chunk of positions at a time (station.diagnose.prediction.Twin)."""
     sig = data.sigma
-    r = data.residual(model.prediction.z)
     s0, s1 = data.windows["static"]
-    b = r[:, s0:s1].mean(1)  # (n, m) static means net of the model
+    twin, chunks = model.twin, []
+    for rows in data.chunks():
+        r = twin.residual(rows)
+        chunks.append((r[:, s0:s1].mean(1), _slopes(r[:, s0:s1], data.t[s0:s1], sig),
+                       *_rotating(data, r, rows, sig),
+                       [r[:, a:z].mean(1) for a, z in (data.windows["spinup"],
+                                                        data.windows["spindown"])]))
+    b, static_slopes, slopes, coef, ramps = (list(x) for x in zip(*chunks, strict=True))
+    b = np.concatenate(b)  # (n, m) static means net of the model
     n = b.shape[0]
     static = (b - b.mean(0)) * np.sqrt((s1 - s0) / sig**2) * np.sqrt(n / max(n - 1, 1))
+    trend = np.stack([np.concatenate(static_slopes), np.concatenate(slopes)], 1)
+    trans = [np.concatenate([c[i] for c in ramps]) * np.sqrt(z - a) / sig
+             / np.sqrt(1 + _level_noise(data, a, z))
+             for i, (a, z) in enumerate((data.windows["spinup"], data.windows["spindown"]))]
+    return {"static": static[:, None], "trend": trend, "harmonics": np.concatenate(coef),
+            "transients": np.stack(trans, 1)}
+
+
+def _rotating(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> tuple:
+    """(slopes (p, m), harmonic coefficients (p, 2 len(HARMONICS), m)) of the residuals r
+    (p, k, m) of the positions `rows` over their whole-revolution rotating windows."""
     r0 = data.windows["rotating"][0]
     slopes, coef = [], []
-    for j in range(n):
+    for rj, j in zip(r, range(*rows.indices(data.shape[0])), strict=True):
         sl = slice(r0, data.rot_stop[j])
-        rj, theta = r[j, sl], data.angle[j, sl] - data.angle[j, r0]
-        slopes.append(_slopes(rj[None], data.t[sl], sig)[0])
-        coef.append(harmonic_basis(theta) @ rj / sig)
-    trend = np.stack([_slopes(r[:, s0:s1], data.t[s0:s1], sig), np.array(slopes)], 1)
-    trans = [r[:, a:z].mean(1) * np.sqrt(z - a) / sig / np.sqrt(1 + _level_noise(data, a, z))
-             for a, z in (data.windows["spinup"], data.windows["spindown"])]
-    return {"static": static[:, None], "trend": trend, "harmonics": np.array(coef),
-            "transients": np.stack(trans, 1)}
+        theta = data.angle[j, sl] - data.angle[j, r0]
+        slopes.append(_slopes(rj[None, sl], data.t[sl], sig)[0])
+        coef.append(harmonic_basis(theta) @ rj[sl] / sig)
+    return np.array(slopes), np.array(coef)
 
 
 def _level_noise(data, a: int, z: int) -> np.ndarray:
@@ -85,7 +100,9 @@ def averaged_features(data, model) -> np.ndarray:
     """(n, 1, m) Eq. (18) reduction of the twin's residual series over the standard error of M:
     where the readings M miss the twin, per position and sensor (the `averaged` statistic's
     pattern; its value is the calibration's own chi2 / dof)."""
-    return (data.reduce(data.residual(model.prediction.z)).M / data.sigma_m).T[:, None]
+    twin = model.twin
+    m = np.concatenate([data.reduce(twin.residual(rows), rows).M for rows in data.chunks()], 1)
+    return (m / data.sigma_m).T[:, None]
 
 
 def statistics(data, model) -> dict:
@@ -100,8 +117,8 @@ def statistics(data, model) -> dict:
 def _rails(data, model) -> tuple[float, int]:
     """(rail deviance per held side, sides holding the rail (at least 1))."""
     n_obs = rails.observed(data)
-    n_exp = rails.expected(data, model.prediction.mu, data.sigma,
-                           clipped="saturation" in model.fitted)
+    twin, clipped = model.twin, "saturation" in model.fitted
+    n_exp = sum(rails.expected(data, part.mu, data.sigma, clipped) for _, part in twin.parts())
     held = max(int(np.sum(n_obs > 0)), 1)
     return rails.deviance(n_obs, n_exp) / held, held
 

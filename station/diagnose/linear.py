@@ -17,9 +17,6 @@ from dataclasses import dataclass
 import numpy as np
 
 BLOCKS = {"sensor": "m", "position": "n", "global": ""}
-POSITIONS = 16
-"""Positions of a signature made at once (`signature_parts`): 16 positions of 7000 samples of 12
-sensors are 11 MB, against the session's 336 MB at 500 positions."""
 
 
 def centred_bins(data, x: np.ndarray) -> np.ndarray:
@@ -36,14 +33,15 @@ def centred_static(data, x: np.ndarray) -> np.ndarray:
 
 
 def signature_parts(data, make) -> tuple:
-    """(centred_bins (n, K, m'), static-window means (n, m', not centred)) of a signature made
-    `POSITIONS` positions at a time by make(rows) -> (len(rows), k, m') for the positions `rows`
-    (a slice), so that no signature of the session's size is held: both parts are per position,
-    the same numbers as from the whole signature."""
+    """(centred_bins (n, K, m'), static-window means (n, m', not centred)) of a series (a
+    signature, a residual) made a chunk of positions at a time (`RotaryData.chunks`) by
+    make(rows) -> (len(rows), k, m') for the positions `rows` (a slice), so that no series of
+    the session's size is held: both parts are per position, the same numbers as from the whole
+    series."""
     s0, s1 = data.windows["static"]
     bins, means = [], []
-    for start in range(0, data.shape[0], POSITIONS):
-        x = make(slice(start, start + POSITIONS))
+    for rows in data.chunks():
+        x = make(rows)
         bins.append(centred_bins(data, x))
         means.append(x[:, s0:s1].mean(1))
         del x  # before the next chunk is made
@@ -51,8 +49,8 @@ def signature_parts(data, make) -> tuple:
 
 
 def centred_signature(data, make) -> tuple:
-    """(centred_bins, centred_static) of the signature make(rows) (`signature_parts`): what
-    `centred` gives of the whole signature."""
+    """(centred_bins, centred_static) of the series make(rows) (`signature_parts`): what
+    `centred` gives of the whole series."""
     bins, means = signature_parts(data, make)
     return bins, means - means.mean(0)
 
@@ -63,11 +61,11 @@ def weights(data, sigma: np.ndarray) -> tuple:
     return data.bin / sigma**2, (s1 - s0) / sigma**2
 
 
-def chi2(data, r: np.ndarray, sigma: np.ndarray) -> float:
-    """chi2 of the residuals r (n, k, m): within positions plus static means across positions."""
+def chi2(data, r: tuple, sigma: np.ndarray) -> float:
+    """chi2 of residuals given as their centred parts r = (bins (n, K, m), static means (n, m)):
+    within positions plus static means across positions."""
     w, ws = weights(data, sigma)
-    return float(np.sum(centred_bins(data, r) ** 2 * w)
-                 + np.sum(centred_static(data, r) ** 2 * ws))
+    return float(np.sum(r[0] ** 2 * w) + np.sum(r[1] ** 2 * ws))
 
 
 @dataclass(frozen=True)
@@ -85,21 +83,16 @@ class LinearFit:
         return float(np.sum(2 * th * self.g) - np.einsum("bp,bpq,bq->", th, self.h, th))
 
 
-def fit(data, r: np.ndarray, basis: list, sigma: np.ndarray, by: str) -> LinearFit:
-    """Least-squares coefficients of the signatures `basis` (each (n, k, m) or (n, k, 1))
-    explaining the residuals r, one coefficient set per sensor, per position or global (`by`)."""
-    return fit_binned(centred(data, r), [centred(data, b) for b in basis],
-                      weights(data, sigma), by)
-
-
 def centred(data, x: np.ndarray) -> tuple:
     """(centred_bins, centred_static) of x."""
     return centred_bins(data, x), centred_static(data, x)
 
 
 def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
-    """`fit` on centred parts: r = (bins (n, K, m), static (n, m)), each signature the same with
-    m or 1 sensors, w = (bin weights, static weights) (m,)."""
+    """Least-squares coefficients of the signatures `basis` explaining the residuals r, one
+    coefficient set per sensor, per position or global (`by`), on centred parts: r = (bins
+    (n, K, m), static (n, m)), each signature the same with m or 1 sensors, w = (bin weights,
+    static weights) (m,)."""
     out = BLOCKS[by]
     p = len(basis)
     h, g = 0.0, 0.0
@@ -112,8 +105,9 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)
 
 
-def phase_fit(data, r: np.ndarray, tone, sigma: np.ndarray) -> tuple:
-    """A tone of one amplitude and a free phase per position. tone(phase_deg, rows) -> (len(rows),
+def phase_fit(data, r: tuple, tone, sigma: np.ndarray) -> tuple:
+    """A tone of one amplitude and a free phase per position, fitted to the residuals' centred
+    parts r (`fit_binned`). tone(phase_deg, rows) -> (len(rows),
     k, m) its signature at unit amplitude and that phase for the positions `rows` (a slice); each
     of the two quadrature signatures (0 and 90 degrees) is reduced to its centred bins and static
     means a few positions at a time (`signature_parts`): the tone of any phases is combined from
@@ -123,13 +117,12 @@ def phase_fit(data, r: np.ndarray, tone, sigma: np.ndarray) -> tuple:
     (n,) in radians, the global fit of the amplitude on the tone of those phases, and that
     tone's static-window means (n, m)."""
     w = weights(data, sigma)
-    rc = centred(data, r)
     quadrature = [signature_parts(data, lambda rows, deg=deg: tone(deg, rows))
                   for deg in (0.0, 90.0)]
-    free = fit_binned(rc, [(b, m - m.mean(0)) for b, m in quadrature], w, "position")
+    free = fit_binned(r, [(b, m - m.mean(0)) for b, m in quadrature], w, "position")
     phase = np.arctan2(free.theta[:, 1], free.theta[:, 0])
     c, s = np.cos(phase), np.sin(phase)
     (b0, m0), (b90, m90) = quadrature
     bins = c[:, None, None] * b0 + s[:, None, None] * b90
     means = c[:, None] * m0 + s[:, None] * m90
-    return free, phase, fit_binned(rc, [(bins, means - means.mean(0))], w, "global"), means
+    return free, phase, fit_binned(r, [(bins, means - means.mean(0))], w, "global"), means

@@ -12,7 +12,7 @@ The deviance of a model is the chi2 of its binned residuals plus the rail pile-u
 difference between two nested models is their likelihood ratio.
 """
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -26,20 +26,21 @@ from station.solve.calibrate import CalibrationResult, calibrate
 @dataclass(frozen=True)
 class Model:
     """A fitted model: calibration, extensions {name: Fitted} in the order added, the twin's
-    context, and its deviance's parts."""
+    context and biases, and its deviance's parts."""
 
     calibration: CalibrationResult
     fitted: dict
     ctx: twin.Context
+    b: np.ndarray
     chi2: float
     rails: float
 
     @property
-    def prediction(self) -> twin.Prediction:
-        """The twin's output, made again on each call: several models are held at once (the
-        steps, the best candidate, the one being fitted) and each output is of the session's
-        size, so a model keeps only what makes it."""
-        return twin.predict(self.ctx, self.fitted, EXTENSIONS, sensed=False)
+    def twin(self) -> twin.Twin:
+        """The twin of the model, made again on each call (its (n, k) arrays are of the
+        session's size over m, and several models are held at once: the steps, the best
+        candidate, the one being fitted); its series are made a chunk at a time."""
+        return twin.predict(self.ctx, self.fitted, EXTENSIONS, self.b)
 
     @property
     def names(self) -> tuple:
@@ -60,9 +61,9 @@ def noise(data, clipped: bool = False) -> np.ndarray:
     window sat on the rail a fraction f of the time has 1 - f of the information."""
     sigma = data.sigma_m
     if clipped:
-        r0 = data.windows["rotating"][0]
-        on_rail = np.abs(data.counts) == rails.rail(data)
-        f = np.array([on_rail[j, r0:stop].mean(0) for j, stop in enumerate(data.rot_stop)]).T
+        r0, rail = data.windows["rotating"][0], rails.rail(data)
+        f = np.array([(np.abs(data.counts[j, r0:stop]) == rail).mean(0)
+                      for j, stop in enumerate(data.rot_stop)]).T
         sigma = sigma / np.sqrt(np.maximum(1 - f, 1e-6))
     return sigma
 
@@ -72,19 +73,28 @@ def readings(data, ctx: twin.Context, fitted: dict) -> tuple:
     to the twin of `ctx` (except those the calibration models itself), their standard error and
     the options of station.calibrate."""
     inside, options = _in_calibration(fitted)
-    added = twin.predict(ctx, fitted, EXTENSIONS, sensed=False).z
-    added -= twin.predict(ctx, inside, EXTENSIONS, sensed=False).z  # one output held at a time
-    return (data.reduced.M - data.reduce(added).M, noise(data, "saturation" in fitted),
-            options)
+    full, bare = (twin.predict(ctx, f, EXTENSIONS) for f in (fitted, inside))
+    added = np.concatenate([data.reduce(full.part(rows).z - bare.part(rows).z, rows).M
+                            for rows in data.chunks()], axis=1)
+    return data.reduced.M - added, noise(data, "saturation" in fitted), options
 
 
 def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
-    """The Model of a calibration and fitted extensions: twin output and deviance."""
+    """The Model of a calibration and fitted extensions: twin output and deviance, in one pass
+    over the positions (the rail pile-up expected from each chunk's output before it is made
+    the residual)."""
     ctx = twin.context(data, calibration.a, calibration.v, data.sigma)
-    pred = twin.predict(ctx, fitted, EXTENSIONS, sensed=False)  # z and mu are read (memory)
-    exp = rails.expected(data, pred.mu, data.sigma, clipped="saturation" in fitted)
-    chi2 = linear.chi2(data, twin.residual(ctx, pred), data.sigma)  # mu (z unclipped) is gone
-    return Model(calibration, dict(fitted), ctx, chi2, rails.deviance(rails.observed(data), exp))
+    tw = twin.predict(ctx, fitted, EXTENSIONS)
+    clipped, expected = "saturation" in fitted, []
+
+    def residual(rows):
+        part = tw.part(rows)
+        expected.append(rails.expected(data, part.mu, data.sigma, clipped))
+        return data.residual(part.z, rows)  # in z, which may be mu: read before
+
+    chi2 = linear.chi2(data, linear.centred_signature(data, residual), data.sigma)
+    return Model(calibration, dict(fitted), ctx, tw.b, chi2,
+                 rails.deviance(rails.observed(data), sum(expected)))
 
 
 def nominal(data) -> Model:
@@ -106,12 +116,11 @@ def fit(data, names, start: Model, iterations: int = 3) -> Model:
 
 
 def _fit_one(ctx: twin.Context, fitted: dict, name: str):
-    """The extension `name` fitted to the residuals of the twin with the other `fitted` ones
-    (the twin's output lives only while this runs)."""
-    pred = twin.predict(ctx, {k: f for k, f in fitted.items() if k != name}, EXTENSIONS)
-    r = twin.residual(ctx, pred)  # in z, this prediction's own
-    pred = replace(pred, mu=None, z=None)  # the extensions read the rate and s (memory)
-    return EXTENSIONS[name].fit(ctx, pred, r)
+    """The extension `name` fitted to the residuals of the twin with the other `fitted` ones,
+    given as their centred bins and static means (station.diagnose.linear), made a chunk of
+    positions at a time."""
+    others = twin.predict(ctx, {k: f for k, f in fitted.items() if k != name}, EXTENSIONS)
+    return EXTENSIONS[name].fit(ctx, others, linear.centred_signature(ctx.data, others.residual))
 
 
 def _in_calibration(fitted: dict) -> tuple[dict, dict]:

@@ -7,14 +7,16 @@ series is built in the simulator's order (docs/simulator.md) with each model ext
 which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
 projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift,
 temperature at the recorded temperature; one bias per sensor, the mean of the data minus the
-rest) -> output (saturation, as an expectation).
+rest) -> output (saturation, as an expectation). Its series of the session's size are made a few
+positions at a time (`Twin`).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from station.model import sensing
+from station.model.effects import bias_drift
 
 ORDER = ("rate_error", "axis_wobble", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
          "temperature", *sensing.OUTPUT)
@@ -35,17 +37,80 @@ class Context:
 
 @dataclass(frozen=True)
 class Prediction:
-    """The twin's noise-free series: rate (n, k) true table rate, s = a^T omega (n, k, m) the
-    sensed rate, mu (n, k, m) the output before clipping, z (n, k, m) the expected output, b (m,)
-    the biases (s None when not asked for: `predict`). Each (n, k, m) array is of the session's
-    size: a Prediction is made for one use and dropped (station.diagnose.model.Model recomputes
-    its own)."""
+    """The twin's noise-free series at a few positions (`Twin.part`): rate (p, k) the true table
+    rate, mu (p, k, m) the output before clipping, z (p, k, m) the expected output (the same
+    array as mu without an output-stage extension)."""
 
     rate: np.ndarray
-    s: np.ndarray
     mu: np.ndarray
     z: np.ndarray
+
+
+@dataclass(frozen=True)
+class Twin:
+    """The twin of a model, its series of the session's size made a few positions at a time
+    (`part`, `parts`; RotaryData.chunks), so that diagnose's memory is bounded by a chunk, not by
+    the session: what is (n, k) is made whole (the rate after the rate-stage extensions, the
+    heat state of bias_drift, which carries over from one position to the next), what is
+    (n, k, m) per chunk.
+
+    sensor : {name: parameters} of the output chain's sensed and offset stages.
+    heat : (n, k) bias_drift's heat state, or None without heating.
+    b : (m,) the biases, one per sensor: the mean of the data minus that of the rest (`predict`).
+    """
+
+    ctx: Context
+    fitted: dict
+    extensions: dict
+    rate: np.ndarray
+    sensor: dict
+    heat: np.ndarray | None
     b: np.ndarray
+
+    def sensed(self, rows: slice) -> np.ndarray:
+        """(p, k, m) the sensed rate a^T omega at the positions `rows`: the motion's extensions
+        applied (the extensions' fits read it)."""
+        ctx = self.ctx
+        rate = self.rate[rows]
+        omega = rate[..., None] * ctx.orientation[rows, None, :, 2]
+        for name in self._active("motion"):
+            omega = self.extensions[name].apply(ctx, self.fitted[name], omega, rate, rows)
+        return omega @ ctx.a
+
+    def part(self, rows: slice) -> Prediction:
+        """The expected series at the positions `rows`, biases included."""
+        z = self._unbiased(rows)
+        z += self.b  # in place: z is this function's own array
+        mu = z
+        for name in self._active("output"):
+            z = self.extensions[name].apply(self.ctx, self.fitted[name], z)
+        return Prediction(self.rate[rows], mu, z)
+
+    def parts(self):
+        """(rows, Prediction) of every chunk of positions, in order."""
+        for rows in self.ctx.data.chunks():
+            yield rows, self.part(rows)
+
+    def residual(self, rows: slice) -> np.ndarray:
+        """(p, k, m) measured minus expected series at the positions `rows`."""
+        return self.ctx.data.residual(self.part(rows).z, rows)
+
+    def _unbiased(self, rows: slice) -> np.ndarray:
+        """(p, k, m) the expected output at the positions `rows` before the biases and the
+        output stage: sensed stage, offsets, temperature."""
+        data = self.ctx.data
+        z = sensing.sensed(self.sensed(rows), data.t, self.sensor)  # a new array: this one's
+        heat = None if self.heat is None else self.heat[rows]
+        sensing.offsets(data.session_times(rows), self.rate[rows], self.sensor, out=z,
+                        heated=heat)
+        for name in self._active("temperature"):
+            z += self.extensions[name].apply(self.ctx, self.fitted[name], rows)
+        return z
+
+    def _active(self, stage: str) -> list:
+        """The fitted extensions of `stage`, in the twin's ORDER."""
+        return [name for name in ORDER
+                if name in self.fitted and stage == self.extensions[name].STAGE]
 
 
 def completion(u: np.ndarray) -> np.ndarray:
@@ -63,46 +128,24 @@ def context(data, a, v, sigma) -> Context:
                    completion(u))
 
 
-def predict(ctx: Context, fitted: dict, extensions: dict, sensed: bool = True) -> Prediction:
-    """The expected series of the model: nominal plus the `fitted` extensions ({name: Fitted}),
-    each at its stage: the motion's by extensions[name].apply, the sensor's through the output
-    chain's stages (station.model.sensing: sensed, offsets) with extensions[name].params, the
-    output's (an expectation over the noise) by extensions[name].apply. Without `sensed` the
-    sensed rate s is not kept (None): its array becomes z's, one array of the session's size
-    fewer (the extensions' fits read s; the statistics read z and mu)."""
+def predict(ctx: Context, fitted: dict, extensions: dict, b=None) -> Twin:
+    """The twin of the model: nominal plus the `fitted` extensions ({name: Fitted}), each at
+    its stage: the rate's and the motion's by extensions[name].apply, the sensor's through the
+    output chain's stages (station.model.sensing: sensed, offsets) with extensions[name].params,
+    the temperature's and the output's (an expectation over the noise) by
+    extensions[name].apply. The biases `b` (m,) are the data's mean minus the rest's, found by
+    one pass over the positions unless given (a model keeps its own: Model.b)."""
     data = ctx.data
-    active = [name for name in ORDER if name in fitted]
-    stage = {name: extensions[name].STAGE for name in active}
     rate = np.broadcast_to(data.rate, data.angle.shape)
-    for name in active:
-        if stage[name] == "rate":
-            rate = extensions[name].apply(ctx, fitted[name], rate)
-    omega = rate[..., None] * ctx.orientation[:, None, :, 2]
-    for name in active:
-        if stage[name] == "motion":
-            omega = extensions[name].apply(ctx, fitted[name], omega, rate)
-    s = omega @ ctx.a
-    del omega  # (n, k, d): no extension reads it once s is made
-    sensor = {name: extensions[name].params(fitted[name]) for name in active
-              if stage[name] in ("sensed", "offset")}
-    z = sensing.sensed(s, data.t, sensor)
-    if z is s and sensed:
-        z = z.copy()  # s is kept
-    sensing.offsets(data.t_session, rate, sensor, out=z)  # in place: z is this function's own
-    s = s if sensed else None
-    for name in active:
-        if stage[name] == "temperature":
-            z += extensions[name].apply(ctx, fitted[name])
-    b = data.y_mean - z.mean((0, 1))
-    z += b  # in place: z is this function's own array (the sum above made it)
-    mu = z
-    for name in active:
-        if stage[name] == "output":
-            z = extensions[name].apply(ctx, fitted[name], z)
-    return Prediction(rate, s, mu, z, b)
-
-
-def residual(ctx: Context, prediction: Prediction) -> np.ndarray:
-    """Measured minus expected series (n, k, m), made in the prediction's z (a prediction is
-    made for one use: `RotaryData.residual`)."""
-    return ctx.data.residual(prediction.z)
+    for name in (n for n in ORDER if n in fitted and extensions[n].STAGE == "rate"):
+        rate = extensions[name].apply(ctx, fitted[name], rate)
+    sensor = {name: extensions[name].params(fitted[name]) for name in ORDER
+              if name in fitted and extensions[name].STAGE in ("sensed", "offset")}
+    drift = sensor.get("bias_drift")
+    heat = (bias_drift.heat(data.t_session, rate, drift.heating_tau)
+            if drift is not None and np.any(drift.heating) else None)
+    twin = Twin(ctx, dict(fitted), extensions, rate, sensor, heat, np.zeros(data.shape[2]))
+    if b is None:
+        rest = sum(twin._unbiased(rows).sum((0, 1)) for rows in data.chunks())
+        b = data.y_mean - rest / (data.shape[0] * data.shape[1])
+    return replace(twin, b=np.asarray(b, float))

@@ -15,13 +15,14 @@ from scipy.special import ndtr
 
 def rail(data) -> int:
     """The largest |count| of the session."""
-    return int(np.abs(data.counts).max())
+    return max(int(data.counts.max()), -int(data.counts.min()))
 
 
 def observed(data) -> np.ndarray:
-    """(2, m) samples reading +R and -R."""
+    """(2, m) samples reading +R and -R (counted a chunk of positions at a time)."""
     r = rail(data)
-    return np.stack([(data.counts == r).sum((0, 1)), (data.counts == -r).sum((0, 1))])
+    return sum(np.stack([(data.counts[rows] == r).sum((0, 1)),
+                         (data.counts[rows] == -r).sum((0, 1))]) for rows in data.chunks())
 
 
 def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool) -> np.ndarray:

@@ -71,10 +71,11 @@ def is_rotary(events) -> bool:
 
 
 def arrays(session, stream: str = "imu") -> dict:
-    """The grid of a recorded rotary session: counts (n, k, m) and lsb (m,) of the gyros
-    (`station.reduce.rotary.rotary_channels`), fs, times (n, k), rate (n, k), c, angle (n, k),
-    windows (name -> (2,)), a_nominal or None, temperature (n, k) in K (the stream's first
-    channel in K) or None; see the module docstring for what is cut."""
+    """The grid of a recorded rotary session: counts (n, k, m) of the gyros
+    (`station.reduce.rotary.rotary_channels`, in the `narrowest` type) and their lsb (m,), fs,
+    times (n, k), rate (n, k), c, angle (n, k), windows (name -> (2,)), a_nominal or None,
+    temperature (n, k) in K (the stream's first channel in K) or None; see the module docstring
+    for what is cut."""
     events, table = session.events(), _States(session.table())
     clock = session.stream(stream, columns=("seq", "device_time", "host_time"))
     stream_windows = StreamWindows(session, stream, events, clock)
@@ -86,34 +87,49 @@ def arrays(session, stream: str = "imu") -> dict:
     spans = _spans(session.path, events)
     c = _commanded(session.path, table, spans.values())
     by_table = session.metadata.get("table_timing") == "sample"
-    pos = {}
+    pos, peak = {}, 0
     for j, p in spans.items():
         # the position's own stretch, read from the file: everything below is local to it
         index, counts = stream_windows.read(p["s0"], p["done"])
         tj, seq = t[index], clock.seq[index]
         y = counts[:, gyros] * lsb[gyros]
+        peak = max(peak, int(np.abs(counts[:, gyros].astype(np.int64)).max(initial=0)))
         _complete(tj, seq, fs, p["s0"], p["r1"], j)
         p.update(_table_ramps(table, c, p, j) if by_table else _ramps(tj, y, p, j))
         _complete(tj, seq, fs, p["s0"], p["te"], j)
         pos[j] = p
     _check_rate(clock, stream_windows, fs, pos)
+    seq = clock.seq
+    del clock  # its time columns: only the sequence numbers are read from here on
     index, windows = _grid(stream_windows, fs, list(pos.values()))
-    counts = np.empty((*index.shape, len(spec.channels)), np.dtype(spec.dtype))
-    # within each stretch, seq steps as the stream index, and every sample's counts read back
-    for j, idx, row in zip(pos, index, counts, strict=True):
-        lost = int(np.sum(np.diff(clock.seq[idx]) - np.diff(idx)))
-        got, row_counts = stream_windows.read_rows(_stretches(idx))
-        if lost or len(got) < len(idx):
-            raise _lossy(j, t[idx[0]], t[idx[-1]], max(lost, len(idx) - len(got)))
-        row[:] = row_counts
     times = t[index]
     motion = _table_motion if by_table else _imu_timed_motion
     rate, angle, factors_sigma = motion(session.path, table, c, times, pos)
+    del table  # before the grid of counts is made (memory)
+    counts = np.empty((*index.shape, len(gyros)), narrowest(peak))
+    temperature = np.empty(index.shape) if kelvin else None
+    # within each stretch, seq steps as the stream index, and every sample's counts read back
+    for row, (j, idx) in enumerate(zip(pos, index, strict=True)):
+        lost = int(np.sum(np.diff(seq[idx]) - np.diff(idx)))
+        got, row_counts = stream_windows.read_rows(_stretches(idx))
+        if lost or len(got) < len(idx):
+            raise _lossy(j, t[idx[0]], t[idx[-1]], max(lost, len(idx) - len(got)))
+        counts[row] = row_counts[:, gyros]
+        if kelvin:
+            temperature[row] = row_counts[:, kelvin[0]] * lsb[kelvin[0]]
     return {"counts": counts[..., gyros], "lsb": lsb[gyros],
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": factors_sigma,
             "a_nominal": nominal_layout(session.metadata, len(gyros)),
-            "temperature": counts[..., kelvin[0]] * lsb[kelvin[0]] if kelvin else None}
+            "temperature": temperature}
+
+
+def narrowest(peak: int) -> np.dtype:
+    """The narrowest signed integer type holding +-peak: the gyros' counts on the grid take 2
+    bytes a value for a 16-bit unit, whatever the type the session stores them in (the grid is
+    the diagnosis' largest array)."""
+    return next(np.dtype(t) for t in (np.int8, np.int16, np.int32, np.int64)
+                if np.iinfo(t).max >= peak)
 
 
 def _imu_timed_motion(path, table, c: float, times, pos: dict) -> tuple:

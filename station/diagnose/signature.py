@@ -92,24 +92,32 @@ def spectrum(data, model) -> dict:
         return {}
     w = 1.0 / data.sigma**2
     cov = np.linalg.inv((a * w) @ a.T)
-    r = data.residual(model.prediction.z)
+    grid, twin = frequencies(data), model.twin
+    points = [_position_spectrum(data, model.ctx, rj, j, w, cov, grid)
+              for rows in data.chunks()
+              for rj, j in zip(twin.residual(rows), range(*rows.indices(data.shape[0])),
+                               strict=True)]
+    return {"frequency": grid, **{key: np.mean([p[key] for p in points], 0)
+                                  for key in ("with_table", "against_table", "axial")}}
+
+
+def _position_spectrum(data, ctx, rj: np.ndarray, j: int, w: np.ndarray, cov: np.ndarray,
+                       grid: np.ndarray) -> dict:
+    """{"with_table", "against_table", "axial"}: the spectrum points of position j from its
+    residuals rj (k, m), weights w (m,) and the unit-frame rate covariance cov (`spectrum`)."""
     r0 = data.windows["rotating"][0]
-    out = {"with_table": [], "against_table": [], "axial": []}
-    grid = frequencies(data)
-    for j in range(data.shape[0]):
-        sl = slice(r0, data.rot_stop[j])
-        omega = (r[j, sl] * w) @ a.T @ cov  # (K, 3) residual rate in the unit frame
-        omega -= omega.mean(0)  # the level is the `averaged` statistic's
-        p, q, u = model.ctx.orientation[j].T
-        plane = omega @ p + 1j * omega @ q
-        theta = data.angle[j, sl] - data.angle[j, r0]
-        k = theta.size
-        phase = np.exp(-1j * np.outer(grid, theta))  # (F, K)
-        noise_plane = (p @ cov @ p + q @ cov @ q) / k
-        out["with_table"].append(np.abs(phase @ plane) ** 2 / k**2 / noise_plane)
-        out["against_table"].append(np.abs(phase.conj() @ plane) ** 2 / k**2 / noise_plane)
-        out["axial"].append(np.abs(phase @ (omega @ u)) ** 2 / k**2 / ((u @ cov @ u) / k))
-    return {"frequency": grid, **{key: np.mean(v, 0) for key, v in out.items()}}
+    sl = slice(r0, data.rot_stop[j])
+    omega = (rj[sl] * w) @ ctx.a.T @ cov  # (K, 3) residual rate in the unit frame
+    omega -= omega.mean(0)  # the level is the `averaged` statistic's
+    p, q, u = ctx.orientation[j].T
+    plane = omega @ p + 1j * omega @ q
+    theta = data.angle[j, sl] - data.angle[j, r0]
+    k = theta.size
+    phase = np.exp(-1j * np.outer(grid, theta))  # (F, K)
+    noise_plane = (p @ cov @ p + q @ cov @ q) / k
+    return {"with_table": np.abs(phase @ plane) ** 2 / k**2 / noise_plane,
+            "against_table": np.abs(phase.conj() @ plane) ** 2 / k**2 / noise_plane,
+            "axial": np.abs(phase @ (omega @ u)) ** 2 / k**2 / ((u @ cov @ u) / k)}
 
 
 def _points(spec: dict) -> int:

@@ -37,12 +37,12 @@ def sensed(s: np.ndarray, t: np.ndarray, effects: dict) -> np.ndarray:
     return s
 
 
-def offsets(t_session: np.ndarray, rate: np.ndarray, effects: dict, out=None):
+def offsets(t_session: np.ndarray, rate: np.ndarray, effects: dict, out=None, heated=None):
     """Bias offsets (n, k, m) of bias_drift at session times (n, k) for the table rate (n, k),
-    or 0 without it; with `out` (n, k, m), `out` plus them, added in place
-    (`bias_drift.apply`)."""
+    or 0 without it; with `out` (n, k, m), `out` plus them, added in place; `heated` the heat
+    state (n, k) when already made (`bias_drift.apply`)."""
     if "bias_drift" in effects:
-        return bias_drift.apply(t_session, rate, effects["bias_drift"], out)
+        return bias_drift.apply(t_session, rate, effects["bias_drift"], out, heated)
     return 0.0 if out is None else out
 
 

@@ -6,14 +6,18 @@ Each module exposes
   on are corrupted (not named while one stays unexplained: rate_error and scale_nonlinearity,
   read from the readings M, while `rails` fails);
 - `STAGE`: where the twin applies it ("rate", "motion", "sensed", "offset", "output");
-- `fit(ctx, prediction, r) -> Fitted`: its parameters from the residuals r (n, k, m) of the twin
-  without it (`prediction`), by weighted least squares on the binned residuals;
+- `fit(ctx, twin, r) -> Fitted`: its parameters from the residuals of the twin without it
+  (`twin`, station.diagnose.prediction.Twin: its rate (n, k) and its sensed rate a chunk of
+  positions at a time), given as their centred bins and static means r (station.diagnose.linear),
+  by weighted least squares;
 - at the sensor stages ("sensed", "offset"): `params(fitted)`, the simulator's own parameters
   (station.model.effects), which the twin runs through the one sensor output chain
   (station.model.sensing); at the other stages: `apply(ctx, fitted, x, ...)`, its distortion at
-  its stage, through the simulator's own effect function (imported, never copied);
-- at the stage "temperature": `apply(ctx, fitted)`, the (n, k, m) offsets at the session's recorded
-  temperature, added beside the sensor chain's offsets;
+  its stage, through the simulator's own effect function (imported, never copied): at the
+  "rate" stage on the rate (n, k), at the "motion" stage `apply(ctx, fitted, omega, rate, rows)`
+  on the positions `rows` (a slice), at the "output" stage on a chunk's output (p, k, m);
+- at the stage "temperature": `apply(ctx, fitted, rows)`, the (p, k, m) offsets at the session's
+  recorded temperature at the positions `rows`, added beside the sensor chain's offsets;
 - optionally `available(data) -> bool`: False when the session cannot show the effect (temperature:
   no recorded temperature); the candidate is then not offered (station.diagnose.select.diagnose);
 - optionally `calibration_options(fitted) -> dict | None`: keyword arguments of

@@ -28,10 +28,10 @@ def _tone(ctx, rate, phase_deg: float, rows: slice) -> np.ndarray:
     return omega @ ctx.a
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """beta (degrees) and the phases; see the module docstring."""
     free, phase, lf, _ = linear.phase_fit(
-        ctx.data, r, lambda deg, rows: _tone(ctx, prediction.rate, deg, rows), ctx.sigma)
+        ctx.data, r, lambda deg, rows: _tone(ctx, twin.rate, deg, rows), ctx.sigma)
     amp, amp_sigma = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
     n = phase.size
     return Fitted(
@@ -47,15 +47,17 @@ def fit(ctx, prediction, r) -> Fitted:
     )
 
 
-def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Angular rate of the coning table axis, per position (station.model.effects.axis_wobble).
+def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray, rows: slice) -> np.ndarray:
+    """Angular rate (p, k, 3) of the coning table axis at the positions `rows`, per position
+    (station.model.effects.axis_wobble).
 
     Replaces the nominal rate(t) u_j, so it comes before the Earth rate, as in the simulator.
     """
     out = np.empty_like(omega)
     beta = float(fitted.values["angle_deg"])
     d = ctx.data
-    for j, phase in enumerate(fitted.value("phase_deg")):
-        out[j:j + 1] = axis_wobble.apply(rate[j:j + 1], d.angle[j:j + 1], d.t,
-                                         ctx.orientation[j:j + 1], AxisWobble(beta, None, phase))
+    for i, j in enumerate(range(*rows.indices(d.shape[0]))):
+        out[i:i + 1] = axis_wobble.apply(rate[i:i + 1], d.angle[j:j + 1], d.t,
+                                         ctx.orientation[j:j + 1],
+                                         AxisWobble(beta, None, fitted.value("phase_deg")[j]))
     return out

@@ -32,14 +32,14 @@ def _unit(ctx, rate, warmup_tau, heating_tau, which):
     return bias_drift.apply(ctx.data.t_session, rate, p)
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """warmup, heating (m,) and the time constants from the grid; see the module docstring."""
-    data, rate = ctx.data, prediction.rate
+    data, rate = ctx.data, twin.rate
     warm = {tau: linear.centred(data, _unit(ctx, rate, tau, 1.0, "warmup"))
             for tau in WARMUP_TAUS}
     heat = {tau: linear.centred(data, _unit(ctx, rate, 1.0, tau, "heating"))
             for tau in HEATING_TAUS}
-    rb, w = linear.centred(data, r), linear.weights(data, ctx.sigma)
+    rb, w = r, linear.weights(data, ctx.sigma)
     grid = {
         (tw, th): linear.fit_binned(rb, [warm[tw], heat[th]], w, "sensor")
         for tw in WARMUP_TAUS for th in HEATING_TAUS
@@ -66,13 +66,13 @@ def beyond_walk(current, fitted: Fitted) -> float:
     """log10 p of the fitted drift (its warm-up and heating at the static windows, the time
     constants as fitted) in the static windows' mean residuals of `current`, the model without
     it, against a bias random walk per sensor (station.diagnose.walk)."""
-    ctx, prediction = current.ctx, current.prediction
+    ctx, twin = current.ctx, current.twin
     data = ctx.data
     s0, s1 = data.windows["static"]
-    shapes = [_unit(ctx, prediction.rate, fitted.values["warmup_tau"],
+    shapes = [_unit(ctx, twin.rate, fitted.values["warmup_tau"],
                     fitted.values["heating_tau"], which)[:, s0:s1, 0].mean(1)
               for which in ("warmup", "heating")]
-    y = (data.y - prediction.z)[:, s0:s1].mean(1)
+    y = linear.signature_parts(data, twin.residual)[1]  # static means
     var = np.broadcast_to(ctx.sigma**2 / (s1 - s0), y.shape)
     return walk.log10_p(y, data.t_session[:, s0:s1].mean(1), var, np.stack(shapes, 1), 2)
 

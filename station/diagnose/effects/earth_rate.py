@@ -31,13 +31,12 @@ def _tone(ctx, heading_deg: float, rows: slice) -> np.ndarray:
     return omega @ ctx.a
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """N (horizontal rate), the headings h_j and U; see the module docstring."""
     free, heading, lf, static = linear.phase_fit(
         ctx.data, r, lambda deg, rows: _tone(ctx, deg, rows), ctx.sigma)
     horizontal = float(lf.theta[0, 0])
-    s0, s1 = ctx.data.windows["static"]
-    vertical, vertical_sigma = _vertical(ctx, r[:, s0:s1].mean(1), horizontal * static)
+    vertical, vertical_sigma = _vertical(ctx, r[1], horizontal * static)
     n = heading.size
     vertical_gain = vertical**2 / vertical_sigma**2
     return Fitted(
@@ -57,8 +56,8 @@ def fit(ctx, prediction, r) -> Fitted:
 
 def _vertical(ctx, means: np.ndarray, horizontal: np.ndarray) -> tuple[float, float]:
     """U and its sigma from the static means (n, m) of the data minus the twin without the
-    Earth rate, b_i + a_i . (U u_j + horizontal part); `horizontal` (n, m) that part's static
-    means."""
+    Earth rate, b_i + a_i . (U u_j + horizontal part), centred or not (b_i takes a constant per
+    sensor); `horizontal` (n, m) that part's static means."""
     s0, s1 = ctx.data.windows["static"]
     k = s1 - s0
     b = means - horizontal  # (n, m)
@@ -80,11 +79,13 @@ def _shift(law: tuple) -> tuple:
     return var / (2 * mean), 2 * mean**2 / var
 
 
-def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray) -> np.ndarray:
-    """Angular rate plus the Earth rate, per position at its heading (station.model.effects)."""
+def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray, rows: slice) -> np.ndarray:
+    """Angular rate (p, k, 3) plus the Earth rate at the positions `rows`, per position at its
+    heading (station.model.effects)."""
     out = np.empty_like(omega)
     lat, mag = float(fitted.values["latitude_deg"]), float(fitted.values["rate"])
-    for j, h in enumerate(fitted.value("heading_deg")):
-        out[j:j + 1] = earth_rate.apply(omega[j:j + 1], ctx.orientation[j:j + 1],
-                                        ctx.data.angle[j:j + 1], EarthRate(lat, h, mag))
+    heading = fitted.value("heading_deg")
+    for i, j in enumerate(range(*rows.indices(ctx.data.shape[0]))):
+        out[i:i + 1] = earth_rate.apply(omega[i:i + 1], ctx.orientation[j:j + 1],
+                                        ctx.data.angle[j:j + 1], EarthRate(lat, heading[j], mag))
     return out

@@ -18,19 +18,20 @@ while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "sensed"
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """delay (m,) in seconds by least squares per sensor."""
-    data, s = ctx.data, prediction.s
+    data = ctx.data
     step = 1.0 / data.fs
 
     def unit(rows: slice) -> np.ndarray:
         """The signature of a delay of one sample per second, at the positions `rows`."""
-        x = latency.apply(s[rows], data.t, Latency(step))
-        x -= s[rows]  # in place: one signal of a few positions' size at a time
+        s = twin.sensed(rows)
+        x = latency.apply(s, data.t, Latency(step))
+        x -= s  # in place: one signal of a few positions' size at a time
         x /= step
         return x
 
-    lf = linear.fit_binned(linear.centred(data, r), [linear.centred_signature(data, unit)],
+    lf = linear.fit_binned(r, [linear.centred_signature(data, unit)],
                            linear.weights(data, ctx.sigma), "sensor")
     return Fitted(
         "latency",

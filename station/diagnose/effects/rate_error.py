@@ -83,20 +83,21 @@ def reml_spread(delta: np.ndarray, w: np.ndarray, x: np.ndarray) -> tuple[float,
     return t, float(np.sqrt(2.0 / np.sum(p * p)))  # Fisher information of s^2: tr(P P) / 2
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """The random-effects fit, or, when the table's angle shows rates other than the command
     (`encoder_reads`), the encoder's fit if it explains more (a larger chi2 decrease net of the
     random effect's penalty: the test of `encoder_reads` relies on the IMU timing's 1-sigma,
     which a busy virtual bench can understate); see the module docstring."""
     # per position: the least-squares factor of the signature s_j(t) and its variance w_j; the
     # quadratic forms of the axes that a calibration absorbs
-    lf = linear.fit(ctx.data, r, [prediction.s], ctx.sigma, "position")
+    lf = linear.fit_binned(r, [linear.centred_signature(ctx.data, twin.sensed)],
+                           linear.weights(ctx.data, ctx.sigma), "position")
     u = ctx.v / np.linalg.norm(ctx.v, axis=0)
     x = quadratic_design(u)
     random = _fit_random(lf, x, axes_design(ctx.a, u))
     if not encoder_reads(ctx.data):
         return random
-    encoder = _fit_encoder(ctx, prediction, r, ctx.data.rate_factors - 1.0, lf.cov[:, 0, 0], x)
+    encoder = _fit_encoder(ctx, twin, r, ctx.data.rate_factors - 1.0, lf.cov[:, 0, 0], x)
     return encoder if encoder.reduction >= random.reduction - random.penalty else random
 
 
@@ -163,7 +164,7 @@ def encoder_reads(data) -> bool:
     return bool(np.sum(z**2) > chi2.isf(ENCODER_ALPHA, z.size))
 
 
-def _fit_encoder(ctx, prediction, r, measured: np.ndarray, w: np.ndarray,
+def _fit_encoder(ctx, twin, r, measured: np.ndarray, w: np.ndarray,
                  x: np.ndarray) -> Fitted:
     """The gain lambda of the encoder's relative rate errors `measured` (n,); factors
     1 + lambda measured_j.
@@ -178,8 +179,8 @@ def _fit_encoder(ctx, prediction, r, measured: np.ndarray, w: np.ndarray,
                                    rcond=None)[0]
     rest = measured - absorbed
     signature = linear.centred_signature(  # made a few positions at a time (memory)
-        ctx.data, lambda rows: prediction.s[rows] * rest[rows, None, None])
-    lf = linear.fit_binned(linear.centred(ctx.data, r), [signature],
+        ctx.data, lambda rows: twin.sensed(rows) * rest[rows, None, None])
+    lf = linear.fit_binned(r, [signature],
                            linear.weights(ctx.data, ctx.sigma), "global")
     gain, sd = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
     return Fitted(

@@ -21,7 +21,7 @@ while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "output"
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """The range: the rail count times each sensor's count size."""
     data = ctx.data
     rng = rails.rail(data) * data.lsb

@@ -18,22 +18,25 @@ UNREADABLE_WITH = READ_FROM_M
 STAGE = "sensed"
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """k2 (m,) by least squares per sensor on the signature of unit k2."""
-    s = prediction.s
+    peaks = []
 
     def unit(rows: slice) -> np.ndarray:
-        """The signature of unit k2 at the positions `rows`."""
-        x = scale_nonlinearity.apply(s[rows], ScaleNonlinearity(1.0))
-        x -= s[rows]  # in place: one signal of a few positions' size at a time
+        """The signature of unit k2 at the positions `rows` (their peak |s| noted)."""
+        s = twin.sensed(rows)
+        peaks.append(np.abs(s).max((0, 1)))
+        x = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
+        x -= s  # in place: one signal of a few positions' size at a time
         return x
 
-    lf = linear.fit_binned(linear.centred(ctx.data, r), [linear.centred_signature(ctx.data, unit)],
+    lf = linear.fit_binned(r, [linear.centred_signature(ctx.data, unit)],
                            linear.weights(ctx.data, ctx.sigma), "sensor")
+    peak = np.max(peaks, 0)
     return Fitted(
         "scale_nonlinearity",
-        {"k2": lf.theta[:, 0], "peak_signal": np.maximum(s.max((0, 1)), -s.min((0, 1)))},
-        {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(s.shape[-1], np.nan)},
+        {"k2": lf.theta[:, 0], "peak_signal": peak},
+        {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(peak.shape, np.nan)},
         dof=lf.theta.shape[0],
         reduction=lf.reduction(),
     )

@@ -34,12 +34,14 @@ MIN_EXCURSION = 0.2
 offered (ten times the sensor's noise per sample; below it there is nothing to regress on)."""
 
 
-def smoothed(data) -> np.ndarray | None:
-    """(n, k) the recorded temperature, K, smoothed within each position; None without one."""
+def smoothed(data, rows: slice = slice(None)) -> np.ndarray | None:
+    """(p, k) the recorded temperature at the positions `rows`, K, smoothed within each
+    position; None without one."""
     if data.temperature is None:
         return None
     size = max(1, round(SMOOTH_SECONDS * data.fs))
-    return uniform_filter1d(np.asarray(data.temperature, float), size, axis=1, mode="nearest")
+    return uniform_filter1d(np.asarray(data.temperature[rows], float), size, axis=1,
+                            mode="nearest")
 
 
 def available(data) -> bool:
@@ -48,11 +50,12 @@ def available(data) -> bool:
     return t is not None and float(t.max() - t.min()) >= MIN_EXCURSION
 
 
-def fit(ctx, prediction, r) -> Fitted:
+def fit(ctx, twin, r) -> Fitted:
     """bias (m,) in output units per K, by weighted least squares per sensor."""
     t = smoothed(ctx.data)
     t_ref = float(t.mean())
-    lf = linear.fit(ctx.data, r, [(t - t_ref)[..., None]], ctx.sigma, "sensor")
+    lf = linear.fit_binned(r, [linear.centred(ctx.data, (t - t_ref)[..., None])],
+                           linear.weights(ctx.data, ctx.sigma), "sensor")
     return Fitted(
         "temperature",
         {"bias": lf.theta[:, 0], "t_ref": t_ref, "excursion": float(t.max() - t.min())},
@@ -70,7 +73,8 @@ def params(fitted: Fitted) -> Temperature:
     return Temperature(bias=tuple(fitted.value("bias")), t_ref=float(fitted.values["t_ref"]))
 
 
-def apply(ctx, fitted: Fitted) -> np.ndarray:
-    """(n, k, m) bias offsets at the recorded temperature (station.model.effects.temperature)."""
+def apply(ctx, fitted: Fitted, rows: slice) -> np.ndarray:
+    """(p, k, m) bias offsets at the recorded temperature at the positions `rows`
+    (station.model.effects.temperature)."""
     p = params(fitted)
-    return bias_offsets(smoothed(ctx.data) - p.t_ref, p)
+    return bias_offsets(smoothed(ctx.data, rows) - p.t_ref, p)

@@ -56,12 +56,18 @@ def heat(t_session: np.ndarray, rate: np.ndarray, tau: float) -> np.ndarray:
     return out
 
 
-def apply(t_session: np.ndarray, rate: np.ndarray, p: BiasDrift, out=None) -> np.ndarray:
+def apply(t_session: np.ndarray, rate: np.ndarray, p: BiasDrift, out=None,
+          heated: np.ndarray | None = None) -> np.ndarray:
     """Bias offsets (n, k, m) at session times t_session (n, k) for the table rate (n, k); with
     `out` (n, k, m) they are added to it in place, one channel at a time (the same sums, and no
-    array of its size made: the diagnosis' twin is of the session's size), and `out` returned."""
+    array of its size made), and `out` returned. `heated`: the heat state H (n, k) at those
+    samples when already made: for a part of a session (the diagnosis' twin works a few
+    positions at a time), whose heat carries over from the positions before it."""
     decay = np.exp(-np.asarray(t_session, float) / p.warmup_tau)
-    heated = heat(t_session, rate, p.heating_tau) if np.any(p.heating) else None
+    if not np.any(p.heating):
+        heated = None
+    elif heated is None:
+        heated = heat(t_session, rate, p.heating_tau)
     if out is None:
         warm = decay[..., None] * np.asarray(p.warmup)
         return warm if heated is None else warm + heated[..., None] * np.asarray(p.heating)
