@@ -52,11 +52,17 @@ def clean(x: np.ndarray, step) -> Cleaned:
 
 
 def test(flags: np.ndarray, alpha: float) -> dict:
-    """The count of outliers per channel in flags (K, c) against its Gaussian-noise law: counts,
-    samples, rate (count / samples), expected count, log10 p of each count (Poisson tail: that
-    many or more), the Bonferroni threshold log10(alpha / c) and whether outliers are detected."""
-    k, c = flags.shape
-    count = flags.sum(axis=0)
+    """The count of outliers per channel in flags (K, c) against its Gaussian-noise law
+    (`counted`)."""
+    return counted(flags.sum(axis=0), flags.shape[0], alpha)
+
+
+def counted(count: np.ndarray, k: int, alpha: float) -> dict:
+    """The counts of outliers per channel (c,) among k samples each against their Gaussian-noise
+    law: counts, samples, rate (count / samples), expected count, log10 p of each count (Poisson
+    tail: that many or more), the Bonferroni threshold log10(alpha / c) and whether outliers are
+    detected."""
+    c = len(count)
     expected = k * NULL_CHANCE
     log10_p = np.logaddexp(poisson.logpmf(count, expected),  # P(N = count) + P(N > count)
                            poisson.logsf(count, expected)) / np.log(10)
@@ -66,8 +72,9 @@ def test(flags: np.ndarray, alpha: float) -> dict:
             "detected": bool(np.any(log10_p < threshold)), "beyond_sigma": SPIKE}
 
 
-def message(report: dict, names) -> str:
-    """One line on the outliers of `test`'s report, channels called `names`."""
+def message(report: dict, names, replaced_by: str = "its neighbours' median") -> str:
+    """One line on the outliers of `test`'s report, channels called `names`, each outlier
+    `replaced_by` that."""
     if not report["detected"]:
         return (f"no outliers: {int(report['count'].sum())} sample(s) beyond "
                 f"{report['beyond_sigma']:g} robust sigma, as Gaussian noise allows")
@@ -76,4 +83,4 @@ def message(report: dict, names) -> str:
     return (f"OUTLIERS: samples beyond {report['beyond_sigma']:g} robust sigma (Gaussian noise: "
             f"{report['expected']:.1e} expected per channel) in {', '.join(hit)} of "
             f"{report['samples']} samples (log10 p {report['log10_p'].min():.1f}); "
-            "down-weighted: each replaced by its neighbours' median")
+            f"down-weighted: each replaced by {replaced_by}")

@@ -42,6 +42,9 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
     """The JSON document of a diagnosis; `effects` is the ordered list of named effects."""
     steps = [step_dict(step) for step in diagnosis.steps]
     n, k, m = data.shape
+    spikes = data.outlier_test(diagnosis.alpha)
+    said = outliers.message(spikes, [f"sensor {i}" for i in range(m)],
+                            "its position's steady model in the table rate")
     return jsonable({
         "session": source,
         "protocol": "rotary",
@@ -52,6 +55,9 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "noise_sigma": data.sigma,
         "alpha": diagnosis.alpha,
         **verdict(diagnosis),
+        "outliers": spikes,
+        "findings": [said] if spikes["detected"] else [],
+        "remarks": [] if spikes["detected"] else [said],
         "steps": steps,
         "calibration_before": calibration_summary(diagnosis.steps[0].model.calibration),
         "calibration_after": calibration_summary(diagnosis.calibration),
