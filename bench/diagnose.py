@@ -89,6 +89,25 @@ warm-up of tau 200 s (a few minutes, between the bias_drift grid's points) at 7e
 its limit, and at 0.05 rad/s, far above (log10 p below -1e5); effect-free with the walk alone
 and with a ten times smaller walk beside flicker."""
 
+OPEN = {"tone_1.7x": 1.7, "tone_2.5x": 2.5, "tone_against_2.2x": -2.2}
+"""Issue 32, pattern 6 (`--open`): case -> the frequency, in multiples of the table rate
+(negative: turning against the table), of a coning off the table rate (a loose mount: the
+simulator's axis_wobble with a frequency in Hz) of half-angle `OPEN_ANGLE`, which no named
+effect has; the right call is the open family `tone`."""
+OPEN_ANGLE = 0.006
+"""deg: 2.5-4.4 x the tone's detection limit on m = 3 (LR - dof over the noncentrality whose
+median LR reaches the first step's threshold, the Bonferroni factor of the frequencies searched
+included; seeds 3000, 3001 at 1.7 and 2.5 x the table rate)."""
+
+
+def spec(case: str) -> str:
+    """The simulator spec of one case of CASES or OPEN."""
+    if case in OPEN:
+        hz = OPEN[case] * SHORT.rate / (2 * np.pi)
+        return f"axis_wobble=angle_deg={OPEN_ANGLE},freq={hz:.6g}"
+    return CASES[case]
+
+
 QUIET = 2e-4 / OMEGA_EARTH
 UNITS = {"earth_rate": {"noise_density": np.radians(0.01) / QUIET,
                         "counts_per_unit": QUIET * 16.4 / np.radians(1.0)}}
@@ -116,7 +135,7 @@ def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: in
         return coloured_session(case, m, seed, timing, fs, n)
     effects = {}
     for one in case.split("+"):
-        name, params = parse(CASES[one])
+        name, params = parse(spec(one))
         if one == "saturation":
             params = Saturation(rail_below_peak(m, seed, timing, fs, n))
         if params is not None:
@@ -144,6 +163,31 @@ def coloured_session(case: str, m: int, seed: int, timing, fs: float, n: int):
         noise = np.stack([flicker(y[..., 0].size, bias_instability, rng) for _ in range(m)], 1)
         arrays["y"] = np.round(y + noise.reshape(y.shape) / lsb).astype(y.dtype)
     return session_data.from_arrays(arrays), sim.truth
+
+
+def open_family(seeds: int, cases=tuple(OPEN), layouts=(3,)) -> dict:
+    """Per OPEN case over m in `layouts` and `seeds` seeds (1000 m + 600 + s): sessions with
+    `tone` named first, another name, nothing named, unexplained; the fitted frequency's error
+    in its sigma; the harmonics gap before and after; eps worse than before by more than 1 sd."""
+    out = {}
+    for case in cases:
+        runs = [run_case(case, m, 1000 * m + 600 + s) for m in layouts for s in range(seeds)]
+        z = [(r["tone_multiple"][0] - OPEN[case]) / r["tone_multiple"][1] for r in runs
+             if r["tone_multiple"]]
+        out[case] = {
+            "sessions": len(runs),
+            "named_first": sum(r["first"] == "tone" for r in runs),
+            "other_named": sum(any(e != "tone" for e in r["named"]) for r in runs),
+            "nothing_named": sum(not r["named"] for r in runs),
+            "unexplained": sum(bool(r["unexplained"]) for r in runs),
+            "frequency_z": [float(x) for x in z],
+            "harmonics_before": [r["gap"][0]["harmonics"] for r in runs],
+            "harmonics_after": [r["gap"][-1]["harmonics"] for r in runs],
+            "worse_by_more_than_1sd": sum(r["eps_after"] > r["eps_before"] + r["eps_sd_at_bound"]
+                                          for r in runs),
+            "named": [r["named"] for r in runs],
+        }
+    return out
 
 
 def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,)) -> dict:
@@ -289,6 +333,7 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) ->
         "spread_true": spread,
         "spread_fitted": _estimate(rate, "spread"),
         "gain_fitted": _estimate(rate, "gain"),  # with the table's encoder
+        "tone_multiple": _estimate(result.final.fitted.get("tone"), "table_rate_multiple"),
     }
 
 
@@ -424,6 +469,9 @@ def main() -> None:
     parser.add_argument("--coloured", nargs="*", choices=list(COLOURED), default=None,
                         help="only the issue 32 cases beside coloured noise (COLOURED; default: "
                         "all), m = 3")
+    parser.add_argument("--open", nargs="*", choices=list(OPEN), default=None,
+                        help="only the issue 32 cases of an effect no list names, the open "
+                        "families' (OPEN; default: all), m = 3")
     parser.add_argument("--first-seed", type=int, default=0,
                         help="--temperature: seeds s from this one (1000 m + s)")
     args = parser.parse_args()
@@ -436,6 +484,14 @@ def main() -> None:
             lo, hi = r["interval_95"]
             print(f"{case:18s} right {r['right']} / {r['sessions']} (95 % {lo:.2f}-{hi:.2f}), "
                   f"offered {r['offered']}, max |z| tempco {r['tempco_z_max']}")
+        return
+    if args.open is not None:
+        found = open_family(args.seeds, args.open or tuple(OPEN))
+        if args.json:
+            print(json.dumps({"open": found}, indent=1, default=float))
+            return
+        for case, r in found.items():
+            print(f"{case:19s} " + ", ".join(f"{k} {v}" for k, v in r.items() if k != "named"))
         return
     if args.coloured is not None:
         found = coloured(args.seeds, args.coloured or tuple(COLOURED))

@@ -18,7 +18,7 @@ import numpy as np
 from station.model import sensing
 from station.model.effects import bias_drift
 
-ORDER = ("rate_error", "axis_wobble", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
+ORDER = ("rate_error", "axis_wobble", "tone", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
          "temperature", *sensing.OUTPUT)
 """Names of the model extensions in the order the twin applies them: the motion, then the sensor
 output chain's (station.model.sensing)."""

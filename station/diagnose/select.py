@@ -88,13 +88,14 @@ def evidence(current: model.Model, extended: model.Model, name: str, tests: int,
     lr = max(current.deviance - extended.deviance, 0.0)
     fitted = extended.fitted[name]
     scale, nu = fitted.null_law
-    log_p = np.log(fitted.null_mass) + goodness.log_sf(lr / scale, nu) if lr > 0 else 0.0
+    mass = fitted.null_mass * fitted.searched  # an open family's grid: Bonferroni over it
+    log_p = min(np.log(mass) + goodness.log_sf(lr / scale, nu), 0.0) if lr > 0 else 0.0
     return {
         "lr": lr,
         "dof": fitted.dof,
         "null_scale": scale,
         "null_dof": nu,
-        "null_mass": fitted.null_mass,
+        "null_mass": mass,
         "p": float(np.exp(log_p)),
         "log10_p": log_p / np.log(10),
         "significant": bool(log_p < np.log(alpha / tests)),

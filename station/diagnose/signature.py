@@ -87,13 +87,19 @@ def describe(data, model, statistic: str) -> dict:
 def spectrum(data, model) -> dict:
     """{"frequency": f, "with_table", "against_table", "axial"}: residual power over white
     noise at f x the table rate, averaged over positions (see the module docstring)."""
-    a = model.ctx.a
+    return residual_spectrum(data, model.ctx, model.twin)
+
+
+def residual_spectrum(data, ctx, twin) -> dict:
+    """`spectrum` of the residuals of a twin (station.diagnose.prediction.Twin) of context
+    `ctx`."""
+    a = ctx.a
     if a.shape[0] != 3:
         return {}
     w = 1.0 / data.sigma**2
     cov = np.linalg.inv((a * w) @ a.T)
-    grid, twin = frequencies(data), model.twin
-    points = [_position_spectrum(data, model.ctx, rj, j, w, cov, grid)
+    grid = frequencies(data)
+    points = [_position_spectrum(data, ctx, rj, j, w, cov, grid)
               for rows in data.chunks()
               for rj, j in zip(twin.residual(rows), range(*rows.indices(data.shape[0])),
                                strict=True)]

@@ -51,6 +51,8 @@ class Fitted:
         (1, dof) for parameters entering linearly, moment-matched otherwise (`tone_null`).
     null_mass : probability that the likelihood ratio is positive without the effect: 1, or 1/2
         for a variance on the boundary s = 0 of its range (law 1/2 chi2_0 + 1/2 chi2_1).
+    searched : the points of a grid the fit took the best of (an open family's frequency): the
+        p-value of its likelihood ratio is that many times the one point's (Bonferroni).
     penalty : random-effect terms of the model deviance (-2 log marginal likelihood) beyond the
         residual chi2; 0 for fixed effects.
     units : parameter name -> unit of its value, for the reports ("" dimensionless; a parameter
@@ -67,6 +69,7 @@ class Fitted:
     null_mass: float = 1.0
     penalty: float = 0.0
     units: dict = field(default_factory=dict)
+    searched: int = 1
 
     def value(self, key):
         return np.asarray(self.values[key], float)
@@ -107,6 +110,7 @@ def _registry() -> dict:
         saturation,
         scale_nonlinearity,
         temperature,
+        tone,
     )
 
     return {
@@ -118,8 +122,10 @@ def _registry() -> dict:
         "axis_wobble": axis_wobble,
         "latency": latency,
         "temperature": temperature,
+        "tone": tone,
     }
 
 
 EXTENSIONS = _registry()
-"""Effect name -> model extension module (the simulator's EFFECTS names)."""
+"""Effect name -> model extension module (the simulator's EFFECTS names, and the open families:
+`tone`)."""
