@@ -6,7 +6,7 @@ the table's heading carry their own per-position heading or phase). The noise-fr
 series is built in the simulator's order (docs/simulator.md) with each model extension's `apply`,
 which calls the simulator's own effect functions: motion (rate_error, axis_wobble, earth_rate) ->
 projection a^T omega -> sensed signal (scale_nonlinearity, latency) -> biases (bias_drift,
-temperature at the recorded temperature; one bias per sensor, the mean of the data minus the
+temperature at the recorded temperature, a jump; one bias per sensor, the mean of the data minus the
 rest) -> output (saturation, as an expectation). Its series of the session's size are made a few
 positions at a time (`Twin`).
 """
@@ -19,7 +19,7 @@ from station.model import sensing
 from station.model.effects import bias_drift
 
 ORDER = ("rate_error", "axis_wobble", "tone", "earth_rate", *sensing.SENSED, *sensing.OFFSETS,
-         "temperature", *sensing.OUTPUT)
+         "temperature", "jump", *sensing.OUTPUT)
 """Names of the model extensions in the order the twin applies them: the motion, then the sensor
 output chain's (station.model.sensing)."""
 
@@ -97,13 +97,14 @@ class Twin:
 
     def _unbiased(self, rows: slice) -> np.ndarray:
         """(p, k, m) the expected output at the positions `rows` before the biases and the
-        output stage: sensed stage, offsets, temperature."""
+        output stage: sensed stage, offsets, the offsets added beside them (temperature,
+        jump)."""
         data = self.ctx.data
         z = sensing.sensed(self.sensed(rows), data.t, self.sensor)  # a new array: this one's
         heat = None if self.heat is None else self.heat[rows]
         sensing.offsets(data.session_times(rows), self.rate[rows], self.sensor, out=z,
                         heated=heat)
-        for name in self._active("temperature"):
+        for name in self._active("added"):
             z += self.extensions[name].apply(self.ctx, self.fitted[name], rows)
         return z
 
@@ -132,7 +133,7 @@ def predict(ctx: Context, fitted: dict, extensions: dict, b=None) -> Twin:
     """The twin of the model: nominal plus the `fitted` extensions ({name: Fitted}), each at
     its stage: the rate's and the motion's by extensions[name].apply, the sensor's through the
     output chain's stages (station.model.sensing: sensed, offsets) with extensions[name].params,
-    the temperature's and the output's (an expectation over the noise) by
+    the added offsets' (temperature, jump) and the output's (an expectation over the noise) by
     extensions[name].apply. The biases `b` (m,) are the data's mean minus the rest's, found by
     one pass over the positions unless given (a model keeps its own: Model.b)."""
     data = ctx.data

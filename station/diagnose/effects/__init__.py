@@ -16,8 +16,9 @@ Each module exposes
   its stage, through the simulator's own effect function (imported, never copied): at the
   "rate" stage on the rate (n, k), at the "motion" stage `apply(ctx, fitted, omega, rate, rows)`
   on the positions `rows` (a slice), at the "output" stage on a chunk's output (p, k, m);
-- at the stage "temperature": `apply(ctx, fitted, rows)`, the (p, k, m) offsets at the session's
-  recorded temperature at the positions `rows`, added beside the sensor chain's offsets;
+- at the stage "added": `apply(ctx, fitted, rows)`, the (p, k, m) offsets at the positions `rows`
+  (temperature: at the session's recorded temperature; jump: after its instant), added beside the
+  sensor chain's offsets;
 - optionally `available(data) -> bool`: False when the session cannot show the effect (temperature:
   no recorded temperature); the candidate is then not offered (station.diagnose.select.diagnose);
 - optionally `calibration_options(fitted) -> dict | None`: keyword arguments of
@@ -105,6 +106,7 @@ def _registry() -> dict:
         axis_wobble,
         bias_drift,
         earth_rate,
+        jump,
         latency,
         rate_error,
         saturation,
@@ -123,9 +125,10 @@ def _registry() -> dict:
         "latency": latency,
         "temperature": temperature,
         "tone": tone,
+        "jump": jump,
     }
 
 
 EXTENSIONS = _registry()
 """Effect name -> model extension module (the simulator's EFFECTS names, and the open families:
-`tone`)."""
+`tone`, `jump`)."""

@@ -26,7 +26,7 @@ from station.model.effects.temperature import Temperature, bias_offsets
 GAPS = ("static", "trend")
 """Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
 while one of them stays unexplained (station.diagnose.select.settle)."""
-STAGE = "temperature"
+STAGE = "added"
 SMOOTH_SECONDS = 1.0
 """s: running mean of the recorded temperature (quantisation and sensor noise)."""
 MIN_EXCURSION = 0.2

@@ -13,11 +13,12 @@ spectrum of the twin without it (station.diagnose.signature.residual_spectrum: s
 quarter of the resolution, up to 4 x the table rate): the likelihood ratio is the best of those
 points, so its p-value is Bonferroni'd over them (`Fitted.searched`), and a named effect of the
 same signature (axis_wobble at +1 x the table rate, which is not searched for) is preferred.
-The frequency is then refined within half a step of that point (bounded search on the chi2
-decrease, `REFINE` fits; the grid's points are a quarter of the resolution apart, so the
-refinement adds little to what the Bonferroni factor counts); its sigma from the decrease's
-curvature (a change of 1 in chi2). The axial direction (a vibration along the table axis) is not
-modelled: it changes |omega|, which coning does not.
+The frequency is then refined between that point's neighbours (bounded search on the chi2
+decrease, `REFINE` fits: the noise can put the strongest point beside the tone's; the grid's
+points are a quarter of the resolution apart, so the refinement adds little to what the
+Bonferroni factor counts); its sigma from the decrease's curvature (a change of 1 in chi2).
+The axial direction (a vibration along the table axis) is not modelled: it changes |omega|,
+which coning does not.
 """
 
 import numpy as np
@@ -32,7 +33,7 @@ GAPS = ("harmonics",)
 """Gap statistics (station.diagnose.gap) that hold this effect's signature: it is not named
 while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
-REFINE = 8
+REFINE = 10
 """Evaluations of the fit while its frequency is refined between the grid's neighbours."""
 SENSES = (("with_table", 1.0), ("against_table", -1.0))
 """The spectrum's in-plane senses and the sign of the frequency each gives."""
@@ -66,8 +67,8 @@ def fit(ctx, twin, r) -> Fitted:
                                                                   rows) @ ctx.a, ctx.sigma)
 
     best = minimize_scalar(lambda m: -fitted(m)[2].reduction(), method="bounded",
-                           bounds=(multiple - step / 2, multiple + step / 2),
-                           options={"xatol": step / 50, "maxiter": REFINE})
+                           bounds=(multiple - step, multiple + step),
+                           options={"xatol": step / 100, "maxiter": REFINE})
     multiple = float(best.x)
     free, phase, lf, _ = fitted(multiple)
     amp, amp_sigma = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
