@@ -93,9 +93,9 @@ def test_cli_json_and_report(tmp_path):
     doc = json.loads(out.stdout)
     assert doc["effects"] == ["earth_rate"]
     first = doc["steps"][0]
-    # the named effects' candidates and the open family `tone`
+    # the named effects' candidates and the open families
     assert set(first["evidence"]) == {hidden(case) for case in bench.CASES} - {"none"} | {
-        "tone"}
+        "tone", "jump"}
     assert first["evidence"]["earth_rate"]["significant"]
     fitted = doc["steps"][-1]["parameters"]["earth_rate"]["horizontal_rate"]
     truth_horizontal = bench.OMEGA_EARTH * np.cos(np.radians(52.2))
