@@ -13,8 +13,9 @@ spectrum of the twin without it (station.diagnose.signature.residual_spectrum: s
 quarter of the resolution, up to 4 x the table rate): the likelihood ratio is the best of those
 points, so its p-value is Bonferroni'd over them (`Fitted.searched`), and a named effect of the
 same signature (axis_wobble at +1 x the table rate, which is not searched for) is preferred.
-The frequency is then refined between that point's neighbours (bounded search on the chi2
-decrease, `REFINE` fits: the noise can put the strongest point beside the tone's; the grid's
+The frequency is then refined between that point's neighbours when that point alone is nearly
+significant (`_worth_refining`; bounded search on the chi2 decrease, `REFINE` fits: the noise
+can put the strongest point beside the tone's; the grid's
 points are a quarter of the resolution apart, so the refinement adds little to what the
 Bonferroni factor counts); its sigma from the decrease's curvature (a change of 1 in chi2).
 The axial direction (a vibration along the table axis) is not modelled: it changes |omega|,
@@ -26,6 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from station.diagnose import linear, signature
 from station.diagnose.effects import Fitted, tone_null
+from station.diagnose.goodness import log_sf
 from station.model.effects import axis_wobble
 from station.model.effects.axis_wobble import AxisWobble
 
@@ -35,6 +37,9 @@ while one of them stays unexplained (station.diagnose.select.settle)."""
 STAGE = "motion"
 REFINE = 10
 """Evaluations of the fit while its frequency is refined between the grid's neighbours."""
+REFINE_BELOW = 0.1
+"""The grid point's p-value (Bonferroni'd) below which the frequency is refined
+(`_worth_refining`)."""
 SENSES = (("with_table", 1.0), ("against_table", -1.0))
 """The spectrum's in-plane senses and the sign of the frequency each gives."""
 
@@ -66,13 +71,16 @@ def fit(ctx, twin, r) -> Fitted:
         return linear.phase_fit(data, r, lambda deg, rows: _unit(ctx, twin.rate, m * hz, deg,
                                                                   rows) @ ctx.a, ctx.sigma)
 
-    best = minimize_scalar(lambda m: -fitted(m)[2].reduction(), method="bounded",
-                           bounds=(multiple - step, multiple + step),
-                           options={"xatol": step / 100, "maxiter": REFINE})
-    multiple = float(best.x)
     free, phase, lf, _ = fitted(multiple)
+    m_sigma = step / 2
+    if _worth_refining(lf.reduction(), tone_null(free.h), searched):
+        best = minimize_scalar(lambda m: -fitted(m)[2].reduction(), method="bounded",
+                               bounds=(multiple - step, multiple + step),
+                               options={"xatol": step / 100, "maxiter": REFINE})
+        multiple = float(best.x)
+        free, phase, lf, _ = fitted(multiple)
+        m_sigma = _curvature_sigma(lambda m: fitted(m)[2].reduction(), multiple, step / 10)
     amp, amp_sigma = float(lf.theta[0, 0]), float(np.sqrt(lf.cov[0, 0, 0]))
-    m_sigma = _curvature_sigma(lambda m: fitted(m)[2].reduction(), multiple, step / 10)
     n = phase.size
     return Fitted(
         "tone",
@@ -91,6 +99,17 @@ def fit(ctx, twin, r) -> Fitted:
         "between its neighbours (f < 0 against the table), scaled by the table rate; the "
         "p-value is Bonferroni'd over the points searched; per-position phases are nuisance",
     )
+
+
+def _worth_refining(gain: float, law: tuple, searched: int) -> bool:
+    """Whether the grid point's chi2 decrease `gain` (null law scale * chi2(nu), Bonferroni'd over
+    `searched` points) has a p-value below REFINE_BELOW: the refinement raises it by the power a
+    point between two of the grid's loses, at most 5 %, and the decrease that p = REFINE_BELOW
+    needs is some 30 % below the one any step's threshold needs (alpha / tests), so a tone the
+    refinement could make significant is always refined, and a session without one saves its
+    fits."""
+    scale, nu = law
+    return bool(np.log(searched) + log_sf(gain / scale, nu) < np.log(REFINE_BELOW))
 
 
 def _curvature_sigma(gain, x: float, h: float) -> float:
