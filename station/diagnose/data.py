@@ -13,7 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
-from station.diagnose import outliers, recorded
+from station.diagnose import outliers, quantisation, recorded
 from station.errors import CalibrationInputError
 from station.model.temperature import check_kelvin
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
@@ -119,11 +119,36 @@ class RotaryData:
         turned = self.angle[rows, last] - self.angle[rows, r0]
         return turned * self.fs / (last - r0) / self.c
 
+    @cached_property
+    def step(self) -> np.ndarray:
+        """(m,) the quantisation step of each sensor, SI units (station.diagnose.quantisation:
+        the smallest gap between distinct values of the first chunk's static windows)."""
+        s0, s1 = self.windows["static"]
+        first = next(self.chunks())
+        return quantisation.step(self.counts[first, s0:s1].reshape(-1, self.shape[2])) * self.lsb
+
+    @cached_property
+    def kept(self) -> np.ndarray:
+        """(m,) variance of the quantisation error a window mean keeps (station.diagnose.
+        quantisation: 0 to 1e-5 step^2 while the noise dithers the step, up to step^2 / 12 for a
+        channel quieter than its step), at the noise before quantisation."""
+        return quantisation.kept(quantisation.analog_sigma(self.sigma, self.step), self.step)
+
+    def quantisation_report(self) -> dict:
+        """The steps against the noise, and whether some sensor is quantised coarser than its
+        noise (station.diagnose.quantisation.report)."""
+        analog = quantisation.analog_sigma(self.sigma, self.step)
+        m = self.shape[2]
+        return quantisation.report(self.step, analog, [f"sensor {i}" for i in range(m)],
+                                   [""] * m)
+
     @property
     def sigma_m(self) -> np.ndarray:
-        """(m, n) standard error of M for white noise of `sigma` per sample."""
+        """(m, n) standard error of M: white noise of `sigma` per sample, and the quantisation
+        error each of its two window means keeps (`kept`)."""
         r = self.reduced
-        return self.sigma[:, None] * np.sqrt(1 / r.n_static + 1 / r.n_rotating)
+        return np.sqrt(self.sigma[:, None] ** 2 * (1 / r.n_static + 1 / r.n_rotating)
+                       + 2 * self.kept[:, None])
 
     @property
     def t_session(self) -> np.ndarray:

@@ -63,7 +63,8 @@ def features(data, model) -> dict:
     b, static_slopes, slopes, coef, ramps = (list(x) for x in zip(*chunks, strict=True))
     b = np.concatenate(b)  # (n, m) static means net of the model
     n = b.shape[0]
-    static = (b - b.mean(0)) * np.sqrt((s1 - s0) / sig**2) * np.sqrt(n / max(n - 1, 1))
+    static = ((b - b.mean(0)) / np.sqrt(sig**2 / (s1 - s0) + data.kept)
+              * np.sqrt(n / max(n - 1, 1)))
     trend = np.stack([np.concatenate(static_slopes), np.concatenate(slopes)], 1)
     trans = [np.concatenate([c[i] for c in ramps]) * np.sqrt(z - a) / sig
              / np.sqrt(1 + _level_noise(data, a, z))

@@ -56,9 +56,10 @@ def centred_signature(data, make) -> tuple:
 
 
 def weights(data, sigma: np.ndarray) -> tuple:
-    """(m,) weights of a bin and of a static mean."""
+    """(m,) weights of a bin and of a static mean (its variance: the white noise's over its
+    samples and the quantisation error it keeps, `RotaryData.kept`)."""
     s0, s1 = data.windows["static"]
-    return data.bin / sigma**2, (s1 - s0) / sigma**2
+    return data.bin / sigma**2, 1 / (sigma**2 / (s1 - s0) + data.kept)
 
 
 def chi2(data, r: tuple, sigma: np.ndarray) -> float:

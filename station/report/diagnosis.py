@@ -45,6 +45,9 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
     spikes = data.outlier_test(diagnosis.alpha)
     said = outliers.message(spikes, [f"sensor {i}" for i in range(m)],
                             "its position's steady model in the table rate")
+    grid = data.quantisation_report()
+    coarse = [grid["message"] + "; the gaps within positions still assume it dithered: names "
+              "beside it may stand for the grid"] if grid["message"] else []
     return jsonable({
         "session": source,
         "protocol": "rotary",
@@ -56,7 +59,8 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "alpha": diagnosis.alpha,
         **verdict(diagnosis),
         "outliers": spikes,
-        "findings": [said] if spikes["detected"] else [],
+        "quantisation": grid,
+        "findings": ([said] if spikes["detected"] else []) + coarse,
         "remarks": [] if spikes["detected"] else [said],
         "steps": steps,
         "calibration_before": calibration_summary(diagnosis.steps[0].model.calibration),
