@@ -21,28 +21,30 @@ spec.loader.exec_module(bench)
 SEEDS = (3600, 3601, 3602)
 
 
+def named_alone(case: str, seed: int, family: str, gap: str) -> tuple:
+    """(fitted family, truth) of a bench session hiding `case`: the family is named alone,
+    nothing is left unexplained and its own `gap` shrinks."""
+    data, truth = bench.session(case, 3, seed)
+    result = diagnose(data)
+    assert result.effects == [family] and not result.unexplained
+    assert result.steps[-1].gap[gap] < result.steps[0].gap[gap]
+    return result.final.fitted[family], truth
+
+
 @pytest.mark.parametrize("seed", SEEDS)
 def test_a_coning_off_the_table_rate_is_named_a_tone_at_its_frequency(seed):
-    data, _ = bench.session("tone_1.7x", 3, seed)
-    result = diagnose(data)
-    assert result.effects == ["tone"] and not result.unexplained
-    tone = result.final.fitted["tone"]
+    tone, _ = named_alone("tone_1.7x", seed, "tone", "harmonics")
     z = (tone.values["table_rate_multiple"] - 1.7) / tone.sigma["table_rate_multiple"]
     assert abs(z) < 3
-    assert result.steps[-1].gap["harmonics"] < result.steps[0].gap["harmonics"]
 
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_a_step_of_the_biases_is_named_a_jump_at_its_instant(seed):
-    data, truth = bench.session("jump", 3, seed)
-    result = diagnose(data)
-    assert result.effects == ["jump"] and not result.unexplained
-    fitted = result.final.fitted["jump"]
+    fitted, truth = named_alone("jump", seed, "jump", "static")
     lo, hi = fitted.values["t0_span"]
     assert lo <= truth["jump"]["t0"] <= hi
     z = (fitted.value("delta") - truth["jump"]["delta"]) / fitted.sigma["delta"]
     assert np.all(np.abs(z) < 4)
-    assert result.steps[-1].gap["static"] < result.steps[0].gap["static"]
 
 
 def test_the_scan_is_the_least_squares_fit_at_each_instant():
