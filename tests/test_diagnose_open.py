@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from station.diagnose import diagnose, linear, model
-from station.diagnose.effects import jump
+from station.diagnose.effects import Fitted, jump
 
 ROOT = Path(__file__).resolve().parents[1]
 spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "bench" / "diagnose.py")
@@ -70,3 +70,17 @@ def test_effect_free_sessions_name_no_open_family():
     named = [diagnose(bench.session("none", m, 1000 * m + s)[0]).effects
              for m in (3, 12) for s in range(3)]
     assert not any({"tone", "jump"} & set(n) for n in named)
+
+
+def test_a_jump_after_the_last_static_window_is_not_judged_against_a_walk():
+    """Its static means do not step, so the walk's test has no column to judge (it returned a
+    deviance of -inf from a singular design before); one inside the session is judged."""
+    data, _ = bench.session("none", 3, 3000)
+    nominal = model.nominal(data)
+    s1 = data.windows["static"][1]
+    times = data.session_times(slice(data.shape[0] - 1, None))[0]
+    late = Fitted("jump", {"t0": float(times[s1 + 10]), "delta": np.zeros(3)}, {}, dof=4)
+    assert jump.beyond_walk(nominal, late) is None
+    middle = Fitted("jump", {"t0": float(data.session_times(slice(10, 11))[0][0]),
+                             "delta": np.zeros(3)}, {}, dof=4)
+    assert jump.beyond_walk(nominal, middle) is not None

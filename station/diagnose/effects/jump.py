@@ -105,13 +105,16 @@ def apply(ctx, fitted: Fitted, rows: slice) -> np.ndarray:
     return _step(ctx.data, float(fitted.values["t0"]), rows)[..., None] * fitted.value("delta")
 
 
-def beyond_walk(current, fitted: Fitted) -> float:
+def beyond_walk(current, fitted: Fitted) -> float | None:
     """log10 p of the fitted jump (its static-window means at the fitted instant) in the static
     windows' mean residuals of `current`, the model without it, against a bias random walk per
-    sensor (station.diagnose.walk)."""
+    sensor (station.diagnose.walk); None for a jump after the last static window (its means do
+    not step: the walk's test has no column to judge)."""
     data = current.ctx.data
     s0, s1 = data.windows["static"]
     shape = _step(data, float(fitted.values["t0"]), slice(None))[:, s0:s1].mean(1)
+    if np.ptp(shape) == 0:
+        return None  # after the last static window: no step in the means for a walk to mimic
     y = linear.signature_parts(data, current.twin.residual)[1]  # static means
     var = np.broadcast_to(current.ctx.sigma**2 / (s1 - s0), y.shape)
     return walk.log10_p(y, data.t_session[:, s0:s1].mean(1), var, shape[:, None], 1)
