@@ -117,7 +117,7 @@ def arrays(session, stream: str = "imu") -> dict:
         counts[row] = row_counts[:, gyros]
         if kelvin:
             temperature[row] = row_counts[:, kelvin[0]] * lsb[kelvin[0]]
-    return {"counts": counts[..., gyros], "lsb": lsb[gyros],
+    return {"counts": counts, "lsb": lsb[gyros],
             "fs": fs, "times": times, "rate": rate, "c": c, "angle": angle, "windows": windows,
             "rate_factors_sigma": factors_sigma,
             "a_nominal": nominal_layout(session.metadata, len(gyros)),
