@@ -87,6 +87,12 @@ class RotaryData:
         np.subtract(self.counts[rows] * self.lsb, z, out=z)
         return z
 
+    @cached_property
+    def rail(self) -> int:
+        """The largest |count| of the session (station.diagnose.rails): found once, read by every
+        chunk's rail expectation."""
+        return max(int(self.counts.max()), -int(self.counts.min()))
+
     def outlier_test(self, alpha: float) -> dict:
         """The outliers replaced against Gaussian noise (station.diagnose.outliers.counted)."""
         spikes = np.zeros(self.shape[2], int) if self.spikes is None else self.spikes

@@ -61,7 +61,7 @@ def noise(data, clipped: bool = False) -> np.ndarray:
     window sat on the rail a fraction f of the time has 1 - f of the information."""
     sigma = data.sigma_m
     if clipped:
-        r0, rail = data.windows["rotating"][0], rails.rail(data)
+        r0, rail = data.windows["rotating"][0], data.rail
         f = np.array([(np.abs(data.counts[j, r0:stop]) == rail).mean(0)
                       for j, stop in enumerate(data.rot_stop)]).T
         sigma = sigma / np.sqrt(np.maximum(1 - f, 1e-6))

@@ -13,21 +13,17 @@ import numpy as np
 from scipy.special import ndtr
 
 
-def rail(data) -> int:
-    """The largest |count| of the session."""
-    return max(int(data.counts.max()), -int(data.counts.min()))
-
-
 def observed(data) -> np.ndarray:
-    """(2, m) samples reading +R and -R (counted a chunk of positions at a time)."""
-    r = rail(data)
+    """(2, m) samples reading +R and -R (R: `RotaryData.rail`; counted a chunk of positions at a
+    time)."""
+    r = data.rail
     return sum(np.stack([(data.counts[rows] == r).sum((0, 1)),
                          (data.counts[rows] == -r).sum((0, 1))]) for rows in data.chunks())
 
 
 def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool) -> np.ndarray:
     """(2, m) expected samples at +R and -R for expected outputs z (n, k, m), noise sigma (m,)."""
-    r = rail(data)
+    r = data.rail
     m = z.shape[2]
     sc = np.broadcast_to(sigma / data.lsb, (m,))
     out = np.zeros((2, m))

@@ -1,16 +1,16 @@
 """Extension `saturation`: the outputs are clipped at +-range.
 
-The range is the rail of the session (the largest |count| times the count size, station.diagnose.
-rails), known to half a count; one parameter. The twin applies the clip to the expected output
-as an expectation over the noise, E[clip(mu + e)] for e ~ N(0, sigma^2), so that the calibration
-corrected by the twin is unbiased where the output sat on the rail only part of the time.
+The range is the rail of the session (the largest |count| times the count size,
+`RotaryData.rail`), known to half a count; one parameter. The twin applies the clip to the
+expected output as an expectation over the noise, E[clip(mu + e)] for e ~ N(0, sigma^2), so
+that the calibration corrected by the twin is unbiased where the output sat on the rail only part
+of the time.
 Evidence comes from the pile-up at the rail (rails.deviance) and from the binned residuals.
 """
 
 import numpy as np
 from scipy.special import ndtr
 
-from station.diagnose import rails
 from station.diagnose.effects import Fitted
 from station.model.effects import saturation
 from station.model.effects.saturation import Saturation
@@ -24,7 +24,7 @@ STAGE = "output"
 def fit(ctx, twin, r) -> Fitted:
     """The range: the rail count times each sensor's count size."""
     data = ctx.data
-    rng = rails.rail(data) * data.lsb
+    rng = data.rail * data.lsb
     return Fitted("saturation", {"range": rng}, {"range": data.lsb / 2}, dof=1,
                   notes="range = the largest |count| of the session")
 
