@@ -81,6 +81,10 @@ class RotaryData:
         n = self.shape[0]
         return (slice(start, min(start + POSITIONS, n)) for start in range(0, n, POSITIONS))
 
+    def positions(self, rows: slice) -> range:
+        """The position indices of the chunk `rows` (a slice of `chunks`), in order."""
+        return range(*rows.indices(self.shape[0]))
+
     def residual(self, z: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
         """y - z at the positions `rows` (z of their shape), made in z's array (the caller's
         own)."""
@@ -134,19 +138,24 @@ class RotaryData:
         return quantisation.step(self.counts[first, s0:s1].reshape(-1, self.shape[2])) * self.lsb
 
     @cached_property
+    def analog_sigma(self) -> np.ndarray:
+        """(m,) the noise before quantisation, from `sigma`, the samples' scatter
+        (station.diagnose.quantisation.analog_sigma)."""
+        return quantisation.analog_sigma(self.sigma, self.step)
+
+    @cached_property
     def kept(self) -> np.ndarray:
         """(m,) variance of the quantisation error a window mean keeps (station.diagnose.
         quantisation: 0 to 1e-5 step^2 while the noise dithers the step, up to step^2 / 12 for a
         channel quieter than its step), at the noise before quantisation."""
-        return quantisation.kept(quantisation.analog_sigma(self.sigma, self.step), self.step)
+        return quantisation.kept(self.analog_sigma, self.step)
 
     def quantisation_report(self) -> dict:
         """The steps against the noise, and whether some sensor is quantised coarser than its
         noise (station.diagnose.quantisation.report)."""
-        analog = quantisation.analog_sigma(self.sigma, self.step)
         m = self.shape[2]
-        return quantisation.report(self.step, analog, [f"sensor {i}" for i in range(m)],
-                                   [""] * m)
+        return quantisation.report(self.step, self.analog_sigma,
+                                   [f"sensor {i}" for i in range(m)], [""] * m)
 
     @property
     def sigma_m(self) -> np.ndarray:

@@ -78,7 +78,7 @@ def _rotating(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> tuple:
     (p, k, m) of the positions `rows` over their whole-revolution rotating windows."""
     r0 = data.windows["rotating"][0]
     slopes, coef = [], []
-    for rj, j in zip(r, range(*rows.indices(data.shape[0])), strict=True):
+    for rj, j in zip(r, data.positions(rows), strict=True):
         sl = slice(r0, data.rot_stop[j])
         theta = data.angle[j, sl] - data.angle[j, r0]
         slopes.append(_slopes(rj[None, sl], data.t[sl], sig)[0])

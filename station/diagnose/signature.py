@@ -101,8 +101,7 @@ def residual_spectrum(data, ctx, twin) -> dict:
     grid = frequencies(data)
     points = [_position_spectrum(data, ctx, rj, j, w, cov, grid)
               for rows in data.chunks()
-              for rj, j in zip(twin.residual(rows), range(*rows.indices(data.shape[0])),
-                               strict=True)]
+              for rj, j in zip(twin.residual(rows), data.positions(rows), strict=True)]
     return {"frequency": grid, **{key: np.mean([p[key] for p in points], 0)
                                   for key in ("with_table", "against_table", "axial")}}
 

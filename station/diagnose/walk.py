@@ -17,6 +17,7 @@ own test).
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from station.diagnose import linear
 from station.diagnose.goodness import log_sf
 
 GRID = 40
@@ -68,3 +69,14 @@ def log10_p(y: np.ndarray, t: np.ndarray, var: np.ndarray, shapes: np.ndarray,
         chi2 += _rss(wy, wx[:, :1]) - _rss(wy, wx)
     dof = y.shape[1] * shapes.shape[1] + taus
     return log_sf(chi2, dof) / np.log(10) if chi2 > 0 else 0.0
+
+
+def static_log10_p(current, shapes: np.ndarray, taus: int) -> float:
+    """`log10_p` of the drift columns `shapes` (n, q: their static-window means) in the static
+    windows' mean residuals of `current` (station.diagnose.model.Model, the model without the
+    drift; made a chunk at a time), each with the white noise of its window."""
+    data = current.ctx.data
+    s0, s1 = data.windows["static"]
+    y = linear.signature_parts(data, current.twin.residual)[1]  # static means
+    var = np.broadcast_to(current.ctx.sigma**2 / (s1 - s0), y.shape)
+    return log10_p(y, data.t_session[:, s0:s1].mean(1), var, shapes, taus)

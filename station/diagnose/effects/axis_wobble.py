@@ -56,7 +56,7 @@ def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray, rows: slice)
     out = np.empty_like(omega)
     beta = float(fitted.values["angle_deg"])
     d = ctx.data
-    for i, j in enumerate(range(*rows.indices(d.shape[0]))):
+    for i, j in enumerate(d.positions(rows)):
         out[i:i + 1] = axis_wobble.apply(rate[i:i + 1], d.angle[j:j + 1], d.t,
                                          ctx.orientation[j:j + 1],
                                          AxisWobble(beta, None, fitted.value("phase_deg")[j]))

@@ -66,15 +66,12 @@ def beyond_walk(current, fitted: Fitted) -> float:
     """log10 p of the fitted drift (its warm-up and heating at the static windows, the time
     constants as fitted) in the static windows' mean residuals of `current`, the model without
     it, against a bias random walk per sensor (station.diagnose.walk)."""
-    ctx, twin = current.ctx, current.twin
-    data = ctx.data
-    s0, s1 = data.windows["static"]
-    shapes = [_unit(ctx, twin.rate, fitted.values["warmup_tau"],
+    ctx = current.ctx
+    s0, s1 = ctx.data.windows["static"]
+    shapes = [_unit(ctx, current.twin.rate, fitted.values["warmup_tau"],
                     fitted.values["heating_tau"], which)[:, s0:s1, 0].mean(1)
               for which in ("warmup", "heating")]
-    y = linear.signature_parts(data, twin.residual)[1]  # static means
-    var = np.broadcast_to(ctx.sigma**2 / (s1 - s0), y.shape)
-    return walk.log10_p(y, data.t_session[:, s0:s1].mean(1), var, np.stack(shapes, 1), 2)
+    return walk.static_log10_p(current, np.stack(shapes, 1), 2)
 
 
 def _refined(ctx, rate, rb, w, start: tuple) -> tuple:

@@ -85,7 +85,7 @@ def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray, rows: slice)
     out = np.empty_like(omega)
     lat, mag = float(fitted.values["latitude_deg"]), float(fitted.values["rate"])
     heading = fitted.value("heading_deg")
-    for i, j in enumerate(range(*rows.indices(ctx.data.shape[0]))):
+    for i, j in enumerate(ctx.data.positions(rows)):
         out[i:i + 1] = earth_rate.apply(omega[i:i + 1], ctx.orientation[j:j + 1],
                                         ctx.data.angle[j:j + 1], EarthRate(lat, heading[j], mag))
     return out

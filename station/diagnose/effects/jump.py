@@ -78,9 +78,10 @@ def fit(ctx, twin, r) -> Fitted:
 def _instant(data, j: int, e: int) -> tuple:
     """(last sample time before, first sample time at or after) a jump at bin edge e of position
     j (e = 0: the gap before the position; before the first: its first sample)."""
-    after = float(data.session_times(slice(j, j + 1))[0][e * data.bin])
+    times = data.session_times(slice(j, j + 1))[0]
+    after = float(times[e * data.bin])
     if e > 0:
-        return float(data.session_times(slice(j, j + 1))[0][e * data.bin - 1]), after
+        return float(times[e * data.bin - 1]), after
     return (float(data.session_times(slice(j - 1, j))[0][-1]) if j else after), after
 
 
@@ -115,6 +116,4 @@ def beyond_walk(current, fitted: Fitted) -> float | None:
     shape = _step(data, float(fitted.values["t0"]), slice(None))[:, s0:s1].mean(1)
     if np.ptp(shape) == 0:
         return None  # after the last static window: no step in the means for a walk to mimic
-    y = linear.signature_parts(data, current.twin.residual)[1]  # static means
-    var = np.broadcast_to(current.ctx.sigma**2 / (s1 - s0), y.shape)
-    return walk.log10_p(y, data.t_session[:, s0:s1].mean(1), var, shape[:, None], 1)
+    return walk.static_log10_p(current, shape[:, None], 1)

@@ -126,7 +126,7 @@ def apply(ctx, fitted: Fitted, omega: np.ndarray, rate: np.ndarray, rows: slice)
     amp = np.sin(np.radians(float(fitted.values["angle_deg"])))
     freq, d = float(fitted.values["freq_hz"]), ctx.data
     phases = fitted.value("phase_deg")
-    for i, j in enumerate(range(*rows.indices(d.shape[0]))):
+    for i, j in enumerate(d.positions(rows)):
         out[i:i + 1] += amp * axis_wobble.apply(rate[i:i + 1], d.angle[j:j + 1], d.t,
                                                 ctx.orientation[j:j + 1],
                                                 AxisWobble(90.0, freq, phases[j]))
