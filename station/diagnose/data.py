@@ -45,8 +45,7 @@ class RotaryData:
         recorded sessions: the IMU timing of the turning time).
     temperature : (n, k) the unit's recorded temperature at the samples, K (its own temperature
         channel), or None when the session records none.
-    spikes : (m,) outliers found and replaced per sensor (`despiked`); searched : samples of
-        each sensor searched for them.
+    spikes : (m,) outliers found and replaced per sensor among all its samples (`despiked`).
     """
 
     counts: np.ndarray
@@ -64,7 +63,6 @@ class RotaryData:
     rate_factors_sigma: np.ndarray | None = None
     temperature: np.ndarray | None = None
     spikes: np.ndarray | None = None
-    searched: int = 0
 
     @property
     def shape(self) -> tuple:
@@ -99,8 +97,9 @@ class RotaryData:
 
     def outlier_test(self, alpha: float) -> dict:
         """The outliers replaced against Gaussian noise (station.diagnose.outliers.counted)."""
-        spikes = np.zeros(self.shape[2], int) if self.spikes is None else self.spikes
-        return outliers.counted(spikes, self.searched, alpha)
+        n, k, m = self.shape
+        return outliers.counted(np.zeros(m, int) if self.spikes is None else self.spikes, n * k,
+                                alpha)
 
     @cached_property
     def t(self) -> np.ndarray:
@@ -299,16 +298,16 @@ def _rotary_data(counts, lsb, fs, rate, c, angle, windows, a_nominal, bin_second
     r0, r1 = windows["rotating"]
     rot_stop = np.array([whole_revolutions(a, r0, r1)[0] for a in angle])
     sd = np.zeros(len(angle)) if rate_factors_sigma is None else np.asarray(rate_factors_sigma)
-    counts, spikes, searched = despiked(counts, rate, windows, rot_stop, owned)
+    counts, spikes = despiked(counts, rate, windows, rot_stop, owned)
     return RotaryData(counts=counts, lsb=np.array(lsb, float), fs=fs, t0=t0, rate=rate, c=c,
                       angle=angle, windows=windows, rot_stop=rot_stop, a_nominal=a_nominal,
                       bin=max(1, round(bin_seconds * fs)), times=times, rate_factors_sigma=sd,
-                      temperature=temperature, spikes=spikes, searched=searched)
+                      temperature=temperature, spikes=spikes)
 
 
 def despiked(counts: np.ndarray, rate: np.ndarray, windows: dict, rot_stop: np.ndarray,
              owned: bool) -> tuple:
-    """(counts, outliers per sensor (m,), samples searched per sensor): each position's samples
+    """(counts, outliers per sensor (m,)): each position's samples
     beyond `station.reduce.spikes.SPIKE` robust standard deviations (at least one count) of its
     steady model in the table rate, level + gain x rate(t) (level: the static window's median,
     gain: the whole-turn rotating window's median less it, over the rate there; medians, which
@@ -335,7 +334,7 @@ def despiked(counts: np.ndarray, rate: np.ndarray, windows: dict, rot_stop: np.n
                 counts, owned = counts.copy(), True
             counts[j][flags] = np.rint(model[flags])
             found += flags.sum(0)
-    return counts, found, n * k
+    return counts, found
 
 
 def isolated(dev: np.ndarray) -> np.ndarray:
