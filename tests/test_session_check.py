@@ -3,9 +3,10 @@ the wall; a check that could not finish is "could not be checked" (SessionUnchec
 never "damaged"; a crash inside the HDF5 library stays damage; `--no-check` skips the check; a
 command reads each file once.
 
-The child is slowed or crashed through `check.CHILD` (the interpreter arguments that run the
-survey): it spins, sleeps or raises a signal before running the real check, so nothing here
-depends on the host's speed."""
+The child is slowed or crashed (`child_runs_first`): it spins, sleeps or raises a signal before
+running the real check, so nothing here depends on the host's speed. Each test runs with both
+children: the new interpreter (`check.CHILD`, the interpreter arguments that run the survey) and
+the fork of this process (`station.session.forked`, whose `check.survey` runs the code first)."""
 
 import shutil
 from pathlib import Path
@@ -29,6 +30,27 @@ OLD_WALL_LIMIT = 5.0
 """The former wall-clock limit's base (5 s + size / 50 MB/s), which a slow start ran into."""
 
 
+@pytest.fixture(params=["spawn", "fork"])
+def launch(request, monkeypatch):
+    """Which child checks: a new interpreter or a fork of this process."""
+    monkeypatch.setattr(check, "forkable", lambda: request.param == "fork")
+    return request.param
+
+
+def child_runs_first(monkeypatch, launch: str, code: str) -> None:
+    """The check's child runs `code` (Python source), then the real check."""
+    if launch == "spawn":
+        monkeypatch.setattr(check, "CHILD", ("-c", code + "\n" + THEN))
+        return
+    real = check.survey
+
+    def survey(path):
+        exec(code, {})  # noqa: S102 - the test's own code, in the forked child
+        return real(path)
+
+    monkeypatch.setattr(check, "survey", survey)
+
+
 @pytest.fixture
 def session(tmp_path):
     """A copy of the example rotary session (intact; a file of its own: checked afresh)."""
@@ -50,10 +72,10 @@ def launches(monkeypatch):
     return seen
 
 
-def test_out_of_cpu_time_is_no_verdict(session, monkeypatch):
+def test_out_of_cpu_time_is_no_verdict(session, monkeypatch, launch):
     """A child that spends its CPU time without finishing (as HDF5 looping on damaged metadata,
     here a spin before the real check) says so; the file is not called damaged."""
-    monkeypatch.setattr(check, "CHILD", ("-c", SPIN + THEN))
+    child_runs_first(monkeypatch, launch, SPIN)
     with pytest.raises(SessionUncheckedError) as err:
         check.checked(session, cpu_limit=1)
     words = str(err.value)
@@ -62,18 +84,17 @@ def test_out_of_cpu_time_is_no_verdict(session, monkeypatch):
     assert "is damaged" not in words and "--no-check" in words
 
 
-def test_a_slow_start_does_not_make_an_intact_file_damaged(session, monkeypatch):
+def test_a_slow_start_does_not_make_an_intact_file_damaged(session, monkeypatch, launch):
     """The child starts later than the former wall-clock limit allowed (a busy host): the intact
     file still passes, since only CPU time counts."""
-    monkeypatch.setattr(check, "CHILD", ("-c", f"import time; time.sleep({OLD_WALL_LIMIT + 1})\n"
-                                         + THEN))
+    child_runs_first(monkeypatch, launch, f"import time; time.sleep({OLD_WALL_LIMIT + 1})")
     check.checked(session)
 
 
-def test_the_wall_backstop_is_no_verdict(session, monkeypatch):
+def test_the_wall_backstop_is_no_verdict(session, monkeypatch, launch):
     """A child that neither finishes nor uses CPU (hung storage) meets the wall-clock backstop:
     no verdict either."""
-    monkeypatch.setattr(check, "CHILD", ("-c", "import time; time.sleep(600)"))
+    child_runs_first(monkeypatch, launch, "import time; time.sleep(600)")
     monkeypatch.setattr(check, "WALL_FACTOR", 0.1)
     with pytest.raises(SessionUncheckedError, match="could not be checked: .* did not finish "
                                                     "within 1 s"):
@@ -81,24 +102,24 @@ def test_the_wall_backstop_is_no_verdict(session, monkeypatch):
 
 
 @pytest.mark.parametrize("signal_name", ["SIGSEGV", "SIGABRT"])
-def test_a_crash_in_the_child_is_damage(session, monkeypatch, signal_name):
+def test_a_crash_in_the_child_is_damage(session, monkeypatch, launch, signal_name):
     """HDF5 crashing on a file is evidence of damage: refused as damaged (exit 2)."""
-    monkeypatch.setattr(check, "CHILD", ("-c", "import os, signal; "
-                                         f"os.kill(os.getpid(), signal.{signal_name})"))
+    child_runs_first(monkeypatch, launch,
+                     f"import os, signal; os.kill(os.getpid(), signal.{signal_name})")
     with pytest.raises(SessionFormatError, match=f"is damaged: .*signal {signal_name}"):
         check.checked(session)
 
 
-def test_a_child_killed_from_outside_is_no_verdict(session, monkeypatch):
-    monkeypatch.setattr(check, "CHILD", ("-c", "import os, signal; "
-                                         "os.kill(os.getpid(), signal.SIGTERM)"))
+def test_a_child_killed_from_outside_is_no_verdict(session, monkeypatch, launch):
+    child_runs_first(monkeypatch, launch, "import os, signal; os.kill(os.getpid(), signal.SIGTERM)")
     with pytest.raises(SessionUncheckedError, match="stopped by SIGTERM"):
         check.checked(session)
 
 
 def test_the_cli_says_could_not_be_checked_with_exit_1_and_no_check_skips(session, tmp_path,
-                                                                          monkeypatch, capsys):
-    monkeypatch.setattr(check, "CHILD", ("-c", SPIN + THEN))
+                                                                          monkeypatch, capsys,
+                                                                          launch):
+    child_runs_first(monkeypatch, launch, SPIN)
     monkeypatch.setattr(check, "CPU_BASE", 1.0)
     monkeypatch.setattr(check, "CPU_PER_BYTE", 0.0)
     out = tmp_path / "s.cal.json"

@@ -3,7 +3,9 @@ one calibration file each, failures per session, the exit code the largest of th
 the structure checks of the whole batch in one child process (the damage verdicts unchanged)."""
 
 import json
+import os
 import shutil
+import signal
 from pathlib import Path
 
 import pytest
@@ -22,7 +24,8 @@ CRASH_ON_BAD = (
     "check.survey = lambda p: os.kill(os.getpid(), signal.SIGSEGV) if p.endswith('bad.h5') "
     "else survey(p)\n"
     "check._each(sys.argv[1:])\n")
-"""The real check, but the HDF5 library "crashes" on any file named bad.h5."""
+"""The real check, but the HDF5 library "crashes" on any file named bad.h5 (a new interpreter's
+child; a forked one inherits the same `check.survey` from the test)."""
 
 
 @pytest.fixture
@@ -80,10 +83,16 @@ def test_json_lines_and_the_exit_code_of_a_clean_batch(copies, capsys):
             path.with_suffix(".cal.json"))
 
 
+@pytest.mark.parametrize("launch", ["spawn", "fork"])
 def test_a_crash_on_one_file_is_its_damage_and_the_batch_goes_on(copies, tmp_path, children,
-                                                                 monkeypatch, capsys):
+                                                                 monkeypatch, capsys, launch):
+    """With either child (a new interpreter, a fork of this process: station.session.forked)."""
     bad = Path(shutil.copy(EXAMPLE, tmp_path / "bad.h5"))
+    monkeypatch.setattr(check, "forkable", lambda: launch == "fork")
     monkeypatch.setattr(check, "CHILD", ("-c", CRASH_ON_BAD))
+    survey = check.survey
+    monkeypatch.setattr(check, "survey", lambda p: os.kill(os.getpid(), signal.SIGSEGV)
+                        if p.endswith("bad.h5") else survey(p))
     assert main(["solve", str(copies[0]), str(bad), str(copies[1]), "--no-db"]) == 2
     lines = capsys.readouterr().out.splitlines()
     assert "written to" in lines[0] and "written to" in lines[2]

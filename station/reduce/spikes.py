@@ -8,12 +8,13 @@ a channel quieter than its step shows as scatter 0). Gaussian noise puts one sam
 8e14 there (`NULL_CHANCE`); a glitch puts many.
 """
 
+import math
+
 import numpy as np
-from scipy.special import ndtr
 
 SPIKE = 8.0
 """Robust standard deviations beyond which a reading is a spike."""
-NULL_CHANCE = 2 * ndtr(-SPIKE)
+NULL_CHANCE = math.erfc(SPIKE / math.sqrt(2.0))
 """Chance that a Gaussian deviation lies beyond SPIKE standard deviations (1.2e-15)."""
 
 

@@ -2,15 +2,18 @@
 
 HDF5 parses a file's metadata in C while holding Python's GIL, so no Python timeout can stop it: a
 damaged object header can make the library loop. So `checked` reads the whole file in a child
-process (`python -m station.session.check FILE`, which imports h5py, numpy and the session
-modules, never the solver): every group, attribute and dataset, each dataset chunk by chunk (HDF5
-verifies the writer's fletcher32 checksum of every chunk as it reads it), and each dataset's
-claimed size against the storage the file really holds for it (a damaged header that claims 5e7
-rows in a 1 MB file must not make a reader allocate gigabytes). A file with damaged chunks or
-objects, or one that crashes the HDF5 library (SIGSEGV, SIGBUS, SIGABRT, ...), is refused with one
-`SessionFormatError` naming what is damaged and, for sample rows, the positions they belong to.
-A killed writer's file (flagged open for write, no lock held) is read as a closed file
-(`_opened`): HDF5's reader for a live writer's file retries every failed read for hours.
+process: forked from this one when it runs one thread (`station.session.forked`; it inherits
+numpy and h5py, whose imports a new interpreter would spend as much CPU time on as a small solve),
+else a new interpreter (`python -m station.session.check FILE`, which imports h5py, numpy and
+the session modules, never the solver). The child reads every group, attribute and dataset,
+each dataset chunk by chunk (HDF5 verifies the writer's fletcher32 checksum of every chunk as it
+reads it), and each dataset's claimed size against the storage the file really holds for it (a
+damaged header that claims 5e7 rows in a 1 MB file must not make a reader allocate gigabytes). A
+file with damaged chunks or objects, or one that crashes the HDF5 library (SIGSEGV, SIGBUS,
+SIGABRT, ...), is refused with one `SessionFormatError` naming what is damaged and, for sample
+rows, the positions they belong to. A killed writer's file (flagged open for write, no lock held)
+is read as a closed file (`_opened`): HDF5's reader for a live writer's file retries every failed
+read for hours.
 
 The child's WORK is bounded, not the wall clock: a busy host slows a child down without making
 the file any less intact (issue 29: 61 of 249 commands at a load of 17-37 called intact files
@@ -39,6 +42,7 @@ import sys
 import numpy as np
 
 from station.errors import SessionFormatError, SessionUncheckedError
+from station.session.forked import Forked, forkable
 from station.session.torn import tail_rows
 
 CPU_BASE = 10.0
@@ -137,13 +141,19 @@ def _surveys_in_child(paths: list) -> list:
     return found[:len(paths)]
 
 
-def _child(paths: list, cpu_limit: int) -> subprocess.Popen:
-    """The child that surveys `paths` (`python -m station.session.check FILE...`), given
-    `cpu_limit` s of CPU time."""
-    cmd = [sys.executable, *CHILD, *paths]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             errors="replace", env=env)
+def _child(paths: list, cpu_limit: int):
+    """The child that surveys `paths`, given `cpu_limit` s of CPU time: forked from this process
+    when it has one thread (`station.session.forked`: numpy and h5py come imported), else a new
+    interpreter (`python -m station.session.check FILE...`)."""
+    if forkable():
+        import h5py  # noqa: F401 - once, before the fork: the child's and the reader's after it
+
+        child = Forked(lambda out: _each(paths, out))
+    else:
+        cmd = [sys.executable, *CHILD, *paths]
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+        child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 errors="replace", env=env)
     _limit_cpu(child.pid, cpu_limit)
     return child
 
@@ -371,7 +381,7 @@ def _readable_times(group, rows, damaged):
     return None if bad and any(r[0] <= before < r[1] for r in bad) else (lo, hi)
 
 
-def _each(paths: list) -> None:
+def _each(paths: list, out=None) -> None:
     """The child's work: one line of JSON, the survey, per file in order, each printed as it is
     done; with several files, each within its own `cpu_seconds` of CPU time from its start (the
     soft RLIMIT_CPU moved on before each, under the hard limit the parent set)."""
@@ -385,7 +395,7 @@ def _each(paths: list) -> None:
             if hard != resource.RLIM_INFINITY:
                 soft = min(soft, hard)
             resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
-        print(json.dumps(survey(path)), flush=True)
+        print(json.dumps(survey(path)), file=out or sys.stdout, flush=True)
 
 
 if __name__ == "__main__":

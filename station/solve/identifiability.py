@@ -206,10 +206,10 @@ def distinct_directions(a: np.ndarray, v: np.ndarray, sigma: np.ndarray) -> np.n
 def _largest_eigenvalue(sym: np.ndarray) -> float:
     """The largest eigenvalue of a symmetric matrix, to 1e-6 relative: enough for a floor
     INFO_TOL of it (Lanczos, O(n^2) per step; deterministic)."""
-    from scipy.sparse.linalg import eigsh  # here: `import station` stays light
-
     if len(sym) <= LANCZOS_FROM:
         return float(np.linalg.eigvalsh(sym)[-1])
+    from scipy.sparse.linalg import eigsh  # only here: its import costs more than a small solve
+
     return float(eigsh(sym, k=1, which="LA", v0=np.ones(len(sym)), tol=1e-6)[0][0])
 
 

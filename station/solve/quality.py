@@ -28,7 +28,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special  # distribution functions without scipy.stats' import cost
+
+from station.solve.tails import chi2_isf, chi2_sf, normal_isf
 
 CHI2_P = 1e-3
 """Two-sided probability below which chi2/dof is inconsistent with the model."""
@@ -66,10 +67,10 @@ def check_fit(result, names=None, pose_term: bool = False) -> FitCheck:
     m, n = result.residuals.shape
     names = list(names) if names is not None else [f"s{i + 1}" for i in range(m)]
     ratio = result.chi2 / result.dof if result.dof else math.nan
-    limit = float(-special.ndtri(FALSE_ALARMS / (2 * m * n)))  # normal isf
+    limit = normal_isf(FALSE_ALARMS / (2 * m * n))
     if result.sigma_estimated or result.dof <= 0:
         return FitCheck(ratio, None, limit)
-    p_high = float(special.chdtrc(result.dof, result.chi2))  # chi2 sf
+    p_high = chi2_sf(result.dof, result.chi2)
     pose = getattr(result, "pose_sigma", None) if pose_term else None
     z = result.residuals / np.hypot(result.sigma, pose) if pose else result.normalised_residuals
     outliers = [(int(i), int(j), float(z[i, j])) for i, j in zip(*np.nonzero(np.abs(z) > limit),
@@ -99,10 +100,10 @@ def odd_poses(z) -> list:
     m, n = z.shape
     k = max(m - 2, 1)
     per_pose = np.sum(z ** 2, axis=0)
-    scale = np.median(per_pose) / special.chdtri(k, 0.5)  # chi2 median
+    scale = np.median(per_pose) / chi2_isf(k, 0.5)  # chi2 median
     if not scale > 0:
         return []
-    return np.flatnonzero(per_pose / scale > special.chdtri(k, FALSE_ALARMS / n)).tolist()
+    return np.flatnonzero(per_pose / scale > chi2_isf(k, FALSE_ALARMS / n)).tolist()
 
 
 def outlier_words(outliers, names) -> str:

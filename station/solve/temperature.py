@@ -25,12 +25,12 @@ probability at most FALSE_ALARM.
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import special  # chi2 sf and isf without scipy.stats' import cost (0.5 s)
 
 from station.errors import CalibrationInputError
 from station.model.temperature import MAX_ORDER, Soak, TemperatureModel, check_kelvin, powers
 from station.solve.calibrate import CalibrationResult, calibrate
 from station.solve.quality import CHI2_P
+from station.solve.tails import chi2_isf, chi2_sf
 
 FALSE_ALARM = 0.01
 """Probability that the order selection raises an order the data do not need, per step."""
@@ -93,7 +93,7 @@ def fit_temperature(soaks, magnitude: float, *, orders=None, nominal=None, names
 
 def _problems(chi2: float, dof: int) -> tuple:
     """The fit's inconsistency with the soaks' uncertainties, in words (none: ())."""
-    if dof <= 0 or special.chdtrc(dof, chi2) >= CHI2_P / 2:
+    if dof <= 0 or chi2_sf(dof, chi2) >= CHI2_P / 2:
         return ()
     return (f"the soaks scatter about the temperature model by more than their calibrations' "
             f"uncertainty (chi2 {chi2:.1f} for {dof} degrees of freedom): hysteresis between "
@@ -182,7 +182,7 @@ def select_orders(x, y, cov, most: int, false_alarm: float = FALSE_ALARM) -> tup
     """(orders, tests) by nested likelihood-ratio tests (module docstring) up to order `most`."""
     m = len(y[0]) // 2
     chosen = {"bias": 0, "scale": 0}
-    threshold = float(special.chdtri(m, false_alarm / 2))
+    threshold = chi2_isf(m, false_alarm / 2)
     tests = []
     current = gls(x, y, cov, chosen)["chi2"]
     while True:

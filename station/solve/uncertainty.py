@@ -34,6 +34,13 @@ from station.solve.ml import (
     sigma_matrix,
 )
 from station.solve.poses import Directions, SoftMagnitudes
+from station.solve.tails import chi2_sf
+
+SINGULAR = "the information is singular beyond the rotation gauge"
+LAPACK_FROM = 300
+"""From this size on, `gauge_pinv` inverts by LAPACK's Cholesky inverse (scipy.linalg.lapack:
+potri, half the flops of an inverse through the factor); below it by numpy's, whose import every
+solve has paid already, where scipy.linalg's import costs more than the solve (issue 35)."""
 
 
 def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
@@ -42,19 +49,32 @@ def gauge_pinv(fisher: np.ndarray, gauge: np.ndarray) -> np.ndarray:
     eigenvalue (one Cholesky inversion, about a tenth of an eigen-decomposition's cost).
     np.linalg.LinAlgError when S + s Q Q^T is not positive definite (S singular beyond the gauge,
     which station.solve.identifiability refuses first)."""
-    from scipy.linalg import lapack
-
     q = np.linalg.qr(gauge)[0]
     level = float(np.trace(fisher)) / len(fisher)
     projector = q @ q.T
-    chol, info = lapack.dpotrf(fisher + level * projector, lower=True)
+    inv = _spd_inverse(fisher + level * projector)
+    inv -= projector / level
+    return inv
+
+
+def _spd_inverse(sym: np.ndarray) -> np.ndarray:
+    """The inverse of a symmetric positive definite matrix through its Cholesky factor L
+    (L^-T L^-1, exactly symmetric); np.linalg.LinAlgError when it is not positive definite."""
+    if len(sym) < LAPACK_FROM:
+        try:
+            low = np.linalg.inv(np.linalg.cholesky(sym))
+        except np.linalg.LinAlgError:
+            raise np.linalg.LinAlgError(SINGULAR) from None
+        return low.T @ low
+    from scipy.linalg import lapack
+
+    chol, info = lapack.dpotrf(sym, lower=True)
     if info == 0:
         inv, info = lapack.dpotri(chol, lower=True)
     if info != 0:
-        raise np.linalg.LinAlgError("the information is singular beyond the rotation gauge")
+        raise np.linalg.LinAlgError(SINGULAR)
     inv += inv.T  # dpotri fills the lower triangle; dpotrf left the upper one zero
     inv[np.diag_indices_from(inv)] /= 2
-    inv -= projector / level
     return inv
 
 
@@ -81,15 +101,13 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     variance a per-pose error term must have for chi2 / dof = 1. 0 when the white-noise chi2 is
     within its chi2(dof) distribution (P(chi2 >= observed) >= EXCESS_P), or no reading is spare.
     """
-    from scipy import special  # here: `import station` stays light; not scipy.stats (0.5 s)
-
     r2, s2 = np.asarray(residuals, float) ** 2, np.asarray(sigma, float) ** 2
     extra = float(np.sum(np.square(prior)))
 
     def excess(x: float) -> float:
         return float(np.sum(r2 / (s2 + x))) + extra - dof
 
-    if dof <= extra or special.chdtrc(dof, excess(0.0) + dof) >= EXCESS_P:  # chi2 sf
+    if dof <= extra or chi2_sf(dof, excess(0.0) + dof) >= EXCESS_P:
         return 0.0
     from scipy.optimize import brentq  # only now: scipy.optimize is 0.1-0.2 s of imports
 
