@@ -96,6 +96,33 @@ def test_the_gauge_pseudo_inverse_inverts_beside_the_gauge_and_refuses_more_null
         uncertainty.gauge_pinv((basis * lam) @ basis.T, gauge)
 
 
+@pytest.mark.parametrize("estimate_bias", [False, True])
+def test_the_woodbury_covariance_of_many_sensors_at_few_poses_is_the_pseudo_inverse(estimate_bias):
+    """60 sensors at 12 poses: the poses' 24 unknowns are few beside the sensors' 180 (240), so
+    `normal_covariance` takes the Woodbury identity; it equals the eigen-decomposition
+    pseudo-inverse of the reduced Fisher matrix to rounding. Poses in a plane leave the axes'
+    normal components undetermined: refused (LinAlgError), as `gauge_pinv` refuses."""
+    rng = np.random.default_rng(8)
+    a, v = random_directions(rng, 3, 60), random_directions(rng, 3, 12)
+    b = rng.normal(0, 0.3, 60) if estimate_bias else np.zeros(60)
+    readings = a.T @ v + b[:, None] + 0.01 * rng.standard_normal((60, 12))
+    fit = ml.refine(readings, a, v, bias0=b if estimate_bias else None,
+                    estimate_bias=estimate_bias, sigma=0.01)
+    m, p = fit.normal.g_global.shape
+    assert uncertainty.WOODBURY_BELOW * (fit.normal.g_local.size + 3) < m * p
+    lam, vec = np.linalg.eigh(fit.fisher)
+    reference = (vec[:, 3:] / lam[3:]) @ vec[:, 3:].T
+    ours = uncertainty.normal_covariance(fit.normal, fit.a, lambda: pytest.fail("not Woodbury"))
+    np.testing.assert_allclose(ours, reference, rtol=0, atol=EXACT_RTOL * np.abs(reference).max())
+    flat = v.copy()
+    flat[2] = 0.0
+    flat /= np.linalg.norm(flat, axis=0)
+    planar = ml.refine(a.T @ flat, a, flat, sigma=0.01, max_iter=0)
+    gauge = uncertainty.gauge_directions(planar.a, 3)
+    with pytest.raises(np.linalg.LinAlgError):
+        uncertainty.woodbury_pinv(planar.normal, gauge)
+
+
 def triads_with_few_spare_readings(seed: int, poses: int, trials: int):
     """(truth a, biases, result) for accelerometer triads at `poses` random poses, biases
     estimated, the noise level estimated from the residuals (dof = poses - 9)."""

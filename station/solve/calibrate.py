@@ -362,7 +362,7 @@ def calibration_result(total: ml.MLFit, white: ml.MLFit, pose_sigma, method, sta
 
 def ml_covariance(fit: ml.MLFit) -> np.ndarray:
     """The gauge-free covariance of theta from the Fisher information of `fit`."""
-    return uncertainty.global_covariance(fit.fisher, fit.a)
+    return uncertainty.normal_covariance(fit.normal, fit.a, lambda: fit.fisher)
 
 
 def _sigmas(a: np.ndarray, rot: np.ndarray, cov: np.ndarray, nominal, estimate_bias: bool) -> dict:

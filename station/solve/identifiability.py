@@ -167,7 +167,11 @@ def undetermined(fisher: np.ndarray, a: np.ndarray, magnitude: float, bias_estim
     scale = natural_scale(a, magnitude, bias_estimated)
     scaled = fisher * np.outer(scale, scale)
     q, _ = np.linalg.qr(gauge_directions(a, p) / scale[:, None])
-    top = _largest_eigenvalue(scaled)
+    # the trace bounds the largest eigenvalue: when INFO_TOL of it is below the loose floor, the
+    # floor is that (and any shift above it lifts the gauge), without finding the eigenvalue
+    top = float(np.trace(scaled))
+    if not noise_known or INFO_TOL * top > 1.0 / sigma_max**2:
+        top = _largest_eigenvalue(scaled)
     floor = INFO_TOL * top
     if noise_known:
         floor = max(floor, 1.0 / sigma_max**2)

@@ -37,6 +37,10 @@ from station.solve.poses import Directions, SoftMagnitudes
 from station.solve.tails import chi2_sf
 
 SINGULAR = "the information is singular beyond the rotation gauge"
+WOODBURY_BELOW = 3
+"""`normal_covariance` takes the Woodbury identity when this many times the poses' unknowns (and
+the gauge's) are fewer than the sensors' parameters: then its (m p)^2 (k G) products cost less
+than the (m p)^3 factorisation (m = 768 sensors at 100 poses: 0.03 s for 0.55 s)."""
 LAPACK_FROM = 300
 """From this size on, `gauge_pinv` inverts by LAPACK's Cholesky inverse (scipy.linalg.lapack:
 potri, half the flops of an inverse through the factor); below it by numpy's, whose import every
@@ -88,6 +92,51 @@ def global_covariance(fisher: np.ndarray, a: np.ndarray) -> np.ndarray:
     """Covariance (m p x m p) of theta = (a_1, b_1, a_2, b_2, ...) from its reduced Fisher
     matrix (`reduced_fisher`, `ml.MLFit.fisher`), free of the rotation gauge (zero along it)."""
     return gauge_pinv(fisher, gauge_directions(a, len(fisher) // a.shape[1]))
+
+
+def normal_covariance(neq: NormalEquations, a: np.ndarray, fisher) -> np.ndarray:
+    """`global_covariance` of the reduced Fisher matrix of `neq` (`fisher()` gives it): by the
+    Woodbury identity (`woodbury_pinv`) when the poses' unknowns are few beside the sensors'
+    (WOODBURY_BELOW), else by `gauge_pinv`."""
+    m, p = neq.g_global.shape
+    gauge = gauge_directions(a, p)
+    if WOODBURY_BELOW * (neq.g_local.size + gauge.shape[1]) < m * p:
+        return woodbury_pinv(neq, gauge)
+    return gauge_pinv(fisher(), gauge)
+
+
+def woodbury_pinv(neq: NormalEquations, gauge: np.ndarray) -> np.ndarray:
+    """`gauge_pinv` of the reduced Fisher matrix S = U - C L^-1 C^T (U: the sensors' blocks,
+    block-diagonal; C: the coupling (m p, k G); L: the poses' blocks) without forming or factoring
+    an (m p)^2 matrix: S + s Q Q^T = U + Y E Y^T with Y = [C, Q], E = blockdiag(-L^-1, s I), so
+    (Woodbury) its inverse is U^-1 - U^-1 Y K^-1 Y^T U^-1, K = E^-1 + Y^T U^-1 Y of the poses'
+    size k G + 3: O((m p)^2 k G) for the (m p)^3 of a factorisation. s as `gauge_pinv`'s (its
+    trace per parameter; U's here, which bounds S's). np.linalg.LinAlgError when K is singular
+    (S singular beyond the gauge)."""
+    m, p = neq.g_global.shape
+    groups, k = neq.g_local.shape
+    q = np.linalg.qr(gauge)[0]
+    level = float(np.einsum("ikk->", neq.h_global)) / (m * p)
+    u_inv = np.linalg.inv(neq.h_global)  # (m, p, p)
+    y = np.hstack([neq.h_cross.reshape(m * p, k * groups), q])  # columns (k, G) of C, then Q
+    uy = np.einsum("ipq,iqr->ipr", u_inv, y.reshape(m, p, -1)).reshape(m * p, -1)
+    inner = y.T @ uy
+    poses = np.arange(groups)
+    for r in range(k):  # E^-1's pose part: -L, its (k, k) blocks on the columns (r, g)
+        for c in range(k):
+            inner[r * groups + poses, c * groups + poses] -= neq.h_local[:, r, c]
+    inner[k * groups:, k * groups:] += np.eye(q.shape[1]) / level
+    try:
+        inv = -uy @ np.linalg.solve(inner, uy.T)
+    except np.linalg.LinAlgError:
+        raise np.linalg.LinAlgError(SINGULAR) from None
+    inv += inv.T
+    inv /= 2
+    blocks = inv.reshape(m, p, m, p)
+    idx = np.arange(m)
+    blocks[idx, :, idx, :] += u_inv
+    inv -= q @ q.T / level
+    return inv
 
 
 EXCESS_P = 0.05
