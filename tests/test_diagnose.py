@@ -42,9 +42,21 @@ def hidden(case: str) -> str:
     return bench.parse(bench.CASES[case])[0]
 
 
-@pytest.mark.parametrize("case", [e for e in bench.CASES if e != "none"])
+AMBIGUOUS = ("scale_asymmetry",)
+"""Cases whose effect the session's design often cannot tell from another (issue 32, pattern 5:
+the diagnosis names both as AMBIGUOUS and corrects with neither; tests/test_diagnose_ambiguity.py
+and the rates in `bench/diagnose.py`)."""
+
+
+@pytest.mark.parametrize("case", [e for e in bench.CASES if e not in ("none", *AMBIGUOUS)])
 def test_the_hidden_effect_is_named_first(runs, case):
     assert runs[case]["named"][:1] == [hidden(case)]
+
+
+@pytest.mark.parametrize("case", AMBIGUOUS)
+def test_the_hidden_effect_is_named_first_or_said_ambiguous_with_another(runs, case):
+    named, pairs = runs[case]["named"], runs[case]["ambiguous"]
+    assert named[:1] == [hidden(case)] or (not named and any(hidden(case) in g for g in pairs))
 
 
 @pytest.mark.parametrize("key", ["none", "none_3", "none_12"])
@@ -52,7 +64,7 @@ def test_an_effect_free_session_is_called_none(runs, key):
     assert runs[key]["named"] == []
 
 
-@pytest.mark.parametrize("effect", list(bench.CASES))
+@pytest.mark.parametrize("effect", [e for e in bench.CASES if e not in AMBIGUOUS])
 def test_every_gap_is_explained_once_the_effect_is_in_the_model(runs, effect):
     after = dict(runs[effect]["gap"][-1])
     after.pop("rails")  # about 1 dof (the sides holding a rail): read by the fit test below

@@ -106,6 +106,23 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)
 
 
+def sensed_term(ctx, twin, r: tuple, term) -> tuple:
+    """(fit, peak |s| (m,)) of a per-sensor term of the sensed signal: term(s) -> (p, k, m) the
+    output's change per unit coefficient (scale_nonlinearity's s^2, scale_asymmetry's |s|),
+    fitted per sensor to the residuals' centred parts r (`fit_binned`), made a chunk of
+    positions at a time from the twin's sensed signal."""
+    peaks = []
+
+    def unit(rows: slice) -> np.ndarray:
+        s = twin.sensed(rows)
+        peaks.append(np.abs(s).max((0, 1)))
+        return term(s)
+
+    lf = fit_binned(r, [centred_signature(ctx.data, unit)], weights(ctx.data, ctx.sigma),
+                    "sensor")
+    return lf, np.max(peaks, 0)
+
+
 def phase_fit(data, r: tuple, tone, sigma: np.ndarray) -> tuple:
     """A tone of one amplitude and a free phase per position, fitted to the residuals' centred
     parts r (`fit_binned`). tone(phase_deg, rows) -> (len(rows),

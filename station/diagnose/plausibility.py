@@ -15,6 +15,7 @@ it lies more than Z_LIMIT sigma beyond the bound):
   within GAIN_TOLERANCE of 1;
 - scale_nonlinearity: |k2_i| x the largest |signal| <= NONLINEARITY_MAX (datasheets: 0.01-0.5
   % of full scale);
+- scale_asymmetry: |k_i| <= NONLINEARITY_MAX (datasheets: an asymmetry 2 k of 0.01-0.5 %);
 - axis_wobble: half-angle <= WOBBLE_MAX_DEG;
 - g_sensitivity: |G| <= G_SENSITIVITY_MAX deg/s per g (rad/s gyros only);
 - temperature: |bias tempco_i| <= TEMPCO_MAX deg/s per K (rad/s gyros only);
@@ -134,6 +135,15 @@ def scale_nonlinearity(fitted, site: Site) -> str:
     return ""
 
 
+def scale_asymmetry(fitted, site: Site) -> str:
+    """See the module table."""
+    k, s = _value(fitted, "k")
+    if _beyond(np.abs(k), s, high=NONLINEARITY_MAX):
+        return (f"scale asymmetry up to {np.max(np.abs(k)):.3g} relative, above "
+                f"{NONLINEARITY_MAX:g}")
+    return ""
+
+
 def axis_wobble(fitted, site: Site) -> str:
     """See the module table."""
     b, s = _value(fitted, "angle_deg")
@@ -165,7 +175,8 @@ def temperature(fitted, site: Site) -> str:
 
 
 RANGES = {"earth_rate": earth_rate, "latency": latency, "rate_error": rate_error,
-          "scale_nonlinearity": scale_nonlinearity, "axis_wobble": axis_wobble,
+          "scale_nonlinearity": scale_nonlinearity, "scale_asymmetry": scale_asymmetry,
+          "axis_wobble": axis_wobble,
           "g_sensitivity": g_sensitivity, "temperature": temperature}
 """Effect -> its range check; effects not listed accept any fitted value."""
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from station.diagnose import gap, goodness, heldout, model, plausibility, signature
-from station.diagnose.effects import EXTENSIONS
+from station.diagnose.effects import EXTENSIONS, OPEN_FAMILIES
 
 
 @dataclass(frozen=True)
@@ -67,6 +67,22 @@ class Diagnosis:
             self.not_named)
 
     @property
+    def ambiguous(self) -> list:
+        """[{"effects", "log10_p", "told_apart_by", "step"}]: candidates found indistinguishable
+        at a step (`ambiguous`: the data say one of them is there, not which), named together and
+        corrected with neither, with what to record to tell them apart."""
+        out = []
+        for i, step in enumerate(self.steps):
+            seen = set()
+            for name, e in step.evidence.items():
+                if "ambiguous_with" in e and name not in seen:
+                    group = sorted({name, *e["ambiguous_with"]})
+                    seen |= set(group)
+                    out.append({"effects": group, "step": i, "told_apart_by": told_apart(group),
+                                "log10_p": {k: step.evidence[k]["log10_p"] for k in group}})
+        return out
+
+    @property
     def calibration(self):
         """The calibration to use: the final model's when its correction is applied (or was not
         checked), else the nominal one."""
@@ -85,8 +101,14 @@ class Diagnosis:
 
 def evidence(current: model.Model, extended: model.Model, name: str, tests: int, alpha):
     """The likelihood-ratio evidence for `name` (extended = current + name)."""
-    lr = max(current.deviance - extended.deviance, 0.0)
-    fitted = extended.fitted[name]
+    return likelihood_ratio(current.deviance - extended.deviance, extended.fitted[name], tests,
+                            alpha)
+
+
+def likelihood_ratio(lr: float, fitted, tests: int, alpha) -> dict:
+    """The evidence of a deviance decrease `lr` by the extension `fitted`, one of `tests`
+    candidates: its p-value under the extension's null law, its significance at alpha / tests."""
+    lr = max(lr, 0.0)
     scale, nu = fitted.null_law
     mass = fitted.null_mass * fitted.searched  # an open family's grid: Bonferroni over it
     log_p = min(np.log(mass) + goodness.log_sf(lr / scale, nu), 0.0) if lr > 0 else 0.0
@@ -241,6 +263,71 @@ def closed(before: dict, after: dict, dof: dict, statistics, alpha: float = 0.01
             "by_statistic": by}
 
 
+CONVERGED = 0.1
+"""A model refitted from itself that lowers its deviance by less than this (a tenth of a chi2
+unit, far below any test's threshold) is converged."""
+ROUNDS = 10
+"""Refits at most, towards `CONVERGED`."""
+
+
+def converged(fit, extend):
+    """The model `fit` refitted from itself (`extend(fit, its names)`) until its deviance drops
+    by less than CONVERGED: the joint fit's few iterations leave a strong effect unconverged
+    (a warm-up or asymmetry far above its limit: 273 of deviance left after the first fit), and
+    the next step would credit that remainder to whichever candidate it adds (every candidate
+    then looks significant, equally)."""
+    for _ in range(ROUNDS):
+        again = extend(fit, tuple(fit.fitted))
+        if fit.deviance - again.deviance < CONVERGED:
+            return again if again.deviance < fit.deviance else fit
+        fit = again
+    return fit
+
+
+def _eligible(e: dict) -> bool:
+    """A candidate the loop may name: significant, plausible and more than the noise."""
+    return e["significant"] and not e.get("implausible") and not e.get("within_noise")
+
+
+def _strongest(ev: dict, excluded) -> str:
+    """The eligible candidate of smallest p-value outside `excluded`, or "none"."""
+    names = [k for k, e in ev.items() if k not in excluded and _eligible(e)]
+    return min(names, key=lambda k: ev[k]["log10_p"], default="none")
+
+
+def ambiguous(current, chosen, best: str, ev: dict, extend, alpha: float) -> list:
+    """The eligible candidates indistinguishable from `best` on this session (issue 32, pattern
+    5): each is significant alone, and with both in the model neither adds significantly to the
+    other (the likelihood ratio of each given the other, at alpha over the step's candidates):
+    the data say one of them is there, not which. Open families are never ambiguous with a
+    named effect (`OPEN_FAMILIES`: they generalise them). `chosen` is the model with `best`; the
+    model with both is fitted only where the difference of the two alone leaves it possible."""
+    tests = len(ev)
+    out = []
+    for other, e in ev.items():
+        if other == best or not _eligible(e) or {best, other} & set(OPEN_FAMILIES):
+            continue
+        # best given other decreases the deviance by at least LR(best) - LR(other)
+        if likelihood_ratio(ev[best]["lr"] - e["lr"], chosen.fitted[best], tests,
+                            alpha)["significant"]:
+            continue
+        both = extend(current, (*current.fitted, best, other))
+        given_other = current.deviance - e["lr"] - both.deviance
+        given_best = chosen.deviance - both.deviance
+        if not (likelihood_ratio(given_other, both.fitted[best], tests, alpha)["significant"]
+                or likelihood_ratio(given_best, both.fitted[other], tests, alpha)["significant"]):
+            out.append(other)
+    return out
+
+
+def told_apart(names) -> str:
+    """What to record to tell ambiguous candidates apart (their modules' `TOLD_APART`)."""
+    ways = {EXTENSIONS[a].TOLD_APART[b] for a in names for b in names
+            if b in getattr(EXTENSIONS[a], "TOLD_APART", {})}
+    return "; ".join(sorted(ways)) or ("positions where their signatures differ (other "
+                                       "orientations, rates or timings)")
+
+
 def correction(data, result: Diagnosis) -> dict | None:
     """The held-out check of the final model's correction (station.diagnose.heldout): its
     score and the uncorrected readings', and whether it is applied; None without extensions."""
@@ -265,11 +352,11 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
     until none is significant or `max_effects` are in. `statistics(model)` gives each step's
     gap. `progress(done, total)`, if given, hears of each fit: done so far, and at most
     `total` (every step going on)."""
-    current, steps = start, []
+    current, steps, excluded = start, [], set()
     n = len(candidates)
     tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
     while True:
-        remaining = [c for c in candidates if c not in current.fitted]
+        remaining = [c for c in candidates if c not in current.fitted and c not in excluded]
         ev, best, chosen = {}, "none", None
         if len(current.fitted) < max_effects:
             for name in remaining:
@@ -278,14 +365,20 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
                 ev[name]["implausible"] = check(name, fit.fitted[name])
                 if ev[name]["significant"] and not ev[name]["implausible"]:
                     ev[name]["within_noise"] = noise(name, fit.fitted[name], current)
-                if ev[name]["significant"] and not ev[name]["implausible"] and not ev[name].get(
-                        "within_noise") and (
+                if _eligible(ev[name]) and (
                         best == "none" or ev[name]["log10_p"] < ev[best]["log10_p"]):
                     best, chosen = name, fit  # only the strongest fit so far is kept (memory)
                 tried += 1
                 if progress is not None:
                     progress(tried, total)
+        while best != "none" and (tied := ambiguous(current, chosen, best, ev, extend, alpha)):
+            for name in (best, *tied):
+                ev[name]["ambiguous_with"] = sorted({best, *tied} - {name})
+            excluded |= {best, *tied}
+            best, chosen = _strongest(ev, excluded), None
+            if best != "none":
+                chosen = extend(current, (*current.fitted, best))
         steps.append(Step(current, statistics(current), ev, best))
         if best == "none":
             return Diagnosis(steps, alpha)
-        current = chosen
+        current = converged(chosen, extend)

@@ -75,7 +75,8 @@ def verdict(diagnosis) -> dict:
     not named for another reason (`not_named`), the final goodness-of-fit test and the held-out
     check of the correction (station.diagnose.select.Diagnosis)."""
     return {"effects": diagnosis.effects, "closes": diagnosis.closes,
-            "unexplained": diagnosis.unexplained, "resembles": diagnosis.resembles,
+            "unexplained": diagnosis.unexplained, "ambiguous": diagnosis.ambiguous,
+            "resembles": diagnosis.resembles,
             "not_named": list(diagnosis.not_named), "fit_test": diagnosis.fit_test,
             "correction": diagnosis.correction}
 
@@ -92,11 +93,19 @@ def closes_line(name: str, closes: dict | None) -> str:
             "unexplained")
 
 
+def ambiguous_line(group: dict) -> str:
+    """"AMBIGUOUS: a or b (log10 p ...): indistinguishable on this session ...; record X"."""
+    p = ", ".join(f"{v:.1f}" for v in group["log10_p"].values())
+    return (f"AMBIGUOUS: {' or '.join(group['effects'])} (log10 p {p}): indistinguishable on "
+            "this session (with both in the model neither adds to the other); corrected with "
+            f"neither. To tell them apart, record {group['told_apart_by']}")
+
+
 def text(doc: dict) -> str:
     """A short human-readable summary."""
     lines = [f"effects: {', '.join(doc['effects']) or 'none'} (alpha {doc['alpha']})",
              *(closes_line(k, doc.get("closes", {}).get(k)) for k in doc["effects"]),
-             *doc.get("findings", [])]
+             *map(ambiguous_line, doc.get("ambiguous", [])), *doc.get("findings", [])]
     lines += [f"not named: {closes_line(p['effect'], p['closes'])} (log10 p "
               f"{p['log10_p']:.1f}): {p['reason']}" for p in doc.get("not_named", [])]
     for u in doc.get("unexplained", []):
@@ -248,7 +257,8 @@ def html_report(doc: dict, plots=()) -> str:
                        for k in doc["effects"])
     effects += "".join(f"<p><b>Not named:</b> {e(closes_line(p['effect'], p['closes']))}: "
                        f"{e(p['reason'])}</p>" for p in doc.get("not_named", []))
-    effects += "".join(f"<p><b>{e(f)}</b></p>" for f in doc.get("findings", []))
+    effects += "".join(f"<p><b>{e(f)}</b></p>" for f in (
+        *map(ambiguous_line, doc.get("ambiguous", [])), *doc.get("findings", [])))
     if doc.get("unexplained"):
         effects += ("<p><b>Unexplained:</b> " + e(", ".join(u["statistic"]
                                                           for u in doc["unexplained"])) + "</p>")

@@ -21,6 +21,9 @@ Each module exposes
   sensor chain's offsets;
 - optionally `available(data) -> bool`: False when the session cannot show the effect (temperature:
   no recorded temperature); the candidate is then not offered (station.diagnose.select.diagnose);
+- optionally `TOLD_APART`: {other candidate: what to record to tell the two apart} for the
+  candidates whose signature can match this one's on a session (station.diagnose.select: an
+  ambiguous pair is named together, corrected with neither);
 - optionally `calibration_options(fitted) -> dict | None`: keyword arguments of
   `station.calibrate` when the extension enters the calibration's own model (rate_error: the
   magnitudes' spread) instead of a correction of the readings M; None: corrected for.
@@ -110,6 +113,7 @@ def _registry() -> dict:
         latency,
         rate_error,
         saturation,
+        scale_asymmetry,
         scale_nonlinearity,
         temperature,
         tone,
@@ -118,6 +122,7 @@ def _registry() -> dict:
     return {
         "bias_drift": bias_drift,
         "scale_nonlinearity": scale_nonlinearity,
+        "scale_asymmetry": scale_asymmetry,
         "rate_error": rate_error,
         "earth_rate": earth_rate,
         "saturation": saturation,
@@ -132,3 +137,6 @@ def _registry() -> dict:
 EXTENSIONS = _registry()
 """Effect name -> model extension module (the simulator's EFFECTS names, and the open families:
 `tone`, `jump`)."""
+OPEN_FAMILIES = ("tone", "jump")
+"""The open families: they generalise named effects (a tone at the table rate is axis_wobble's
+coning), so a named effect they match is the specific answer, never an ambiguity with them."""

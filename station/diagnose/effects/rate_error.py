@@ -47,6 +47,13 @@ GAPS = ("averaged",)
 while one of them stays unexplained (station.diagnose.select.settle)."""
 UNREADABLE_WITH = READ_FROM_M
 STAGE = "rate"
+TOLD_APART = {
+    name: "the table's angle from an encoder on its shaft (the rate each position really turned "
+          "at), or positions at a second table rate"
+    for name in ("scale_asymmetry", "scale_nonlinearity")}
+"""Candidates whose signature can match this one's on a session -> what to record to tell them
+apart (station.diagnose.select: an ambiguous pair): with one rate magnitude per position, a
+factor per position can take the shape of a per-sensor term even in the signal."""
 ENCODER_TOL = 1e-9
 """Precision of a rate factor read off an exact angle array (rounding only)."""
 ENCODER_ALPHA = 1e-3

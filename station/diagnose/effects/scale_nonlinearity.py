@@ -20,19 +20,7 @@ STAGE = "sensed"
 
 def fit(ctx, twin, r) -> Fitted:
     """k2 (m,) by least squares per sensor on the signature of unit k2."""
-    peaks = []
-
-    def unit(rows: slice) -> np.ndarray:
-        """The signature of unit k2 at the positions `rows` (their peak |s| noted)."""
-        s = twin.sensed(rows)
-        peaks.append(np.abs(s).max((0, 1)))
-        x = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
-        x -= s  # in place: one signal of a few positions' size at a time
-        return x
-
-    lf = linear.fit_binned(r, [linear.centred_signature(ctx.data, unit)],
-                           linear.weights(ctx.data, ctx.sigma), "sensor")
-    peak = np.max(peaks, 0)
+    lf, peak = linear.sensed_term(ctx, twin, r, unit)
     return Fitted(
         "scale_nonlinearity",
         {"k2": lf.theta[:, 0], "peak_signal": peak},
@@ -40,6 +28,13 @@ def fit(ctx, twin, r) -> Fitted:
         dof=lf.theta.shape[0],
         reduction=lf.reduction(),
     )
+
+
+def unit(s: np.ndarray) -> np.ndarray:
+    """The output's change for unit k2 at sensed signals s, by the simulator's own term."""
+    x = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
+    x -= s  # in place: one signal of a few positions' size at a time
+    return x
 
 
 def params(fitted: Fitted) -> ScaleNonlinearity:

@@ -18,11 +18,13 @@ from station.model.effects.latency import Latency
 from station.model.effects.outliers import Outliers
 from station.model.effects.rate_error import RateError
 from station.model.effects.saturation import Saturation
+from station.model.effects.scale_asymmetry import ScaleAsymmetry
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
 EFFECTS = {
     "bias_drift": BiasDrift,
     "scale_nonlinearity": ScaleNonlinearity,
+    "scale_asymmetry": ScaleAsymmetry,
     "rate_error": RateError,
     "earth_rate": EarthRate,
     "g_sensitivity": GSensitivity,
@@ -33,7 +35,7 @@ EFFECTS = {
 }
 """Effect name -> parameter dataclass. `none` means no effect."""
 SIZE = {"bias_drift": ("warmup", "heating"), "scale_nonlinearity": ("k2",),
-        "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
+        "scale_asymmetry": ("k",), "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
         "axis_wobble": ("angle_deg",), "latency": ("delay",),
         "outliers": ("rate", "size")}
 """The parameters that give an effect its size: all zero (their defaults), it changes nothing.

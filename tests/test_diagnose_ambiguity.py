@@ -1,0 +1,60 @@
+"""Issue 32, pattern 5: ambiguity said, not guessed. A scale-factor asymmetry (s + k |s|) and a
+quadratic nonlinearity (s + k2 s^2) are both even in the signal: at the one rate magnitude of a
+rotary session their signatures correlate by about 0.97, so at a few times its detection limit
+either explains the other. The diagnosis then names both as AMBIGUOUS, corrects with neither and
+says what to record to tell them apart; where the data do tell them apart (a strong asymmetry)
+the one there is named alone. The acceptance figures (12 sessions a case) are bench/diagnose.py's
+(`--effects scale_asymmetry scale_nonlinearity`)."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from station.diagnose import diagnose
+from station.model.effects import parse
+from station.report.diagnosis import text, to_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "bench" / "diagnose.py")
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
+
+PAIR = ["scale_asymmetry", "scale_nonlinearity"]
+
+
+@pytest.mark.parametrize("seed", [3001, 3002])
+def test_an_asymmetry_at_one_rate_is_ambiguous_with_the_nonlinearity_and_corrected_with_neither(
+        seed):
+    data, _ = bench.session("scale_asymmetry", 3, seed)
+    result = diagnose(data)
+    assert result.effects == []
+    (group,) = result.ambiguous  # at m = 3 a per-position rate factor can take the shape too
+    assert set(PAIR) <= set(group["effects"]) <= {*PAIR, "rate_error"}
+    assert "second table rate" in group["told_apart_by"]
+    assert result.calibration is result.steps[0].model.calibration  # corrected with neither
+    for name in PAIR:  # each significant alone
+        assert result.steps[0].evidence[name]["significant"]
+    words = text(to_dict(result, data))
+    assert f"AMBIGUOUS: {' or '.join(group['effects'])}" in words
+    assert "corrected with neither" in words and "second table rate" in words
+
+
+def test_a_strong_asymmetry_is_told_apart_and_named_alone(monkeypatch):
+    """Ten times the case's size: the asymmetry explains what the quadratic leaves (the
+    difference of their likelihood ratios alone is significant), so it is named, not ambiguous."""
+    monkeypatch.setitem(bench.CASES, "scale_asymmetry", "scale_asymmetry=k=2e-3")
+    data, truth = bench.session("scale_asymmetry", 3, 3001)
+    assert parse(bench.CASES["scale_asymmetry"])[1].k == 2e-3
+    result = diagnose(data)
+    assert result.effects[0] == "scale_asymmetry" and not result.ambiguous
+    k = result.final.fitted["scale_asymmetry"]
+    assert abs(k.value("k") - 2e-3).max() < 4 * k.sigma["k"].max()
+
+
+def test_open_families_are_never_ambiguous_with_a_named_effect():
+    """A coning at the table rate is both axis_wobble and the open family `tone` at 1 x the table
+    rate: the named effect is the specific answer (OPEN_FAMILIES), not an ambiguity."""
+    data, _ = bench.session("axis_wobble", 3, 3002)
+    result = diagnose(data)
+    assert result.effects[:1] == ["axis_wobble"] and not result.ambiguous
