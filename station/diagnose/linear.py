@@ -106,19 +106,22 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)
 
 
-def sensed_term(ctx, twin, r: tuple, term) -> tuple:
-    """(fit, peak |s| (m,)) of a per-sensor term of the sensed signal: term(s) -> (p, k, m) the
-    output's change per unit coefficient (scale_nonlinearity's s^2, scale_asymmetry's |s|),
-    fitted per sensor to the residuals' centred parts r (`fit_binned`), made a chunk of
-    positions at a time from the twin's sensed signal."""
+def sensed_term(ctx, twin, r: tuple, apply, unit) -> tuple:
+    """(fit, peak |s| (m,)) of a per-sensor term of the sensed signal, fitted per sensor to the
+    residuals' centred parts r (`fit_binned`): its signature is the output's change
+    apply(s, unit) - s for the simulator's own effect function `apply` at unit coefficients
+    `unit` (scale_nonlinearity's s^2, scale_asymmetry's |s|), made a chunk of positions at a
+    time from the twin's sensed signal s."""
     peaks = []
 
-    def unit(rows: slice) -> np.ndarray:
+    def signature(rows: slice) -> np.ndarray:
         s = twin.sensed(rows)
         peaks.append(np.abs(s).max((0, 1)))
-        return term(s)
+        x = apply(s, unit)
+        x -= s  # in place: one signal of a few positions' size at a time
+        return x
 
-    lf = fit_binned(r, [centred_signature(ctx.data, unit)], weights(ctx.data, ctx.sigma),
+    lf = fit_binned(r, [centred_signature(ctx.data, signature)], weights(ctx.data, ctx.sigma),
                     "sensor")
     return lf, np.max(peaks, 0)
 

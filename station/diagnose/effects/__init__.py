@@ -83,6 +83,20 @@ class Fitted:
         return self.null or (1.0, float(self.dof))
 
 
+def sensed_fit(name: str, key: str, lf, peak: np.ndarray, units=None) -> Fitted:
+    """The Fitted of a per-sensor term of the sensed signal (`linear.sensed_term`'s fit `lf` and
+    peak |s|): its coefficient `key` per sensor with sigma, and the peak signal (the plausibility
+    range's scale)."""
+    return Fitted(
+        name,
+        {key: lf.theta[:, 0], "peak_signal": peak},
+        {key: np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(peak.shape, np.nan)},
+        dof=lf.theta.shape[0],
+        reduction=lf.reduction(),
+        units=units or {},
+    )
+
+
 def tone_null(h: np.ndarray, draws: int = 4000, seed: int = 0) -> tuple:
     """(scale, nu) of the null law of the chi2 decrease of a tone fit with one free phase per
     position and one common amplitude (earth_rate, axis_wobble).

@@ -7,10 +7,9 @@ signature (both even in the signal), so the two are often indistinguishable on a
 diagnosis then says so and corrects with neither (station.diagnose.select, `TOLD_APART`).
 """
 
-import numpy as np
 
 from station.diagnose import linear
-from station.diagnose.effects import READ_FROM_M, Fitted
+from station.diagnose.effects import READ_FROM_M, Fitted, sensed_fit
 from station.model.effects import scale_asymmetry
 from station.model.effects.scale_asymmetry import ScaleAsymmetry
 
@@ -27,22 +26,8 @@ apart (station.diagnose.select: an ambiguous pair)."""
 
 def fit(ctx, twin, r) -> Fitted:
     """k (m,) by least squares per sensor on the signature of unit k."""
-    lf, peak = linear.sensed_term(ctx, twin, r, unit)
-    return Fitted(
-        "scale_asymmetry",
-        {"k": lf.theta[:, 0], "peak_signal": peak},
-        {"k": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(peak.shape, np.nan)},
-        dof=lf.theta.shape[0],
-        reduction=lf.reduction(),
-        units={"k": ""},
-    )
-
-
-def unit(s: np.ndarray) -> np.ndarray:
-    """The output's change for unit k at sensed signals s, by the simulator's own term."""
-    x = scale_asymmetry.apply(s, ScaleAsymmetry(1.0))
-    x -= s  # in place: one signal of a few positions' size at a time
-    return x
+    lf, peak = linear.sensed_term(ctx, twin, r, scale_asymmetry.apply, ScaleAsymmetry(1.0))
+    return sensed_fit("scale_asymmetry", "k", lf, peak, {"k": ""})
 
 
 def params(fitted: Fitted) -> ScaleAsymmetry:

@@ -4,10 +4,9 @@ Signature per sensor: s_i(t)^2 (the rotating window moves by k2_i (a_i . v_j)^2,
 window not at all); linear in k2, fitted per sensor.
 """
 
-import numpy as np
 
 from station.diagnose import linear
-from station.diagnose.effects import READ_FROM_M, Fitted
+from station.diagnose.effects import READ_FROM_M, Fitted, sensed_fit
 from station.model.effects import scale_nonlinearity
 from station.model.effects.scale_nonlinearity import ScaleNonlinearity
 
@@ -20,21 +19,8 @@ STAGE = "sensed"
 
 def fit(ctx, twin, r) -> Fitted:
     """k2 (m,) by least squares per sensor on the signature of unit k2."""
-    lf, peak = linear.sensed_term(ctx, twin, r, unit)
-    return Fitted(
-        "scale_nonlinearity",
-        {"k2": lf.theta[:, 0], "peak_signal": peak},
-        {"k2": np.sqrt(lf.cov[:, 0, 0]), "peak_signal": np.full(peak.shape, np.nan)},
-        dof=lf.theta.shape[0],
-        reduction=lf.reduction(),
-    )
-
-
-def unit(s: np.ndarray) -> np.ndarray:
-    """The output's change for unit k2 at sensed signals s, by the simulator's own term."""
-    x = scale_nonlinearity.apply(s, ScaleNonlinearity(1.0))
-    x -= s  # in place: one signal of a few positions' size at a time
-    return x
+    lf, peak = linear.sensed_term(ctx, twin, r, scale_nonlinearity.apply, ScaleNonlinearity(1.0))
+    return sensed_fit("scale_nonlinearity", "k2", lf, peak)
 
 
 def params(fitted: Fitted) -> ScaleNonlinearity:
