@@ -137,6 +137,39 @@ def test_the_blocked_schur_complement_equals_the_dense_one(monkeypatch):
     np.testing.assert_allclose(g, gradient, rtol=1e-10, atol=1e-10 * np.abs(gradient).max())
 
 
+@pytest.mark.parametrize("estimate_bias", [False, True])
+def test_both_eliminations_solve_the_damped_normal_equations(estimate_bias):
+    """The LM step by the sensors' Schur complement (many sensors at few positions, issue 35)
+    and by the poses' one both solve the full damped system [[U, C], [C^T, L]] built densely
+    from the same blocks; lm_step takes the first when the poses' unknowns are fewer."""
+    from scipy.linalg import block_diag
+
+    from station.solve import ml
+
+    rng = np.random.default_rng(41)
+    a, v = random_directions(rng, 3, 60), random_directions(rng, 3, 12)
+    bias = rng.normal(0, 0.1, 60) if estimate_bias else None
+    readings = a.T @ v + (0 if bias is None else bias[:, None])
+    readings += 0.01 * rng.standard_normal(readings.shape)
+    neq, _ = ml.normal_equations(a * 1.01, ml.start_poses(v, 1.0), bias, readings,
+                                 rng.uniform(0.5, 2.0, readings.shape))
+    m, p = neq.g_global.shape
+    groups, k = neq.g_local.shape
+    assert groups * k < m * p
+    damp = 0.01
+    coupling = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)
+    full = np.block([
+        [block_diag(*(neq.h_global + damp * np.einsum("ipp,pq->ipq", neq.h_global, np.eye(p)))),
+         coupling],
+        [coupling.T,
+         block_diag(*(neq.h_local + damp * np.einsum("gkk,kl->gkl", neq.h_local, np.eye(k))))]])
+    exact = np.linalg.solve(full, np.r_[neq.g_global.ravel(), neq.g_local.ravel()])
+    for step in (ml.sensors_first, ml.poses_first, ml.lm_step):
+        g, loc = step(neq, damp)
+        np.testing.assert_allclose(np.r_[g.ravel(), loc.ravel()], exact, rtol=0,
+                                   atol=1e-10 * np.abs(exact).max())
+
+
 def test_rotation_matrices_equal_scipys_exponential_map():
     from scipy.spatial.transform import Rotation
 

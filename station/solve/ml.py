@@ -176,7 +176,37 @@ def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
 
 
 def lm_step(neq: NormalEquations, damping: float):
-    """One damped Gauss-Newton step: global step by the Schur complement, then the local steps."""
+    """One damped Gauss-Newton step (global and local steps), eliminating first the side with
+    more unknowns: the poses' (`poses_first`, the usual case: positions outnumber sensors) or the
+    sensors' (`sensors_first`: many sensors at few positions)."""
+    m, p = neq.g_global.shape
+    if neq.g_local.size < m * p:
+        return sensors_first(neq, damping)
+    return poses_first(neq, damping)
+
+
+def sensors_first(neq: NormalEquations, damping: float):
+    """The damped step by the Schur complement on the poses' unknowns: the sensors' blocks U
+    (block-diagonal) eliminated, K = L - C^T U^-1 C of the poses' size k G solved, then the
+    sensors' steps U^-1 (g - C step_local): O(m p (k G)^2) instead of `poses_first`'s
+    O((m p)^2 k G + (m p)^3)."""
+    m, p = neq.g_global.shape
+    groups, k = neq.g_local.shape
+    u_inv = np.linalg.inv(neq.h_global + damping * _diag_blocks(neq.h_global))
+    c = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)  # columns (group, k)
+    uc = np.einsum("ipq,iqr->ipr", u_inv, c.reshape(m, p, -1)).reshape(m * p, -1)
+    ug = np.einsum("ipq,iq->ip", u_inv, neq.g_global).ravel()
+    poses = -(c.T @ uc)
+    blocks = poses.reshape(groups, k, groups, k)
+    idx = np.arange(groups)
+    blocks[idx, :, idx, :] += neq.h_local + damping * _diag_blocks(neq.h_local)
+    step_local = np.linalg.solve(poses, neq.g_local.ravel() - c.T @ ug)
+    return (ug - uc @ step_local).reshape(m, p), step_local.reshape(groups, k)
+
+
+def poses_first(neq: NormalEquations, damping: float):
+    """The damped step by the Schur complement on the sensors' unknowns (`reduced_system`), then
+    the local steps."""
     m, p = neq.g_global.shape
     s, g, h_local_inv = reduced_system(neq, damping)
     step_global = np.linalg.solve(s, g).reshape(m, p)
