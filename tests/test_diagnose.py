@@ -17,6 +17,7 @@ import pytest
 
 from station.diagnose import data as session_data
 from station.diagnose import diagnose
+from station.diagnose.effects import OPEN_FAMILIES
 from station.errors import CalibrationInputError
 from station.imports import npz
 
@@ -106,8 +107,8 @@ def test_cli_json_and_report(tmp_path):
     assert doc["effects"] == ["earth_rate"]
     first = doc["steps"][0]
     # the named effects' candidates and the open families
-    assert set(first["evidence"]) == {hidden(case) for case in bench.CASES} - {"none"} | {
-        "tone", "jump"}
+    assert set(first["evidence"]) == {hidden(case) for case in bench.CASES} - {"none"} | set(
+        OPEN_FAMILIES)
     assert first["evidence"]["earth_rate"]["significant"]
     fitted = doc["steps"][-1]["parameters"]["earth_rate"]["horizontal_rate"]
     truth_horizontal = bench.OMEGA_EARTH * np.cos(np.radians(52.2))

@@ -1,8 +1,9 @@
 """Issue 32: the open families name effects no list foresaw, add them to the model and show the
 gap shrink: `tone` (a coning at any frequency, pattern 6) and `jump` (a step of the biases at
 one instant). Both search a grid (frequencies, instants) and Bonferroni their p-value over it.
-The acceptance figures (10 seeds a case) are bench/diagnose.py --open's; these are three seeds
-and the algebra."""
+`polynomial` (a bend of the output in the signal, its order searched) likewise. The acceptance
+figures (10 seeds a case) are bench/diagnose.py --open's; these are three seeds and the
+algebra."""
 
 import importlib.util
 from pathlib import Path
@@ -45,6 +46,16 @@ def test_a_step_of_the_biases_is_named_a_jump_at_its_instant(seed):
     assert lo <= truth["jump"]["t0"] <= hi
     z = (fitted.value("delta") - truth["jump"]["delta"]) / fitted.sigma["delta"]
     assert np.all(np.abs(z) < 4)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_cubic_bend_of_the_output_is_named_a_polynomial(seed):
+    """A cubic term no named effect has (c3 s^3, 3-4 x its limit): the open family `polynomial`
+    is named alone, with an order of the ones searched, and the `averaged` gap shrinks."""
+    fitted, _ = named_alone("polynomial_cubic", seed, "polynomial", "averaged")
+    assert fitted.values["order"] in (3, 4, 5)
+    assert {k for k in fitted.values if k.startswith("c")} == {
+        f"c{q}" for q in range(2, fitted.values["order"] + 1)}
 
 
 def test_the_scan_is_the_least_squares_fit_at_each_instant():

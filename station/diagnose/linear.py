@@ -106,24 +106,31 @@ def fit_binned(r: tuple, basis: list, w: tuple, by: str) -> LinearFit:
     return LinearFit(np.einsum("bpq,bq->bp", cov, g), cov, h, g)
 
 
-def sensed_term(ctx, twin, r: tuple, apply, unit) -> tuple:
-    """(fit, peak |s| (m,)) of a per-sensor term of the sensed signal, fitted per sensor to the
-    residuals' centred parts r (`fit_binned`): its signature is the output's change
-    apply(s, unit) - s for the simulator's own effect function `apply` at unit coefficients
-    `unit` (scale_nonlinearity's s^2, scale_asymmetry's |s|), made a chunk of positions at a
-    time from the twin's sensed signal s."""
+def sensed_signatures(ctx, twin, apply, units) -> tuple:
+    """([centred (bins, static means) of each unit term], peak |s| (m,)): the output's change
+    apply(s, unit) - s for the simulator's own effect function `apply` at each of the unit
+    coefficients `units` (scale_nonlinearity's s^2, scale_asymmetry's |s|, the polynomial's
+    powers), made in one pass a chunk of positions at a time from the twin's sensed signal s."""
     peaks = []
 
     def signature(rows: slice) -> np.ndarray:
         s = twin.sensed(rows)
         peaks.append(np.abs(s).max((0, 1)))
-        x = apply(s, unit)
-        x -= s  # in place: one signal of a few positions' size at a time
-        return x
+        out = np.concatenate([apply(s, unit) for unit in units], axis=-1)
+        out -= np.concatenate([s] * len(units), axis=-1)
+        return out
 
-    lf = fit_binned(r, [centred_signature(ctx.data, signature)], weights(ctx.data, ctx.sigma),
-                    "sensor")
-    return lf, np.max(peaks, 0)
+    bins, means = centred_signature(ctx.data, signature)
+    m = bins.shape[-1] // len(units)
+    return ([(bins[..., i * m:(i + 1) * m], means[:, i * m:(i + 1) * m])
+             for i in range(len(units))], np.max(peaks, 0))
+
+
+def sensed_term(ctx, twin, r: tuple, apply, unit) -> tuple:
+    """(fit, peak |s| (m,)) of one per-sensor term of the sensed signal (`sensed_signatures`),
+    fitted per sensor to the residuals' centred parts r (`fit_binned`)."""
+    (term,), peak = sensed_signatures(ctx, twin, apply, [unit])
+    return fit_binned(r, [term], weights(ctx.data, ctx.sigma), "sensor"), peak
 
 
 def phase_fit(data, r: tuple, tone, sigma: np.ndarray) -> tuple:

@@ -16,6 +16,7 @@ it lies more than Z_LIMIT sigma beyond the bound):
 - scale_nonlinearity: |k2_i| x the largest |signal| <= NONLINEARITY_MAX (datasheets: 0.01-0.5
   % of full scale);
 - scale_asymmetry: |k_i| <= NONLINEARITY_MAX (datasheets: an asymmetry 2 k of 0.01-0.5 %);
+- polynomial: sum_q |c_q,i| x the largest |signal|^(q - 1) <= NONLINEARITY_MAX;
 - axis_wobble: half-angle <= WOBBLE_MAX_DEG;
 - g_sensitivity: |G| <= G_SENSITIVITY_MAX deg/s per g (rad/s gyros only);
 - temperature: |bias tempco_i| <= TEMPCO_MAX deg/s per K (rad/s gyros only);
@@ -144,6 +145,19 @@ def scale_asymmetry(fitted, site: Site) -> str:
     return ""
 
 
+def polynomial(fitted, site: Site) -> str:
+    """See the module table."""
+    peak = np.asarray(fitted.values["peak_signal"], float)
+    keys = [k for k in fitted.values if k.startswith("c")]
+    bend = sum(np.abs(fitted.value(k)) * peak ** (int(k[1:]) - 1) for k in keys)
+    spread = np.sqrt(sum((np.asarray(fitted.sigma[k]) * peak ** (int(k[1:]) - 1)) ** 2
+                         for k in keys))
+    if _beyond(bend, spread, high=NONLINEARITY_MAX):
+        return (f"relative nonlinearity up to {np.max(bend):.3g} at the largest signal, above "
+                f"{NONLINEARITY_MAX:g}")
+    return ""
+
+
 def axis_wobble(fitted, site: Site) -> str:
     """See the module table."""
     b, s = _value(fitted, "angle_deg")
@@ -176,6 +190,7 @@ def temperature(fitted, site: Site) -> str:
 
 RANGES = {"earth_rate": earth_rate, "latency": latency, "rate_error": rate_error,
           "scale_nonlinearity": scale_nonlinearity, "scale_asymmetry": scale_asymmetry,
+          "polynomial": polynomial,
           "axis_wobble": axis_wobble,
           "g_sensitivity": g_sensitivity, "temperature": temperature}
 """Effect -> its range check; effects not listed accept any fitted value."""

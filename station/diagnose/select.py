@@ -299,9 +299,12 @@ def ambiguous(current, chosen, best: str, ev: dict, extend, alpha: float) -> lis
     """The eligible candidates indistinguishable from `best` on this session (issue 32, pattern
     5): each is significant alone, and with both in the model neither adds significantly to the
     other (the likelihood ratio of each given the other, at alpha over the step's candidates):
-    the data say one of them is there, not which. Open families are never ambiguous with a
-    named effect (`OPEN_FAMILIES`: they generalise them). `chosen` is the model with `best`; the
-    model with both is fitted only where the difference of the two alone leaves it possible."""
+    the data say one of them is there, not which. Open families are never ambiguous with the
+    strongest named effect (`OPEN_FAMILIES`: they generalise them); once a group is ambiguous,
+    `greedy` names the next candidate only if it adds significantly to the group's strongest,
+    else it joins the group (an open family that explains what the pair explains is no answer
+    either). `chosen` is the model with `best`; the model with both is fitted only where the
+    difference of the two alone leaves it possible."""
     tests = len(ev)
     out = []
     for other, e in ev.items():
@@ -372,12 +375,19 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
                 if progress is not None:
                     progress(tried, total)
         while best != "none" and (tied := ambiguous(current, chosen, best, ev, extend, alpha)):
-            for name in (best, *tied):
-                ev[name]["ambiguous_with"] = sorted({best, *tied} - {name})
-            excluded |= {best, *tied}
-            best, chosen = _strongest(ev, excluded), None
-            if best != "none":
+            group, leader = {best, *tied}, chosen
+            best, chosen = _strongest(ev, excluded | group), None
+            while best != "none":  # the next must explain more than the group does
                 chosen = extend(current, (*current.fitted, best))
+                both = extend(leader, (*leader.fitted, best))
+                if likelihood_ratio(leader.deviance - both.deviance, both.fitted[best], len(ev),
+                                    alpha)["significant"]:
+                    break
+                group.add(best)  # it explains what the group does (an open family, too)
+                best, chosen = _strongest(ev, excluded | group), None
+            for name in group:
+                ev[name]["ambiguous_with"] = sorted(group - {name})
+            excluded |= group
         steps.append(Step(current, statistics(current), ev, best))
         if best == "none":
             return Diagnosis(steps, alpha)

@@ -1,13 +1,12 @@
 """The one sensor output chain: sensed signal -> effects -> integer counts (docs/simulator.md).
 
 Order: the sensed signal s = a^T v goes through `sensed` (scale_nonlinearity, scale_asymmetry,
-then latency); the unit's white noise, its biases, the `offsets` (bias_drift) and the bias random
-walk are added; `spiked` adds spikes (outliers); `saturate` clips (saturation); the unit
-quantises. `sense` runs
-the whole chain for the batch simulator (station.sim: n recordings of k samples) and, through
-`SensorUnit.sample`, for the live twins (one block of samples at a time). The diagnosis' twins
-(station.diagnose.prediction, and station.diagnose.static) build their noise-free expectation
-from the same stage functions.
+polynomial, then latency); the unit's white noise, its biases, the `offsets` (bias_drift) and the
+bias random walk are added; `spiked` adds spikes (outliers); `saturate` clips (saturation); the
+unit quantises. `sense` runs the whole chain for the batch simulator (station.sim: n recordings
+of k samples) and, through `SensorUnit.sample`, for the live twins (one block of samples at a
+time). The diagnosis' twins (station.diagnose.prediction, and station.diagnose.static) build
+their noise-free expectation from the same stage functions.
 """
 
 import dataclasses
@@ -18,12 +17,13 @@ from station.model.effects import (
     bias_drift,
     latency,
     outliers,
+    polynomial,
     saturation,
     scale_asymmetry,
     scale_nonlinearity,
 )
 
-SENSED = ("scale_nonlinearity", "scale_asymmetry", "latency")
+SENSED = ("scale_nonlinearity", "scale_asymmetry", "polynomial", "latency")
 """Effects on the sensed signal a^T v, in the order applied."""
 OFFSETS = ("bias_drift",)
 """Effects added to the output beside the biases."""
@@ -31,18 +31,20 @@ OUTPUT = ("outliers", "saturation")
 """Effects on the output before quantisation, in the order applied."""
 SENSOR_EFFECTS = {*SENSED, *OFFSETS, *OUTPUT}
 """Effects acting on the sensor's output; the others act on the motion (rotary protocol only)."""
-LIVE_EFFECTS = {"scale_nonlinearity", "scale_asymmetry", "bias_drift", "saturation"}
+LIVE_EFFECTS = {"scale_nonlinearity", "scale_asymmetry", "polynomial", "bias_drift", "saturation"}
 """Sensor effects a live twin can apply block by block: latency interpolates within a recording
 and bias_drift's heating integrates the table rate over the whole session (batch only)."""
 
 
 def sensed(s: np.ndarray, t: np.ndarray, effects: dict) -> np.ndarray:
     """The sensed signals s (n, k, m) at times t (k,) after scale_nonlinearity, scale_asymmetry,
-    then latency."""
+    polynomial, then latency."""
     if "scale_nonlinearity" in effects:
         s = scale_nonlinearity.apply(s, effects["scale_nonlinearity"])
     if "scale_asymmetry" in effects:
         s = scale_asymmetry.apply(s, effects["scale_asymmetry"])
+    if "polynomial" in effects:
+        s = polynomial.apply(s, effects["polynomial"])
     if "latency" in effects:
         s = latency.apply(s, t, effects["latency"])
     return s

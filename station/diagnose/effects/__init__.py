@@ -125,6 +125,7 @@ def _registry() -> dict:
         earth_rate,
         jump,
         latency,
+        polynomial,
         rate_error,
         saturation,
         scale_asymmetry,
@@ -145,12 +146,13 @@ def _registry() -> dict:
         "temperature": temperature,
         "tone": tone,
         "jump": jump,
+        "polynomial": polynomial,
     }
 
 
 EXTENSIONS = _registry()
 """Effect name -> model extension module (the simulator's EFFECTS names, and the open families:
-`tone`, `jump`)."""
-OPEN_FAMILIES = ("tone", "jump")
+`tone`, `jump`, `polynomial`)."""
+OPEN_FAMILIES = ("tone", "jump", "polynomial")
 """The open families: they generalise named effects (a tone at the table rate is axis_wobble's
 coning), so a named effect they match is the specific answer, never an ambiguity with them."""

@@ -16,6 +16,7 @@ from station.model.effects.earth_rate import EarthRate
 from station.model.effects.g_sensitivity import GSensitivity
 from station.model.effects.latency import Latency
 from station.model.effects.outliers import Outliers
+from station.model.effects.polynomial import Polynomial
 from station.model.effects.rate_error import RateError
 from station.model.effects.saturation import Saturation
 from station.model.effects.scale_asymmetry import ScaleAsymmetry
@@ -25,6 +26,7 @@ EFFECTS = {
     "bias_drift": BiasDrift,
     "scale_nonlinearity": ScaleNonlinearity,
     "scale_asymmetry": ScaleAsymmetry,
+    "polynomial": Polynomial,
     "rate_error": RateError,
     "earth_rate": EarthRate,
     "g_sensitivity": GSensitivity,
@@ -35,7 +37,8 @@ EFFECTS = {
 }
 """Effect name -> parameter dataclass. `none` means no effect."""
 SIZE = {"bias_drift": ("warmup", "heating"), "scale_nonlinearity": ("k2",),
-        "scale_asymmetry": ("k",), "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
+        "scale_asymmetry": ("k",), "polynomial": ("c2", "c3", "c4", "c5"),
+        "rate_error": ("scale", "spread"), "g_sensitivity": ("matrix",),
         "axis_wobble": ("angle_deg",), "latency": ("delay",),
         "outliers": ("rate", "size")}
 """The parameters that give an effect its size: all zero (their defaults), it changes nothing.
