@@ -3,10 +3,10 @@ by a polynomial whose order the data choose: s_i + sum_{q=2..Q} c_q,i s_i^q.
 
 Signature per sensor: the powers s_i(t)^q (the rotating window moves by c_q,i (a_i . v_j)^q, the
 static window not at all); linear in the c, fitted per sensor with every power up to the order
-Q. Q is searched over `TOPS` (3 .. 5; Q = 2 alone is the named scale_nonlinearity, which pays no
-search and so is preferred for a quadratic) and the one of smallest p-value kept: its p-value is
-Bonferroni'd over them (`Fitted.searched`). The odd powers are partly a scale factor, which the
-calibration takes; the family describes what it leaves. The model is the simulator's
+Q. Q is searched over `TOPS` (2, 3) and the one of smallest p-value kept: its p-value is
+Bonferroni'd over them (`Fitted.searched`), so the named scale_nonlinearity (Q = 2, no search)
+is preferred for a quadratic. The odd powers are partly a scale factor, which the calibration
+takes; the family describes what it leaves. The model is the simulator's
 (station.model.effects.polynomial, up to the fifth power).
 """
 
@@ -23,8 +23,15 @@ GAPS = ("averaged",)
 while one of them stays unexplained (station.diagnose.select.settle)."""
 UNREADABLE_WITH = READ_FROM_M
 STAGE = "sensed"
-TOPS = (3, 4, 5)
-"""The orders searched: the highest power of the signal."""
+TOPS = (2, 3)
+"""The orders searched: the highest power of the signal. 2 is the named scale_nonlinearity's
+model, which pays no search and so is named first for a quadratic; with it left out the family
+still finds the quadratic without an odd power beside it (an odd power is partly a scale factor:
+its noise moves the calibration's scales). Higher orders over-fit what they do not model: with a
+table rate error left out of the candidates (m = 12, seeds 12002-12003), powers up to 4 or 5
+were named and the calibration's eps / bound went from 1.36 to 2.55-3.03, where up to 3 they
+are said AMBIGUOUS with the even terms and nothing is corrected. Orders beyond 3 need a nested
+order selection and odd powers without their straight line first (not done)."""
 
 
 def fit(ctx, twin, r) -> Fitted:
