@@ -363,13 +363,18 @@ def _finite(values: np.ndarray, name: str, where, start: int, rows) -> None:
 
 
 def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
-    """(the rows [start, stop) of `ds`, a mask of the rows that read back intact)."""
+    """(the rows [start, stop) of `ds`, a mask of the rows that read back intact). A last chunk
+    whose rewrite a kill cut short keeps the rows its old checksum vouches for (`torn`: the
+    durable ones) and loses the interrupted flush's, with or without `drop_damaged` (without it,
+    every row after the tear is left out: a killed writer's events and table states end where
+    its last complete flush did); other damage is a SessionFormatError without it."""
     try:
         return ds[start:stop], np.ones(stop - start, bool)
     except OSError as e:
-        if not drop_damaged or ds.chunks is None:
+        if ds.chunks is None:
             raise SessionFormatError(f"{where}: {ds.name} does not read back intact ({e}); the "
                                      "file is damaged") from None
+        error = e
     values = np.zeros((stop - start, *ds.shape[1:]), ds.dtype)
     intact = np.ones(stop - start, bool)
     size = ds.chunks[0]
@@ -378,12 +383,16 @@ def _rows(ds, start: int, stop: int, where, drop_damaged: bool) -> tuple:
         try:
             values[a - start:b - start] = ds[a:b]
         except OSError:
-            # a rewrite cut by a kill keeps the rows its old checksum vouches for (`torn`)
             kept = tail_rows(ds, first)
+            if kept is None and not drop_damaged:
+                raise SessionFormatError(f"{where}: {ds.name} does not read back intact "
+                                         f"({error}); the file is damaged") from None
             good = min(b, first + (0 if kept is None else len(kept)))
             if good > a:
                 values[a - start:good - start] = kept[a - first:good - first]
-            intact[max(good, a) - start:b - start] = False
+            intact[max(good, a) - start:(b if drop_damaged else stop) - start] = False
+            if not drop_damaged:
+                break
     return values, intact
 
 
