@@ -186,22 +186,37 @@ def lm_step(neq: NormalEquations, damping: float):
 
 
 def sensors_first(neq: NormalEquations, damping: float):
-    """The damped step by the Schur complement on the poses' unknowns: the sensors' blocks U
-    (block-diagonal) eliminated, K = L - C^T U^-1 C of the poses' size k G solved, then the
-    sensors' steps U^-1 (g - C step_local): O(m p (k G)^2) instead of `poses_first`'s
-    O((m p)^2 k G + (m p)^3)."""
+    """The damped step by the Schur complement on the poses' unknowns (`sensors_eliminated`):
+    K step_local = g_local - C^T U^-1 g, then the sensors' steps U^-1 (g - C step_local):
+    O(m p (k G)^2) instead of `poses_first`'s O((m p)^2 k G + (m p)^3)."""
+    m, p = neq.g_global.shape
+    u_inv, c, uc, poses = sensors_eliminated(neq, damping)
+    ug = by_sensor(u_inv, neq.g_global.ravel())
+    step_local = np.linalg.solve(poses, neq.g_local.ravel() - c.T @ ug)
+    return (ug - uc @ step_local).reshape(m, p), step_local.reshape(neq.g_local.shape)
+
+
+def sensors_eliminated(neq: NormalEquations, damping: float = 0.0) -> tuple:
+    """(U^-1 (m, p, p), C (m p, k G, columns by group then k), U^-1 C, K = L - C^T U^-1 C): the
+    damped normal equations with the sensors' blocks U (block-diagonal) eliminated, K the Schur
+    complement on the poses' unknowns (`sensors_first`; `uncertainty.woodbury_pinv` at
+    damping 0)."""
     m, p = neq.g_global.shape
     groups, k = neq.g_local.shape
     u_inv = np.linalg.inv(neq.h_global + damping * _diag_blocks(neq.h_global))
-    c = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)  # columns (group, k)
-    uc = np.einsum("ipq,iqr->ipr", u_inv, c.reshape(m, p, -1)).reshape(m * p, -1)
-    ug = np.einsum("ipq,iq->ip", u_inv, neq.g_global).ravel()
+    c = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)
+    uc = by_sensor(u_inv, c)
     poses = -(c.T @ uc)
     blocks = poses.reshape(groups, k, groups, k)
     idx = np.arange(groups)
     blocks[idx, :, idx, :] += neq.h_local + damping * _diag_blocks(neq.h_local)
-    step_local = np.linalg.solve(poses, neq.g_local.ravel() - c.T @ ug)
-    return (ug - uc @ step_local).reshape(m, p), step_local.reshape(groups, k)
+    return u_inv, c, uc, poses
+
+
+def by_sensor(u_inv: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """blockdiag(u_inv) x for the sensors' blocks u_inv (m, p, p) and x (m p,) or (m p, r)."""
+    m, p, _ = u_inv.shape
+    return np.einsum("ipq,iq...->ip...", u_inv, x.reshape(m, p, *x.shape[1:])).reshape(x.shape)
 
 
 def poses_first(neq: NormalEquations, damping: float):

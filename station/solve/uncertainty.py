@@ -28,9 +28,11 @@ from station.model.frames import align_to, canonical_rotation, to_canonical
 from station.solve.identifiability import gauge_directions
 from station.solve.ml import (
     NormalEquations,
+    by_sensor,
     check_spread,
     normal_equations,
     reduced_system,
+    sensors_eliminated,
     sigma_matrix,
 )
 from station.solve.poses import Directions, SoftMagnitudes
@@ -114,18 +116,14 @@ def woodbury_pinv(neq: NormalEquations, gauge: np.ndarray) -> np.ndarray:
     trace per parameter; U's here, which bounds S's). np.linalg.LinAlgError when K is singular
     (S singular beyond the gauge)."""
     m, p = neq.g_global.shape
-    groups, k = neq.g_local.shape
+    u_inv, _, uc, poses = sensors_eliminated(neq)
     q = np.linalg.qr(gauge)[0]
     level = float(np.einsum("ikk->", neq.h_global)) / (m * p)
-    u_inv = np.linalg.inv(neq.h_global)  # (m, p, p)
-    y = np.hstack([neq.h_cross.reshape(m * p, k * groups), q])  # columns (k, G) of C, then Q
-    uy = np.einsum("ipq,iqr->ipr", u_inv, y.reshape(m, p, -1)).reshape(m * p, -1)
-    inner = y.T @ uy
-    poses = np.arange(groups)
-    for r in range(k):  # E^-1's pose part: -L, its (k, k) blocks on the columns (r, g)
-        for c in range(k):
-            inner[r * groups + poses, c * groups + poses] -= neq.h_local[:, r, c]
-    inner[k * groups:, k * groups:] += np.eye(q.shape[1]) / level
+    uq = by_sensor(u_inv, q)
+    uy = np.hstack([uc, uq])  # U^-1 Y, Y = [C, Q]
+    cross = uc.T @ q
+    inner = np.block([[-poses, cross],  # K = E^-1 + Y^T U^-1 Y: C^T U^-1 C - L = -poses
+                      [cross.T, q.T @ uq + np.eye(q.shape[1]) / level]])
     try:
         inv = -uy @ np.linalg.solve(inner, uy.T)
     except np.linalg.LinAlgError:
