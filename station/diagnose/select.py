@@ -378,13 +378,13 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
             group, leader = {best, *tied}, chosen
             best, chosen = _strongest(ev, excluded | group), None
             while best != "none":  # the next must explain more than the group does
-                chosen = extend(current, (*current.fitted, best))
                 both = extend(leader, (*leader.fitted, best))
                 if likelihood_ratio(leader.deviance - both.deviance, both.fitted[best], len(ev),
                                     alpha)["significant"]:
+                    chosen = extend(current, (*current.fitted, best))
                     break
                 group.add(best)  # it explains what the group does (an open family, too)
-                best, chosen = _strongest(ev, excluded | group), None
+                best = _strongest(ev, excluded | group)
             for name in group:
                 ev[name]["ambiguous_with"] = sorted(group - {name})
             excluded |= group
