@@ -45,8 +45,7 @@ class Forked:
         os.close(out_w)
         os.close(err_w)
         self.returncode = None
-        self._pipes = {out_r: [], err_r: []}
-        self._out, self._err = out_r, err_r
+        self._pipes = {out_r: [], err_r: []}  # standard output, then error: what each has sent
 
     def communicate(self, timeout: float | None = None) -> tuple:
         """(stdout, stderr) as text once the child has closed them and exited;
@@ -67,8 +66,7 @@ class Forked:
                     else:
                         sel.unregister(key.fd)
         self._reap()
-        return tuple(b"".join(self._pipes[fd]).decode(errors="replace")
-                     for fd in (self._out, self._err))
+        return tuple(b"".join(sent).decode(errors="replace") for sent in self._pipes.values())
 
     def kill(self) -> None:
         """SIGKILL the child (nothing when it has been reaped already)."""
