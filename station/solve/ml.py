@@ -130,7 +130,7 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
     BLAS over blocks of c = SCHUR_CHUNK groups: O(m^2 p^2 G k), linear in the number of positions.
     """
     m, p = neq.g_global.shape
-    h_local_inv = np.linalg.inv(neq.h_local + damping * _diag_blocks(neq.h_local))
+    h_local_inv = np.linalg.inv(_damped(neq.h_local, damping))
     s = np.zeros((m * p, m * p))
     g = neq.g_global.ravel().copy()
     for start in range(0, len(h_local_inv), SCHUR_CHUNK):
@@ -141,7 +141,7 @@ def reduced_system(neq: NormalEquations, damping: float = 0.0):
         g -= ch @ neq.g_local[part].T.ravel()
     s4 = s.reshape(m, p, m, p)
     idx = np.arange(m)
-    s4[idx, :, idx, :] += neq.h_global + damping * _diag_blocks(neq.h_global)
+    s4[idx, :, idx, :] += _damped(neq.h_global, damping)
     return s, g, h_local_inv
 
 
@@ -166,6 +166,12 @@ def _coupling(weighted_local: np.ndarray, x: np.ndarray) -> np.ndarray:
     for col in range(k):
         np.multiply(x.T[None], weighted_local[:, None, :, col], out=out[:, :, col])
     return out
+
+
+def _damped(blocks: np.ndarray, damping: float) -> np.ndarray:
+    """The blocks with Marquardt damping, blocks + damping diag(blocks) (`_diag_blocks`); the
+    blocks themselves undamped (the Fisher information)."""
+    return blocks + damping * _diag_blocks(blocks) if damping else blocks
 
 
 def _diag_blocks(blocks: np.ndarray) -> np.ndarray:
@@ -203,13 +209,13 @@ def sensors_eliminated(neq: NormalEquations, damping: float = 0.0) -> tuple:
     damping 0)."""
     m, p = neq.g_global.shape
     groups, k = neq.g_local.shape
-    u_inv = np.linalg.inv(neq.h_global + damping * _diag_blocks(neq.h_global))
+    u_inv = np.linalg.inv(_damped(neq.h_global, damping))
     c = neq.h_cross.transpose(0, 1, 3, 2).reshape(m * p, groups * k)
     uc = by_sensor(u_inv, c)
     poses = -(c.T @ uc)
     blocks = poses.reshape(groups, k, groups, k)
     idx = np.arange(groups)
-    blocks[idx, :, idx, :] += neq.h_local + damping * _diag_blocks(neq.h_local)
+    blocks[idx, :, idx, :] += _damped(neq.h_local, damping)
     return u_inv, c, uc, poses
 
 
