@@ -371,9 +371,8 @@ def _sigmas(a: np.ndarray, rot: np.ndarray, cov: np.ndarray, nominal, estimate_b
     rotation into the frame): each figure from the blocks of the covariance it depends on,
     O((m p)^2) memory."""
     d, m = a.shape
-    p = d + (1 if estimate_bias else 0)
-    order = uncertainty.parameter_order(m, p, d)
-    parameter_cov = uncertainty.frame_covariance(cov, a, nominal, rot)[np.ix_(order, order)]
+    parameter_cov = uncertainty.in_parameter_order(
+        uncertainty.frame_covariance(cov, a, nominal, rot), m)
     sd = np.sqrt(np.maximum(np.diag(parameter_cov), 0.0))
     return {"theta": cov, "parameters": parameter_cov, "a": sd[: d * m].reshape(d, m),
             "scale": uncertainty.scale_factor_sigmas(cov, a),

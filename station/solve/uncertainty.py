@@ -245,10 +245,12 @@ def frame_covariance(cov: np.ndarray, a: np.ndarray, nominal: np.ndarray | None 
     return out
 
 
-def parameter_order(m: int, p: int, d: int) -> np.ndarray:
-    """Indices into theta = (a_1, b_1, ...) of vec(a) row-major (d, m), then b when p > d."""
-    theta = np.arange(m * p).reshape(m, p)
-    return np.concatenate([theta[:, :d].T.ravel(), theta[:, d:].ravel()])
+def in_parameter_order(cov: np.ndarray, m: int) -> np.ndarray:
+    """A covariance of theta = (a_1, b_1, ...) (m sensors) reordered to vec(a) row-major (d, m),
+    then b when estimated: theta as an (m, p) array transposed (one copy)."""
+    mp = cov.shape[0]
+    p = mp // m
+    return cov.reshape(m, p, m, p).transpose(1, 0, 3, 2).reshape(mp, mp)
 
 
 def sensor_blocks(cov: np.ndarray, d: int, m: int) -> np.ndarray:
@@ -327,8 +329,8 @@ def crlb(a, v, sigma, *, estimate_bias: bool = False, spread: float | None = Non
     sig = np.broadcast_to(sigma_matrix(sigma, m), (m, v.shape[1]))
     bias = np.zeros(m) if estimate_bias else None
     neq, _ = normal_equations(a, poses, bias, measurement.forward(a, v, bias), 1.0 / sig**2)
-    order = parameter_order(m, d + (1 if estimate_bias else 0), d)[: d * m]
-    return frame_covariance(global_covariance(reduced_fisher(neq), a), a)[np.ix_(order, order)]
+    cov = in_parameter_order(frame_covariance(global_covariance(reduced_fisher(neq), a), a), m)
+    return cov[: d * m, : d * m]
 
 
 def design_information(a, v, bias, sigma) -> np.ndarray:
