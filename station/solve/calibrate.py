@@ -374,7 +374,6 @@ def _sigmas(a: np.ndarray, rot: np.ndarray, cov: np.ndarray, nominal, estimate_b
     parameter_cov = uncertainty.in_parameter_order(
         uncertainty.frame_covariance(cov, a, nominal, rot), m)
     sd = np.sqrt(np.maximum(np.diag(parameter_cov), 0.0))
+    scale, angles = uncertainty.axis_sigmas(cov, a)
     return {"theta": cov, "parameters": parameter_cov, "a": sd[: d * m].reshape(d, m),
-            "scale": uncertainty.scale_factor_sigmas(cov, a),
-            "angles": uncertainty.axis_angle_sigmas(cov, a),
-            "bias": sd[d * m:] if estimate_bias else None}
+            "scale": scale, "angles": angles, "bias": sd[d * m:] if estimate_bias else None}

@@ -184,8 +184,8 @@ def _invariants(a, cov) -> tuple:
     theta = (a_1, a_2, a_3) sensor by sensor: a column-major)."""
     order = np.arange(9).reshape(3, 3).T.ravel()
     theta = cov[np.ix_(order, order)]
-    return (uncertainty.scale_factor_sigmas(theta, a), uncertainty.axis_angles(a),
-            uncertainty.axis_angle_sigmas(theta, a))
+    scale_sigma, angle_sigma = uncertainty.axis_sigmas(theta, a)
+    return scale_sigma, uncertainty.axis_angles(a), angle_sigma
 
 
 def _turns(acc, intervals, min_turn_deg: float) -> np.ndarray:

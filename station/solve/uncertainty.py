@@ -258,40 +258,34 @@ def sensor_blocks(cov: np.ndarray, d: int, m: int) -> np.ndarray:
     return cov.reshape(m, -1, m, cov.shape[0] // m)[:, :d, :, :d]
 
 
-def scale_factor_sigmas(cov: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """1-sigma of |a_i| (m,): sqrt(u_i^T cov(a_i, a_i) u_i), u_i = a_i / |a_i| (gauge-invariant:
-    any gauge-free covariance of theta gives the same)."""
-    d, m = a.shape
-    u = a / np.linalg.norm(a, axis=0)
-    idx = np.arange(m)
-    own = sensor_blocks(cov, d, m)[idx, :, idx, :]
-    return np.sqrt(np.maximum(np.einsum("di,ide,ei->i", u, own, u), 0.0))
-
-
 def axis_angles(a: np.ndarray) -> np.ndarray:
     """Angles (rad) between the sensitive axes, (m, m)."""
     u = a / np.linalg.norm(a, axis=0)
     return np.arccos(np.clip(u.T @ u, -1.0, 1.0))
 
 
-def axis_angle_sigmas(cov: np.ndarray, a: np.ndarray) -> np.ndarray:
-    """1-sigma of the angles between the sensitive axes (m, m), zero on the diagonal: each
-    angle(i, k) is the quadratic form of its gradient (g_ik on a_i, g_ki on a_k) on the 2 d x 2 d
-    covariance of (a_i, a_k), all pairs at once in O(m^2 d^2)."""
+def axis_sigmas(cov: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """1-sigma of the scale factors |a_i| (m,) and of the angles between the sensitive axes
+    (m, m), zero on the diagonal (gauge-invariant: any gauge-free covariance of theta gives the
+    same). A scale factor's is sqrt(u_i^T cov(a_i, a_i) u_i), u_i = a_i / |a_i|; each angle(i, k)'s
+    is the quadratic form of its gradient (g_ik on a_i, g_ki on a_k) on the 2 d x 2 d covariance
+    of (a_i, a_k), all pairs at once in O(m^2 d^2)."""
     d, m = a.shape
     norms = np.linalg.norm(a, axis=0)
     u = a / norms
+    blocks = sensor_blocks(cov, d, m)
+    idx = np.arange(m)
+    own = blocks[idx, :, idx, :]
+    scale = np.sqrt(np.maximum(np.einsum("di,ide,ei->i", u, own, u), 0.0))
     cos = u.T @ u
     sin = np.sqrt(np.maximum(1.0 - cos**2, 1e-300))
     # grad[i, k] = d angle(a_i, a_k) / d a_i
     grad = (cos[:, :, None] * u.T[:, None, :] - u.T[None, :, :]) / (sin * norms[:, None])[..., None]
-    blocks = sensor_blocks(cov, d, m)
-    idx = np.arange(m)
-    own = np.einsum("ikd,ide,ike->ik", grad, blocks[idx, :, idx, :], grad)
+    own_var = np.einsum("ikd,ide,ike->ik", grad, own, grad)
     cross = np.einsum("ikd,idke,kie->ik", grad, blocks, grad)
-    var = own + own.T + 2 * cross
+    var = own_var + own_var.T + 2 * cross
     var[idx, idx] = 0.0
-    return np.sqrt(np.maximum(var, 0.0))
+    return scale, np.sqrt(np.maximum(var, 0.0))
 
 
 def frame_jacobian(a: np.ndarray, p: int, frame=to_canonical, step: float = 1e-7) -> np.ndarray:
