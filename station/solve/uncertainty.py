@@ -154,7 +154,9 @@ def pose_variance(residuals: np.ndarray, sigma: np.ndarray, dof: int, prior=()) 
     def excess(x: float) -> float:
         return float(np.sum(r2 / (s2 + x))) + extra - dof
 
-    if dof <= extra or chi2_sf(dof, excess(0.0) + dof) >= EXCESS_P:
+    observed = excess(0.0) + dof
+    # P(chi2_k >= k) > 0.3 > EXCESS_P for k >= 1: a chi2 at most its dof needs no tail
+    if dof <= extra or observed <= dof or chi2_sf(dof, observed) >= EXCESS_P:
         return 0.0
     from scipy.optimize import brentq  # only now: scipy.optimize is 0.1-0.2 s of imports
 
