@@ -22,6 +22,7 @@ with 95 % Clopper-Pearson intervals of the rates right.
 """
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -41,10 +42,11 @@ from station.model.effects.saturation import Saturation
 from station.model.effects.temperature import Temperature
 from station.model.frames import eps
 from station.sim.layouts import A_MODEL, TRIAD, gyro_array
-from station.sim.noise import flicker
+from station.sim.noise import flicker, simulated_noise
 from station.sim.profile import RotaryTiming
 from station.sim.rotary import simulate_rotary
 from station.sim.warm_rotary import chamber_hump, motor_heating, simulate_warm_rotary, slow_ramp
+from station.solve.noise import allan_curve, fit_noise
 from station.solve.uncertainty import crlb
 
 SHORT = RotaryTiming(static=4.0, moving=10.0)
@@ -82,6 +84,7 @@ COLOURED = {
     "latency_flicker": ("latency=delay=3.5e-4", 0.0, FLICKER),
     "warmup_200s": ("bias_drift=warmup=7e-4,warmup_tau=200", 0.0, 0.0),
     "warmup_200s_walk": ("bias_drift=warmup=7e-4,warmup_tau=200", WALK, 0.0),
+    "warmup_200s_beside_walk": ("bias_drift=warmup=6e-3,warmup_tau=200", WALK, 0.0),
     "warmup_200s_strong": ("bias_drift=warmup=0.05,warmup_tau=200", 0.0, 0.0),
     "none_walk": ("none", WALK, 0.0),
     "none_walk_flicker": ("none", WALK / 10, FLICKER),
@@ -241,7 +244,7 @@ def open_family(seeds: int, cases=(*OPEN, *JUMPS, *POLYNOMIALS), layouts=(3,)) -
     return out
 
 
-def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,)) -> dict:
+def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,), noise_model: bool = False) -> dict:
     """Per COLOURED case over m in `layouts` and `seeds` seeds (1000 m + 500 + s): sessions
     with the hidden effect named (and named first), named as partial, not named though found
     (`not_named`), another effect named, nothing named; unexplained; the share of its gap the
@@ -249,7 +252,8 @@ def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,)) -> dict:
     out = {}
     for case in cases:
         effect = parse(COLOURED[case][0])[0]
-        runs = [run_case(case, m, 1000 * m + 500 + s) for m in layouts for s in range(seeds)]
+        runs = [run_case(case, m, 1000 * m + 500 + s, noise_model=noise_model)
+                for m in layouts for s in range(seeds)]
         out[case] = {
             "sessions": len(runs),
             "named": sum(effect in r["named"] for r in runs),
@@ -265,7 +269,8 @@ def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,)) -> dict:
             "eps_before_over_bound_rms": rms_ratio(runs, "eps_before", "crlb"),
             "eps_after_over_bound_rms": rms_ratio(runs, "eps_after", "crlb"),
             "runs": [{k: r[k] for k in ("m", "seed", "named", "not_named", "unexplained",
-                                        "closes", "eps_before", "eps_after", "eps_sd_at_bound")}
+                                        "closes", "eps_before", "eps_after", "eps_sd_at_bound",
+                                        "random_walk")}
                      for r in runs],
         }
     return out
@@ -351,10 +356,34 @@ def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
     return float(np.abs(steady).max() - sigmas * unit.sigma.max())
 
 
-def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) -> dict:
+REST_SAMPLES = 2**17
+"""Samples of the rest recording of `--noise-model` (22 min at 100 Hz): long enough for the
+Allan fit to resolve the bias random walk `WALK` (its Allan variance passes the white noise's at
+tau = sqrt(3) N / K = 10 s)."""
+
+
+def rest_walk(case: str, m: int, seed: int, fs: float = 100.0):
+    """(m,) the bias random walk K of the unit of a session, as `station noise` finds it on a rest
+    recording of the unit (the Allan fit of REST_SAMPLES samples of its white noise, flicker
+    and walk, station.solve.noise), or None when the fit does not resolve it for every sensor
+    (a calibration file then holds no random walk)."""
+    walk, bias_instability = COLOURED[case][1:] if case in COLOURED else (0.0, 0.0)
+    rng = np.random.default_rng([seed, 17])
+    rest = np.stack([simulated_noise(REST_SAMPLES, fs, white=np.radians(0.01),
+                                     bias_instability=bias_instability, random_walk=walk, rng=rng)
+                     for _ in range(m)], 1)
+    fit = fit_noise(allan_curve(rest, fs))
+    return fit.value[2] if fit.resolved[2].all() else None
+
+
+def run_case(case: str, m: int, seed: int, leave_out: bool = False, noise_model: bool = False,
+             **kwargs) -> dict:
     """Diagnose one session; the named effects, the verdict, gaps and calibration errors.
-    leave_out: the hidden effect is also removed from the candidates."""
+    leave_out: the hidden effect is also removed from the candidates; noise_model: the unit's
+    bias random walk from a rest recording (`rest_walk`) is in the noise model."""
     d, truth = session(case, m, seed, **kwargs)
+    if noise_model:
+        d = dataclasses.replace(d, random_walk=rest_walk(case, m, seed))
     left_out = hidden(case) if leave_out else ()
     result = diagnose(d, candidates=tuple(e for e in EXTENSIONS if e not in left_out))
     a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
@@ -367,6 +396,7 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, **kwargs) ->
         "m": m,
         "seed": seed,
         "leave_out": leave_out,
+        "random_walk": None if d.random_walk is None else d.random_walk.tolist(),
         "named": result.effects,
         "first": result.effects[0] if result.effects else "none",
         "ambiguous": [g["effects"] for g in result.ambiguous],
@@ -541,6 +571,9 @@ def main() -> None:
     parser.add_argument("--coloured", nargs="*", choices=list(COLOURED), default=None,
                         help="only the issue 32 cases beside coloured noise (COLOURED; default: "
                         "all), m = 3")
+    parser.add_argument("--noise-model", action="store_true",
+                        help="--coloured: the unit's bias random walk, from the Allan fit of a "
+                        "rest recording of it (rest_walk), in the diagnosis' noise model")
     parser.add_argument("--open", nargs="*", choices=[*OPEN, *JUMPS, *POLYNOMIALS], default=None,
                         help="only the issue 32 cases of an effect no list names, the open "
                         "families' (OPEN; default: all), m = 3")
@@ -566,7 +599,8 @@ def main() -> None:
             print(f"{case:19s} " + ", ".join(f"{k} {v}" for k, v in r.items() if k != "named"))
         return
     if args.coloured is not None:
-        found = coloured(args.seeds, args.coloured or tuple(COLOURED))
+        found = coloured(args.seeds, args.coloured or tuple(COLOURED),
+                         noise_model=args.noise_model)
         if args.json:
             print(json.dumps({"coloured": found}, indent=1, default=float))
             return

@@ -55,6 +55,10 @@ def register(p) -> None:
     p.add_argument("--stream", metavar="NAME",
                    help="the unit to diagnose in a rotary session of several units on one table "
                    "(its stream: imu, imu2, ...); a one-unit session has only imu")
+    p.add_argument("--noise", metavar="CAL.cal.json", type=Path,
+                   help="the unit's calibration file holding its noise figures (station noise "
+                   "REST.h5 --store CAL.cal.json): its bias random walk enters the noise model "
+                   "the gaps are judged against (rotary sessions; docs/diagnose.md)")
     still_arguments(p)
     p.set_defaults(run=run)
 
@@ -71,6 +75,29 @@ def unit_stream(recorded, path, stream: str | None) -> str:
         raise InputError(f"{path} has no unit on stream {stream!r}; its units' streams: "
                          f"{', '.join(streams or ['imu'])}")
     return stream or "imu"
+
+
+def with_noise(session, path: Path):
+    """The rotary session with the bias random walk of the calibration file `path` (its noise
+    figures, one per sensor, rad/s) in its noise model; refused when the file's sensors or
+    units do not match, or it holds no random walk."""
+    import dataclasses
+
+    import numpy as np
+
+    from station.calfiles.calfile import load
+
+    cal = load(existing_file(path, "a calibration file (.cal.json) with noise figures"))
+    m = session.shape[2]
+    if cal.noise is None or cal.noise.random_walk is None:
+        raise InputError(f"{path} holds no bias random walk among its noise figures: record a "
+                         f"longer rest of the unit and store its figures (station noise REST.h5 "
+                         f"--store {path}), or diagnose without --noise (white noise only)")
+    if len(cal.noise.random_walk) != m or set(cal.units) != {"rad/s"}:
+        raise InputError(f"{path} holds the noise of {len(cal.noise.random_walk)} sensor(s) in "
+                         f"{', '.join(sorted(set(cal.units)))}; the session has {m} gyro(s) in "
+                         "rad/s: give the calibration file of this unit's gyros")
+    return dataclasses.replace(session, random_walk=np.asarray(cal.noise.random_walk, float))
 
 
 def run(args) -> int:
@@ -95,6 +122,10 @@ def run(args) -> int:
     if not rotary and args.stream is not None:
         raise InputError(f"{path} is not a rotary recording of several units: --stream is for "
                          "those (station twin --units)")
+    if args.noise is not None:
+        if not rotary:
+            raise InputError(f"{path} is not a rotary session: --noise is for rotary sessions")
+        session = with_noise(session, args.noise)
     if rotary and still != StillOptions():
         raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
                          "--min-still are for still-pose (free-static) sessions")
@@ -103,7 +134,8 @@ def run(args) -> int:
         if rotary:
             doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
                                           site=Site(args.latitude), progress=advance),
-                                 session, str(path))
+                                 session, str(path),
+                                 None if args.noise is None else str(args.noise))
         else:
             static = static_report.load(path, still)
             doc = report.static_to_dict(

@@ -13,7 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
-from station.diagnose import outliers, quantisation, recorded
+from station.diagnose import coloured, outliers, quantisation, recorded
 from station.errors import CalibrationInputError
 from station.model.temperature import check_kelvin
 from station.reduce.eq18 import reduce_rotary, whole_revolutions
@@ -46,6 +46,10 @@ class RotaryData:
     temperature : (n, k) the unit's recorded temperature at the samples, K (its own temperature
         channel), or None when the session records none.
     spikes : (m,) outliers found and replaced per sensor among all its samples (`despiked`).
+    random_walk : (m,) each sensor's bias random walk K (units / sqrt(s)) from a rest recording
+        of the unit (a calibration file's noise figures), or None: white noise alone. With it,
+        the static and transient gaps are judged by generalised least squares against it
+        (station.diagnose.coloured).
     """
 
     counts: np.ndarray
@@ -63,6 +67,7 @@ class RotaryData:
     rate_factors_sigma: np.ndarray | None = None
     temperature: np.ndarray | None = None
     spikes: np.ndarray | None = None
+    random_walk: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -100,6 +105,28 @@ class RotaryData:
         n, k, m = self.shape
         return outliers.counted(np.zeros(m, int) if self.spikes is None else self.spikes, n * k,
                                 alpha)
+
+    @cached_property
+    def walk_static(self) -> list:
+        """The static means' whitening under the walk (station.diagnose.coloured.static_factors),
+        made once."""
+        return coloured.static_factors(self)
+
+    @cached_property
+    def walk_bins(self) -> list:
+        """The bins' whitening under the walk (station.diagnose.coloured.bin_factors), made
+        once."""
+        return coloured.bin_factors(self)
+
+    def static_whitened(self, means: np.ndarray) -> np.ndarray:
+        """(n, m) static means (n, m) net of one level per sensor over their standard error:
+        their sum of squares is the chi2 of the static means (white noise: centred and weighted;
+        with `random_walk`: by generalised least squares, station.diagnose.coloured)."""
+        if self.random_walk is None:
+            s0, s1 = self.windows["static"]
+            return (means - means.mean(0)) / np.sqrt(self.sigma**2 / (s1 - s0) + self.kept)
+        return np.stack([coloured.whitened(f, means[:, i])
+                         for i, f in enumerate(self.walk_static)], 1)
 
     @cached_property
     def t(self) -> np.ndarray:
@@ -158,11 +185,21 @@ class RotaryData:
 
     @property
     def sigma_m(self) -> np.ndarray:
-        """(m, n) standard error of M: white noise of `sigma` per sample, and the quantisation
-        error each of its two window means keeps (`kept`)."""
+        """(m, n) standard error of M: white noise of `sigma` per sample, the quantisation
+        error each of its two window means keeps (`kept`) and the bias random walk's change
+        between them (`random_walk`)."""
         r = self.reduced
-        return np.sqrt(self.sigma[:, None] ** 2 * (1 / r.n_static + 1 / r.n_rotating)
-                       + 2 * self.kept[:, None])
+        var = (self.sigma[:, None] ** 2 * (1 / r.n_static + 1 / r.n_rotating)
+               + 2 * self.kept[:, None])
+        if self.random_walk is not None:
+            var = var + self.random_walk[:, None] ** 2 * self.walk_reading
+        return np.sqrt(var)
+
+    @cached_property
+    def walk_reading(self) -> np.ndarray:
+        """(n,) the variance per unit K^2 a bias random walk gives each M_j
+        (station.diagnose.coloured.reading_variance), made once."""
+        return coloured.reading_variance(self)
 
     @property
     def t_session(self) -> np.ndarray:

@@ -13,6 +13,9 @@ to within the white noise" (sigma from the static windows):
   statistic's), so the raw coefficients are neither independent nor white.
 - `transients`: mean residuals over spin-up and over spin-down, each over its null sd (white
   noise plus the share of the noise of M_j that the fitted level carries into the ramp).
+With a bias random walk in the noise model (`RotaryData.random_walk`), `static` and `transients`
+are whitened by their covariance under it (station.diagnose.coloured): still N(0, 1) features
+under the model and that noise.
 - `rails`: the rail pile-up deviance (station.diagnose.rails) per sensor and sign that holds the
   rail (about 1 when the twin expects what is seen, thousands for an unmodelled clip).
 
@@ -22,7 +25,7 @@ Under white noise, statistic x dof is about chi2(dof) (`dofs`): the final goodne
 
 import numpy as np
 
-from station.diagnose import rails
+from station.diagnose import coloured, rails
 
 HARMONICS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 STATISTICS = ("averaged", "static", "trend", "harmonics", "transients", "rails")
@@ -63,14 +66,15 @@ def features(data, model) -> dict:
     b, static_slopes, slopes, coef, ramps = (list(x) for x in zip(*chunks, strict=True))
     b = np.concatenate(b)  # (n, m) static means net of the model
     n = b.shape[0]
-    static = ((b - b.mean(0)) / np.sqrt(sig**2 / (s1 - s0) + data.kept)
-              * np.sqrt(n / max(n - 1, 1)))
+    static = data.static_whitened(b) * np.sqrt(n / max(n - 1, 1))
     trend = np.stack([np.concatenate(static_slopes), np.concatenate(slopes)], 1)
-    trans = [np.concatenate([c[i] for c in ramps]) * np.sqrt(z - a) / sig
-             / np.sqrt(1 + _level_noise(data, a, z))
-             for i, (a, z) in enumerate((data.windows["spinup"], data.windows["spindown"]))]
+    raw = np.stack([np.concatenate([c[i] for c in ramps]) for i in range(2)], 1)  # (n, 2, m)
+    white = np.stack([sig**2 / (z - a) * (1 + _level_noise(data, a, z))
+                      for a, z in (data.windows["spinup"], data.windows["spindown"])], 1)
+    trans = (raw / np.sqrt(white) if data.random_walk is None
+             else coloured.transients_whitened(data, raw, white))
     return {"static": static[:, None], "trend": trend, "harmonics": np.concatenate(coef),
-            "transients": np.stack(trans, 1)}
+            "transients": trans}
 
 
 def _rotating(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> tuple:
@@ -92,8 +96,8 @@ def _level_noise(data, a: int, z: int) -> np.ndarray:
     measured M_j (v_j: d parameters from m readings, a share of about d / m of its noise e_j,
     at most all of it), and the ramp window sees that level times the mean rate fraction f
     over the window: f^2 (z - a) sigma_M^2 / sigma^2 x min(1, d / m)."""
-    frac = np.broadcast_to(data.rate, data.angle.shape)[:, a:z].mean(1) / data.c
-    share = min(1.0, 3.0 / data.shape[2])  # d = 3 components of v_j
+    frac = coloured.fraction(data, a, z)
+    share = min(1.0, coloured.D / data.shape[2])
     return frac[:, None] ** 2 * (z - a) * (data.sigma_m.T / data.sigma) ** 2 * share
 
 

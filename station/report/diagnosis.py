@@ -38,8 +38,9 @@ def step_dict(step, evidence=None) -> dict:
     }
 
 
-def to_dict(diagnosis, data, source: str = "") -> dict:
-    """The JSON document of a diagnosis; `effects` is the ordered list of named effects."""
+def to_dict(diagnosis, data, source: str = "", noise_source: str | None = None) -> dict:
+    """The JSON document of a diagnosis; `effects` is the ordered list of named effects;
+    noise_source: the calibration file whose bias random walk is in the noise model."""
     steps = [step_dict(step) for step in diagnosis.steps]
     n, k, m = data.shape
     spikes = data.outlier_test(diagnosis.alpha)
@@ -56,6 +57,7 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "samples_per_position": k,
         "fs": data.fs,
         "noise_sigma": data.sigma,
+        "noise_model": noise_model(data, noise_source),
         "alpha": diagnosis.alpha,
         **verdict(diagnosis),
         "outliers": spikes,
@@ -67,6 +69,20 @@ def to_dict(diagnosis, data, source: str = "") -> dict:
         "calibration_after": calibration_summary(diagnosis.calibration),
         "spectrum": diagnosis.spectrum,
     })
+
+
+def noise_model(data, source: str | None) -> dict:
+    """The noise the gaps are judged against: each sensor's white noise per sample (from the
+    static windows) and, with a calibration file's figures, its bias random walk K (units /
+    sqrt(s); station.diagnose.coloured)."""
+    terms = "white noise" + ("" if data.random_walk is None else " and bias random walk")
+    return {"white_sigma": data.sigma, "random_walk": data.random_walk,
+            "random_walk_source": source if data.random_walk is not None else None,
+            "message": f"noise model: {terms}" + (f" (random walk from {source})"
+                                                  if data.random_walk is not None else
+                                                  "; give the unit's noise figures (--noise "
+                                                  "CAL.cal.json) to judge the gaps against a "
+                                                  "bias random walk")}
 
 
 def verdict(diagnosis) -> dict:
@@ -135,6 +151,8 @@ def text(doc: dict) -> str:
     for name, key, value, sigma, unit in parameter_rows(doc):
         lines.append(f"{name} {key} = {value} +- {sigma} {unit}".rstrip())
     lines.extend(doc.get("remarks", []))
+    if "noise_model" in doc:
+        lines.append(doc["noise_model"]["message"])
     return "\n".join(lines)
 
 
@@ -262,6 +280,8 @@ def html_report(doc: dict, plots=()) -> str:
     if doc.get("unexplained"):
         effects += ("<p><b>Unexplained:</b> " + e(", ".join(u["statistic"]
                                                           for u in doc["unexplained"])) + "</p>")
+    if "noise_model" in doc:
+        effects += f"<p>{e(doc['noise_model']['message'])}</p>"
     rows = parameter_rows(doc)
     if rows:
         effects += html.section("parameters", "Fitted parameters of the final model", html.table(
