@@ -270,7 +270,7 @@ def coloured(seeds: int, cases=tuple(COLOURED), layouts=(3,), noise_model: bool 
             "eps_after_over_bound_rms": rms_ratio(runs, "eps_after", "crlb"),
             "runs": [{k: r[k] for k in ("m", "seed", "named", "not_named", "unexplained",
                                         "closes", "eps_before", "eps_after", "eps_sd_at_bound",
-                                        "random_walk")}
+                                        "noise_model")}
                      for r in runs],
         }
     return out
@@ -356,34 +356,36 @@ def rail_below_peak(m, seed, timing, fs, n, sigmas: float = 2.0) -> float:
     return float(np.abs(steady).max() - sigmas * unit.sigma.max())
 
 
-REST_SAMPLES = 2**17
-"""Samples of the rest recording of `--noise-model` (22 min at 100 Hz): long enough for the
-Allan fit to resolve the bias random walk `WALK` (its Allan variance passes the white noise's at
-tau = sqrt(3) N / K = 10 s)."""
+REST_SAMPLES = 2**19
+"""Samples of the rest recording of `--noise-model` (87 min at 100 Hz, a noise run before a
+campaign): long enough for the Allan fit to resolve the bias random walk `WALK` (its Allan
+variance passes the white noise's at tau = sqrt(3) N / K = 10 s) and the flicker `FLICKER` for
+every sensor (2^17 samples resolved it for one of three)."""
 
 
-def rest_walk(case: str, m: int, seed: int, fs: float = 100.0):
-    """(m,) the bias random walk K of the unit of a session, as `station noise` finds it on a rest
-    recording of the unit (the Allan fit of REST_SAMPLES samples of its white noise, flicker
-    and walk, station.solve.noise), or None when the fit does not resolve it for every sensor
-    (a calibration file then holds no random walk)."""
+def rest_noise(case: str, m: int, seed: int, fs: float = 100.0) -> dict:
+    """{term: (m,)} the coloured noise of the unit of a session as `station noise` finds it on a
+    rest recording of the unit (the Allan fit of REST_SAMPLES samples of its white noise,
+    flicker and walk, station.solve.noise): the bias random walk K and the bias instability B
+    where the fit resolves them for every sensor (a calibration file holds no other)."""
     walk, bias_instability = COLOURED[case][1:] if case in COLOURED else (0.0, 0.0)
     rng = np.random.default_rng([seed, 17])
     rest = np.stack([simulated_noise(REST_SAMPLES, fs, white=np.radians(0.01),
                                      bias_instability=bias_instability, random_walk=walk, rng=rng)
                      for _ in range(m)], 1)
     fit = fit_noise(allan_curve(rest, fs))
-    return fit.value[2] if fit.resolved[2].all() else None
+    return {term: fit.value[k] for k, term in ((1, "bias_instability"), (2, "random_walk"))
+            if fit.resolved[k].all()}
 
 
 def run_case(case: str, m: int, seed: int, leave_out: bool = False, noise_model: bool = False,
              **kwargs) -> dict:
     """Diagnose one session; the named effects, the verdict, gaps and calibration errors.
     leave_out: the hidden effect is also removed from the candidates; noise_model: the unit's
-    bias random walk from a rest recording (`rest_walk`) is in the noise model."""
+    coloured noise from a rest recording (`rest_noise`) is in the noise model."""
     d, truth = session(case, m, seed, **kwargs)
     if noise_model:
-        d = dataclasses.replace(d, random_walk=rest_walk(case, m, seed))
+        d = dataclasses.replace(d, **rest_noise(case, m, seed))
     left_out = hidden(case) if leave_out else ()
     result = diagnose(d, candidates=tuple(e for e in EXTENSIONS if e not in left_out))
     a_true, v_true = np.asarray(truth["a"]), np.asarray(truth["v"])
@@ -396,7 +398,8 @@ def run_case(case: str, m: int, seed: int, leave_out: bool = False, noise_model:
         "m": m,
         "seed": seed,
         "leave_out": leave_out,
-        "random_walk": None if d.random_walk is None else d.random_walk.tolist(),
+        "noise_model": [t for t in ("random_walk", "bias_instability")
+                        if getattr(d, t) is not None],
         "named": result.effects,
         "first": result.effects[0] if result.effects else "none",
         "ambiguous": [g["effects"] for g in result.ambiguous],
@@ -572,8 +575,9 @@ def main() -> None:
                         help="only the issue 32 cases beside coloured noise (COLOURED; default: "
                         "all), m = 3")
     parser.add_argument("--noise-model", action="store_true",
-                        help="--coloured: the unit's bias random walk, from the Allan fit of a "
-                        "rest recording of it (rest_walk), in the diagnosis' noise model")
+                        help="--coloured: the unit's bias random walk and flicker, from the "
+                        "Allan fit of a rest recording of it (rest_noise), in the diagnosis' "
+                        "noise model")
     parser.add_argument("--open", nargs="*", choices=[*OPEN, *JUMPS, *POLYNOMIALS], default=None,
                         help="only the issue 32 cases of an effect no list names, the open "
                         "families' (OPEN; default: all), m = 3")

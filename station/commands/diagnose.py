@@ -57,8 +57,8 @@ def register(p) -> None:
                    "(its stream: imu, imu2, ...); a one-unit session has only imu")
     p.add_argument("--noise", metavar="CAL.cal.json", type=Path,
                    help="the unit's calibration file holding its noise figures (station noise "
-                   "REST.h5 --store CAL.cal.json): its bias random walk enters the noise model "
-                   "the gaps are judged against (rotary sessions; docs/diagnose.md)")
+                   "REST.h5 --store CAL.cal.json): its bias random walk and flicker enter the "
+                   "noise model the gaps are judged against (rotary sessions; docs/diagnose.md)")
     still_arguments(p)
     p.set_defaults(run=run)
 
@@ -78,9 +78,9 @@ def unit_stream(recorded, path, stream: str | None) -> str:
 
 
 def with_noise(session, path: Path):
-    """The rotary session with the bias random walk of the calibration file `path` (its noise
-    figures, one per sensor, rad/s) in its noise model; refused when the file's sensors or
-    units do not match, or it holds no random walk."""
+    """The rotary session with the coloured noise of the calibration file `path` (its noise
+    figures' bias random walk and bias instability, one per sensor, rad/s) in its noise model;
+    refused when the file's sensors or units do not match or it resolves neither term."""
     import dataclasses
 
     import numpy as np
@@ -89,15 +89,19 @@ def with_noise(session, path: Path):
 
     cal = load(existing_file(path, "a calibration file (.cal.json) with noise figures"))
     m = session.shape[2]
-    if cal.noise is None or cal.noise.random_walk is None:
-        raise InputError(f"{path} holds no bias random walk among its noise figures: record a "
-                         f"longer rest of the unit and store its figures (station noise REST.h5 "
-                         f"--store {path}), or diagnose without --noise (white noise only)")
-    if len(cal.noise.random_walk) != m or set(cal.units) != {"rad/s"}:
-        raise InputError(f"{path} holds the noise of {len(cal.noise.random_walk)} sensor(s) in "
+    terms = {} if cal.noise is None else {
+        t: np.asarray(getattr(cal.noise, t), float) for t in ("random_walk", "bias_instability")
+        if getattr(cal.noise, t) is not None}
+    if not terms:
+        raise InputError(f"{path} holds no bias random walk or bias instability among its noise "
+                         f"figures: record a longer rest of the unit and store its figures "
+                         f"(station noise REST.h5 --store {path}), or diagnose without --noise "
+                         "(white noise only)")
+    if len(cal.units) != m or set(cal.units) != {"rad/s"}:
+        raise InputError(f"{path} holds the noise of {len(cal.units)} sensor(s) in "
                          f"{', '.join(sorted(set(cal.units)))}; the session has {m} gyro(s) in "
                          "rad/s: give the calibration file of this unit's gyros")
-    return dataclasses.replace(session, random_walk=np.asarray(cal.noise.random_walk, float))
+    return dataclasses.replace(session, **terms)
 
 
 def run(args) -> int:

@@ -1,71 +1,96 @@
-"""A bias random walk in the noise model: the covariance it gives the window means (issue 32).
+"""Coloured noise in the noise model: a bias random walk and flicker (issue 32).
 
-A channel whose bias walks, b(t) = K W(t) with W a unit Brownian motion (K in units / sqrt(s):
-IEEE 952's rate random walk, the `random_walk` of a calibration file's noise figures, measured on
-a long rest by `station noise`), moves every window mean of the session: the static means
-wander across positions, and the spin-up and spin-down means stand off the session's one bias.
-Against white noise alone the gap statistics of a walking unit fail and the effects that move
-static means (drifts, jumps) look significant; with the walk in the noise model they are judged
-against the real noise, by generalised least squares.
+A unit's bias wanders: a random walk K W(t) (W a unit Brownian motion; K in units / sqrt(s),
+IEEE 952's rate random walk) and flicker of bias instability B (its Allan deviation's floor B
+sqrt(2 ln 2 / pi); docs/noise.md). Both are in a calibration file's noise figures, measured on a
+long rest by `station noise` (`RotaryData.random_walk`, `RotaryData.bias_instability`). They
+move every window mean of a session: the static means wander across positions, the spin-up and
+spin-down means stand off the session's one bias, the bins of a position drift. Against white
+noise alone the gap statistics of such a unit fail and the effects that move static means
+(drifts, jumps) look significant; with the terms in the noise model they are judged against the
+real noise, by generalised least squares.
 
-The mean of W over the time interval A = [a0, a1] and over B = [b0, b1] (a window of samples,
-half a sample either side) have, from W's start,
+Both have stationary increments, described by their variogram gamma(tau) = E[(b(t + tau) -
+b(t))^2] / 2:
 
-    Cov(mean_A W, mean_B W) = E[min(U, V)],   U ~ uniform on A, V ~ uniform on B,
+    random walk  K^2 |tau| / 2          flicker  (B^2 / pi) ln |tau| + const
 
-the integral over x > 0 of P(U > x) P(V > x): a product of two ramps, piecewise quadratic between
-the four ends, integrated exactly by Simpson's rule on each piece (`mean_covariance`; A = B = [0,
-L] gives L / 3). Every statistic below is a contrast (its window weights sum to zero), so the
-walk's start drops out.
+(the flicker's from its PSD B^2 / (2 pi f): it gives the Allan variance (2 ln 2 / pi) B^2 of
+docs/noise.md, and its constant, set by the sampling, drops out below). For window means that
+are contrasts (weights c summing to zero), Cov(c . b, d . b) = - sum_jk c_j d_k E[gamma(U_j -
+V_k)], U_j uniform on window j's time span: `mean_variogram` integrates E|U - V| and
+E ln|U - V| exactly from their second antiderivatives |z|^3 / 6 and z^2 ln|z| / 2 - 3 z^2 / 4
+(two equal windows of length L: L / 3 and ln L - 3 / 2). A mean of N samples differs from the
+uniform mean over their span by about 1 / (6 N fs) s in a walk's variance, and the sampled
+flicker's by at most 0.04 % for N >= 64 (docs/noise.md's table): below anything a session shows.
 
-- Static means S_j (n positions), net of one level: covariance V = diag(white) + K^2 Omega_SS,
-  the level by generalised least squares: the means whitened by V's Cholesky factor, net of
-  the level's direction (`static_factors`, `whitened`), whose sum of squares is the chi2 (white
-  noise alone: the weighted sum of squares of the centred means).
-- Spin-up and spin-down means (the `transients`): the residual of ramp window X_j is its walk
-  mean less the session's bias (the mean over all samples, G) less the twin's level there,
-  f_j times the fitted reading's share of R_j - S_j (rotating less static mean, Eq. 18): the
-  calibration fits v_j to the m readings of position j, a projection of about rho = min(1, d /
-  m) of their noise (as `station.diagnose.gap` takes it for the white noise), so its walk part
-  has covariance rho Omega (the same position) or rho^2 Omega (two positions' independent
-  fits), and rho Omega with the ramp's own walk (`transients_covariance`).
-- The bins of each position, net of their own level (the deviance's within-position part):
-  white noise of a bin and the walk over the position's grid, the same for every position,
-  whitened with a free level (`bin_factors`): within a position a walk is a slow wander that
-  the effects' shapes there (a tone at the table rate, a ramp) would otherwise take up.
-Flicker is not modelled here: its share of a few-second window mean is small beside the white
-noise and the walk at the figures a MEMS gyro's datasheet gives (the bench's case), and its
-covariance over hours has no closed form as simple; a calibration file's bias instability is
-reported, not used.
+- Static means S_j (n positions) net of one level, and the bins of a position net of their own
+  level: generalised least squares with a free level is the chi2 of the error contrasts
+  (Harville 1974), Q^T x for Q an orthonormal basis of the vectors orthogonal to 1, whose
+  covariance the variograms give whole (`level_free_whitening`); with white noise alone, the
+  weighted sum of squares of the centred values.
+- Spin-up and spin-down means (the `transients`): the residual of ramp window X_j is its mean
+  less the session's bias (the mean over all samples, G) less the twin's level there, f_j times
+  the fitted reading's share of R_j - S_j (rotating less static mean, Eq. 18): the calibration
+  fits v_j to the m readings of position j, a projection of about rho = min(1, d / m) of their
+  noise (as `station.diagnose.gap` takes it for the white noise), so its coloured part has
+  covariance rho Omega (the same position) or rho^2 Omega (two positions' independent fits),
+  and rho Omega with the ramp's own (`transients_covariance`).
+- The readings M_j = R_j - S_j: the variance of the contrast (`reading_variance`); different
+  positions' windows do not overlap, and over the gaps a walk's increments are independent,
+  flicker's nearly so (left out).
+- The rail pile-up's expected counts (station.diagnose.rails) are those of the twin moved by
+  what each position's static window stands off it (`RotaryData.rail_offsets`): the rail is the
+  session's extreme count, found at the peak of one position's signal, and the few samples
+  reading it depend on that position's level to a fraction of the noise; a walk of a few times
+  the static means' noise (the bench's) moved the expectation tenfold. Within a position the
+  walk moves the level by K sqrt(10 s), a few per cent of the noise: left out.
 """
 
 import numpy as np
 
 D = 3
 """Components of the stimulus v_j fitted per position (the level's share rho = min(1, D / m))."""
+TERMS = ("random_walk", "bias_instability")
+"""The coloured terms, as `RotaryData` and a calibration file's noise figures name them."""
 
 
-def mean_covariance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(p, q) covariance of the means of a unit Brownian motion started at 0 over the intervals
-    a (p, 2) and b (q, 2) (times >= 0): E[min(U, V)] (module notes)."""
+def _walk_antiderivative(z):
+    return np.abs(z) ** 3 / 6.0
+
+
+def _flicker_antiderivative(z):
+    z2 = z * z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(z2 > 0, 0.5 * z2 * np.log(np.abs(z)) - 0.75 * z2, 0.0)
+
+
+UNIT_VARIOGRAM = {"random_walk": (_walk_antiderivative, 0.5),
+                  "bias_instability": (_flicker_antiderivative, 1.0 / np.pi)}
+"""Term -> (second antiderivative of |tau| or ln|tau|, the variogram's factor per unit K^2 or
+B^2)."""
+
+
+def mean_variogram(a: np.ndarray, b: np.ndarray, term: str) -> np.ndarray:
+    """(p, q) E[gamma(U - V)] of one unit term (`UNIT_VARIOGRAM`) for U uniform on each
+    interval of a (p, 2) and V on each of b (q, 2), seconds (module notes)."""
+    antiderivative, factor = UNIT_VARIOGRAM[term]
     a0, a1 = a[:, 0, None], a[:, 1, None]
     b0, b1 = b[None, :, 0], b[None, :, 1]
-    lo, end = np.minimum(a0, b0), np.minimum(a1, b1)
-    mid = np.minimum(np.maximum(a0, b0), end)
+    total = (antiderivative(a1 - b0) - antiderivative(a1 - b1) - antiderivative(a0 - b0)
+             + antiderivative(a0 - b1))
+    return factor * total / ((a1 - a0) * (b1 - b0))
 
-    def both(x):
-        return (np.clip((a1 - x) / (a1 - a0), 0.0, 1.0)
-                * np.clip((b1 - x) / (b1 - b0), 0.0, 1.0))
 
-    def simpson(x0, x1):
-        return (x1 - x0) / 6.0 * (both(x0) + 4.0 * both(0.5 * (x0 + x1)) + both(x1))
-
-    return lo + simpson(lo, mid) + simpson(mid, end)
+def present(data) -> list:
+    """[(term, (m,) its variance scale K^2 or B^2)] of the coloured terms in the noise model."""
+    return [(t, np.asarray(getattr(data, t), float) ** 2) for t in TERMS
+            if getattr(data, t) is not None]
 
 
 def intervals(data, start, stop) -> np.ndarray:
-    """(n, 2) session-time intervals of the samples [start, stop) of each position (start,
-    stop: ints or (n,) arrays), half a sample either side, from the session's first sample."""
+    """(n, 2) session-time spans of the samples [start, stop) of each position (start, stop:
+    ints or (n,) arrays), half a sample either side, from the session's first sample."""
     n = data.shape[0]
     start, stop = np.broadcast_to(start, (n,)), np.broadcast_to(stop, (n,))
     first, last = [], []
@@ -79,65 +104,55 @@ def intervals(data, start, stop) -> np.ndarray:
                     1)
 
 
-def static_covariance(data) -> np.ndarray:
-    """(n, n) Omega_SS: the walk's covariance of the static means per unit K^2."""
-    s0, s1 = data.windows["static"]
-    s = intervals(data, s0, s1)
-    return mean_covariance(s, s)
-
-
-def whitening(cov: np.ndarray, level: bool) -> tuple:
-    """(L^-1, u) of a covariance (c, c), L its Cholesky factor: L^-1 x is x whitened, and with
-    `level` u is L^-1 1 made a unit vector (the direction a free level takes), else None."""
-    inverse = np.linalg.inv(np.linalg.cholesky(cov))
-    if not level:
-        return inverse, None
-    u = inverse.sum(1)
-    return inverse, u / np.linalg.norm(u)
-
-
-def whitened(factor: tuple, x: np.ndarray) -> np.ndarray:
-    """(c,) L^-1 x net of the free level's direction u (`whitening`): its sum of squares is the
-    generalised least-squares chi2 of x with the level fitted."""
-    inverse, u = factor
-    z = inverse @ x
-    return z if u is None else z - u * (u @ z)
-
-
-def bin_factors(data) -> list:
-    """Per sensor the whitening matrix (K, K) of a position's bin means net of their own level
-    (the within-position part of the deviance, station.diagnose.linear): (I - u u^T) L^-1
-    (`whitening`), under the white noise of a bin and the walk; the same for every position
-    (one grid of samples per position)."""
-    kb = data.shape[1] // data.bin
-    edges = np.arange(kb) * data.bin / data.fs
-    omega = mean_covariance(*[np.stack([edges, edges + data.bin / data.fs], 1)] * 2)
-    eye = np.eye(kb)
+def level_free_whitening(white: np.ndarray, spans: np.ndarray, terms: list) -> list:
+    """Per sensor (c, c) W with W x the values x (c,) at the windows `spans` (c, 2) whitened net
+    of a free level (its last entry 0): white noise of variance white[i] per value and the
+    coloured terms [(term, scale (m,))] (module notes); sum (W x)^2 is their generalised
+    least-squares chi2."""
+    c = len(spans)
+    q = np.linalg.qr(np.ones((c, 1)), mode="complete")[0][:, 1:]  # orthonormal, orthogonal to 1
+    shapes = [(scale, q.T @ mean_variogram(spans, spans, term) @ q) for term, scale in terms]
     out = []
-    for w, k in zip(data.sigma**2 / data.bin, data.random_walk, strict=True):
-        inverse, u = whitening(w * eye + k**2 * omega, True)
-        out.append(inverse - np.outer(u, u @ inverse))
+    for i, w in enumerate(white):
+        cov = w * np.eye(c - 1) - sum(scale[i] * g for scale, g in shapes)
+        whitening = np.zeros((c, c))
+        whitening[:-1] = np.linalg.solve(np.linalg.cholesky(cov), q.T)
+        out.append(whitening)
     return out
 
 
+def static_factors(data) -> list:
+    """Per sensor the `level_free_whitening` of the static means under the white noise of a
+    static window and the coloured terms."""
+    s0, s1 = data.windows["static"]
+    return level_free_whitening(data.sigma**2 / (s1 - s0) + data.kept, intervals(data, s0, s1),
+                                present(data))
+
+
+def bin_factors(data) -> list:
+    """Per sensor the `level_free_whitening` of a position's bin means (the within-position part
+    of the deviance, station.diagnose.linear), the same for every position (one grid of samples
+    per position): within a position a walk or flicker is a slow wander that the effects' shapes
+    there (a tone at the table rate, a ramp) would otherwise take up."""
+    kb = data.shape[1] // data.bin
+    edges = np.arange(kb) * data.bin / data.fs
+    return level_free_whitening(data.sigma**2 / data.bin,
+                                np.stack([edges, edges + data.bin / data.fs], 1), present(data))
+
+
 def reading_variance(data) -> np.ndarray:
-    """(n,) the walk's variance per unit K^2 of each Eq. (18) reading M_j = R_j - S_j (rotating
-    less static mean; independent between positions: their windows do not overlap)."""
+    """(m, n) the coloured terms' variance of each Eq. (18) reading M_j = R_j - S_j (rotating
+    less static mean)."""
     r0 = data.windows["rotating"][0]
     rot, static = intervals(data, r0, data.rot_stop), intervals(data, *data.windows["static"])
-    return (np.diag(mean_covariance(rot, rot)) + np.diag(mean_covariance(static, static))
-            - 2 * np.diag(mean_covariance(rot, static)))
-
-
-def static_factors(data) -> list:
-    """Per sensor the `whitening` (with a free level) of the static means under the white noise
-    of a static window and the walk `data.random_walk` (m,) (module notes)."""
-    s0, s1 = data.windows["static"]
-    white = data.sigma**2 / (s1 - s0) + data.kept
-    omega = static_covariance(data)
-    eye = np.eye(len(omega))
-    return [whitening(w * eye + k**2 * omega, True)
-            for w, k in zip(white, data.random_walk, strict=True)]
+    out = np.zeros((data.shape[2], data.shape[0]))
+    for term, scale in present(data):
+        between = np.array([mean_variogram(r[None], s[None], term)[0, 0]
+                            for r, s in zip(rot, static, strict=True)])
+        within = (np.array([mean_variogram(r[None], r[None], term)[0, 0] for r in rot])
+                  + np.array([mean_variogram(s[None], s[None], term)[0, 0] for s in static]))
+        out += scale[:, None] * (2 * between - within)[None, :]
+    return out
 
 
 def fraction(data, a: int, z: int) -> np.ndarray:
@@ -148,20 +163,21 @@ def fraction(data, a: int, z: int) -> np.ndarray:
 
 def transients_whitened(data, raw: np.ndarray, white: np.ndarray) -> np.ndarray:
     """(n, 2, m) the spin-up and spin-down mean residuals raw (n, 2, m), white-noise variances
-    `white` (n, 2, m), whitened per sensor by their covariance under white noise and the walk
-    `data.random_walk` (`transients_covariance`)."""
-    n = raw.shape[0]
-    walk = transients_covariance(data)
+    `white` (n, 2, m), whitened per sensor by their covariance under white noise and the
+    coloured terms (`transients_covariance`)."""
+    n, _, m = raw.shape
+    terms = [(scale, transients_covariance(data, term)) for term, scale in present(data)]
     out = np.empty_like(raw)
-    for i, k in enumerate(data.random_walk):
-        cov = np.diag(white[:, :, i].ravel()) + k**2 * walk
-        out[:, :, i] = whitened(whitening(cov, False), raw[:, :, i].ravel()).reshape(n, 2)
+    for i in range(m):
+        cov = np.diag(white[:, :, i].ravel()) + sum(s[i] * c for s, c in terms)
+        out[:, :, i] = np.linalg.solve(np.linalg.cholesky(cov),
+                                       raw[:, :, i].ravel()).reshape(n, 2)
     return out
 
 
-def transients_covariance(data) -> np.ndarray:
-    """(2n, 2n) the walk's covariance per unit K^2 of the spin-up and spin-down mean residuals,
-    ordered (position, ramp) (module notes)."""
+def transients_covariance(data, term: str) -> np.ndarray:
+    """(2n, 2n) one unit coloured term's covariance of the spin-up and spin-down mean residuals,
+    ordered (position, ramp) (module notes): every one a contrast, - sum c_j d_k E gamma."""
     n, _, m = data.shape
     rho = min(1.0, D / m)
     ramps = np.stack([intervals(data, *data.windows[w]) for w in ("spinup", "spindown")],
@@ -171,14 +187,17 @@ def transients_covariance(data) -> np.ndarray:
     level = np.concatenate([intervals(data, r0, data.rot_stop),
                             intervals(data, *data.windows["static"])])
     sign = np.concatenate([np.ones(n), -np.ones(n)])  # R_j - S_j
+
+    def cov(x, y):  # covariance of window means, up to terms that cancel in contrasts
+        return -mean_variogram(x, y, term)
+
     # X = ramp mean - G (G the mean over all positions' samples); Dl = R - S of its position
-    x_x = mean_covariance(ramps, ramps)
-    x_g = mean_covariance(ramps, whole).mean(1)
-    x_x += mean_covariance(whole, whole).mean() - x_g[:, None] - x_g[None, :]
+    x_g = cov(ramps, whole).mean(1)
+    x_x = cov(ramps, ramps) + cov(whole, whole).mean() - x_g[:, None] - x_g[None, :]
     own = np.repeat(np.arange(n), 2)  # the position of each ramp
-    d_x = mean_covariance(level, ramps) - mean_covariance(level, whole).mean(1)[:, None]
+    d_x = cov(level, ramps) - cov(level, whole).mean(1)[:, None]
     d_x = (sign[:, None] * d_x).reshape(2, n, 2 * n).sum(0)[own]  # Cov(Dl_own(a), X_b)
-    d_l = sign[:, None] * mean_covariance(level, level) * sign[None, :]
+    d_l = sign[:, None] * cov(level, level) * sign[None, :]
     d_d = d_l.reshape(2, n, 2, n).sum((0, 2))[np.ix_(own, own)]
     share = np.where(own[:, None] == own[None, :], rho, rho**2)
     f = np.stack([fraction(data, *data.windows[w]) for w in ("spinup", "spindown")], 1).ravel()

@@ -46,10 +46,10 @@ class RotaryData:
     temperature : (n, k) the unit's recorded temperature at the samples, K (its own temperature
         channel), or None when the session records none.
     spikes : (m,) outliers found and replaced per sensor among all its samples (`despiked`).
-    random_walk : (m,) each sensor's bias random walk K (units / sqrt(s)) from a rest recording
-        of the unit (a calibration file's noise figures), or None: white noise alone. With it,
-        the static and transient gaps are judged by generalised least squares against it
-        (station.diagnose.coloured).
+    random_walk, bias_instability : (m,) each sensor's bias random walk K (units / sqrt(s)) and
+        flicker's bias instability B (units) from a rest recording of the unit (a calibration
+        file's noise figures), or None: not in the noise model. With either, the gaps are
+        judged by generalised least squares against them (station.diagnose.coloured).
     """
 
     counts: np.ndarray
@@ -68,6 +68,7 @@ class RotaryData:
     temperature: np.ndarray | None = None
     spikes: np.ndarray | None = None
     random_walk: np.ndarray | None = None
+    bias_instability: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple:
@@ -106,27 +107,41 @@ class RotaryData:
         return outliers.counted(np.zeros(m, int) if self.spikes is None else self.spikes, n * k,
                                 alpha)
 
+    @property
+    def coloured(self) -> bool:
+        """Whether a bias random walk or flicker is in the noise model."""
+        return self.random_walk is not None or self.bias_instability is not None
+
+    def rail_offsets(self, mu: np.ndarray, rows: slice) -> np.ndarray | None:
+        """(p, m) what the samples of the positions `rows` stand off the twin's expected output
+        mu (p, k, m) in their static windows, with coloured noise in the model (the bias has
+        wandered there: the rail pile-up's expected counts take it, station.diagnose.rails),
+        else None (white noise: the twin's one bias)."""
+        if not self.coloured:
+            return None
+        s0, s1 = self.windows["static"]
+        return (self.counts[rows, s0:s1] * self.lsb).mean(1) - mu[:, s0:s1].mean(1)
+
     @cached_property
-    def walk_static(self) -> list:
-        """The static means' whitening under the walk (station.diagnose.coloured.static_factors),
-        made once."""
+    def coloured_static(self) -> list:
+        """The static means' whitening under the coloured noise
+        (station.diagnose.coloured.static_factors), made once."""
         return coloured.static_factors(self)
 
     @cached_property
-    def walk_bins(self) -> list:
-        """The bins' whitening under the walk (station.diagnose.coloured.bin_factors), made
-        once."""
+    def coloured_bins(self) -> list:
+        """The bins' whitening under the coloured noise (station.diagnose.coloured.bin_factors),
+        made once."""
         return coloured.bin_factors(self)
 
     def static_whitened(self, means: np.ndarray) -> np.ndarray:
         """(n, m) static means (n, m) net of one level per sensor over their standard error:
         their sum of squares is the chi2 of the static means (white noise: centred and weighted;
-        with `random_walk`: by generalised least squares, station.diagnose.coloured)."""
-        if self.random_walk is None:
+        with coloured noise: by generalised least squares, station.diagnose.coloured)."""
+        if not self.coloured:
             s0, s1 = self.windows["static"]
             return (means - means.mean(0)) / np.sqrt(self.sigma**2 / (s1 - s0) + self.kept)
-        return np.stack([coloured.whitened(f, means[:, i])
-                         for i, f in enumerate(self.walk_static)], 1)
+        return np.stack([f @ means[:, i] for i, f in enumerate(self.coloured_static)], 1)
 
     @cached_property
     def t(self) -> np.ndarray:
@@ -186,18 +201,18 @@ class RotaryData:
     @property
     def sigma_m(self) -> np.ndarray:
         """(m, n) standard error of M: white noise of `sigma` per sample, the quantisation
-        error each of its two window means keeps (`kept`) and the bias random walk's change
-        between them (`random_walk`)."""
+        error each of its two window means keeps (`kept`) and the coloured noise's change
+        between them (`coloured`)."""
         r = self.reduced
         var = (self.sigma[:, None] ** 2 * (1 / r.n_static + 1 / r.n_rotating)
                + 2 * self.kept[:, None])
-        if self.random_walk is not None:
-            var = var + self.random_walk[:, None] ** 2 * self.walk_reading
+        if self.coloured:
+            var = var + self.coloured_reading
         return np.sqrt(var)
 
     @cached_property
-    def walk_reading(self) -> np.ndarray:
-        """(n,) the variance per unit K^2 a bias random walk gives each M_j
+    def coloured_reading(self) -> np.ndarray:
+        """(m, n) the variance the coloured noise gives each M_j
         (station.diagnose.coloured.reading_variance), made once."""
         return coloured.reading_variance(self)
 

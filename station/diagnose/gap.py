@@ -13,9 +13,9 @@ to within the white noise" (sigma from the static windows):
   statistic's), so the raw coefficients are neither independent nor white.
 - `transients`: mean residuals over spin-up and over spin-down, each over its null sd (white
   noise plus the share of the noise of M_j that the fitted level carries into the ramp).
-With a bias random walk in the noise model (`RotaryData.random_walk`), `static` and `transients`
-are whitened by their covariance under it (station.diagnose.coloured): still N(0, 1) features
-under the model and that noise.
+With coloured noise in the noise model (`RotaryData.coloured`: a bias random walk, flicker),
+`static` and `transients` are whitened by their covariance under it (station.diagnose.coloured):
+still N(0, 1) features under the model and that noise.
 - `rails`: the rail pile-up deviance (station.diagnose.rails) per sensor and sign that holds the
   rail (about 1 when the twin expects what is seen, thousands for an unmodelled clip).
 
@@ -71,8 +71,8 @@ def features(data, model) -> dict:
     raw = np.stack([np.concatenate([c[i] for c in ramps]) for i in range(2)], 1)  # (n, 2, m)
     white = np.stack([sig**2 / (z - a) * (1 + _level_noise(data, a, z))
                       for a, z in (data.windows["spinup"], data.windows["spindown"])], 1)
-    trans = (raw / np.sqrt(white) if data.random_walk is None
-             else coloured.transients_whitened(data, raw, white))
+    trans = (coloured.transients_whitened(data, raw, white) if data.coloured
+             else raw / np.sqrt(white))
     return {"static": static[:, None], "trend": trend, "harmonics": np.concatenate(coef),
             "transients": trans}
 
@@ -123,7 +123,8 @@ def _rails(data, model) -> tuple[float, int]:
     """(rail deviance per held side, sides holding the rail (at least 1))."""
     n_obs = rails.observed(data)
     twin, clipped = model.twin, "saturation" in model.fitted
-    n_exp = sum(rails.expected(data, part.mu, data.sigma, clipped) for _, part in twin.parts())
+    n_exp = sum(rails.expected(data, part.mu, data.sigma, clipped,
+                               data.rail_offsets(part.mu, rows)) for rows, part in twin.parts())
     held = max(int(np.sum(n_obs > 0)), 1)
     return rails.deviance(n_obs, n_exp) / held, held
 

@@ -64,15 +64,15 @@ def weights(data, sigma: np.ndarray) -> tuple:
 
 def chi2(data, r: tuple, sigma: np.ndarray) -> float:
     """chi2 of residuals given as their centred parts r = (bins (n, K, m), static means (n, m)):
-    within positions plus static means across positions; with a bias random walk in the noise
-    model (`RotaryData.random_walk`) both by generalised least squares
+    within positions plus static means across positions; with coloured noise in the noise
+    model (`RotaryData.coloured`: a bias random walk, flicker) both by generalised least squares
     (station.diagnose.coloured; the effects' fits keep the white weights: their chi2 decrease
     under the walk can only be smaller than its own optimum's, a conservative likelihood
     ratio)."""
     w, ws = weights(data, sigma)
-    if data.random_walk is None:
+    if not data.coloured:
         return float(np.sum(r[0] ** 2 * w) + np.sum(r[1] ** 2 * ws))
-    bins = sum(np.sum((r[0][..., i] @ f.T) ** 2) for i, f in enumerate(data.walk_bins))
+    bins = sum(np.sum((r[0][..., i] @ f.T) ** 2) for i, f in enumerate(data.coloured_bins))
     return float(bins + np.sum(data.static_whitened(r[1]) ** 2))
 
 

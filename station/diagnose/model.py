@@ -89,7 +89,8 @@ def evaluate(data, calibration: CalibrationResult, fitted: dict) -> Model:
 
     def residual(rows):
         part = tw.part(rows)
-        expected.append(rails.expected(data, part.mu, data.sigma, clipped))
+        expected.append(rails.expected(data, part.mu, data.sigma, clipped,
+                                       data.rail_offsets(part.mu, rows)))
         return data.residual(part.z, rows)  # in z, which may be mu: read before
 
     chi2 = linear.chi2(data, linear.centred_signature(data, residual), data.sigma)

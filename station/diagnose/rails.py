@@ -21,14 +21,18 @@ def observed(data) -> np.ndarray:
                          (data.counts[rows] == -r).sum((0, 1))]) for rows in data.chunks())
 
 
-def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool) -> np.ndarray:
-    """(2, m) expected samples at +R and -R for expected outputs z (n, k, m), noise sigma (m,)."""
+def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool,
+             offsets: np.ndarray | None = None) -> np.ndarray:
+    """(2, m) expected samples at +R and -R for expected outputs z (n, k, m), noise sigma (m,),
+    each position's outputs moved by `offsets` (n, m) when given."""
     r = data.rail
     m = z.shape[2]
     sc = np.broadcast_to(sigma / data.lsb, (m,))
     out = np.zeros((2, m))
     for i in range(m):
         mu = z[..., i] / data.lsb[i]  # counts
+        if offsets is not None:
+            mu = mu + offsets[:, None, i] / data.lsb[i]
         for side, sign in enumerate((1.0, -1.0)):
             # standardised distance to the inner edge of the rail's bin; beyond 12 the mass is 0
             lo = (r - 0.5 - sign * mu) / sc[i]

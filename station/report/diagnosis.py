@@ -73,16 +73,20 @@ def to_dict(diagnosis, data, source: str = "", noise_source: str | None = None) 
 
 def noise_model(data, source: str | None) -> dict:
     """The noise the gaps are judged against: each sensor's white noise per sample (from the
-    static windows) and, with a calibration file's figures, its bias random walk K (units /
-    sqrt(s); station.diagnose.coloured)."""
-    terms = "white noise" + ("" if data.random_walk is None else " and bias random walk")
+    static windows) and, from a calibration file's noise figures, its bias random walk K (units
+    / sqrt(s)) and flicker's bias instability B (units) where the file resolves them
+    (station.diagnose.coloured)."""
+    names = {"random_walk": "bias random walk", "bias_instability": "flicker"}
+    found = [names[t] for t in names if getattr(data, t) is not None]
+    said = f"noise model: {' and '.join(['white noise', *found])}"
+    if found:
+        said += f" (from {source})"
+    else:
+        said += ("; give the unit's noise figures (--noise CAL.cal.json) to judge the gaps "
+                 "against its bias random walk and flicker")
     return {"white_sigma": data.sigma, "random_walk": data.random_walk,
-            "random_walk_source": source if data.random_walk is not None else None,
-            "message": f"noise model: {terms}" + (f" (random walk from {source})"
-                                                  if data.random_walk is not None else
-                                                  "; give the unit's noise figures (--noise "
-                                                  "CAL.cal.json) to judge the gaps against a "
-                                                  "bias random walk")}
+            "bias_instability": data.bias_instability, "source": source if found else None,
+            "message": said}
 
 
 def verdict(diagnosis) -> dict:
