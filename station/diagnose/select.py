@@ -295,7 +295,7 @@ def _strongest(ev: dict, excluded) -> str:
     return min(names, key=lambda k: ev[k]["log10_p"], default="none")
 
 
-def ambiguous(current, chosen, best: str, ev: dict, extend, alpha: float) -> list:
+def ambiguous(current, chosen, best: str, ev: dict, extend, alpha: float, taken=()) -> list:
     """The eligible candidates indistinguishable from `best` on this session (issue 32, pattern
     5): each is significant alone, and with both in the model neither adds significantly to the
     other (the likelihood ratio of each given the other, at alpha over the step's candidates):
@@ -304,11 +304,13 @@ def ambiguous(current, chosen, best: str, ev: dict, extend, alpha: float) -> lis
     `greedy` names the next candidate only if it adds significantly to the group's strongest,
     else it joins the group (an open family that explains what the pair explains is no answer
     either). `chosen` is the model with `best`; the model with both is fitted only where the
-    difference of the two alone leaves it possible."""
+    difference of the two alone leaves it possible. Candidates `taken` (already said ambiguous
+    in a group of this step) are not paired again."""
     tests = len(ev)
     out = []
     for other, e in ev.items():
-        if other == best or not _eligible(e) or {best, other} & set(OPEN_FAMILIES):
+        if other == best or other in taken or not _eligible(e) or {best, other} & set(
+                OPEN_FAMILIES):
             continue
         # best given other decreases the deviance by at least LR(best) - LR(other)
         if likelihood_ratio(ev[best]["lr"] - e["lr"], chosen.fitted[best], tests,
@@ -374,7 +376,8 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
                 tried += 1
                 if progress is not None:
                     progress(tried, total)
-        while best != "none" and (tied := ambiguous(current, chosen, best, ev, extend, alpha)):
+        while best != "none" and (tied := ambiguous(current, chosen, best, ev, extend, alpha,
+                                                    excluded)):
             group, leader = {best, *tied}, chosen
             best, chosen = _strongest(ev, excluded | group), None
             while best != "none":  # the next must explain more than the group does
