@@ -2,7 +2,7 @@
 
 - The covariance of window means under a walk is that of a sampled random walk.
 - With the unit's walk in the noise model, the gaps of an effect-free walking unit are white
-  again (static means, spin-up and spin-down means, the readings M), and `station diagnose
+  again (static means, spin-up and spin-down means, the readings M, slopes and harmonics), and `station diagnose
   --noise CAL.cal.json` says nothing is unexplained where white noise alone leaves the static
   gap open; a file that cannot give the walk is refused with what to do.
 The rates over 10 seeds per case are `bench/diagnose.py --coloured --noise-model`
@@ -83,9 +83,10 @@ def test_an_effect_free_walking_unit_has_white_gaps_with_the_walk_in_the_noise_m
         d, _ = bench.session("none_walk", m, 9100 + seed)
         walking = dataclasses.replace(d, random_walk=np.full(m, bench.WALK))
         gaps.append([gap.statistics(walking, model.nominal(walking))[s]
-                     for s in ("static", "transients", "averaged")])
+                     for s in ("static", "transients", "averaged", "trend", "harmonics")])
         plain.append(gap.statistics(d, model.nominal(d))["static"])
-    dof = np.array([19 * m, 2 * 20 * m, 20 * m])  # static (n - 1) m, transients 2 n m, M ~n m
+    # static (n - 1) m, transients 2 n m, M about n m, trend 2 n m, harmonics 12 n m
+    dof = np.array([19 * m, 2 * 20 * m, 20 * m, 2 * 20 * m, 12 * 20 * m])
     sd_of_mean = np.sqrt(2.0 / dof / seeds)  # gap x dof ~ chi2(dof) under the model
     assert np.all(np.abs(np.mean(gaps, 0) - 1.0) < 3 * sd_of_mean), np.mean(gaps, 0)
     assert np.mean(plain) > 3.0  # the walk is there: white noise alone leaves it far open

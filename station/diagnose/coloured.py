@@ -36,6 +36,9 @@ flicker's by at most 0.04 % for N >= 64 (docs/noise.md's table): below anything 
   noise (as `station.diagnose.gap` takes it for the white noise), so its coloured part has
   covariance rho Omega (the same position) or rho^2 Omega (two positions' independent fits),
   and rho Omega with the ramp's own (`transients_covariance`).
+- The local features of a position (`trend`'s slopes, `harmonics`' waves: contrasts within a
+  window): their covariance from their weights summed per bin against the bins' variograms
+  (`local_whitened`; a walk or flicker hardly moves within 0.1 s).
 - The readings M_j = R_j - S_j: the variance of the contrast (`reading_variance`); different
   positions' windows do not overlap, and over the gaps a walk's increments are independent,
   flicker's nearly so (left out).
@@ -129,15 +132,36 @@ def static_factors(data) -> list:
                                 present(data))
 
 
+def bin_spans(data) -> np.ndarray:
+    """(K, 2) the time spans of a position's bins (`RotaryData.bins`) from its first sample."""
+    edges = np.arange(data.shape[1] // data.bin) * data.bin / data.fs
+    return np.stack([edges, edges + data.bin / data.fs], 1)
+
+
 def bin_factors(data) -> list:
     """Per sensor the `level_free_whitening` of a position's bin means (the within-position part
     of the deviance, station.diagnose.linear), the same for every position (one grid of samples
     per position): within a position a walk or flicker is a slow wander that the effects' shapes
     there (a tone at the table rate, a ramp) would otherwise take up."""
+    return level_free_whitening(data.sigma**2 / data.bin, bin_spans(data), present(data))
+
+
+def local_whitened(data, weights: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(q, m) a position's local features f (q, m) (station.diagnose.gap.local_rows: weights
+    (q, k) over its samples, unit white variance; each a contrast) whitened per sensor by their
+    covariance under white noise and the coloured terms. A slow wander is read on the bins: the
+    weights summed within each bin, against the bins' variograms (`RotaryData.coloured_bins_
+    variograms`)."""
+    q, m = f.shape
     kb = data.shape[1] // data.bin
-    edges = np.arange(kb) * data.bin / data.fs
-    return level_free_whitening(data.sigma**2 / data.bin,
-                                np.stack([edges, edges + data.bin / data.fs], 1), present(data))
+    binned = weights[:, : kb * data.bin].reshape(q, kb, data.bin).sum(2)
+    shapes = [(scale / data.sigma**2, -binned @ gamma @ binned.T)
+              for scale, gamma in data.coloured_bins_variograms]
+    out = np.empty_like(f)
+    for i in range(m):
+        cov = np.eye(q) + sum(s[i] * g for s, g in shapes)
+        out[:, i] = np.linalg.solve(np.linalg.cholesky(cov), f[:, i])
+    return out
 
 
 def reading_variance(data) -> np.ndarray:

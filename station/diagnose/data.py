@@ -134,6 +134,14 @@ class RotaryData:
         made once."""
         return coloured.bin_factors(self)
 
+    @cached_property
+    def coloured_bins_variograms(self) -> list:
+        """[(scale (m,), (K, K) E gamma between a position's bins)] of each coloured term
+        (station.diagnose.coloured), made once."""
+        spans = coloured.bin_spans(self)
+        return [(scale, coloured.mean_variogram(spans, spans, term))
+                for term, scale in coloured.present(self)]
+
     def static_whitened(self, means: np.ndarray) -> np.ndarray:
         """(n, m) static means (n, m) net of one level per sensor over their standard error:
         their sum of squares is the chi2 of the static means (white noise: centred and weighted;

@@ -31,12 +31,6 @@ HARMONICS = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 STATISTICS = ("averaged", "static", "trend", "harmonics", "transients", "rails")
 
 
-def _slopes(r, t, sigma):
-    """(n, m) slopes of r (n, k, m) against t (k,) in units of their standard error."""
-    tc = t - t.mean()
-    return np.einsum("k,nkm->nm", tc, r) / (sigma * np.sqrt(np.sum(tc**2)))
-
-
 def harmonic_basis(theta: np.ndarray) -> np.ndarray:
     """(2 len(HARMONICS), K) orthonormal rows spanning cos(h theta), sin(h theta) net of the
     constant, in that order (Gram-Schmidt by QR: row i is the part of wave i that the constant
@@ -59,35 +53,46 @@ def features(data, model) -> dict:
     twin, chunks = model.twin, []
     for rows in data.chunks():
         r = twin.residual(rows)
-        chunks.append((r[:, s0:s1].mean(1), _slopes(r[:, s0:s1], data.t[s0:s1], sig),
-                       *_rotating(data, r, rows, sig),
+        chunks.append((r[:, s0:s1].mean(1), _local(data, r, rows, sig),
                        [r[:, a:z].mean(1) for a, z in (data.windows["spinup"],
                                                         data.windows["spindown"])]))
-    b, static_slopes, slopes, coef, ramps = (list(x) for x in zip(*chunks, strict=True))
-    b = np.concatenate(b)  # (n, m) static means net of the model
+    b, local, ramps = (list(x) for x in zip(*chunks, strict=True))
+    b, local = np.concatenate(b), np.concatenate(local)  # (n, m), (n, 2 + 2 H, m)
     n = b.shape[0]
     static = data.static_whitened(b) * np.sqrt(n / max(n - 1, 1))
-    trend = np.stack([np.concatenate(static_slopes), np.concatenate(slopes)], 1)
     raw = np.stack([np.concatenate([c[i] for c in ramps]) for i in range(2)], 1)  # (n, 2, m)
     white = np.stack([sig**2 / (z - a) * (1 + _level_noise(data, a, z))
                       for a, z in (data.windows["spinup"], data.windows["spindown"])], 1)
     trans = (coloured.transients_whitened(data, raw, white) if data.coloured
              else raw / np.sqrt(white))
-    return {"static": static[:, None], "trend": trend, "harmonics": np.concatenate(coef),
+    return {"static": static[:, None], "trend": local[:, :2], "harmonics": local[:, 2:],
             "transients": trans}
 
 
-def _rotating(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> tuple:
-    """(slopes (p, m), harmonic coefficients (p, 2 len(HARMONICS), m)) of the residuals r
-    (p, k, m) of the positions `rows` over their whole-revolution rotating windows."""
-    r0 = data.windows["rotating"][0]
-    slopes, coef = [], []
+def local_rows(data, j: int) -> np.ndarray:
+    """(2 + 2 len(HARMONICS), k) the weights over position j's samples of its local features, each
+    of unit variance under white noise of unit variance: the slopes within the static and the
+    whole-revolution rotating window (the time centred, over its norm) and the harmonic
+    coefficients of the rotating window (`harmonic_basis`)."""
+    out = np.zeros((2 + 2 * len(HARMONICS), data.shape[1]))
+    r0, r1 = data.windows["rotating"][0], data.rot_stop[j]
+    for row, (a, z) in enumerate((data.windows["static"], (r0, r1))):
+        tc = data.t[a:z] - data.t[a:z].mean()
+        out[row, a:z] = tc / np.sqrt(np.sum(tc**2))
+    out[2:, r0:r1] = harmonic_basis(data.angle[j, r0:r1] - data.angle[j, r0])
+    return out
+
+
+def _local(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> np.ndarray:
+    """(p, 2 + 2 len(HARMONICS), m) the local features (`local_rows`) of the residuals r
+    (p, k, m) of the positions `rows`, over the white noise sig (m,); with coloured noise in the
+    model whitened by their covariance under it (station.diagnose.coloured.local_whitened)."""
+    out = []
     for rj, j in zip(r, data.positions(rows), strict=True):
-        sl = slice(r0, data.rot_stop[j])
-        theta = data.angle[j, sl] - data.angle[j, r0]
-        slopes.append(_slopes(rj[None, sl], data.t[sl], sig)[0])
-        coef.append(harmonic_basis(theta) @ rj[sl] / sig)
-    return np.array(slopes), np.array(coef)
+        weights = local_rows(data, j)
+        f = weights @ rj / sig
+        out.append(coloured.local_whitened(data, weights, f) if data.coloured else f)
+    return np.array(out)
 
 
 def _level_noise(data, a: int, z: int) -> np.ndarray:
