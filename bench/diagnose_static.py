@@ -16,6 +16,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -33,6 +34,7 @@ from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.noise import simulated_noise
 from station.sim.static import simulate_static, static_gyro
+from station.solve.noise import allan_curve, fit_noise
 from station.solve.uncertainty import crlb
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,10 +125,37 @@ def calibration_errors(result, truth: dict) -> dict:
             "eps_sd_at_bound": float(np.sqrt(2 * np.trace(cov @ cov)) / (2 * bound))}
 
 
-def run_case(case: str, seed: int, leave_out: bool = False) -> dict:
+REST_SAMPLES = 2**19
+"""Samples of the rest recording of `--noise-model` (87 min at 100 Hz, a noise run)."""
+
+
+def rest_noise(case: str, seed: int, m: int = 3) -> dict:
+    """{term: (c,)} the coloured noise of a session's unit as `station noise` finds it on a rest
+    recording of each stream (the Allan fit of REST_SAMPLES samples of its white noise, flicker
+    and walk, station.solve.noise): a term a stream's fit resolves for every channel, 0 on the
+    other stream's channels; {} when neither resolves any (a calibration file holds no other)."""
+    (b_acc, k_acc), (b_gyro, k_gyro) = COLOURED.get(case, ((0.0, 0.0), (0.0, 0.0)))
+    rng = np.random.default_rng([seed, 17])
+    streams = [(100e-6 * STANDARD_GRAVITY, b_acc, k_acc, m),
+               (CASES[case][2] / np.sqrt(FS), b_gyro, k_gyro, 3)]
+    out = {"bias_instability": [], "random_walk": []}
+    for white, bias_instability, walk, channels in streams:
+        rest = np.stack([simulated_noise(REST_SAMPLES, FS, white=white,
+                                         bias_instability=bias_instability, random_walk=walk,
+                                         rng=rng) for _ in range(channels)], 1)
+        fit = fit_noise(allan_curve(rest, FS))
+        for k, term in ((1, "bias_instability"), (2, "random_walk")):
+            out[term].append(fit.value[k] if fit.resolved[k].all() else np.zeros(channels))
+    return {t: np.concatenate(v) for t, v in out.items() if np.any(np.concatenate(v))}
+
+
+def run_case(case: str, seed: int, leave_out: bool = False, noise_model: bool = False) -> dict:
     """Diagnose one session: named effects, verdict, first-step evidence, G z-scores, Earth
-    rate; leave_out: the hidden effect is removed from the candidates too."""
+    rate; leave_out: the hidden effect is removed from the candidates too; noise_model: the
+    unit's coloured noise from a rest recording (`rest_noise`) is in the noise model."""
     data, truth = session(case, seed)
+    if noise_model:
+        data = replace(data, **rest_noise(case, seed, data.m))
     start = time.perf_counter()
     hidden = HIDDEN[case]
     result = diagnose_static(data, candidates=tuple(
@@ -181,13 +210,14 @@ def _right(want: str, r: dict) -> bool:
     return first == want and len(r["named"]) <= 2
 
 
-def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False) -> dict:
+def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False,
+               noise_model: bool = False) -> dict:
     """Per case: rate of the right call over `seeds` seeds, the verdict counts, and the runs;
     leave_out: the hidden effect is removed from the candidates (right: `unexplained` with no
     name)."""
     out = {}
     for case in cases:
-        runs = [run_case(case, 100 + s, leave_out) for s in range(seeds)]
+        runs = [run_case(case, 100 + s, leave_out, noise_model) for s in range(seeds)]
         want = expected(case)
         right = [_right(want, r) for r in runs]
         entry = {"sessions": len(runs), "right_rate": float(np.mean(right)),
@@ -350,12 +380,15 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=4, help="sessions per hidden effect")
     parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
     parser.add_argument("--no-real", action="store_true", help="skip the real recordings")
+    parser.add_argument("--noise-model", action="store_true",
+                        help="the unit's bias random walk and flicker, from the Allan fit of a "
+                        "rest recording of each stream (rest_noise), in the noise model")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="also hide each effect AND remove it from the candidates")
     parser.add_argument("--speed", action="store_true",
                         help="also time the diagnosis of 10-minute sessions of 40 poses")
     args = parser.parse_args()
-    out = {"acceptance": acceptance(args.seeds, args.cases)}
+    out = {"acceptance": acceptance(args.seeds, args.cases, noise_model=args.noise_model)}
     if args.speed:
         out["speed"] = speed(args.seeds)
     if args.leave_one_out:

@@ -22,6 +22,7 @@ from station import cli
 from station.calfiles.calfile import NoiseFigures
 from station.diagnose import coloured, gap, model
 from station.imports import npz
+from station.imports.recordings import import_text
 from station.sim.rotary import simulate_rotary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,8 +136,8 @@ def test_diagnose_with_the_units_noise_figures_leaves_no_walk_unexplained(tmp_pa
 
 
 @pytest.mark.parametrize("walk, sensors, said", [
-    (None, 3, "holds no bias random walk or bias instability"),
-    (3e-5, 4, "the session has 3 gyro(s)"),
+    (None, 3, "hold(s) no bias random walk or bias instability"),
+    (3e-5, 4, "the session has 3 sensor(s) in rad/s"),
 ])
 def test_a_noise_file_that_cannot_give_the_walk_is_refused(tmp_path, capsys, walk, sensors,
                                                           said):
@@ -144,3 +145,37 @@ def test_a_noise_file_that_cannot_give_the_walk_is_refused(tmp_path, capsys, wal
     cal = _noise_file(tmp_path / "unit.cal.json", walk, sensors)
     code, out = _diagnose(capsys, session, "--noise", cal)
     assert code != 0 and said in out
+
+
+spec_static = importlib.util.spec_from_file_location("bench_diagnose_static",
+                                                     ROOT / "bench" / "diagnose_static.py")
+bench_static = importlib.util.module_from_spec(spec_static)
+spec_static.loader.exec_module(bench_static)
+STATIC_WALKS = {"m/s^2": 1e-4, "rad/s": 3e-5}  # bench/diagnose_static.py's `none_walk`
+
+
+def test_a_free_static_walking_unit_is_no_drift_with_its_walk_in_the_noise_model(tmp_path,
+                                                                                  capsys):
+    d, _ = bench_static.session("none_walk", 100)
+    t = np.arange(len(d.x)) / d.fs
+    for name, x in (("acc", d.x[:, :3]), ("gyr", d.x[:, 3:])):
+        np.savetxt(tmp_path / f"{name}.txt", np.column_stack([t, x]), fmt="%.9g")
+    h5 = import_text(tmp_path / "walk.h5", {"acc": tmp_path / "acc.txt",
+                                            "gyr": tmp_path / "gyr.txt"},
+                     {"acc": "m/s^2", "gyr": "rad/s"})
+    code, out = _diagnose(capsys, h5, "--json")
+    assert code == 0 and "bias_drift" in json.loads(out)["effects"]  # white noise: a drift
+    files = []
+    for unit, walk in STATIC_WALKS.items():
+        white = np.full(3, 1e-3)
+        cal = make(a=np.eye(3), units=(unit,) * 3).with_noise(NoiseFigures(
+            white, white / 20, None, None, np.full(3, walk), np.full(3, walk / 10),
+            rate_hz=100.0, seconds=5000.0))
+        files.append(tmp_path / f"{unit.replace('/', '_')}.cal.json")
+        cal.save(files[-1])
+    code, out = _diagnose(capsys, h5, "--json", "--noise", *files)
+    doc = json.loads(out)
+    assert code == 0 and doc["effects"] == [] and doc["unexplained"] == []
+    assert doc["noise_model"]["random_walk"] == pytest.approx([1e-4] * 3 + [3e-5] * 3)
+    code, out = _diagnose(capsys, h5, "--noise", files[1], files[1])
+    assert code != 0 and "again" in out

@@ -55,10 +55,11 @@ def register(p) -> None:
     p.add_argument("--stream", metavar="NAME",
                    help="the unit to diagnose in a rotary session of several units on one table "
                    "(its stream: imu, imu2, ...); a one-unit session has only imu")
-    p.add_argument("--noise", metavar="CAL.cal.json", type=Path,
-                   help="the unit's calibration file holding its noise figures (station noise "
-                   "REST.h5 --store CAL.cal.json): its bias random walk and flicker enter the "
-                   "noise model the gaps are judged against (rotary sessions; docs/diagnose.md)")
+    p.add_argument("--noise", metavar="CAL.cal.json", type=Path, nargs="+",
+                   help="the unit's calibration file(s) holding its noise figures (station noise "
+                   "REST.h5 --store CAL.cal.json; a free-static session: one per stream, "
+                   "accelerometer and gyro): their bias random walk and flicker enter the noise "
+                   "model the gaps are judged against (docs/diagnose.md)")
     still_arguments(p)
     p.set_defaults(run=run)
 
@@ -77,30 +78,41 @@ def unit_stream(recorded, path, stream: str | None) -> str:
     return stream or "imu"
 
 
-def with_noise(session, path: Path):
-    """The rotary session with the coloured noise of the calibration file `path` (its noise
-    figures' bias random walk and bias instability, one per sensor, rad/s) in its noise model;
-    refused when the file's sensors or units do not match or it resolves neither term."""
+def with_noise(session, paths, streams):
+    """The session with the coloured noise of the calibration files `paths` (their noise
+    figures' bias random walk and bias instability) in its noise model: each file is one
+    stream's, recognised by its units among `streams` [(units, sensors, first channel)]; a
+    stream without a file, or a term a file does not resolve, has none. Refused when a file's
+    units or sensors match no stream, two files name one stream, or no file resolves a term."""
     import dataclasses
 
     import numpy as np
 
     from station.calfiles.calfile import load
 
-    cal = load(existing_file(path, "a calibration file (.cal.json) with noise figures"))
-    m = session.shape[2]
-    terms = {} if cal.noise is None else {
-        t: np.asarray(getattr(cal.noise, t), float) for t in ("random_walk", "bias_instability")
-        if getattr(cal.noise, t) is not None}
+    channels = sum(n for _, n, _ in streams)
+    terms = {t: np.zeros(channels) for t in ("random_walk", "bias_instability")}
+    seen = set()
+    for path in paths:
+        cal = load(existing_file(path, "a calibration file (.cal.json) with noise figures"))
+        units = set(cal.units)
+        slot = next((st for st in streams if units == {st[0]} and len(cal.units) == st[1]), None)
+        if slot is None or slot[0] in seen:
+            wanted = " and ".join(f"{n} sensor(s) in {u}" for u, n, _ in streams)
+            raise InputError(f"{path} holds the noise of {len(cal.units)} sensor(s) in "
+                             f"{', '.join(sorted(units))}{' again' if slot else ''}; the session "
+                             f"has {wanted}: give one calibration file per stream of this unit")
+        seen.add(slot[0])
+        for term, values in terms.items():
+            figure = None if cal.noise is None else getattr(cal.noise, term)
+            if figure is not None:
+                values[slot[2]: slot[2] + slot[1]] = np.asarray(figure, float)
+    terms = {t: v for t, v in terms.items() if np.any(v > 0)}
     if not terms:
-        raise InputError(f"{path} holds no bias random walk or bias instability among its noise "
-                         f"figures: record a longer rest of the unit and store its figures "
-                         f"(station noise REST.h5 --store {path}), or diagnose without --noise "
-                         "(white noise only)")
-    if len(cal.units) != m or set(cal.units) != {"rad/s"}:
-        raise InputError(f"{path} holds the noise of {len(cal.units)} sensor(s) in "
-                         f"{', '.join(sorted(set(cal.units)))}; the session has {m} gyro(s) in "
-                         "rad/s: give the calibration file of this unit's gyros")
+        raise InputError(f"{', '.join(map(str, paths))} hold(s) no bias random walk or bias "
+                         "instability among the noise figures: record a longer rest of the unit "
+                         "and store its figures (station noise REST.h5 --store CAL.cal.json), or "
+                         "diagnose without --noise (white noise only)")
     return dataclasses.replace(session, **terms)
 
 
@@ -126,10 +138,8 @@ def run(args) -> int:
     if not rotary and args.stream is not None:
         raise InputError(f"{path} is not a rotary recording of several units: --stream is for "
                          "those (station twin --units)")
-    if args.noise is not None:
-        if not rotary:
-            raise InputError(f"{path} is not a rotary session: --noise is for rotary sessions")
-        session = with_noise(session, args.noise)
+    if rotary and args.noise:
+        session = with_noise(session, args.noise, [("rad/s", session.shape[2], 0)])
     if rotary and still != StillOptions():
         raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
                          "--min-still are for still-pose (free-static) sessions")
@@ -139,13 +149,16 @@ def run(args) -> int:
             doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
                                           site=Site(args.latitude), progress=advance),
                                  session, str(path),
-                                 None if args.noise is None else str(args.noise))
+                                 ", ".join(map(str, args.noise or [])) or None)
         else:
             static = static_report.load(path, still)
+            if args.noise:
+                static = with_noise(static, args.noise, [
+                    ("m/s^2", static.m, 0), *([("rad/s", 3, static.m)] if static.gyro else [])])
             doc = report.static_to_dict(
                 diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
                                 latitude_deg=args.latitude, progress=advance),
-                static, str(path))
+                static, str(path), ", ".join(map(str, args.noise or [])) or None)
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

@@ -39,6 +39,8 @@ flicker's by at most 0.04 % for N >= 64 (docs/noise.md's table): below anything 
 - The local features of a position (`trend`'s slopes, `harmonics`' waves: contrasts within a
   window): their covariance from their weights summed per bin against the bins' variograms
   (`local_whitened`; a walk or flicker hardly moves within 0.1 s).
+- Free-static sessions (station.diagnose.static): the poses' means, whose model has a free
+  bias per channel, with `level_covariance`; within a pose the bins stay white.
 - The readings M_j = R_j - S_j: the variance of the contrast (`reading_variance`); different
   positions' windows do not overlap, and over the gaps a walk's increments are independent,
   flicker's nearly so (left out).
@@ -83,6 +85,17 @@ def mean_variogram(a: np.ndarray, b: np.ndarray, term: str) -> np.ndarray:
     total = (antiderivative(a1 - b0) - antiderivative(a1 - b1) - antiderivative(a0 - b0)
              + antiderivative(a0 - b1))
     return factor * total / ((a1 - a0) * (b1 - b0))
+
+
+def level_covariance(spans: np.ndarray, term: str) -> np.ndarray:
+    """(c, c) a covariance of one unit term's means over the windows `spans` (c, 2) for a model
+    with a free level: the variogram's contrasts and a level of the session's size, L / 2 for
+    the walk and ln(L) / pi for flicker, L the span of all the windows (the triangular kernel
+    (L - |tau|) / 2 and the logarithmic kernel ln(L / |tau|) are positive definite on a stretch
+    of length L: what the level adds is the free level's, which the model fits)."""
+    length = spans[:, 1].max() - spans[:, 0].min()
+    level = length / 2 if term == "random_walk" else np.log(length) / np.pi
+    return level - mean_variogram(spans, spans, term)
 
 
 def present(data) -> list:

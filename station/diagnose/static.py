@@ -26,7 +26,15 @@ from functools import cached_property
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.diagnose import goodness, heldout, outliers, plausibility, quantisation, rails
+from station.diagnose import (
+    coloured,
+    goodness,
+    heldout,
+    outliers,
+    plausibility,
+    quantisation,
+    rails,
+)
 from station.diagnose.effects import Fitted, tone_null
 from station.diagnose.effects import saturation as saturation_ext
 from station.diagnose.select import Diagnosis, greedy, settle
@@ -80,6 +88,15 @@ class StaticData:
     outliers: np.ndarray
     units: tuple = ()
     notes: tuple = ()
+    random_walk: np.ndarray | None = None
+    bias_instability: np.ndarray | None = None
+
+    @property
+    def coloured(self) -> bool:
+        """Whether a bias random walk or flicker ((c,) per channel, 0 where a channel has none:
+        a calibration file's noise figures) is in the noise model: the poses' means are then
+        judged by generalised least squares against it (`whiten`)."""
+        return self.random_walk is not None or self.bias_instability is not None
 
     @property
     def c(self) -> int:
@@ -150,15 +167,33 @@ class StaticData:
     def whiten(self, r: np.ndarray) -> np.ndarray:
         """(B, c) bin residuals r whitened: their part about their interval's mean by the
         samples' sigma, that mean by its own (`mean_sigma`, which keeps the quantisation error
-        common to the interval's bins); with white noise sqrt(samples) r / sigma."""
+        common to the interval's bins); with white noise sqrt(samples) r / sigma. With coloured
+        noise the intervals' means are whitened together (`mean_whitening`), each whitened mean
+        spread over its bins as the white one is (sum of squares and interval sums kept)."""
         n = self.interval_means[1]
         w = self.lengths[:, None]
-        mean = np.stack([np.bincount(self.bin_interval, self.lengths * r[:, i], len(n))
-                         for i in range(self.c)], 1)[self.bin_interval] / n[self.bin_interval,
-                                                                            None]
+        means = np.stack([np.bincount(self.bin_interval, self.lengths * r[:, i], len(n))
+                          for i in range(self.c)], 1) / n[:, None]
+        whitened = (np.stack([f @ means[:, i] for i, f in enumerate(self.mean_whitening)], 1)
+                    if self.coloured else means / self.mean_sigma(n))
+        mean = means[self.bin_interval]
         return (np.sqrt(w) * (r - mean) / self.sigma
-                + np.sqrt(w / n[self.bin_interval, None]) * mean
-                / self.mean_sigma(n)[self.bin_interval])
+                + np.sqrt(w / n[self.bin_interval, None]) * whitened[self.bin_interval])
+
+    @cached_property
+    def mean_whitening(self) -> list:
+        """Per channel (P, P) L^-1, L the Cholesky factor of the intervals' means' covariance:
+        `mean_sigma` and the coloured terms over the intervals' time spans with the free level
+        the bias gives (station.diagnose.coloured.level_covariance)."""
+        n = self.interval_means[1]
+        spans = np.stack([self.t[self.intervals[:, 0]], self.t[self.intervals[:, 1] - 1]],
+                         1) + np.array([-0.5, 0.5]) / self.fs
+        spans -= spans[0, 0]
+        shapes = [(np.asarray(getattr(self, t), float) ** 2, coloured.level_covariance(spans, t))
+                  for t in coloured.TERMS if getattr(self, t) is not None]
+        return [np.linalg.inv(np.linalg.cholesky(
+            np.diag(self.mean_sigma(n)[:, i] ** 2) + sum(s[i] * g for s, g in shapes)))
+            for i in range(self.c)]
 
     def bin_weights(self) -> np.ndarray:
         """(B, c) each bin's weight in its interval's mean over that mean's variance: summed
@@ -544,6 +579,8 @@ def _touched(data: StaticData, b0: Base, layout: Layout) -> list:
             cols += [idx[:, m + k // 3] for k in range(n)]
         else:  # one per channel: b, k2, warmup, slope
             cols += [idx[:, i] for i in range(n)]
+    if data.coloured:  # the poses' means are whitened together: a parameter moves its channels
+        cols = [idx[:, np.unique(rows % c)].ravel() for rows in cols]
     return cols
 
 

@@ -306,7 +306,8 @@ def _evidence_with_quasi(evidence: dict, dispersion: float) -> dict:
                 / np.log(10)} for k, e in evidence.items()}
 
 
-def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
+def static_to_dict(diagnosis, data: StaticData, source: str = "",
+                   noise_source: str | None = None) -> dict:
     """The JSON document of a free-static diagnosis (same layout as the rotary one)."""
     steps = [step_dict(step, _evidence_with_quasi(step.evidence, step.gap["within"]))
              for step in diagnosis.steps]
@@ -333,6 +334,7 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "") -> dict:
         "fs": data.fs,
         "gravity": data.gravity,
         "noise_sigma": data.sigma,
+        "noise_model": noise_model(data, noise_source),
         "alpha": diagnosis.alpha,
         **verdict(diagnosis),
         "not_testable": not_testable,
