@@ -47,9 +47,10 @@ flicker's by at most 0.04 % for N >= 64 (docs/noise.md's table): below anything 
 - The rail pile-up's expected counts (station.diagnose.rails) are those of the twin moved by
   what each position's static window stands off it (`RotaryData.rail_offsets`): the rail is the
   session's extreme count, found at the peak of one position's signal, and the few samples
-  reading it depend on that position's level to a fraction of the noise; a walk of a few times
-  the static means' noise (the bench's) moved the expectation tenfold. Within a position the
-  walk moves the level by K sqrt(10 s), a few per cent of the noise: left out.
+  reading it depend on that position's level to a fraction of the noise (the bench's walking
+  units: 2 of 25 effect-free sessions said `rails` unexplained without it, none with it).
+  Within a position the walk moves the level by K sqrt(10 s), a few per cent of the noise: left
+  out.
 """
 
 import numpy as np
