@@ -1,12 +1,15 @@
-"""Issue 32: a bias random walk in the diagnosis' noise model (station.diagnose.coloured).
+"""Issue 32: coloured noise (a bias random walk, flicker) in the diagnosis' noise model
+(station.diagnose.coloured).
 
-- The covariance of window means under a walk is that of a sampled random walk.
+- The covariance of window means under a walk is that of a sampled random walk, under flicker
+  that of Kasdin-Walter's sampled flicker.
 - With the unit's walk in the noise model, the gaps of an effect-free walking unit are white
-  again (static means, spin-up and spin-down means, the readings M, slopes and harmonics), and `station diagnose
-  --noise CAL.cal.json` says nothing is unexplained where white noise alone leaves the static
-  gap open; a file that cannot give the walk is refused with what to do.
-The rates over 10 seeds per case are `bench/diagnose.py --coloured --noise-model`
-(docs/diagnose.md).
+  again (static means, spin-up and spin-down means, the readings M, slopes and harmonics), and
+  `station diagnose --noise CAL.cal.json` says nothing is unexplained where white noise alone
+  leaves the static gap open; a free-static walking unit is no drift with its streams' files; a
+  file that cannot give the walk is refused with what to do.
+The rates over 10 seeds per case are `bench/diagnose.py --coloured --noise-model` and
+`bench/diagnose_static.py --noise-model` (docs/diagnose.md).
 """
 
 import dataclasses
