@@ -5,10 +5,12 @@ went on to the end of the session after a SIGTERM at a position's end."""
 
 import os
 import signal
+from types import SimpleNamespace
 
 import pytest
 
 from station.acquire import interrupts
+from station.protocols.still import run_states
 
 
 class Finalised:
@@ -49,3 +51,32 @@ def test_an_interrupt_that_propagates_is_handled_once():
         interrupts.raise_dropped()
     finally:
         interrupts.restore(previous)
+
+
+def test_an_interrupt_a_library_turns_into_another_error_still_ends_as_the_interrupt():
+    """Seen on CI: a Ctrl-C at a position's start landed inside a lock's handling, which raised
+    `RuntimeError: cannot release un-acquired lock` instead: the table was stopped, but the
+    station exited 1 with a traceback. The protocol now ends as interrupted (exit 130)."""
+
+    def state():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10_000):  # the handler raises here
+                pass
+        except KeyboardInterrupt:
+            raise RuntimeError("cannot release un-acquired lock") from None  # as threading did
+        return "done"
+
+    protocol = SimpleNamespace(state=None, position=2, handlers={"start": state})
+    events = []
+    recorder = SimpleNamespace(event=lambda *args: events.append(args))
+    previous = interrupts.install()
+    try:
+        with pytest.raises(KeyboardInterrupt, match="Ctrl-C") as raised:
+            run_states(protocol, recorder, "start")
+        interrupts.raise_dropped()  # handled: nothing more
+    finally:
+        interrupts.restore(previous)
+    assert isinstance(raised.value.__cause__, RuntimeError)
+    assert events == [("abort", 2, {"state": "start",
+                                    "error": "KeyboardInterrupt: interrupted (Ctrl-C)"})]

@@ -63,6 +63,21 @@ def handled() -> None:
     _pending = _delivered = None
 
 
+def handled_as(exc: BaseException) -> BaseException:
+    """`handled()`, and what `exc` stands for: the interrupt itself (KeyboardInterrupt, `exc`
+    its cause) when one was pending and `exc` is another error. The handler's KeyboardInterrupt
+    can land inside a library's lock handling, which then raises its own error instead (seen:
+    "RuntimeError: cannot release un-acquired lock" from a Ctrl-C at a position's start, the
+    station exiting 1 with a traceback instead of 130)."""
+    pending = _pending
+    handled()
+    if pending is None or isinstance(exc, KeyboardInterrupt):
+        return exc
+    interrupt = KeyboardInterrupt(pending)
+    interrupt.__cause__ = exc
+    return interrupt
+
+
 def _interrupted(number, frame):
     global _pending
     _pending = "interrupted (Ctrl-C)" if number == signal.SIGINT else "terminated (SIGTERM)"

@@ -305,10 +305,12 @@ class RotaryProtocol:
         except SessionPaused:
             raise  # table stopped and `pause` recorded already
         except BaseException as exc:
-            interrupts.handled()
+            cause = interrupts.handled_as(exc)
             log.warning("position %d aborted in state %s: %r", self.position + 1, self.state, exc)
-            self._abort(exc)
-            raise
+            self._abort(cause)
+            if cause is exc:
+                raise
+            raise cause from exc
 
     # -- states: each does its work and returns the next state -----------------------------------
 

@@ -250,13 +250,15 @@ def run_states(protocol, recorder, first: str) -> None:
         while protocol.state != "done":
             protocol.state = protocol.handlers[protocol.state]()
     except BaseException as exc:
-        interrupts.handled()
+        cause = interrupts.handled_as(exc)
         try:
             recorder.event("abort", protocol.position, {
-                "state": protocol.state, "error": f"{type(exc).__name__}: {exc}"})
+                "state": protocol.state, "error": f"{type(cause).__name__}: {cause}"})
         except Exception as record_error:  # noqa: BLE001
-            exc.add_note(f"and the abort could not be recorded ({record_error})")
-        raise
+            cause.add_note(f"and the abort could not be recorded ({record_error})")
+        if cause is exc:
+            raise
+        raise cause from exc
 
 
 def record_poses(protocol, imu, spec, clock, path, metadata: dict, view=None) -> None:
