@@ -235,8 +235,10 @@ def run_campaign(bench, campaign, operator) -> dict:
                 recorded.append(_soak_and_record(k, campaign, bench, chamber, clock, operator))
             chamber.safe(settings.safe)
     except BaseException as exc:
-        _leave_safe(exc, bench, settings, campaign)
-        raise
+        cause = _leave_safe(exc, bench, settings, campaign)
+        if cause is exc:
+            raise
+        raise cause from exc
     return {"campaign": str(campaign.directory), "recorded": recorded,
             "soaks": campaign.soaks, "safe_setpoint": settings.safe}
 
@@ -352,13 +354,18 @@ class ChamberWatch:
         raise self.error
 
 
-def _leave_safe(exc: BaseException, bench, settings: ChamberSettings, campaign) -> None:
+def _leave_safe(exc: BaseException, bench, settings: ChamberSettings,
+                campaign) -> BaseException:
     """After `exc` (the chamber already sent to its safe setpoint by its driver): stop the
-    table, and say on the error what was done and how to go on."""
+    table, and say on the error to raise (`exc`, or the interrupt it stands for:
+    station.acquire.interrupts.handled_as) what was done and how to go on; returns that error."""
     from station.acquire import interrupts
     from station.acquire.bench import stop_table
 
-    interrupts.handled()
+    cause = interrupts.handled_as(exc)
+    if cause is not exc and getattr(exc, "chamber_safe", False):
+        cause.chamber_safe = True
+    exc = cause
     try:
         exc.table_stopped = stop_table(bench.source)
     except Exception as stop_error:  # noqa: BLE001 - said on the error being raised
@@ -370,6 +377,7 @@ def _leave_safe(exc: BaseException, bench, settings: ChamberSettings, campaign) 
         exc.add_note(f"the campaign {campaign.directory} goes on at soak {k + 1} "
                      f"({campaign.soaks[k]['setpoint']:.2f} K) with `station resume "
                      f"{campaign.directory}`")
+    return exc
 
 
 def _soak(chamber, imu, settings, setpoint, clock, column, counts_per_kelvin) -> SoakResult:
