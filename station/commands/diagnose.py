@@ -89,9 +89,10 @@ def with_noise(session, paths, streams):
     import numpy as np
 
     from station.calfiles.calfile import load
+    from station.diagnose import coloured
 
     channels = sum(n for _, n, _ in streams)
-    terms = {t: np.zeros(channels) for t in ("random_walk", "bias_instability")}
+    terms = {t: np.zeros(channels) for t in coloured.TERMS}
     seen = set()
     for path in paths:
         cal = load(existing_file(path, "a calibration file (.cal.json) with noise figures"))
@@ -143,13 +144,13 @@ def run(args) -> int:
     if rotary and still != StillOptions():
         raise InputError(f"{path} is a rotary recording: --rest, --threshold, --still-channels and "
                          "--min-still are for still-pose (free-static) sessions")
+    noise_source = ", ".join(map(str, args.noise)) if args.noise else None
     with progress(f"diagnosing {path.name}: testing the named effects (at most "
                   f"{args.max_effects} kept)", "fits") as advance:
         if rotary:
             doc = report.to_dict(diagnose(session, alpha=args.alpha, max_effects=args.max_effects,
                                           site=Site(args.latitude), progress=advance),
-                                 session, str(path),
-                                 ", ".join(map(str, args.noise or [])) or None)
+                                 session, str(path), noise_source)
         else:
             static = static_report.load(path, still)
             if args.noise:
@@ -158,7 +159,7 @@ def run(args) -> int:
             doc = report.static_to_dict(
                 diagnose_static(static, alpha=args.alpha, max_effects=args.max_effects,
                                 latitude_deg=args.latitude, progress=advance),
-                static, str(path), ", ".join(map(str, args.noise or [])) or None)
+                static, str(path), noise_source)
     print(json.dumps(doc, indent=1) if args.json else report.text(doc))
     if args.report:
         page = report.html_report if rotary else report.static_html_report

@@ -121,6 +121,15 @@ def intervals(data, start, stop) -> np.ndarray:
                     1)
 
 
+def sensor_covariances(white, shapes: list) -> list:
+    """Per sensor i the (c, c) covariance diag(white[i]) + sum_t scale_t[i] shape_t: its white
+    noise (a variance per value, or one for all) and the coloured terms' covariances per unit
+    K^2 or B^2, shapes [(scale_t (m,), shape_t (c, c))]."""
+    size = len(shapes[0][1])
+    return [np.diag(np.broadcast_to(w, (size,))) + sum(scale[i] * g for scale, g in shapes)
+            for i, w in enumerate(white)]
+
+
 def level_free_whitening(white: np.ndarray, spans: np.ndarray, terms: list) -> list:
     """Per sensor (c, c) W with W x the values x (c,) at the windows `spans` (c, 2) whitened net
     of a free level (its last entry 0): white noise of variance white[i] per value and the
@@ -128,10 +137,9 @@ def level_free_whitening(white: np.ndarray, spans: np.ndarray, terms: list) -> l
     least-squares chi2."""
     c = len(spans)
     q = np.linalg.qr(np.ones((c, 1)), mode="complete")[0][:, 1:]  # orthonormal, orthogonal to 1
-    shapes = [(scale, q.T @ mean_variogram(spans, spans, term) @ q) for term, scale in terms]
+    shapes = [(scale, -(q.T @ mean_variogram(spans, spans, term) @ q)) for term, scale in terms]
     out = []
-    for i, w in enumerate(white):
-        cov = w * np.eye(c - 1) - sum(scale[i] * g for scale, g in shapes)
+    for cov in sensor_covariances(white, shapes):
         whitening = np.zeros((c, c))
         whitening[:-1] = np.linalg.solve(np.linalg.cholesky(cov), q.T)
         out.append(whitening)
@@ -172,8 +180,7 @@ def local_whitened(data, weights: np.ndarray, f: np.ndarray) -> np.ndarray:
     shapes = [(scale / data.sigma**2, -binned @ gamma @ binned.T)
               for scale, gamma in data.coloured_bins_variograms]
     out = np.empty_like(f)
-    for i in range(m):
-        cov = np.eye(q) + sum(s[i] * g for s, g in shapes)
+    for i, cov in enumerate(sensor_covariances(np.ones(m), shapes)):
         out[:, i] = np.linalg.solve(np.linalg.cholesky(cov), f[:, i])
     return out
 
@@ -185,11 +192,12 @@ def reading_variance(data) -> np.ndarray:
     rot, static = intervals(data, r0, data.rot_stop), intervals(data, *data.windows["static"])
     out = np.zeros((data.shape[2], data.shape[0]))
     for term, scale in present(data):
-        between = np.array([mean_variogram(r[None], s[None], term)[0, 0]
-                            for r, s in zip(rot, static, strict=True)])
-        within = (np.array([mean_variogram(r[None], r[None], term)[0, 0] for r in rot])
-                  + np.array([mean_variogram(s[None], s[None], term)[0, 0] for s in static]))
-        out += scale[:, None] * (2 * between - within)[None, :]
+
+        def paired(x, y, term=term):  # E gamma between the windows of one position
+            return np.diagonal(mean_variogram(x, y, term))
+
+        variance = 2 * paired(rot, static) - paired(rot, rot) - paired(static, static)
+        out += scale[:, None] * variance[None, :]
     return out
 
 
@@ -204,10 +212,9 @@ def transients_whitened(data, raw: np.ndarray, white: np.ndarray) -> np.ndarray:
     `white` (n, 2, m), whitened per sensor by their covariance under white noise and the
     coloured terms (`transients_covariance`)."""
     n, _, m = raw.shape
-    terms = [(scale, transients_covariance(data, term)) for term, scale in present(data)]
+    shapes = [(scale, transients_covariance(data, term)) for term, scale in present(data)]
     out = np.empty_like(raw)
-    for i in range(m):
-        cov = np.diag(white[:, :, i].ravel()) + sum(s[i] * c for s, c in terms)
+    for i, cov in enumerate(sensor_covariances(white.reshape(2 * n, m).T, shapes)):
         out[:, :, i] = np.linalg.solve(np.linalg.cholesky(cov),
                                        raw[:, :, i].ravel()).reshape(n, 2)
     return out

@@ -189,11 +189,10 @@ class StaticData:
         spans = np.stack([self.t[self.intervals[:, 0]], self.t[self.intervals[:, 1] - 1]],
                          1) + np.array([-0.5, 0.5]) / self.fs
         spans -= spans[0, 0]
-        shapes = [(np.asarray(getattr(self, t), float) ** 2, coloured.level_covariance(spans, t))
-                  for t in coloured.TERMS if getattr(self, t) is not None]
-        return [np.linalg.inv(np.linalg.cholesky(
-            np.diag(self.mean_sigma(n)[:, i] ** 2) + sum(s[i] * g for s, g in shapes)))
-            for i in range(self.c)]
+        shapes = [(scale, coloured.level_covariance(spans, term))
+                  for term, scale in coloured.present(self)]
+        return [np.linalg.inv(np.linalg.cholesky(cov))
+                for cov in coloured.sensor_covariances(self.mean_sigma(n).T ** 2, shapes)]
 
     def bin_weights(self) -> np.ndarray:
         """(B, c) each bin's weight in its interval's mean over that mean's variance: summed
