@@ -363,19 +363,26 @@ variance passes the white noise's at tau = sqrt(3) N / K = 10 s) and the flicker
 every sensor (2^17 samples resolved it for one of three)."""
 
 
-def rest_noise(case: str, m: int, seed: int, fs: float = 100.0) -> dict:
-    """{term: (m,)} the coloured noise of the unit of a session as `station noise` finds it on a
-    rest recording of the unit (the Allan fit of REST_SAMPLES samples of its white noise,
-    flicker and walk, station.solve.noise): the bias random walk K and the bias instability B
-    where the fit resolves them for every sensor (a calibration file holds no other)."""
-    walk, bias_instability = COLOURED[case][1:] if case in COLOURED else (0.0, 0.0)
-    rng = np.random.default_rng([seed, 17])
-    rest = np.stack([simulated_noise(REST_SAMPLES, fs, white=np.radians(0.01),
-                                     bias_instability=bias_instability, random_walk=walk, rng=rng)
-                     for _ in range(m)], 1)
+def rest_terms(channels: int, fs: float, white: float, bias_instability: float,
+               random_walk: float, rng) -> dict:
+    """{term: (channels,)} the bias instability and random walk `station noise` finds on a rest
+    recording of `channels` sensors (the Allan fit of REST_SAMPLES samples of this white noise,
+    flicker and walk, station.solve.noise) where it resolves them for every sensor (a
+    calibration file holds no other)."""
+    rest = np.stack([simulated_noise(REST_SAMPLES, fs, white=white,
+                                     bias_instability=bias_instability, random_walk=random_walk,
+                                     rng=rng) for _ in range(channels)], 1)
     fit = fit_noise(allan_curve(rest, fs))
     return {term: fit.value[k] for k, term in ((1, "bias_instability"), (2, "random_walk"))
             if fit.resolved[k].all()}
+
+
+def rest_noise(case: str, m: int, seed: int, fs: float = 100.0) -> dict:
+    """{term: (m,)} the coloured noise of the unit of a session from a rest recording of it
+    (`rest_terms`: its white noise, and the walk and flicker of its COLOURED case)."""
+    walk, bias_instability = COLOURED[case][1:] if case in COLOURED else (0.0, 0.0)
+    return rest_terms(m, fs, np.radians(0.01), bias_instability, walk,
+                      np.random.default_rng([seed, 17]))
 
 
 def run_case(case: str, m: int, seed: int, leave_out: bool = False, noise_model: bool = False,

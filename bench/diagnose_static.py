@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from bench.diagnose import rest_terms
 from station.diagnose import quantisation
 from station.diagnose.static import CANDIDATES, base, diagnose_static, from_arrays, untestable
 from station.diagnose.static_report import load
@@ -34,7 +35,6 @@ from station.report.diagnosis import static_to_dict as to_dict
 from station.sim.layouts import accelerometer_triad
 from station.sim.noise import simulated_noise
 from station.sim.static import simulate_static, static_gyro
-from station.solve.noise import allan_curve, fit_noise
 from station.solve.uncertainty import crlb
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -125,28 +125,19 @@ def calibration_errors(result, truth: dict) -> dict:
             "eps_sd_at_bound": float(np.sqrt(2 * np.trace(cov @ cov)) / (2 * bound))}
 
 
-REST_SAMPLES = 2**19
-"""Samples of the rest recording of `--noise-model` (87 min at 100 Hz, a noise run)."""
-
-
 def rest_noise(case: str, seed: int, m: int = 3) -> dict:
-    """{term: (c,)} the coloured noise of a session's unit as `station noise` finds it on a rest
-    recording of each stream (the Allan fit of REST_SAMPLES samples of its white noise, flicker
-    and walk, station.solve.noise): a term a stream's fit resolves for every channel, 0 on the
+    """{term: (c,)} the coloured noise of a session's unit from a rest recording of each stream
+    (bench/diagnose.py's `rest_terms`): a term a stream's fit resolves for every channel, 0 on the
     other stream's channels; {} when neither resolves any (a calibration file holds no other)."""
     (b_acc, k_acc), (b_gyro, k_gyro) = COLOURED.get(case, ((0.0, 0.0), (0.0, 0.0)))
     rng = np.random.default_rng([seed, 17])
     streams = [(100e-6 * STANDARD_GRAVITY, b_acc, k_acc, m),
                (CASES[case][2] / np.sqrt(FS), b_gyro, k_gyro, 3)]
-    out = {"bias_instability": [], "random_walk": []}
-    for white, bias_instability, walk, channels in streams:
-        rest = np.stack([simulated_noise(REST_SAMPLES, FS, white=white,
-                                         bias_instability=bias_instability, random_walk=walk,
-                                         rng=rng) for _ in range(channels)], 1)
-        fit = fit_noise(allan_curve(rest, FS))
-        for k, term in ((1, "bias_instability"), (2, "random_walk")):
-            out[term].append(fit.value[k] if fit.resolved[k].all() else np.zeros(channels))
-    return {t: np.concatenate(v) for t, v in out.items() if np.any(np.concatenate(v))}
+    found = [(channels, rest_terms(channels, FS, white, b, k, rng))
+             for white, b, k, channels in streams]
+    out = {t: np.concatenate([terms.get(t, np.zeros(channels)) for channels, terms in found])
+           for t in ("bias_instability", "random_walk")}
+    return {t: v for t, v in out.items() if np.any(v)}
 
 
 def run_case(case: str, seed: int, leave_out: bool = False, noise_model: bool = False) -> dict:
