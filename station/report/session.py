@@ -214,7 +214,7 @@ def _calibration(session, name, report, stream: str | None):
                          f"{', '.join(chosen) or 'none'} (omit --result to use the newest)")
     kind = KINDS.get(session.protocol)
     if chosen:
-        stored = chosen[name] if name else max(chosen.values(), key=lambda r: r.created)
+        stored = chosen[name] if name else max(chosen.values(), key=lambda r: r.order)
         spec = session.specs[stored.stream]
         report.summary["result"] = f"results/{stored.name} ({stored.created})"
         if stored.calibration is None:

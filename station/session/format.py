@@ -143,6 +143,13 @@ class SessionResults:
     created: str
     settings: dict | None = None  # what reduced and solved them (replay), None: the recording's
     channels: tuple | None = None  # the stream's channels the rows are; None: all, in order
+    sequence: int = 0  # results in the file before these were written (0 in files before it)
+
+    @property
+    def order(self) -> tuple:
+        """The key that sorts results oldest first: `created` is to the second, so results written
+        within one second of each other are told apart by their `sequence`."""
+        return self.created, self.sequence
 
 
 def last_completed_position(events) -> int | None:

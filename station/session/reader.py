@@ -198,7 +198,8 @@ class Session:
             if "settings" in g.attrs else None
         return SessionResults(name, stream, tuple(_attr(g.attrs, "units", list, where)), readings,
                               sigma, cal, _attr(g.attrs, "created", str, where), settings,
-                              channels)
+                              channels, _attr(g.attrs, "sequence", int, where)
+                              if "sequence" in g.attrs else 0)
 
     def close(self) -> None:
         self._file.close()
@@ -238,7 +239,7 @@ def _check_format(path, attrs) -> int:
 
 
 def _attr(attrs, key, kind, where):
-    """An attribute of the expected Python type (str, float or list of str)."""
+    """An attribute of the expected Python type (str, float, int or list of str)."""
     value = attrs.get(key)
     # an empty list written as a plain array comes back as float64 (files of early version-1
     # writers)
@@ -250,6 +251,8 @@ def _attr(attrs, key, kind, where):
             return value
     elif kind is float and isinstance(value, np.floating | float):
         return float(value)
+    elif kind is int and isinstance(value, np.integer):
+        return int(value)
     elif isinstance(value, kind):
         return value
     raise SessionFormatError(f"{where}: attribute {key!r} is missing or not a {kind.__name__}")

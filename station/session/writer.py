@@ -313,8 +313,9 @@ def write_results(path, name: str, stream: str, readings, calibration=None,
     with _reopen(path) as f:
         if name in f["results"]:
             raise InputError(f"results/{name} exists in {path}; write under a new name")
+        sequence = len(f["results"])  # orders results written within one second of each other
         g = f["results"].create_group(name)
-        g.attrs.update(stream=stream, units=units, created=utc_now())
+        g.attrs.update(stream=stream, units=units, created=utc_now(), sequence=sequence)
         if channels is not None:
             g.attrs["channels"] = rows
         if settings_json is not None:
