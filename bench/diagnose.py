@@ -130,15 +130,26 @@ def spec(case: str) -> str:
     if case in OPEN:
         hz = OPEN[case] * SHORT.rate / (2 * np.pi)
         return f"axis_wobble=angle_deg={OPEN_ANGLE},freq={hz:.6g}"
+    if case in QUANTISED:
+        return CASES[QUANTISED[case][0]]
     return POLYNOMIALS.get(case) or CASES[case]
 
 
 QUIET = 2e-4 / OMEGA_EARTH
+QUANTISED = {"quantised_6sigma": ("none", 10), "quantised_2.5sigma": ("none", 4),
+             "bias_drift_quantised": ("bias_drift", 10), "rate_error_quantised": ("rate_error", 10)}
 UNITS = {"earth_rate": {"noise_density": np.radians(0.01) / QUIET,
-                        "counts_per_unit": QUIET * 16.4 / np.radians(1.0)}}
+                        "counts_per_unit": QUIET * 16.4 / np.radians(1.0)},
+         **{case: {"counts_per_unit": 16.4 / np.radians(1.0) / coarser}
+            for case, (_, coarser) in QUANTISED.items()}}
 """Unit overrides per case: the Earth's own rate (a physical one, station.diagnose.plausibility)
 on a gyro 2.7 x quieter than the MEMS default (and counts 2.7 x finer, so that the noise keeps
-its size in counts), the signal-to-noise of 2e-4 rad/s on the default one."""
+its size in counts), the signal-to-noise of 2e-4 rad/s on the default one. Issue 32, pattern 4
+(`QUANTISED`, run by `--effects` only: case -> (the case of CASES it hides, how many times
+coarser than the default MEMS gyro's its counts are)): a step of 0.0106 rad/s, about 6 sigma, or
+of about 2.5 sigma, effect-free or beside a library effect (whose signals, 0.004 rad/s of
+warm-up, 1.5e-4 of the rate, lie within a step: the right call is still the effect's name, when
+the quantiser lets it be seen)."""
 
 
 PAIRS = ("bias_drift+latency", "scale_nonlinearity+latency", "bias_drift+scale_nonlinearity",
@@ -150,7 +161,7 @@ spectrum at the table rate, the ramps)."""
 
 def hidden(case: str) -> list:
     """The effect names a case hides: one, or two for a pair ("a+b")."""
-    return [parse(CASES[c])[0] for c in case.split("+")]
+    return [parse(spec(c))[0] for c in case.split("+")]
 
 
 def session(case: str, m: int, seed: int, timing=SHORT, fs: float = 100.0, n: int = 20):
@@ -487,7 +498,7 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False, first: i
     `unexplained` is the right verdict); kwargs: the sessions' timing, fs, n (`session`)."""
     out = {}
     for case in cases:
-        effect = parse(CASES[case])[0]
+        effect = parse(spec(case))[0]
         runs = [run_case(case, m, 1000 * m + first + s, leave_out, **kwargs) for m in LAYOUTS
                 for s in range(seeds)]
         right = [r["first"] == effect and len(r["named"]) <= 1 + (effect != "none")
@@ -565,8 +576,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--seeds", type=int, default=4, help="sessions per case and m")
-    parser.add_argument("--effects", nargs="+", choices=list(CASES), default=list(CASES),
-                        help="cases (hidden effects) to run (default: all)")
+    parser.add_argument("--effects", nargs="+", choices=[*CASES, *QUANTISED],
+                        default=list(CASES), help="cases (hidden effects) to run (default: all "
+                        "of CASES)")
     parser.add_argument("--no-timing", action="store_true", help="skip the full-session timing")
     parser.add_argument("--leave-one-out", action="store_true",
                         help="also hide each effect AND remove it from the candidates")

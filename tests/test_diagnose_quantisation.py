@@ -46,6 +46,26 @@ def test_the_noise_model_matches_simulated_means(sigma):
         assert d2.mean() - scatter**2 / n > band
 
 
+@pytest.mark.parametrize("sigma", [0.1, 0.164, 0.3])
+def test_the_noise_is_read_from_the_values_the_windows_read(sigma):
+    """quantisation.level_sigma on 20 windows of 600 samples at levels spread over the steps (a
+    rotary session's rotating windows), 10 sessions: the mean estimate within 3 standard errors
+    of the truth (their spread measured), and its spread at most half the scatter inversion's
+    (analog_sigma) on the same samples: where the noise is below the step, a window's samples
+    say where its level sits, which their scatter's average over 20 levels does not."""
+    rng = np.random.default_rng(int(1000 * sigma))
+    ml, scatter = [], []
+    for _ in range(10):
+        windows = [np.round(mu + sigma * rng.standard_normal(600)).astype(np.int64)
+                   for mu in rng.uniform(0, 50, 20)]
+        ml.append(quantisation.level_sigma(windows))
+        pooled = np.sqrt(np.mean([w.var(ddof=1) for w in windows]))
+        scatter.append(quantisation.analog_sigma(pooled, 1.0)[0])
+    ml, scatter = np.array(ml), np.array(scatter)
+    assert abs(ml.mean() - sigma) < 3 * ml.std(ddof=1) / np.sqrt(len(ml))
+    assert ml.std(ddof=1) < 0.5 * scatter.std(ddof=1)
+
+
 def test_the_step_is_read_from_the_values():
     x = np.round(np.random.default_rng(1).normal(0, 3, (500, 2)) / 0.05) * 0.05
     x[:, 1] = np.round(x[:, 1] * 1e3) / 1e3 + 1e-9  # printed decimals

@@ -130,14 +130,16 @@ def sensor_covariances(white, shapes: list) -> list:
             for i, w in enumerate(white)]
 
 
-def level_free_whitening(white: np.ndarray, spans: np.ndarray, terms: list) -> list:
+def level_free_whitening(white: np.ndarray, spans: np.ndarray, terms: list,
+                         covariances=()) -> list:
     """Per sensor (c, c) W with W x the values x (c,) at the windows `spans` (c, 2) whitened net
-    of a free level (its last entry 0): white noise of variance white[i] per value and the
-    coloured terms [(term, scale (m,))] (module notes); sum (W x)^2 is their generalised
-    least-squares chi2."""
+    of a free level (its last entry 0): white noise of variance white[i] per value, the
+    coloured terms [(term, scale (m,))] (module notes) and further covariances [(scale (m,),
+    (c, c) per unit scale)]; sum (W x)^2 is their generalised least-squares chi2."""
     c = len(spans)
     q = np.linalg.qr(np.ones((c, 1)), mode="complete")[0][:, 1:]  # orthonormal, orthogonal to 1
     shapes = [(scale, -(q.T @ mean_variogram(spans, spans, term) @ q)) for term, scale in terms]
+    shapes += [(scale, q.T @ g @ q) for scale, g in covariances]
     out = []
     for cov in sensor_covariances(white, shapes):
         whitening = np.zeros((c, c))
@@ -164,21 +166,40 @@ def bin_factors(data) -> list:
     """Per sensor the `level_free_whitening` of a position's bin means (the within-position part
     of the deviance, station.diagnose.linear), the same for every position (one grid of samples
     per position): within a position a walk or flicker is a slow wander that the effects' shapes
-    there (a tone at the table rate, a ramp) would otherwise take up."""
-    return level_free_whitening(data.sigma**2 / data.bin, bin_spans(data), present(data))
+    there (a tone at the table rate, a ramp) would otherwise take up. Each bin keeps its
+    quantisation error (`RotaryData.bin_variance`) and each window's level one more, common to
+    its bins (`window_levels`: the error of a steady signal, which the level of the rotating
+    window against the static one would otherwise average down over its bins)."""
+    return level_free_whitening(data.bin_variance, bin_spans(data), present(data),
+                                [(data.kept, window_levels(data))])
+
+
+def window_levels(data) -> np.ndarray:
+    """(K, K) the covariance of a position's bin means that one unit error per window common to
+    its samples gives (static, spin-up, the rotating window to the spin-down, spin-down): the
+    bins' shares of each window, B B^T."""
+    kb = data.shape[1] // data.bin
+    first = np.arange(kb) * data.bin
+    ends = [data.windows["static"], data.windows["spinup"],
+            (data.windows["rotating"][0], data.windows["spindown"][0]), data.windows["spindown"]]
+    share = np.stack([np.clip(np.minimum(first + data.bin, z) - np.maximum(first, a), 0, None)
+                      for a, z in ends], 1) / data.bin
+    return share @ share.T
 
 
 def local_whitened(data, weights: np.ndarray, f: np.ndarray) -> np.ndarray:
     """(q, m) a position's local features f (q, m) (station.diagnose.gap.local_rows: weights
     (q, k) over its samples, unit white variance; each a contrast) whitened per sensor by their
-    covariance under white noise and the coloured terms. A slow wander is read on the bins: the
-    weights summed within each bin, against the bins' variograms (`RotaryData.coloured_bins_
-    variograms`)."""
+    covariance under white noise, the coloured terms and the quantisation error each bin keeps
+    (`RotaryData.bin_variance`). A slow wander and that error are read on the bins: the weights
+    summed within each bin, against the bins' variograms (`RotaryData.coloured_bins_
+    variograms`) and the kept variance."""
     q, m = f.shape
     kb = data.shape[1] // data.bin
     binned = weights[:, : kb * data.bin].reshape(q, kb, data.bin).sum(2)
     shapes = [(scale / data.sigma**2, -binned @ gamma @ binned.T)
               for scale, gamma in data.coloured_bins_variograms]
+    shapes.append((data.kept / data.sigma**2, binned @ binned.T))
     out = np.empty_like(f)
     for i, cov in enumerate(sensor_covariances(np.ones(m), shapes)):
         out[:, i] = np.linalg.solve(np.linalg.cholesky(cov), f[:, i])
@@ -209,10 +230,14 @@ def fraction(data, a: int, z: int) -> np.ndarray:
 
 def transients_whitened(data, raw: np.ndarray, white: np.ndarray) -> np.ndarray:
     """(n, 2, m) the spin-up and spin-down mean residuals raw (n, 2, m), white-noise variances
-    `white` (n, 2, m), whitened per sensor by their covariance under white noise and the
-    coloured terms (`transients_covariance`)."""
+    `white` (n, 2, m), whitened per sensor by their covariance under white noise, the coloured
+    terms (`transients_covariance`) and the static level's quantisation error: the static
+    signal is the same at every position (the bias; the Earth rate is far below a coarse step),
+    so the error its mean keeps is common to all positions, taken into the fitted bias and seen
+    by every ramp against it (`RotaryData.kept`, each ramp's own in `white`)."""
     n, _, m = raw.shape
     shapes = [(scale, transients_covariance(data, term)) for term, scale in present(data)]
+    shapes.append((data.kept, np.ones((2 * n, 2 * n))))
     out = np.empty_like(raw)
     for i, cov in enumerate(sensor_covariances(white.reshape(2 * n, m).T, shapes)):
         out[:, :, i] = np.linalg.solve(np.linalg.cholesky(cov),

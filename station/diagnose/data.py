@@ -128,10 +128,18 @@ class RotaryData:
         (station.diagnose.coloured.static_factors), made once."""
         return coloured.static_factors(self)
 
+    @property
+    def correlated(self) -> bool:
+        """Whether a position's bins share errors: coloured noise in the model, or a sensor
+        quantised coarser than its noise (each window's level keeps its quantisation error: the
+        bins of a window with a steady signal read it together). The within-position part of the
+        deviance is then judged by generalised least squares (`bin_whitening`)."""
+        return self.coloured or bool(self.coarse.any())
+
     @cached_property
-    def coloured_bins(self) -> list:
-        """The bins' whitening under the coloured noise (station.diagnose.coloured.bin_factors),
-        made once."""
+    def bin_whitening(self) -> list:
+        """The bins' whitening under the coloured noise and the quantisation error the bins keep
+        (station.diagnose.coloured.bin_factors), made once."""
         return coloured.bin_factors(self)
 
     @cached_property
@@ -162,10 +170,14 @@ class RotaryData:
 
     @cached_property
     def sigma(self) -> np.ndarray:
-        """(m,) per-sample noise: the pooled standard deviation within the static windows."""
+        """(m,) per-sample noise: the pooled standard deviation within the static windows; on a
+        sensor quantised coarser than its noise (`coarse`) the larger of it and the rotating
+        windows' (`rotating_scatter`): the static windows read one level, whose place in its
+        step sets their scatter, and the rotating windows' features would be judged by it."""
         s0, s1 = self.windows["static"]
         var = np.concatenate([self.counts[rows, s0:s1].var(1, ddof=1) for rows in self.chunks()])
-        return np.sqrt(var.mean(0)) * self.lsb
+        static = np.sqrt(var.mean(0)) * self.lsb
+        return np.where(self.coarse, np.maximum(static, self.rotating_scatter), static)
 
     @cached_property
     def rate_factors(self) -> np.ndarray:
@@ -188,9 +200,38 @@ class RotaryData:
 
     @cached_property
     def analog_sigma(self) -> np.ndarray:
-        """(m,) the noise before quantisation, from `sigma`, the samples' scatter
-        (station.diagnose.quantisation.analog_sigma)."""
-        return quantisation.analog_sigma(self.sigma, self.step)
+        """(m,) the noise before quantisation: from the samples' scatter within the rotating
+        windows (`rotating_scatter`; station.diagnose.quantisation.analog_sigma) and, for a
+        sensor that it finds coarser than its noise, from the values its static and rotating
+        windows read (quantisation.level_sigma: 4 times more precise at 6 sigma a step, where
+        the scatter's average over 20 levels left kept's estimate 40 % rms off)."""
+        out = quantisation.analog_sigma(self.rotating_scatter, self.step)
+        s0, s1 = self.windows["static"]
+        r0 = self.windows["rotating"][0]
+        for i in np.flatnonzero(quantisation.coarse(self.step, out)):
+            per = round(self.step[i] / self.lsb[i])  # counts per step
+            windows = [w // per for rows in self.chunks()
+                       for x, stop in zip(self.counts[rows, :, i], self.rot_stop[rows],
+                                          strict=True)
+                       for w in (x[s0:s1], x[r0:stop])]
+            out[i] = quantisation.level_sigma(windows) * self.step[i]
+        return out
+
+    @cached_property
+    def rotating_scatter(self) -> np.ndarray:
+        """(m,) the samples' scatter about their whole-revolution rotating window's mean, pooled
+        over the positions. Each position's rotating level lies elsewhere within a step (the
+        sensed rate differs with the orientation), so the scatter holds the step's average
+        quantisation error, the premise of `quantisation.analog_sigma`; the static windows read
+        one level at every position (the bias), whose place in its step sets their scatter
+        (from 0 to half a step when the noise is finer than the step)."""
+        r0, squares, dof = self.windows["rotating"][0], 0.0, 0
+        for rows in self.chunks():
+            for x, stop in zip(self.counts[rows], self.rot_stop[rows], strict=True):
+                w = x[r0:stop].astype(float)
+                squares = squares + np.sum((w - w.mean(0)) ** 2, 0)
+                dof += len(w) - 1
+        return np.sqrt(squares / dof) * self.lsb
 
     @cached_property
     def kept(self) -> np.ndarray:
@@ -198,6 +239,23 @@ class RotaryData:
         quantisation: 0 to 1e-5 step^2 while the noise dithers the step, up to step^2 / 12 for a
         channel quieter than its step), at the noise before quantisation."""
         return quantisation.kept(self.analog_sigma, self.step)
+
+    @cached_property
+    def coarse(self) -> np.ndarray:
+        """(m,) sensors quantised coarser than their noise (station.diagnose.quantisation.coarse):
+        their rail pile-up is not judged (`station.diagnose.rails`)."""
+        return quantisation.coarse(self.step, self.analog_sigma)
+
+    @property
+    def bin_variance(self) -> np.ndarray:
+        """(m,) variance of a bin's mean: the white noise's over its `bin` samples and the
+        quantisation error it keeps (`kept`), taken as independent between bins. Exact where the
+        signal sweeps the steps within a window; where it stays within a step, a small change
+        of the signal moves the output by the step's unknown local gain (0 to step / (sigma
+        sqrt(2 pi)) per unit), a shape the white model would read as a tone or a trend: the
+        kept error per bin holds it, conservatively (bins that share a level share its error,
+        which their contrasts cancel)."""
+        return self.sigma**2 / self.bin + self.kept
 
     def quantisation_report(self) -> dict:
         """The steps against the noise, and whether some sensor is quantised coarser than its

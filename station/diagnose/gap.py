@@ -61,9 +61,9 @@ def features(data, model) -> dict:
     n = b.shape[0]
     static = data.static_whitened(b) * np.sqrt(n / max(n - 1, 1))
     raw = np.stack([np.concatenate([c[i] for c in ramps]) for i in range(2)], 1)  # (n, 2, m)
-    white = np.stack([sig**2 / (z - a) * (1 + _level_noise(data, a, z))
+    white = np.stack([sig**2 / (z - a) * (1 + _level_noise(data, a, z)) + data.kept
                       for a, z in (data.windows["spinup"], data.windows["spindown"])], 1)
-    trans = (coloured.transients_whitened(data, raw, white) if data.coloured
+    trans = (coloured.transients_whitened(data, raw, white) if data.correlated
              else raw / np.sqrt(white))
     return {"static": static[:, None], "trend": local[:, :2], "harmonics": local[:, 2:],
             "transients": trans}
@@ -86,12 +86,13 @@ def local_rows(data, j: int) -> np.ndarray:
 def _local(data, r: np.ndarray, rows: slice, sig: np.ndarray) -> np.ndarray:
     """(p, 2 + 2 len(HARMONICS), m) the local features (`local_rows`) of the residuals r
     (p, k, m) of the positions `rows`, over the white noise sig (m,); with coloured noise in the
-    model whitened by their covariance under it (station.diagnose.coloured.local_whitened)."""
-    out = []
+    model or a sensor quantised coarser than its noise whitened by their covariance under them
+    (station.diagnose.coloured.local_whitened)."""
+    out, whiten = [], data.correlated
     for rj, j in zip(r, data.positions(rows), strict=True):
         weights = local_rows(data, j)
         f = weights @ rj / sig
-        out.append(coloured.local_whitened(data, weights, f) if data.coloured else f)
+        out.append(coloured.local_whitened(data, weights, f) if whiten else f)
     return np.array(out)
 
 

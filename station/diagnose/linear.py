@@ -56,23 +56,25 @@ def centred_signature(data, make) -> tuple:
 
 
 def weights(data, sigma: np.ndarray) -> tuple:
-    """(m,) weights of a bin and of a static mean (its variance: the white noise's over its
-    samples and the quantisation error it keeps, `RotaryData.kept`)."""
+    """(m,) weights of a bin and of a static mean (each its variance: the white noise's over its
+    samples and the quantisation error it keeps, `RotaryData.kept`; a bin's as
+    `RotaryData.bin_variance`)."""
     s0, s1 = data.windows["static"]
-    return data.bin / sigma**2, 1 / (sigma**2 / (s1 - s0) + data.kept)
+    return 1 / (sigma**2 / data.bin + data.kept), 1 / (sigma**2 / (s1 - s0) + data.kept)
 
 
 def chi2(data, r: tuple, sigma: np.ndarray) -> float:
     """chi2 of residuals given as their centred parts r = (bins (n, K, m), static means (n, m)):
     within positions plus static means across positions; with coloured noise in the noise
-    model (`RotaryData.coloured`: a bias random walk, flicker) both by generalised least squares
+    model (`RotaryData.coloured`: a bias random walk, flicker) or a sensor quantised coarser than
+    its noise (`RotaryData.correlated`) both by generalised least squares
     (station.diagnose.coloured; the effects' fits keep the white weights: their chi2 decrease
     under the walk can only be smaller than its own optimum's, a conservative likelihood
     ratio)."""
     w, ws = weights(data, sigma)
-    if not data.coloured:
+    if not data.correlated:
         return float(np.sum(r[0] ** 2 * w) + np.sum(r[1] ** 2 * ws))
-    bins = sum(np.sum((r[0][..., i] @ f.T) ** 2) for i, f in enumerate(data.coloured_bins))
+    bins = sum(np.sum((r[0][..., i] @ f.T) ** 2) for i, f in enumerate(data.bin_whitening))
     return float(bins + np.sum(data.static_whitened(r[1]) ** 2))
 
 

@@ -20,11 +20,20 @@ stays in the mean), below 1e-5 Delta^2 for sigma > Delta / 2 (the noise dithers 
 error averages as white noise, Sheppard's sigma^2 + Delta^2 / 12 a sample). The samples' scatter
 s about their window means is, on average over mu, sigma^2 + Delta^2 / 12 - q(sigma) (the rest of
 the error's variance; noise and error are uncorrelated on average over mu), which gives sigma
-from s. A mean of n samples then has variance s^2 / n + q.
+from s (`analog_sigma`). A mean of n samples then has variance s^2 / n + q.
+
+That average needs the windows' levels spread over the step. Where they are few, a channel
+quieter than its step gives sigma better from the values each window reads (`level_sigma`):
+a window at level mu reads k (in steps) with probability Phi((k + 1/2 - mu) / sigma) -
+Phi((k - 1/2 - mu) / sigma), whose likelihood over the windows, each mu integrated out, has its
+maximum at sigma (profiled out instead, the many mu bias it low: a window that reads one value
+fits best with no noise, Neyman and Scott 1948). On 20 windows of 600 samples at levels spread
+over the steps, sigma = 0.164 step: 0.163 +- 0.008 (the scatter's inversion: 0.164 +- 0.032).
 """
 
 import numpy as np
 from scipy.optimize import brentq
+from scipy.special import logsumexp, ndtr
 
 TERMS = 1000
 """Terms of the series of q (the rest is below Delta^2 / (2 pi^2 TERMS): 0.06 % of Delta^2 / 12)."""
@@ -61,6 +70,33 @@ def analog_sigma(scatter, delta) -> np.ndarray:
             return sig**2 + d**2 / 12 - kept(sig, d)[0] - s**2
         out.append(brentq(excess, 0.0, s) if s > 0 and excess(0.0) < 0 else 0.0)
     return np.array(out)
+
+
+def level_sigma(windows) -> float:
+    """The noise sigma before quantisation, in steps, by maximum likelihood from windows of
+    integer values (each an array of the counts a steady level reads; module docstring): sigma
+    on a geometric grid from 0.01 to 2 steps, refined once between the best point's neighbours;
+    each window's level integrated over a grid of 0.0025 step within 0.6 step of its mean (a
+    uniform prior)."""
+    tables = []
+    for w in windows:
+        levels, n = np.unique(np.asarray(w, np.int64), return_counts=True)
+        mus = np.arange(-240, 241) / 400
+        tables.append((levels - w.mean(), n, mus))
+
+    def loglik(sigmas):
+        total = np.zeros(len(sigmas))
+        for k, n, mu in tables:  # k, mu relative to the window's mean
+            edge = (k[None, None, :] - mu[None, :, None]) / sigmas[:, None, None]
+            half = 0.5 / sigmas[:, None, None]
+            p = ndtr(edge + half) - ndtr(edge - half)
+            total += logsumexp(np.log(np.maximum(p, 1e-300)) @ n, axis=1)
+        return total
+
+    grid = np.geomspace(0.01, 2.0, 60)
+    best = int(np.argmax(loglik(grid)))
+    fine = np.linspace(grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)], 41)
+    return float(fine[np.argmax(loglik(fine))])
 
 
 def coarse(delta, sigma) -> np.ndarray:

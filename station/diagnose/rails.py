@@ -15,21 +15,25 @@ from scipy.special import ndtr
 
 def observed(data) -> np.ndarray:
     """(2, m) samples reading +R and -R (R: `RotaryData.rail`; counted a chunk of positions at a
-    time)."""
+    time); 0 on a sensor quantised coarser than its noise (`RotaryData.coarse`), whose outputs
+    read a few values each: the twin's means do not place them within a step, so a reading at
+    the rail is quantisation as much as a clip (its `expected` is 0 too)."""
     r = data.rail
-    return sum(np.stack([(data.counts[rows] == r).sum((0, 1)),
-                         (data.counts[rows] == -r).sum((0, 1))]) for rows in data.chunks())
+    counted = sum(np.stack([(data.counts[rows] == r).sum((0, 1)),
+                            (data.counts[rows] == -r).sum((0, 1))]) for rows in data.chunks())
+    return np.where(data.coarse, 0, counted)
 
 
 def expected(data, z: np.ndarray, sigma: np.ndarray, clipped: bool,
              offsets: np.ndarray | None = None) -> np.ndarray:
     """(2, m) expected samples at +R and -R for expected outputs z (n, k, m), noise sigma (m,),
-    each position's outputs moved by `offsets` (n, m) when given."""
+    each position's outputs moved by `offsets` (n, m) when given; 0 on a coarse sensor
+    (`observed`)."""
     r = data.rail
     m = z.shape[2]
     sc = np.broadcast_to(sigma / data.lsb, (m,))
     out = np.zeros((2, m))
-    for i in range(m):
+    for i in np.flatnonzero(~data.coarse):
         mu = z[..., i] / data.lsb[i]  # counts
         if offsets is not None:
             mu = mu + offsets[:, None, i] / data.lsb[i]

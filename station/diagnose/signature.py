@@ -96,7 +96,7 @@ def residual_spectrum(data, ctx, twin) -> dict:
     a = ctx.a
     if a.shape[0] != 3:
         return {}
-    w = 1.0 / data.sigma**2
+    w = 1.0 / (data.sigma**2 + data.bin * data.kept)  # a bin's variance spread over its samples
     cov = np.linalg.inv((a * w) @ a.T)
     grid = frequencies(data)
     points = [_position_spectrum(data, ctx, rj, j, w, cov, grid)

@@ -78,5 +78,5 @@ def static_log10_p(current, shapes: np.ndarray, taus: int) -> float:
     data = current.ctx.data
     s0, s1 = data.windows["static"]
     y = linear.signature_parts(data, current.twin.residual)[1]  # static means
-    var = np.broadcast_to(current.ctx.sigma**2 / (s1 - s0), y.shape)
+    var = np.broadcast_to(current.ctx.sigma**2 / (s1 - s0) + data.kept, y.shape)
     return log10_p(y, data.t_session[:, s0:s1].mean(1), var, shapes, taus)

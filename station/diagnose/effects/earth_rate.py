@@ -66,7 +66,7 @@ def _vertical(ctx, means: np.ndarray, horizontal: np.ndarray) -> tuple[float, fl
     x = np.zeros((n * m, m + 1))
     x[np.arange(n * m), np.tile(np.arange(m), n)] = 1.0
     x[:, m] = proj.ravel()
-    w = np.tile(k / ctx.sigma**2, n)
+    w = np.tile(1 / (ctx.sigma**2 / k + ctx.data.kept), n)
     h = x.T @ (w[:, None] * x)
     theta = np.linalg.solve(h, x.T @ (w * b.ravel()))
     return float(theta[m]), float(np.sqrt(np.linalg.inv(h)[m, m]))
