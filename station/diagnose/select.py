@@ -141,9 +141,10 @@ def diagnose(data, *, alpha: float = 0.01, max_effects: int = 3, iterations: int
                       lambda current, names: model.fit(data, list(names), current, iterations),
                       lambda m: gap.statistics(data, m), alpha=alpha, max_effects=max_effects,
                       check=lambda name, f: plausibility.check(name, f, site),
-                      noise=lambda name, f, current: within_walk(getattr(
-                          EXTENSIONS[name], "beyond_walk", lambda *_: None)(current, f),
-                          alpha / len(candidates)), progress=progress)
+                      noise=lambda name, fit, current: within_walk(getattr(
+                          EXTENSIONS[name], "beyond_walk", lambda *_: None)(
+                          current, fit.fitted[name]), alpha / len(candidates)),
+                      progress=progress)
 
     n = data.shape[0]
 
@@ -347,16 +348,17 @@ def correction(data, result: Diagnosis) -> dict | None:
 
 
 def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: int,
-           check=lambda name, fitted: "", noise=lambda name, fitted, current: "",
+           check=lambda name, fitted: "", noise=lambda name, fit, current: "",
            progress=None) -> Diagnosis:
     """The evidence loop from the model `start`: every candidate not yet in the model is added
     (`extend(current, names)` -> the model fitted with those extensions) and its evidence
     measured; the strongest significant one whose fit is plausible (`check(name, fitted)` ->
-    "" or why not) and more than the noise (`noise(name, fitted, current)` -> "" or why not,
-    `within_noise` in its evidence: a drift a bias random walk explains) is kept; repeated
-    until none is significant or `max_effects` are in. `statistics(model)` gives each step's
-    gap. `progress(done, total)`, if given, hears of each fit: done so far, and at most
-    `total` (every step going on)."""
+    "" or why not) and more than the noise (`noise(name, fit, current)` -> "" or why not, fit
+    the model with it, `within_noise` in its evidence: a drift a bias random walk explains, a
+    gyro law a bias moving from pose to pose explains) is kept; repeated until none is
+    significant or `max_effects` are in. `statistics(model)` gives each step's gap.
+    `progress(done, total)`, if given, hears of each fit: done so far, and at most `total`
+    (every step going on)."""
     current, steps, excluded = start, [], set()
     n = len(candidates)
     tried, total = 0, sum(n - s for s in range(min(max_effects, n)))
@@ -369,7 +371,7 @@ def greedy(start, candidates, extend, statistics, *, alpha: float, max_effects: 
                 ev[name] = evidence(current, fit, name, len(remaining), alpha)
                 ev[name]["implausible"] = check(name, fit.fitted[name])
                 if ev[name]["significant"] and not ev[name]["implausible"]:
-                    ev[name]["within_noise"] = noise(name, fit.fitted[name], current)
+                    ev[name]["within_noise"] = noise(name, fit, current)
                 if _eligible(ev[name]) and (
                         best == "none" or ev[name]["log10_p"] < ev[best]["log10_p"]):
                     best, chosen = name, fit  # only the strongest fit so far is kept (memory)

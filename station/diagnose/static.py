@@ -25,6 +25,7 @@ from functools import cached_property
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import f as f_law
 
 from station.diagnose import (
     coloured,
@@ -773,6 +774,38 @@ def untestable(data: StaticData, b0: Base) -> dict:
     return out
 
 
+GYRO_LAWS = ("earth_rate", "g_sensitivity")
+"""Candidates that give the gyro's pose means a law in the orientation (`within_pose_scatter`)."""
+
+
+def within_pose_scatter(data: StaticData, name: str, extended: Model, current: Model,
+                        level: float) -> str:
+    """"" or why a gyro law (GYRO_LAWS) is no effect: the poses' gyro means scatter about the
+    model with it by more than their noise, and against that scatter its deviance decrease is
+    not significant at `level`: F = (LR / (scale nu)) / (chi2_gyro / dof) with the law's null
+    scale * chi2(nu) and the gyro gap's chi2 over its dof less nu, on F(nu, dof) (the scatter
+    taken as at least the noise: the test only ever withholds). A gyro bias that moves from pose
+    to pose (a shock at each turn, a cable's pull) projects on any law of the orientation: the
+    chi2 test against the white noise alone names it."""
+    from station.diagnose import static_report
+
+    if name not in GYRO_LAWS:
+        return ""
+    scale, nu = extended.fitted[name].null_law
+    dof = static_report.dofs(data, extended)["gyro"] - nu
+    scatter = static_report.statistics(data, extended)["gyro"] * (dof + nu) / max(dof, 1)
+    lr = max(current.deviance - extended.deviance, 0.0)
+    log10_p = float(f_law.logsf(lr / (scale * nu) / max(scatter, 1.0), nu, max(dof, 1))
+                    / np.log(10))
+    if log10_p < np.log10(level):
+        return ""
+    return (f"the poses' gyro means scatter about it by {scatter:.2f} x their noise, and "
+            f"against that scatter it is not significant (F test log10 p {log10_p:.1f}): a gyro "
+            "bias that moves from pose to pose explains it as well (repeat earlier poses: the "
+            "Earth rate and g-sensitivity read the same at the same orientation, a moving bias "
+            "does not)")
+
+
 GAPS = {"bias_drift": ("between", "gyro", "trend"), "scale_nonlinearity": ("between",),
         "saturation": ("rails",), "earth_rate": ("gyro",), "g_sensitivity": ("gyro",)}
 """Gap statistics holding each candidate's signature (station.diagnose.select.settle)."""
@@ -798,7 +831,10 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
                       lambda current, names: fit(data, b0, names, current),
                       lambda m: static_report.statistics(data, m), alpha=alpha,
                       max_effects=max_effects,
-                      check=lambda name, f: plausibility.check(name, f, site), progress=progress)
+                      check=lambda name, f: plausibility.check(name, f, site),
+                      noise=lambda name, extended, current: within_pose_scatter(
+                          data, name, extended, current, alpha / len(candidates)),
+                      progress=progress)
 
     result, (test, _) = settle(run(), lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
