@@ -210,11 +210,15 @@ def jump_session(case: str, m: int, seed: int, timing, fs: float, n: int):
 def coloured_session(case: str, m: int, seed: int, timing, fs: float, n: int):
     """(RotaryData, truth) of a COLOURED case: the unit's bias random walk (continuing between
     positions) and flicker added to the counts as one stream over the positions' samples (the
-    pauses between them left out)."""
+    pauses between them left out), the counts then 100 x finer than the default gyro's
+    (`FLICKER_COUNTS`): rounded again on the default grid (a step of 1.1e-3 rad/s, the white
+    noise already in the rounded counts), flicker of 5e-5 rad/s mostly vanished (until session
+    26)."""
     spec, walk, bias_instability = COLOURED[case]
     name, params = parse(spec)
     rng = np.random.default_rng(seed)
-    unit = gyro_array(rng, LAYOUTS[m], fs=fs, bias_walk=walk)
+    unit = gyro_array(rng, LAYOUTS[m], fs=fs, bias_walk=walk,
+                      **(FLICKER_COUNTS if bias_instability else {}))
     sim = simulate_rotary(unit, n, timing, effects={} if params is None else {name: params},
                           a_nominal=LAYOUTS[m])
     arrays = dict(sim.arrays)
@@ -224,6 +228,12 @@ def coloured_session(case: str, m: int, seed: int, timing, fs: float, n: int):
         noise = np.stack([flicker(y[..., 0].size, bias_instability, rng) for _ in range(m)], 1)
         arrays["y"] = np.round(y + noise.reshape(y.shape) / lsb).astype(y.dtype)
     return session_data.from_arrays(arrays), sim.truth
+
+
+FLICKER_COUNTS = {"counts_per_unit": 100 * 16.4 / np.radians(1.0)}
+"""The counts of a session with flicker (`coloured_session`): a step of 1.1e-5 rad/s, whose
+rounding of the flicker leaves at most 5e-6 rad/s a sample (a mean keeps under 1e-3 of its white
+noise's variance)."""
 
 
 def open_family(seeds: int, cases=(*OPEN, *JUMPS, *POLYNOMIALS), layouts=(3,)) -> dict:
