@@ -39,6 +39,9 @@ TERMS = 1000
 """Terms of the series of q (the rest is below Delta^2 / (2 pi^2 TERMS): 0.06 % of Delta^2 / 12)."""
 COARSE = 1.0
 """A channel whose step exceeds this many of its noise's sigma is reported as quantised."""
+WINDOWS = 200
+"""The windows `level_sigma` reads at most (the first ones): 200 windows of 600 samples give
+sigma to about 2 % at 0.16 step; more only cost time (2.5 ms of CPU a window)."""
 
 
 def step(x: np.ndarray) -> np.ndarray:
@@ -77,9 +80,9 @@ def level_sigma(windows) -> float:
     integer values (each an array of the counts a steady level reads; module docstring): sigma
     on a geometric grid from 0.01 to 2 steps, refined once between the best point's neighbours;
     each window's level integrated over a grid of 0.0025 step within 0.6 step of its mean (a
-    uniform prior)."""
+    uniform prior); at most the first WINDOWS windows."""
     tables = []
-    for w in windows:
+    for w in windows[:WINDOWS]:
         levels, n = np.unique(np.asarray(w, np.int64), return_counts=True)
         mus = np.arange(-240, 241) / 400
         tables.append((levels - w.mean(), n, mus))
