@@ -85,7 +85,8 @@ def test_coarse_quantisation_is_said_and_kept_in_the_noise_of_the_readings(seed)
     assert np.all(data.kept > 0.01 * data.step**2 / 12)
     result = diagnose(data)
     doc = to_dict(result, data)
-    assert any(f.startswith("QUANTISED") for f in doc["findings"])
+    said = [f for f in doc["findings"] if f.startswith("QUANTISED")]
+    assert said and "finer counts" in said[0]
     assert not result.effects and not result.unexplained, (result.effects, result.unexplained)
     a, v = np.asarray(sim.truth["a"]), np.asarray(sim.truth["v"])
     assert eps(a, result.calibration.a) < 3 * np.sqrt(np.trace(crlb(a, v, data.sigma_m)))

@@ -47,8 +47,9 @@ def to_dict(diagnosis, data, source: str = "", noise_source: str | None = None) 
     said = outliers.message(spikes, [f"sensor {i}" for i in range(m)],
                             "its position's steady model in the table rate")
     grid = data.quantisation_report()
-    coarse = [grid["message"] + "; the gaps within positions still assume it dithered: names "
-              "beside it may stand for the grid"] if grid["message"] else []
+    coarse = [grid["message"] + "; an effect within a window smaller than the step (a slope, a "
+              "tone) is hidden by it: record with finer counts to see one"] if grid["message"] \
+        else []
     return jsonable({
         "session": source,
         "protocol": "rotary",
