@@ -101,3 +101,20 @@ def test_a_finely_quantised_session_is_not_called_quantised():
     data, _, _ = session(0.24, 6)  # the triad's own 4096 counts per g
     assert not data.quantisation()["coarse"].any()
     assert np.allclose(data.sigma, data.scatter)  # the noise dithers the grid: nothing kept
+
+
+def test_poses_at_a_steps_edge_are_judged_by_their_own_scatter():
+    """bench/diagnose_static.py's quantised_12sigma, seed 109: most poses read one value, a few
+    whose level sits at a step's edge flip between two; judged by the pooled scatter, those poses'
+    bins named a warm-up and a saturation beside QUANTISED. Each coarse channel's bins are now
+    judged by their own pose's scatter (StaticData.bin_sigma): nothing is named."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "diagnose_static.py"
+    spec = importlib.util.spec_from_file_location("bench_static_quantised", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    data, _ = bench.session("quantised_12sigma", 109)
+    result = diagnose_static(data)
+    assert data.quantisation()["coarse"].any() and result.effects == []
