@@ -81,15 +81,13 @@ def level_sigma(windows) -> float:
     on a geometric grid from 0.01 to 2 steps, refined once between the best point's neighbours;
     each window's level integrated over a grid of 0.0025 step within 0.6 step of its mean (a
     uniform prior); at most the first WINDOWS windows."""
-    tables = []
-    for w in windows[:WINDOWS]:
-        levels, n = np.unique(np.asarray(w, np.int64), return_counts=True)
-        mus = np.arange(-240, 241) / 400
-        tables.append((levels - w.mean(), n, mus))
+    tables = [(levels - w.mean(), n) for w in windows[:WINDOWS]
+              for levels, n in [np.unique(np.asarray(w, np.int64), return_counts=True)]]
+    mu = np.arange(-240, 241) / 400  # a window's level less its mean
 
     def loglik(sigmas):
         total = np.zeros(len(sigmas))
-        for k, n, mu in tables:  # k, mu relative to the window's mean
+        for k, n in tables:  # k relative to the window's mean
             edge = (k[None, None, :] - mu[None, :, None]) / sigmas[:, None, None]
             half = 0.5 / sigmas[:, None, None]
             p = ndtr(edge + half) - ndtr(edge - half)

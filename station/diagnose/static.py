@@ -123,9 +123,12 @@ class StaticData:
 
     def binmean(self, y: np.ndarray) -> np.ndarray:
         """(B, ...) means of per-sample values y (K, ...) over the bins."""
-        starts = np.concatenate([[0], np.cumsum(self.lengths)[:-1]])
-        sums = np.add.reduceat(y[self.still], starts, axis=0)
-        return sums / self.lengths.reshape((-1,) + (1,) * (y.ndim - 1))
+        return self._binsum(y[self.still]) / self.lengths.reshape((-1,) + (1,) * (y.ndim - 1))
+
+    def _binsum(self, values: np.ndarray) -> np.ndarray:
+        """(B, ...) sums over the bins of values (still samples, ...) given in `still`'s order."""
+        return np.add.reduceat(values, np.concatenate([[0], np.cumsum(self.lengths)[:-1]]),
+                               axis=0)
 
     @cached_property
     def z(self) -> np.ndarray:
@@ -133,10 +136,14 @@ class StaticData:
         return self.binmean(self.x)
 
     @cached_property
+    def bin_squares(self) -> np.ndarray:
+        """(B, c) each bin's sum of its samples' squared deviations from its mean."""
+        return self._binsum((self.x[self.still] - np.repeat(self.z, self.lengths, axis=0)) ** 2)
+
+    @cached_property
     def scatter(self) -> np.ndarray:
         """(c,) the samples' scatter about their bin means, pooled over the bins."""
-        dev = self.x[self.still] - np.repeat(self.z, self.lengths, axis=0)
-        return np.sqrt(np.sum(dev**2, 0) / (self.still.size - len(self.bins)))
+        return np.sqrt(self.bin_squares.sum(0) / (self.still.size - len(self.bins)))
 
     @cached_property
     def analog(self) -> np.ndarray:
@@ -193,10 +200,7 @@ class StaticData:
         if not self.coarse.any():
             return out
         p = len(self.intervals)
-        dev = self.x[self.still] - np.repeat(self.z, self.lengths, axis=0)
-        starts = np.concatenate([[0], np.cumsum(self.lengths)[:-1]])
-        per_bin = np.add.reduceat(dev**2, starts, axis=0)
-        squares = np.stack([np.bincount(self.bin_interval, per_bin[:, i], p)
+        squares = np.stack([np.bincount(self.bin_interval, self.bin_squares[:, i], p)
                             for i in range(self.c)], 1)
         dof = np.maximum(np.bincount(self.bin_interval, self.lengths - 1, p), 1)
         floor = np.where(self.analog > 0, self.analog, self.sigma)  # every sample one value: sigma
