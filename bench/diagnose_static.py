@@ -171,6 +171,7 @@ def run_case(case: str, seed: int, leave_out: bool = False, noise_model: bool = 
     out = {"named": result.effects, "seconds": time.perf_counter() - start,
            "ambiguous": [g["effects"] for g in result.ambiguous],
            "not_named": [p["effect"] for p in result.not_named], "closes": result.closes,
+           "drift_or_walk": bool(result.caveats),
            "unexplained": [u["statistic"] for u in result.unexplained],
            "resembles": [r["effect"] for r in result.resembles],
            "log10_p_first": {k: e["log10_p"] for k, e in result.steps[0].evidence.items()},
@@ -259,6 +260,7 @@ def acceptance(seeds: int, cases=tuple(CASES), leave_out: bool = False,
         entry["log10_p_first"] = [r["log10_p_first"] for r in runs]
         entry["outliers_detected"] = sum(r["outliers"]["detected"] for r in runs)
         entry["quantised_reported"] = sum(r["quantised"] for r in runs)
+        entry["drift_or_walk_said"] = sum(r["drift_or_walk"] for r in runs)
         entry["outlier_rate"] = [float(r["outliers"]["rate"].max()) for r in runs]
         entry["intervals"] = [r["intervals"] for r in runs]
         entry["eps_before_over_bound"] = [r["eps_before"] / r["bound"] for r in runs]
@@ -360,7 +362,8 @@ def show(out: dict) -> None:
             extra += "  rate " + ", ".join(f"{v:.2e}+-{s:.1e}" for v, s in r["earth_rate_fitted"])
         print(f"{case:20s} right {r['right_rate']:.2f} (exact {r['exact_rate']:.2f}) of "
               f"{r['sessions']}  {r['seconds_median']:.1f} s{extra}  {r['verdicts']}")
-        print(f"{'':20s} quantised {r['quantised_reported']}, outliers reported "
+        print(f"{'':20s} quantised {r['quantised_reported']}, bias_drift 'may be a walk' "
+              f"{r['drift_or_walk_said']}, outliers reported "
               f"{r['outliers_detected']} (largest rate "
               f"{max(r['outlier_rate']):.2%}), poses {min(r['intervals'])}-"
               f"{max(r['intervals'])}, eps/bound before "

@@ -289,13 +289,19 @@ def test_real_imucal_ferraris(tmp_path, capsys):
 
 @pytest.mark.parametrize("key", ["bias_drift", "scale_nonlinearity"])
 def test_the_correction_is_applied_when_it_predicts_held_out_poses_better(cases, key):
+    """... unless the effect may be the unit's bias random walk (station.diagnose.static_walk):
+    this white-noise session's warm-up (0.005 m/s^2, tau 40 s) is explained by a free walk as
+    well, so without the unit's noise figures it is named, said to be maybe the walk, and not
+    corrected (tests/test_diagnose_static_walk.py: with figures it is)."""
     data, result = cases[key]
     c = result.correction
-    assert c["applied"] and c["held_out_chi2_after"] < c["held_out_chi2_before"]
+    assert c["held_out_chi2_after"] < c["held_out_chi2_before"]
     # 3 readings per pose, 2 taken by its direction on the sphere: ~1 dof each; the held-out
     # calibration's own error at most doubles the variance
     assert c["held_out_chi2_after"] < chi2.isf(1e-3, 2 * len(data.intervals))
-    assert result.calibration is result.final.calibration
+    walk = key == "bias_drift"
+    assert c["applied"] is not walk and bool(result.caveats) is walk
+    assert result.calibration is (result.steps[0].model if walk else result.final).calibration
 
 
 @pytest.mark.parametrize("seed, size", [(101, 1e-4), (103, 1e-4), (105, 1e-4), (105, 2.5e-4)])

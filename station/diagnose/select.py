@@ -40,7 +40,9 @@ class Diagnosis:
     of the final model's correction (`correction`: applied or not); the share of its own gap
     each named effect closes (`closes`: {effect: `closed`}, `partial` True while one of its own
     statistics still fails) and the significant effects found but not named (`not_named`,
-    `settle`), each with the reason and the share of its own gap it closed."""
+    `settle`), each with the reason and the share of its own gap it closed; `caveats`, what a
+    named effect may be instead where this session cannot tell (a free-static drift or a
+    walk)."""
 
     steps: list
     alpha: float
@@ -50,6 +52,7 @@ class Diagnosis:
     spectrum: dict | None = None
     closes: dict = field(default_factory=dict)
     not_named: tuple = ()
+    caveats: tuple = ()
 
     @property
     def resembles(self) -> list:

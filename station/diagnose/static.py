@@ -180,8 +180,7 @@ class StaticData:
         spread over its bins as the white one is (sum of squares and interval sums kept)."""
         n = self.interval_means[1]
         w = self.lengths[:, None]
-        means = np.stack([np.bincount(self.bin_interval, self.lengths * r[:, i], len(n))
-                          for i in range(self.c)], 1) / n[:, None]
+        means = self.interval_mean(r)
         whitened = (np.stack([f @ means[:, i] for i, f in enumerate(self.mean_whitening)], 1)
                     if self.coloured else means / self.mean_sigma(n))
         mean = means[self.bin_interval]
@@ -236,10 +235,15 @@ class StaticData:
     @cached_property
     def interval_means(self) -> tuple:
         """(P, c) means of each still interval and (P,) their samples."""
-        n = np.bincount(self.bin_interval, self.lengths)
-        s = np.stack([np.bincount(self.bin_interval, self.lengths * self.z[:, i])
-                      for i in range(self.c)], 1)
-        return s / n[:, None], n
+        return self.interval_mean(self.z), np.bincount(self.bin_interval, self.lengths)
+
+    def interval_mean(self, y: np.ndarray) -> np.ndarray:
+        """(P, k) each still interval's mean of the bin values y (B, k), bins weighted by their
+        samples."""
+        p = len(self.intervals)
+        n = np.bincount(self.bin_interval, self.lengths, p)
+        return np.stack([np.bincount(self.bin_interval, self.lengths * y[:, i], p)
+                         for i in range(y.shape[1])], 1) / n[:, None]
 
 
 def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
@@ -685,9 +689,7 @@ def readings(data: StaticData, b0: Base, names, p: dict, basis) -> tuple:
         return means[:, :data.m].T, sigma
     bare = {k: np.zeros_like(v) if k in ("k2", "warmup", "slope") else v for k, v in p.items()}
     added = predict(data, b0, names, p, basis) - predict(data, b0, (), bare, basis)
-    extra = np.stack([np.bincount(data.bin_interval, data.lengths * added[:, i])
-                      for i in range(data.m)], 1) / n[:, None]
-    return (means[:, :data.m] - extra).T, sigma
+    return (means[:, :data.m] - data.interval_mean(added[:, :data.m])).T, sigma
 
 
 def correction(data: StaticData, model: Model) -> dict | None:
@@ -845,7 +847,7 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
     within its physical range (station.diagnose.plausibility; rates are judged only when the
     gyro is in rad/s, not raw counts), then the final goodness-of-fit test of the gaps
     (station.diagnose.goodness); `progress` as `greedy`'s."""
-    from station.diagnose import static_report
+    from station.diagnose import static_report, static_walk
 
     b0 = base(data)
     if candidates is None:
@@ -865,7 +867,11 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
 
     result, (test, _) = settle(run(), lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
-    return replace(result, fit_test=test, correction=correction(data, result.final),
+    said = static_walk.caveat(data, result, alpha / len(candidates))
+    checked = correction(data, result.final)
+    if said and checked:  # drift or walk: corrected with neither (select: ambiguity)
+        checked = {**checked, "applied": False, "withheld": "the drift may be the unit's walk"}
+    return replace(result, fit_test=test, correction=checked, caveats=(said,) if said else (),
                    unexplained=[{**test["statistics"][k], "statistic": k,
                                  "signature": static_report.signature(data, result.final, k)}
                                 for k in test["failed"]])

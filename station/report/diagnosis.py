@@ -144,7 +144,8 @@ def text(doc: dict) -> str:
     if c:
         lines.append(f"correction {'applied' if c['applied'] else 'NOT applied'}: held-out "
                      f"chi2 {c['held_out_chi2_before']:.1f} uncorrected -> "
-                     f"{c['held_out_chi2_after']:.1f} corrected ({c['positions']} positions)")
+                     f"{c['held_out_chi2_after']:.1f} corrected ({c['positions']} positions)"
+                     + (f"; withheld: {c['withheld']}" if c.get("withheld") else ""))
     for step in doc["steps"]:
         gap = " ".join(f"{k}={v:.3g}" for k, v in step["gap"].items())
         lines.append(f"model {' + '.join(step['model'])}: gap {gap}")
@@ -342,7 +343,8 @@ def static_to_dict(diagnosis, data: StaticData, source: str = "",
         "white_noise": white,
         "outliers": spikes,
         "quantisation": grid,
-        "findings": [*([said] if spikes["detected"] else []), *filter(None, [grid["message"]])],
+        "findings": [*([said] if spikes["detected"] else []), *filter(None, [grid["message"]]),
+                     *diagnosis.caveats],
         "steps": steps,
         "calibration_before": _summary(diagnosis.steps[0].model.calibration),
         "calibration_after": _summary(diagnosis.calibration),
