@@ -54,11 +54,12 @@ def beside_walk(data: StaticData, current, tau: float) -> tuple:
 
 def caveat(data: StaticData, diagnosis, level: float) -> str:
     """"" or, for a named `bias_drift` that a free bias random walk explains as well (`beside_walk`
-    not below log10 `level`; only without the unit's walk in the noise model), what to say."""
+    not below log10 `level`), what to say; only without the unit's noise figures (with them the
+    figures' walk, or its absence where the rest resolved none, is the judge)."""
     steps = diagnosis.steps
     added = [i for i in range(1, len(steps)) if "bias_drift" in steps[i].model.fitted
              and "bias_drift" not in steps[i - 1].model.fitted]
-    if data.random_walk is not None or "bias_drift" not in diagnosis.effects or not added:
+    if data.coloured or "bias_drift" not in diagnosis.effects or not added:
         return ""
     i = added[-1]
     log10_p, k = beside_walk(data, steps[i - 1].model, steps[i].model.tau)
