@@ -349,6 +349,8 @@ def real() -> dict | None:
                 "resembles": doc["resembles"],
                 "white_noise_within": doc["white_noise"]["within"],
                 "white_noise_holds": doc["white_noise"]["holds"],
+                "caveats": list(result.caveats),
+                "correction": result.correction,
             }
     return out
 

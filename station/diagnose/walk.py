@@ -83,11 +83,12 @@ def log10_p(y: np.ndarray, t: np.ndarray, var: np.ndarray, shapes: np.ndarray,
 
 def joint_log10_p(y: np.ndarray, x: np.ndarray, shapes: np.ndarray, walks: list,
                   var: np.ndarray, taus: int) -> tuple:
-    """(log10 p, (groups,) K^2 of the walks without the drift) of the drift columns `shapes`
-    (n, q) in residuals y (n,) of a model linear in the columns x (n, p) near its fit (channels
-    coupled by shared parameters, stacked in one vector), against bias random walks: `walks`
-    the (n, n) covariances of a unit walk on the rows of each group of channels that shares one
-    K (a stream), beside the white variances var (n,).
+    """(log10 p, (groups,) K^2 of the walks without the drift, nan where x takes a walk whole)
+    of the drift columns `shapes` (n, q) in residuals y (n,) of a model linear in the columns x
+    (n, p) near its fit (channels coupled by shared parameters, stacked in one vector), against
+    bias random walks: `walks` the (n, n) covariances of a unit walk on the rows of each group
+    of channels that shares one K (a stream), beside the white variances var (n,). Columns of
+    the shapes that x takes whole are dropped (none left: log10 p 0).
 
     The model's columns are taken out first (the error contrasts A^T y, A an orthonormal basis
     of their complement: REML's data); then the likelihood ratio of the contrasts with the
@@ -100,11 +101,16 @@ def joint_log10_p(y: np.ndarray, x: np.ndarray, shapes: np.ndarray, walks: list,
     below -2.7 in 3 of 10; this form in 1 of 50."""
     u, s, _ = np.linalg.svd(x, full_matrices=True)
     a = u[:, int(np.sum(s > s[0] * 1e-10)):]
-    walks = [a.T @ w @ a for w in walks]
+    seen = [np.trace(a.T @ w @ a) > 1e-12 * np.trace(w) for w in walks]  # else x takes it all
+    contrasts = [a.T @ w @ a for w, keep in zip(walks, seen, strict=True) if keep]
     rest = a.T @ (var[:, None] * a)
-    y, shapes = a.T @ y, a.T @ shapes
-    (null, k2), (drift, _) = (profile(y, c, walks, rest) for c in (shapes[:, :0], shapes))
-    return _log10_sf(null - drift, shapes.shape[1] + taus), k2
+    u, s, _ = np.linalg.svd(a.T @ shapes, full_matrices=False)
+    shapes = u[:, s > 1e-8 * np.linalg.norm(shapes)]  # what x leaves of them, full rank
+    y = a.T @ y
+    (null, k2), (drift, _) = (profile(y, c, contrasts, rest) for c in (shapes[:, :0], shapes))
+    out = np.full(len(walks), np.nan)  # a walk x takes whole is not seen
+    out[np.flatnonzero(seen)] = k2
+    return _log10_sf(null - drift, shapes.shape[1] + taus) if shapes.size else 0.0, out
 
 
 def profile(y: np.ndarray, x: np.ndarray, walks: list, rest: np.ndarray) -> tuple:
