@@ -740,7 +740,7 @@ def _gsens_fitted(data: StaticData, p: dict, sig: dict, with_earth: bool) -> Fit
     one direction of G: U moves into G's trace)."""
     per_g = np.degrees(STANDARD_GRAVITY)  # rad/s per m/s^2 -> deg/s per g
     g, s = gsens(p), sig["gsens"].reshape(3, 3)
-    gyro = _unit(data, data.m)
+    gyro = channel_unit(data, data.m)
     return Fitted(
         "g_sensitivity",
         {"G": g, "G_deg_s_per_g": g * per_g},
@@ -778,8 +778,8 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
          / max(np.hypot(u, north), 1e-300), "latitude_deg": np.nan},
         dof=len(data.intervals) + 1 + vertical,
         null=(var / (2 * mean), 2 * mean**2 / var),
-        units={"vertical": _unit(data, data.m), "horizontal": _unit(data, data.m),
-               "rate": _unit(data, data.m), "latitude_deg": "deg"},
+        units={"vertical": channel_unit(data, data.m), "horizontal": channel_unit(data, data.m),
+               "rate": channel_unit(data, data.m), "latitude_deg": "deg"},
         notes=f"gyro output units (Earth: {OMEGA_EARTH:.4e} rad/s); heading per interval is "
         "nuisance, profiled out (the unit is turned by hand); latitude = atan2(vertical, "
         "horizontal); a vertical part alone is also g-sensitivity G = (U / g) I, so the two "
@@ -787,7 +787,7 @@ def _earth_fitted(data: StaticData, b0: Base, p: dict, sig: dict) -> Fitted:
     )
 
 
-def _unit(data: StaticData, channel: int) -> str:
+def channel_unit(data: StaticData, channel: int) -> str:
     """The unit of a channel, as the session names it ("output units" when it does not)."""
     return data.units[channel] if channel < len(data.units) else "output units"
 

@@ -33,7 +33,7 @@ by the gyro's 6 columns (`warmup_180s` read -2.4 to -7.4 tested jointly; walks a
 import numpy as np
 
 from station.diagnose import walk
-from station.diagnose.static import Layout, StaticData, _unit, drift_basis, predict
+from station.diagnose.static import Layout, StaticData, channel_unit, drift_basis, predict
 
 STEP = 1.49e-8
 """Relative step of the forward differences that linearise the model (at least 1 x STEP)."""
@@ -71,10 +71,10 @@ def caveat(data: StaticData, diagnosis, level: float) -> str:
     log10_p, k = beside_walk(data, steps[i - 1].model, steps[i].model.tau)
     if log10_p < np.log10(level):
         return ""
-    units = [_unit(data, c).split(": ")[-1] for c in (0, data.c - 1)]
-    ks = [f"{k[i]:.2g} {u}/sqrt(s) on the {name}" if np.isfinite(k[i])
+    units = [channel_unit(data, c).split(": ")[-1] for c in (0, data.c - 1)]
+    ks = [f"{k[j]:.2g} {u}/sqrt(s) on the {name}" if np.isfinite(k[j])
           else f"none seen on the {name}"
-          for i, u, name in zip((0, -1), units, ("accelerometer", "gyro"), strict=True)
+          for j, u, name in zip((0, -1), units, ("accelerometer", "gyro"), strict=True)
           ][:1 + data.gyro]
     return (f"bias_drift may be the unit's bias random walk: a free walk ({', '.join(ks)}) "
             f"explains it as well (log10 p {log10_p:.1f} of the drift beside it); a session "
