@@ -17,6 +17,7 @@ from station.model.earth import OMEGA_EARTH
 from station.model.effects import parse_all
 from station.model.effects.earth_rate import EarthRate
 from station.report.diagnosis import static_to_dict as to_dict
+from station.report.diagnosis import text
 from station.sim.layouts import accelerometer_triad
 from station.sim.static import simulate_static, static_gyro
 
@@ -326,5 +327,13 @@ def test_a_bias_moving_from_pose_to_pose_is_no_gyro_law(seed, size):
     withheld = [k for k in ("earth_rate", "g_sensitivity") if first[k].get("within_noise")]
     assert withheld and all("moves from pose to pose" in first[k]["within_noise"]
                             for k in withheld)
+    # said AMBIGUOUS with a bias moving from pose to pose, with how to tell them apart
+    (group,) = [g for g in result.ambiguous if g["step"] == 0]
+    assert group["effects"] == sorted([*withheld, "pose_bias"])
+    assert "earlier poses again" in group["told_apart_by"] and set(group["log10_p"]) == set(
+        withheld)
+    line = text(to_dict(result, data))
+    assert f"AMBIGUOUS: {' or '.join(group['effects'])}" in line
+    assert "not an effect: earth_rate" not in line and "not an effect: g_sensitivity" not in line
     if size > 1.5e-4:
         assert "gyro" in [u["statistic"] for u in result.unexplained]

@@ -33,6 +33,10 @@ class Step:
     chosen: str  # effect added next, or "none"
 
 
+WHY = "with both in the model neither adds to the other"
+"""Why candidates are ambiguous (`ambiguous`), unless their evidence says otherwise."""
+
+
 @dataclass(frozen=True)
 class Diagnosis:
     """The sequence of models; the final goodness-of-fit test (`fit_test`, station.diagnose.
@@ -73,7 +77,10 @@ class Diagnosis:
     def ambiguous(self) -> list:
         """[{"effects", "log10_p", "told_apart_by", "step"}]: candidates found indistinguishable
         at a step (`ambiguous`: the data say one of them is there, not which), named together and
-        corrected with neither, with what to record to tell them apart."""
+        corrected with neither, with what to record to tell them apart. A member that is no
+        candidate (a free-static gyro law's `pose_bias`: the loop's `noise` said it explains the
+        law as well) has no p-value; the evidence then says why and how to tell (`why`,
+        `told_apart_by`)."""
         out = []
         for i, step in enumerate(self.steps):
             seen = set()
@@ -81,8 +88,11 @@ class Diagnosis:
                 if "ambiguous_with" in e and name not in seen:
                     group = sorted({name, *e["ambiguous_with"]})
                     seen |= set(group)
-                    out.append({"effects": group, "step": i, "told_apart_by": told_apart(group),
-                                "log10_p": {k: step.evidence[k]["log10_p"] for k in group}})
+                    out.append({"effects": group, "step": i,
+                                "told_apart_by": e.get("told_apart_by") or told_apart(group),
+                                "why": e.get("why", WHY),
+                                "log10_p": {k: step.evidence[k]["log10_p"] for k in group
+                                            if k in step.evidence}})
         return out
 
     @property

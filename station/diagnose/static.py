@@ -830,9 +830,27 @@ def within_pose_scatter(data: StaticData, name: str, extended: Model, current: M
         return ""
     return (f"the poses' gyro means scatter about it by {scatter:.2f} x their noise, and "
             f"against that scatter it is not significant (F test log10 p {log10_p:.1f}): a gyro "
-            "bias that moves from pose to pose explains it as well (repeat earlier poses: the "
-            "Earth rate and g-sensitivity read the same at the same orientation, a moving bias "
-            "does not)")
+            "bias that moves from pose to pose (pose_bias) explains it as well")
+
+
+POSE_BIAS = {"why": "a gyro bias that moves from pose to pose (a shock at each turn, a cable's "
+                    "pull) scatters the poses' gyro means, and against that scatter the law is "
+                    "not significant",
+             "told_apart_by": "earlier poses again (the Earth rate and g-sensitivity read the "
+                              "same at the same orientation, a bias that moved does not)"}
+"""How a gyro law withheld by `within_pose_scatter` is said: AMBIGUOUS with `pose_bias` (no
+candidate: a free gyro bias per pose is the gyro's saturated model)."""
+
+
+def said_ambiguous(result: Diagnosis) -> Diagnosis:
+    """`result` with each gyro law that `within_pose_scatter` withheld said AMBIGUOUS with a bias
+    moving from pose to pose (`POSE_BIAS`; issue 32 pattern 5), with the other law withheld at
+    the same step."""
+    for step in result.steps:
+        held = [k for k in GYRO_LAWS if step.evidence.get(k, {}).get("within_noise")]
+        for k in held:
+            step.evidence[k].update(POSE_BIAS, ambiguous_with=sorted({*held, "pose_bias"} - {k}))
+    return result
 
 
 GAPS = {"bias_drift": ("between", "gyro", "trend"), "scale_nonlinearity": ("between",),
@@ -867,6 +885,7 @@ def diagnose_static(data: StaticData, *, alpha: float = 0.01, max_effects: int =
 
     result, (test, _) = settle(run(), lambda step: (goodness.test(
         step.gap, static_report.dofs(data, step.model), alpha), None), alpha, GAPS, rerun=run)
+    result = said_ambiguous(result)
     said = static_walk.caveat(data, result, alpha / len(candidates))
     checked = correction(data, result.final)
     if said and checked:  # drift or walk: corrected with neither (select: ambiguity)

@@ -5,6 +5,7 @@ import numpy as np
 from station.diagnose import outliers
 from station.diagnose.goodness import log_sf
 from station.diagnose.model import parameters
+from station.diagnose.select import WHY
 from station.diagnose.static import StaticData, untestable
 from station.diagnose.static_report import white_noise_verdict
 from station.files.jsonable import jsonable
@@ -116,10 +117,11 @@ def closes_line(name: str, closes: dict | None) -> str:
 
 def ambiguous_line(group: dict) -> str:
     """"AMBIGUOUS: a or b (log10 p ...): indistinguishable on this session ...; record X"."""
-    p = ", ".join(f"{v:.1f}" for v in group["log10_p"].values())
+    p = ", ".join(f"{k} {v:.1f}" for k, v in group["log10_p"].items())
+    why = group.get("why", WHY)
     return (f"AMBIGUOUS: {' or '.join(group['effects'])} (log10 p {p}): indistinguishable on "
-            "this session (with both in the model neither adds to the other); corrected with "
-            f"neither. To tell them apart, record {group['told_apart_by']}")
+            f"this session ({why}); corrected with neither. To tell them apart, record "
+            f"{group['told_apart_by']}")
 
 
 def text(doc: dict) -> str:
@@ -134,7 +136,8 @@ def text(doc: dict) -> str:
                      f"(log10 p {u['log10_p']:.1f}, threshold "
                      f"{doc['fit_test']['threshold_log10_p']:.2f}): {_signature_line(u)}")
     lines += [f"not an effect: {k}: {e['within_noise']}" for step in doc["steps"][:1]
-              for k, e in step["evidence"].items() if e.get("within_noise")]
+              for k, e in step["evidence"].items()
+              if e.get("within_noise") and not e.get("ambiguous_with")]
     for r in doc.get("resembles", []):
         if r.get("not_named"):
             continue
