@@ -843,13 +843,14 @@ candidate: a free gyro bias per pose is the gyro's saturated model)."""
 
 
 def said_ambiguous(result: Diagnosis) -> Diagnosis:
-    """`result` with each gyro law that `within_pose_scatter` withheld said AMBIGUOUS with a bias
-    moving from pose to pose (`POSE_BIAS`; issue 32 pattern 5), with the other law withheld at
-    the same step."""
-    for step in result.steps:
-        held = [k for k in GYRO_LAWS if step.evidence.get(k, {}).get("within_noise")]
-        for k in held:
-            step.evidence[k].update(POSE_BIAS, ambiguous_with=sorted({*held, "pose_bias"} - {k}))
+    """`result` with each gyro law that `within_pose_scatter` withheld at its last step (beside
+    everything named: an effect named after an earlier step may explain what the law took
+    there) said AMBIGUOUS with a bias moving from pose to pose (`POSE_BIAS`; issue 32 pattern
+    5), with the other law if it was withheld too."""
+    evidence = result.steps[-1].evidence
+    held = [k for k in GYRO_LAWS if evidence.get(k, {}).get("within_noise")]
+    for k in held:
+        evidence[k].update(POSE_BIAS, ambiguous_with=sorted({*held, "pose_bias"} - {k}))
     return result
 
 
