@@ -135,9 +135,9 @@ def text(doc: dict) -> str:
         lines.append(f"UNEXPLAINED: {u['statistic']} gap {u['gap']:.3g} on {u['dof']} dof "
                      f"(log10 p {u['log10_p']:.1f}, threshold "
                      f"{doc['fit_test']['threshold_log10_p']:.2f}): {_signature_line(u)}")
+    paired = {k for group in doc.get("ambiguous", []) for k in group["effects"]}
     lines += [f"not an effect: {k}: {e['within_noise']}" for step in doc["steps"][:1]
-              for k, e in step["evidence"].items()
-              if e.get("within_noise") and not e.get("ambiguous_with")]
+              for k, e in step["evidence"].items() if e.get("within_noise") and k not in paired]
     for r in doc.get("resembles", []):
         if r.get("not_named"):
             continue
