@@ -50,11 +50,11 @@ def beside_walk(data: StaticData, current, tau: float) -> tuple:
     shapes = data.interval_mean(np.stack(drift_basis(data, tau), 1))  # (P, 2)
     x = columns(data, current).reshape(data.c * p, -1)
     streams = [np.arange(data.c) < data.m, np.arange(data.c) >= data.m][:1 + data.gyro]
-    walks = [np.kron(np.diag(s.astype(float)), unit_walk(data)) for s in streams]
-    tests = [walk.joint_log10_p(y, x, np.kron(np.eye(data.c)[:, s], shapes), walks, var, 1)
-             for s in streams]  # a stream's drift: its channels' warm-up and slope
-    k2 = tests[0][1]
-    return (min(t[0] for t in tests) + np.log10(len(tests)),
+    unit = unit_walk(data)
+    walks = [np.kron(np.diag(s.astype(float)), unit) for s in streams]
+    blocks = [np.kron(np.eye(data.c)[:, s], shapes) for s in streams]  # its channels' drift
+    log10_p, k2 = walk.joint_log10_p(y, x, blocks, walks, var, 1)
+    return (min(log10_p) + np.log10(len(log10_p)),
             np.sqrt(np.where(streams[0], k2[0], k2[-1])))
 
 
@@ -64,8 +64,8 @@ def caveat(data: StaticData, diagnosis, level: float) -> str:
     figures' walk, or its absence where the rest resolved none, is the judge)."""
     steps = diagnosis.steps
     added = [i for i in range(1, len(steps)) if "bias_drift" in steps[i].model.fitted
-             and "bias_drift" not in steps[i - 1].model.fitted]
-    if data.coloured or "bias_drift" not in diagnosis.effects or not added:
+             and "bias_drift" not in steps[i - 1].model.fitted]  # empty unless it is named
+    if data.coloured or not added:
         return ""
     i = added[-1]
     log10_p, k = beside_walk(data, steps[i - 1].model, steps[i].model.tau)

@@ -81,37 +81,48 @@ def log10_p(y: np.ndarray, t: np.ndarray, var: np.ndarray, shapes: np.ndarray,
     return _log10_sf(chi2, y.shape[1] * shapes.shape[1] + taus)
 
 
-def joint_log10_p(y: np.ndarray, x: np.ndarray, shapes: np.ndarray, walks: list,
-                  var: np.ndarray, taus: int) -> tuple:
-    """(log10 p, (groups,) K^2 of the walks without the drift, nan where x takes a walk whole)
-    of the drift columns `shapes` (n, q) in residuals y (n,) of a model linear in the columns x
-    (n, p) near its fit (channels coupled by shared parameters, stacked in one vector), against
-    bias random walks: `walks` the (n, n) covariances of a unit walk on the rows of each group
-    of channels that shares one K (a stream), beside the white variances var (n,). Columns of
-    the shapes that x takes whole are dropped (none left: log10 p 0).
+def joint_log10_p(y: np.ndarray, x: np.ndarray, blocks: list, walks: list, var: np.ndarray,
+                  taus: int) -> tuple:
+    """([log10 p of each block], (groups,) K^2 of the walks without a drift, nan where x takes a
+    walk whole): each block of drift columns (n, q) in `blocks` tested alone in residuals y (n,)
+    of a model linear in the columns x (n, p) near its fit (channels coupled by shared
+    parameters, stacked in one vector), against bias random walks: `walks` the (n, n)
+    covariances of a unit walk on the rows of each group of channels that shares one K (a
+    stream), beside the white variances var (n,). Columns of a block that x takes whole are
+    dropped (none left: log10 p 0).
 
     The model's columns are taken out first (the error contrasts A^T y, A an orthonormal basis
     of their complement: REML's data); then the likelihood ratio of the contrasts with the
-    shapes' mean to the contrasts with none, each at its own REML K^2 (`profile`): about
-    chi2(q + taus) without a drift. Measured on walks alone (bench/diagnose_static.py
-    `none_walk`): the rotary test's form (REML K^2 with the drift free, then the drift's GLS
-    chi2) read log10 p below -5 in 2 of 4 sessions (a free-static stream shows a walk in few
-    numbers, one radial residual a pose for the accelerometer: the drift takes the walk's slow
-    part and K^2 comes out 0); the plain likelihood's K^2 (biased low by the drift's q columns)
-    below -2.7 in 3 of 10; this form, each stream's drift alone (station.diagnose.static_walk),
-    in 0 of 50 (at most -2.2; below -1 in 8 of 50, 5 expected)."""
+    block's mean to the contrasts with none (one fit for every block), each at its own REML K^2
+    (`profile`): about chi2(q + taus) without a drift. Measured on walks alone
+    (bench/diagnose_static.py `none_walk`): the rotary test's form (REML K^2 with the drift
+    free, then the drift's GLS chi2) read log10 p below -5 in 2 of 4 sessions (a free-static
+    stream shows a walk in few numbers, one radial residual a pose for the accelerometer: the
+    drift takes the walk's slow part and K^2 comes out 0); the plain likelihood's K^2 (biased
+    low by the drift's q columns) below -2.7 in 3 of 10; this form, each stream's drift a block
+    (station.diagnose.static_walk), in 0 of 50 (at most -2.2; below -1 in 8 of 50, 5
+    expected)."""
     u, s, _ = np.linalg.svd(x, full_matrices=True)
     a = u[:, int(np.sum(s > s[0] * 1e-10)):]
     seen = [np.trace(a.T @ w @ a) > 1e-12 * np.trace(w) for w in walks]  # else x takes it all
     contrasts = [a.T @ w @ a for w, keep in zip(walks, seen, strict=True) if keep]
     rest = a.T @ (var[:, None] * a)
-    u, s, _ = np.linalg.svd(a.T @ shapes, full_matrices=False)
-    shapes = u[:, s > 1e-8 * np.linalg.norm(shapes)]  # what x leaves of them, full rank
     y = a.T @ y
-    (null, k2), (drift, _) = (profile(y, c, contrasts, rest) for c in (shapes[:, :0], shapes))
+    null, k2 = profile(y, np.empty((len(y), 0)), contrasts, rest)
     out = np.full(len(walks), np.nan)  # a walk x takes whole is not seen
     out[np.flatnonzero(seen)] = k2
-    return _log10_sf(null - drift, shapes.shape[1] + taus) if shapes.size else 0.0, out
+    return [_block_log10_p(y, a.T @ b, np.linalg.norm(b), null, contrasts, rest, taus)
+            for b in blocks], out
+
+
+def _block_log10_p(y, block, size: float, null: float, contrasts: list, rest, taus: int):
+    """log10 p of one block of drift columns on the contrasts (`joint_log10_p`): what x left of
+    them (singular values above 1e-8 of their size), the null deviance `null` without them."""
+    u, s, _ = np.linalg.svd(block, full_matrices=False)
+    block = u[:, s > 1e-8 * size]  # what x leaves of them, full rank
+    if not block.size:
+        return 0.0
+    return _log10_sf(null - profile(y, block, contrasts, rest)[0], block.shape[1] + taus)
 
 
 def profile(y: np.ndarray, x: np.ndarray, walks: list, rest: np.ndarray) -> tuple:
