@@ -198,10 +198,8 @@ class StaticData:
         out = np.broadcast_to(self.sigma, (len(self.bins), self.c)).copy()
         if not self.coarse.any():
             return out
-        p = len(self.intervals)
-        squares = np.stack([np.bincount(self.bin_interval, self.bin_squares[:, i], p)
-                            for i in range(self.c)], 1)
-        dof = np.maximum(np.bincount(self.bin_interval, self.lengths - 1, p), 1)
+        squares = self.interval_sum(self.bin_squares)
+        dof = np.maximum(self.interval_sum((self.lengths - 1)[:, None])[:, 0], 1)
         floor = np.where(self.analog > 0, self.analog, self.sigma)  # every sample one value: sigma
         own = np.maximum(np.sqrt(squares / dof[:, None]), floor)[self.bin_interval]
         out[:, self.coarse] = own[:, self.coarse]
@@ -240,10 +238,13 @@ class StaticData:
     def interval_mean(self, y: np.ndarray) -> np.ndarray:
         """(P, k) each still interval's mean of the bin values y (B, k), bins weighted by their
         samples."""
-        p = len(self.intervals)
-        n = np.bincount(self.bin_interval, self.lengths, p)
-        return np.stack([np.bincount(self.bin_interval, self.lengths * y[:, i], p)
-                         for i in range(y.shape[1])], 1) / n[:, None]
+        return (self.interval_sum(self.lengths[:, None] * y)
+                / np.bincount(self.bin_interval, self.lengths, len(self.intervals))[:, None])
+
+    def interval_sum(self, y: np.ndarray) -> np.ndarray:
+        """(P, k) each still interval's sum of the bin values y (B, k)."""
+        return np.stack([np.bincount(self.bin_interval, y[:, i], len(self.intervals))
+                         for i in range(y.shape[1])], 1)
 
 
 def from_arrays(accel, fs: float, *, gyro=None, gravity: float = STANDARD_GRAVITY,
