@@ -147,7 +147,8 @@ class SteppedClock:
                              f"start {start!r}, step {step!r}")
         self.step, self.backstop = float(step), float(backstop)
         self._t = float(start)
-        self._cond = threading.Condition()
+        self._lock = threading.RLock()  # `with self._lock`, never `with self._cond` (_wait)
+        self._cond = threading.Condition(self._lock)
         self._members = {}  # thread -> producer?
         self._waiting = {}  # thread -> the instant it sleeps until (None: idle)
         self._probes = []
@@ -164,12 +165,12 @@ class SteppedClock:
     def enlist(self, thread=None, producer: bool = False) -> None:
         """`thread` (default: the calling one) takes part; a `producer` (a twin's streamer)
         alone does not make time move."""
-        with self._cond:
+        with self._lock:
             self._members[thread or threading.current_thread()] = producer
 
     def leave(self, thread=None) -> None:
         """`thread` (default: the calling one) no longer takes part."""
-        with self._cond:
+        with self._lock:
             thread = thread or threading.current_thread()
             self._members.pop(thread, None)
             self._waiting.pop(thread, None)
@@ -177,12 +178,12 @@ class SteppedClock:
 
     def watch(self, probe) -> None:
         """Keep time still while `probe()` is true (data in flight that a member will take)."""
-        with self._cond:
+        with self._lock:
             self._probes.append(probe)
 
     def unwatch(self, probe) -> None:
         """Forget `probe` (the reader that takes its data stopped)."""
-        with self._cond:
+        with self._lock:
             if probe in self._probes:
                 self._probes.remove(probe)
             self._move_if_quiet()
@@ -191,18 +192,18 @@ class SteppedClock:
 
     def sent(self, link: str, n: int) -> None:
         """A twin wrote `n` bytes to `link` (the name both ends know, e.g. the port's path)."""
-        with self._cond:
+        with self._lock:
             self._ledger[link] = self._ledger.get(link, 0) + n
 
     def taken(self, link: str, n: int) -> None:
         """The reader of `link` took `n` bytes (perhaps before the twin's `sent` is booked)."""
-        with self._cond:
+        with self._lock:
             self._ledger[link] = self._ledger.get(link, 0) - n
 
     def forget(self, link: str) -> None:
         """The reader (re)opened `link`, dropping what was sent before (pyserial flushes the
         input on open)."""
-        with self._cond:
+        with self._lock:
             self._ledger[link] = 0
 
     def in_flight(self, link: str) -> bool:
@@ -228,35 +229,47 @@ class SteppedClock:
     def nudge(self) -> None:
         """Something changed: every idle member looks again before time moves (one that was
         working meanwhile looks again at once when it next idles)."""
-        with self._cond:
+        with self._lock:
             self._nudges += 1
             self._wake(lambda until: until is None)
 
     def _wait(self, until, stop) -> None:
+        """Wait as a member (`sleep`, `idle`, `pace`).
+
+        A Ctrl-C or `kill` raises KeyboardInterrupt in the main thread between any two bytecodes
+        (`station.acquire.interrupts`), also in the middle of this: the thread then works again
+        (not left among the waiters, where time would move while it handles the interrupt), and
+        the lock is never left held. That is why every `with` here takes `_lock` (a C lock, taken
+        with no Python frame in between) and never `_cond`: `Condition.__enter__` is Python, and a
+        KeyboardInterrupt raised once it had taken the lock left it taken for good (measured: 1
+        `station record` in about 200 killed at a position's start hung, its reader thread waiting
+        for the lock that the main thread, joining it, held)."""
         me = threading.current_thread()
-        with self._cond:
+        with self._lock:
             self._members.setdefault(me, False)
             if until is None and self._seen.get(me) != self._nudges:
                 self._seen[me] = self._nudges  # nudged while it worked: look again first
                 return
             self._waiting[me] = None if until is None else float(until)  # not a numpy scalar
-            self._move_if_quiet()
-            while me in self._waiting:
-                if self.lost is not None:
-                    del self._waiting[me]
-                    raise self.lost
-                if stop is not None and stop.is_set():
+            try:
+                self._move_if_quiet()
+                while me in self._waiting:
+                    if self.lost is not None:
+                        raise self.lost
+                    if stop is not None and stop.is_set():
+                        return
+                    self._cond.wait(self.backstop)
+                    self._move_if_quiet()
+                self._seen[me] = self._nudges
+            finally:
+                if me in self._waiting:  # stopped, lost or interrupted: it works from now on
                     del self._waiting[me]
                     self._move_if_quiet()
-                    return
-                self._cond.wait(self.backstop)
-                self._move_if_quiet()
-            self._seen[me] = self._nudges
 
     def advance_to(self, instant: float) -> None:
         """Move time forward to `instant` at once, if it is later (a resumed session goes on after
         its last recorded instant); the sleepers it passes wake."""
-        with self._cond:
+        with self._lock:
             if instant > self._t:
                 self._t = float(instant)
                 self._wake(lambda until: until is None or until <= self._t)
@@ -279,10 +292,7 @@ class SteppedClock:
     def _move_if_quiet(self) -> None:
         """With the lock held: move time to the earliest instant a sleeper waits for, once every
         member waits and nothing is in flight (see the class docstring)."""
-        for thread in [t for t in self._members if _ended(t)]:
-            del self._members[thread]
-            self._waiting.pop(thread, None)
-            self._seen.pop(thread, None)
+        self._forget_ended()
         if any(t not in self._waiting for t in self._members) or all(self._members.values()):
             return
         if any(_busy(probe) for probe in self._probes):
@@ -293,6 +303,13 @@ class SteppedClock:
             return
         self._t = max(self._t, min(instants))
         self._wake(lambda until: until is None or until <= self._t)
+
+    def _forget_ended(self) -> None:
+        """With the lock held: forget the members that ended without leaving (`_ended`)."""
+        for member in _ended(self._members):
+            del self._members[member]
+            self._waiting.pop(member, None)
+            self._seen.pop(member, None)
 
     def _wake_for_flight(self) -> None:
         """With the lock held, data in flight: wake the idle members, a reader has data to take.
@@ -307,9 +324,16 @@ class SteppedClock:
         self._wake(lambda until: until is None, flight=True)
 
 
-def _ended(thread) -> bool:
-    """Has `thread` run and ended? (One enlisted before its start has not.)"""
-    return thread.ident is not None and not thread.is_alive()
+def _ended(members) -> list:
+    """The members that ran and ended: a thread that started and no longer runs (one enlisted
+    before its start has not), another process's member (`drivers.clock_link`) that says so.
+
+    Not `Thread.is_alive()`: in Python 3.11 a KeyboardInterrupt landing inside it (right after
+    its try to take the thread's own lock) releases that lock (bpo-45274's repair) and marks the
+    live thread stopped, so the clock forgot a live member and `join` no longer waited for it."""
+    running = set(threading.enumerate())
+    return [m for m in members if (m.ident is not None and m not in running
+                                   if isinstance(m, threading.Thread) else not m.is_alive())]
 
 
 def _busy(probe) -> bool:

@@ -73,7 +73,6 @@ class ClockServer:
 class _Remote:
     """One connected station process: a member of the served clock while it takes part."""
 
-    ident = 0  # a member that has started (`drivers.clock._ended` asks)
     idle = False  # one of its threads idles: a nudge wakes it too
 
     def __init__(self, clock: SteppedClock, connection: socket.socket):
@@ -82,6 +81,7 @@ class _Remote:
         self._links = {}  # link -> the probe kept while this station reads it
 
     def is_alive(self) -> bool:
+        """Is the station process still connected? (`drivers.clock._ended` asks.)"""
         return self._open
 
     def wake(self, instant: float, flight: bool) -> None:
@@ -96,7 +96,7 @@ class _Remote:
     def serve(self) -> None:
         """Hello (the time), then each line the remote side sends, until it hangs up."""
         c = self.clock
-        with c._cond:
+        with c._lock:
             self._send(f"TIME {c.now()!r} 0")
         try:
             for line in self.connection.makefile("r", encoding="ascii"):
@@ -105,7 +105,7 @@ class _Remote:
             pass
         finally:
             self._open = False
-            with c._cond:
+            with c._lock:
                 c._members.pop(self, None)
                 c._waiting.pop(self, None)
                 c._seen.pop(self, None)
@@ -117,7 +117,7 @@ class _Remote:
 
     def _handle(self, words: list) -> None:
         c, kind = self.clock, words[0] if words else ""
-        with c._cond:
+        with c._lock:
             if kind == "JOIN":
                 c._members[self] = False
             elif kind == "LEAVE":
@@ -174,7 +174,7 @@ class RemoteClock(SteppedClock):
                 "`station twin` and use the bench profile it writes") from exc
         self._lines = self._socket.makefile("r", encoding="ascii")
         self._joined, self._reported, self._flight = False, None, False
-        self._started = threading.Event()
+        self._starts = 0  # `STARTED` answers so far
         self._t = self._read_time()
         threading.Thread(target=self._receive, name="clock link", daemon=True).start()
 
@@ -187,13 +187,15 @@ class RemoteClock(SteppedClock):
 
     def advance_to(self, instant: float) -> None:
         """Ask the served clock to move forward to `instant` (a resumed session's start); returns
-        once it has answered (so it has also booked every line sent before)."""
-        with self._cond:
-            self._started.clear()
+        once it has answered (so it has also booked every line sent before). Waits on the lock's
+        condition, not an Event: see `SteppedClock._wait` on a Ctrl-C inside `with`."""
+        with self._lock:
+            answered = self._starts + 1
             self._send(f"START {instant!r}")
-        while not self._started.wait(self.backstop):
-            if self.lost is not None:
-                raise self.lost
+            while self._starts < answered:
+                if self.lost is not None:
+                    raise self.lost
+                self._cond.wait(self.backstop)
 
     def in_flight(self, link: str) -> bool:
         """Did the served clock say bytes are on their way to this process's readers, and has
@@ -202,16 +204,16 @@ class RemoteClock(SteppedClock):
 
     def taken(self, link: str, n: int) -> None:
         if n:
-            with self._cond:
+            with self._lock:
                 self._flight = False
                 self._send(f"TAKEN {link} {n}")
 
     def forget(self, link: str) -> None:
-        with self._cond:
+        with self._lock:
             self._send(f"FORGET {link}")
 
     def _read_time(self) -> float:
-        """The instant of the next `TIME` line (a `STARTED` one on the way sets `_started`)."""
+        """The instant of the next `TIME` line (a `STARTED` one on the way is counted)."""
         while True:
             words = self._lines.readline().split()
             if len(words) != 3 or words[0] not in ("TIME", "STARTED"):
@@ -219,21 +221,22 @@ class RemoteClock(SteppedClock):
             if words[0] == "TIME":
                 self._flight = words[2] == "1"
                 return float(words[1])
-            with self._cond:
+            with self._lock:
                 self._t = max(self._t, float(words[1]))
-            self._started.set()
+                self._starts += 1
+                self._cond.notify_all()
 
     def _receive(self) -> None:
         """The served clock's wake-ups, until the link ends."""
         try:
             while True:
                 instant = self._read_time()
-                with self._cond:
+                with self._lock:
                     self._t, self._reported = max(self._t, instant), None
                     super()._wake(lambda until: until is None or until <= self._t)
                     self._report()
         except (OSError, ValueError, ClockLinkError) as exc:
-            with self._cond:
+            with self._lock:
                 why = str(exc) or "the twin process ended"
                 self.lost = ClockLinkError(
                     f"the virtual bench's lockstep clock at {self.path} is gone ({why}); check "
@@ -258,10 +261,7 @@ class RemoteClock(SteppedClock):
         self._report()
 
     def _report(self) -> None:
-        for thread in [t for t in self._members if t.ident is not None and not t.is_alive()]:
-            del self._members[thread]
-            self._waiting.pop(thread, None)
-            self._seen.pop(thread, None)
+        self._forget_ended()
         consumers = not all(self._members.values())
         if consumers != self._joined:
             self._send("JOIN" if consumers else "LEAVE")

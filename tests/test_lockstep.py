@@ -8,6 +8,7 @@ host slowed by CPU hogs, gives identical sample arrays, table states and events.
 
 import multiprocessing
 import random
+import sys
 import threading
 import time
 
@@ -338,3 +339,152 @@ def test_station_twin_and_station_record_in_two_processes_record_the_same_sessio
     for name in a:
         if name != "metadata":  # it names each twin's ports
             assert _same(a[name], b[name]), name
+
+
+def _interrupted_at(k: int, call) -> str | None:
+    """Run `call()` in this thread with a KeyboardInterrupt raised at the k-th place a Ctrl-C's
+    handler can run in the clocks' and `threading`'s code: CPython 3.11 runs it when a frame
+    starts, after a call returns and at a loop's jump back (its eval breaker), never at a NOP
+    (which no `with` or `try` covers) nor between a PRECALL and its CALL. Where it was raised
+    ("_wait line 261 (place 7)"), or None (the call ended before its k-th place)."""
+    import dis
+
+    import drivers.clock
+    import drivers.clock_link
+
+    files = {drivers.clock.__file__, drivers.clock_link.__file__, threading.__file__}
+    breakers = {"CALL", "CALL_FUNCTION_EX", "JUMP_BACKWARD"}
+    names, last, count, where = {}, {}, 0, []
+
+    def local(frame, event, arg):
+        nonlocal count
+        if event != "opcode":
+            return local
+        code = frame.f_code
+        ops = names.setdefault(code, {i.offset: i.opname for i in dis.get_instructions(code)})
+        before = last.get(frame)
+        last[frame] = frame.f_lasti
+        if (before is None or ops.get(before) in breakers
+                or ops.get(before) == "PRECALL" and ops.get(frame.f_lasti) != "CALL"):  # it called
+            count += 1
+            if count == k:
+                where.append(f"{code.co_name} line {frame.f_lineno} (place {k})")
+                raise KeyboardInterrupt(where[0])
+        return local
+
+    def tracer(frame, event, arg):
+        if frame.f_code.co_filename not in files:
+            return None
+        frame.f_trace_opcodes = True
+        return local
+
+    sys.settrace(tracer)
+    try:
+        call()
+    except KeyboardInterrupt:
+        pass
+    except RuntimeError as exc:  # between Condition.wait's release and its `try`
+        assert "un-acquired lock" in str(exc) and isinstance(exc.__context__, KeyboardInterrupt)
+    finally:
+        sys.settrace(None)
+    return where[0] if where else None
+
+
+def _lock_is_free(clock) -> bool:
+    """Can another thread take the clock's lock (within 5 s)?"""
+    free = []
+
+    def take():
+        free.append(clock._cond.acquire(timeout=5))
+        if free[0]:
+            clock._cond.release()
+
+    probe = threading.Thread(target=take)
+    probe.start()
+    probe.join()
+    return free == [True]
+
+
+def _interrupted_wait(k: int, remote: bool) -> str | None:
+    """A station's main thread and a reader on the clock (over the socket: a `RemoteClock`), a
+    Ctrl-C at the k-th place of the main thread's two sleeps (`_interrupted_at`), checked as
+    below; where it landed (None: the sleeps ended first)."""
+    from drivers.clock_link import ClockServer, RemoteClock
+
+    served = SteppedClock(step=0.1, backstop=0.005)
+    server = ClockServer(served) if remote else None
+    clock = RemoteClock(server.path) if remote else served
+    clock.backstop = 0.005
+    stop = threading.Event()
+
+    def reader():  # the recorder's, and a twin's streamer that sleeps
+        while not stop.is_set():
+            clock.idle(stop=stop)
+            clock.sleep(0.1, stop)
+
+    try:
+        clock.enlist()
+        (member,) = _threads(clock, reader)
+        landed = _interrupted_at(k, lambda: [clock.sleep(0.25) for _ in range(2)])
+        assert _lock_is_free(clock), f"the clock's lock stayed taken after a Ctrl-C at {landed}"
+        if landed:
+            clock.advance_to(0.0)  # over the socket: once the served clock read every line
+            held = served.now()
+            time.sleep(0.03)  # the reader looks six times meanwhile
+            assert served.now() == held, f"time moved while a Ctrl-C at {landed} was handled"
+        stop.set()  # as `Recorder.stop` ends its reader
+        clock.nudge()
+        member.join(5)
+        assert member not in threading.enumerate(), (  # not `is_alive`: it can lie (_ended)
+            f"the reader never ended after a Ctrl-C at {landed}")
+        clock.leave()
+        return landed
+    finally:
+        if remote:
+            clock.close()
+            server.close()
+
+
+@pytest.mark.parametrize("remote", [False, True], ids=["in-process", "over the socket"])
+def test_a_ctrl_c_at_any_bytecode_of_a_wait_leaves_the_clock_working(remote):
+    """A Ctrl-C or `kill` lands between any two bytecodes of the station's main thread, also inside
+    a wait on the clock. Wherever it lands: the lock is free, time stands still while the
+    interrupted thread handles it (it works, it does not wait), and the recorder's reader ends
+    when told (a `station record` killed at a position's start once hung there: the clock's lock
+    stayed taken by `Condition.__enter__`)."""
+    k = 1
+    while _interrupted_wait(k, remote):
+        k += 1
+    assert k > 30  # the sweep went through the waits' code
+
+
+def _interrupted_is_alive(k: int) -> str | None:
+    """A thread sleeping until 1.0 on the clock, a Ctrl-C at the k-th place of its `is_alive()`
+    in the main thread, which then sleeps until 0.5 and leaves; where it landed (None: not at
+    all), after checking the sleeper woke at 1.0."""
+    clock = SteppedClock(backstop=0.005)
+    woke, done = [], threading.Event()
+
+    def sleeper():
+        clock.sleep(1.0)
+        woke.append(clock.now())
+        done.set()
+
+    clock.enlist()
+    (thread,) = _threads(clock, sleeper)
+    landed = _interrupted_at(k, thread.is_alive)
+    clock.sleep(0.5)
+    clock.leave()
+    done.wait(5)  # not `join`: it may no longer wait for the thread
+    assert woke == [1.0], f"a Ctrl-C at {landed} woke the sleeper at {woke}"
+    return landed
+
+
+def test_a_ctrl_c_inside_is_alive_leaves_a_live_member_on_the_clock():
+    """In Python 3.11 a KeyboardInterrupt landing inside `Thread.is_alive()` can mark the live
+    thread stopped (bpo-45274's repair releases the thread's own lock). The clock must still count
+    that thread: it sleeps on until its instant, not woken as if it had ended."""
+    k = 1
+    while _interrupted_is_alive(k):
+        k += 1
+    assert k > 3
