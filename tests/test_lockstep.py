@@ -345,7 +345,9 @@ def _interrupted_at(k: int, call) -> str | None:
     """Run `call()` in this thread with a KeyboardInterrupt raised at the k-th place a Ctrl-C's
     handler can run in the clocks' and `threading`'s code: CPython 3.11 runs it when a frame
     starts, after a call returns and at a loop's jump back (its eval breaker), never at a NOP
-    (which no `with` or `try` covers) nor between a PRECALL and its CALL. Where it was raised
+    (which no `with` or `try` covers) nor between a PRECALL and its CALL. The handler's exception
+    belongs to the call (or the jump): raised at the next bytecode instead, it stands for it
+    where both are covered by the same `with` or `try` (or by none). Where it was raised
     ("_wait line 261 (place 7)"), or None (the call ended before its k-th place)."""
     import dis
 
@@ -354,18 +356,26 @@ def _interrupted_at(k: int, call) -> str | None:
 
     files = {drivers.clock.__file__, drivers.clock_link.__file__, threading.__file__}
     breakers = {"CALL", "CALL_FUNCTION_EX", "JUMP_BACKWARD"}
-    names, last, count, where = {}, {}, 0, []
+    codes, last, count, where = {}, {}, 0, []
+
+    def handler(code, offset):
+        """The target of the `with` or `try` that covers `offset`, None outside any."""
+        return next((e.target for e in codes[code][1] if e.start <= offset < e.end), None)
 
     def local(frame, event, arg):
         nonlocal count
         if event != "opcode":
             return local
-        code = frame.f_code
-        ops = names.setdefault(code, {i.offset: i.opname for i in dis.get_instructions(code)})
-        before = last.get(frame)
-        last[frame] = frame.f_lasti
-        if (before is None or ops.get(before) in breakers
-                or ops.get(before) == "PRECALL" and ops.get(frame.f_lasti) != "CALL"):  # it called
+        code, now = frame.f_code, frame.f_lasti
+        if code not in codes:
+            bytecode = dis.Bytecode(code)
+            codes[code] = ({i.offset: i.opname for i in bytecode}, bytecode.exception_entries)
+        ops = codes[code][0]
+        before = last.get(frame, 0)  # a frame's first: its RESUME
+        last[frame] = now
+        called = (ops.get(before) in breakers or before == 0
+                  or ops.get(before) == "PRECALL" and ops.get(now) != "CALL")
+        if called and handler(code, before) == handler(code, now):
             count += 1
             if count == k:
                 where.append(f"{code.co_name} line {frame.f_lineno} (place {k})")
