@@ -8,17 +8,22 @@ host slowed by CPU hogs, gives identical sample arrays, table states and events.
 
 import multiprocessing
 import random
-import sys
 import threading
 import time
 
 import h5py
 import numpy as np
 import pytest
+from signal_places import interrupted_at
 
+import drivers.clock
+import drivers.clock_link
 from drivers.clock import ScaledClock, SteppedClock, WallClock
 from station.protocols.rotary import RotarySettings, suggested_axes
 from station.twin.rotary_bench import VirtualBench, record_rotary
+
+CLOCK_CODE = (drivers.clock.__file__, drivers.clock_link.__file__, threading.__file__)
+"""Where a Ctrl-C is raised in the clock tests: the clocks' and `threading`'s code."""
 
 
 def _threads(clock, *targets, producer=()):
@@ -341,65 +346,6 @@ def test_station_twin_and_station_record_in_two_processes_record_the_same_sessio
             assert _same(a[name], b[name]), name
 
 
-def _interrupted_at(k: int, call) -> str | None:
-    """Run `call()` in this thread with a KeyboardInterrupt raised at the k-th place a Ctrl-C's
-    handler can run in the clocks' and `threading`'s code: CPython 3.11 runs it when a frame
-    starts, after a call returns and at a loop's jump back (its eval breaker), never at a NOP
-    (which no `with` or `try` covers) nor between a PRECALL and its CALL. The handler's exception
-    belongs to the call (or the jump): raised at the next bytecode instead, it stands for it
-    where both are covered by the same `with` or `try` (or by none). Where it was raised
-    ("_wait line 261 (place 7)"), or None (the call ended before its k-th place)."""
-    import dis
-
-    import drivers.clock
-    import drivers.clock_link
-
-    files = {drivers.clock.__file__, drivers.clock_link.__file__, threading.__file__}
-    breakers = {"CALL", "CALL_FUNCTION_EX", "JUMP_BACKWARD"}
-    codes, last, count, where = {}, {}, 0, []
-
-    def handler(code, offset):
-        """The target of the `with` or `try` that covers `offset`, None outside any."""
-        return next((e.target for e in codes[code][1] if e.start <= offset < e.end), None)
-
-    def local(frame, event, arg):
-        nonlocal count
-        if event != "opcode":
-            return local
-        code, now = frame.f_code, frame.f_lasti
-        if code not in codes:
-            bytecode = dis.Bytecode(code)
-            codes[code] = ({i.offset: i.opname for i in bytecode}, bytecode.exception_entries)
-        ops = codes[code][0]
-        before = last.get(frame, 0)  # a frame's first: its RESUME
-        last[frame] = now
-        called = (ops.get(before) in breakers or before == 0
-                  or ops.get(before) == "PRECALL" and ops.get(now) != "CALL")
-        if called and handler(code, before) == handler(code, now):
-            count += 1
-            if count == k:
-                where.append(f"{code.co_name} line {frame.f_lineno} (place {k})")
-                raise KeyboardInterrupt(where[0])
-        return local
-
-    def tracer(frame, event, arg):
-        if frame.f_code.co_filename not in files:
-            return None
-        frame.f_trace_opcodes = True
-        return local
-
-    sys.settrace(tracer)
-    try:
-        call()
-    except KeyboardInterrupt:
-        pass
-    except RuntimeError as exc:  # between Condition.wait's release and its `try`
-        assert "un-acquired lock" in str(exc) and isinstance(exc.__context__, KeyboardInterrupt)
-    finally:
-        sys.settrace(None)
-    return where[0] if where else None
-
-
 def _lock_is_free(clock) -> bool:
     """Can another thread take the clock's lock (within 5 s)?"""
     free = []
@@ -417,8 +363,8 @@ def _lock_is_free(clock) -> bool:
 
 def _interrupted_wait(k: int, remote: bool) -> str | None:
     """A station's main thread and a reader on the clock (over the socket: a `RemoteClock`), a
-    Ctrl-C at the k-th place of the main thread's two sleeps (`_interrupted_at`), checked as
-    below; where it landed (None: the sleeps ended first)."""
+    Ctrl-C at the k-th place of the main thread's two sleeps (`signal_places.interrupted_at`),
+    checked as below; where it landed (None: the sleeps ended first)."""
     from drivers.clock_link import ClockServer, RemoteClock
 
     served = SteppedClock(step=0.1, backstop=0.005)
@@ -435,7 +381,7 @@ def _interrupted_wait(k: int, remote: bool) -> str | None:
     try:
         clock.enlist()
         (member,) = _threads(clock, reader)
-        landed = _interrupted_at(k, lambda: [clock.sleep(0.25) for _ in range(2)])
+        landed = interrupted_at(k, lambda: [clock.sleep(0.25) for _ in range(2)], CLOCK_CODE)
         assert _lock_is_free(clock), f"the clock's lock stayed taken after a Ctrl-C at {landed}"
         if landed:
             clock.advance_to(0.0)  # over the socket: once the served clock read every line
@@ -482,7 +428,7 @@ def _interrupted_is_alive(k: int) -> str | None:
 
     clock.enlist()
     (thread,) = _threads(clock, sleeper)
-    landed = _interrupted_at(k, thread.is_alive)
+    landed = interrupted_at(k, thread.is_alive, CLOCK_CODE)
     clock.sleep(0.5)
     clock.leave()
     done.wait(5)  # not `join`: it may no longer wait for the thread
