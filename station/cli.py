@@ -165,13 +165,31 @@ def whole_stdout() -> None:
 
 def configure_logging(verbose: bool) -> None:
     """Module loggers go to stderr through rich: warnings, or everything with --verbose."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[log_handler(verbose)], force=True)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL if not verbose else logging.INFO)
+
+
+def log_handler(verbose: bool) -> logging.Handler:
+    """The station's log handler: rich on stderr, whose lock a Ctrl-C cannot leave taken.
+
+    Python 3.11's `Handler.handle` takes the lock in `acquire()`, a Python call: a
+    KeyboardInterrupt landing right after (the main thread logging a warning) left it taken, and
+    the next thread to log (a failing heartbeat, which the station then joins) waited for ever
+    (tests/test_cli_logging.py). Python 3.13 takes it with `with`, as here (a C lock's `with` has
+    no Python frame in between)."""
     from rich.console import Console
     from rich.logging import RichHandler
 
-    handler = RichHandler(console=Console(stderr=True), show_path=verbose, markup=False)
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING, format="%(message)s",
-                        handlers=[handler], force=True)
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL if not verbose else logging.INFO)
+    class Handler(RichHandler):
+        def handle(self, record) -> bool:
+            shown = self.filter(record)
+            if shown:
+                with self.lock:
+                    self.emit(record)
+            return shown
+
+    return Handler(console=Console(stderr=True), show_path=verbose, markup=False)
 
 
 def one_blas_thread() -> None:
