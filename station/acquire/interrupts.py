@@ -10,6 +10,14 @@ handles it (stops the table, records the abort) calls `handled()` first.
 
 A device watched from another thread (the thermal chamber while a session records) stops the
 recording the same way: `deliver(error)` makes the main thread's next `raise_dropped()` raise it.
+
+The KeyboardInterrupt lands wherever the main thread is, so a lock that another thread may wait
+for is taken there with `with` on a C lock: never `with condition:` (`Condition.__enter__` is
+Python code) nor `acquire()` then `try`, where an interrupt in between leaves it taken and the
+other thread (the recorder's reader, a heartbeat) waits for ever while the station joins it: the
+lockstep clock (`drivers.clock.SteppedClock._wait`) and the log handler
+(`station.cli.log_handler`). `tests/signal_places.py` raises the interrupt at every place it can
+land in a call; tests/test_lockstep.py, test_table_modbus.py and test_cli_logging.py sweep it.
 """
 
 import signal
