@@ -242,8 +242,8 @@ class SteppedClock:
         the lock is never left held. That is why every `with` here takes `_lock` (a C lock, taken
         with no Python frame in between) and never `_cond`: `Condition.__enter__` is Python, and a
         KeyboardInterrupt raised once it had taken the lock left it taken for good (measured: 1
-        `station record` in about 200 killed at a position's start hung, its reader thread waiting
-        for the lock that the main thread, joining it, held)."""
+        `station record` in about 300 interrupted at a position's start hung, its reader thread
+        waiting for the lock that the main thread, joining it, held)."""
         me = threading.current_thread()
         with self._lock:
             self._members.setdefault(me, False)

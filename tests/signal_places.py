@@ -2,10 +2,13 @@
 at the k-th place of `call()` where CPython 3.11 runs a signal handler, in the code of the files
 (or under the directories) `code`. A test sweeps k = 1, 2, ... until the call ends first, and
 checks after each what must hold after a Ctrl-C anywhere (tests/test_lockstep.py: the clock;
-tests/test_table_modbus.py: the table)."""
+tests/test_table_modbus.py: the table; test_cli_logging.py: the log; test_session_kill.py: the
+session file). `ends(call, guard)` asks whether a call another thread makes still returns (a lock
+left taken blocks it for ever)."""
 
 import dis
 import sys
+import threading
 
 BREAKERS = {"CALL", "CALL_FUNCTION_EX", "JUMP_BACKWARD"}
 """Bytecodes after which CPython 3.11 checks its eval breaker (runs pending signal handlers)."""
@@ -61,3 +64,18 @@ def interrupted_at(k: int, call, code: tuple) -> str | None:
     finally:
         sys.settrace(None)
     return where[0] if where else None
+
+
+def ends(call, guard: float) -> bool:
+    """Does `call()`, run in another thread, return within `guard` wall seconds (a hang guard:
+    a lock a Ctrl-C left taken blocks it for ever)? One that raises does not."""
+    done = []
+
+    def run():
+        call()
+        done.append(True)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    thread.join(guard)
+    return done == [True]

@@ -5,17 +5,9 @@ heartbeat does, and the station then joins it)."""
 import logging
 import threading
 
-from signal_places import interrupted_at
+from signal_places import ends, interrupted_at
 
 import station.cli
-
-
-def _other_thread_logs(log) -> bool:
-    """Does a warning from another thread get through (within a hang guard of 10 wall s)?"""
-    thread = threading.Thread(target=lambda: log.warning("the heartbeat failed"), daemon=True)
-    thread.start()
-    thread.join(10)
-    return not thread.is_alive()
 
 
 def test_a_ctrl_c_while_the_main_thread_logs_leaves_the_log_usable():
@@ -24,6 +16,7 @@ def test_a_ctrl_c_while_the_main_thread_logs_leaves_the_log_usable():
     code = (logging.__file__, threading.__file__, station.cli.__file__)
     k = 1
     while landed := interrupted_at(k, lambda: log.warning("aborted"), code):
-        assert _other_thread_logs(log), f"logging blocked after a Ctrl-C at {landed}"
+        assert ends(lambda: log.warning("the heartbeat failed"), 10), (  # another thread's
+            f"logging blocked after a Ctrl-C at {landed}")
         k += 1
     assert k > 20  # the sweep went through the handler's locking

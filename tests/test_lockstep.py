@@ -14,7 +14,7 @@ import time
 import h5py
 import numpy as np
 import pytest
-from signal_places import interrupted_at
+from signal_places import ends, interrupted_at
 
 import drivers.clock
 import drivers.clock_link
@@ -347,18 +347,13 @@ def test_station_twin_and_station_record_in_two_processes_record_the_same_sessio
 
 
 def _lock_is_free(clock) -> bool:
-    """Can another thread take the clock's lock (within 5 s)?"""
-    free = []
+    """Can another thread take the clock's lock (within a hang guard of 5 wall s)?"""
 
     def take():
-        free.append(clock._cond.acquire(timeout=5))
-        if free[0]:
-            clock._cond.release()
+        with clock._cond:
+            pass
 
-    probe = threading.Thread(target=take)
-    probe.start()
-    probe.join()
-    return free == [True]
+    return ends(take, 5)
 
 
 def _interrupted_wait(k: int, remote: bool) -> str | None:
