@@ -2,11 +2,13 @@
 
 Data: ../shared/data/real/imucal-ferraris (PROVENANCE.md): the annotated raw-count sections at
 204.8 Hz and the continuous recording at 102.4 Hz with its hand-made section list, the same
-sections for every tool. Four calls alternate in one process, CPU time each (the host is
+sections for every tool. Five calls alternate in one process, CPU time each (the host is
 shared): `calibrate_ferraris` (the closed form of station.solve.iron_faces, from the recording's
-samples and its section bounds), the same with `general=True` (station.calibrate's iterative ML,
-the baseline of issue 35), imucal's `compute` (its regions cut beforehand, as its API takes
-them) and imucal from the same recording (its own helpers `ferraris_regions_from_df` /
+samples and its section bounds: the calibration and its checks, the uncertainties made when
+read), the same with both results' uncertainties read (`.accel`, `.gyro.fit`: what a report
+waits for), the same with `general=True` (station.calibrate's iterative ML, the baseline of
+issue 35), imucal's `compute` (its regions cut beforehand, as its API takes them; no
+uncertainties) and imucal from the same recording (its own helpers `ferraris_regions_from_df` /
 `ferraris_regions_from_section_list` cut the regions, then `compute`: what a user of it waits
 for, the input ours gets). Printed: the median CPU time of
 each, the median over the rounds of the ratio ours / imucal (target <= 1.0) and the largest
@@ -77,6 +79,7 @@ def timings(case, rounds: int) -> dict:
 
     calls = {
         "ours": lambda: calibrate_ferraris(acc, gyro, fs, sections, G),
+        "ours_uncertainties": lambda: uncertainties(calibrate_ferraris(acc, gyro, fs, sections, G)),
         "ours_general": lambda: calibrate_ferraris(acc, gyro, fs, sections, G, general=True),
         "imucal": lambda: imucal(regions),
         "imucal_from_recording": lambda: imucal(cut()),
@@ -85,10 +88,16 @@ def timings(case, rounds: int) -> dict:
         call()
     t = np.array([[cpu(call) for call in calls.values()] for _ in range(rounds)])
     return {"cpu_ms": {k: 1e3 * float(np.median(t[:, i])) for i, k in enumerate(calls)},
-            "ratio_ours_to_imucal": float(np.median(t[:, 0] / t[:, 2])),
-            "ratio_ours_to_imucal_from_recording": float(np.median(t[:, 0] / t[:, 3])),
-            "ratio_general_to_imucal": float(np.median(t[:, 1] / t[:, 2])),
-            "speedup_over_general": float(np.median(t[:, 1] / t[:, 0]))}
+            "ratio_ours_to_imucal": float(np.median(t[:, 0] / t[:, 3])),
+            "ratio_ours_uncertainties_to_imucal": float(np.median(t[:, 1] / t[:, 3])),
+            "ratio_ours_to_imucal_from_recording": float(np.median(t[:, 0] / t[:, 4])),
+            "ratio_general_to_imucal": float(np.median(t[:, 2] / t[:, 3])),
+            "speedup_over_general": float(np.median(t[:, 2] / t[:, 0]))}
+
+
+def uncertainties(cal):
+    """Both results of a Ferraris calibration made (their uncertainties: made when read)."""
+    return cal.accel, cal.gyro.fit
 
 
 def largest_difference(fast, general) -> float:
@@ -138,7 +147,10 @@ def main(argv=None) -> int:
             continue
         ms = r["cpu_ms"]
         worst = max(r["max_difference"].values())
-        print(f"{name}: CPU ms ours {ms['ours']:.3f}, iterative {ms['ours_general']:.3f}, imucal "
+        print(f"{name}: CPU ms ours {ms['ours']:.3f} (with the uncertainties read "
+              f"{ms['ours_uncertainties']:.3f}: "
+              f"{r['ratio_ours_uncertainties_to_imucal']:.2f} x imucal), iterative "
+              f"{ms['ours_general']:.3f}, imucal "
               f"{ms['imucal']:.3f}, imucal from the recording {ms['imucal_from_recording']:.3f}; "
               f"ours / imucal {r['ratio_ours_to_imucal']:.2f} (target <= 1: "
               f"{'met' if r['ratio_ours_to_imucal'] <= 1 else 'missed'}), ours / imucal from the "

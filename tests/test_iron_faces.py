@@ -11,6 +11,7 @@ import pytest
 from scipy import stats
 
 from station.errors import CalibrationInputError
+from station.model.frames import align_to
 from station.reduce.ferraris import (
     calibrate_ferraris,
     find_sections,
@@ -19,7 +20,7 @@ from station.reduce.ferraris import (
 )
 from station.solve.calibrate import calibrate
 from station.solve.constraints import FACES, face_directions, from_faces
-from station.solve.iron_faces import calibrate_faces
+from station.solve.iron_faces import calibrate_faces, fit_faces
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "imucal-ferraris"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="real data (../shared) not available")
@@ -80,7 +81,20 @@ def test_six_faces_match_the_iterative_ml(sigma):
         assert fast.pose_sigma > 0
 
 
-def test_repeated_faces_and_per_entry_sigma_match_the_iterative_ml():
+def test_repeated_faces_with_a_noise_per_sensor_match_the_iterative_ml():
+    rng = np.random.default_rng(3)
+    faces = FACES + ("+z", "-x")
+    readings = six_faces(rng, 0.01, faces)
+    sigma = rng.uniform(0.005, 0.02, 3)
+    fast = calibrate_faces(readings, faces, G, bias="estimate", sigma=sigma)
+    general = calibrate(readings, G, d=3, bias="estimate", constraints=from_faces(faces),
+                        sigma=sigma)
+    assert_same(fast, general)
+
+
+def test_a_noise_per_reading_goes_to_the_general_path():
+    """Unequal weights within a sensor move the estimate with the per-pose term: not the closed
+    form's (fit_faces)."""
     rng = np.random.default_rng(3)
     faces = FACES + ("+z", "-x")
     readings = six_faces(rng, 0.01, faces)
@@ -88,7 +102,27 @@ def test_repeated_faces_and_per_entry_sigma_match_the_iterative_ml():
     fast = calibrate_faces(readings, faces, G, bias="estimate", sigma=sigma)
     general = calibrate(readings, G, d=3, bias="estimate", constraints=from_faces(faces),
                         sigma=sigma)
-    assert_same(fast, general)
+    assert fast.iterations == general.iterations > 0
+    np.testing.assert_array_equal(fast.a, general.a)
+
+
+def test_loose_turns_keep_the_closed_form_estimate_and_the_general_result():
+    """Turns so noisy that the scale factors' 1-sigma passes 10 %: the estimate is the closed
+    form's at once (three turns: no weight moves it), the result the general path's, the loose
+    parameters named."""
+    rng = np.random.default_rng(5)
+    a, _ = triad(rng)
+    senses = ("-x", "+y", "-z")
+    w = a.T @ (2 * np.pi * face_directions(senses)) + 1e-3 * rng.standard_normal((3, 3))
+    sigma = np.full((3, 3), 2.0)
+    solved = fit_faces(w, senses, 2 * np.pi, sigma=sigma)
+    general = calibrate(w, 2 * np.pi, d=3, constraints=from_faces(senses), sigma=sigma)
+    assert general.weakly_determined
+    np.testing.assert_allclose(solved.a, a, rtol=0, atol=1e-3)
+    assert solved.result.iterations == general.iterations > 0
+    assert solved.result.weakly_determined == general.weakly_determined
+    np.testing.assert_allclose(align_to(general.v, 2 * np.pi * face_directions(senses))
+                               @ general.a, solved.a, rtol=0, atol=TOL * np.abs(a).max())
 
 
 def test_three_turns_match_the_iterative_ml():

@@ -11,8 +11,10 @@ turning a full turn about x, y and z (`x_rot`, `y_rot`, `z_rot`, each on the fac
   Kanade Eq. 15), the gyro from the three turns of known angle (Eq. 31, `station.solve.gyro_turns`),
   both expressed in the iron frame (face "+x" = +x), and a refusal if the two triads differ in
   handedness. Both are one rigid group of poses, whose maximum likelihood is linear: solved in
-  closed form with the analytic covariance (`station.solve.iron_faces`), the sections' sums in
-  one pass over the samples (`section_sums`); `general=True` takes the iterative path instead.
+  closed form (`station.solve.iron_faces.fit_faces`: the estimates and their checks at once, the
+  results with the analytic covariance when `accel` / `gyro.fit` are first read), the sections'
+  sums one `np.add.reduceat` per column block (`section_sums`, `face_squares`); `general=True`
+  takes the iterative path instead.
 
 See docs/realdata.md; `bench/peers.py` runs imucal on the same data.
 """
@@ -26,10 +28,8 @@ import numpy as np
 from station.errors import CalibrationInputError
 from station.limits import json_loads
 from station.model import measurement
-from station.model.frames import align_to
 from station.reduce.stillness import StillIntervals, detect_still
 from station.solve.calibrate import CalibrationResult
-from station.solve.constraints import face_directions
 from station.solve.gyro_turns import (
     TurnCalibration,
     calibrate_turns,
@@ -37,11 +37,12 @@ from station.solve.gyro_turns import (
     mirrored,
     turn_senses,
 )
-from station.solve.iron_faces import calibrate_faces
+from station.solve.iron_faces import FacesFit, fit_faces
 
 FACE_SECTIONS = {"x_p": "+x", "x_a": "-x", "y_p": "+y", "y_a": "-y", "z_p": "+z", "z_a": "-z"}
 TURN_SECTIONS = {"x_rot": "x_p", "y_rot": "y_p", "z_rot": "z_p"}  # turn -> face it is done on
 SECTIONS = tuple(FACE_SECTIONS) + tuple(TURN_SECTIONS)
+FACES = tuple(FACE_SECTIONS.values())
 TURN_FACES = [list(FACE_SECTIONS).index(face) for face in TURN_SECTIONS.values()]
 """Index among FACE_SECTIONS of the face each turn of TURN_SECTIONS is done on."""
 COLUMNS = ("acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z")
@@ -70,21 +71,30 @@ class FoundSections:
 class FerrarisCalibration:
     """Accelerometer and gyro of one IMU in the iron frame; units of the input readings.
 
-    accel : `station.calibrate` result of the six face means (canonical frame, uncertainties).
-    a_acc : (3, 3) accelerometer sensitivity in the iron frame (input units per m/s^2).
+    solved : the six face means' fit (`station.solve.iron_faces.FacesFit`).
     readings : (3, 6) face means, order x_p, x_a, y_p, y_a, z_p, z_a.
     gyro : the turn calibration (`gyro.a` in input units per rad/s, iron frame).
     """
 
-    accel: CalibrationResult
-    a_acc: np.ndarray
+    solved: FacesFit
     readings: np.ndarray
     gyro: TurnCalibration
+
+    @property
+    def a_acc(self) -> np.ndarray:
+        """(3, 3) accelerometer sensitivity in the iron frame (input units per m/s^2)."""
+        return self.solved.a
+
+    @property
+    def accel(self) -> CalibrationResult:
+        """The `station.calibrate` result of the six face means (canonical frame, uncertainties),
+        made when first read."""
+        return self.solved.result
 
     def apply_acc(self, z) -> np.ndarray:
         """Specific force (3,) or (3, k), m/s^2, iron frame, from accelerometer readings z (3,)
         or (3, k) (station.model.measurement.fuse)."""
-        return measurement.fuse(self.a_acc, z, self.accel.bias)
+        return measurement.fuse(self.a_acc, z, self.solved.bias)
 
 
 def read_recording(path) -> Recording:
@@ -231,39 +241,51 @@ def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: fl
     if counts[6:].min() < 2:
         raise CalibrationInputError(
             f"a turn section holds {counts[6:].min()} sample(s).", "Give each turn's samples.")
-    shift = gyro[bounds[0, 0]]  # any still sample: the squares' sums lose no digits
-    sums = section_sums(bounds, acc, gyro, (gyro - shift) ** 2)
-    means = sums[:, :6] / counts[:, None]
-    readings, face_gyro = means[:6, :3].T, means[:6, 3:]
-    faces = list(FACE_SECTIONS.values())
-    fit = calibrate_faces(readings, faces, g, bias="estimate", general=general)
-    a_acc = align_to(fit.v, face_directions(faces) * g) @ fit.a
+    faces = bounds[:6]
+    shift, squares = face_squares(faces, gyro)
+    gyro_sums = section_sums(bounds, gyro)
+    readings = (section_sums(faces, acc) / counts[:6, None]).T
+    face_gyro = gyro_sums[:6] / counts[:6, None]
+    solved = fit_faces(readings, FACES, g, bias="estimate", general=general)
 
-    still = counts[:6].sum()
-    bias = sums[:6, 3:6].sum(axis=0) / still
+    n = counts.astype(float)
+    still = n[:6].sum()
+    bias = gyro_sums[:6].sum(axis=0) / still
     # over each face: sum (gyro - its mean)^2 = sum (gyro - shift)^2 - n_f (mean - shift)^2
-    noise = np.sqrt((sums[:6, 6:].sum(axis=0) - counts[:6] @ (face_gyro - shift) ** 2) / still)
-    w = ((sums[6:, 3:6] - counts[6:, None] * face_gyro[TURN_FACES]) / fs).T  # Eq. 18, summed
-    sigma = noise[:, None] * np.sqrt(counts[6:])[None, :] / fs
+    spread = face_gyro - shift
+    noise2 = (squares.sum(axis=0) - n[:6] @ (spread * spread)) / still
+    w = (gyro_sums[6:] - n[6:, None] * face_gyro[TURN_FACES]).T / fs  # Eq. 18, summed
+    sigma = np.sqrt(np.outer(noise2, n[6:])) / fs  # the noise times sqrt(samples) / fs
     senses = turn_senses(w, ["+x", "+y", "+z"])
     turn_cal = calibrate_turns(w, senses, angle, bias=bias, sigma=sigma, general=general)
-    if mirrored(a_acc, turn_cal.a):
+    if mirrored(solved.a, turn_cal.a):
         raise CalibrationInputError(
             "the gyro triad comes out mirrored relative to the accelerometer triad.",
             "Check the gyro axes' signs and the turn senses.",
         )
-    return FerrarisCalibration(fit, a_acc, readings, turn_cal)
+    return FerrarisCalibration(solved, readings, turn_cal)
 
 
-def section_sums(bounds: np.ndarray, *columns: np.ndarray) -> np.ndarray:
-    """(sections, columns) sums over the rows [start, stop) of arrays (K, c) side by side, one
-    (start, stop) row of bounds per section, in one pass: np.add.reduceat over the boundaries,
-    whose even entries are the sections, on the columns laid out as rows (contiguous) with a zero
-    appended so that a section may end at K."""
-    k = len(columns[0])
-    rows = np.zeros((sum(c.shape[1] for c in columns), k + 1))
-    top = 0
-    for c in columns:
-        rows[top: top + c.shape[1], :k] = c.T
-        top += c.shape[1]
-    return np.add.reduceat(rows, bounds.ravel(), axis=1)[:, ::2].T
+def section_sums(bounds: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(sections, c) sums of x (K, c) over the samples [start, stop) of each section (one row of
+    bounds) in one call: np.add.reduceat over the boundaries, whose even entries are the
+    sections, reading x in place (a column view too). reduceat takes no index K: a section that
+    ends there is summed one sample short and that sample added."""
+    k = len(x)
+    sums = np.add.reduceat(x, np.minimum(bounds, k - 1).ravel(), axis=0)[::2]
+    sums[(bounds[:, 1] == k) & (bounds[:, 0] < k - 1)] += x[k - 1]
+    return sums
+
+
+def face_squares(bounds: np.ndarray, gyro: np.ndarray):
+    """(shift, sums): sum (gyro - shift)^2 over each face section (rows of bounds), shift the
+    first face sample (still: the squares lose no digits). Made on the faces' span of the gyro
+    laid out as rows (contiguous: a (K, 3) column view is 20 x slower to subtract from, and
+    reduceat 3 x slower along it), with a zero column so that a face may end at the span's end."""
+    first, last = int(bounds[:, 0].min()), int(bounds[:, 1].max())
+    shift = gyro[first]
+    squares = np.zeros((3, last - first + 1))
+    squares[:, :-1] = gyro[first:last].T
+    squares[:, :-1] -= shift[:, None]
+    squares *= squares
+    return shift, np.add.reduceat(squares, (bounds - first).ravel(), axis=1)[:, ::2].T

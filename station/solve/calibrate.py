@@ -261,7 +261,7 @@ def as_readings(readings) -> np.ndarray:
             f"readings have shape {m_.shape}; expected a 2-D matrix.",
             "Pass the m x n matrix of averaged readings (sensors x positions).",
         )
-    if not np.all(np.isfinite(m_)):
+    if not np.isfinite(m_).all():
         raise CalibrationInputError(
             "readings contain NaN or infinite values.",
             "Drop or redo the positions with invalid data.",

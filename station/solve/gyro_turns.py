@@ -27,10 +27,9 @@ from scipy.spatial.transform import Rotation
 
 from station.errors import CalibrationInputError
 from station.model import measurement
-from station.model.frames import align_to
 from station.solve.calibrate import CalibrationResult
-from station.solve.constraints import FACES, face_directions
-from station.solve.iron_faces import calibrate_faces
+from station.solve.constraints import FACES
+from station.solve.iron_faces import FacesFit, fit_faces
 
 AXES = "xyz"
 
@@ -39,18 +38,27 @@ AXES = "xyz"
 class TurnCalibration:
     """A gyro triad calibrated from turns; units are those of the input (e.g. counts per rad/s).
 
-    fit : the `station.calibrate` result (canonical frame, with the gauge-invariant uncertainties).
-    a : (3, 3) sensitivity in the iron frame (column i = gyro i's axis times its scale factor).
+    solved : the turns' fit (`station.solve.iron_faces.FacesFit`).
     bias : (3,) gyro bias subtracted before integrating (input units).
     senses : face labels of the turns' rotation vectors, e.g. ("-x", "-y", "-z").
     integrals : (3, n) bias-free integrated readings of the turns (input units times seconds).
     """
 
-    fit: CalibrationResult
-    a: np.ndarray
+    solved: FacesFit
     bias: np.ndarray
     senses: tuple[str, ...]
     integrals: np.ndarray
+
+    @property
+    def a(self) -> np.ndarray:
+        """(3, 3) sensitivity in the iron frame (column i = gyro i's axis times its scale)."""
+        return self.solved.a
+
+    @property
+    def fit(self) -> CalibrationResult:
+        """The `station.calibrate` result (canonical frame, with the gauge-invariant
+        uncertainties), made when first read."""
+        return self.solved.result
 
     def apply(self, z) -> np.ndarray:
         """Angular rates (3,) or (3, k) in rad/s, iron frame, from gyro readings z (3,) or (3, k)
@@ -118,11 +126,9 @@ def calibrate_turns(
             "three turns leave no residual to estimate the noise from.",
             "Give sigma (gyro noise times sqrt(samples) / fs), or record more turns.",
         )
-    fit = calibrate_faces(w, senses, angle, sigma=sigma, general=general)
-    directions = face_directions(senses) * angle
-    rotation = align_to(fit.v, directions)  # carries the physical handedness of the senses
-    b = np.zeros(3) if bias is None else np.asarray(bias, float)
-    return TurnCalibration(fit, rotation @ fit.a, b, tuple(senses), w)
+    solved = fit_faces(w, senses, angle, sigma=sigma, general=general)  # iron frame: the senses'
+    b = np.zeros(3) if bias is None else np.asarray(bias, float)  # physical handedness
+    return TurnCalibration(solved, b, tuple(senses), w)
 
 
 def mirrored(a_acc, a_gyro) -> bool:

@@ -122,17 +122,16 @@ NAMED = 4
 
 def _norms(a: np.ndarray) -> np.ndarray:
     """|a_i|, with the largest standing in for a sensor that sees nothing (a_i ~ 0)."""
-    norms = np.linalg.norm(a, axis=0)
-    return np.where(norms > 1e-6 * norms.max(), norms, norms.max())
+    norms = np.sqrt(np.einsum("ki,ki->i", a, a))
+    top = norms.max()
+    return np.where(norms > 1e-6 * top, norms, top)
 
 
 def natural_scale(a: np.ndarray, magnitude: float, bias_estimated: bool) -> np.ndarray:
     """(m p,) factors D with theta = D theta_natural: a_i in units of |a_i|, b_i of c |a_i|."""
-    norms = _norms(a)
-    per = [np.repeat(norms[:, None], a.shape[0], axis=1)]
-    if bias_estimated:
-        per.append(magnitude * norms[:, None])
-    return np.hstack(per).ravel()
+    per = np.ones(a.shape[0] + bias_estimated)
+    per[a.shape[0]:] = magnitude
+    return np.outer(_norms(a), per).ravel()
 
 
 def gauge_directions(a: np.ndarray, p: int) -> np.ndarray:

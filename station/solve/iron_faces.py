@@ -30,10 +30,14 @@ refuses or refits from other starts: there, when asked (`general=True`), or for 
 `station.calibrate` solves the readings and says what it finds.
 """
 
-from dataclasses import dataclass
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
+from station.model.frames import align_to
 from station.solve import identifiability, ml, uncertainty
 from station.solve.calibrate import (
     MISFIT_MAX,
@@ -66,6 +70,26 @@ class LinearFit:
     iterations: int = 0
 
 
+@dataclass(frozen=True)
+class FacesFit:
+    """One mounting's faces solved: the sensitivities in the iron's frame and the biases at once,
+    the full `CalibrationResult` (the reporting frame and every uncertainty: three quarters of the
+    work) when `result` is first read.
+
+    a : (3, m) sensitivity in the iron's frame (column i = sensor i's axis times its scale).
+    bias : (m,) estimated biases, or the given / None of the call.
+    """
+
+    a: np.ndarray
+    bias: np.ndarray | None
+    finish: Callable[[], CalibrationResult] = field(repr=False, compare=False)
+
+    @cached_property
+    def result(self) -> CalibrationResult:
+        """What `station.calibrate` returns for these readings (`calibrate_faces`)."""
+        return self.finish()
+
+
 def calibrate_faces(readings, faces, magnitude: float | None, *, bias=None, sigma=None,
                     general: bool = False) -> CalibrationResult:
     """`station.calibrate(readings, magnitude, d=3, bias=bias, constraints=from_faces(faces),
@@ -73,91 +97,137 @@ def calibrate_faces(readings, faces, magnitude: float | None, *, bias=None, sigm
     j's stimulus points along), in closed form (module notes): the same result, every field to
     rounding, but `iterations` (0) and `covariance`, which each path gives at its own estimate
     of a (the iron's frame here, the iterate's frame there): the same up to a rotation of the
-    gauge (equal eigenvalues; every figure in the reporting frame equal).
+    gauge (equal eigenvalues; every figure in the reporting frame equal). `fit_faces(...).result`.
+    """
+    return fit_faces(readings, faces, magnitude, bias=bias, sigma=sigma, general=general).result
 
-    bias None (unbiased readings) or "estimate" (then every axis on both its faces); any other
-    design, a parameter that may be loose (module notes), or general=True: `station.calibrate`.
+
+def fit_faces(readings, faces, magnitude: float | None, *, bias=None, sigma=None,
+              general: bool = False) -> FacesFit:
+    """The estimate of `calibrate_faces` in the iron's frame at once, its result made when read.
+
+    The closed form covers positions along the faces of one mounting (bias None, or "estimate"
+    with every axis on both its faces) whose estimate the weights do not move: equal weights per
+    sensor (sigma None, a scalar or one per sensor; a per-pose term keeps them equal) or as many
+    positions as unknowns (three turns). Then theta_i = H^T z_i (`_design`), and only a residual
+    beyond MISFIT_MAX sends the readings to `station.calibrate` at once (it refits from other
+    starts or refuses). A parameter that may be loose (module notes) moves no estimate, only how
+    the result tells it: that result is `station.calibrate`'s (the same optimum, the loose
+    parameters named), decided when it is made. Any other design, or general=True:
+    `station.calibrate` at once, its estimate rotated into the iron's frame.
     """
     readings = as_readings(readings)
     m, n = readings.shape
     estimate_bias = isinstance(bias, str) and bias == "estimate"
-    if general or not _closed_form_fits(faces, n, bias, estimate_bias):
+    c = 1.0 if magnitude is None else float(magnitude)
+
+    def general_result() -> CalibrationResult:
         return calibrate(readings, magnitude, d=3, bias=bias, constraints=from_faces(faces),
                          sigma=sigma)
-    scale_known = magnitude is not None
-    c = float(magnitude) if scale_known else 1.0
+
+    if not general and _closed_form_fits(faces, n, bias, estimate_bias):
+        white = ml.sigma_matrix(sigma, m)
+        x, hat = _design(tuple(faces), c, estimate_bias)
+        if np.ndim(sigma) < 2 or n == x.shape[1]:
+            theta = readings @ hat
+            if _within_misfit(readings - theta @ x.T, theta[:, :3], c):
+                return FacesFit(theta[:, :3].T, theta[:, 3] if estimate_bias else None,
+                                functools.partial(_closed_result, readings, x, white,
+                                                  sigma is None, c, magnitude is not None,
+                                                  estimate_bias, theta, general_result))
+    result = general_result()
+    iron = align_to(result.v, c * face_directions(faces))
+    return FacesFit(iron @ result.a, result.bias, lambda: result)
+
+
+@functools.lru_cache(maxsize=64)
+def _design(faces: tuple[str, ...], c: float, estimate_bias: bool):
+    """(X, H), read-only, of one mounting's faces: X = [c E^T, 1] (n, p) (module notes) and
+    H = X (X^T X)^-1, so that theta_i = H^T z_i wherever the weights are equal per sensor
+    (F_i = w_i X^T X) or X is square (theta_i = X^-1 z_i, whatever the weights)."""
     x = c * face_directions(faces).T
     if estimate_bias:
-        x = np.hstack([x, np.ones((n, 1))])
-    white = np.broadcast_to(ml.sigma_matrix(sigma, m), (m, n))
-    try:
-        fit = _fit_at(readings, x, 1.0 / white**2, None, sigma is None)
-    except np.linalg.LinAlgError:
-        fit = None
-    if fit is None or not _vouched(fit, c, estimate_bias, sigma is not None or fit.dof > 0):
-        return calibrate(readings, magnitude, d=3, bias=bias, constraints=from_faces(faces),
-                         sigma=sigma)
+        x = np.hstack([x, np.ones((len(faces), 1))])
+    hat = x @ np.linalg.inv(x.T @ x)
+    x.setflags(write=False)
+    hat.setflags(write=False)
+    return x, hat
+
+
+def _closed_result(readings, x, white, estimated: bool, c: float, scale_known: bool,
+                   estimate_bias: bool, theta: np.ndarray, general) -> CalibrationResult:
+    """The `CalibrationResult` at the closed form's estimate theta (m, p) (`fit_faces`; white:
+    the readings' stated noise, broadcast to (m, n), or ones when `estimated`): with the
+    per-pose term when the noise is given (the estimate stays: the weights stay equal per
+    sensor), or `general()` when a parameter may be loose."""
+
+    def fit_with(noise) -> LinearFit:
+        return _fit_at(readings, x, 1.0 / noise**2, theta, estimated)
+
+    fit = fit_with(np.broadcast_to(white, readings.shape))
+    if not _vouched(fit, c, estimate_bias, not estimated or fit.dof > 0):
+        return general()
     args = ("factorization", "closed form", True, c, scale_known, estimate_bias, None)
-    if sigma is None:
+    if estimated:
         return calibration_result(fit, fit, None, *args, uncertainty.t_widening(fit.dof),
                                   covariance=covariance)
-    total, pose_var = with_pose_term(
-        fit, lambda f, noise: _fit_at(readings, x, 1.0 / noise**2, None, False))
-    plain = total if pose_var == 0 else _fit_at(readings, x, 1.0 / white**2, total, False)
+    total, pose_var = with_pose_term(fit, lambda f, noise: fit_with(noise))
     widen = uncertainty.estimation_widening(pose_var, fit.sigma, fit.dof)
-    return calibration_result(total, plain, float(np.sqrt(pose_var)), *args, widen,
+    return calibration_result(total, fit, float(np.sqrt(pose_var)), *args, widen,
                               covariance=covariance)
 
 
 def _closed_form_fits(faces, n: int, bias, estimate_bias: bool) -> bool:
-    """Whether `calibrate_faces` solves this design itself: one face per position, the three
-    axes seen, and with biases estimated every axis on both its faces; bias None or "estimate"."""
+    """Whether the closed form solves this design: one face per position, the three axes seen,
+    and with biases estimated every axis on both its faces; bias None or "estimate"."""
     seen = set(faces)
     if len(faces) != n or not seen <= set(FACES) or not (bias is None or estimate_bias):
         return False
     return seen == set(FACES) if estimate_bias else {f[1] for f in seen} == set("xyz")
 
 
-def _fit_at(readings, x, weight, at: LinearFit | None, estimated: bool) -> LinearFit:
-    """The weighted least-squares fit (module notes) with the weights `weight` (m, n), or the
-    estimate of `at` evaluated with them (`station.solve.ml.refine` with max_iter=0). estimated:
-    the weights are relative, the noise level is estimated from the residuals (as `ml.refine`
-    does without sigma: sigma^2 = chi2 / dof, the information rescaled)."""
+def _fit_at(readings, x, weight, theta, estimated: bool) -> LinearFit:
+    """The fit at theta (m, p) with the weights `weight` (m, n): its residuals, chi2 and the
+    information blocks (`station.solve.ml.refine` with max_iter=0). estimated: the weights are
+    relative, the noise level is estimated from the residuals (as `ml.refine` does without
+    sigma: sigma^2 = chi2 / dof, the information rescaled)."""
     m, n = readings.shape
     p = x.shape[1]
     info = np.einsum("in,nk,nl->ikl", weight, x, x)
     inverse = np.linalg.inv(info)
-    if at is None:
-        theta = np.einsum("ikl,il->ik", inverse, (weight * readings) @ x)
-        a, bias = theta[:, :3].T, theta[:, 3] if p > 3 else None
-    else:
-        a, bias = at.a, at.bias
-    resid = readings - a.T @ x[:, :3].T
-    if bias is not None:
-        resid -= bias[:, None]
-    chi2 = float(np.sum(weight * resid**2))
+    resid = readings - theta @ x.T
+    chi2 = float(np.einsum("in,in,in->", weight, resid, resid))
     dof = m * n - 3 * m - (m if p > 3 else 0)  # the rotation's 3 unknowns are the gauge's 3
-    sigma = 1.0 / np.sqrt(weight)
     if estimated:
-        scale = np.sqrt(chi2 / max(dof, 1))
-        scale = scale if scale > 0 else 1.0
-        sigma = np.full((m, n), scale)
-        info, inverse, chi2 = info / scale**2, inverse * scale**2, chi2 / scale**2
-    return LinearFit(a, x[:, :3].T.copy(), bias, resid, sigma, estimated, chi2, dof, info, inverse)
+        var = chi2 / max(dof, 1) or 1.0
+        sigma = np.full((m, n), np.sqrt(var))
+        info, inverse, chi2 = info / var, inverse * var, chi2 / var
+    else:
+        sigma = 1.0 / np.sqrt(weight)
+    bias = theta[:, 3] if p > 3 else None
+    return LinearFit(theta[:, :3].T, x[:, :3].T.copy(), bias, resid, sigma, estimated, chi2, dof,
+                     info, inverse)
+
+
+def _within_misfit(residuals: np.ndarray, a: np.ndarray, c: float) -> bool:
+    """Whether each sensor's RMS residual (residuals (m, n)) stays within MISFIT_MAX of its full
+    reading c |a_i| (a (m, d)); beyond it (a wrong face label, a unit that moved)
+    `station.calibrate` decides."""
+    squares = np.einsum("in,in->i", residuals, residuals)
+    return bool((squares <= (MISFIT_MAX * c) ** 2 * residuals.shape[1] * np.einsum(
+        "ik,ik->i", a, a)).all())  # False for NaN
 
 
 def _vouched(fit: LinearFit, c: float, estimate_bias: bool, noise_known: bool) -> bool:
-    """True when the residuals stay within MISFIT_MAX of each sensor's full reading c |a_i| (RMS;
-    beyond it `station.calibrate` decides: a wrong face label, a unit that moved) and no
-    parameter can be undetermined or loose: the trace bounds of the module notes against
+    """True when the residuals stay within MISFIT_MAX (`_within_misfit`) and no parameter can be
+    undetermined or loose: the trace bounds of the module notes against
     `identifiability.check_information`'s floors."""
     m, p, _ = fit.information.shape
-    misfit = np.sqrt(np.mean(fit.residuals**2, axis=1)) / (c * np.linalg.norm(fit.a, axis=0))
-    if not misfit.max() <= MISFIT_MAX:
+    if not _within_misfit(fit.residuals, fit.a.T, c):
         return False
-    scale = identifiability.natural_scale(fit.a, c, estimate_bias).reshape(m, p)
-    spread = np.einsum("ikk,ik->", fit.inverse, scale**-2.0)  # trace(D^-1 F^-1 D^-1)
-    strength = np.einsum("ikk,ik->", fit.information, scale**2.0)  # trace(D F D)
+    scale = identifiability.natural_scale(fit.a, c, estimate_bias).reshape(m, p) ** 2
+    spread = np.einsum("ikk,ik->", fit.inverse, 1.0 / scale)  # trace(D^-1 F^-1 D^-1)
+    strength = np.einsum("ikk,ik->", fit.information, scale)  # trace(D F D)
     floor = identifiability.INFO_TOL * strength
     if noise_known:
         floor = max(floor, 1.0 / identifiability.LOOSE**2)

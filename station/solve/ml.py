@@ -362,7 +362,7 @@ def sigma_matrix(sigma, m: int) -> np.ndarray:
         if s.shape[0] != m:
             raise ValueError(f"sigma has {s.shape[0]} entries but there are {m} sensors")
         s = s[:, None]
-    if np.any(~np.isfinite(s)) or np.any(s <= 0):
+    if not (np.isfinite(s).all() and (s > 0).all()):
         raise ValueError("sigma must be positive and finite "
                          "(noise standard deviation of the readings)")
     return s
