@@ -13,8 +13,8 @@ turning a full turn about x, y and z (`x_rot`, `y_rot`, `z_rot`, each on the fac
   handedness. Both are one rigid group of poses, whose maximum likelihood is linear: solved in
   closed form (`station.solve.iron_faces.fit_faces`: the estimates and their checks at once, the
   results with the analytic covariance when `accel` / `gyro.fit` are first read), the sections'
-  sums one `np.add.reduceat` per column block (`section_sums`, `face_squares`); `general=True`
-  takes the iterative path instead.
+  sums one `np.add.reduceat` each (`section_sums`); `general=True` takes the iterative path
+  instead.
 
 See docs/realdata.md; `bench/peers.py` runs imucal on the same data.
 """
@@ -241,10 +241,8 @@ def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: fl
     if counts[6:].min() < 2:
         raise CalibrationInputError(
             f"a turn section holds {counts[6:].min()} sample(s).", "Give each turn's samples.")
-    faces = bounds[:6]
-    shift, squares = face_squares(faces, gyro)
-    gyro_sums = section_sums(bounds, gyro)
-    readings = (section_sums(faces, acc) / counts[:6, None]).T
+    acc_sums, gyro_sums, squares, shift = section_sums(bounds, acc, gyro)
+    readings = (acc_sums / counts[:6, None]).T
     face_gyro = gyro_sums[:6] / counts[:6, None]
     solved = fit_faces(readings, FACES, g, bias="estimate", general=general)
 
@@ -266,26 +264,34 @@ def calibrate_ferraris(acc, gyro, fs: float, sections: dict, g: float, angle: fl
     return FerrarisCalibration(solved, readings, turn_cal)
 
 
-def section_sums(bounds: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """(sections, c) sums of x (K, c) over the samples [start, stop) of each section (one row of
-    bounds) in one call: np.add.reduceat over the boundaries, whose even entries are the
-    sections, reading x in place (a column view too). reduceat takes no index K: a section that
-    ends there is summed one sample short and that sample added."""
-    k = len(x)
-    sums = np.add.reduceat(x, np.minimum(bounds, k - 1).ravel(), axis=0)[::2]
-    sums[(bounds[:, 1] == k) & (bounds[:, 0] < k - 1)] += x[k - 1]
-    return sums
-
-
-def face_squares(bounds: np.ndarray, gyro: np.ndarray):
-    """(shift, sums): sum (gyro - shift)^2 over each face section (rows of bounds), shift the
-    first face sample (still: the squares lose no digits). Made on the faces' span of the gyro
-    laid out as rows (contiguous: a (K, 3) column view is 20 x slower to subtract from, and
-    reduceat 3 x slower along it), with a zero column so that a face may end at the span's end."""
+def section_sums(bounds: np.ndarray, acc: np.ndarray, gyro: np.ndarray):
+    """(acc, gyro, squares, shift) summed over the sections (rows of bounds, the six faces
+    first): acc (6, 3) over the faces, gyro (9, 3) over every section, squares (6, 3) the sum of
+    (gyro - shift)^2 over the faces, shift the first face's first sample (still: the squares lose
+    no digits). Each is one np.add.reduceat over the sections' boundaries (its even entries are
+    the sections) on the span they need laid out as rows (`as_rows`)."""
     first, last = int(bounds[:, 0].min()), int(bounds[:, 1].max())
-    shift = gyro[first]
-    squares = np.zeros((3, last - first + 1))
-    squares[:, :-1] = gyro[first:last].T
-    squares[:, :-1] -= shift[:, None]
+    faces = bounds[:6]
+    start, stop = int(faces[:, 0].min()), int(faces[:, 1].max())
+    rows = as_rows(gyro, first, last)
+    gyro_sums = _reduce(rows, (bounds - first).ravel())
+    shift = gyro[bounds[0, 0]]
+    squares = rows[:, start - first: stop - first + 1]  # the faces' span and one column more
+    squares -= shift[:, None]
     squares *= squares
-    return shift, np.add.reduceat(squares, (bounds - first).ravel(), axis=1)[:, ::2].T
+    index = (faces - start).ravel()
+    return _reduce(as_rows(acc, start, stop), index), gyro_sums, _reduce(squares, index), shift
+
+
+def as_rows(x: np.ndarray, first: int, last: int) -> np.ndarray:
+    """x[first:last] (K, c) laid out as rows (c, last - first + 1), contiguous, a zero column
+    appended so that a section may end at `last` (np.add.reduceat takes no index past the end).
+    Along a (K, c) column view reduceat is 3 x and a subtraction 20 x slower."""
+    rows = np.zeros((x.shape[1], last - first + 1))
+    rows[:, :-1] = x[first:last].T
+    return rows
+
+
+def _reduce(rows: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """(sections, c) sums of rows (c, k) over [index[2 j], index[2 j + 1]) for each section j."""
+    return np.add.reduceat(rows, index, axis=1)[:, ::2].T
