@@ -213,9 +213,8 @@ def _within_misfit(residuals: np.ndarray, a: np.ndarray, c: float) -> bool:
     """Whether each sensor's RMS residual (residuals (m, n)) stays within MISFIT_MAX of its full
     reading c |a_i| (a (m, d)); beyond it (a wrong face label, a unit that moved)
     `station.calibrate` decides."""
-    squares = np.einsum("in,in->i", residuals, residuals)
-    return bool((squares <= (MISFIT_MAX * c) ** 2 * residuals.shape[1] * np.einsum(
-        "ik,ik->i", a, a)).all())  # False for NaN
+    limit = (MISFIT_MAX * c) ** 2 * residuals.shape[1] * (a * a).sum(axis=1)
+    return bool(((residuals * residuals).sum(axis=1) <= limit).all())  # False for NaN
 
 
 def _vouched(fit: LinearFit, c: float, estimate_bias: bool, noise_known: bool) -> bool:
