@@ -137,6 +137,18 @@ def test_three_turns_match_the_iterative_ml():
     assert fast.dof == 0 and fast.chi2 == pytest.approx(0, abs=1e-20)
 
 
+def test_the_result_made_later_is_of_the_readings_given():
+    """The result is made when read: changing the caller's arrays before that changes nothing."""
+    readings = six_faces(np.random.default_rng(13), 0.01)
+    sigma = np.full(3, 0.002)
+    solved = fit_faces(readings, list(FACES), G, bias="estimate", sigma=sigma)
+    expected = calibrate_faces(readings, FACES, G, bias="estimate", sigma=sigma)
+    readings[:] = 0.0
+    sigma[:] = 1.0
+    np.testing.assert_array_equal(solved.result.a, expected.a)
+    np.testing.assert_array_equal(solved.result.a_sigma, expected.a_sigma)
+
+
 def test_six_faces_are_the_linear_regression():
     """b = mean of the six readings, a's column k (iron frame) = (z(+k) - z(-k)) / (2 g), and the
     1-sigmas of a linear regression with s^2 = RSS / 6, widened by (t_6(0.975) / 1.96)^2."""

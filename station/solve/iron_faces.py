@@ -116,7 +116,9 @@ def fit_faces(readings, faces, magnitude: float | None, *, bias=None, sigma=None
     parameters named), decided when it is made. Any other design, or general=True:
     `station.calibrate` at once, its estimate rotated into the iron's frame.
     """
-    readings = as_readings(readings)
+    # copies: the result is made later, from what the caller gave now
+    readings, faces = as_readings(readings).copy(), tuple(faces)
+    sigma = None if sigma is None else np.array(sigma, float)
     m, n = readings.shape
     estimate_bias = isinstance(bias, str) and bias == "estimate"
     c = 1.0 if magnitude is None else float(magnitude)
@@ -127,7 +129,7 @@ def fit_faces(readings, faces, magnitude: float | None, *, bias=None, sigma=None
 
     if not general and _closed_form_fits(faces, n, bias, estimate_bias):
         white = ml.sigma_matrix(sigma, m)
-        x, hat = _design(tuple(faces), c, estimate_bias)
+        x, hat = _design(faces, c, estimate_bias)
         if np.ndim(sigma) < 2 or n == x.shape[1]:
             theta = readings @ hat
             if _within_misfit(readings - theta @ x.T, theta[:, :3], c):
