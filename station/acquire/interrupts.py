@@ -18,8 +18,13 @@ other thread (the recorder's reader, a heartbeat) waits for ever while the stati
 lockstep clock (`drivers.clock.SteppedClock._wait`) and the log handler
 (`station.cli.log_handler`). `tests/signal_places.py` raises the interrupt at every place it can
 land in a call; tests/test_lockstep.py, test_table_modbus.py and test_cli_logging.py sweep it.
+A main thread that only waits to be told to end (`station twin`) waits on a `Wake`, which takes
+no lock at all.
 """
 
+import contextlib
+import os
+import select
 import signal
 import threading
 
@@ -90,3 +95,30 @@ def _interrupted(number, frame):
     global _pending
     _pending = "interrupted (Ctrl-C)" if number == signal.SIGINT else "terminated (SIGTERM)"
     raise KeyboardInterrupt(_pending)
+
+
+class Wake:
+    """A wait that a signal handler or another thread ends, with no lock anywhere: `set()` writes
+    a byte to a pipe (`os.write`: safe in a handler), `wait(timeout)` selects on it (a Ctrl-C
+    raises out of the select, holding nothing). `threading.Event` is not that: its `wait` holds
+    a Python lock inside a `with`, where a Ctrl-C can leave it taken; the next `set()`, a twin
+    thread's failure or a SIGTERM handler's in the main thread (the lock is not reentrant),
+    then blocks for ever. `close()` it once nothing can call `set()` any more."""
+
+    def __init__(self):
+        self._read, self._write = os.pipe()
+        os.set_blocking(self._write, False)
+
+    def set(self, *_) -> None:
+        """Wake the wait (now or the next one); usable as a signal handler."""
+        with contextlib.suppress(BlockingIOError):  # a full pipe is awake already
+            os.write(self._write, b"\0")
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """True when woken (`set` called) within `timeout` seconds (None: for ever)."""
+        return bool(select.select([self._read], [], [], timeout)[0])
+
+    def close(self) -> None:
+        """Close the pipe (a `set()` after it would write to whatever file takes its number)."""
+        os.close(self._read)
+        os.close(self._write)

@@ -62,9 +62,9 @@ The CAN twin (a python-can virtual channel) is visible only inside one process:
 import contextlib
 import json
 import signal
-import threading
 from pathlib import Path
 
+from station.acquire import interrupts
 from station.protocols import KINDS, kinds_with
 
 
@@ -201,14 +201,14 @@ def run(args) -> int:
     if args.table_log:
         twin.bench.table_twin.write_log = args.table_log
     twin.bench.table_reply = args.table_reply
-    stop = threading.Event()
+    stop = interrupts.Wake()
     devices = {signal.SIGUSR1: "imu", signal.SIGUSR2: "table"}
     if not KINDS[args.protocol].table:
         del devices[signal.SIGUSR2]
     if args.chamber:
         devices[signal.SIGHUP] = "chamber"
     previous = {number: signal.getsignal(number) for number in (signal.SIGTERM, *devices)}
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, stop.set)
     twin.failures.on_failure = lambda words: stop.set()  # a twin stopped: end with its error
     try:
         with twin:
@@ -236,6 +236,7 @@ def run(args) -> int:
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+        stop.close()  # the twin stopped, the handler put back: nothing calls stop.set() now
     if args.json:
         print(json.dumps({"truth": truth}), flush=True)
     return 0
