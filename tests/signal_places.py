@@ -7,6 +7,7 @@ session file). `ends(call, guard)` asks whether a call another thread makes stil
 left taken blocks it for ever)."""
 
 import dis
+import os
 import sys
 import threading
 
@@ -14,14 +15,17 @@ BREAKERS = {"CALL", "CALL_FUNCTION_EX", "JUMP_BACKWARD"}
 """Bytecodes after which CPython 3.11 checks its eval breaker (runs pending signal handlers)."""
 
 
-def interrupted_at(k: int, call, code: tuple) -> str | None:
+def interrupted_at(k: int, call, code: tuple, send: int | None = None,
+                   armed=None) -> str | None:
     """Run `call()` in this thread with a KeyboardInterrupt raised at the k-th place a Ctrl-C's
     handler can run in `code` (file paths or directory prefixes): when a frame starts, after a
     call returns and at a loop's jump back, never at a NOP (which no `with` or `try` covers) nor
     between a PRECALL and its CALL. The handler's exception belongs to the call (or the jump):
     raised at the next bytecode instead, it stands for it where both are covered by the same
-    `with` or `try` (or by none). Where it was raised ("_wait line 261 (place 7)"), or None
-    (the call ended before its k-th place)."""
+    `with` or `try` (or by none). With `send` (a signal number) the signal is sent to this
+    process there instead, its installed handler deciding what happens; with `armed`, places
+    count only once `armed()` is true. Where it was raised or sent ("_wait line 261 (place
+    7)"), or None (the call ended before its k-th place)."""
     codes, last, count, where = {}, {}, 0, []
 
     def handler(code, offset):
@@ -41,11 +45,13 @@ def interrupted_at(k: int, call, code: tuple) -> str | None:
         last[frame] = now
         called = (ops.get(before) in BREAKERS or before == 0
                   or ops.get(before) == "PRECALL" and ops.get(now) != "CALL")
-        if called and handler(code, before) == handler(code, now):
+        if called and handler(code, before) == handler(code, now) and (armed is None or armed()):
             count += 1
             if count == k:
                 where.append(f"{code.co_name} line {frame.f_lineno} (place {k})")
-                raise KeyboardInterrupt(where[0])
+                if send is None:
+                    raise KeyboardInterrupt(where[0])
+                os.kill(os.getpid(), send)  # its handler runs here, at the next bytecode
         return local
 
     def tracer(frame, event, arg):

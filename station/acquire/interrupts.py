@@ -6,7 +6,10 @@ dropped, so a KeyboardInterrupt from Ctrl-C could vanish and the recording go on
 table turning. `install()` makes SIGINT and SIGTERM (`kill`) raise KeyboardInterrupt and also
 remember it; `raise_dropped()`, called wherever a protocol polls its devices
 (`station.acquire.recorder.Recorder.check`), raises it again if nobody has handled it; whoever
-handles it (stops the table, records the abort) calls `handled()` first.
+handles it (stops the table, records the abort) does so inside `with handling(exc) as cause:`.
+From the moment the handler raises until the interrupt is handled (the `handling` block ends,
+or `handled()`), a second Ctrl-C (a technician pressing twice) is remembered, not raised in the
+middle of the abort.
 
 A device watched from another thread (the thermal chamber while a session records) stops the
 recording the same way: `deliver(error)` makes the main thread's next `raise_dropped()` raise it.
@@ -30,6 +33,8 @@ import threading
 
 _pending: str | None = None
 _delivered: BaseException | None = None
+_shielded = False  # an interrupt was raised: a further one is only remembered
+_handling = False  # ... and is being handled (`handling`)
 
 
 def install() -> dict:
@@ -50,7 +55,9 @@ def restore(previous: dict) -> None:
 
 def raise_dropped() -> None:
     """Raise KeyboardInterrupt again for a signal whose first one was dropped, or the error
-    another thread delivered."""
+    another thread delivered; nothing while an interrupt is being handled."""
+    if _handling:
+        return
     if _pending is not None:
         raise KeyboardInterrupt(f"{_pending} (raised again: the first was dropped)")
     if _delivered is not None:
@@ -71,19 +78,22 @@ def withdraw(error: BaseException) -> None:
 
 
 def handled() -> None:
-    """The interrupt (or delivered error) is being handled: `raise_dropped` no longer raises it."""
-    global _pending, _delivered
+    """The interrupt (or delivered error) is handled: `raise_dropped` no longer raises it, and
+    the next signal raises again."""
+    global _pending, _delivered, _shielded, _handling
     _pending = _delivered = None
+    _shielded = _handling = False
 
 
-def handled_as(exc: BaseException) -> BaseException:
-    """`handled()`, and what `exc` stands for: the interrupt itself (KeyboardInterrupt, `exc`
-    its cause) when one was pending and `exc` is another error. The handler's KeyboardInterrupt
-    can land inside a library's lock handling, which then raises its own error instead (seen:
-    "RuntimeError: cannot release un-acquired lock" from a Ctrl-C at a position's start, the
-    station exiting 1 with a traceback instead of 130)."""
+def _stands_for(exc: BaseException) -> BaseException:
+    """What `exc` stands for, the pending interrupt forgotten: the interrupt itself
+    (KeyboardInterrupt, `exc` its cause) when one was pending and `exc` is another error. The
+    handler's KeyboardInterrupt can land inside a library's lock handling, which then raises its
+    own error instead (seen: "RuntimeError: cannot release un-acquired lock" from a Ctrl-C at a
+    position's start, the station exiting 1 with a traceback instead of 130)."""
+    global _pending, _delivered
     pending = _pending
-    handled()
+    _pending = _delivered = None
     if pending is None or isinstance(exc, KeyboardInterrupt):
         return exc
     interrupt = KeyboardInterrupt(pending)
@@ -91,10 +101,28 @@ def handled_as(exc: BaseException) -> BaseException:
     return interrupt
 
 
+@contextlib.contextmanager
+def handling(exc: BaseException):
+    """What `exc` stands for (`exc`, or the interrupt it came from) for the block that handles
+    it (stops the table, records the abort), the interrupt handled when the block ends. Until
+    then a further SIGINT or SIGTERM is remembered, not raised in the middle of it: the shield
+    goes up when the handler raises the first, so no bytecode between the two is open.
+    Measured before it: a second Ctrl-C in the abort event's write left the session without its
+    `abort` (tests/test_abort_shield.py)."""
+    global _shielded, _handling
+    _shielded = _handling = True  # for a delivered error too
+    try:
+        yield _stands_for(exc)
+    finally:
+        handled()
+
+
 def _interrupted(number, frame):
-    global _pending
+    global _pending, _shielded
     _pending = "interrupted (Ctrl-C)" if number == signal.SIGINT else "terminated (SIGTERM)"
-    raise KeyboardInterrupt(_pending)
+    if not _shielded:
+        _shielded = True
+        raise KeyboardInterrupt(_pending)
 
 
 class Wake:

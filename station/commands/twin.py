@@ -232,6 +232,7 @@ def run(args) -> int:
                           f"  station record --profile {args.profile_out}\n"
                           "Ctrl-C stops the twin.", flush=True)
                 stop.wait(args.lifetime)
+            interrupts.handled()  # the Ctrl-C that ends the twin: a next one breaks its shutdown
             truth = twin.truth()
     finally:
         for number, handler in previous.items():

@@ -305,9 +305,10 @@ class RotaryProtocol:
         except SessionPaused:
             raise  # table stopped and `pause` recorded already
         except BaseException as exc:
-            cause = interrupts.handled_as(exc)
-            log.warning("position %d aborted in state %s: %r", self.position + 1, self.state, exc)
-            self._abort(cause)
+            with interrupts.handling(exc) as cause:
+                log.warning("position %d aborted in state %s: %r", self.position + 1, self.state,
+                            exc)
+                self._abort(cause)
             if cause is exc:
                 raise
             raise cause from exc

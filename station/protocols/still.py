@@ -250,12 +250,12 @@ def run_states(protocol, recorder, first: str) -> None:
         while protocol.state != "done":
             protocol.state = protocol.handlers[protocol.state]()
     except BaseException as exc:
-        cause = interrupts.handled_as(exc)
-        try:
-            recorder.event("abort", protocol.position, {
-                "state": protocol.state, "error": f"{type(cause).__name__}: {cause}"})
-        except Exception as record_error:  # noqa: BLE001
-            cause.add_note(f"and the abort could not be recorded ({record_error})")
+        with interrupts.handling(exc) as cause:
+            try:
+                recorder.event("abort", protocol.position, {
+                    "state": protocol.state, "error": f"{type(cause).__name__}: {cause}"})
+            except Exception as record_error:  # noqa: BLE001
+                cause.add_note(f"and the abort could not be recorded ({record_error})")
         if cause is exc:
             raise
         raise cause from exc

@@ -358,18 +358,19 @@ def _leave_safe(exc: BaseException, bench, settings: ChamberSettings,
                 campaign) -> BaseException:
     """After `exc` (the chamber already sent to its safe setpoint by its driver): stop the
     table, and say on the error to raise (`exc`, or the interrupt it stands for:
-    station.acquire.interrupts.handled_as) what was done and how to go on; returns that error."""
+    station.acquire.interrupts.handling, where a second Ctrl-C is remembered, not raised) what
+    was done and how to go on; returns that error."""
     from station.acquire import interrupts
     from station.acquire.bench import stop_table
 
-    cause = interrupts.handled_as(exc)
-    if cause is not exc and getattr(exc, "chamber_safe", False):
-        cause.chamber_safe = True
-    exc = cause
-    try:
-        exc.table_stopped = stop_table(bench.source)
-    except Exception as stop_error:  # noqa: BLE001 - said on the error being raised
-        exc.add_note(f"the table could not be stopped ({stop_error}); stop it by hand")
+    with interrupts.handling(exc) as cause:
+        if cause is not exc and getattr(exc, "chamber_safe", False):
+            cause.chamber_safe = True
+        exc = cause
+        try:
+            exc.table_stopped = stop_table(bench.source)
+        except Exception as stop_error:  # noqa: BLE001 - said on the error being raised
+            exc.add_note(f"the table could not be stopped ({stop_error}); stop it by hand")
     if getattr(exc, "chamber_safe", False):
         exc.add_note(f"the chamber was sent to its safe setpoint {settings.safe:.2f} K")
     k = campaign.next_soak()
