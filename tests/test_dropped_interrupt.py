@@ -31,6 +31,10 @@ def test_a_dropped_interrupt_is_raised_again_until_handled(number):
     previous = interrupts.install()
     try:
         Finalised(number)  # its KeyboardInterrupt is printed and dropped, nothing raises here
+        with pytest.raises(KeyboardInterrupt, match="SIGTERM|Ctrl-C"):  # the next one raises:
+            os.kill(os.getpid(), signal.SIGTERM)  # the dropped one is not being handled
+            for _ in range(10_000):
+                pass
         with pytest.raises(KeyboardInterrupt, match="dropped"):
             interrupts.raise_dropped()
         interrupts.handled()

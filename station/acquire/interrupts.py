@@ -29,19 +29,23 @@ import contextlib
 import os
 import select
 import signal
+import sys
 import threading
 
 _pending: str | None = None
 _delivered: BaseException | None = None
 _shielded = False  # an interrupt was raised: a further one is only remembered
 _handling = False  # ... and is being handled (`handling`)
+_next_hook = sys.unraisablehook
 
 
 def install() -> dict:
     """Handle SIGINT and SIGTERM as above (main thread only); returns the previous handlers for
     `restore`."""
+    global _next_hook
     if threading.current_thread() is not threading.main_thread():
         return {}
+    _next_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
     return {number: signal.signal(number, _interrupted) for number in (signal.SIGINT,
                                                                        signal.SIGTERM)}
 
@@ -50,6 +54,8 @@ def restore(previous: dict) -> None:
     """Put back the handlers `install` replaced; forget any interrupt."""
     for number, handler in previous.items():
         signal.signal(number, handler)
+    if previous:
+        sys.unraisablehook = _next_hook
     handled()
 
 
@@ -115,6 +121,16 @@ def handling(exc: BaseException):
         yield _stands_for(exc)
     finally:
         handled()
+
+
+def _unraisable(unraisable) -> None:
+    """Python dropped an exception it could not raise (in a finaliser, a weakref callback): a
+    dropped interrupt is not on its way to a handler, so the shield falls with it (the next
+    Ctrl-C raises; `raise_dropped` raises this one again)."""
+    global _shielded
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and not _handling:
+        _shielded = False
+    _next_hook(unraisable)
 
 
 def _interrupted(number, frame):
