@@ -3,8 +3,9 @@ at the k-th place of `call()` where CPython 3.11 runs a signal handler, in the c
 (or under the directories) `code`. A test sweeps k = 1, 2, ... until the call ends first, and
 checks after each what must hold after a Ctrl-C anywhere (tests/test_lockstep.py: the clock;
 tests/test_table_modbus.py: the table; test_cli_logging.py: the log; test_session_kill.py: the
-session file). `ends(call, guard)` asks whether a call another thread makes still returns (a lock
-left taken blocks it for ever)."""
+session file; test_wake.py: `station twin`'s wait; test_abort_shield.py, with a real signal
+sent instead: a second Ctrl-C during an abort). `ends(call, guard)` asks whether a call
+another thread makes still returns (a lock left taken blocks it for ever)."""
 
 import dis
 import os

@@ -45,7 +45,8 @@ def install() -> dict:
     global _next_hook
     if threading.current_thread() is not threading.main_thread():
         return {}
-    _next_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
+    if sys.unraisablehook is not _unraisable:  # installed twice: chained once, not to itself
+        _next_hook, sys.unraisablehook = sys.unraisablehook, _unraisable
     return {number: signal.signal(number, _interrupted) for number in (signal.SIGINT,
                                                                        signal.SIGTERM)}
 
@@ -54,7 +55,7 @@ def restore(previous: dict) -> None:
     """Put back the handlers `install` replaced; forget any interrupt."""
     for number, handler in previous.items():
         signal.signal(number, handler)
-    if previous:
+    if previous and sys.unraisablehook is _unraisable:
         sys.unraisablehook = _next_hook
     handled()
 
@@ -92,17 +93,14 @@ def handled() -> None:
 
 
 def _stands_for(exc: BaseException) -> BaseException:
-    """What `exc` stands for, the pending interrupt forgotten: the interrupt itself
-    (KeyboardInterrupt, `exc` its cause) when one was pending and `exc` is another error. The
-    handler's KeyboardInterrupt can land inside a library's lock handling, which then raises its
-    own error instead (seen: "RuntimeError: cannot release un-acquired lock" from a Ctrl-C at a
-    position's start, the station exiting 1 with a traceback instead of 130)."""
-    global _pending, _delivered
-    pending = _pending
-    _pending = _delivered = None
-    if pending is None or isinstance(exc, KeyboardInterrupt):
+    """What `exc` stands for: the pending interrupt itself (KeyboardInterrupt, `exc` its cause)
+    when one was pending and `exc` is another error. The handler's KeyboardInterrupt can land
+    inside a library's lock handling, which then raises its own error instead (seen:
+    "RuntimeError: cannot release un-acquired lock" from a Ctrl-C at a position's start, the
+    station exiting 1 with a traceback instead of 130)."""
+    if _pending is None or isinstance(exc, KeyboardInterrupt):
         return exc
-    interrupt = KeyboardInterrupt(pending)
+    interrupt = KeyboardInterrupt(_pending)
     interrupt.__cause__ = exc
     return interrupt
 

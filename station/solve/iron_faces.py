@@ -167,7 +167,7 @@ def _closed_result(readings, x, white, estimated: bool, c: float, scale_known: b
         return _fit_at(readings, x, 1.0 / noise**2, theta, estimated)
 
     fit = fit_with(np.broadcast_to(white, readings.shape))
-    if not _vouched(fit, c, estimate_bias, not estimated or fit.dof > 0):
+    if not _determined(fit, c, estimate_bias, not estimated or fit.dof > 0):
         return general()
     args = ("factorization", "closed form", True, c, scale_known, estimate_bias, None)
     if estimated:
@@ -219,13 +219,11 @@ def _within_misfit(residuals: np.ndarray, a: np.ndarray, c: float) -> bool:
     return bool(((residuals * residuals).sum(axis=1) <= limit).all())  # False for NaN
 
 
-def _vouched(fit: LinearFit, c: float, estimate_bias: bool, noise_known: bool) -> bool:
-    """True when the residuals stay within MISFIT_MAX (`_within_misfit`) and no parameter can be
-    undetermined or loose: the trace bounds of the module notes against
-    `identifiability.check_information`'s floors."""
+def _determined(fit: LinearFit, c: float, estimate_bias: bool, noise_known: bool) -> bool:
+    """True when no parameter can be undetermined or loose: the trace bounds of the module notes
+    against `identifiability.check_information`'s floors (the residuals at the same estimate
+    passed `_within_misfit` in `fit_faces`)."""
     m, p, _ = fit.information.shape
-    if not _within_misfit(fit.residuals, fit.a.T, c):
-        return False
     scale = identifiability.natural_scale(fit.a, c, estimate_bias).reshape(m, p) ** 2
     spread = np.einsum("ikk,ik->", fit.inverse, 1.0 / scale)  # trace(D^-1 F^-1 D^-1)
     strength = np.einsum("ikk,ik->", fit.information, scale)  # trace(D F D)
